@@ -1,0 +1,510 @@
+"""The MCAP writer: one action execution -> one chunked, zstd-compressed ``ros2`` MCAP file.
+
+A rig's stream items become ROS 2 CDR messages on the contract's channels
+(``schemas.CHANNELS``); MCAP ``log_time`` is the receive time, ``publish_time`` the sensor
+stamp. The file is written under a temporary name (``<stem>.<token>.mcap.part``) beside the
+target, flushed to the operating system at least every ``flush_interval_ns`` of log time (a
+killed recorder loses less than that plus one sensor block), and linked to its final name only
+when complete. The link fails if the final name exists: two recorders never clobber each other
+and a recording is never overwritten.
+
+Nothing in a file depends on the wall clock: the same rig, seed and software give the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any, Self
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from recorder._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
+from recorder.errors import OutputExistsError, RecorderError
+from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Mapping
+    from types import TracebackType
+
+    from rosbags.typesys.store import Typestore
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder._rig import Rig
+    from recorder._stream import StreamItem
+
+#: Name of the file-level MCAP metadata record describing the recording.
+METADATA_NAME = "atikt.recording"
+#: MCAP profile of every recording.
+PROFILE = "ros2"
+#: Joint names of the UR10, in the order of the joint-state arrays.
+UR10_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+#: Default time between flushes, in log time: a killed recorder loses less than this.
+FLUSH_INTERVAL_NS = 500_000_000
+#: Suffix of a recording that is still being written (or was abandoned).
+PART_SUFFIX = ".mcap.part"
+
+_NS_PER_S = 1_000_000_000
+_SKIN_TYPES = {
+    Modality.FORCE: "SkinForce",
+    Modality.TEMPERATURE: "SkinTemperature",
+    Modality.ACCELERATION: "SkinAcceleration",
+    Modality.PROXIMITY: "SkinProximity",
+}
+
+
+def software_version() -> str:
+    """Return the installed version of the project's distribution ("unknown" if not installed)."""
+    try:
+        return importlib_metadata.version("atikt")
+    except importlib_metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingInfo:
+    """What a recording is: the content of its ``atikt.recording`` metadata record.
+
+    Attributes:
+        object_id: Catalog id of the explored object.
+        object_name: Human-readable object name.
+        object_novel: True for a "new" object, False for an "old" (prior) one.
+        action: The executed action.
+        trial: Trial number of this (object, action).
+        rig: The rig's kind and configuration (``Rig.describe()``).
+        seed: Seed the rig was created with.
+    """
+
+    object_id: str
+    object_name: str
+    object_novel: bool
+    action: ActionSpec
+    trial: int
+    rig: Mapping[str, str]
+    seed: int
+
+    @classmethod
+    def create(
+        cls, obj: ObjectSpec, action: ActionSpec, trial: int, rig: Rig, seed: int
+    ) -> RecordingInfo:
+        """Describe the execution of ``action`` on ``obj`` by ``rig``.
+
+        Returns:
+            The recording's description.
+        """
+        return cls(obj.id, obj.name, obj.novel, action, trial, dict(rig.describe()), seed)
+
+    def to_metadata(self) -> dict[str, str]:
+        """Return the metadata record's key-value pairs (JSON for structured values).
+
+        Returns:
+            Keys and string values, deterministic (sorted JSON keys, no wall-clock time).
+        """
+        return {
+            "object_id": self.object_id,
+            "object_name": self.object_name,
+            "object_novel": json.dumps(self.object_novel),
+            "action_id": self.action.id,
+            "action_kind": str(self.action.kind),
+            "action_parameters": json.dumps(self.action.parameters(), sort_keys=True),
+            "trial": str(self.trial),
+            "rig": json.dumps(dict(self.rig), sort_keys=True),
+            "seed": str(self.seed),
+            "software_version": software_version(),
+            "schema_version": str(SCHEMA_VERSION),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class WrittenRecording:
+    """What the writer wrote.
+
+    Attributes:
+        path: Final path of the recording.
+        message_counts: Messages per topic.
+        start_ns: First log time, ns.
+        end_ns: Last log time, ns.
+        size_bytes: File size in bytes.
+    """
+
+    path: Path
+    message_counts: Mapping[str, int]
+    start_ns: int
+    end_ns: int
+    size_bytes: int
+
+
+def _time(store: Typestore, stamp_ns: int) -> Any:  # noqa: ANN401 (typestore message class)
+    """Return a ``builtin_interfaces/msg/Time`` for an integer-nanosecond stamp."""
+    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    return store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+@dataclass(slots=True)
+class _Encoder:
+    """Turns stream items into (topic, publish time, CDR bytes)."""
+
+    info: RecordingInfo
+    store: Typestore = field(default_factory=build_typestore)
+
+    def encode(self, item: StreamItem) -> tuple[str, int, bytes]:
+        """Return the topic, sensor stamp and CDR payload of one stream item.
+
+        Raises:
+            RecorderError: The item is not a stream item or its arrays have the wrong shape.
+        """
+        encoders: dict[type, Callable[[Any], tuple[str, bytes]]] = {
+            SkinBlock: self._skin,
+            JointSample: self._joint,
+            PoseSample: self._pose,
+            PhaseEvent: self._event,
+        }
+        encoder = encoders.get(type(item))
+        if encoder is None:
+            msg = f"rig yielded {type(item).__name__}; a rig must yield recorder.StreamItem values"
+            raise RecorderError(msg)
+        topic, payload = encoder(item)
+        return topic, item.stamp_ns, payload
+
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:  # noqa: ANN401
+        return self.store.types["std_msgs/msg/Header"](
+            stamp=_time(self.store, stamp_ns), frame_id=frame_id
+        )
+
+    def _serialize(self, msg: object, msgtype: str) -> bytes:
+        return bytes(self.store.serialize_cdr(msg, msgtype))
+
+    def _skin(self, block: SkinBlock) -> tuple[str, bytes]:
+        data = np.asarray(block.data, dtype=np.float32)
+        if data.ndim != 3 or data.shape[0] == 0:  # noqa: PLR2004 (samples, cells, channels)
+            msg = (
+                f"{block.modality} block of shape {data.shape}: a skin block needs shape "
+                "(samples >= 1, cells, channels)"
+            )
+            raise RecorderError(msg)
+        msgtype = full_type_name(_SKIN_TYPES[block.modality])
+        n_samples, n_cells, n_channels = data.shape
+        message = self.store.types[msgtype](
+            header=self._header(block.stamp_ns, "skin"),
+            schema_version=SCHEMA_VERSION,
+            sample_period_ns=block.period_ns,
+            n_samples=n_samples,
+            n_cells=n_cells,
+            n_channels=n_channels,
+            cell_ids=np.arange(n_cells, dtype=np.uint16),
+            data=np.ascontiguousarray(data).reshape(-1),
+        )
+        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+
+    def _joint(self, sample: JointSample) -> tuple[str, bytes]:
+        msgtype = "sensor_msgs/msg/JointState"
+        message = self.store.types[msgtype](
+            header=self._header(sample.stamp_ns, _FRAME_BY_TYPE[msgtype]),
+            name=list(UR10_JOINTS),
+            position=_vector(sample.position, 6, "joint position"),
+            velocity=_vector(sample.velocity, 6, "joint velocity"),
+            effort=_vector(sample.effort, 6, "joint effort"),
+        )
+        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+
+    def _pose(self, sample: PoseSample) -> tuple[str, bytes]:
+        msgtype = "geometry_msgs/msg/PoseStamped"
+        types = self.store.types
+        x, y, z = _vector(sample.position, 3, "TCP position")
+        qx, qy, qz, qw = _vector(sample.orientation, 4, "TCP orientation")
+        pose = types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+        )
+        message = types[msgtype](
+            header=self._header(sample.stamp_ns, _FRAME_BY_TYPE[msgtype]), pose=pose
+        )
+        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+
+    def _event(self, event: PhaseEvent) -> tuple[str, bytes]:
+        msgtype = full_type_name("ActionEvent")
+        action = self.info.action
+        message = self.store.types[msgtype](
+            header=self._header(event.stamp_ns, _FRAME_BY_TYPE[msgtype]),
+            schema_version=SCHEMA_VERSION,
+            object_id=self.info.object_id,
+            action_id=action.id,
+            action_kind=str(action.kind),
+            trial=self.info.trial,
+            phase=str(event.phase),
+            depth_m=action.depth_m,
+            force_n=action.force_n,
+            speed_m_s=action.speed_m_s,
+            duration_s=action.duration_s,
+        )
+        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+
+
+_TOPIC_BY_TYPE = {channel.msgtype: channel.topic for channel in CHANNELS}
+_FRAME_BY_TYPE = {channel.msgtype: channel.frame for channel in CHANNELS}
+
+
+def _vector(values: Iterable[float], size: int, what: str) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """Return ``values`` as a float64 vector of length ``size``.
+
+    Raises:
+        RecorderError: The length is wrong.
+    """
+    array = np.asarray(values, dtype=np.float64).reshape(-1)
+    if array.shape != (size,):
+        msg = f"{what} has {array.size} values; the rig must give {size}"
+        raise RecorderError(msg)
+    return array
+
+
+def _temporary_path(final: Path) -> Path:
+    """Return a fresh temporary name beside ``final`` (``<stem>.<token>.mcap.part``)."""
+    stem = final.name.removesuffix(".mcap")
+    return final.with_name(f"{stem}.{os.getpid()}-{secrets.token_hex(4)}{PART_SUFFIX}")
+
+
+def _exists_error(final: Path) -> OutputExistsError:
+    msg = (
+        f"{final}: a recording with this name exists and is never overwritten; "
+        "choose another --out directory or trial number, or delete the file first"
+    )
+    return OutputExistsError(msg)
+
+
+def _link_no_replace(temporary: Path, final: Path) -> None:
+    """Give the complete file ``temporary`` the name ``final``, never replacing a file.
+
+    Hard-linking is atomic and fails if ``final`` exists. Where the file system has no hard
+    links, the final name is reserved by exclusive creation before the rename.
+
+    Raises:
+        OutputExistsError: ``final`` exists.
+        RecorderError: The file system refused both ways.
+    """
+    try:
+        os.link(temporary, final)
+    except FileExistsError as err:
+        raise _exists_error(final) from err
+    except OSError:
+        _reserve_and_replace(temporary, final)
+    else:
+        temporary.unlink()
+
+
+def _reserve_and_replace(temporary: Path, final: Path) -> None:
+    """Fallback of :func:`_link_no_replace` for file systems without hard links."""
+    try:
+        os.close(os.open(final, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError as err:
+        raise _exists_error(final) from err
+    except OSError as err:
+        msg = f"{final}: cannot create the recording ({err.strerror}); check the directory"
+        raise RecorderError(msg) from err
+    temporary.replace(final)
+
+
+class RecordingWriter:
+    """Write one action execution to ``path`` (a context manager).
+
+    On a clean exit the file is finished, synced and given its final name; on an error the
+    temporary file is removed and the final name is never created.
+
+    Example:
+        >>> with RecordingWriter(path, info) as writer:  # doctest: +SKIP
+        ...     for item in rig.perform(obj, action, trial):
+        ...         writer.write(item)
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        info: RecordingInfo,
+        *,
+        flush_interval_ns: int = FLUSH_INTERVAL_NS,
+        chunk_size: int = 4 * 1024 * 1024,
+        compression: CompressionType = CompressionType.ZSTD,
+    ) -> None:
+        """Prepare to write ``path``; nothing is created before ``__enter__``.
+
+        Args:
+            path: Final path of the recording (``.mcap``).
+            info: What is recorded, for the metadata record and the annotations.
+            flush_interval_ns: Flush at least this often in log time, ns.
+            chunk_size: Largest uncompressed chunk, bytes (flushes usually end chunks first).
+            compression: Chunk compression (zstd; NONE for debugging).
+        """
+        self.path = Path(path)
+        self.info = info
+        self._flush_interval_ns = flush_interval_ns
+        self._chunk_size = chunk_size
+        self._compression = compression
+        self._encoder = _Encoder(info)
+        self._temporary: Path | None = None
+        self._stream: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._channel_ids: dict[str, int] = {}
+        self._sequences: dict[str, int] = {}
+        self._last_flush_ns: int | None = None
+        self._start_ns: int | None = None
+        self._end_ns = 0
+        self.result: WrittenRecording | None = None
+
+    def __enter__(self) -> Self:
+        """Create the temporary file and write the header, schemas, channels and metadata.
+
+        Raises:
+            OutputExistsError: The final file exists already.
+            RecorderError: The directory or file cannot be created.
+        """
+        if self.path.exists():
+            raise _exists_error(self.path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._temporary = _temporary_path(self.path)
+            self._stream = self._temporary.open("xb")
+        except OSError as err:
+            msg = f"{self.path}: cannot create the recording ({err.strerror}); check --out"
+            raise RecorderError(msg) from err
+        self._writer = self._start(self._stream)
+        return self
+
+    def _start(self, stream: IO[bytes]) -> Writer:
+        """Start the MCAP file: header, metadata record, schemas and channels."""
+        writer = Writer(
+            stream,
+            chunk_size=self._chunk_size,
+            compression=self._compression,
+            enable_data_crcs=True,
+        )
+        writer.start(profile=PROFILE, library=f"atikt/{software_version()}")
+        writer.add_metadata(METADATA_NAME, self.info.to_metadata())
+        store = self._encoder.store
+        for channel in CHANNELS:
+            text, _ = store.generate_msgdef(channel.msgtype, ros_version=2)
+            schema_id = writer.register_schema(channel.msgtype, "ros2msg", text.encode())
+            self._channel_ids[channel.topic] = writer.register_channel(
+                channel.topic, "cdr", schema_id
+            )
+            self._sequences[channel.topic] = 0
+        return writer
+
+    def write(self, item: StreamItem) -> None:
+        """Encode and write one stream item; flush when the flush interval has passed.
+
+        Raises:
+            RecorderError: The writer is not open or the item is malformed.
+        """
+        if self._writer is None:
+            msg = f"{self.path}: write() outside the writer's 'with' block"
+            raise RecorderError(msg)
+        topic, stamp_ns, payload = self._encoder.encode(item)
+        log_ns = item.receive_ns
+        sequence = self._sequences[topic]
+        self._sequences[topic] = sequence + 1
+        self._writer.add_message(self._channel_ids[topic], log_ns, payload, stamp_ns, sequence)
+        self._track_time(log_ns)
+
+    def _track_time(self, log_ns: int) -> None:
+        """Remember the time range and flush when ``flush_interval_ns`` of log time passed."""
+        if self._start_ns is None or self._last_flush_ns is None:
+            self._start_ns = self._last_flush_ns = log_ns
+        self._start_ns = min(self._start_ns, log_ns)
+        self._end_ns = max(self._end_ns, log_ns)
+        if log_ns - self._last_flush_ns >= self._flush_interval_ns:
+            self.flush()
+            self._last_flush_ns = log_ns
+
+    def flush(self) -> None:
+        """End the open chunk and hand everything written so far to the operating system."""
+        if self._writer is not None:
+            self._writer.flush()  # type: ignore[no-untyped-call]
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Finish and publish the file, or remove it if the block failed."""
+        if exc_type is None:
+            self._finish()
+        else:
+            self._discard()
+
+    def _finish(self) -> None:
+        """Write the summary, sync, close and link the file to its final name."""
+        if self._writer is None or self._stream is None or self._temporary is None:
+            return
+        try:
+            self._writer.finish()  # type: ignore[no-untyped-call]
+            self._stream.flush()
+            os.fsync(self._stream.fileno())
+            self._stream.close()
+            _link_no_replace(self._temporary, self.path)
+        except BaseException:
+            self._discard()
+            raise
+        self.result = WrittenRecording(
+            path=self.path,
+            message_counts=dict(self._sequences),
+            start_ns=self._start_ns or 0,
+            end_ns=self._end_ns,
+            size_bytes=self.path.stat().st_size,
+        )
+        self._writer = None
+
+    def _discard(self) -> None:
+        """Close and delete the temporary file."""
+        self._writer = None
+        if self._stream is not None:
+            self._stream.close()
+        if self._temporary is not None:
+            self._temporary.unlink(missing_ok=True)
+
+
+def record_action(
+    rig: Rig,
+    obj: ObjectSpec,
+    action: ActionSpec,
+    trial: int,
+    path: Path,
+    *,
+    seed: int,
+) -> WrittenRecording:
+    """Perform ``action`` on ``obj`` with a connected ``rig`` and record it to ``path``.
+
+    Args:
+        rig: A rig inside its ``with`` block.
+        obj: The object to explore.
+        action: The exploratory action.
+        trial: Trial number of this (object, action).
+        path: Final path of the recording; it must not exist.
+        seed: Seed the rig was created with (for the metadata record).
+
+    Returns:
+        What was written.
+
+    Raises:
+        OutputExistsError: ``path`` exists.
+        RecorderError: The rig or the file failed; no file is left under ``path``.
+    """
+    info = RecordingInfo.create(obj, action, trial, rig, seed)
+    with RecordingWriter(path, info) as writer:
+        for item in rig.perform(obj, action, trial):
+            writer.write(item)
+    if writer.result is None:  # pragma: no cover (the 'with' block always sets it)
+        msg = f"{path}: the recording was not finished"
+        raise RecorderError(msg)
+    return writer.result

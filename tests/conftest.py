@@ -1,0 +1,164 @@
+"""Shared fixtures: a fake rig that streams synthetic signals, and small recordings.
+
+The fake rig stands in for hardware (and for the simulator) in tests of the writer, the
+dataset generation and the reader: its signals are seeded noise shaped like the contract's
+channels, with a short last block per channel so uneven blocks are exercised.
+"""
+
+from __future__ import annotations
+
+import zlib
+from typing import TYPE_CHECKING, Self
+
+import numpy as np
+import pytest
+
+from recorder import (
+    ActionSpec,
+    JointSample,
+    Modality,
+    Phase,
+    PhaseEvent,
+    PoseSample,
+    SkinBlock,
+    StreamItem,
+    load_actions,
+)
+from recorder._catalog import ObjectSpec
+from recorder._writer import record_action
+from schemas import CHANNELS
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Mapping
+    from pathlib import Path
+    from types import TracebackType
+
+NS = 1_000_000_000
+_CHANNELS_PER_CELL = {
+    Modality.FORCE: 3,
+    Modality.TEMPERATURE: 1,
+    Modality.ACCELERATION: 3,
+    Modality.PROXIMITY: 1,
+}
+_TOPICS = {
+    Modality.FORCE: "/skin/force",
+    Modality.TEMPERATURE: "/skin/temperature",
+    Modality.ACCELERATION: "/skin/acceleration",
+    Modality.PROXIMITY: "/skin/proximity",
+}
+CELLS = 7
+
+
+def _channel(topic: str) -> tuple[int, int]:
+    """Return (period_ns, block_samples) of a contract topic."""
+    channel = next(c for c in CHANNELS if c.topic == topic)
+    return round(NS / channel.rate_hz), channel.block_samples
+
+
+class FakeRig:
+    """A rig streaming seeded synthetic signals; ``fail_after`` raises after that many items."""
+
+    def __init__(self, seed: int = 0, time_scale: float = 0.1, fail_after: int | None = None):
+        self.seed = seed
+        self.time_scale = time_scale
+        self.fail_after = fail_after
+        self.connected = False
+
+    def __enter__(self) -> Self:
+        self.connected = True
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.connected = False
+
+    def describe(self) -> Mapping[str, str]:
+        return {"kind": "fake", "seed": str(self.seed), "time_scale": str(self.time_scale)}
+
+    def phases(self, action: ActionSpec) -> list[tuple[Phase, int]]:
+        durations = [0.5, 0.2, action.duration_s * self.time_scale, 0.3]
+        starts, t = [], 2 * NS
+        for phase, duration in zip(
+            (Phase.APPROACH, Phase.CONTACT, Phase.EXECUTE, Phase.RETRACT), durations, strict=True
+        ):
+            starts.append((phase, t))
+            t += round(duration * NS)
+        starts.append((Phase.END, t))
+        return starts
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        key = [self.seed, trial, zlib.crc32(obj.id.encode()), zlib.crc32(action.id.encode())]
+        rng = np.random.default_rng(key)
+        phases = self.phases(action)
+        start, stop = phases[0][1], phases[-1][1]
+        items: list[StreamItem] = [PhaseEvent(t, t, phase) for phase, t in phases]
+        for modality in Modality:
+            items += self._skin(rng, modality, start, stop)
+        items += self._robot(rng, start, stop)
+        items.sort(key=lambda item: item.receive_ns)
+        for count, item in enumerate(items):
+            if self.fail_after is not None and count >= self.fail_after:
+                msg = "fake rig failure"
+                raise RuntimeError(msg)
+            yield item
+
+    def _skin(
+        self, rng: np.random.Generator, modality: Modality, start: int, stop: int
+    ) -> list[StreamItem]:
+        period, block = _channel(_TOPICS[modality])
+        n = (stop - start) // period
+        shape = (n, CELLS, _CHANNELS_PER_CELL[modality])
+        data = (rng.normal(1.0, 0.5, shape) + np.arange(CELLS)[None, :, None]).astype(np.float32)
+        blocks: list[StreamItem] = []
+        for first in range(0, n, block):
+            chunk = data[first : first + block]
+            stamp = start + first * period
+            receive = stamp + (len(chunk) - 1) * period + 1_000_000
+            blocks.append(SkinBlock(modality, stamp, period, receive, chunk))
+        return blocks
+
+    def _robot(self, rng: np.random.Generator, start: int, stop: int) -> list[StreamItem]:
+        period, _ = _channel("/ur10/joint_states")
+        items: list[StreamItem] = []
+        for stamp in range(start, stop, period):
+            q = rng.normal(0.0, 1.0, 18)
+            items.append(JointSample(stamp, stamp + 500_000, q[:6], q[6:12], q[12:]))
+            orientation = rng.normal(0.0, 1.0, 4)
+            orientation /= np.linalg.norm(orientation)
+            items.append(PoseSample(stamp, stamp + 600_000, rng.normal(0, 1, 3), orientation))
+        return items
+
+
+def fake_objects() -> dict[str, ObjectSpec]:
+    """Return a tiny object catalog: one old and one new object."""
+    return {
+        "wood": ObjectSpec("wood", "Wooden board", "a board of beech", novel=False),
+        "sponge": ObjectSpec("sponge", "Soft sponge", "a soft yellow sponge", novel=True),
+    }
+
+
+@pytest.fixture(scope="session")
+def actions() -> dict[str, ActionSpec]:
+    return load_actions()
+
+
+@pytest.fixture(scope="session")
+def objects() -> dict[str, ObjectSpec]:
+    return fake_objects()
+
+
+@pytest.fixture(scope="session")
+def fake_recording(
+    tmp_path_factory: pytest.TempPathFactory,
+    actions: dict[str, ActionSpec],
+    objects: dict[str, ObjectSpec],
+) -> Path:
+    """One recording of the fake rig (S2 on the sponge, trial 3), shared by the tests."""
+    path = tmp_path_factory.mktemp("recording") / "sponge" / "S2" / "003.mcap"
+    with FakeRig(seed=7) as rig:
+        record_action(rig, objects["sponge"], actions["S2"], 3, path, seed=7)
+    return path
