@@ -224,7 +224,6 @@ _KILLED_RECORDER = textwrap.dedent(
     """
     import os, signal, sys
     from pathlib import Path
-from typing import Any
     import numpy as np
     from recorder import JointSample, load_actions
     from recorder._writer import RecordingInfo, RecordingWriter
