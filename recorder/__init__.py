@@ -1,6 +1,14 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
 from recorder._catalog import ActionKind, ActionSpec, load_actions
+from recorder._dataset import (
+    RecordingTask,
+    generate_dataset,
+    plan_dataset,
+    recording_path,
+    register_rig,
+    write_index,
+)
 from recorder._rig import Rig
 from recorder._stream import (
     JointSample,
@@ -11,6 +19,7 @@ from recorder._stream import (
     SkinBlock,
     StreamItem,
 )
+from recorder._writer import RecordingInfo, RecordingWriter, WrittenRecording, record_action
 from recorder.errors import CatalogError, OutputExistsError, RecorderError, RigError
 
 __all__ = [
@@ -24,9 +33,19 @@ __all__ = [
     "PhaseEvent",
     "PoseSample",
     "RecorderError",
+    "RecordingInfo",
+    "RecordingTask",
+    "RecordingWriter",
     "Rig",
     "RigError",
     "SkinBlock",
     "StreamItem",
+    "WrittenRecording",
+    "generate_dataset",
     "load_actions",
+    "plan_dataset",
+    "record_action",
+    "recording_path",
+    "register_rig",
+    "write_index",
 ]

@@ -1,0 +1,364 @@
+"""Dataset generation: many recordings in parallel, laid out for people, with a parquet index.
+
+Layout: ``<root>/<object id>/<action id>/<trial>.mcap`` with the trial number 1-based and
+zero-padded to three digits (``001.mcap``), so a directory listing sorts by trial. Beside the
+recordings, ``<root>/index.parquet`` has one row per recording; it is derived data and
+:func:`write_index` rebuilds it from the files at any time.
+
+Every recording is an independent task (object, action, trial) performed by a fresh rig made
+from the dataset seed; its bytes depend on nothing else, so the dataset is byte-identical
+whatever the number of worker processes or the order the tasks finish in. Existing
+recordings are skipped (an interrupted run resumes) and never overwritten.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import io
+import json
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeAlias
+
+import joblib
+import polars as pl
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from threadpoolctl import threadpool_limits
+
+from recorder._writer import METADATA_NAME, PART_SUFFIX, record_action
+from recorder.errors import OutputExistsError, RecorderError
+from schemas import CHANNELS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Mapping, Sequence
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder._rig import Rig
+
+#: Makes a rig (not yet connected) from a seed.
+RigFactory: TypeAlias = "Callable[[int], Rig]"
+#: File name of a dataset's index, beside the object directories.
+INDEX_NAME = "index.parquet"
+
+_RIGS: dict[str, RigFactory] = {}
+
+
+def register_rig(name: str, factory: RigFactory) -> None:
+    """Make a rig available by name (``--rig NAME``); ``factory(seed)`` returns a new rig."""
+    _RIGS[name] = factory
+
+
+def rig_names() -> tuple[str, ...]:
+    """Return the names of the registered rigs."""
+    return tuple(_RIGS)
+
+
+def rig_factory(name: str) -> RigFactory:
+    """Return the factory of a registered rig.
+
+    Raises:
+        RecorderError: No rig of that name.
+    """
+    try:
+        return _RIGS[name]
+    except KeyError:
+        known = ", ".join(_RIGS) or "none"
+        msg = f"--rig {name}: unknown rig; registered rigs: {known}"
+        raise RecorderError(msg) from None
+
+
+def recording_path(root: Path, object_id: str, action_id: str, trial: int) -> Path:
+    """Return where a dataset keeps trial ``trial`` of ``action_id`` on ``object_id``."""
+    return Path(root) / object_id / action_id / f"{trial:03d}.mcap"
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingTask:
+    """One recording of a dataset: trial ``trial`` (1-based) of ``action`` on ``obj``."""
+
+    obj: ObjectSpec
+    action: ActionSpec
+    trial: int
+
+    def path(self, root: Path) -> Path:
+        """Return the recording's path in the dataset at ``root``."""
+        return recording_path(root, self.obj.id, self.action.id, self.trial)
+
+
+def _select(catalog: Mapping[str, Any], wanted: Sequence[str] | None, what: str) -> list[Any]:
+    """Return the catalog entries named in ``wanted`` (all when None), in catalog order.
+
+    Raises:
+        RecorderError: A name is not in the catalog.
+    """
+    if wanted is None:
+        return list(catalog.values())
+    if unknown := [name for name in wanted if name not in catalog]:
+        msg = (
+            f"--{what} {','.join(unknown)}: not in the {what} catalog; known: {', '.join(catalog)}"
+        )
+        raise RecorderError(msg)
+    return [entry for name, entry in catalog.items() if name in set(wanted)]
+
+
+def plan_dataset(
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    *,
+    object_ids: Sequence[str] | None = None,
+    action_ids: Sequence[str] | None = None,
+    trials: int | None = None,
+) -> list[RecordingTask]:
+    """Return the recordings of a dataset, object by object, action by action, trial by trial.
+
+    Args:
+        objects: Object catalog.
+        actions: Action catalog.
+        object_ids: Objects to record (all when None).
+        action_ids: Actions to record (all when None).
+        trials: Trials per (object, action), numbered from 1; each action's catalog
+            default (``trials``) when None.
+
+    Raises:
+        RecorderError: An id is not in its catalog or ``trials`` is below 1.
+    """
+    if trials is not None and trials < 1:
+        msg = f"--trials {trials}: need at least one trial"
+        raise RecorderError(msg)
+    return [
+        RecordingTask(obj, action, trial)
+        for obj in _select(objects, object_ids, "objects")
+        for action in _select(actions, action_ids, "actions")
+        for trial in range(1, (trials or action.trials) + 1)
+    ]
+
+
+class TaskStatus(enum.StrEnum):
+    """What happened to one task."""
+
+    WRITTEN = "written"
+    SKIPPED = "skipped"
+
+
+@dataclass(frozen=True, slots=True)
+class TaskResult:
+    """The outcome of one task: status and size of the file on disk."""
+
+    task: RecordingTask
+    status: TaskStatus
+    size_bytes: int
+
+
+def run_task(task: RecordingTask, root: Path, factory: RigFactory, seed: int) -> TaskResult:
+    """Record one task with a fresh rig (one BLAS thread: results independent of workers).
+
+    Returns:
+        WRITTEN, or SKIPPED when the file existed (possibly written meanwhile by another run).
+    """
+    path = task.path(root)
+    try:
+        with threadpool_limits(limits=1), factory(seed) as rig:
+            written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
+    except OutputExistsError:
+        return TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size)
+    return TaskResult(task, TaskStatus.WRITTEN, written.size_bytes)
+
+
+@dataclass(frozen=True, slots=True)
+class DatasetReport:
+    """Summary of a dataset run.
+
+    Attributes:
+        root: Dataset directory.
+        written: Recordings written by this run.
+        skipped: Recordings that existed already.
+        index: Path of the rebuilt index.
+        size_bytes: Size of all recordings of the index.
+        incomplete: Temporary files left by interrupted recorders (``*.mcap.part``).
+    """
+
+    root: Path
+    written: int
+    skipped: int
+    index: Path
+    size_bytes: int
+    incomplete: tuple[Path, ...]
+
+
+def generate_dataset(
+    tasks: Sequence[RecordingTask],
+    root: Path,
+    factory: RigFactory,
+    *,
+    seed: int,
+    workers: int | None = None,
+    on_result: Callable[[TaskResult], None] | None = None,
+) -> DatasetReport:
+    """Record ``tasks`` under ``root`` in parallel, skipping existing files, then index.
+
+    Args:
+        tasks: The recordings to make (see :func:`plan_dataset`).
+        root: Dataset directory (created if needed).
+        factory: Makes a rig from the seed; called once per task, in the worker.
+        seed: Dataset seed, given to every rig and written to every file.
+        workers: Worker processes; all cores when None.
+        on_result: Called in the parent for every finished task (progress display).
+
+    Returns:
+        What was written and skipped, and the index.
+
+    Raises:
+        RecorderError: A task failed; recordings finished before it are kept.
+    """
+    root = Path(root)
+    notify = on_result or (lambda _result: None)
+    pending = []
+    for task in tasks:
+        path = task.path(root)
+        if path.exists():
+            notify(TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size))
+        else:
+            pending.append(task)
+    skipped = len(tasks) - len(pending)
+    results = joblib.Parallel(
+        n_jobs=workers or os.cpu_count() or 1, return_as="generator_unordered"
+    )(joblib.delayed(run_task)(task, root, factory, seed) for task in pending)
+    for result in results:
+        skipped += result.status == TaskStatus.SKIPPED
+        notify(result)
+    index = write_index(root)
+    frame = pl.read_parquet(index)
+    return DatasetReport(
+        root=root,
+        written=len(tasks) - skipped,
+        skipped=skipped,
+        index=index,
+        size_bytes=int(frame["size_bytes"].sum()),
+        incomplete=incomplete_files(root),
+    )
+
+
+def _topic_column(topic: str) -> str:
+    """Return the index column counting a topic's messages, e.g. ``n_force``."""
+    return "n_" + topic.rsplit("/", 1)[-1]
+
+
+_INDEX_SCHEMA: dict[str, Any] = {
+    "path": pl.String,
+    "object_id": pl.String,
+    "object_name": pl.String,
+    "novel": pl.Boolean,
+    "action_id": pl.String,
+    "action_kind": pl.String,
+    "trial": pl.Int64,
+    "seed": pl.Int64,
+    "rig": pl.String,
+    "software_version": pl.String,
+    "schema_version": pl.Int64,
+    "size_bytes": pl.Int64,
+    "sha256": pl.String,
+    "start_ns": pl.Int64,
+    "end_ns": pl.Int64,
+    "duration_ns": pl.Int64,
+    "messages": pl.Int64,
+} | {_topic_column(channel.topic): pl.Int64 for channel in CHANNELS}
+
+
+def _summary_row(path: Path, data: bytes) -> dict[str, Any]:
+    """Return the index fields found in a recording's metadata record and statistics."""
+    reader = make_reader(io.BytesIO(data))
+    summary = reader.get_summary()
+    records = {record.name: record.metadata for record in reader.iter_metadata()}
+    if summary is None or summary.statistics is None or METADATA_NAME not in records:
+        msg = f"{path}: no summary or no {METADATA_NAME!r} record; not a finished recording"
+        raise RecorderError(msg)
+    meta, stats = records[METADATA_NAME], summary.statistics
+    counts = {
+        channel.topic: stats.channel_message_counts.get(channel.id, 0)
+        for channel in summary.channels.values()
+    }
+    return {
+        "object_id": meta["object_id"],
+        "object_name": meta["object_name"],
+        "novel": bool(json.loads(meta["object_novel"])),
+        "action_id": meta["action_id"],
+        "action_kind": meta["action_kind"],
+        "trial": int(meta["trial"]),
+        "seed": int(meta["seed"]),
+        "rig": json.loads(meta["rig"]).get("kind", ""),
+        "software_version": meta["software_version"],
+        "schema_version": int(meta["schema_version"]),
+        "start_ns": stats.message_start_time,
+        "end_ns": stats.message_end_time,
+        "duration_ns": stats.message_end_time - stats.message_start_time,
+        "messages": stats.message_count,
+    } | {_topic_column(c.topic): counts.get(c.topic, 0) for c in CHANNELS}
+
+
+def index_row(root: Path, path: Path) -> dict[str, Any]:
+    """Return the index row of one recording.
+
+    Raises:
+        RecorderError: The file cannot be read or is not a finished recording.
+    """
+    try:
+        data = path.read_bytes()
+        row = _summary_row(path, data)
+    except OSError as err:
+        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
+        raise RecorderError(msg) from err
+    except (McapError, ValueError, KeyError, EOFError, struct.error) as err:
+        msg = f"{path}: not a readable recording ({err}); delete it and record it again"
+        raise RecorderError(msg) from err
+    location = {"path": path.relative_to(root).as_posix()}
+    content = {"size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    return location | row | content
+
+
+def recordings(root: Path) -> list[Path]:
+    """Return the finished recordings under ``root``, sorted by path."""
+    return sorted(Path(root).rglob("*.mcap"))
+
+
+def incomplete_files(root: Path) -> tuple[Path, ...]:
+    """Return temporary files of unfinished or interrupted recordings under ``root``."""
+    return tuple(sorted(Path(root).rglob(f"*{PART_SUFFIX}")))
+
+
+def build_index(root: Path, paths: Iterable[Path] | None = None) -> pl.DataFrame:
+    """Return the index of the recordings under ``root`` (one row each, sorted by path).
+
+    Raises:
+        RecorderError: A file is not a readable recording.
+    """
+    root = Path(root)
+    rows = [index_row(root, path) for path in (recordings(root) if paths is None else paths)]
+    return pl.DataFrame(rows, schema=_INDEX_SCHEMA)
+
+
+def write_index(root: Path) -> Path:
+    """Rebuild ``<root>/index.parquet`` from the recordings (atomically replaced).
+
+    Returns:
+        The index path.
+
+    Raises:
+        RecorderError: A file is not a readable recording, or the index cannot be written.
+    """
+    root = Path(root)
+    frame = build_index(root)
+    target = root / INDEX_NAME
+    temporary = root / f".{INDEX_NAME}.{os.getpid()}.tmp"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        frame.write_parquet(temporary)
+        temporary.replace(target)
+    except OSError as err:
+        temporary.unlink(missing_ok=True)
+        msg = f"{target}: cannot write the index ({err.strerror}); check the directory"
+        raise RecorderError(msg) from err
+    return target

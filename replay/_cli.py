@@ -1,0 +1,249 @@
+"""``atikt-replay``: inspect and validate recordings (and, registered elsewhere, learn and study).
+
+A subcommand is one function registered with :func:`command`; its arguments are declared
+with :func:`arg`; it returns the exit status::
+
+    from replay._cli import arg, command
+
+    @command("features", "extract features of a dataset", arg("dir", type=Path))
+    def _features(args: argparse.Namespace) -> int: ...
+
+A module that registers subcommands is listed in :data:`COMMAND_MODULES`; it is imported
+before the command line is parsed. Errors of the project (:class:`replay.errors.ReplayError`)
+are printed as one line on stderr with exit status 1; anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import joblib
+import polars as pl
+from rich.console import Console
+from rich.table import Table
+
+from replay._container import read_summary
+from replay._reader import MODALITIES, parse_metadata, read_recording
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from replay._container import ContainerSummary
+    from replay._reader import ActionRecording
+
+PROG = "atikt-replay"
+#: Modules whose import registers further subcommands (``learn``, ``study``, ...).
+COMMAND_MODULES: tuple[str, ...] = ()
+_NS_PER_S = 1e9
+
+
+@dataclass(frozen=True, slots=True)
+class Argument:
+    """One ``add_argument`` call: flags and keyword options."""
+
+    flags: tuple[str, ...]
+    options: dict[str, Any]
+
+
+def arg(*flags: str, **options: Any) -> Argument:  # noqa: ANN401 (argparse's own options)
+    """Declare an argument of a subcommand, as for ``ArgumentParser.add_argument``."""
+    return Argument(flags, options)
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A registered subcommand."""
+
+    name: str
+    help: str
+    arguments: tuple[Argument, ...]
+    run: Callable[[argparse.Namespace], int]
+
+
+COMMANDS: dict[str, Command] = {}
+
+
+def command(
+    name: str, help_text: str, *arguments: Argument
+) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
+    """Register the decorated function as subcommand ``name``; it returns the exit status."""
+
+    def register(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+        COMMANDS[name] = Command(name, help_text, arguments, run)
+        return run
+
+    return register
+
+
+def _existing(path: Path) -> Path:
+    """Return ``path`` if it exists.
+
+    Raises:
+        ReplayError: It does not.
+    """
+    if not path.exists():
+        msg = f"{path}: no such file or directory; give a recording (.mcap) or a dataset directory"
+        raise ReplayError(msg)
+    return path
+
+
+def dataset_files(root: Path) -> list[Path]:
+    """Return the recordings (``*.mcap``) under a dataset directory, sorted by path."""
+    return sorted(Path(root).rglob("*.mcap"))
+
+
+def _seconds(ns: int) -> str:
+    return f"{ns / _NS_PER_S:.3f} s"
+
+
+def _print_recording(console: Console, recording: ActionRecording) -> None:
+    """Print what a recording holds: metadata, channels, phases."""
+    meta = recording.metadata
+    about = Table(title=str(recording.path), show_header=False)
+    for key in ("object_id", "object_name", "object_novel", "action_id", "action_kind", "trial"):
+        about.add_row(key, str(getattr(meta, key)))
+    about.add_row("action parameters", str(dict(meta.action_parameters)))
+    about.add_row("rig", str(dict(meta.rig)))
+    about.add_row("seed", str(meta.seed))
+    about.add_row("software / schema", f"{meta.software_version} / {meta.schema_version}")
+    console.print(about)
+    channels = Table("channel", "samples", "shape", "rate (Hz)", title="channels")
+    series = [(m, recording.skin(m).stamps_ns, recording.skin(m).data.shape) for m in MODALITIES]
+    series += [("joint states", recording.joints.stamps_ns, recording.joints.position.shape)]
+    series += [("tcp pose", recording.tcp.stamps_ns, recording.tcp.position.shape)]
+    for name, stamps, shape in series:
+        span = int(stamps[-1] - stamps[0]) if stamps.size > 1 else 0
+        rate = (stamps.size - 1) / (span / _NS_PER_S) if span else 0.0
+        channels.add_row(name, str(stamps.size), str(shape[1:]), f"{rate:.1f}")
+    console.print(channels)
+    phases = Table("phase", "start", "duration", title="phases")
+    origin = recording.phases[0].start_ns if recording.phases else 0
+    for mark in recording.phases:
+        start, stop = recording.phase_range(mark.phase)
+        phases.add_row(mark.phase, _seconds(start - origin), _seconds(stop - start))
+    console.print(phases)
+
+
+def _summaries(files: Sequence[Path]) -> pl.DataFrame:
+    """Return one row per recording from its summary and metadata (no decoding)."""
+    rows = []
+    for path in files:
+        summary: ContainerSummary = read_summary(path)
+        meta = parse_metadata(path, summary.metadata)
+        rows.append(
+            {
+                "object": meta.object_id,
+                "novel": meta.object_novel,
+                "action": meta.action_id,
+                "size": summary.size_bytes,
+                "duration_ns": summary.end_ns - summary.start_ns,
+            }
+        )
+    schema = {"object": pl.String, "novel": pl.Boolean, "action": pl.String}
+    schema |= {"size": pl.Int64, "duration_ns": pl.Int64}
+    return pl.DataFrame(rows, schema=schema)
+
+
+def _print_dataset(console: Console, root: Path) -> None:
+    """Print a dataset directory's recordings per object and action."""
+    frame = _summaries(dataset_files(root))
+    if frame.is_empty():
+        msg = f"{root}: no recordings (*.mcap) in this directory; give a dataset directory"
+        raise ReplayError(msg)
+    counts = frame.pivot(
+        on="action", index=["object", "novel"], values="size", aggregate_function="len"
+    ).fill_null(0)
+    table = Table(*counts.columns, title=f"{root}", caption="trials per object and action")
+    for row in counts.iter_rows():
+        table.add_row(*(str(value) for value in row))
+    console.print(table)
+    hours = int(frame["duration_ns"].sum()) / _NS_PER_S / 3600
+    console.print(
+        f"{frame.height} recordings, {int(frame['size'].sum()) / 1e6:.1f} MB, "
+        f"{hours:.2f} h of recorded time"
+    )
+    if leftovers := sorted(root.rglob("*.mcap.part")):
+        console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)")
+
+
+@command(
+    "info",
+    "print a summary of a recording or of a dataset directory",
+    arg("path", type=Path, help="a recording (.mcap) or a dataset directory"),
+)
+def _info(args: argparse.Namespace) -> int:
+    path = _existing(args.path)
+    console = Console()
+    if path.is_dir():
+        _print_dataset(console, path)
+    else:
+        _print_recording(console, read_recording(path))
+    return 0
+
+
+def _check_one(path: Path) -> str | None:
+    """Return None if the recording reads and validates, else the error message."""
+    try:
+        read_recording(path)
+    except ReplayError as err:
+        return str(err)
+    return None
+
+
+@command(
+    "check",
+    "validate recordings (CRCs, schema version, channels, decoding); exit 1 if any is bad",
+    arg("path", type=Path, help="a recording (.mcap) or a dataset directory"),
+    arg("--workers", type=int, help="worker processes for a directory (default: all cores)"),
+)
+def _check(args: argparse.Namespace) -> int:
+    path = _existing(args.path)
+    files = dataset_files(path) if path.is_dir() else [path]
+    workers = args.workers or os.cpu_count() or 1
+    problems = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)))(
+        joblib.delayed(_check_one)(file) for file in files
+    )
+    console = Console(stderr=True)
+    bad = [problem for problem in problems if problem is not None]
+    for problem in bad:
+        console.print(f"[red]FAIL[/red] {problem}", highlight=False, soft_wrap=True)
+    Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
+    if not files:
+        msg = f"{path}: no recordings (*.mcap) found"
+        raise ReplayError(msg)
+    return 1 if bad else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser with every registered subcommand."""
+    for module in COMMAND_MODULES:
+        importlib.import_module(module)
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Replay, inspect and learn from tactile MCAP recordings."
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for entry in COMMANDS.values():
+        sub = subparsers.add_parser(entry.name, help=entry.help, description=entry.help)
+        for argument in entry.arguments:
+            sub.add_argument(*argument.flags, **argument.options)
+        sub.set_defaults(run=entry.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``atikt-replay``; return the exit status (1 for a project error, 2 for usage)."""
+    args = build_parser().parse_args(argv)
+    try:
+        status: int = args.run(args)
+    except ReplayError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)  # noqa: T201 (one line, no traceback)
+        return 1
+    return status

@@ -1,0 +1,108 @@
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import FakeRig
+
+from recorder import ActionSpec, RecorderError
+from recorder._catalog import ObjectSpec
+from recorder._dataset import (
+    INDEX_NAME,
+    TaskResult,
+    TaskStatus,
+    build_index,
+    generate_dataset,
+    plan_dataset,
+    recording_path,
+    write_index,
+)
+
+Objects = dict[str, ObjectSpec]
+Actions = dict[str, ActionSpec]
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_plan_covers_every_object_action_and_trial(objects: Objects, actions: Actions) -> None:
+    tasks = plan_dataset(objects, actions)
+    expected = len(objects) * sum(action.trials for action in actions.values())
+    assert len(tasks) == expected
+    assert len({(t.obj.id, t.action.id, t.trial) for t in tasks}) == expected
+    c1 = [t.trial for t in tasks if t.action.id == "C1" and t.obj.id == "wood"]
+    assert c1 == list(range(1, actions["C1"].trials + 1))
+
+
+def test_plan_selects_and_rejects_unknown_names(objects: Objects, actions: Actions) -> None:
+    tasks = plan_dataset(objects, actions, object_ids=["sponge"], action_ids=["S1", "P2"], trials=2)
+    assert [(t.obj.id, t.action.id, t.trial) for t in tasks] == [
+        ("sponge", "P2", 1),
+        ("sponge", "P2", 2),
+        ("sponge", "S1", 1),
+        ("sponge", "S1", 2),
+    ]
+    with pytest.raises(RecorderError, match="--objects marble: not in the objects catalog"):
+        plan_dataset(objects, actions, object_ids=["marble"])
+    with pytest.raises(RecorderError, match="--trials 0"):
+        plan_dataset(objects, actions, trials=0)
+
+
+def test_dataset_is_identical_whatever_the_worker_count(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    tasks = plan_dataset(objects, actions, action_ids=["P1", "S2"], trials=2)
+    results: list[TaskResult] = []
+    one = generate_dataset(
+        tasks, tmp_path / "one", FakeRig, seed=4, workers=1, on_result=results.append
+    )
+    two = generate_dataset(tasks, tmp_path / "two", FakeRig, seed=4, workers=2)
+    assert one.written == two.written == len(tasks) == len(results)
+    assert _files(tmp_path / "one") == _files(tmp_path / "two")
+    assert sorted(_files(tmp_path / "one")) == sorted(
+        [recording_path(Path(), t.obj.id, t.action.id, t.trial).as_posix() for t in tasks]
+        + [INDEX_NAME]
+    )
+
+
+def test_rerun_skips_existing_recordings_and_never_overwrites(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["S1"], trials=3)
+    first = tasks[0].path(tmp_path)
+    first.parent.mkdir(parents=True)
+    first.write_bytes(b"kept")
+    results: list[TaskResult] = []
+    with pytest.raises(RecorderError, match=r"001\.mcap: not a readable recording"):
+        generate_dataset(tasks, tmp_path, FakeRig, seed=0, workers=1, on_result=results.append)
+    assert first.read_bytes() == b"kept"
+    assert [r.status for r in results] == [TaskStatus.SKIPPED] + [TaskStatus.WRITTEN] * 2
+    first.unlink()
+    report = generate_dataset(tasks, tmp_path, FakeRig, seed=0, workers=1)
+    assert (report.written, report.skipped) == (1, 2)
+
+
+def test_index_has_one_row_per_recording_and_is_rebuilt_from_files(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    tasks = plan_dataset(objects, actions, action_ids=["C1"], trials=1)
+    report = generate_dataset(tasks, tmp_path, FakeRig, seed=9, workers=1)
+    index = pl.read_parquet(report.index)
+    assert index.height == 2
+    assert index["path"].to_list() == ["sponge/C1/001.mcap", "wood/C1/001.mcap"]
+    assert index["novel"].to_list() == [True, False]
+    assert index["seed"].to_list() == [9, 9]
+    assert index["rig"].to_list() == ["fake", "fake"]
+    assert (index["n_events"] == 5).all()
+    per_topic = index.select(pl.sum_horizontal(pl.col("^n_.*$")).alias("total"))["total"]
+    assert (index["messages"] == per_topic).all()
+    sizes = [(tmp_path / p).stat().st_size for p in index["path"]]
+    assert index["size_bytes"].to_list() == sizes == [report.size_bytes - sizes[1], sizes[1]]
+    (tmp_path / INDEX_NAME).unlink()
+    write_index(tmp_path)
+    assert pl.read_parquet(tmp_path / INDEX_NAME).equals(index)
+    assert build_index(tmp_path / "nothing").height == 0
