@@ -3,6 +3,70 @@
 Pure numpy/scipy: takes arrays, never files (Feng, Kaboli & Cheng, TUM 2017).
 """
 
+from atikt.active import (
+    ActiveLearner,
+    PriorModel,
+    StepRecord,
+    entropy,
+    fit_prior_model,
+    fit_prior_models,
+)
 from atikt.errors import AtiktError, NotFittedError, NumericalError
+from atikt.features import (
+    MODALITIES,
+    MODALITIES_BY_KIND,
+    FeatureTransformer,
+    RawFeatures,
+    extract_features,
+    hjorth,
+    linear_correlation,
+    stiffness,
+    texture,
+    thermal_sequence,
+)
+from atikt.gpc import BinaryGPC, LaplaceMode, MultiModalGPC, OneVsAllGPC, laplace_mode
+from atikt.kernels import DependentKernel, Kernel, ModalityKernel, SliceRBF, modality_kernel
+from atikt.transfer import (
+    PriorChoice,
+    TransferGPC,
+    choose_by_optimization,
+    choose_by_prediction,
+    relatedness,
+)
 
-__all__ = ["AtiktError", "NotFittedError", "NumericalError"]
+__all__ = [
+    "MODALITIES",
+    "MODALITIES_BY_KIND",
+    "ActiveLearner",
+    "AtiktError",
+    "BinaryGPC",
+    "DependentKernel",
+    "FeatureTransformer",
+    "Kernel",
+    "LaplaceMode",
+    "ModalityKernel",
+    "MultiModalGPC",
+    "NotFittedError",
+    "NumericalError",
+    "OneVsAllGPC",
+    "PriorChoice",
+    "PriorModel",
+    "RawFeatures",
+    "SliceRBF",
+    "StepRecord",
+    "TransferGPC",
+    "choose_by_optimization",
+    "choose_by_prediction",
+    "entropy",
+    "extract_features",
+    "fit_prior_model",
+    "fit_prior_models",
+    "hjorth",
+    "laplace_mode",
+    "linear_correlation",
+    "modality_kernel",
+    "relatedness",
+    "stiffness",
+    "texture",
+    "thermal_sequence",
+]

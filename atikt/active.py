@@ -1,0 +1,688 @@
+"""Active selection of exploratory actions with instance knowledge transfer (the ATIKT loop).
+
+Feng, Kaboli & Cheng, "Active tactile instance knowledge transfer" (TUM 2017):
+
+1. start with one observation per (new object, action);
+2. estimate ``UNC(action, object)``: the mean Shannon entropy (nats) of the posterior over the
+   new objects, predicted by that action's one-vs-all models for that object's own
+   observations of that action;
+3. perform the (object, action) with the largest ``UNC``, or, with probability
+   ``eps_explore``, a uniformly random one;
+4. update the chosen action's models only: feature normalisation, relatedness to the old
+   objects (where from, how much), kernel weights and GP classifiers;
+5. repeat until the budget is spent or the models stop improving.
+
+The learner receives observations through the ``observe`` callable it is given and never knows
+where they come from (a rig, or a pool of recordings). Given the same observations in the same
+order and the same ``random_state``, it makes the same decisions, bit for bit. The baseline is
+``transfer="none"``: the same loop without prior knowledge.
+
+Cost control (a step must take tens of milliseconds): the hyperparameter search of every
+classifier starts from that classifier's optimum of the previous update (warm start), uses no
+random restarts after :meth:`ActiveLearner.initialise`, and stops after ``max_iter_step``
+L-BFGS-B iterations; the old objects' models are fitted once per learner (or once per study,
+see :func:`fit_prior_models`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Final, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from atikt.errors import AtiktError, NotFittedError
+from atikt.features import FeatureTransformer, RawFeatures
+from atikt.gpc import OneVsAllGPC, RandomState, normalise, spawn_seeds
+from atikt.kernels import ModalityKernel, modality_kernel
+from atikt.transfer import (
+    PriorChoice,
+    TransferGPC,
+    check_threshold,
+    choose_by_optimization,
+    choose_by_prediction,
+)
+
+if TYPE_CHECKING:
+    import builtins
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+TransferMode = Literal["prediction", "optimization", "none"]
+Observe = Callable[[int, str], RawFeatures]
+"""``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
+
+TRANSFER_MODES: Final = ("prediction", "optimization", "none")
+_NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
+
+
+def entropy(p: FloatArray) -> FloatArray:
+    """Shannon entropy in nats of each row of ``p`` (m, k); ``0 log 0 = 0``."""
+    logs = np.log(np.where(p > 0, p, 1.0))
+    return np.asarray(-(p * logs).sum(axis=1), dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PriorModel:
+    """The old objects' knowledge of one action.
+
+    Attributes:
+        observations: Prior observations of all old objects.
+        labels: Old-object label of each observation, shape (n,).
+        transformer: Feature transformer fitted on ``observations``.
+        model: One-vs-all GPC over the old objects in the transformer's space (None with a
+            single old object: the model prediction approach then cannot be used).
+    """
+
+    observations: tuple[RawFeatures, ...]
+    labels: IntArray
+    transformer: FeatureTransformer
+    model: OneVsAllGPC | None
+
+    @property
+    def old_objects(self) -> tuple[int, ...]:
+        """The old objects' labels, sorted."""
+        return tuple(int(v) for v in np.unique(self.labels))
+
+    def by_object(self) -> dict[int, list[RawFeatures]]:
+        """Prior observations grouped by old object."""
+        groups: dict[int, list[RawFeatures]] = {o: [] for o in self.old_objects}
+        for obs, label in zip(self.observations, self.labels, strict=True):
+            groups[int(label)].append(obs)
+        return groups
+
+
+PriorsInput = Mapping[str, Mapping[int, Sequence[RawFeatures]] | PriorModel]
+
+
+def fit_prior_model(
+    observations_by_object: Mapping[int, Sequence[RawFeatures]],
+    *,
+    amplitude: bool = True,
+    n_thermal_components: int = 10,
+    n_restarts: int = 1,
+    max_iter: int = 50,
+    random_state: RandomState = None,
+) -> PriorModel:
+    """Fit the old objects' models of one action on their prior observations.
+
+    Args:
+        observations_by_object: Old-object label -> its observations of the action.
+        amplitude: Learn a signal variance (False: the thesis kernel).
+        n_thermal_components: Thermal PCA dimensions.
+        n_restarts: Random restarts per binary classifier.
+        max_iter: L-BFGS-B iteration limit per start.
+        random_state: Seed of the restarts.
+
+    Returns:
+        The fitted prior model.
+
+    Raises:
+        AtiktError: No observations.
+    """
+    observations = [o for obs in observations_by_object.values() for o in obs]
+    labels = np.array([k for k, obs in observations_by_object.items() for _ in obs], dtype=np.int64)
+    transformer = FeatureTransformer(n_thermal_components=n_thermal_components)
+    X = transformer.fit_transform(observations)
+    model = None
+    if np.unique(labels).shape[0] >= 2:  # noqa: PLR2004
+        kernel = modality_kernel(transformer.slices_, amplitude=amplitude)
+        model = OneVsAllGPC(
+            kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
+        ).fit(X, labels)
+    return PriorModel(tuple(observations), labels, transformer, model)
+
+
+def fit_prior_models(
+    priors: Mapping[str, Mapping[int, Sequence[RawFeatures]]],
+    *,
+    amplitude: bool = True,
+    n_thermal_components: int = 10,
+    n_restarts: int = 1,
+    max_iter: int = 50,
+    random_state: RandomState = None,
+) -> dict[str, PriorModel]:
+    """Fit the old objects' models of every action (reusable by many learners of a study).
+
+    Args:
+        priors: Action -> old-object label -> observations.
+        amplitude: See :func:`fit_prior_model`.
+        n_thermal_components: See :func:`fit_prior_model`.
+        n_restarts: See :func:`fit_prior_model`.
+        max_iter: See :func:`fit_prior_model`.
+        random_state: Seed; each action gets its own derived seed.
+
+    Returns:
+        Action -> fitted prior model (actions without observations are left out).
+    """
+    actions = [a for a, groups in priors.items() if any(len(o) for o in groups.values())]
+    seeds = spawn_seeds(random_state, len(actions))
+    return {
+        action: fit_prior_model(
+            {k: v for k, v in priors[action].items() if len(v)},
+            amplitude=amplitude,
+            n_thermal_components=n_thermal_components,
+            n_restarts=n_restarts,
+            max_iter=max_iter,
+            random_state=seed,
+        )
+        for action, seed in zip(actions, seeds, strict=True)
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class StepRecord:
+    """One decision of the active learner and its outcome.
+
+    Attributes:
+        step: Index of the step, from 0.
+        object: New object that was explored.
+        action: Action that was performed.
+        explored: True if the choice was random (probability ``eps_explore``).
+        uncertainty: ``UNC(action, object)`` of the choice before the observation.
+        entropies: ``UNC`` of every (action, object) before the decision, actions in the
+            learner's order, objects by index.
+        prior: Old object transferred to the explored object's classifier after the update
+            (None: no transfer).
+        rho: Its transfer coefficient (0 without transfer).
+        relatedness: Score of every old object for the explored object (mean probability or
+            learned rho), in the order of ``candidates``.
+        candidates: Old-object labels.
+        priors: Transferred old object of every new object's classifier of the action.
+        rhos: Transfer coefficient of every new object's classifier of the action.
+        modalities: Modality names, in the order of ``weights``.
+        weights: Modality weights of the explored object's classifier.
+        signal_variance: Its signal variance (1 for the thesis kernel).
+        mean_entropy: Mean ``UNC`` over all (action, object) after the update.
+        n_observations: Observations collected so far, including the initial ones.
+    """
+
+    step: int
+    object: int
+    action: str
+    explored: bool
+    uncertainty: float
+    entropies: tuple[tuple[float, ...], ...]
+    prior: int | None
+    rho: float
+    relatedness: tuple[float, ...]
+    candidates: tuple[int, ...]
+    priors: tuple[int | None, ...]
+    rhos: tuple[float, ...]
+    modalities: tuple[str, ...]
+    weights: tuple[float, ...]
+    signal_variance: float
+    mean_entropy: float
+    n_observations: int
+
+    def as_row(self) -> dict[str, builtins.object]:
+        """Flatten to one table row (lists for the tuple fields, ``-1`` for no prior)."""
+        return {
+            "step": self.step,
+            "object": self.object,
+            "action": self.action,
+            "explored": self.explored,
+            "uncertainty": self.uncertainty,
+            "entropies": [list(row) for row in self.entropies],
+            "prior": -1 if self.prior is None else self.prior,
+            "rho": self.rho,
+            "relatedness": list(self.relatedness),
+            "candidates": list(self.candidates),
+            "priors": [-1 if p is None else p for p in self.priors],
+            "rhos": list(self.rhos),
+            "modalities": list(self.modalities),
+            "weights": list(self.weights),
+            "signal_variance": self.signal_variance,
+            "mean_entropy": self.mean_entropy,
+            "n_observations": self.n_observations,
+        }
+
+
+@dataclass(slots=True)
+class ActionState:
+    """Working state of one action's models (internal, mutable; exposed for inspection).
+
+    Attributes:
+        kind: Action kind.
+        prior: The old objects' model of this action (None without transfer).
+        observations: Collected observations of the new objects.
+        labels: New-object index of each observation.
+        transformer: Feature transformer of the current update.
+        X: Features of ``observations``, shape (n, d).
+        models: One classifier per new object.
+        choices: Transfer choice per new object.
+        thetas: Warm-start hyperparameters (base kernel) per new object.
+        rhos: Warm-start learned rho per new object and old object (model optimisation).
+        uncertainty: ``UNC`` per new object, shape (n_new,).
+    """
+
+    kind: str
+    prior: PriorModel | None
+    observations: list[RawFeatures] = field(default_factory=list)
+    labels: list[int] = field(default_factory=list)
+    transformer: FeatureTransformer | None = None
+    X: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    models: list[TransferGPC] = field(default_factory=list)
+    choices: list[PriorChoice] = field(default_factory=list)
+    thetas: list[FloatArray | None] = field(default_factory=list)
+    rhos: list[dict[int, float]] = field(default_factory=list)
+    uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+
+class ActiveLearner:
+    """ATIKT active learner of new objects, optionally transferring old objects' observations.
+
+    Args:
+        actions: Action ids, e.g. ``["P1", "P2", "S1", "S2", "S3", "S4", "C1"]``.
+        n_new_objects: Number of new objects (indices ``0 .. n_new_objects - 1``).
+        observe: ``observe(object_index, action) -> RawFeatures``: performs (or replays) an
+            action and returns its raw features.
+        priors: Action -> old-object label -> raw observations, or action -> a
+            :class:`PriorModel` from :func:`fit_prior_models` (fitted once for many
+            learners). Ignored with ``transfer="none"``.
+        budget: Number of steps (observations after the initial one per object and action).
+        eps_explore: Probability of a uniformly random (object, action).
+        transfer: ``"prediction"`` (model prediction approach), ``"optimization"`` (rho by
+            marginal likelihood) or ``"none"`` (baseline).
+        eps_neg1: Threshold of the model prediction approach, in (0.5, 1].
+        eps_neg2: Threshold of the model optimisation approach, in (0, 1].
+        patience: Stop early after this many steps without the mean ``UNC`` improving by
+            ``min_improvement``; None runs the whole budget.
+        min_improvement: See ``patience`` (nats).
+        amplitude: Learn a signal variance (False: the thesis kernel, ``|w|_1 = 1`` only).
+        n_thermal_components: Thermal PCA dimensions (thesis: 10).
+        n_restarts: Random restarts of each hyperparameter search in :meth:`initialise`.
+        max_iter_initial: L-BFGS-B iteration limit per start in :meth:`initialise`.
+        max_iter_step: L-BFGS-B iteration limit of the warm-started search of each step.
+        random_state: Seed of every random choice (exploration, restarts).
+
+    Attributes:
+        history_: One :class:`StepRecord` per step.
+        uncertainty_: ``UNC``, shape (n_actions, n_new_objects).
+        states_: Action -> its :class:`ActionState`.
+        n_observations_: Observations collected so far.
+    """
+
+    def __init__(
+        self,
+        actions: Sequence[str],
+        n_new_objects: int,
+        *,
+        observe: Observe,
+        priors: PriorsInput | None = None,
+        budget: int = 40,
+        eps_explore: float = 0.3,
+        transfer: TransferMode = "prediction",
+        eps_neg1: float = 0.6,
+        eps_neg2: float = 0.6,
+        patience: int | None = None,
+        min_improvement: float = 1e-3,
+        amplitude: bool = True,
+        n_thermal_components: int = 10,
+        n_restarts: int = 1,
+        max_iter_initial: int = 30,
+        max_iter_step: int = 10,
+        random_state: RandomState = None,
+    ) -> None:
+        """Store and validate the parameters; see the class docstring."""
+        self.actions = tuple(actions)
+        self.n_new_objects = n_new_objects
+        self.observe = observe
+        self.priors = priors
+        self.budget = budget
+        self.eps_explore = eps_explore
+        self.transfer = transfer
+        self.eps_neg1 = eps_neg1
+        self.eps_neg2 = eps_neg2
+        self.patience = patience
+        self.min_improvement = min_improvement
+        self.amplitude = amplitude
+        self.n_thermal_components = n_thermal_components
+        self.n_restarts = n_restarts
+        self.max_iter_initial = max_iter_initial
+        self.max_iter_step = max_iter_step
+        self.random_state = random_state
+        self._validate()
+
+    def _validate(self) -> None:
+        """Check the parameters.
+
+        Raises:
+            AtiktError: A parameter is out of range; the message names it.
+        """
+        problems = []
+        if len(set(self.actions)) != len(self.actions) or not self.actions:
+            problems.append(f"actions={list(self.actions)} must be non-empty and distinct")
+        if self.n_new_objects < 2:  # noqa: PLR2004
+            problems.append(f"n_new_objects={self.n_new_objects} must be >= 2")
+        if self.transfer not in TRANSFER_MODES:
+            problems.append(f"transfer={self.transfer!r} must be one of {TRANSFER_MODES}")
+        if not 0.0 <= self.eps_explore <= 1.0:
+            problems.append(f"eps_explore={self.eps_explore} must lie in [0, 1]")
+        if self.budget < 0:
+            problems.append(f"budget={self.budget} must be >= 0")
+        if problems:
+            raise AtiktError("; ".join(problems))
+        check_threshold("eps_neg1", self.eps_neg1)
+        check_threshold("eps_neg2", self.eps_neg2, low=0.0)
+
+    # ----------------------------------------------------------------------------- state
+
+    @property
+    def done(self) -> bool:
+        """True when the budget is spent or the models stopped improving."""
+        if not hasattr(self, "history_"):
+            return False
+        return len(self.history_) >= self.budget or self._stalled()
+
+    def _stalled(self) -> bool:
+        """True after ``patience`` steps without the mean UNC improving by ``min_improvement``."""
+        if self.patience is None or len(self.history_) < self.patience:
+            return False
+        means = [self._initial_mean_entropy, *(r.mean_entropy for r in self.history_)]
+        best_before = min(means[: -self.patience])
+        return min(means[-self.patience :]) > best_before - self.min_improvement
+
+    def _check_initialised(self) -> None:
+        """Raise NotFittedError before :meth:`initialise`."""
+        if not hasattr(self, "history_"):
+            msg = "ActiveLearner is not initialised; call initialise() first"
+            raise NotFittedError(msg)
+
+    # ------------------------------------------------------------------------ the loop
+
+    def initialise(self) -> None:
+        """Reset, fit the prior models, and observe each (new object, action) once.
+
+        Observations are requested action by action, objects in index order.
+        """
+        self._rng = np.random.default_rng(self.random_state)
+        self.history_: list[StepRecord] = []
+        self.n_observations_ = 0
+        priors = self._prior_models()
+        self.states_: dict[str, ActionState] = {}
+        for action in self.actions:
+            for obj in range(self.n_new_objects):
+                self._record(action, obj, self._observe(obj, action), priors)
+        for action in self.actions:
+            self._update(action, n_restarts=self.n_restarts, max_iter=self.max_iter_initial)
+        self.uncertainty_ = np.vstack([self.states_[a].uncertainty for a in self.actions])
+        self._initial_mean_entropy = float(self.uncertainty_.mean())
+
+    def _prior_models(self) -> dict[str, PriorModel]:
+        """Fit (or take) the prior models of the actions; none for the baseline."""
+        if self.transfer == "none" or not self.priors:
+            return {}
+        given = {a: p for a, p in self.priors.items() if isinstance(p, PriorModel)}
+        raw = {a: p for a, p in self.priors.items() if not isinstance(p, PriorModel)}
+        fitted = fit_prior_models(
+            raw,
+            amplitude=self.amplitude,
+            n_thermal_components=self.n_thermal_components,
+            n_restarts=self.n_restarts,
+            random_state=int(self._rng.integers(0, 2**31 - 1)),
+        )
+        models = {**given, **fitted}
+        for action, prior in models.items():
+            if self.transfer == "prediction" and prior.model is None:
+                msg = (
+                    f"action {action!r} has prior data of one old object only; the model "
+                    "prediction approach needs >= 2 old objects (use transfer='optimization')"
+                )
+                raise AtiktError(msg)
+        return models
+
+    def _observe(self, obj: int, action: str) -> RawFeatures:
+        """Call ``observe`` and check what it returns.
+
+        Raises:
+            AtiktError: The callback returned something other than RawFeatures.
+        """
+        observation: object = self.observe(obj, action)
+        if not isinstance(observation, RawFeatures):
+            msg = (
+                f"observe({obj}, {action!r}) returned {type(observation).__name__}; it must "
+                "return RawFeatures (see atikt.extract_features)"
+            )
+            raise AtiktError(msg)
+        self.n_observations_ += 1
+        return observation
+
+    def _record(
+        self, action: str, obj: int, observation: RawFeatures, priors: Mapping[str, PriorModel]
+    ) -> None:
+        """Store a new observation of ``action``.
+
+        Raises:
+            AtiktError: Its kind differs from the action's earlier observations or priors.
+        """
+        state = self.states_.get(action)
+        if state is None:
+            state = ActionState(kind=observation.kind, prior=priors.get(action))
+            self.states_[action] = state
+        expected = state.kind if state.prior is None else state.prior.transformer.kind_
+        if observation.kind != state.kind or state.kind != expected:
+            msg = (
+                f"action {action!r}: observation of kind {observation.kind!r}, expected "
+                f"{state.kind!r} (priors: {expected!r}); check the action ids"
+            )
+            raise AtiktError(msg)
+        state.observations.append(observation)
+        state.labels.append(obj)
+
+    def step(self) -> StepRecord:
+        """Take one decision, observe, update the chosen action's models, and record it.
+
+        Returns:
+            The step's record (also appended to ``history_``).
+
+        Raises:
+            NotFittedError: :meth:`initialise` was not called.
+            AtiktError: The learner is done.
+        """
+        self._check_initialised()
+        if self.done:
+            msg = f"the learner is done after {len(self.history_)} steps; check `done` first"
+            raise AtiktError(msg)
+        entropies = self.uncertainty_.copy()
+        explored = bool(self._rng.random() < self.eps_explore)
+        # Exploration: uniformly random (action, object); exploitation: largest UNC, ties to
+        # the first in (action, object) order.
+        index = int(self._rng.integers(entropies.size) if explored else np.argmax(entropies))
+        action_index, obj = divmod(index, self.n_new_objects)
+        action = self.actions[action_index]
+        observation = self._observe(obj, action)
+        self._record(action, obj, observation, {})
+        self._update(action, n_restarts=0, max_iter=self.max_iter_step)
+        self.uncertainty_[action_index] = self.states_[action].uncertainty
+        record = self._step_record(obj, action, entropies, explored=explored)
+        self.history_.append(record)
+        return record
+
+    def _step_record(
+        self, obj: int, action: str, entropies: FloatArray, *, explored: bool
+    ) -> StepRecord:
+        """Build the record of a step from the updated state."""
+        state = self.states_[action]
+        choice = state.choices[obj]
+        kernel = state.models[obj].base_kernel_
+        assert isinstance(kernel, ModalityKernel)  # noqa: S101 - built by _update
+        return StepRecord(
+            step=len(self.history_),
+            object=obj,
+            action=action,
+            explored=explored,
+            uncertainty=float(entropies[self.actions.index(action), obj]),
+            entropies=tuple(tuple(float(v) for v in row) for row in entropies),
+            prior=choice.source,
+            rho=choice.rho,
+            relatedness=choice.scores,
+            candidates=choice.candidates,
+            priors=tuple(c.source for c in state.choices),
+            rhos=tuple(c.rho for c in state.choices),
+            modalities=kernel.modalities,
+            weights=tuple(float(w) for w in kernel.weights),
+            signal_variance=kernel.signal_variance,
+            mean_entropy=float(self.uncertainty_.mean()),
+            n_observations=self.n_observations_,
+        )
+
+    # ---------------------------------------------------------------------- the update
+
+    def _update(self, action: str, *, n_restarts: int, max_iter: int) -> None:
+        """Refit one action's features, transfer choices and classifiers; recompute its UNC."""
+        state = self.states_[action]
+        prior = state.prior
+        training = list(state.observations)
+        if prior is not None:
+            training += prior.observations
+        transformer = FeatureTransformer(n_thermal_components=self.n_thermal_components)
+        transformer.fit(training)
+        X = transformer.transform(state.observations)
+        labels = np.asarray(state.labels)
+        auxiliary = self._auxiliary(prior, transformer)
+        if not state.models:
+            n = self.n_new_objects
+            state.models, state.choices = [], [_NO_CHOICE] * n
+            state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
+        seeds = spawn_seeds(self._rng, self.n_new_objects)
+        models = []
+        for obj, seed in enumerate(seeds):
+            kernel = modality_kernel(transformer.slices_, amplitude=self.amplitude)
+            theta = state.thetas[obj]
+            if theta is not None and theta.shape == kernel.theta.shape:
+                kernel = kernel.with_theta(theta)
+            y = (labels == obj).astype(np.float64)
+            mine = [
+                o for o, lab in zip(state.observations, state.labels, strict=True) if lab == obj
+            ]
+            choice, model = self._fit_object(
+                kernel,
+                X,
+                y,
+                mine=mine,
+                prior=prior,
+                auxiliary=auxiliary,
+                rho_starts=state.rhos[obj],
+                n_restarts=n_restarts,
+                max_iter=max_iter,
+                seed=seed,
+            )
+            state.choices[obj] = choice
+            state.thetas[obj] = model.base_kernel_.theta
+            models.append(model)
+        state.transformer, state.X, state.models = transformer, X, models
+        state.uncertainty = self._uncertainty(state)
+
+    def _auxiliary(
+        self, prior: PriorModel | None, transformer: FeatureTransformer
+    ) -> dict[int, FloatArray]:
+        """Each old object's prior observations in the current feature space."""
+        if prior is None:
+            return {}
+        return {old: transformer.transform(obs) for old, obs in prior.by_object().items()}
+
+    def _fit_object(
+        self,
+        kernel: ModalityKernel,
+        X: FloatArray,
+        y: FloatArray,
+        *,
+        mine: Sequence[RawFeatures],
+        prior: PriorModel | None,
+        auxiliary: Mapping[int, FloatArray],
+        rho_starts: dict[int, float],
+        n_restarts: int,
+        max_iter: int,
+        seed: int,
+    ) -> tuple[PriorChoice, TransferGPC]:
+        """Choose where from / how much to transfer and fit one new object's classifier."""
+        if prior is not None and self.transfer == "optimization":
+            choice, model = choose_by_optimization(
+                kernel,
+                X,
+                y,
+                auxiliary,
+                eps_neg2=self.eps_neg2,
+                rho0=rho_starts,
+                n_restarts=n_restarts,
+                max_iter=max_iter,
+                random_state=seed,
+            )
+            rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
+            return choice, model
+        choice = _NO_CHOICE
+        if prior is not None and prior.model is not None:
+            features = prior.transformer.transform(mine)
+            choice = choose_by_prediction(prior.model, features, self.eps_neg1)
+        aux = None if choice.source is None else auxiliary[choice.source]
+        model = TransferGPC(
+            kernel, rho=choice.rho, n_restarts=n_restarts, max_iter=max_iter, random_state=seed
+        ).fit(X, y, aux)
+        return choice, model
+
+    def _uncertainty(self, state: ActionState) -> FloatArray:
+        """``UNC`` of each new object: mean entropy of its own observations' posteriors."""
+        entropies = entropy(self._posterior(state, state.X))
+        labels = np.asarray(state.labels)
+        return np.array([entropies[labels == obj].mean() for obj in range(self.n_new_objects)])
+
+    @staticmethod
+    def _posterior(state: ActionState, X: FloatArray) -> FloatArray:
+        """Posterior over the new objects (one-vs-all, normalised), shape (m, n_new)."""
+        return normalise(np.column_stack([m.predict_positive(X) for m in state.models]))
+
+    # ------------------------------------------------------------------------ evaluation
+
+    def predict_proba(self, action: str, observations: Sequence[RawFeatures]) -> FloatArray:
+        """Posterior over the new objects of test observations of one action.
+
+        Args:
+            action: The action the observations come from.
+            observations: Raw test observations.
+
+        Returns:
+            Shape (m, n_new_objects), rows sum to 1.
+
+        Raises:
+            NotFittedError: :meth:`initialise` was not called.
+            AtiktError: Unknown action.
+        """
+        self._check_initialised()
+        if action not in self.states_:
+            msg = f"unknown action {action!r}; the learner knows {list(self.actions)}"
+            raise AtiktError(msg)
+        state = self.states_[action]
+        assert state.transformer is not None  # noqa: S101 - set by initialise
+        return self._posterior(state, state.transformer.transform(observations))
+
+    def predict(self, action: str, observations: Sequence[RawFeatures]) -> IntArray:
+        """Most probable new object of each test observation, shape (m,)."""
+        return np.asarray(np.argmax(self.predict_proba(action, observations), axis=1), np.int64)
+
+    def score_per_action(
+        self, test: Mapping[str, tuple[Sequence[RawFeatures], npt.ArrayLike]]
+    ) -> dict[str, float]:
+        """Accuracy per action on test observations.
+
+        Args:
+            test: Action -> (raw test observations, their new-object indices).
+
+        Returns:
+            Action -> accuracy in [0, 1].
+        """
+        scores = {}
+        for action, (observations, labels) in test.items():
+            predicted = self.predict(action, observations)
+            scores[action] = float(np.mean(predicted == np.asarray(labels).reshape(-1)))
+        return scores
+
+    def score(self, test: Mapping[str, tuple[Sequence[RawFeatures], npt.ArrayLike]]) -> float:
+        """Accuracy of all actions together: the mean over actions of per-action accuracy."""
+        scores = self.score_per_action(test)
+        if not scores:
+            msg = "no test data; pass {action: (observations, labels)}"
+            raise AtiktError(msg)
+        return float(np.mean(list(scores.values())))

@@ -1,0 +1,510 @@
+"""Tactile features of one exploratory action and their training-set normalisation.
+
+Feng, Kaboli & Cheng, "Active tactile instance knowledge transfer" (TUM 2017), table "actions,
+feedbacks, features", following Kaboli et al.'s robust tactile descriptors:
+
+- stiffness: mean normal force over all force sensors and the hold samples;
+- texture: Hjorth activity, mobility and complexity of the acceleration per axis, averaged over
+  cells, plus the mean linear correlation of the axis pairs xy, yz, xz (``[Act, Mob, Comp,
+  Lcorr]``);
+- thermal: the mean temperature sequence over sensors and its gradient, ``[T, dT]``, resampled to
+  a fixed number of points so that every duration yields the same length, then reduced by a PCA
+  fitted on training observations only (:class:`FeatureTransformer`).
+
+Pressing (``"press"``) and static contact (``"static"``) use force + thermal; sliding
+(``"slide"``) uses texture + thermal. All functions take numpy arrays and never see a file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final, Self
+
+import numpy as np
+import numpy.typing as npt
+
+from atikt.errors import AtiktError, NotFittedError
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+FloatArray = npt.NDArray[np.float64]
+
+KINDS: Final = ("press", "slide", "static")
+"""Action kinds, as in the action catalog."""
+
+MODALITIES: Final = ("force", "texture", "thermal")
+"""Feature modalities, in the column order of every feature matrix."""
+
+MODALITIES_BY_KIND: Final[Mapping[str, tuple[str, ...]]] = {
+    "press": ("force", "thermal"),
+    "slide": ("texture", "thermal"),
+    "static": ("force", "thermal"),
+}
+"""The modalities each action kind perceives (thesis: press/static -> stiffness + thermal)."""
+
+AXIS_PAIRS: Final = ((0, 1), (1, 2), (0, 2))
+"""Axis pairs of the linear-correlation feature: xy, yz, xz."""
+
+TEXTURE_NAMES: Final = (
+    *(f"activity_{a}" for a in "xyz"),
+    *(f"mobility_{a}" for a in "xyz"),
+    *(f"complexity_{a}" for a in "xyz"),
+    "lcorr_xy",
+    "lcorr_yz",
+    "lcorr_xz",
+)
+"""Names of the per-axis texture descriptor returned by :func:`texture`."""
+
+_TINY: Final = 1e-300
+
+
+def _as_float_array(name: str, value: npt.ArrayLike, ndim: int) -> FloatArray:
+    """Convert ``value`` to a finite float64 array with ``ndim`` dimensions.
+
+    Raises:
+        AtiktError: Wrong number of dimensions, no samples, or non-finite values.
+    """
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim != ndim:
+        msg = f"{name}: expected a {ndim}-d array, got shape {array.shape}; check the slicing"
+        raise AtiktError(msg)
+    if array.shape[0] == 0:
+        msg = f"{name}: no samples; cut the signal to a non-empty execute phase"
+        raise AtiktError(msg)
+    if not np.all(np.isfinite(array)):
+        msg = f"{name}: contains NaN or inf; drop or interpolate invalid samples first"
+        raise AtiktError(msg)
+    return array
+
+
+def _safe_ratio(numerator: FloatArray, denominator: FloatArray) -> FloatArray:
+    """Return ``numerator / denominator`` with 0 where the denominator is 0."""
+    out = np.zeros(np.broadcast(numerator, denominator).shape)
+    np.divide(numerator, denominator, out=out, where=denominator > _TINY)
+    return out
+
+
+def stiffness(force: npt.ArrayLike) -> FloatArray:
+    """Stiffness feature: mean normal force over all sensors and samples.
+
+    Args:
+        force: Normal forces in N, shape (n_samples, n_cells, n_sensors) float; the execute
+            (hold) phase of a press or static action.
+
+    Returns:
+        Shape (1,) float64: the mean force in N.
+
+    Raises:
+        AtiktError: ``force`` is not 3-d, empty or not finite.
+    """
+    array = _as_float_array("force", force, 3)
+    return np.array([array.mean()])
+
+
+def hjorth(signal: npt.ArrayLike, axis: int = 0) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Hjorth parameters of signals along ``axis`` (Hjorth 1970).
+
+    Activity is the population variance ``Var(x)``; mobility ``sqrt(Var(dx) / Var(x))`` with
+    first differences ``dx``; complexity ``Mob(dx) / Mob(x)``. A constant signal has mobility 0
+    and complexity 0 (the ratios are defined as 0 where a variance is 0).
+
+    Args:
+        signal: Float array; ``axis`` indexes time, every other axis is an independent signal.
+        axis: The time axis.
+
+    Returns:
+        Activity, mobility and complexity, each of the signal's shape without ``axis``.
+    """
+    x = np.asarray(signal, dtype=np.float64)
+    dx = np.diff(x, axis=axis)
+    ddx = np.diff(dx, axis=axis)
+    var_x = x.var(axis=axis)
+    var_dx = dx.var(axis=axis) if dx.shape[axis] else np.zeros_like(var_x)
+    var_ddx = ddx.var(axis=axis) if ddx.shape[axis] else np.zeros_like(var_x)
+    mobility = np.sqrt(_safe_ratio(var_dx, var_x))
+    mobility_dx = np.sqrt(_safe_ratio(var_ddx, var_dx))
+    complexity = _safe_ratio(mobility_dx, mobility)
+    return var_x, mobility, complexity
+
+
+def linear_correlation(a: npt.ArrayLike, b: npt.ArrayLike, axis: int = 0) -> FloatArray:
+    """Pearson correlation of paired signals along ``axis``; 0 where either is constant.
+
+    Args:
+        a: Float array; ``axis`` indexes time.
+        b: Float array of the same shape.
+        axis: The time axis.
+
+    Returns:
+        Correlations in [-1, 1], the shape of ``a`` without ``axis``.
+    """
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    xc = x - x.mean(axis=axis, keepdims=True)
+    yc = y - y.mean(axis=axis, keepdims=True)
+    covariance = (xc * yc).mean(axis=axis)
+    scale = np.sqrt(xc.var(axis=axis) * yc.var(axis=axis))
+    return np.clip(_safe_ratio(covariance, scale), -1.0, 1.0)
+
+
+def texture(acceleration: npt.ArrayLike, *, per_axis: bool = True) -> FloatArray:
+    """Texture descriptor ``[Act, Mob, Comp, Lcorr]`` of a sliding action.
+
+    Hjorth parameters are computed for every cell and axis and averaged over cells; the linear
+    correlation of the axis pairs xy, yz, xz is computed per cell and averaged over cells.
+
+    Args:
+        acceleration: Shape (n_samples, n_cells, 3) float, m/s^2, axes x, y, z; the execute
+            (sliding) phase.
+        per_axis: True keeps the axes apart (12 values, named by :data:`TEXTURE_NAMES`:
+            Act x/y/z, Mob x/y/z, Comp x/y/z, Lcorr xy/yz/xz); False also averages over the
+            axes and the pairs (4 values: Act, Mob, Comp, Lcorr).
+
+    Returns:
+        Shape (12,) or (4,) float64.
+
+    Raises:
+        AtiktError: Wrong shape, fewer than 3 samples, or non-finite values.
+    """
+    acc = _as_float_array("acceleration", acceleration, 3)
+    if acc.shape[2] != len("xyz") or acc.shape[0] < len("xyz"):
+        msg = (
+            f"acceleration: expected shape (n_samples >= 3, n_cells, 3), got {acc.shape}; "
+            "pass x, y, z of every cell"
+        )
+        raise AtiktError(msg)
+    activity, mobility, complexity = (p.mean(axis=0) for p in hjorth(acc, axis=0))
+    lcorr = np.array([linear_correlation(acc[:, :, i], acc[:, :, j]).mean() for i, j in AXIS_PAIRS])
+    if per_axis:
+        return np.concatenate([activity, mobility, complexity, lcorr])
+    return np.array([activity.mean(), mobility.mean(), complexity.mean(), lcorr.mean()])
+
+
+def thermal_sequence(
+    temperature: npt.ArrayLike, *, n_points: int = 20, rate_hz: float = 20.0
+) -> FloatArray:
+    """Thermal feature ``[T, dT]`` before the PCA.
+
+    The temperature is averaged over the sensors, resampled linearly to ``n_points`` equally
+    spaced instants spanning the sequence, and its gradient (central differences, C/s) is
+    appended.
+
+    Args:
+        temperature: Shape (n_samples >= 2, n_cells) float, degrees C; the execute phase.
+        n_points: Length of the resampled sequence (>= 2); fixes the feature length for every
+            action duration.
+        rate_hz: Sample rate of ``temperature``, Hz; scales the gradient to C/s.
+
+    Returns:
+        Shape (2 * n_points,) float64: resampled mean temperature, then its gradient.
+
+    Raises:
+        AtiktError: Wrong shape, fewer than 2 samples, or bad ``n_points``/``rate_hz``.
+    """
+    temp = _as_float_array("temperature", temperature, 2)
+    if temp.shape[0] < 2 or n_points < 2 or not rate_hz > 0:  # noqa: PLR2004
+        msg = (
+            f"temperature: need >= 2 samples, n_points >= 2 and rate_hz > 0, got "
+            f"{temp.shape[0]} samples, n_points={n_points}, rate_hz={rate_hz}"
+        )
+        raise AtiktError(msg)
+    mean = temp.mean(axis=1)
+    t_source = np.arange(mean.shape[0]) / rate_hz
+    t_target = np.linspace(0.0, t_source[-1], n_points)
+    resampled = np.interp(t_target, t_source, mean)
+    gradient = np.gradient(resampled, t_target)
+    return np.concatenate([resampled, gradient])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class RawFeatures:
+    """Raw (unstandardised, pre-PCA) feature vectors of one observation.
+
+    Attributes:
+        kind: Action kind: ``"press"``, ``"slide"`` or ``"static"``.
+        force: Shape (1,) stiffness feature, None for sliding.
+        texture: Shape (12,) or (4,) texture descriptor, None for press/static.
+        thermal: Shape (2 * n_points,) ``[T, dT]`` sequence.
+    """
+
+    kind: str
+    force: FloatArray | None
+    texture: FloatArray | None
+    thermal: FloatArray
+
+    def modality(self, name: str) -> FloatArray:
+        """Return the vector of one modality.
+
+        Raises:
+            AtiktError: The observation has no such modality (e.g. texture of a press).
+        """
+        value = {"force": self.force, "texture": self.texture, "thermal": self.thermal}.get(name)
+        if value is None:
+            msg = (
+                f"a {self.kind!r} observation has no {name!r} features; "
+                f"choose among {MODALITIES_BY_KIND.get(self.kind, ())}"
+            )
+            raise AtiktError(msg)
+        return value
+
+
+def _frozen(array: FloatArray) -> FloatArray:
+    """Return ``array`` marked read-only."""
+    array.setflags(write=False)
+    return array
+
+
+def extract_features(
+    kind: str,
+    force: npt.ArrayLike | None,
+    acceleration: npt.ArrayLike | None,
+    temperature: npt.ArrayLike,
+    *,
+    n_thermal_points: int = 20,
+    temperature_rate_hz: float = 20.0,
+    texture_per_axis: bool = True,
+) -> RawFeatures:
+    """Extract the raw features of one observation (one action's execute phase).
+
+    Args:
+        kind: ``"press"``, ``"slide"`` or ``"static"``.
+        force: Shape (n, n_cells, 3) float, N, 250 Hz; required for press/static, else ignored.
+        acceleration: Shape (n, n_cells, 3) float, m/s^2, 1 kHz; required for slide, else
+            ignored.
+        temperature: Shape (n, n_cells) float, degrees C, ``temperature_rate_hz``.
+        n_thermal_points: Resampled length of the thermal sequence (same for all actions that
+            are compared).
+        temperature_rate_hz: Sample rate of ``temperature``.
+        texture_per_axis: See :func:`texture`.
+
+    Returns:
+        The raw per-modality vectors, read-only.
+
+    Raises:
+        AtiktError: Unknown kind, a missing modality, or a malformed array.
+    """
+    if kind not in MODALITIES_BY_KIND:
+        msg = f"unknown action kind {kind!r}; use one of {KINDS}"
+        raise AtiktError(msg)
+    needed = MODALITIES_BY_KIND[kind]
+    force_vector: FloatArray | None = None
+    texture_vector: FloatArray | None = None
+    if "force" in needed:
+        if force is None:
+            msg = f"a {kind!r} action needs the force array; pass force (n, n_cells, 3)"
+            raise AtiktError(msg)
+        force_vector = _frozen(stiffness(force))
+    if "texture" in needed:
+        if acceleration is None:
+            msg = f"a {kind!r} action needs the acceleration array; pass (n, n_cells, 3)"
+            raise AtiktError(msg)
+        texture_vector = _frozen(texture(acceleration, per_axis=texture_per_axis))
+    thermal = thermal_sequence(temperature, n_points=n_thermal_points, rate_hz=temperature_rate_hz)
+    return RawFeatures(kind, force_vector, texture_vector, _frozen(thermal))
+
+
+def _check_observations(observations: Sequence[RawFeatures]) -> str:
+    """Return the common kind of ``observations``.
+
+    Raises:
+        AtiktError: No observations, or observations of different kinds.
+    """
+    if len(observations) == 0:
+        msg = "no observations; pass at least one RawFeatures"
+        raise AtiktError(msg)
+    kinds = {obs.kind for obs in observations}
+    if len(kinds) != 1:
+        msg = f"observations of different kinds {sorted(kinds)}; pass one action's observations"
+        raise AtiktError(msg)
+    return kinds.pop()
+
+
+def _stack(observations: Sequence[RawFeatures], modality: str) -> FloatArray:
+    """Stack one modality of all observations into shape (n, d).
+
+    Raises:
+        AtiktError: Vectors of different lengths (e.g. different ``n_thermal_points``).
+    """
+    vectors = [obs.modality(modality) for obs in observations]
+    lengths = {v.shape[0] for v in vectors}
+    if len(lengths) != 1:
+        msg = (
+            f"{modality} vectors of different lengths {sorted(lengths)}; extract every "
+            "observation with the same parameters"
+        )
+        raise AtiktError(msg)
+    return np.vstack(vectors)
+
+
+class FeatureTransformer:
+    """Standardise raw features and reduce the thermal sequence by PCA, fitted on training data.
+
+    Every statistic (means, scales, principal axes) comes from the observations given to
+    :meth:`fit`; :meth:`transform` applies them unchanged to any other observation. Each
+    modality block of the output has unit total variance on the training set, so one RBF length
+    scale near 1 is a sensible start for every modality:
+
+    - force / texture: every column z-scored, the block divided by ``sqrt(n_columns)``;
+    - thermal: the ``T`` half and the ``dT`` half of the sequence are centred per column and
+      divided by their own pooled standard deviation (keeping the shape of the sequences), then
+      projected on the first ``n_thermal_components`` principal axes; the scores are divided by
+      the square root of their total variance. With fewer training observations than
+      components, the missing components are zero columns, so the output width never changes.
+
+    Args:
+        modalities: Modalities to keep, in any order (output order follows
+            :data:`MODALITIES`); None keeps all modalities of the action kind.
+        n_thermal_components: Principal components of the thermal sequence (thesis: 10).
+        min_std: Standard deviations below this count as zero (the column is only centred).
+
+    Attributes:
+        kind_: Action kind of the training observations.
+        modalities_: Modalities in output order.
+        slices_: Column slice of each modality in the output matrix.
+        n_features_out_: Output width.
+        means_: Per-modality column means (raw space).
+        scales_: Per-modality column divisors (raw space).
+        components_: Thermal principal axes, shape (n_thermal_components, 2 * n_points).
+        thermal_scale_: Divisor of the thermal scores.
+        explained_variance_: Variance of each thermal score on the training set.
+    """
+
+    def __init__(
+        self,
+        modalities: Sequence[str] | None = None,
+        n_thermal_components: int = 10,
+        min_std: float = 1e-8,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        self.modalities = modalities
+        self.n_thermal_components = n_thermal_components
+        self.min_std = min_std
+
+    def _resolve_modalities(self, kind: str) -> tuple[str, ...]:
+        """Return the modalities to use for ``kind``, in output order.
+
+        Raises:
+            AtiktError: A requested modality is not perceived by this kind of action.
+        """
+        available = MODALITIES_BY_KIND[kind]
+        if self.modalities is None:
+            return available
+        unknown = set(self.modalities) - set(available)
+        if unknown or not self.modalities:
+            msg = (
+                f"modalities {list(self.modalities)} not available for {kind!r} actions; "
+                f"choose a non-empty subset of {available}"
+            )
+            raise AtiktError(msg)
+        return tuple(m for m in MODALITIES if m in self.modalities)
+
+    def fit(self, observations: Sequence[RawFeatures]) -> Self:
+        """Learn the statistics from training observations of one action.
+
+        Args:
+            observations: Training observations, all of the same kind.
+
+        Returns:
+            self.
+
+        Raises:
+            AtiktError: No observations, mixed kinds, or a bad ``n_thermal_components``.
+        """
+        if self.n_thermal_components < 1:
+            msg = f"n_thermal_components={self.n_thermal_components}; use at least 1"
+            raise AtiktError(msg)
+        self.kind_ = _check_observations(observations)
+        self.modalities_ = self._resolve_modalities(self.kind_)
+        self.means_: dict[str, FloatArray] = {}
+        self.scales_: dict[str, FloatArray] = {}
+        self.slices_: dict[str, slice] = {}
+        start = 0
+        for modality in self.modalities_:
+            raw = _stack(observations, modality)
+            width = self._fit_modality(modality, raw)
+            self.slices_[modality] = slice(start, start + width)
+            start += width
+        self.n_features_out_ = start
+        return self
+
+    def _fit_modality(self, modality: str, raw: FloatArray) -> int:
+        """Fit the statistics of one modality block and return its output width."""
+        mean = raw.mean(axis=0)
+        centred = raw - mean
+        if modality != "thermal":
+            std = centred.std(axis=0)
+            scale = np.where(std > self.min_std, std, 1.0) * np.sqrt(raw.shape[1])
+            self.means_[modality], self.scales_[modality] = mean, scale
+            return int(raw.shape[1])
+        half = raw.shape[1] // 2
+        pooled = [
+            np.sqrt(np.mean(centred[:, part] ** 2)) for part in (slice(0, half), slice(half, None))
+        ]
+        pooled = [p if p > self.min_std else 1.0 for p in pooled]
+        scale = np.concatenate([np.full(half, pooled[0]), np.full(raw.shape[1] - half, pooled[1])])
+        self.means_[modality], self.scales_[modality] = mean, scale
+        self._fit_pca(centred / scale)
+        return self.n_thermal_components
+
+    def _fit_pca(self, z: FloatArray) -> None:
+        """Fit the principal axes of the centred, scaled thermal block ``z`` (n, d)."""
+        n, d = z.shape
+        _, singular, vt = np.linalg.svd(z, full_matrices=False)
+        keep = singular > max(singular.max(initial=0.0), _TINY) * 1e-10
+        signs = np.sign(vt[np.arange(vt.shape[0]), np.argmax(np.abs(vt), axis=1)])
+        vt = vt * np.where(signs == 0, 1.0, signs)[:, None]
+        components = np.zeros((self.n_thermal_components, d))
+        variance = np.zeros(self.n_thermal_components)
+        k = min(self.n_thermal_components, int(keep.sum()))
+        components[:k] = vt[:k]
+        variance[:k] = singular[:k] ** 2 / n
+        total = variance.sum()
+        self.components_ = components
+        self.explained_variance_ = variance
+        self.thermal_scale_ = float(np.sqrt(total)) if total > self.min_std**2 else 1.0
+
+    def transform(self, observations: Sequence[RawFeatures]) -> FloatArray:
+        """Map observations to the standardised feature matrix.
+
+        Args:
+            observations: Observations of the kind the transformer was fitted on.
+
+        Returns:
+            Shape (n, n_features_out_) float64; columns per modality as in ``slices_``.
+
+        Raises:
+            NotFittedError: ``fit`` was not called.
+            AtiktError: Observations of another kind or of other vector lengths.
+        """
+        if not hasattr(self, "slices_"):
+            msg = "FeatureTransformer is not fitted; call fit(training observations) first"
+            raise NotFittedError(msg)
+        kind = _check_observations(observations)
+        if kind != self.kind_:
+            msg = f"transformer fitted on {self.kind_!r} observations, got {kind!r} ones"
+            raise AtiktError(msg)
+        blocks = [self._transform_modality(m, _stack(observations, m)) for m in self.modalities_]
+        return np.hstack(blocks)
+
+    def _transform_modality(self, modality: str, raw: FloatArray) -> FloatArray:
+        """Standardise (and for thermal, project) one modality block.
+
+        Raises:
+            AtiktError: The block's width differs from the training data.
+        """
+        mean = self.means_[modality]
+        if raw.shape[1] != mean.shape[0]:
+            msg = (
+                f"{modality} vectors have {raw.shape[1]} values, the training data had "
+                f"{mean.shape[0]}; extract with the same parameters"
+            )
+            raise AtiktError(msg)
+        z = (raw - mean) / self.scales_[modality]
+        if modality != "thermal":
+            return z
+        return (z @ self.components_.T) / self.thermal_scale_
+
+    def fit_transform(self, observations: Sequence[RawFeatures]) -> FloatArray:
+        """Fit on ``observations`` and return their feature matrix."""
+        return self.fit(observations).transform(observations)

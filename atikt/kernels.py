@@ -1,0 +1,410 @@
+"""Covariance functions of the multi-modal and the dependent (transfer) GP classifiers.
+
+Hyperparameters live in log space with bounds, in the scikit-learn style: ``theta`` holds the
+free ones, ``bounds`` their (log) box, ``with_theta`` returns a new kernel, and
+``gradient(X)`` returns ``K`` together with ``dK/dtheta`` of shape (n_params, n, n).
+
+- :class:`SliceRBF`: ``exp(-|x_s - y_s|^2 / (2 l^2))`` on one modality's column slice ``s``.
+- :class:`ModalityKernel`: ``s^2 * sum_m w_m k_m`` with weights ``w = softmax([0, logits])``
+  (``w >= 0``, ``|w|_1 = 1``) and an optional signal variance ``s^2`` (None: the thesis
+  variant, ``s^2 = 1``).
+- :class:`DependentKernel`: the transfer kernel of Feng, Kaboli & Cheng (TUM 2017),
+  ``[[K(Xo, Xo), rho K(Xo, Xn)], [rho K(Xn, Xo), K(Xn, Xn)]]`` with ``rho`` in [0, 1]; the
+  domain (0 = old object, 1 = new object) is the last column of ``X``. It is the Hadamard
+  product of the base kernel with the PSD matrix ``[[1, rho], [rho, 1]]`` expanded over the
+  domains, hence PSD for every ``rho`` in [0, 1] (Schur product theorem).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import TYPE_CHECKING, Final, Literal, Self
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.distance import cdist
+
+from atikt.errors import AtiktError
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+FloatArray = npt.NDArray[np.float64]
+Bounds = tuple[float, float] | Literal["fixed"]
+
+DEFAULT_LENGTH_SCALE_BOUNDS: Final = (0.05, 20.0)
+"""Length-scale box: the feature blocks have unit total variance (see FeatureTransformer)."""
+DEFAULT_LOGIT_BOUNDS: Final = (-6.0, 6.0)
+"""Modality-weight logits box: weight ratios between e^-6 and e^6."""
+DEFAULT_VARIANCE_BOUNDS: Final = (0.1, 100.0)
+"""Signal-variance box of the amplitude variant."""
+DEFAULT_RHO_BOUNDS: Final = (1e-3, 1.0)
+"""Box of a learned transfer coefficient rho (log space, so 0 itself is excluded)."""
+
+_EMPTY_BOUNDS: Final = np.zeros((0, 2))
+
+
+def _log_bounds(bounds: Bounds) -> FloatArray:
+    """Return the (1, 2) log-space box of a positive hyperparameter, (0, 2) when fixed."""
+    if bounds == "fixed":
+        return _EMPTY_BOUNDS
+    low, high = bounds
+    if not 0 < low <= high:
+        msg = f"bounds {bounds}: need 0 < low <= high for a positive hyperparameter"
+        raise AtiktError(msg)
+    return np.log([[low, high]])
+
+
+class Kernel(abc.ABC):
+    """A covariance function with log-space hyperparameters and analytic gradients."""
+
+    @property
+    @abc.abstractmethod
+    def theta(self) -> FloatArray:
+        """Free hyperparameters in log space, shape (n_params,)."""
+
+    @property
+    @abc.abstractmethod
+    def bounds(self) -> FloatArray:
+        """Box of ``theta``, shape (n_params, 2), log space."""
+
+    @property
+    @abc.abstractmethod
+    def names(self) -> tuple[str, ...]:
+        """One name per entry of ``theta``."""
+
+    @abc.abstractmethod
+    def with_theta(self, theta: npt.ArrayLike) -> Self:
+        """Return a copy with the free hyperparameters set to ``theta`` (log space)."""
+
+    @abc.abstractmethod
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``K(X, Y)``, shape (n_X, n_Y); ``Y = X`` when None."""
+
+    @abc.abstractmethod
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K(X, X)`` (n, n) and ``dK/dtheta`` (n_params, n, n)."""
+
+    @abc.abstractmethod
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return the diagonal of ``K(X, X)``, shape (n,)."""
+
+    @property
+    def n_params(self) -> int:
+        """Number of free hyperparameters."""
+        return int(self.theta.shape[0])
+
+    def _check_theta(self, theta: npt.ArrayLike) -> FloatArray:
+        """Return ``theta`` as a float array of the right length.
+
+        Raises:
+            AtiktError: Wrong length or non-finite values.
+        """
+        array = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if array.shape[0] != self.n_params or not np.all(np.isfinite(array)):
+            msg = f"theta {array}: need {self.n_params} finite values for {self.names}"
+            raise AtiktError(msg)
+        return array
+
+
+class SliceRBF(Kernel):
+    """Squared-exponential kernel on one modality's column slice.
+
+    Args:
+        columns: The columns of the modality in the feature matrix.
+        length_scale: Length scale ``l > 0``.
+        length_scale_bounds: Box of ``l`` or ``"fixed"``.
+        name: Modality name, used in ``names``.
+    """
+
+    def __init__(
+        self,
+        columns: slice,
+        length_scale: float = 1.0,
+        length_scale_bounds: Bounds = DEFAULT_LENGTH_SCALE_BOUNDS,
+        name: str = "rbf",
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        if not length_scale > 0:
+            msg = f"length_scale={length_scale}; it must be > 0"
+            raise AtiktError(msg)
+        self.columns = columns
+        self.length_scale = float(length_scale)
+        self.length_scale_bounds = length_scale_bounds
+        self.name = name
+        self._bounds = _log_bounds(length_scale_bounds)
+
+    @property
+    def theta(self) -> FloatArray:
+        """``[log l]``, or empty when fixed."""
+        if self.length_scale_bounds == "fixed":
+            return np.zeros(0)
+        return np.array([np.log(self.length_scale)])
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Log-space box of ``theta``."""
+        return self._bounds
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """``(f"{name}.length_scale",)`` or empty."""
+        return () if self.length_scale_bounds == "fixed" else (f"{self.name}.length_scale",)
+
+    def with_theta(self, theta: npt.ArrayLike) -> Self:
+        """Return a copy with ``log l = theta[0]``."""
+        values = self._check_theta(theta)
+        length_scale = float(np.exp(values[0])) if values.shape[0] else self.length_scale
+        return type(self)(self.columns, length_scale, self.length_scale_bounds, self.name)
+
+    def sq_dist(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Squared Euclidean distances of the slice, shape (n_X, n_Y)."""
+        xs = X[:, self.columns]
+        ys = xs if Y is None else Y[:, self.columns]
+        return np.asarray(cdist(xs, ys, "sqeuclidean"), dtype=np.float64)
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``exp(-d^2 / (2 l^2))``."""
+        return np.exp(self.sq_dist(X, Y) / (-2.0 * self.length_scale**2))
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dlog l = K * d^2 / l^2``."""
+        scaled = self.sq_dist(X) / self.length_scale**2
+        K = np.exp(-0.5 * scaled)
+        if self.length_scale_bounds == "fixed":
+            return K, np.zeros((0, *K.shape))
+        return K, (K * scaled)[None]
+
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return ones: the RBF has unit variance."""
+        return np.ones(X.shape[0])
+
+
+class ModalityKernel(Kernel):
+    """Weighted sum of per-modality RBFs, optionally scaled by a signal variance.
+
+    ``k(x, y) = s^2 * sum_m w_m k_m(x, y)`` with ``w = softmax([0, *logits])``: the first
+    modality is the reference, so ``M`` modalities have ``M - 1`` free logits and the weights
+    are non-negative with L1 norm 1. ``theta`` is ``[log l_1..log l_M, logits, log s^2]``
+    (the last only when ``variance`` is not None).
+
+    Args:
+        parts: One :class:`SliceRBF` per modality.
+        logits: ``M - 1`` weight logits relative to the first modality; None = equal weights.
+        variance: Signal variance ``s^2``; None is the thesis variant (no amplitude, ``s^2=1``).
+        logit_bounds: Box of each logit (not logged: logits are already log ratios).
+        variance_bounds: Box of ``s^2`` or ``"fixed"``.
+    """
+
+    def __init__(
+        self,
+        parts: Sequence[SliceRBF],
+        logits: npt.ArrayLike | None = None,
+        variance: float | None = None,
+        logit_bounds: tuple[float, float] = DEFAULT_LOGIT_BOUNDS,
+        variance_bounds: Bounds = DEFAULT_VARIANCE_BOUNDS,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        if not parts:
+            msg = "ModalityKernel needs at least one modality kernel"
+            raise AtiktError(msg)
+        self.parts = tuple(parts)
+        values = np.zeros(len(parts) - 1) if logits is None else np.asarray(logits, float)
+        if values.shape != (len(parts) - 1,):
+            msg = f"logits {values}: need {len(parts) - 1} values for {len(parts)} modalities"
+            raise AtiktError(msg)
+        if variance is not None and not variance > 0:
+            msg = f"variance={variance}; it must be > 0 (or None for the thesis variant)"
+            raise AtiktError(msg)
+        self.logits = values
+        self.variance = variance
+        self.logit_bounds = logit_bounds
+        self.variance_bounds = variance_bounds
+        self._learn_variance = variance is not None and variance_bounds != "fixed"
+        self._bounds = np.vstack(
+            [
+                *(p.bounds for p in self.parts),
+                np.tile(np.asarray(logit_bounds, float), (len(parts) - 1, 1)),
+                _log_bounds(variance_bounds) if self._learn_variance else _EMPTY_BOUNDS,
+            ]
+        )
+
+    @property
+    def weights(self) -> FloatArray:
+        """Modality weights, shape (M,), non-negative, summing to 1."""
+        z = np.concatenate([[0.0], self.logits])
+        e = np.exp(z - z.max())
+        return np.asarray(e / e.sum(), dtype=np.float64)
+
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Names of the modality kernels, in order."""
+        return tuple(p.name for p in self.parts)
+
+    @property
+    def signal_variance(self) -> float:
+        """``s^2`` (1 for the thesis variant)."""
+        return 1.0 if self.variance is None else self.variance
+
+    @property
+    def theta(self) -> FloatArray:
+        """``[log l_m..., logits..., log s^2]``."""
+        tail = [np.log(self.signal_variance)] if self._learn_variance else []
+        return np.concatenate([*(p.theta for p in self.parts), self.logits, tail])
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Log-space box of ``theta``."""
+        return self._bounds
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the ``theta`` entries."""
+        part_names = [n for p in self.parts for n in p.names]
+        logit_names = [f"{p.name}.weight_logit" for p in self.parts[1:]]
+        return (*part_names, *logit_names, *(["signal_variance"] if self._learn_variance else []))
+
+    def with_theta(self, theta: npt.ArrayLike) -> Self:
+        """Return a copy with the free hyperparameters set from ``theta``."""
+        values = self._check_theta(theta)
+        parts, start = [], 0
+        for part in self.parts:
+            parts.append(part.with_theta(values[start : start + part.n_params]))
+            start += part.n_params
+        n_logits = len(self.parts) - 1
+        logits = values[start : start + n_logits]
+        variance = float(np.exp(values[-1])) if self._learn_variance else self.variance
+        return type(self)(parts, logits, variance, self.logit_bounds, self.variance_bounds)
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``s^2 * sum_m w_m K_m(X, Y)``."""
+        weights = self.weights * self.signal_variance
+        K: FloatArray = weights[0] * self.parts[0](X, Y)
+        for w, part in zip(weights[1:], self.parts[1:], strict=True):
+            K += w * part(X, Y)
+        return K
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dtheta`` (chain rule through the softmax and ``log s^2``)."""
+        w, s2 = self.weights, self.signal_variance
+        parts = [part.gradient(X) for part in self.parts]
+        mixture = w[0] * parts[0][0]
+        for wm, (Km, _) in zip(w[1:], parts[1:], strict=True):
+            mixture = mixture + wm * Km
+        blocks = [s2 * wm * dKm for wm, (_, dKm) in zip(w, parts, strict=True)]
+        # d w_m / d logit_j = w_m (delta_mj - w_j)  =>  dK / d logit_j = s2 w_j (K_j - mixture)
+        blocks += [(s2 * w[j] * (parts[j][0] - mixture))[None] for j in range(1, len(parts))]
+        if self._learn_variance:
+            blocks.append((s2 * mixture)[None])
+        return s2 * mixture, np.concatenate(blocks, axis=0)
+
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return ``s^2`` for every row (each RBF has unit variance and ``|w|_1 = 1``)."""
+        return np.full(X.shape[0], self.signal_variance)
+
+
+class DependentKernel(Kernel):
+    """The dependent-GP transfer kernel over old-object and new-object observations.
+
+    ``K_ij = k(x_i, x_j) * (1 if d_i == d_j else rho)`` where ``d`` is the domain flag in
+    column ``flag_column`` of ``X`` (0 = old object, 1 = new object) and ``k`` is the base
+    kernel, which must ignore that column (the modality slices never cover it).
+
+    Args:
+        base: The multi-modal kernel shared by both domains.
+        rho: Transfer coefficient in [0, 1].
+        rho_bounds: Box of a learned ``rho`` or ``"fixed"`` (fixed ``rho`` may be 0).
+        flag_column: Column of ``X`` holding the domain flag.
+    """
+
+    def __init__(
+        self,
+        base: Kernel,
+        rho: float,
+        rho_bounds: Bounds = "fixed",
+        flag_column: int = -1,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        if not 0.0 <= rho <= 1.0 or (rho_bounds != "fixed" and rho <= 0.0):
+            msg = f"rho={rho}; it must lie in [0, 1] (and be > 0 when it is learned)"
+            raise AtiktError(msg)
+        self.base = base
+        self.rho = float(rho)
+        self.rho_bounds = rho_bounds
+        self.flag_column = flag_column
+        self._bounds = np.vstack([base.bounds, _log_bounds(rho_bounds)])
+
+    @property
+    def learn_rho(self) -> bool:
+        """Whether ``rho`` is a free hyperparameter."""
+        return self.rho_bounds != "fixed"
+
+    @property
+    def theta(self) -> FloatArray:
+        """``[base theta..., log rho]`` (the last only when ``rho`` is learned)."""
+        tail = [np.log(self.rho)] if self.learn_rho else []
+        return np.concatenate([self.base.theta, tail])
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Log-space box of ``theta``."""
+        return self._bounds
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the ``theta`` entries."""
+        return (*self.base.names, *(["rho"] if self.learn_rho else []))
+
+    def with_theta(self, theta: npt.ArrayLike) -> Self:
+        """Return a copy with the free hyperparameters set from ``theta``."""
+        values = self._check_theta(theta)
+        n_base = self.base.n_params
+        base = self.base.with_theta(values[:n_base])
+        rho = float(np.exp(values[n_base])) if self.learn_rho else self.rho
+        return type(self)(base, min(rho, 1.0), self.rho_bounds, self.flag_column)
+
+    def _cross(self, X: FloatArray, Y: FloatArray | None) -> npt.NDArray[np.bool_]:
+        """Return True where the two observations come from different domains."""
+        fx = X[:, self.flag_column]
+        fy = fx if Y is None else Y[:, self.flag_column]
+        return np.asarray(fx[:, None] != fy[None, :])
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return the block matrix with ``rho`` on the cross-domain entries."""
+        return np.where(self._cross(X, Y), self.rho, 1.0) * self.base(X, Y)
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dtheta``; ``dK/dlog rho = rho * k`` on cross-domain entries."""
+        cross = self._cross(X, None)
+        mask = np.where(cross, self.rho, 1.0)
+        K_base, dK_base = self.base.gradient(X)
+        dK = dK_base * mask
+        if self.learn_rho:
+            dK = np.concatenate([dK, (np.where(cross, self.rho, 0.0) * K_base)[None]], axis=0)
+        return K_base * mask, dK
+
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return the base kernel's diagonal (each point shares its own domain)."""
+        return self.base.diag(X)
+
+
+def modality_kernel(
+    slices: Mapping[str, slice],
+    *,
+    amplitude: bool = True,
+    length_scale: float = 1.0,
+    variance: float = 1.0,
+) -> ModalityKernel:
+    """Build the multi-modal kernel for a feature matrix with the given modality slices.
+
+    Args:
+        slices: Column slice of each modality (e.g. ``FeatureTransformer.slices_``).
+        amplitude: True learns a signal variance ``s^2``; False is the thesis variant.
+        length_scale: Initial length scale of every modality.
+        variance: Initial signal variance (with ``amplitude``).
+
+    Returns:
+        The kernel with equal initial weights.
+    """
+    parts = [SliceRBF(cols, length_scale, name=name) for name, cols in slices.items()]
+    return ModalityKernel(parts, variance=variance if amplitude else None)
