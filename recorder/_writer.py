@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import struct
 from dataclasses import dataclass, field
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -29,9 +30,10 @@ from recorder.errors import OutputExistsError, RecorderError
 from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Mapping
+    from collections.abc import Callable, Iterable, Mapping, Sequence
     from types import TracebackType
 
+    from numpy.typing import NDArray
     from rosbags.typesys.store import Typestore
 
     from recorder._catalog import ActionSpec, ObjectSpec
@@ -152,12 +154,70 @@ def _time(store: Typestore, stamp_ns: int) -> Any:  # noqa: ANN401 (typestore me
     return store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
 
 
+@dataclass(frozen=True, slots=True)
+class _Template:
+    """A message whose layout never changes: serialised once, then stamp and numbers patched.
+
+    Joint states and TCP poses (250 messages per second) have constant strings and sequence
+    lengths, so their CDR bytes differ only in the header stamp and the float64 values.
+    """
+
+    payload: bytes
+    offsets: tuple[int, ...]
+
+    @classmethod
+    def create(cls, payload: bytes, runs: Sequence[NDArray[np.float64]]) -> _Template:
+        """Locate each run of float64 values (distinct sentinels) in a serialised message."""
+        offsets = []
+        for run in runs:
+            pattern = run.astype("<f8").tobytes()
+            if payload.count(pattern) != 1:  # pragma: no cover (sentinels are unique)
+                msg = "template sentinel values are not unique in the payload"
+                raise RecorderError(msg)
+            offsets.append(payload.index(pattern))
+        return cls(payload, tuple(offsets))
+
+    def fill(self, stamp_ns: int, runs: Sequence[NDArray[np.float64]]) -> bytes:
+        """Return the payload with ``header.stamp`` and the float64 runs replaced."""
+        buffer = bytearray(self.payload)
+        _STAMP.pack_into(buffer, _STAMP_OFFSET, *divmod(stamp_ns, _NS_PER_S))
+        for offset, run in zip(self.offsets, runs, strict=True):
+            data = run.astype("<f8").tobytes()
+            buffer[offset : offset + len(data)] = data
+        return bytes(buffer)
+
+
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/msg/Time: int32 sec, uint32 nanosec
+_STAMP_OFFSET = 4  # header.stamp follows the 4-byte CDR encapsulation header
+
+
+def _sentinels(size: int, seed: int) -> NDArray[np.float64]:
+    """Return ``size`` distinctive float64 values that locate a field in a template."""
+    return np.random.default_rng(seed).uniform(1e-300, 2e-300, size)
+
+
 @dataclass(slots=True)
 class _Encoder:
     """Turns stream items into (topic, publish time, CDR bytes)."""
 
     info: RecordingInfo
     store: Typestore = field(default_factory=build_typestore)
+    _joints: _Template = field(init=False)
+    _poses: _Template = field(init=False)
+    _dispatch: dict[type, Callable[[Any], tuple[str, bytes]]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        """Build the templates of the fixed-layout messages and the dispatch table."""
+        self._dispatch = {
+            SkinBlock: self._skin,
+            JointSample: self._joint,
+            PoseSample: self._pose,
+            PhaseEvent: self._event,
+        }
+        runs = [_sentinels(6, seed) for seed in range(3)]
+        self._joints = _Template.create(self._joint_message(0, *runs), runs)
+        pose = _sentinels(7, 3)
+        self._poses = _Template.create(self._pose_message(0, pose[:3], pose[3:]), [pose])
 
     def encode(self, item: StreamItem) -> tuple[str, int, bytes]:
         """Return the topic, sensor stamp and CDR payload of one stream item.
@@ -165,13 +225,7 @@ class _Encoder:
         Raises:
             RecorderError: The item is not a stream item or its arrays have the wrong shape.
         """
-        encoders: dict[type, Callable[[Any], tuple[str, bytes]]] = {
-            SkinBlock: self._skin,
-            JointSample: self._joint,
-            PoseSample: self._pose,
-            PhaseEvent: self._event,
-        }
-        encoder = encoders.get(type(item))
+        encoder = self._dispatch.get(type(item))
         if encoder is None:
             msg = f"rig yielded {type(item).__name__}; a rig must yield recorder.StreamItem values"
             raise RecorderError(msg)
@@ -208,30 +262,59 @@ class _Encoder:
         )
         return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
 
-    def _joint(self, sample: JointSample) -> tuple[str, bytes]:
+    def _joint_message(
+        self,
+        stamp_ns: int,
+        position: NDArray[np.float64],
+        velocity: NDArray[np.float64],
+        effort: NDArray[np.float64],
+    ) -> bytes:
+        """Serialise a ``sensor_msgs/msg/JointState`` with rosbags (the reference encoding)."""
         msgtype = "sensor_msgs/msg/JointState"
         message = self.store.types[msgtype](
-            header=self._header(sample.stamp_ns, _FRAME_BY_TYPE[msgtype]),
+            header=self._header(stamp_ns, _FRAME_BY_TYPE[msgtype]),
             name=list(UR10_JOINTS),
-            position=_vector(sample.position, 6, "joint position"),
-            velocity=_vector(sample.velocity, 6, "joint velocity"),
-            effort=_vector(sample.effort, 6, "joint effort"),
+            position=position,
+            velocity=velocity,
+            effort=effort,
         )
-        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+        return self._serialize(message, msgtype)
 
-    def _pose(self, sample: PoseSample) -> tuple[str, bytes]:
+    def _joint(self, sample: JointSample) -> tuple[str, bytes]:
+        runs = (
+            _vector(sample.position, 6, "joint position"),
+            _vector(sample.velocity, 6, "joint velocity"),
+            _vector(sample.effort, 6, "joint effort"),
+        )
+        return _TOPIC_BY_TYPE["sensor_msgs/msg/JointState"], self._joints.fill(
+            sample.stamp_ns, runs
+        )
+
+    def _pose_message(
+        self, stamp_ns: int, position: NDArray[np.float64], orientation: NDArray[np.float64]
+    ) -> bytes:
+        """Serialise a ``geometry_msgs/msg/PoseStamped`` with rosbags (the reference encoding)."""
         msgtype = "geometry_msgs/msg/PoseStamped"
         types = self.store.types
-        x, y, z = _vector(sample.position, 3, "TCP position")
-        qx, qy, qz, qw = _vector(sample.orientation, 4, "TCP orientation")
+        x, y, z = (float(v) for v in position)
+        qx, qy, qz, qw = (float(v) for v in orientation)
         pose = types["geometry_msgs/msg/Pose"](
             position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z),
             orientation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
         )
-        message = types[msgtype](
-            header=self._header(sample.stamp_ns, _FRAME_BY_TYPE[msgtype]), pose=pose
+        message = types[msgtype](header=self._header(stamp_ns, _FRAME_BY_TYPE[msgtype]), pose=pose)
+        return self._serialize(message, msgtype)
+
+    def _pose(self, sample: PoseSample) -> tuple[str, bytes]:
+        run = np.concatenate(
+            [
+                _vector(sample.position, 3, "TCP position"),
+                _vector(sample.orientation, 4, "TCP orientation"),
+            ]
         )
-        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+        return _TOPIC_BY_TYPE["geometry_msgs/msg/PoseStamped"], self._poses.fill(
+            sample.stamp_ns, [run]
+        )
 
     def _event(self, event: PhaseEvent) -> tuple[str, bytes]:
         msgtype = full_type_name("ActionEvent")
@@ -256,7 +339,7 @@ _TOPIC_BY_TYPE = {channel.msgtype: channel.topic for channel in CHANNELS}
 _FRAME_BY_TYPE = {channel.msgtype: channel.frame for channel in CHANNELS}
 
 
-def _vector(values: Iterable[float], size: int, what: str) -> np.ndarray[Any, np.dtype[np.float64]]:
+def _vector(values: Iterable[float], size: int, what: str) -> NDArray[np.float64]:
     """Return ``values`` as a float64 vector of length ``size``.
 
     Raises:

@@ -30,6 +30,7 @@ from recorder._writer import (
     RecordingInfo,
     RecordingWriter,
     WrittenRecording,
+    _Encoder,
     record_action,
     software_version,
 )
@@ -263,3 +264,17 @@ def test_killed_recorder_loses_less_than_a_second(tmp_path: Path) -> None:
         pass
     assert metadata, "the metadata record is written first"
     assert kill_at - max(log_times) < 1_000_000_000
+
+
+def test_fixed_layout_messages_match_rosbags_serialization(
+    objects: Objects, actions: Actions
+) -> None:
+    encoder = _Encoder(_info(objects["wood"], actions["P1"]))
+    rng = np.random.default_rng(11)
+    for stamp in (0, 1, 999_999_999, 1_700_000_000_123_456_789):
+        q = rng.normal(size=(3, 6))
+        joint = JointSample(stamp, stamp, q[0], q[1], q[2])
+        assert encoder.encode(joint)[2] == encoder._joint_message(stamp, *q)
+        position, orientation = rng.normal(size=3), rng.normal(size=4)
+        pose = PoseSample(stamp, stamp, position, orientation)
+        assert encoder.encode(pose)[2] == encoder._pose_message(stamp, position, orientation)
