@@ -673,6 +673,7 @@ class ActiveLearner:
         Returns:
             Action -> accuracy in [0, 1].
         """
+        self._check_initialised()
         scores = {}
         for action, (observations, labels) in test.items():
             predicted = self.predict(action, observations)

@@ -144,6 +144,9 @@ def laplace_mode(
     Raises:
         NumericalError: ``B`` could not be factorised or the objective is not finite.
     """
+    if not np.all(np.isfinite(K)):
+        msg = "the kernel matrix has NaN or inf entries; check the features and hyperparameters"
+        raise NumericalError(msg)
     a = np.zeros(y.shape[0]) if a0 is None else a0
     f = K @ a
     psi = -0.5 * float(a @ f) + _log_likelihood(y, f)
@@ -639,12 +642,15 @@ class MultiModalGPC:
 
     def predict_proba(self, observations: Sequence[RawFeatures]) -> FloatArray:
         """Probabilities over the classes, shape (m, k)."""
-        return self.model_.predict_proba(self._features(observations))
+        X = self._features(observations)
+        return self.model_.predict_proba(X)
 
     def predict(self, observations: Sequence[RawFeatures]) -> IntArray:
         """Most probable class label, shape (m,)."""
-        return self.model_.predict(self._features(observations))
+        X = self._features(observations)
+        return self.model_.predict(X)
 
     def score(self, observations: Sequence[RawFeatures], labels: npt.ArrayLike) -> float:
         """Accuracy on test observations."""
-        return self.model_.score(self._features(observations), labels)
+        X = self._features(observations)
+        return self.model_.score(X, labels)

@@ -1,0 +1,324 @@
+"""Independent reference of the atikt classifiers on scikit-learn's GaussianProcessClassifier.
+
+The kernels are scikit-learn ``Kernel`` subclasses built on scikit-learn's own ``RBF`` and
+``ConstantKernel``: a column-slice RBF, a softmax-weighted sum of kernels, and the dependent
+(transfer) kernel reading the domain flag from the last column. At fixed hyperparameters the
+probabilities agree with atikt's to 1e-6 (tests/atikt/test_atikt_reference.py); the benchmark
+(tests/bench/bench_atikt.py) times :func:`reference_update` against atikt's own update.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+import scipy.optimize
+from sklearn.gaussian_process import GaussianProcessClassifier
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, Hyperparameter
+from sklearn.gaussian_process.kernels import Kernel as SkKernel
+
+from atikt import (
+    DependentKernel,
+    FeatureTransformer,
+    ModalityKernel,
+    RawFeatures,
+    entropy,
+    modality_kernel,
+)
+from atikt.gpc import normalise
+from atikt.transfer import OLD_DOMAIN, with_domain
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from atikt.active import ActionState
+
+FloatArray = npt.NDArray[np.float64]
+RATIO_BOUNDS = (float(np.exp(-6.0)), float(np.exp(6.0)))
+
+
+class ColumnRBF(SkKernel):  # type: ignore[misc]
+    """scikit-learn's RBF applied to the columns ``[start, stop)``."""
+
+    def __init__(
+        self,
+        start: int = 0,
+        stop: int = 1,
+        length_scale: float = 1.0,
+        length_scale_bounds: Any = (0.05, 20.0),
+    ) -> None:
+        self.start = start
+        self.stop = stop
+        self.length_scale = length_scale
+        self.length_scale_bounds = length_scale_bounds
+
+    @property
+    def hyperparameter_length_scale(self) -> Hyperparameter:
+        return Hyperparameter("length_scale", "numeric", self.length_scale_bounds)
+
+    def __call__(self, X: Any, Y: Any = None, eval_gradient: bool = False) -> Any:  # noqa: FBT001, FBT002
+        rbf = RBF(self.length_scale, self.length_scale_bounds)
+        cols = slice(self.start, self.stop)
+        if Y is not None:
+            return rbf(X[:, cols], Y[:, cols])
+        return rbf(X[:, cols], eval_gradient=eval_gradient)
+
+    def diag(self, X: Any) -> Any:
+        return np.ones(X.shape[0])
+
+    def is_stationary(self) -> bool:
+        return True
+
+
+class SoftmaxMixture(SkKernel):  # type: ignore[misc]
+    """``sum_m w_m k_m``, ``w = [1, ratios] / (1 + sum ratios)``; theta: children, log ratios."""
+
+    def __init__(
+        self,
+        kernels: tuple[SkKernel, ...] = (),
+        ratios: Any = None,
+        ratio_bounds: Any = RATIO_BOUNDS,
+    ) -> None:
+        self.kernels = kernels
+        self.ratios = ratios
+        self.ratio_bounds = ratio_bounds
+
+    def _ratios(self) -> FloatArray:
+        return np.asarray(self.ratios, dtype=np.float64).reshape(-1)
+
+    @property
+    def weights(self) -> FloatArray:
+        r = np.concatenate([[1.0], self._ratios()])
+        return np.asarray(r / r.sum())
+
+    @property
+    def hyperparameters(self) -> list[Hyperparameter]:
+        out = [
+            Hyperparameter(f"k{i}__{h.name}", h.value_type, h.bounds, h.n_elements)
+            for i, k in enumerate(self.kernels)
+            for h in k.hyperparameters
+        ]
+        n = len(self.kernels) - 1
+        if n:
+            out.append(Hyperparameter("ratios", "numeric", [self.ratio_bounds] * n, n))
+        return out
+
+    @property
+    def theta(self) -> FloatArray:
+        return np.concatenate([*(k.theta for k in self.kernels), np.log(self._ratios())])
+
+    @theta.setter
+    def theta(self, theta: FloatArray) -> None:
+        start = 0
+        for k in self.kernels:
+            k.theta = theta[start : start + k.n_dims]
+            start += k.n_dims
+        self.ratios = np.exp(theta[start:])
+
+    @property
+    def bounds(self) -> FloatArray:
+        n = len(self.kernels) - 1
+        ratio = np.log(np.tile(np.asarray(self.ratio_bounds, float), (n, 1)))
+        return np.vstack([*(k.bounds for k in self.kernels), ratio])
+
+    def __call__(self, X: Any, Y: Any = None, eval_gradient: bool = False) -> Any:  # noqa: FBT001, FBT002
+        w = self.weights
+        if not eval_gradient:
+            return sum(wm * k(X, Y) for wm, k in zip(w, self.kernels, strict=True))
+        parts = [k(X, eval_gradient=True) for k in self.kernels]
+        K = sum(wm * Km for wm, (Km, _) in zip(w, parts, strict=True))
+        grads = [wm * dKm for wm, (_, dKm) in zip(w, parts, strict=True)]
+        grads += [(w[j] * (parts[j][0] - K))[:, :, None] for j in range(1, len(parts))]
+        return K, np.concatenate(grads, axis=2)
+
+    def diag(self, X: Any) -> Any:
+        return sum(wm * k.diag(X) for wm, k in zip(self.weights, self.kernels, strict=True))
+
+    def is_stationary(self) -> bool:
+        return True
+
+
+class DomainKernel(SkKernel):  # type: ignore[misc]
+    """Dependent kernel: ``rho`` times the base kernel across domains (flag = last column)."""
+
+    def __init__(self, base: SkKernel = None, rho: float = 0.5, rho_bounds: Any = "fixed") -> None:
+        self.base = base
+        self.rho = rho
+        self.rho_bounds = rho_bounds
+
+    @property
+    def _learn(self) -> bool:
+        return not (isinstance(self.rho_bounds, str) and self.rho_bounds == "fixed")
+
+    @property
+    def hyperparameters(self) -> list[Hyperparameter]:
+        out = [
+            Hyperparameter(f"base__{h.name}", h.value_type, h.bounds, h.n_elements)
+            for h in self.base.hyperparameters
+        ]
+        if self._learn:
+            out.append(Hyperparameter("rho", "numeric", self.rho_bounds))
+        return out
+
+    @property
+    def theta(self) -> FloatArray:
+        tail = [np.log(self.rho)] if self._learn else []
+        return np.concatenate([self.base.theta, tail])
+
+    @theta.setter
+    def theta(self, theta: FloatArray) -> None:
+        n = self.base.n_dims
+        self.base.theta = theta[:n]
+        if self._learn:
+            self.rho = float(np.exp(theta[n]))
+
+    @property
+    def bounds(self) -> FloatArray:
+        tail = [np.log(np.asarray(self.rho_bounds, float))] if self._learn else []
+        return np.vstack([self.base.bounds, *tail])
+
+    def _cross(self, X: Any, Y: Any) -> Any:
+        fy = X[:, -1] if Y is None else Y[:, -1]
+        return X[:, -1][:, None] != fy[None, :]
+
+    def __call__(self, X: Any, Y: Any = None, eval_gradient: bool = False) -> Any:  # noqa: FBT001, FBT002
+        cross = self._cross(X, Y)
+        mask = np.where(cross, self.rho, 1.0)
+        if not eval_gradient:
+            return self.base(X, Y) * mask
+        K, dK = self.base(X, eval_gradient=True)
+        grads = [dK * mask[:, :, None]]
+        if self._learn:
+            grads.append((np.where(cross, self.rho, 0.0) * K)[:, :, None])
+        return K * mask, np.concatenate(grads, axis=2)
+
+    def diag(self, X: Any) -> Any:
+        return self.base.diag(X)
+
+    def is_stationary(self) -> bool:
+        return False
+
+
+def reference_kernel(ours: ModalityKernel | DependentKernel) -> SkKernel:
+    """The scikit-learn kernel with the same hyperparameter values as an atikt kernel."""
+    if isinstance(ours, DependentKernel):
+        assert isinstance(ours.base, ModalityKernel)
+        bounds = ours.rho_bounds
+        return DomainKernel(reference_kernel(ours.base), ours.rho, bounds)
+    parts = tuple(
+        ColumnRBF(p.columns.start, p.columns.stop, p.length_scale, p.length_scale_bounds)
+        for p in ours.parts
+    )
+    lo, hi = ours.logit_bounds
+    mixture = SoftmaxMixture(parts, np.exp(ours.logits), (np.exp(lo), np.exp(hi)))
+    if ours.variance is None:
+        return mixture
+    return ConstantKernel(ours.variance, ours.variance_bounds) * mixture
+
+
+def to_reference_theta(ours: ModalityKernel | DependentKernel) -> FloatArray:
+    """Reorder atikt's theta into the reference kernel's order (signal variance first)."""
+    base = ours.base if isinstance(ours, DependentKernel) else ours
+    assert isinstance(base, ModalityKernel)
+    theta = base.theta
+    if base.variance is not None:
+        theta = np.concatenate([theta[-1:], theta[:-1]])
+    if isinstance(ours, DependentKernel) and ours.learn_rho:
+        theta = np.concatenate([theta, [np.log(ours.rho)]])
+    return theta
+
+
+def lbfgs(max_iter: int) -> Any:
+    """A scikit-learn ``optimizer`` callable: L-BFGS-B with an iteration limit."""
+
+    def optimizer(obj_func: Any, initial_theta: FloatArray, bounds: FloatArray) -> Any:
+        result = scipy.optimize.minimize(
+            obj_func,
+            initial_theta,
+            method="L-BFGS-B",
+            jac=True,
+            bounds=bounds,
+            options={"maxiter": max_iter},
+        )
+        return result.x, result.fun
+
+    return optimizer
+
+
+def fixed_gpc(kernel: SkKernel, X: FloatArray, y: npt.ArrayLike) -> GaussianProcessClassifier:
+    """scikit-learn's classifier at fixed hyperparameters."""
+    return GaussianProcessClassifier(kernel=kernel, optimizer=None).fit(X, y)
+
+
+def reference_update(
+    state: ActionState,
+    *,
+    n_new_objects: int,
+    amplitude: bool,
+    n_thermal_components: int,
+    eps_neg1: float,
+    max_iter: int,
+    old_model: Sequence[GaussianProcessClassifier] | None,
+) -> FloatArray:
+    """One action update of the model prediction approach with scikit-learn; returns UNC.
+
+    Mirrors :meth:`atikt.ActiveLearner._update`: features fitted on priors + collected
+    observations, relatedness by the old objects' binary classifiers, one classifier per new
+    object (dependent kernel with the chosen old object's observations as auxiliary positives),
+    each warm-started from the state's previous hyperparameters, then the mean entropy of each
+    object's own observations.
+    """
+    prior = state.prior
+    training: list[RawFeatures] = list(state.observations)
+    if prior is not None:
+        training += prior.observations
+    transformer = FeatureTransformer(n_thermal_components=n_thermal_components).fit(training)
+    X = transformer.transform(state.observations)
+    labels = np.asarray(state.labels)
+    groups = prior.by_object() if prior is not None else {}
+    auxiliary = {old: transformer.transform(obs) for old, obs in groups.items()}
+    models: list[tuple[GaussianProcessClassifier, bool]] = []
+    for obj in range(n_new_objects):
+        kernel = modality_kernel(transformer.slices_, amplitude=amplitude)
+        theta = state.thetas[obj]
+        if theta is not None:
+            kernel = kernel.with_theta(theta)
+        y = (labels == obj).astype(np.float64)
+        source, rho = None, 0.0
+        if prior is not None and old_model is not None:
+            mine = [
+                o for o, lab in zip(state.observations, state.labels, strict=True) if lab == obj
+            ]
+            Xp = prior.transformer.transform(mine)
+            scores = [m.predict_proba(Xp)[:, 1].mean() for m in old_model]
+            best = int(np.argmax(scores))
+            if scores[best] >= eps_neg1:
+                source, rho = prior.old_objects[best], float(scores[best])
+        sk_kernel = reference_kernel(kernel)
+        if source is not None:
+            sk_kernel = DomainKernel(sk_kernel, rho, "fixed")
+        gpc = GaussianProcessClassifier(kernel=sk_kernel, optimizer=lbfgs(max_iter))
+        if source is None:
+            models.append((gpc.fit(X, y), False))
+        else:
+            aux = with_domain(auxiliary[source], OLD_DOMAIN)
+            X_all = np.vstack([aux, with_domain(X, 1.0)])
+            y_all = np.concatenate([np.ones(aux.shape[0]), y])
+            models.append((gpc.fit(X_all, y_all), True))
+    columns = [
+        m.predict_proba(with_domain(X, 1.0) if flagged else X)[:, 1] for m, flagged in models
+    ]
+    entropies = entropy(normalise(np.column_stack(columns)))
+    return np.array([entropies[labels == obj].mean() for obj in range(n_new_objects)])
+
+
+def reference_old_model(
+    kernels: Sequence[ModalityKernel], X: FloatArray, labels: npt.ArrayLike
+) -> list[GaussianProcessClassifier]:
+    """The old objects' binary classifiers in scikit-learn at atikt's fitted hyperparameters."""
+    classes = np.unique(np.asarray(labels))
+    return [
+        fixed_gpc(reference_kernel(k), X, (np.asarray(labels) == c).astype(float))
+        for k, c in zip(kernels, classes, strict=True)
+    ]

@@ -1,0 +1,194 @@
+"""Laplace GP classifier: marginal-likelihood gradient, mode, probabilities, errors."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from atikt_synthetic import NEW_OBJECTS, pool
+
+from atikt import (
+    AtiktError,
+    BinaryGPC,
+    DependentKernel,
+    MultiModalGPC,
+    NotFittedError,
+    NumericalError,
+    OneVsAllGPC,
+    laplace_mode,
+    modality_kernel,
+)
+from atikt.gpc import predictive_probability
+from atikt.transfer import with_domain
+
+if TYPE_CHECKING:
+    from atikt.kernels import Kernel
+
+SLICES = {"force": slice(0, 1), "thermal": slice(1, 4)}
+
+
+def problem(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((n, 4))
+    y = (X[:, 0] + 0.5 * X[:, 1] + 0.7 * rng.standard_normal(n) > 0).astype(float)
+    return X, y
+
+
+def lml_kernels() -> list[object]:
+    rng = np.random.default_rng(1)
+    thesis = modality_kernel(SLICES, amplitude=False)
+    amp = modality_kernel(SLICES, amplitude=True)
+    thesis = thesis.with_theta(rng.uniform(-0.5, 0.5, thesis.n_params))
+    amp = amp.with_theta(rng.uniform(-0.5, 1.5, amp.n_params))
+    return [
+        pytest.param(thesis, id="thesis"),
+        pytest.param(amp, id="amplitude"),
+        pytest.param(DependentKernel(amp, 0.6, (1e-3, 1.0)), id="dependent-learned-rho"),
+    ]
+
+
+@pytest.mark.parametrize("kernel", lml_kernels())
+def test_lml_gradient_matches_finite_differences(kernel: Kernel) -> None:
+    X, y = problem(30, seed=2)
+    if isinstance(kernel, DependentKernel):
+        X = np.vstack([with_domain(X[:10], 0.0), with_domain(X[10:], 1.0)])
+        y = np.concatenate([np.ones(10), y[10:]])
+    gpc = BinaryGPC(kernel, optimize=False, newton_tol=1e-14).fit(X, y)
+    theta = kernel.theta
+    value, gradient = gpc.log_marginal_likelihood(theta, eval_gradient=True)  # type: ignore[misc]
+    assert value == pytest.approx(gpc.log_marginal_likelihood_value_)
+    h = 1e-5
+    numeric = []
+    for i in range(theta.shape[0]):
+        step = np.zeros_like(theta)
+        step[i] = h
+        up = gpc.log_marginal_likelihood(theta + step)
+        down = gpc.log_marginal_likelihood(theta - step)
+        numeric.append((up - down) / (2 * h))  # type: ignore[operator]
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-6)
+
+
+def test_mode_is_stationary() -> None:
+    X, y = problem(25, seed=3)
+    K = modality_kernel(SLICES)(X)
+    mode = laplace_mode(K, y, tol=1e-14)
+    # at the mode f = K grad log p(y|f) = K (y - pi)  (R&W Eq. 3.17)
+    np.testing.assert_allclose(mode.f, K @ (y - mode.pi), atol=1e-8)
+    np.testing.assert_allclose(mode.a, y - mode.pi, atol=1e-8)
+    warm = laplace_mode(K, y, mode.a, tol=1e-14)
+    assert warm.n_iter <= 2
+    assert warm.log_marginal_likelihood == pytest.approx(mode.log_marginal_likelihood, abs=1e-10)
+
+
+def test_fit_increases_the_marginal_likelihood() -> None:
+    X, y = problem(40, seed=4)
+    start = modality_kernel(SLICES)
+    fixed = BinaryGPC(start, optimize=False).fit(X, y)
+    fitted = BinaryGPC(start, n_restarts=2, random_state=0).fit(X, y)
+    assert fitted.log_marginal_likelihood_value_ > fixed.log_marginal_likelihood_value_
+    bounds = start.bounds
+    assert np.all(fitted.kernel_.theta >= bounds[:, 0] - 1e-12)
+    assert np.all(fitted.kernel_.theta <= bounds[:, 1] + 1e-12)
+    assert fitted.n_evaluations_ > 0
+
+
+def test_probabilities_are_in_unit_interval_and_sensible() -> None:
+    X, y = problem(60, seed=5)
+    gpc = BinaryGPC(modality_kernel(SLICES), random_state=0).fit(X, y)
+    Xt, yt = problem(200, seed=6)
+    p = gpc.predict_proba(Xt)
+    assert p.shape == (200, 2)
+    assert np.all((p >= 0) & (p <= 1))
+    np.testing.assert_allclose(p.sum(axis=1), 1.0)
+    assert np.mean(gpc.predict(Xt) == yt) > 0.7
+    far = gpc.predict_positive(np.full((1, 4), 1e3))
+    assert far == pytest.approx(0.5, abs=1e-6)  # the prior far from all data
+
+
+def test_predictive_probability_extremes() -> None:
+    mean = np.array([-1e6, -3.0, 0.0, 3.0, 1e6, 2.0])
+    var = np.array([0.0, 1.0, 5.0, 1.0, 1e9, -1e-12])
+    p = predictive_probability(mean, var)
+    assert np.all((p >= 0) & (p <= 1))
+    assert p[2] == pytest.approx(0.5)
+    assert p[0] < 1e-6
+    assert p[4] > 0.5
+    np.testing.assert_allclose(predictive_probability(-mean, var), 1 - p, atol=1e-7)
+    # var = 0: the sigmoid itself (Williams & Barber's fit is accurate to a few 1e-4)
+    assert predictive_probability(np.array([2.0]), np.array([0.0])) == pytest.approx(
+        1 / (1 + np.exp(-2.0)), abs=1e-3
+    )
+
+
+def test_fit_is_deterministic_for_a_seed() -> None:
+    X, y = problem(30, seed=7)
+    a = BinaryGPC(modality_kernel(SLICES), n_restarts=3, random_state=11).fit(X, y)
+    b = BinaryGPC(modality_kernel(SLICES), n_restarts=3, random_state=11).fit(X, y)
+    np.testing.assert_array_equal(a.kernel_.theta, b.kernel_.theta)
+    np.testing.assert_array_equal(a.predict_positive(X), b.predict_positive(X))
+
+
+def test_single_class_training_set_is_allowed() -> None:
+    X, _ = problem(10, seed=8)
+    gpc = BinaryGPC(modality_kernel(SLICES), optimize=False).fit(X, np.ones(10))
+    assert np.all(gpc.predict_positive(X) > 0.5)
+
+
+def test_one_vs_all_normalises_over_classes() -> None:
+    rng = np.random.default_rng(9)
+    centres = rng.standard_normal((4, 4)) * 3
+    labels = np.repeat(np.arange(4), 10)
+    X = centres[labels] + rng.standard_normal((40, 4))
+    model = OneVsAllGPC(modality_kernel(SLICES), random_state=0).fit(X, labels + 10)
+    np.testing.assert_array_equal(model.classes_, [10, 11, 12, 13])
+    p = model.predict_proba(X)
+    np.testing.assert_allclose(p.sum(axis=1), 1.0)
+    raw = model.predict_binary(X)
+    np.testing.assert_allclose(p, raw / raw.sum(axis=1, keepdims=True))
+    assert model.score(X, labels + 10) > 0.9
+
+
+def test_errors() -> None:
+    X, y = problem(5, seed=10)
+    gpc = BinaryGPC(modality_kernel(SLICES))
+    with pytest.raises(NotFittedError):
+        gpc.predict_proba(X)
+    with pytest.raises(AtiktError, match="binary"):
+        gpc.fit(X, y * 2)
+    with pytest.raises(AtiktError, match="shape"):
+        gpc.fit(X, y[:3])
+    with pytest.raises(AtiktError, match="finite"):
+        gpc.fit(np.full_like(X, np.nan), y)
+    with pytest.raises(AtiktError, match="two classes"):
+        OneVsAllGPC(modality_kernel(SLICES)).fit(X, np.zeros(5, dtype=int))
+    with pytest.raises(NotFittedError):
+        OneVsAllGPC(modality_kernel(SLICES)).predict_proba(X)
+
+
+def test_numerical_failures_raise_numerical_error() -> None:
+    y = np.array([0.0, 1.0, 1.0])
+    with pytest.raises(NumericalError, match="Cholesky"):
+        laplace_mode(-100.0 * np.eye(3), y)
+    with pytest.raises(NumericalError):
+        laplace_mode(np.full((3, 3), np.nan), y)
+
+
+def test_multimodal_gpc_on_chosen_modalities() -> None:
+    data = pool(NEW_OBJECTS, ["P2"], n_trials=6, seed=12)["P2"]
+    test = pool(NEW_OBJECTS, ["P2"], n_trials=4, seed=13)["P2"]
+    train_obs = [o for j in data for o in data[j]]
+    train_y = np.array([j for j in data for _ in data[j]])
+    test_obs = [o for j in test for o in test[j]]
+    test_y = np.array([j for j in test for _ in test[j]])
+    accuracies = {}
+    for modalities in (["force"], ["thermal"], None):
+        model = MultiModalGPC(modalities, n_restarts=0, random_state=0).fit(train_obs, train_y)
+        p = model.predict_proba(test_obs)
+        np.testing.assert_allclose(p.sum(axis=1), 1.0)
+        accuracies[str(modalities)] = model.score(test_obs, test_y)
+    assert model.transformer_.modalities_ == ("force", "thermal")
+    assert all(0.0 <= a <= 1.0 for a in accuracies.values())
+    assert accuracies["None"] > 0.6  # five objects: chance is 0.2
+    with pytest.raises(NotFittedError):
+        MultiModalGPC().predict(test_obs)

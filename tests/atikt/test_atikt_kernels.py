@@ -1,0 +1,152 @@
+"""Kernels: analytic gradients against finite differences, PSD, weights, parameter handling."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+
+from atikt import AtiktError, DependentKernel, Kernel, ModalityKernel, SliceRBF, modality_kernel
+from atikt.transfer import with_domain
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+SLICES = {"force": slice(0, 1), "texture": slice(1, 4), "thermal": slice(4, 7)}
+
+
+def features(n: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).standard_normal((n, 7))
+
+
+def flagged(n_old: int, n_new: int, seed: int) -> np.ndarray:
+    return np.vstack(
+        [with_domain(features(n_old, seed), 0.0), with_domain(features(n_new, seed + 1), 1.0)]
+    )
+
+
+def finite_difference(kernel: Kernel, X: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    theta = kernel.theta
+    out = np.empty((theta.shape[0], X.shape[0], X.shape[0]))
+    for i in range(theta.shape[0]):
+        step = np.zeros_like(theta)
+        step[i] = h
+        out[i] = (kernel.with_theta(theta + step)(X) - kernel.with_theta(theta - step)(X)) / (2 * h)
+    return out
+
+
+def kernels() -> list[object]:
+    rng = np.random.default_rng(0)
+    thesis = modality_kernel(SLICES, amplitude=False)
+    amp = modality_kernel(SLICES, amplitude=True)
+    thesis = thesis.with_theta(rng.uniform(-1, 1, thesis.n_params))
+    amp = amp.with_theta(rng.uniform(-1, 1, amp.n_params))
+    X = features(12, 1)
+    Xf = flagged(5, 7, 2)
+    return [
+        pytest.param(SliceRBF(slice(1, 4), 0.7), X, id="rbf"),
+        pytest.param(thesis, X, id="thesis"),
+        pytest.param(amp, X, id="amplitude"),
+        pytest.param(DependentKernel(amp, 0.4), Xf, id="dependent-fixed"),
+        pytest.param(DependentKernel(thesis, 0.4, (1e-3, 1.0)), Xf, id="dependent-learned"),
+    ]
+
+
+@pytest.mark.parametrize(("kernel", "X"), kernels())
+def test_gradient_matches_finite_differences(kernel: Kernel, X: np.ndarray) -> None:
+    K, dK = kernel.gradient(X)
+    np.testing.assert_allclose(K, kernel(X), rtol=1e-12)
+    assert dK.shape == (kernel.n_params, X.shape[0], X.shape[0])
+    np.testing.assert_allclose(dK, finite_difference(kernel, X), rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize(("kernel", "X"), kernels())
+def test_kernel_properties(kernel: Kernel, X: np.ndarray) -> None:
+    K = kernel(X)
+    np.testing.assert_allclose(K, K.T, atol=1e-15)
+    np.testing.assert_allclose(np.diag(K), kernel.diag(X), rtol=1e-12)
+    assert np.linalg.eigvalsh(K).min() > -1e-10
+    Y = X[:3]
+    np.testing.assert_allclose(kernel(X, Y), K[:, :3], rtol=1e-12)
+    assert kernel.bounds.shape == (kernel.n_params, 2)
+    assert len(kernel.names) == kernel.n_params
+    np.testing.assert_allclose(kernel.with_theta(kernel.theta).theta, kernel.theta)
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.1, 0.5, 0.9, 0.999, 1.0])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dependent_kernel_is_psd_for_rho_in_unit_interval(rho: float, seed: int) -> None:
+    base = modality_kernel(SLICES).with_theta(np.random.default_rng(seed).uniform(-2, 2, 6))
+    X = flagged(15, 20, seed)
+    K = DependentKernel(base, rho)(X)
+    assert np.linalg.eigvalsh(K).min() > -1e-9
+    cross = K[:15, 15:]
+    np.testing.assert_allclose(cross, rho * base(X[:15], X[15:]))
+
+
+def test_dependent_kernel_with_rho_one_is_the_base_kernel() -> None:
+    base = modality_kernel(SLICES)
+    X = flagged(4, 6, 3)
+    np.testing.assert_allclose(DependentKernel(base, 1.0)(X), base(X))
+
+
+def test_dependent_kernel_with_rho_zero_is_block_diagonal() -> None:
+    X = flagged(4, 6, 4)
+    K = DependentKernel(modality_kernel(SLICES), 0.0)(X)
+    np.testing.assert_array_equal(K[:4, 4:], 0.0)
+
+
+def test_modality_weights_are_a_convex_combination() -> None:
+    kernel = modality_kernel(SLICES, amplitude=False).with_theta([0.1, 0.2, 0.3, 4.0, -4.0])
+    assert isinstance(kernel, ModalityKernel)
+    weights = kernel.weights
+    assert np.all(weights >= 0)
+    assert weights.sum() == pytest.approx(1.0)
+    assert weights[1] > weights[0] > weights[2]
+    X = features(5, 5)
+    expected = sum(w * p(X) for w, p in zip(weights, kernel.parts, strict=True))
+    np.testing.assert_allclose(kernel(X), expected)
+    np.testing.assert_allclose(np.diag(kernel(X)), 1.0)
+
+
+def test_signal_variance_scales_the_kernel() -> None:
+    base = modality_kernel(SLICES, amplitude=False)
+    amp = modality_kernel(SLICES, amplitude=True, variance=3.0)
+    X = features(6, 6)
+    np.testing.assert_allclose(amp(X), 3.0 * base(X))
+    assert amp.names[-1] == "signal_variance"
+    assert amp.n_params == base.n_params + 1
+
+
+def test_rbf_ignores_columns_outside_its_slice() -> None:
+    X = features(5, 7)
+    Y = X.copy()
+    Y[:, 4:] += 100.0
+    rbf = SliceRBF(slice(0, 4))
+    np.testing.assert_allclose(rbf(X), rbf(Y))
+
+
+def test_fixed_hyperparameters_are_not_free() -> None:
+    assert SliceRBF(slice(0, 1), 2.0, "fixed").n_params == 0
+    _, dK = SliceRBF(slice(0, 1), 2.0, "fixed").gradient(features(3, 8))
+    assert dK.shape == (0, 3, 3)
+
+
+@pytest.mark.parametrize(
+    ("build", "match"),
+    [
+        (lambda: SliceRBF(slice(0, 1), -1.0), "length_scale"),
+        (lambda: SliceRBF(slice(0, 1), 1.0, (2.0, 1.0)), "bounds"),
+        (lambda: ModalityKernel([]), "at least one"),
+        (lambda: ModalityKernel([SliceRBF(slice(0, 1))], logits=[1.0]), "logits"),
+        (lambda: ModalityKernel([SliceRBF(slice(0, 1))], variance=0.0), "variance"),
+        (lambda: DependentKernel(modality_kernel(SLICES), 1.5), "rho"),
+        (lambda: DependentKernel(modality_kernel(SLICES), 0.0, (1e-3, 1.0)), "rho"),
+        (lambda: modality_kernel(SLICES).with_theta([1.0]), "theta"),
+        (lambda: modality_kernel(SLICES).with_theta([np.nan] * 6), "theta"),
+    ],
+)
+def test_bad_parameters_are_refused(build: Callable[[], object], match: str) -> None:
+    with pytest.raises(AtiktError, match=match):
+        build()

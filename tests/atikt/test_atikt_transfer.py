@@ -1,0 +1,137 @@
+"""Transfer: the no-prior / rho = 0 reductions, refusing irrelevant priors, learned rho."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from atikt import (
+    AtiktError,
+    BinaryGPC,
+    NotFittedError,
+    OneVsAllGPC,
+    TransferGPC,
+    choose_by_optimization,
+    choose_by_prediction,
+    modality_kernel,
+    relatedness,
+)
+
+SLICES = {"force": slice(0, 1), "thermal": slice(1, 3)}
+CENTRES = np.array([[0.0, 0.0, 0.0], [3.0, 3.0, 0.0], [-3.0, 0.0, 3.0]])
+
+
+def cluster(centre: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    return centre + 0.4 * rng.standard_normal((n, 3))
+
+
+def old_model(rng: np.random.Generator) -> OneVsAllGPC:
+    X = np.vstack([cluster(c, 15, rng) for c in CENTRES])
+    labels = np.repeat([7, 8, 9], 15)
+    return OneVsAllGPC(modality_kernel(SLICES), random_state=0).fit(X, labels)
+
+
+def new_data(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    X = np.vstack([cluster(CENTRES[0], 4, rng), cluster(np.array([0.0, -4.0, -4.0]), 4, rng)])
+    return X, np.repeat([1.0, 0.0], 4)
+
+
+def test_no_auxiliary_data_is_the_plain_gpc() -> None:
+    rng = np.random.default_rng(0)
+    X, y = new_data(rng)
+    kernel = modality_kernel(SLICES)
+    plain = BinaryGPC(kernel, random_state=3).fit(X, y)
+    for aux in (None, np.zeros((0, 3))):
+        transfer = TransferGPC(kernel, rho=0.9, random_state=3).fit(X, y, aux)
+        assert not transfer.transferred_
+        assert transfer.rho_ == 0.0
+        np.testing.assert_array_equal(transfer.predict_positive(X), plain.predict_positive(X))
+
+
+def test_rho_zero_equals_the_plain_gpc_at_fixed_hyperparameters() -> None:
+    rng = np.random.default_rng(1)
+    X, y = new_data(rng)
+    aux = cluster(CENTRES[1], 10, rng)
+    kernel = modality_kernel(SLICES).with_theta([0.2, -0.1, 0.3, 0.5])
+    Xt = rng.standard_normal((20, 3)) * 2
+    plain = BinaryGPC(kernel, optimize=False).fit(X, y).predict_positive(Xt)
+    # rho = 0 short-cuts to the plain GPC ...
+    shortcut = TransferGPC(kernel, rho=0.0, optimize=False).fit(X, y, aux)
+    np.testing.assert_array_equal(shortcut.predict_positive(Xt), plain)
+    # ... and the dependent GP with a (tiny) rho converges to it: the blocks decouple
+    coupled = TransferGPC(kernel, rho=1e-9, optimize=False).fit(X, y, aux)
+    assert coupled.transferred_
+    np.testing.assert_allclose(coupled.predict_positive(Xt), plain, atol=1e-7)
+
+
+def test_auxiliary_positives_raise_the_probability_near_them() -> None:
+    rng = np.random.default_rng(2)
+    X, y = new_data(rng)
+    aux = cluster(CENTRES[0] + 0.5, 15, rng)
+    kernel = modality_kernel(SLICES)
+    probe = np.array([[0.5, 0.5, 0.5]])
+    weak = TransferGPC(kernel, rho=0.0, optimize=False).fit(X, y, aux).predict_positive(probe)
+    strong = TransferGPC(kernel, rho=0.9, optimize=False).fit(X, y, aux).predict_positive(probe)
+    assert strong[0] > weak[0]
+
+
+def test_prediction_approach_picks_the_related_old_object() -> None:
+    rng = np.random.default_rng(3)
+    model = old_model(rng)
+    related = cluster(CENTRES[1], 5, rng)
+    choice = choose_by_prediction(model, related, eps_neg1=0.6)
+    assert choice.candidates == (7, 8, 9)
+    assert choice.source == 8
+    assert choice.rho == pytest.approx(max(choice.scores))
+    assert choice.rho >= 0.6
+    np.testing.assert_allclose(choice.scores, relatedness(model, related))
+
+
+def test_prediction_approach_refuses_irrelevant_priors() -> None:
+    rng = np.random.default_rng(4)
+    model = old_model(rng)
+    far = cluster(np.array([10.0, -10.0, 10.0]), 5, rng)  # unlike every old object
+    choice = choose_by_prediction(model, far, eps_neg1=0.6)
+    assert choice.source is None
+    assert choice.rho == 0.0
+    assert max(choice.scores) < 0.6
+    assert max(choice.scores) == pytest.approx(0.5, abs=0.05)  # the GP prior: no opinion
+
+
+@pytest.mark.parametrize("eps", [0.5, 0.3, 1.2])
+def test_threshold_must_exceed_one_half(eps: float) -> None:
+    model = old_model(np.random.default_rng(5))
+    with pytest.raises(AtiktError, match="eps_neg1"):
+        choose_by_prediction(model, np.zeros((1, 3)), eps_neg1=eps)
+
+
+def test_optimization_approach_prefers_the_related_old_object() -> None:
+    rng = np.random.default_rng(6)
+    X, y = new_data(rng)
+    auxiliary = {
+        7: cluster(CENTRES[0], 12, rng),  # the positives' own cluster
+        9: cluster(np.array([0.0, -4.0, -4.0]), 12, rng),  # where the negatives are
+    }
+    choice, model = choose_by_optimization(
+        modality_kernel(SLICES), X, y, auxiliary, eps_neg2=0.5, random_state=0
+    )
+    scores = dict(zip(choice.candidates, choice.scores, strict=True))
+    assert scores[7] > scores[9]
+    assert choice.source == 7
+    assert model.transferred_
+    assert model.rho_ == pytest.approx(scores[7])
+    none, plain = choose_by_optimization(
+        modality_kernel(SLICES), X, y, {9: auxiliary[9]}, eps_neg2=0.5, random_state=0
+    )
+    assert none.source is None
+    assert not plain.transferred_
+
+
+def test_transfer_errors() -> None:
+    X, y = new_data(np.random.default_rng(7))
+    with pytest.raises(AtiktError, match="rho"):
+        TransferGPC(modality_kernel(SLICES), rho=1.5).fit(X, y)
+    with pytest.raises(AtiktError, match="columns"):
+        TransferGPC(modality_kernel(SLICES), rho=0.5).fit(X, y, np.zeros((2, 5)))
+    with pytest.raises(NotFittedError):
+        TransferGPC(modality_kernel(SLICES)).predict_positive(X)
