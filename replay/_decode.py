@@ -165,10 +165,8 @@ class DecodedGroup:
 
 def _matches(rows: NDArray[np.uint8], first: NDArray[np.uint8], layout: Layout) -> NDArray[Any]:
     """Return which rows share ``first``'s bytes in the layout-determining ranges."""
-    keep = np.ones(rows.shape[0], dtype=bool)
-    for start, stop in layout.fixed:
-        if stop > start:
-            keep &= (rows[:, start:stop] == first[start:stop]).all(axis=1)
+    columns = np.concatenate([np.arange(start, stop) for start, stop in layout.fixed])
+    keep: NDArray[np.bool_] = (rows[:, columns] == first[columns]).all(axis=1)
     return keep
 
 
@@ -196,7 +194,7 @@ def decode_topic(store: Typestore, msgtype: str, payloads: Sequence[bytes]) -> l
     Raises:
         RecordingError: A payload is not a valid ``msgtype`` message.
     """
-    lengths = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
+    lengths = np.array(list(map(len, payloads)), dtype=np.int64)
     remaining = np.arange(len(payloads))
     groups: list[DecodedGroup] = []
     while remaining.size:
@@ -207,11 +205,18 @@ def decode_topic(store: Typestore, msgtype: str, payloads: Sequence[bytes]) -> l
             msg = f"{msgtype}: message {first} is malformed ({err})"
             raise RecordingError(msg) from err
         same = remaining[lengths[remaining] == lengths[first]]
-        joined = b"".join([payloads[i] for i in same])
+        if same.size == len(payloads):  # the usual case: one length for the whole topic
+            joined = b"".join(payloads)
+        else:
+            joined = b"".join([payloads[i] for i in same])
         rows = np.frombuffer(joined, dtype=np.uint8).reshape(same.size, -1)
         keep = _matches(rows, rows[0], layout)
-        groups.append(DecodedGroup(same[keep], _columns(rows[keep], layout), layout.strings))
-        remaining = np.setdiff1d(remaining, same[keep], assume_unique=True)
+        if not bool(keep.all()):
+            same, rows = same[keep], rows[keep]
+        groups.append(DecodedGroup(same, _columns(rows, layout), layout.strings))
+        if same.size == remaining.size:
+            break
+        remaining = remaining[~np.isin(remaining, same, assume_unique=True)]
     return groups
 
 

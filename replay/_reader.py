@@ -338,53 +338,65 @@ def _ordered(stamps: NDArray[np.int64], *arrays: NDArray[Any]) -> list[NDArray[A
     return [_frozen(np.ascontiguousarray(a)) for a in (stamps, *arrays)]
 
 
-def _skin_blocks(path: Path, raw: RawChannel, groups: Sequence[DecodedGroup]) -> list[Any]:
-    """Return per message (index, stamp, period, samples array (s, cells, ch), cell ids)."""
-    blocks: list[Any] = []
-    for group in groups:
-        shape = np.concatenate(
-            [group.numeric[f] for f in ("n_samples", "n_cells", "n_channels")], axis=1
-        )
-        data = group.numeric["data"]
-        if not bool(np.all(shape.prod(axis=1) == data.shape[1])):
-            msg = f"{path}: {raw.info.topic}: n_samples * n_cells * n_channels != len(data)"
-            raise RecordingError(msg)
-        n_samples, n_cells, n_channels = (int(v) for v in shape[0])
-        samples = data.reshape(-1, n_samples, n_cells, n_channels)
-        stamps = (
-            group.numeric["header.stamp.sec"][:, 0].astype(np.int64) * _NS_PER_S
-            + group.numeric["header.stamp.nanosec"][:, 0]
-        )
-        periods = group.numeric["sample_period_ns"][:, 0].astype(np.int64)
-        cells = group.numeric["cell_ids"][0]
-        for i, index in enumerate(group.indices):
-            blocks.append((int(index), int(stamps[i]), int(periods[i]), samples[i], cells))
-    blocks.sort(key=lambda block: block[0])
-    return blocks
+@dataclass(frozen=True, slots=True)
+class _SkinPart:
+    """The samples of one group of skin blocks sharing a layout."""
+
+    message: NDArray[np.intp]  # message index of every sample
+    stamps: NDArray[np.int64]  # sensor time of every sample
+    periods: NDArray[np.int64]  # sample period of every message
+    data: NDArray[np.float32]  # (samples, cells, channels)
+    cells: NDArray[np.uint16]
+
+
+def _skin_part(path: Path, topic: str, group: DecodedGroup) -> _SkinPart:
+    """Unpack one group of skin blocks into per-sample stamps and data, vectorised.
+
+    Raises:
+        RecordingError: A block's shape fields disagree with its data.
+    """
+    numeric = group.numeric
+    shape = np.concatenate([numeric[f] for f in ("n_samples", "n_cells", "n_channels")], axis=1)
+    data = numeric["data"]
+    if not (bool(np.all(shape == shape[0])) and int(shape[0].prod()) == data.shape[1]):
+        msg = f"{path}: {topic}: n_samples * n_cells * n_channels does not match len(data)"
+        raise RecordingError(msg)
+    n_samples, n_cells, n_channels = (int(v) for v in shape[0])
+    n_blocks = group.indices.size
+    firsts = numeric["header.stamp.sec"][:, 0].astype(np.int64) * _NS_PER_S
+    firsts += numeric["header.stamp.nanosec"][:, 0]
+    periods = numeric["sample_period_ns"][:, 0].astype(np.int64)
+    within = np.tile(np.arange(n_samples, dtype=np.int64), n_blocks)
+    return _SkinPart(
+        message=np.repeat(group.indices, n_samples),
+        stamps=np.repeat(firsts, n_samples) + within * np.repeat(periods, n_samples),
+        periods=periods,
+        data=data.reshape(n_blocks * n_samples, n_cells, n_channels),
+        cells=numeric["cell_ids"][0].astype(np.uint16),
+    )
 
 
 def _decode_skin(path: Path, modality: str, raw: RawChannel) -> SkinSeries:
     """Decode a skin channel into per-sample stamps and a (n, cells, channels) array."""
     msgtype = full_type_name(_SKIN_TYPES[modality])
-    blocks = _skin_blocks(path, raw, decode_topic(build_typestore(), msgtype, raw.payloads))
-    shapes = {block[3].shape[1:] for block in blocks}
+    groups = decode_topic(build_typestore(), msgtype, raw.payloads)
+    parts = [_skin_part(path, raw.info.topic, group) for group in groups]
+    shapes = {part.data.shape[1:] for part in parts}
     if len(shapes) != 1:
         msg = f"{path}: {raw.info.topic}: blocks differ in cells x channels {sorted(shapes)}"
         raise RecordingError(msg)
-    counts = np.array([block[3].shape[0] for block in blocks], dtype=np.int64)
-    firsts = np.repeat(np.array([block[1] for block in blocks], dtype=np.int64), counts)
-    periods = np.repeat(np.array([block[2] for block in blocks], dtype=np.int64), counts)
-    within = np.arange(int(counts.sum()), dtype=np.int64) - np.repeat(
-        np.cumsum(counts) - counts, counts
-    )
-    data = np.concatenate([block[3] for block in blocks]).astype(np.float32, copy=False)
-    stamps, data = _ordered(firsts + within * periods, data)
+    stamps = np.concatenate([part.stamps for part in parts])
+    data = np.concatenate([part.data for part in parts]).astype(np.float32, copy=False)
+    if len(parts) > 1:  # restore file order: by message, then sample (stable)
+        order = np.argsort(np.concatenate([part.message for part in parts]), kind="stable")
+        stamps, data = stamps[order], data[order]
+    stamps, data = _ordered(stamps, data)
     return SkinSeries(
         modality=modality,
         stamps_ns=stamps,
         data=data,
-        cell_ids=_frozen(np.array(blocks[0][4], dtype=np.uint16)),
-        period_ns=int(np.median(periods)),
+        cell_ids=_frozen(parts[0].cells),
+        period_ns=int(np.median(np.concatenate([part.periods for part in parts]))),
     )
 
 
