@@ -1,6 +1,6 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
-from recorder._catalog import ActionKind, ActionSpec, load_actions
+from recorder._catalog import ActionKind, ActionSpec, ObjectSpec, load_actions, load_objects
 from recorder._dataset import (
     RecordingTask,
     generate_dataset,
@@ -10,6 +10,7 @@ from recorder._dataset import (
     write_index,
 )
 from recorder._rig import Rig
+from recorder._sim import SimConfig, SimulatedRig
 from recorder._stream import (
     JointSample,
     Modality,
@@ -28,6 +29,7 @@ __all__ = [
     "CatalogError",
     "JointSample",
     "Modality",
+    "ObjectSpec",
     "OutputExistsError",
     "Phase",
     "PhaseEvent",
@@ -38,11 +40,14 @@ __all__ = [
     "RecordingWriter",
     "Rig",
     "RigError",
+    "SimConfig",
+    "SimulatedRig",
     "SkinBlock",
     "StreamItem",
     "WrittenRecording",
     "generate_dataset",
     "load_actions",
+    "load_objects",
     "plan_dataset",
     "record_action",
     "recording_path",

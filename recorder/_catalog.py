@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import enum
+import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -108,18 +109,230 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
     return actions
 
 
+PROPERTIES = ("stiffness", "texture", "thermal")
+"""Properties an object can share with a related one (the feature modalities)."""
+
+
 @dataclass(frozen=True, slots=True)
 class ObjectSpec:
-    """One object of the catalog (physical parameters are added by the simulator's catalog).
+    """One object of the catalog with the physical parameters the simulator needs.
+
+    Lengths in m, forces in N, times in s, effusivity in W s^0.5 m^-2 K^-1. The defaults
+    describe a rigid, smooth, wood-like block, so a user only states what differs.
 
     Attributes:
         id: Catalog id, e.g. ``"wood"``.
         name: Human-readable name.
         description: One line for people.
         novel: True for the "new" objects ATIKT learns, False for the "old" prior objects.
+        related_to: For a new object, the id of the old object it resembles ("" if none).
+        shared: The properties (stiffness, texture, thermal) it shares with ``related_to``.
+        height_m: Height of the top face above the table.
+        length_m: Extent of the top face along the object's x axis.
+        width_m: Extent of the top face along the object's y axis.
+        flatness_m: RMS height irregularity of the top face under each skin cell.
+        curvature_1_m: Curvature of the top face (positive: convex, a dome), 1/m.
+        reflectance: Infrared reflectance of the surface (0, 1], seen by the proximity sensors.
+        stiffness_n_m: Contact stiffness of the surface under the whole skin patch (small
+            depths), N/m; large (1e6) for rigid objects, whose deflection the skin cover takes.
+        layer_thickness_m: Thickness of a compliant (foam) top layer; 0 for none.
+        yield_strain: Strain of the layer where the foam's elastic range ends and its
+            plateau begins (0: linear, no plateau).
+        plateau_ratio: Stiffness on the plateau relative to ``stiffness_n_m``.
+        densification_strain: Strain where the layer densifies and stiffens without bound
+            (0: never); a thin foam layer on a hard base (sponge over marble) reaches it.
+        relaxation: Fraction of the force that relaxes during a long hold at constant depth.
+        relaxation_time_s: Time constant of that relaxation.
+        effusivity: Thermal effusivity sqrt(k rho c) of the surface material.
+        base_effusivity: Effusivity of what lies under a thin surface layer (0: same).
+        thermal_layer_s: Time heat takes to cross the surface layer, d^2/alpha (0: no layer).
+        texture_period_m: Dominant spatial period of the surface texture.
+        texture_amplitude_m: Peak height of that texture.
+        anisotropy: 0 for an isotropic random texture, 1 for parallel ridges (a grating).
+        grain_angle_deg: Direction of the ridges' normal relative to the object's x axis.
+        fine_roughness_m: RMS of the micro-roughness that makes friction noise.
+        friction_static: Static friction coefficient against the skin cover.
+        friction_kinetic: Kinetic friction coefficient (stick-slip where much lower than static).
+        variability: Relative spread of stiffness, texture depth and roughness from spot to
+            spot (sponges and box lids vary more than glass).
     """
 
     id: str
     name: str
     description: str
     novel: bool
+    related_to: str = ""
+    shared: tuple[str, ...] = ()
+    height_m: float = 0.05
+    length_m: float = 0.15
+    width_m: float = 0.1
+    flatness_m: float = 0.0
+    curvature_1_m: float = 0.0
+    reflectance: float = 0.5
+    stiffness_n_m: float = 1e6
+    layer_thickness_m: float = 0.0
+    yield_strain: float = 0.0
+    plateau_ratio: float = 1.0
+    densification_strain: float = 0.0
+    relaxation: float = 0.0
+    relaxation_time_s: float = 1.0
+    effusivity: float = 450.0
+    base_effusivity: float = 0.0
+    thermal_layer_s: float = 0.0
+    texture_period_m: float = 1e-3
+    texture_amplitude_m: float = 0.0
+    anisotropy: float = 0.0
+    grain_angle_deg: float = 0.0
+    fine_roughness_m: float = 0.0
+    friction_static: float = 0.5
+    friction_kinetic: float = 0.4
+    variability: float = 0.1
+
+
+_REQUIRED_OBJECT_KEYS = (
+    "name",
+    "novel",
+    "stiffness_n_m",
+    "effusivity",
+    "texture_period_m",
+    "texture_amplitude_m",
+    "friction_static",
+    "friction_kinetic",
+)
+_TEXT_KEYS = ("name", "description", "related_to")
+_POSITIVE_KEYS = (
+    "height_m",
+    "length_m",
+    "width_m",
+    "reflectance",
+    "stiffness_n_m",
+    "plateau_ratio",
+    "relaxation_time_s",
+    "effusivity",
+    "texture_period_m",
+    "friction_static",
+)
+_NON_NEGATIVE_KEYS = (
+    "flatness_m",
+    "layer_thickness_m",
+    "base_effusivity",
+    "thermal_layer_s",
+    "texture_amplitude_m",
+    "fine_roughness_m",
+)
+_FRACTION_KEYS = (
+    "relaxation",
+    "anisotropy",
+    "reflectance",
+    "yield_strain",
+    "densification_strain",
+    "variability",
+)
+
+
+def _object_from_entry(object_id: str, entry: dict[str, Any]) -> ObjectSpec:
+    """Build one ObjectSpec from its TOML table (types converted, unknown keys refused).
+
+    Raises:
+        KeyError: A required key is missing.
+        ValueError: A key is unknown or a value has the wrong type.
+    """
+    missing = [key for key in _REQUIRED_OBJECT_KEYS if key not in entry]
+    if missing:
+        raise KeyError(", ".join(missing))
+    known = set(ObjectSpec.__dataclass_fields__) - {"id"}
+    unknown = sorted(set(entry) - known)
+    if unknown:
+        msg = f"unknown keys {unknown}"
+        raise ValueError(msg)
+    values: dict[str, Any] = {}
+    for key, value in entry.items():
+        if key == "novel":
+            if not isinstance(value, bool):
+                msg = "novel must be true or false"
+                raise TypeError(msg)
+            values[key] = value
+        elif key == "shared":
+            values[key] = tuple(str(item) for item in value)
+        elif key in _TEXT_KEYS:
+            values[key] = str(value)
+        else:
+            values[key] = float(value)
+    values.setdefault("description", "")
+    return ObjectSpec(id=object_id, **values)
+
+
+def check_object(obj: ObjectSpec) -> str | None:
+    """Return what is physically wrong with an object's parameters, or None if nothing is."""
+    layered = obj.yield_strain > 0 or obj.densification_strain > 0
+    numbers = [f.name for f in fields(obj) if isinstance(getattr(obj, f.name), float)]
+    problems = [
+        *(f"{key} must be finite" for key in numbers if not math.isfinite(getattr(obj, key))),
+        *(f"{key} must be > 0" for key in _POSITIVE_KEYS if not getattr(obj, key) > 0),
+        *(f"{key} must lie in [0, 1]" for key in _FRACTION_KEYS if not 0 <= getattr(obj, key) <= 1),
+        *(f"{key} must be >= 0" for key in _NON_NEGATIVE_KEYS if getattr(obj, key) < 0),
+        *(
+            ["friction_kinetic must lie in (0, friction_static]"]
+            if not 0 < obj.friction_kinetic <= obj.friction_static
+            else []
+        ),
+        *(
+            ["yield_strain and densification_strain need layer_thickness_m > 0"]
+            if layered and obj.layer_thickness_m <= 0
+            else []
+        ),
+        *(
+            ["densification_strain must exceed yield_strain"]
+            if 0 < obj.densification_strain <= obj.yield_strain
+            else []
+        ),
+    ]
+    return problems[0] if problems else None
+
+
+def _check_relation(obj: ObjectSpec, objects: dict[str, ObjectSpec]) -> str | None:
+    """Return what is wrong with a new object's relation to an old one, or None."""
+    if not obj.novel:
+        return None
+    related = objects.get(obj.related_to)
+    if related is None or related.novel:
+        return f"related_to = {obj.related_to!r} must name an old object of the catalog"
+    bad = [name for name in obj.shared if name not in PROPERTIES]
+    if not obj.shared or bad:
+        return f"shared must list at least one of {PROPERTIES}"
+    return None
+
+
+def load_objects(path: Path | None = None) -> dict[str, ObjectSpec]:
+    """Load the object catalog, ordered as in the file.
+
+    Every new (``novel``) object must name the old object it resembles (``related_to``) and
+    the properties they share, so that knowledge transfer has something to transfer.
+
+    Args:
+        path: A TOML catalog; the packaged thesis catalog (10 old, 5 new objects) when None.
+
+    Returns:
+        The objects by id.
+
+    Raises:
+        CatalogError: An entry is malformed, physically impossible or names an unknown
+            related object; the message names the file, the entry and the fix.
+    """
+    name, table = read_toml(path, "objects.toml")
+    objects: dict[str, ObjectSpec] = {}
+    for object_id, entry in table.items():
+        try:
+            objects[object_id] = _object_from_entry(object_id, dict(entry))
+        except (KeyError, ValueError, TypeError, AttributeError) as err:
+            msg = (
+                f"{name}: object [{object_id}] is malformed ({err}); it needs "
+                f"{', '.join(_REQUIRED_OBJECT_KEYS)} and only the keys of ObjectSpec, in SI units"
+            )
+            raise CatalogError(msg) from err
+    for obj in objects.values():
+        problem = check_object(obj) or _check_relation(obj, objects)
+        if problem is not None:
+            msg = f"{name}: object [{obj.id}]: {problem}; fix the entry"
+            raise CatalogError(msg)
+    return objects

@@ -1,0 +1,500 @@
+"""The simulated rig: a UR10 with a 7-cell skin exploring catalog objects.
+
+Time: every execution starts at 0 ns (the start of the approach); stamps and receive times
+are relative to it, and the recording covers ``[0, end)`` with ``end`` on a 0.1 s boundary.
+No clock is read anywhere.
+
+Determinism: the skin's hardware (mounting angles, gains, offsets) is drawn from the rig's
+seed alone; everything that varies between executions is drawn from
+``SeedSequence([seed, crc32(object id), crc32(action id), trial])``, so an execution's data
+depend on nothing else (not on the order of executions, nor on the process).
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Final, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from recorder._catalog import ActionKind, check_object
+from recorder._sim import contact, motion, skin, thermal, ur10
+from recorder._sim.config import SimConfig
+from recorder._sim.texture import SlideConditions, ridge_relief, sliding_vibration
+from recorder._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
+from recorder.errors import RigError
+from schemas import channel_for_topic
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Mapping
+    from types import TracebackType
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder._stream import StreamItem
+
+F64 = NDArray[np.float64]
+
+SIMULATOR_VERSION: Final = "1"
+"""Version of the physical model; recordings from different versions differ."""
+ROBOT_DECIMATION: Final = 8
+"""RTDE publishes every 8 ms (125 Hz)."""
+FORCE_DT_S: Final = motion.DT_S * motion.FORCE_DECIMATION
+"""Forces and the thermal model run at the force sensors' 250 Hz."""
+TEMPERATURE_DECIMATION: Final = 50
+"""The temperature sensors sample at 20 Hz."""
+TEMPERATURE_STEP: Final = TEMPERATURE_DECIMATION / motion.FORCE_DECIMATION
+"""20 Hz samples fall every 12.5 samples of the 250 Hz thermal model."""
+ROBOT_LATENCY_NS: Final = (1_000_000, 500_000)
+"""RTDE transport latency: fixed part and uniform jitter, ns."""
+SKIN_LATENCY_NS: Final = (2_000_000, 1_000_000)
+"""Skin bus transport latency of a block: fixed part and uniform jitter, ns."""
+EFFORT_NOISE_N_M: Final = 0.1
+"""Noise of the joint torques the controller estimates from motor currents."""
+ORIENTATION_SPREAD_DEG: Final = 10.0
+"""Objects are placed by hand: their yaw varies uniformly within +- this."""
+FRICTION_SPREAD: Final = 0.08
+"""Relative spread of friction between executions (humidity, dust, wear of the cover)."""
+CONDUCTANCE_SPREAD: Final = 0.1
+"""Relative spread of the thermal contact conductance between executions."""
+SKIN_DEFICIT_C: Final = 0.3
+"""The skin starts up to this far below its set point, still recovering from the last touch."""
+WORKSPACE_XY_M: Final = (-0.70, -0.20)
+"""Where objects lie on the table, in the robot's base frame."""
+Q_REFERENCE: Final = np.array([0.05, -1.27, 2.04, -2.34, -np.pi / 2, 0.05])
+"""Arm configuration above the workspace (elbow up, tool pointing down)."""
+TOOL: Final = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0.045], [0, 0, 0, 1.0]])
+"""Skin patch surface centre (the TCP) in the flange frame: mount plus skin, 45 mm."""
+TCP_ROTATION: Final = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+"""TCP axes in the base frame: x (sliding) along base y, z pointing down into the object."""
+_TOPICS: Final = {
+    Modality.FORCE: "/skin/force",
+    Modality.TEMPERATURE: "/skin/temperature",
+    Modality.ACCELERATION: "/skin/acceleration",
+    Modality.PROXIMITY: "/skin/proximity",
+}
+
+
+def stable_hash(text: str) -> int:
+    """Return a hash of ``text`` that is the same in every process (CRC-32)."""
+    return zlib.crc32(text.encode("utf-8"))
+
+
+@dataclass(frozen=True, slots=True)
+class Conditions:
+    """What varies from trial to trial.
+
+    Attributes:
+        obj: The object as it is at the touched spot (stiffness, texture depth, roughness and
+            friction vary from spot to spot and day to day).
+        room_c: Room (object) temperature, C.
+        skin_state: The skin's thermal state at the start.
+        location: Where the patch centre lands on the top face, object frame, shape (2,), m.
+        yaw: The object's orientation about the vertical relative to the patch, rad.
+        tilt: Slope of the top face relative to the patch along its x and y, shape (2,).
+        irregularity: Height of the surface under each cell, shape (7,), m.
+        force_error: Relative error of the sliding force controller.
+        force_gain: Gain of each force sensor during this execution, shape (7, 3).
+        slide: Ridge angle and phases of the slide.
+    """
+
+    obj: ObjectSpec
+    room_c: float
+    skin_state: thermal.SkinState
+    location: F64
+    yaw: float
+    tilt: F64
+    irregularity: F64
+    force_error: float
+    force_gain: F64
+    slide: SlideConditions
+
+    @classmethod
+    def draw(
+        cls,
+        obj: ObjectSpec,
+        config: SimConfig,
+        hardware: skin.SkinHardware,
+        rng: np.random.Generator,
+    ) -> Conditions:
+        """Draw the conditions of one execution."""
+        yaw = float(np.deg2rad(ORIENTATION_SPREAD_DEG) * rng.uniform(-1.0, 1.0))
+        spread = rng.standard_normal(5)
+        friction = float(np.exp(FRICTION_SPREAD * spread[3]))
+        spot = replace(
+            obj,
+            stiffness_n_m=obj.stiffness_n_m * float(np.exp(obj.variability * spread[0])),
+            texture_amplitude_m=obj.texture_amplitude_m
+            * float(np.exp(obj.variability * spread[1])),
+            fine_roughness_m=obj.fine_roughness_m * float(np.exp(obj.variability * spread[2])),
+            friction_static=obj.friction_static * friction,
+            friction_kinetic=obj.friction_kinetic * friction,
+        )
+        skin_state = thermal.SkinState(
+            set_point_c=config.skin_c,
+            deficit_c=SKIN_DEFICIT_C * float(rng.uniform()),
+            conductance=float(np.exp(CONDUCTANCE_SPREAD * spread[4])),
+        )
+        return cls(
+            obj=spot,
+            room_c=config.room_c + config.room_spread_c * float(rng.uniform(-0.5, 0.5)),
+            skin_state=skin_state,
+            location=config.location_spread_m * rng.uniform(-1.0, 1.0, 2),
+            yaw=yaw,
+            tilt=np.tan(np.deg2rad(config.tilt_deg)) * rng.standard_normal(2),
+            irregularity=obj.flatness_m * rng.standard_normal(skin.N_CELLS),
+            force_error=config.force_control_error * float(rng.standard_normal()),
+            force_gain=hardware.force_gain
+            * (1.0 + skin.FORCE_GAIN_DRIFT * float(rng.standard_normal())),
+            slide=SlideConditions(
+                ridge_angle=float(np.deg2rad(obj.grain_angle_deg)) + yaw,
+                phases=rng.uniform(0.0, 2.0 * np.pi, 3),
+            ),
+        )
+
+
+def _on_object(obj: ObjectSpec, conditions: Conditions, points: F64) -> NDArray[np.bool_]:
+    """Return which patch points (..., 2) lie over the object's top face."""
+    c, s = np.cos(conditions.yaw), np.sin(conditions.yaw)
+    rotation = np.array([[c, -s], [s, c]])
+    local = points @ rotation.T + conditions.location
+    inside: NDArray[np.bool_] = (np.abs(local[..., 0]) <= obj.length_m / 2) & (
+        np.abs(local[..., 1]) <= obj.width_m / 2
+    )
+    return inside
+
+
+def sensor_offsets(obj: ObjectSpec, conditions: Conditions, hardware: skin.SkinHardware) -> F64:
+    """Return each force sensor's depth over the patch centre's, shape (7, 3), m.
+
+    Tilt, the top face's curvature around its centre and its irregularity under each cell put
+    some sensors deeper than others; sensors off the object are NaN.
+    """
+    points = hardware.force_sensor_positions()
+    c, s = np.cos(conditions.yaw), np.sin(conditions.yaw)
+    local = points @ np.array([[c, -s], [s, c]]).T + conditions.location
+    dome = (
+        -0.5 * obj.curvature_1_m * ((local**2).sum(axis=-1) - float((conditions.location**2).sum()))
+    )
+    offsets = points @ conditions.tilt + dome + conditions.irregularity[:, None]
+    cells_on = _on_object(obj, conditions, skin.cell_centres())
+    return np.where(cells_on[:, None], offsets, np.nan)
+
+
+@dataclass(frozen=True, slots=True)
+class Signals:
+    """True (noise-free) signals of one execution.
+
+    Attributes:
+        plan: The motion.
+        force: Normal force of every force sensor at 250 Hz, shape (n / 4, 7, 3), N.
+        specific_force: Accelerometer input in the patch frame, shape (n, 7, 3), m/s^2.
+        temperature: Sensor temperatures at 20 Hz, shape (n / 50, 7), C.
+        distance: Distance from each cell to the surface below, shape (n, 7), m.
+    """
+
+    plan: motion.Plan
+    force: F64
+    specific_force: F64
+    temperature: F64
+    distance: F64
+
+
+class SimulatedRig:
+    """A physics-based simulation of the UR10 and skin rig; the embedded default rig.
+
+    Use it as a context manager; ``perform`` streams one execution. The same seed, object,
+    action and trial always give the same items.
+    """
+
+    def __init__(self, seed: int = 0, config: SimConfig | None = None) -> None:
+        """Create a rig.
+
+        Args:
+            seed: Seed of the session; fixes the skin's hardware and every execution.
+            config: Conditions and controller settings; the thesis set-up when None.
+
+        Raises:
+            RigError: The seed is negative.
+        """
+        if seed < 0:
+            msg = f"SimulatedRig seed = {seed} must be >= 0"
+            raise RigError(msg)
+        self._seed = seed
+        self._config = SimConfig() if config is None else config
+        hardware_seed = np.random.SeedSequence([seed, stable_hash("skin hardware")])
+        self._hardware = skin.SkinHardware.draw(np.random.default_rng(hardware_seed))
+        self._connected = False
+
+    def __enter__(self) -> Self:
+        """Connect (nothing to open for a simulation)."""
+        self._connected = True
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Disconnect."""
+        self._connected = False
+
+    @property
+    def config(self) -> SimConfig:
+        """The rig's settings."""
+        return self._config
+
+    def describe(self) -> Mapping[str, str]:
+        """Return the rig's kind and configuration (deterministic), for the metadata."""
+        return {
+            "kind": "simulated",
+            "simulator_version": SIMULATOR_VERSION,
+            "seed": str(self._seed),
+            **self._config.describe(),
+        }
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        """Simulate ``action`` on ``obj`` as trial ``trial``; return its items by receive time.
+
+        Raises:
+            RigError: The rig is not connected, or the object, action or trial is invalid.
+        """
+        self._check(obj, action, trial)
+        sequence = np.random.SeedSequence(
+            [self._seed, stable_hash(obj.id), stable_hash(action.id), trial]
+        )
+        rngs = [np.random.default_rng(child) for child in sequence.spawn(7)]
+        conditions = Conditions.draw(obj, self._config, self._hardware, rngs[0])
+        signals = self._simulate(action, conditions, rngs[1])
+        items: list[StreamItem] = [
+            *_phase_events(signals.plan),
+            *self._skin_blocks(conditions, signals, rngs[2:6]),
+            *self._robot_samples(action, conditions, signals, rngs[6]),
+        ]
+        items.sort(key=_receive_ns)  # stable: at equal times, events come first
+        last = max(item.receive_ns for item in items)
+        items.append(PhaseEvent(signals.plan.n * 1_000_000, last, Phase.END))
+        return iter(items)
+
+    def _check(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> None:
+        """Refuse to perform outside a ``with`` block or with invalid inputs."""
+        if not self._connected:
+            msg = "SimulatedRig.perform outside a with block; use `with SimulatedRig() as rig:`"
+            raise RigError(msg)
+        problem = check_object(obj)
+        if problem is not None:
+            msg = f"object {obj.id!r}: {problem}; fix its catalog entry"
+            raise RigError(msg)
+        if trial < 0:
+            msg = f"trial = {trial} must be >= 0"
+            raise RigError(msg)
+        needed = {
+            ActionKind.PRESS: action.depth_m,
+            ActionKind.STATIC: action.depth_m,
+            ActionKind.SLIDE: min(action.force_n, action.speed_m_s),
+        }[action.kind]
+        if not (needed > 0 and action.duration_s > 0):
+            msg = (
+                f"action {action.id!r}: duration_s and the {action.kind} parameters "
+                "(depth_m, or force_n and speed_m_s) must be > 0; fix the action catalog"
+            )
+            raise RigError(msg)
+
+    def _simulate(
+        self, action: ActionSpec, conditions: Conditions, rng: np.random.Generator
+    ) -> Signals:
+        """Plan the motion and compute the true signals."""
+        obj = conditions.obj
+        law = contact.contact_law(obj)
+        offsets = sensor_offsets(obj, conditions, self._hardware)
+        if np.isnan(offsets).all():
+            msg = (
+                f"object {obj.id!r}: its top face ({obj.length_m} x {obj.width_m} m) is too "
+                "small for the skin to land on; enlarge it or reduce location_spread_m"
+            )
+            raise RigError(msg)
+        gain = conditions.force_gain
+        light = contact.depth_for_force(law, offsets, gain, self._config.contact_force_n)
+        target = action.force_n * (1.0 + conditions.force_error)
+        slide_depth = contact.depth_for_force(law, offsets, gain, target)
+        slope, offset = skin.reading_bias(obj.reflectance)
+        approach = motion.plan_approach(self._config, slope, offset, light)
+        plan = motion.plan_execution(action, self._config, approach, slide_depth)
+        force = self._forces(action, law, plan, offsets, conditions)
+        cell_force = force.sum(axis=2)
+        specific = _motion_specific_force(plan)
+        if action.kind is ActionKind.SLIDE:
+            window = slice(plan.execute, plan.retract)
+            held = np.repeat(cell_force, motion.FORCE_DECIMATION, axis=0)
+            specific[window] += sliding_vibration(
+                obj,
+                law,
+                plan.slide[window],
+                cell_force=held[window],
+                cells=skin.cell_centres(),
+                conditions=conditions.slide,
+                rng=rng,
+            )
+        temperature = thermal.sensor_temperature(
+            cell_force, FORCE_DT_S, obj, conditions.room_c, conditions.skin_state
+        )
+        distance = _cell_distances(obj, plan, offsets)
+        return Signals(plan, force, specific, _resample(temperature, TEMPERATURE_STEP), distance)
+
+    def _forces(
+        self,
+        action: ActionSpec,
+        law: contact.ContactLaw,
+        plan: motion.Plan,
+        offsets: F64,
+        conditions: Conditions,
+    ) -> F64:
+        """Return every force sensor's true force at 250 Hz, shape (n / 4, 7, 3), N."""
+        obj = conditions.obj
+        samples = np.arange(0, plan.n, motion.FORCE_DECIMATION)
+        relief = None
+        if action.kind is ActionKind.SLIDE:
+            relief = np.zeros((samples.shape[0], skin.N_CELLS, skin.FORCE_SENSORS))
+            inside = (samples >= plan.execute) & (samples < plan.retract)
+            points = self._hardware.force_sensor_positions()
+            slid = plan.slide[samples[inside]]
+            relief[inside] = ridge_relief(obj, slid, points, conditions.slide)
+        return contact.sensor_forces(law, plan.depth[samples], offsets, FORCE_DT_S, relief)
+
+    def _skin_blocks(
+        self, conditions: Conditions, signals: Signals, rngs: list[np.random.Generator]
+    ) -> list[SkinBlock]:
+        """Measure every skin modality and cut the readings into blocks."""
+        hw, n, obj = self._hardware, signals.plan.n, conditions.obj
+        t = (np.arange(n) * motion.DT_S).astype(np.float64)
+        gain = conditions.force_gain
+        force = skin.measure_force(signals.force, t[:: motion.FORCE_DECIMATION], gain, rngs[0])
+        temperature = skin.measure_temperature(
+            signals.temperature, t[::TEMPERATURE_DECIMATION], hw, rngs[1]
+        )
+        acceleration = skin.measure_acceleration(signals.specific_force, hw, rngs[2])
+        proximity = skin.measure_proximity(signals.distance[::20], obj.reflectance, hw, rngs[3])
+        readings: dict[Modality, NDArray[np.floating[Any]]] = {
+            Modality.FORCE: force,
+            Modality.TEMPERATURE: temperature[..., None],
+            Modality.ACCELERATION: acceleration,
+            Modality.PROXIMITY: proximity[..., None],
+        }
+        jitter = rngs[3].uniform(0.0, 1.0, 4 * (n // motion.BLOCK_SAMPLES))
+        blocks: list[SkinBlock] = []
+        for index, (modality, data) in enumerate(readings.items()):
+            blocks.extend(_cut_blocks(modality, data, jitter[index::4]))
+        return blocks
+
+    def _robot_samples(
+        self,
+        action: ActionSpec,
+        conditions: Conditions,
+        signals: Signals,
+        rng: np.random.Generator,
+    ) -> list[JointSample | PoseSample]:
+        """Compute the arm's joint states and TCP poses at 125 Hz."""
+        plan, obj = signals.plan, conditions.obj
+        index = np.arange(0, plan.n, ROBOT_DECIMATION)
+        depth, slide = plan.depth[index], plan.slide[index]
+        pose = np.tile(np.eye(4), (index.shape[0], 1, 1))
+        pose[:, :3, :3] = TCP_ROTATION
+        pose[:, 0, 3] = WORKSPACE_XY_M[0] + conditions.location[0]
+        pose[:, 1, 3] = WORKSPACE_XY_M[1] + conditions.location[1] + slide
+        pose[:, 2, 3] = obj.height_m + conditions.tilt[0] * slide - depth
+        q = ur10.inverse(pose, Q_REFERENCE, TOOL)
+        frames = ur10.link_frames(q)
+        tcp = frames[:, 6] @ TOOL
+        normal = signals.force[index // motion.FORCE_DECIMATION].sum(axis=(1, 2))
+        wrench = np.zeros((index.shape[0], 3))
+        wrench[:, 2] = normal
+        moving = np.gradient(slide) > 0
+        if action.kind is ActionKind.SLIDE:
+            wrench[:, 1] = -obj.friction_kinetic * normal * moving
+        effort = ur10.static_torques(frames, TOOL, wrench)
+        effort += EFFORT_NOISE_N_M * rng.standard_normal(effort.shape)
+        velocity = np.gradient(q, ROBOT_DECIMATION * motion.DT_S, axis=0)
+        quat = ur10.quaternions(tcp)
+        position = np.ascontiguousarray(tcp[:, :3, 3])
+        for array in (q, velocity, effort, quat, position):
+            array.setflags(write=False)
+        stamps = index * 1_000_000
+        fixed, spread = ROBOT_LATENCY_NS
+        receive = stamps + fixed + (spread * rng.uniform(0.0, 1.0, stamps.shape)).astype(np.int64)
+        rows = zip(
+            stamps.tolist(), receive.tolist(), q, velocity, effort, position, quat, strict=True
+        )
+        samples: list[JointSample | PoseSample] = []
+        for stamp, rec, q_k, v_k, e_k, p_k, o_k in rows:
+            samples.append(JointSample(stamp, rec, q_k, v_k, e_k))
+            samples.append(PoseSample(stamp, rec, p_k, o_k))
+        return samples
+
+
+def _resample(signal: F64, step: float) -> F64:
+    """Sample ``signal`` (time on axis 0) every ``step`` samples, interpolating linearly."""
+    position = np.arange(0.0, signal.shape[0], step)
+    low = np.minimum(position.astype(np.int64), signal.shape[0] - 1)
+    high = np.minimum(low + 1, signal.shape[0] - 1)
+    weight = (position - low)[:, None]
+    resampled: F64 = (1.0 - weight) * signal[low] + weight * signal[high]
+    return resampled
+
+
+def _receive_ns(item: StreamItem) -> int:
+    """Sort key: receive time."""
+    return item.receive_ns
+
+
+def _phase_events(plan: motion.Plan) -> list[PhaseEvent]:
+    """Return the phase events up to the retract (the end is added last)."""
+    starts = [
+        (0, Phase.APPROACH),
+        (plan.contact, Phase.CONTACT),
+        (plan.execute, Phase.EXECUTE),
+        (plan.retract, Phase.RETRACT),
+    ]
+    return [PhaseEvent(i * 1_000_000, i * 1_000_000, phase) for i, phase in starts]
+
+
+def _motion_specific_force(plan: motion.Plan) -> F64:
+    """Return the accelerometers' input from the arm's motion and gravity, patch frame."""
+    dt = motion.DT_S
+    specific = np.zeros((plan.n, skin.N_CELLS, 3))
+    specific[..., 0] = np.gradient(np.gradient(plan.slide, dt), dt)[:, None]
+    specific[..., 2] = np.gradient(np.gradient(plan.depth, dt), dt)[:, None] - skin.GRAVITY_M_S2
+    return specific
+
+
+def _cell_distances(obj: ObjectSpec, plan: motion.Plan, offsets: F64) -> F64:
+    """Return each cell's distance to the surface below it over time, shape (n, 7), m."""
+    cell_offset = offsets.mean(axis=1)
+    over_object = -(plan.depth[:, None] + np.nan_to_num(cell_offset, nan=0.0))
+    over_table = -plan.depth[:, None] + obj.height_m
+    distance: F64 = np.where(np.isnan(cell_offset), over_table, np.maximum(over_object, 0.0))
+    return distance
+
+
+def _cut_blocks(
+    modality: Modality, data: NDArray[np.floating[Any]], jitter: F64
+) -> list[SkinBlock]:
+    """Cut one modality's readings (samples, 7, channels) into the contract's blocks."""
+    channel = channel_for_topic(_TOPICS[modality])
+    if channel is None:  # pragma: no cover - the contract names every skin topic
+        msg = f"no channel for {modality}"
+        raise RigError(msg)
+    per_block = channel.block_samples
+    period_ns = round(1e9 / channel.rate_hz)
+    values = data.astype(np.float32)
+    values.setflags(write=False)
+    fixed, spread = SKIN_LATENCY_NS
+    blocks = []
+    for b in range(values.shape[0] // per_block):
+        stamp = b * per_block * period_ns
+        last = stamp + (per_block - 1) * period_ns
+        receive = last + fixed + int(spread * jitter[b])
+        chunk = values[b * per_block : (b + 1) * per_block]
+        blocks.append(SkinBlock(modality, stamp, period_ns, receive, chunk))
+    return blocks

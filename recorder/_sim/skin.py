@@ -1,0 +1,239 @@
+"""The simulated skin patch: 7 hexagonal cells, their sensors and the sensors' imperfections.
+
+Per cell (HEX-o-SKIN style): 3 normal-force sensors, 1 temperature sensor (LM71), 1 three-axis
+accelerometer (BMA250) and 1 proximity sensor (VCNL4010). The patch is flat; its frame is the
+robot's tool frame: x along the sliding direction, z along the outward normal (towards the
+object). Each cell's accelerometer axes are rotated about z by the cell's mounting angle.
+
+Sensor models follow the datasheets named in DESIGN.md: BMA250 10 bit at +-2 g (256 LSB/g);
+LM71 0.03125 C resolution with per-sensor offsets inside its +-1.5 C accuracy; force accuracy
+about 0.05 N; VCNL4010 16-bit counts, up to 200 mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+N_CELLS: Final = 7
+FORCE_SENSORS: Final = 3
+CELL_PITCH_M: Final = 0.015
+"""Centre-to-centre distance of neighbouring cells."""
+FORCE_SENSOR_RADIUS_M: Final = 0.0045
+"""Distance of a cell's force sensors from its centre."""
+
+GRAVITY_M_S2: Final = 9.81
+ACC_LSB_M_S2: Final = GRAVITY_M_S2 / 256.0
+"""BMA250 resolution at +-2 g: 256 LSB/g."""
+ACC_MIN_LSB: Final = -512
+ACC_MAX_LSB: Final = 511
+ACC_NOISE_M_S2: Final = 0.04
+"""Accelerometer noise, about one LSB RMS at 1 kHz bandwidth."""
+ACC_BIAS_M_S2: Final = 0.2
+"""Spread of the accelerometers' zero-g offsets."""
+
+TEMP_LSB_C: Final = 0.03125
+"""LM71 resolution."""
+TEMP_ACCURACY_C: Final = 1.5
+"""LM71 accuracy: bound of the per-sensor offsets."""
+TEMP_OFFSET_C: Final = 0.4
+"""Spread of the per-sensor offsets (typical, inside the accuracy bound)."""
+TEMP_NOISE_C: Final = 0.012
+TEMP_DRIFT_C_S: Final = 0.002
+"""Spread of a temperature sensor's drift rate during one execution."""
+
+FORCE_LSB_N: Final = 0.001
+"""Resolution of the force channel after the driver's calibration."""
+FORCE_GAIN_SPREAD: Final = 0.03
+"""Spread of the force sensors' gain errors (the 0.05 N accuracy at about 1.5 N per sensor)."""
+FORCE_GAIN_DRIFT: Final = 0.02
+"""Spread of the common gain change between executions (the sensors' temperature drift)."""
+FORCE_NOISE_N: Final = 0.002
+FORCE_OFFSET_N: Final = 0.002
+"""Spread of the residual offsets left after the driver tares the sensors."""
+FORCE_DRIFT_N_S: Final = 0.0005
+"""Spread of a force sensor's drift rate during one execution."""
+
+PROXIMITY_RANGE_M: Final = 0.2
+PROXIMITY_FULL_SCALE: Final = 65535
+PROXIMITY_NEAR_M: Final = 0.01
+"""Distance scale of the inverse-square response: counts = full scale * r * (d0 / (d + d0))^2."""
+PROXIMITY_NOISE_COUNTS: Final = 3.0
+NOMINAL_REFLECTANCE: Final = 0.6
+"""Reflectance the driver assumes when it converts counts to distance."""
+
+
+def cell_centres() -> F64:
+    """Return the cell centres in the patch frame, shape (7, 2), m (centre cell first)."""
+    angles = np.deg2rad(30.0 + 60.0 * np.arange(6))
+    ring = CELL_PITCH_M * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return np.vstack([np.zeros((1, 2)), ring])
+
+
+def rotations_2d(angles: F64) -> F64:
+    """Return 2-d rotation matrices for ``angles`` (n,), shape (n, 2, 2)."""
+    c, s = np.cos(angles), np.sin(angles)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+@dataclass(frozen=True, slots=True)
+class SkinHardware:
+    """Properties of one physical skin patch, fixed for the rig's lifetime (drawn from its seed).
+
+    Attributes:
+        cell_angle: Mounting angle of each cell about the patch normal, shape (7,), rad.
+        force_gain: Gain of each force sensor, shape (7, 3).
+        temp_offset: Offset of each temperature sensor, shape (7,), C.
+        acc_bias: Zero-g offset of each accelerometer axis, shape (7, 3), m/s^2.
+        proximity_gain: Gain of each proximity sensor, shape (7,).
+    """
+
+    cell_angle: F64
+    force_gain: F64
+    temp_offset: F64
+    acc_bias: F64
+    proximity_gain: F64
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator) -> SkinHardware:
+        """Draw a patch's hardware properties."""
+        return cls(
+            cell_angle=np.deg2rad(60.0 * rng.integers(0, 6, N_CELLS)),
+            force_gain=1.0 + FORCE_GAIN_SPREAD * rng.standard_normal((N_CELLS, FORCE_SENSORS)),
+            temp_offset=np.clip(
+                TEMP_OFFSET_C * rng.standard_normal(N_CELLS), -TEMP_ACCURACY_C, TEMP_ACCURACY_C
+            ),
+            acc_bias=ACC_BIAS_M_S2 * rng.standard_normal((N_CELLS, 3)),
+            proximity_gain=1.0 + 0.05 * rng.standard_normal(N_CELLS),
+        )
+
+    def force_sensor_positions(self) -> F64:
+        """Return the force sensors' positions in the patch frame, shape (7, 3, 2), m."""
+        local = np.deg2rad(90.0 + 120.0 * np.arange(FORCE_SENSORS))
+        angles = self.cell_angle[:, None] + local[None, :]
+        offsets = FORCE_SENSOR_RADIUS_M * np.stack([np.cos(angles), np.sin(angles)], -1)
+        return cell_centres()[:, None, :] + offsets
+
+
+def quantize(values: F64, step: float) -> F64:
+    """Round ``values`` to multiples of ``step`` (an ADC's least significant bit)."""
+    return np.round(values / step) * step
+
+
+def drift(times_s: F64, rates: F64) -> F64:
+    """Return linear drifts ``rates * t``, shape (n, *rates.shape)."""
+    return times_s.reshape(-1, *([1] * rates.ndim)) * rates
+
+
+def measure_force(force: F64, times_s: F64, gain: F64, rng: np.random.Generator) -> F64:
+    """Turn true normal forces into force-sensor readings.
+
+    Args:
+        force: True forces, shape (n, 7, 3), N.
+        times_s: Sample times, shape (n,), s.
+        gain: Gain of each sensor during this execution, shape (7, 3).
+        rng: Random generator of this execution.
+
+    Returns:
+        Readings, shape (n, 7, 3), N: gain error, residual offset and drift, noise, 1 mN steps.
+    """
+    shape = (N_CELLS, FORCE_SENSORS)
+    offset = FORCE_OFFSET_N * rng.standard_normal(shape)
+    rate = FORCE_DRIFT_N_S * rng.standard_normal(shape)
+    noise = FORCE_NOISE_N * rng.standard_normal(force.shape)
+    reading = gain * force + offset + drift(times_s, rate) + noise
+    return quantize(reading, FORCE_LSB_N)
+
+
+def measure_temperature(
+    temperature: F64, times_s: F64, hardware: SkinHardware, rng: np.random.Generator
+) -> F64:
+    """Turn true sensor temperatures into LM71 readings.
+
+    Args:
+        temperature: True temperatures of the sensors, shape (n, 7), C.
+        times_s: Sample times, shape (n,), s.
+        hardware: The patch.
+        rng: Random generator of this execution.
+
+    Returns:
+        Readings, shape (n, 7), C: offset, drift, noise, 0.03125 C steps.
+    """
+    rate = TEMP_DRIFT_C_S * rng.standard_normal(N_CELLS)
+    noise = TEMP_NOISE_C * rng.standard_normal(temperature.shape)
+    reading = temperature + hardware.temp_offset + drift(times_s, rate) + noise
+    return quantize(reading, TEMP_LSB_C)
+
+
+def measure_acceleration(
+    specific_force: F64, hardware: SkinHardware, rng: np.random.Generator
+) -> F32:
+    """Turn the cells' specific force (in the patch frame) into BMA250 readings.
+
+    Args:
+        specific_force: Acceleration minus gravity, patch frame, shape (n, 7, 3), m/s^2.
+        hardware: The patch.
+        rng: Random generator of this execution.
+
+    Returns:
+        Readings in each cell's own axes, shape (n, 7, 3), m/s^2: bias, noise, 10-bit
+        quantization and clipping at +-2 g.
+    """
+    c, s = np.cos(hardware.cell_angle), np.sin(hardware.cell_angle)
+    x, y = specific_force[..., 0], specific_force[..., 1]
+    cell = np.empty(specific_force.shape, dtype=np.float32)
+    cell[..., 0] = c * x + s * y  # patch axes -> the cell's rotated axes
+    cell[..., 1] = c * y - s * x
+    cell[..., 2] = specific_force[..., 2]
+    cell += hardware.acc_bias
+    cell += np.float32(ACC_NOISE_M_S2) * rng.standard_normal(cell.shape, dtype=np.float32)
+    cell /= ACC_LSB_M_S2
+    np.round(cell, out=cell)
+    np.clip(cell, ACC_MIN_LSB, ACC_MAX_LSB, out=cell)
+    cell *= ACC_LSB_M_S2
+    return cell
+
+
+def measure_proximity(
+    distance: F64, reflectance: float, hardware: SkinHardware, rng: np.random.Generator
+) -> F64:
+    """Turn true distances into VCNL4010 readings converted to metres.
+
+    The sensor counts reflected infrared light, ``r (d0 / (d + d0))^2`` of full scale; the
+    driver converts counts back to distance assuming a nominal reflectance, so darker
+    surfaces read farther. Readings beyond the range report the range.
+
+    Args:
+        distance: True distances from each cell to the surface below it, shape (n, 7), m.
+        reflectance: Reflectance of the surface.
+        hardware: The patch.
+        rng: Random generator of this execution.
+
+    Returns:
+        Distances, shape (n, 7), m, in [0, 0.2].
+    """
+    d = np.maximum(distance, 0.0)
+    scale = PROXIMITY_FULL_SCALE * reflectance * hardware.proximity_gain
+    counts = scale * (PROXIMITY_NEAR_M / (d + PROXIMITY_NEAR_M)) ** 2
+    counts = np.round(counts + PROXIMITY_NOISE_COUNTS * rng.standard_normal(d.shape))
+    counts = np.clip(counts, 1.0, PROXIMITY_FULL_SCALE)
+    nominal = PROXIMITY_FULL_SCALE * NOMINAL_REFLECTANCE
+    reading = PROXIMITY_NEAR_M * (np.sqrt(nominal / counts) - 1.0)
+    reading = np.where(distance >= PROXIMITY_RANGE_M, PROXIMITY_RANGE_M, reading)
+    return np.clip(reading, 0.0, PROXIMITY_RANGE_M)
+
+
+def reading_bias(reflectance: float) -> tuple[float, float]:
+    """Return (slope, offset) of the noise-free proximity reading: ``slope * d + offset``.
+
+    The approach controller slows down on this reading, so darker objects are approached
+    faster.
+    """
+    slope = float(np.sqrt(NOMINAL_REFLECTANCE / reflectance))
+    return slope, PROXIMITY_NEAR_M * (slope - 1.0)
