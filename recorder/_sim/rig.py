@@ -58,7 +58,7 @@ FRICTION_SPREAD: Final = 0.08
 """Relative spread of friction between executions (humidity, dust, wear of the cover)."""
 CONDUCTANCE_SPREAD: Final = 0.1
 """Relative spread of the thermal contact conductance between executions."""
-SKIN_DEFICIT_C: Final = 0.3
+SKIN_DEFICIT_C: Final = 0.2
 """The skin starts up to this far below its set point, still recovering from the last touch."""
 WORKSPACE_XY_M: Final = (-0.70, -0.20)
 """Where objects lie on the table, in the robot's base frame."""

@@ -39,7 +39,7 @@ F64 = NDArray[np.float64]
 
 RIGID_RESONANCE_HZ: Final = 210.0
 """Resonance of a skin cell on a hard object."""
-RESONANCE_EXPONENT: Final = 0.3
+RESONANCE_EXPONENT: Final = 0.2
 """Resonance frequency grows as (contact stiffness / cover stiffness) ** this."""
 BASE_DAMPING: Final = 0.12
 """Damping ratio of the cell's resonance on a hard object."""
@@ -118,6 +118,15 @@ class SlideConditions:
     phases: F64
 
 
+def followed_relief(obj: ObjectSpec) -> float:
+    """Return the relief height the cell follows: a soft surface flattens under the cover.
+
+    The relief is pressed flat in proportion to the object's share of the contact compliance,
+    so the cell rides the full relief of a hard surface and little of a foam's.
+    """
+    return obj.texture_amplitude_m * obj.stiffness_n_m / (obj.stiffness_n_m + SKIN_STIFFNESS_N_M)
+
+
 def _smoothing(wavenumber: NDArray[np.floating[Any]] | float) -> F64:
     """Return the cover's gain at spatial wavenumber ``wavenumber`` (rad/m)."""
     gain: F64 = np.exp(-0.5 * (np.asarray(wavenumber, dtype=np.float64) * CONTACT_SMOOTHING_M) ** 2)
@@ -151,7 +160,7 @@ def ridge_relief(obj: ObjectSpec, slide: F64, points: F64, conditions: SlideCond
     for order, (weight, phase) in enumerate(zip(HARMONICS, conditions.phases, strict=True), 1):
         gain = weight * float(_smoothing(order * base_k))
         height += gain * np.sin(order * theta + phase)
-    return obj.anisotropy * obj.texture_amplitude_m * height
+    return obj.anisotropy * followed_relief(obj) * height
 
 
 def _ridge_acceleration(
@@ -171,7 +180,7 @@ def _ridge_acceleration(
         out += gain * (
             -((k * speed[:, None]) ** 2) * np.sin(arg) + k * accel[:, None] * np.cos(arg)
         )
-    return obj.anisotropy * obj.texture_amplitude_m * out
+    return obj.anisotropy * followed_relief(obj) * out
 
 
 def _random_acceleration(obj: ObjectSpec, slide: F64, rng: np.random.Generator) -> F64:
@@ -180,7 +189,7 @@ def _random_acceleration(obj: ObjectSpec, slide: F64, rng: np.random.Generator) 
     The relief is a Gaussian process along each cell's path with a log-normal band around the
     texture's wavenumber; its RMS is that of the ridges' fundamental.
     """
-    amplitude = (1.0 - obj.anisotropy) * obj.texture_amplitude_m
+    amplitude = (1.0 - obj.anisotropy) * followed_relief(obj)
     if amplitude <= 0:
         return np.zeros((slide.shape[0], 7))
     step = obj.texture_period_m / 16.0
