@@ -29,6 +29,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
+from recorder._sim import SimulatedRig
 from recorder._writer import METADATA_NAME, PART_SUFFIX, record_action
 from recorder.errors import OutputExistsError, RecorderError
 from schemas import CHANNELS
@@ -44,7 +45,7 @@ RigFactory: TypeAlias = "Callable[[int], Rig]"
 #: File name of a dataset's index, beside the object directories.
 INDEX_NAME = "index.parquet"
 
-_RIGS: dict[str, RigFactory] = {}
+_RIGS: dict[str, RigFactory] = {"sim": SimulatedRig}
 
 
 def register_rig(name: str, factory: RigFactory) -> None:

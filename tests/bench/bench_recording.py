@@ -64,7 +64,8 @@ def bench_recording(rig_name: str, objects: list[str], out: Path, repeat: int) -
                 durations.append((written.end_ns - written.start_ns) / NS)
                 paths.append(path)
         recorded, wall, sim = (statistics.median(v) for v in (durations, record_times, sim_times))
-        print(f"{action.id:8}{recorded:12.2f}{wall:11.3f}{recorded / wall:13.1f}{recorded / sim:12.1f}")
+        speed, sim_speed = recorded / wall, recorded / sim
+        print(f"{action.id:8}{recorded:12.2f}{wall:11.3f}{speed:13.1f}{sim_speed:12.1f}")
     return paths
 
 
@@ -85,7 +86,8 @@ def bench_decoding(paths: list[Path], repeat: int) -> None:
         for path in paths:
             read_recording(path)
 
-    raw(), ours()  # warm the page cache and the typestore
+    raw()  # warm the page cache and the typestore
+    ours()
     raw_s, ours_s = _median_time(raw, repeat), _median_time(ours, repeat)
     size = sum(p.stat().st_size for p in paths) / 1e6
     print(f"\nread + decode of {len(paths)} files ({size:.1f} MB), median of {repeat}")

@@ -4,7 +4,7 @@ import polars as pl
 import pytest
 from conftest import FakeRig
 
-from recorder import ActionSpec, RecorderError
+from recorder import ActionSpec, RecorderError, load_objects
 from recorder._catalog import ObjectSpec
 from recorder._dataset import (
     INDEX_NAME,
@@ -14,6 +14,7 @@ from recorder._dataset import (
     generate_dataset,
     plan_dataset,
     recording_path,
+    rig_factory,
     write_index,
 )
 
@@ -67,6 +68,19 @@ def test_dataset_is_identical_whatever_the_worker_count(
         [recording_path(Path(), t.obj.id, t.action.id, t.trial).as_posix() for t in tasks]
         + [INDEX_NAME]
     )
+
+
+def test_simulated_dataset_is_identical_whatever_the_worker_count(
+    tmp_path: Path, actions: Actions
+) -> None:
+    tasks = plan_dataset(
+        load_objects(), actions, object_ids=["wood", "foam_block"], action_ids=["S4"], trials=2
+    )
+    factory = rig_factory("sim")
+    generate_dataset(tasks, tmp_path / "one", factory, seed=1, workers=1)
+    generate_dataset(tasks, tmp_path / "two", factory, seed=1, workers=2)
+    assert _files(tmp_path / "one") == _files(tmp_path / "two")
+    assert len(_files(tmp_path / "one")) == len(tasks) + 1
 
 
 def test_rerun_skips_existing_recordings_and_never_overwrites(

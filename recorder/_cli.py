@@ -1,0 +1,248 @@
+"""``atikt-record``: record one action, generate a dataset, rebuild a dataset's index.
+
+Subcommands live in a registry: a function decorated with :func:`command` (its arguments
+declared with :func:`arg`) becomes ``atikt-record <name>``. Errors of the project are printed
+as one line on stderr with a non-zero exit status; anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+from recorder._catalog import load_actions, load_objects
+from recorder._dataset import (
+    INDEX_NAME,
+    TaskResult,
+    generate_dataset,
+    incomplete_files,
+    plan_dataset,
+    recording_path,
+    rig_factory,
+    rig_names,
+    write_index,
+)
+from recorder._writer import record_action
+from recorder.errors import RecorderError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from recorder._dataset import DatasetReport
+
+PROG = "atikt-record"
+DEFAULT_RIG = "sim"
+
+
+@dataclass(frozen=True, slots=True)
+class Argument:
+    """One ``add_argument`` call: flags and keyword options."""
+
+    flags: tuple[str, ...]
+    options: dict[str, Any]
+
+
+def arg(*flags: str, **options: Any) -> Argument:  # noqa: ANN401 (argparse's own options)
+    """Declare an argument of a subcommand, as for ``ArgumentParser.add_argument``."""
+    return Argument(flags, options)
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A registered subcommand."""
+
+    name: str
+    help: str
+    arguments: tuple[Argument, ...]
+    run: Callable[[argparse.Namespace], int]
+
+
+COMMANDS: dict[str, Command] = {}
+
+
+def command(
+    name: str, help_text: str, *arguments: Argument
+) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
+    """Register the decorated function as subcommand ``name``; it returns the exit status."""
+
+    def register(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+        COMMANDS[name] = Command(name, help_text, arguments, run)
+        return run
+
+    return register
+
+
+def _names(text: str) -> list[str]:
+    """Parse a comma-separated list of catalog ids."""
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+_CATALOGS = (
+    arg("--objects-catalog", type=Path, help="object catalog TOML (default: the packaged one)"),
+    arg("--actions-catalog", type=Path, help="action catalog TOML (default: the packaged one)"),
+)
+
+
+def _rig_argument() -> Argument:
+    return arg("--rig", default=DEFAULT_RIG, help=f"rig to use (default: {DEFAULT_RIG})")
+
+
+@command(
+    "action",
+    "record one exploratory action into <out>/<object>/<action>/<trial>.mcap",
+    arg("--object", required=True, help="object id from the object catalog"),
+    arg("--action", required=True, help="action id from the action catalog (P1, S2, C1, ...)"),
+    arg("--trial", type=int, default=1, help="trial number, from 1 (default: 1)"),
+    arg("--out", type=Path, required=True, help="dataset directory"),
+    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    _rig_argument(),
+    *_CATALOGS,
+)
+def _action(args: argparse.Namespace) -> int:
+    if args.trial < 1:
+        msg = f"--trial {args.trial}: trials are numbered from 1"
+        raise RecorderError(msg)
+    objects = load_objects(args.objects_catalog)
+    actions = load_actions(args.actions_catalog)
+    (task,) = plan_dataset(
+        objects, actions, object_ids=[args.object], action_ids=[args.action], trials=1
+    )
+    path = recording_path(args.out, task.obj.id, task.action.id, args.trial)
+    with rig_factory(args.rig)(args.seed) as rig:
+        written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
+    seconds = (written.end_ns - written.start_ns) / 1e9
+    Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")
+    return 0
+
+
+def _progress(console: Console) -> Progress:
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    )
+
+
+def _report(console: Console, report: DatasetReport) -> None:
+    table = Table(title=f"dataset {report.root}", show_header=False)
+    table.add_row("recordings written", str(report.written))
+    table.add_row("recordings kept (existed)", str(report.skipped))
+    table.add_row("size of all recordings", f"{report.size_bytes / 1e6:.1f} MB")
+    table.add_row("index", str(report.index))
+    console.print(table)
+    if report.incomplete:
+        console.print(
+            f"[yellow]{len(report.incomplete)} unfinished recordings (*.mcap.part) from "
+            "interrupted runs; delete them when no recorder is running"
+        )
+
+
+@command(
+    "dataset",
+    "record the simulated thesis dataset (every object x action x trial) and its index",
+    arg("--out", type=Path, required=True, help="dataset directory"),
+    arg("--objects", type=_names, help="comma-separated object ids (default: all)"),
+    arg("--actions", type=_names, help="comma-separated action ids (default: all)"),
+    arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
+    arg("--seed", type=int, default=0, help="dataset seed (default: 0)"),
+    arg("--workers", type=int, help="worker processes (default: all cores)"),
+    _rig_argument(),
+    *_CATALOGS,
+)
+def _dataset(args: argparse.Namespace) -> int:
+    tasks = plan_dataset(
+        load_objects(args.objects_catalog),
+        load_actions(args.actions_catalog),
+        object_ids=args.objects,
+        action_ids=args.actions,
+        trials=args.trials,
+    )
+    factory = rig_factory(args.rig)
+    if args.workers is not None and args.workers < 1:
+        msg = f"--workers {args.workers}: need at least one worker"
+        raise RecorderError(msg)
+    console = Console(stderr=True)
+    with _progress(console) as progress:
+        bar = progress.add_task("recording", total=len(tasks))
+
+        def advance(_result: TaskResult) -> None:
+            progress.advance(bar)
+
+        report = generate_dataset(
+            tasks,
+            args.out,
+            factory,
+            seed=args.seed,
+            workers=args.workers or os.cpu_count(),
+            on_result=advance,
+        )
+    _report(Console(), report)
+    return 0
+
+
+@command(
+    "index",
+    f"rebuild <dir>/{INDEX_NAME} from the recordings in a dataset directory",
+    arg("dir", type=Path, help="dataset directory"),
+)
+def _index(args: argparse.Namespace) -> int:
+    if not args.dir.is_dir():
+        msg = f"{args.dir}: not a directory; give the dataset directory (--out of 'dataset')"
+        raise RecorderError(msg)
+    path = write_index(args.dir)
+    console = Console()
+    console.print(f"{path}")
+    if leftovers := incomplete_files(args.dir):
+        console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part) ignored")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser with every registered subcommand."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Record exploratory actions of a UR10 with skin into MCAP files."
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for entry in COMMANDS.values():
+        sub = subparsers.add_parser(entry.name, help=entry.help, description=entry.help)
+        for argument in entry.arguments:
+            sub.add_argument(*argument.flags, **argument.options)
+        sub.set_defaults(run=entry.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``atikt-record``; return the exit status (1 for a project error, 2 for usage)."""
+    args = build_parser().parse_args(argv)
+    try:
+        status: int = args.run(args)
+    except RecorderError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)  # noqa: T201 (one line, no traceback)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; finished recordings are kept", file=sys.stderr)  # noqa: T201
+        return 130
+    return status
+
+
+__all__ = ["COMMANDS", "arg", "build_parser", "command", "main", "rig_names"]
