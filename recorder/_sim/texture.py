@@ -45,7 +45,7 @@ BASE_DAMPING: Final = 0.12
 """Damping ratio of the cell's resonance on a hard object."""
 CONTACT_SMOOTHING_M: Final = 1e-4
 """Length over which the cover averages the relief: gain exp(-(k L)^2 / 2) at wavenumber k."""
-HARMONICS: Final = (1.0, 0.35, 0.15)
+HARMONICS: Final = (1.0, 0.15, 0.05)
 """Relative amplitudes of the ridges' harmonics."""
 RIDGE_PUSH: Final = 0.4
 """Tangential over normal acceleration caused by climbing a ridge."""
