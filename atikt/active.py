@@ -53,6 +53,8 @@ IntArray = npt.NDArray[np.int64]
 TransferMode = Literal["prediction", "optimization", "none"]
 Observe = Callable[[int, str], RawFeatures]
 """``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
+Available = Callable[[int, str], bool]
+"""``available(new_object_index, action) -> bool``: can another observation be served?"""
 
 TRANSFER_MODES: Final = ("prediction", "optimization", "none")
 _NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
@@ -279,6 +281,9 @@ class ActiveLearner:
         n_new_objects: Number of new objects (indices ``0 .. n_new_objects - 1``).
         observe: ``observe(object_index, action) -> RawFeatures``: performs (or replays) an
             action and returns its raw features.
+        available: ``available(object_index, action) -> bool``; decisions only consider
+            pairs for which it is True (e.g. a finite pool of recordings), and the learner is
+            done when no pair is left. None: every pair is always available.
         priors: Action -> old-object label -> raw observations, or action -> a
             :class:`PriorModel` from :func:`fit_prior_models` (fitted once for many
             learners). Ignored with ``transfer="none"``.
@@ -311,6 +316,7 @@ class ActiveLearner:
         n_new_objects: int,
         *,
         observe: Observe,
+        available: Available | None = None,
         priors: PriorsInput | None = None,
         budget: int = 40,
         eps_explore: float = 0.3,
@@ -330,6 +336,7 @@ class ActiveLearner:
         self.actions = tuple(actions)
         self.n_new_objects = n_new_objects
         self.observe = observe
+        self.available = available
         self.priors = priors
         self.budget = budget
         self.eps_explore = eps_explore
@@ -375,7 +382,15 @@ class ActiveLearner:
         """True when the budget is spent or the models stopped improving."""
         if not hasattr(self, "history_"):
             return False
-        return len(self.history_) >= self.budget or self._stalled()
+        return len(self.history_) >= self.budget or self._stalled() or not self._candidates()
+
+    def _candidates(self) -> list[int]:
+        """Flat indices (action-major) of the (action, object) pairs that can be observed."""
+        pairs = range(len(self.actions) * self.n_new_objects)
+        if self.available is None:
+            return list(pairs)
+        n = self.n_new_objects
+        return [i for i in pairs if self.available(i % n, self.actions[i // n])]
 
     def _stalled(self) -> bool:
         """True after ``patience`` steps without the mean UNC improving by ``min_improvement``."""
@@ -480,17 +495,21 @@ class ActiveLearner:
 
         Raises:
             NotFittedError: :meth:`initialise` was not called.
-            AtiktError: The learner is done.
+            AtiktError: The learner is done (budget spent, stalled, or nothing available).
         """
         self._check_initialised()
         if self.done:
             msg = f"the learner is done after {len(self.history_)} steps; check `done` first"
             raise AtiktError(msg)
         entropies = self.uncertainty_.copy()
+        candidates = self._candidates()
         explored = bool(self._rng.random() < self.eps_explore)
-        # Exploration: uniformly random (action, object); exploitation: largest UNC, ties to
-        # the first in (action, object) order.
-        index = int(self._rng.integers(entropies.size) if explored else np.argmax(entropies))
+        # Exploration: a uniformly random available (action, object); exploitation: the largest
+        # UNC among the available pairs, ties to the first in (action, object) order.
+        if explored:
+            index = candidates[int(self._rng.integers(len(candidates)))]
+        else:
+            index = candidates[int(np.argmax(entropies.ravel()[candidates]))]
         action_index, obj = divmod(index, self.n_new_objects)
         action = self.actions[action_index]
         observation = self._observe(obj, action)

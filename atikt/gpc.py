@@ -77,9 +77,9 @@ class LaplaceMode:
     n_iter: int
 
 
-def _log_likelihood(y: FloatArray, f: FloatArray) -> float:
-    """Return ``log p(y | f) = -sum log(1 + exp(-(2y - 1) f))`` for ``y`` in {0, 1}."""
-    return -float(np.logaddexp(0.0, -(2.0 * y - 1.0) * f).sum())
+def _log_likelihood(sign: FloatArray, f: FloatArray) -> float:
+    """Return ``log p(y | f) = -sum log(1 + exp(-s f))`` with ``s = 2y - 1`` in {-1, 1}."""
+    return -float(np.logaddexp(0.0, -sign * f).sum())
 
 
 def add_to_diagonal(A: FloatArray, value: float) -> FloatArray:
@@ -147,9 +147,10 @@ def laplace_mode(
     if not np.all(np.isfinite(K)):
         msg = "the kernel matrix has NaN or inf entries; check the features and hyperparameters"
         raise NumericalError(msg)
+    sign = 2.0 * y - 1.0
     a = np.zeros(y.shape[0]) if a0 is None else a0
     f = K @ a
-    psi = -0.5 * float(a @ f) + _log_likelihood(y, f)
+    psi = -0.5 * float(a @ f) + _log_likelihood(sign, f)
     n_iter = 0
     for n_iter in range(1, max_iter + 1):  # noqa: B007 - n_iter is reported
         pi = expit(f)  # line 4: W = -grad grad log p(y|f)
@@ -159,13 +160,13 @@ def laplace_mode(
         b = W * f + (y - pi)  # line 6
         a_new = b - sqrt_w * _cho_solve(L, sqrt_w * (K @ b))  # line 7
         f_new = K @ a_new  # line 8
-        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(y, f_new)
+        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
         for _ in range(_MAX_HALVINGS):  # damped Newton: rarely needed, never increases Psi
             if psi_new >= psi - tol:
                 break
             a_new = 0.5 * (a + a_new)
             f_new = K @ a_new
-            psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(y, f_new)
+            psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
         converged = psi_new - psi < tol
         a, f, psi = a_new, f_new, psi_new
         if converged:
@@ -193,12 +194,13 @@ def lml_gradient(K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode
         ``d log q(y | X, theta) / d theta``, shape (n_params,).
     """
     sqrt_w, L, pi = mode.sqrt_w, mode.L, mode.pi
-    R = sqrt_w[:, None] * _cho_solve(L, np.diag(sqrt_w))  # line 7
-    C = _tri_solve(L, sqrt_w[:, None] * K)  # line 8
+    V = _tri_solve(L, np.diag(sqrt_w))  # L \ W^1/2, so that R = V'V and C = V K
+    R = V.T @ V  # line 7: R = W^1/2 L' \ (L \ W^1/2)
+    C = V @ K  # line 8: C = L \ (W^1/2 K)
     # line 9: d^3 log p / df^3 = -pi (1 - pi) (1 - 2 pi) for the logistic likelihood
     s2 = -0.5 * (np.diag(K) - np.einsum("ij,ij->j", C, C)) * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
-    flat = dK.reshape(dK.shape[0], -1)
-    s1 = 0.5 * (flat @ np.outer(mode.a, mode.a).ravel()) - 0.5 * (flat @ R.ravel())  # line 12
+    # line 12, all hyperparameters at once: a' dK_j a / 2 - tr(R dK_j) / 2
+    s1 = dK.reshape(dK.shape[0], -1) @ (0.5 * (np.outer(mode.a, mode.a) - R)).ravel()
     b = dK @ (y - pi)  # line 13, one row per hyperparameter
     s3 = b - (b @ R) @ K  # line 14 (K and R are symmetric)
     return np.asarray(s1 + s3 @ s2, dtype=np.float64)  # line 15
@@ -319,19 +321,22 @@ class BinaryGPC:
             NumericalError: Every start of the hyperparameter search failed numerically.
         """
         self.X_train_, self.y_train_ = _check_xy(X, y)
-        kernel, a0 = self.kernel, None
+        kernel, mode, a0 = self.kernel, None, None
         self.n_evaluations_ = 0
         if self.optimize and kernel.n_params > 0:
             objective = self._objective(self.X_train_, self.y_train_)
             theta = self._search(objective)
-            kernel, a0 = kernel.with_theta(theta), objective.last_a
+            kernel, mode = kernel.with_theta(theta), objective.mode_at(theta)
+            a0 = None if objective.last_mode is None else objective.last_mode.a
             self.n_evaluations_ = objective.n_calls
         self.kernel_ = kernel
-        K = self._covariance(kernel, self.X_train_)
-        self.mode_ = laplace_mode(
-            K, self.y_train_, a0, max_iter=self.newton_max_iter, tol=self.newton_tol
-        )
-        self.log_marginal_likelihood_value_ = self.mode_.log_marginal_likelihood
+        if mode is None:  # the search ended elsewhere than its last evaluation, or no search
+            K = self._covariance(kernel, self.X_train_)
+            mode = laplace_mode(
+                K, self.y_train_, a0, max_iter=self.newton_max_iter, tol=self.newton_tol
+            )
+        self.mode_ = mode
+        self.log_marginal_likelihood_value_ = mode.log_marginal_likelihood
         return self
 
     def _search(self, objective: _NegativeLml) -> FloatArray:
@@ -341,9 +346,10 @@ class BinaryGPC:
             NumericalError: No start produced a finite optimum.
         """
         bounds = self.kernel.bounds
-        rng = _rng(self.random_state)
         starts = [np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1])]
-        starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(self.n_restarts)]
+        if self.n_restarts > 0:
+            rng = _rng(self.random_state)
+            starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(self.n_restarts)]
         best_theta, best_value, failure = None, np.inf, None
         for start in starts:
             try:
@@ -431,7 +437,11 @@ class BinaryGPC:
 
 
 class _NegativeLml:
-    """``theta -> (-log q, -d log q / d theta)`` with a warm-started Newton search."""
+    """``theta -> (-log q, -d log q / d theta)`` with a warm-started Newton search.
+
+    The last evaluation (theta, covariance, mode) is kept, so that the fit after the search
+    does not redo it.
+    """
 
     def __init__(
         self,
@@ -443,22 +453,30 @@ class _NegativeLml:
         newton_max_iter: int,
         newton_tol: float,
     ) -> None:
-        self.kernel, self.X, self.y = kernel, X, y
+        self.evaluate = kernel.evaluator(X)
+        self.y = y
         self.jitter, self.newton_max_iter, self.newton_tol = jitter, newton_max_iter, newton_tol
-        self.last_a: FloatArray | None = None
+        self.last_theta: FloatArray | None = None
+        self.last_K: FloatArray | None = None
+        self.last_mode: LaplaceMode | None = None
         self.n_calls = 0
 
     def __call__(self, theta: FloatArray) -> tuple[float, FloatArray]:
         """Evaluate at ``theta`` (log space)."""
         self.n_calls += 1
-        K, dK = self.kernel.with_theta(theta).gradient(self.X)
+        K, dK = self.evaluate(theta)
         add_to_diagonal(K, self.jitter)
-        mode = laplace_mode(
-            K, self.y, self.last_a, max_iter=self.newton_max_iter, tol=self.newton_tol
-        )
-        self.last_a = mode.a
+        a0 = None if self.last_mode is None else self.last_mode.a
+        mode = laplace_mode(K, self.y, a0, max_iter=self.newton_max_iter, tol=self.newton_tol)
+        self.last_theta, self.last_K, self.last_mode = np.array(theta, dtype=np.float64), K, mode
         gradient = lml_gradient(K, dK, self.y, mode)
         return -mode.log_marginal_likelihood, -gradient
+
+    def mode_at(self, theta: FloatArray) -> LaplaceMode | None:
+        """The Laplace mode of the last evaluation if it was at ``theta``, else None."""
+        if self.last_theta is not None and np.array_equal(self.last_theta, theta):
+            return self.last_mode
+        return None
 
 
 def _check_labels(y: npt.ArrayLike, n: int) -> IntArray:

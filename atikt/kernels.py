@@ -18,7 +18,7 @@ free ones, ``bounds`` their (log) box, ``with_theta`` returns a new kernel, and
 from __future__ import annotations
 
 import abc
-from typing import TYPE_CHECKING, Final, Literal, Self
+from typing import TYPE_CHECKING, Final, Literal, Self, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -27,10 +27,12 @@ from scipy.spatial.distance import cdist
 from atikt.errors import AtiktError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
 FloatArray = npt.NDArray[np.float64]
 Bounds = tuple[float, float] | Literal["fixed"]
+Evaluator: TypeAlias = "Callable[[FloatArray], tuple[FloatArray, FloatArray]]"
+"""``theta -> (K(X, X), dK/dtheta)`` for one fixed ``X`` (see :meth:`Kernel.evaluator`)."""
 
 DEFAULT_LENGTH_SCALE_BOUNDS: Final = (0.05, 20.0)
 """Length-scale box: the feature blocks have unit total variance (see FeatureTransformer)."""
@@ -88,6 +90,16 @@ class Kernel(abc.ABC):
     @abc.abstractmethod
     def diag(self, X: FloatArray) -> FloatArray:
         """Return the diagonal of ``K(X, X)``, shape (n,)."""
+
+    def evaluator(self, X: FloatArray) -> Evaluator:
+        """Return ``theta -> (K(X, X), dK/dtheta)`` for this ``X``.
+
+        The hyperparameter search evaluates the kernel of one training set at many ``theta``;
+        subclasses precompute what does not depend on ``theta`` (squared distances, domain
+        masks) and build no kernel objects per call. The result equals
+        ``self.with_theta(theta).gradient(X)``.
+        """
+        return lambda theta: self.with_theta(theta).gradient(X)
 
     @property
     def n_params(self) -> int:
@@ -178,6 +190,21 @@ class SliceRBF(Kernel):
     def diag(self, X: FloatArray) -> FloatArray:
         """Return ones: the RBF has unit variance."""
         return np.ones(X.shape[0])
+
+    def evaluator(self, X: FloatArray) -> Evaluator:
+        """Return ``theta -> (K, dK)`` with the squared distances computed once."""
+        D = self.sq_dist(X)
+        if self.length_scale_bounds == "fixed":
+            K = np.exp(D / (-2.0 * self.length_scale**2))
+            empty = np.zeros((0, *D.shape))
+            return lambda _theta: (K.copy(), empty)
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            scaled = D * np.exp(-2.0 * theta[0])  # d^2 / l^2
+            K = np.exp(-0.5 * scaled)
+            return K, (K * scaled)[None]
+
+        return evaluate
 
 
 class ModalityKernel(Kernel):
@@ -302,6 +329,37 @@ class ModalityKernel(Kernel):
         """Return ``s^2`` for every row (each RBF has unit variance and ``|w|_1 = 1``)."""
         return np.full(X.shape[0], self.signal_variance)
 
+    def evaluator(self, X: FloatArray) -> Evaluator:
+        """Return ``theta -> (K, dK)`` built on the parts' evaluators (same maths as gradient)."""
+        parts = [(part.evaluator(X), part.n_params) for part in self.parts]
+        n_part = sum(k for _, k in parts)
+        n_logits = len(self.parts) - 1
+        n, n_params = X.shape[0], self.n_params
+        learn_variance, fixed_variance = self._learn_variance, self.signal_variance
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            z = np.concatenate([[0.0], theta[n_part : n_part + n_logits]])
+            w = np.exp(z - z.max())
+            w /= w.sum()
+            s2 = float(np.exp(theta[-1])) if learn_variance else fixed_variance
+            dK = np.empty((n_params, n, n))
+            mixture = np.zeros((n, n))
+            kernels, start = [], 0
+            for (evaluate_part, k), wm in zip(parts, w, strict=True):
+                Km, dKm = evaluate_part(theta[start : start + k])
+                dK[start : start + k] = (s2 * wm) * dKm
+                mixture += wm * Km
+                kernels.append(Km)
+                start += k
+            for j in range(1, len(parts)):  # dK / d logit_j = s2 w_j (K_j - mixture)
+                dK[n_part + j - 1] = (s2 * w[j]) * (kernels[j] - mixture)
+            K = s2 * mixture
+            if learn_variance:
+                dK[-1] = K
+            return K, dK
+
+        return evaluate
+
 
 class DependentKernel(Kernel):
     """The dependent-GP transfer kernel over old-object and new-object observations.
@@ -386,6 +444,25 @@ class DependentKernel(Kernel):
     def diag(self, X: FloatArray) -> FloatArray:
         """Return the base kernel's diagonal (each point shares its own domain)."""
         return self.base.diag(X)
+
+    def evaluator(self, X: FloatArray) -> Evaluator:
+        """Return ``theta -> (K, dK)`` with the domain mask computed once."""
+        cross = self._cross(X, None)
+        evaluate_base, n_base = self.base.evaluator(X), self.base.n_params
+        learn_rho, fixed_mask = self.learn_rho, np.where(cross, self.rho, 1.0)
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            K_base, dK_base = evaluate_base(theta[:n_base])
+            if not learn_rho:
+                return K_base * fixed_mask, dK_base * fixed_mask
+            rho = float(np.exp(theta[n_base]))
+            K = K_base * np.where(cross, rho, 1.0)
+            dK = np.empty((n_base + 1, *K.shape))
+            dK[:n_base] = dK_base * np.where(cross, rho, 1.0)
+            dK[n_base] = np.where(cross, K, 0.0)  # dK / dlog rho = rho k on cross entries
+            return K, dK
+
+        return evaluate
 
 
 def modality_kernel(

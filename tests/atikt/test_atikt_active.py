@@ -221,3 +221,30 @@ def test_single_old_object_needs_the_optimization_approach(
         learner.initialise()
     learner, _ = run(train, budget=1, priors=single, transfer="optimization")
     assert learner.history_[0].candidates == (0,)
+
+
+def test_only_available_pairs_are_chosen(train: dict[str, dict[int, list[RawFeatures]]]) -> None:
+    observer = PoolObserver(train)
+
+    def available(obj: int, action: str) -> bool:
+        return action == "S2" and obj in (1, 3) and observer.used.get((action, obj), 0) < 3
+
+    for eps in (0.0, 1.0):
+        observer.used.clear()
+        learner = ActiveLearner(
+            ACTIONS,
+            N_NEW,
+            observe=observer,
+            available=available,
+            transfer="none",
+            budget=20,
+            eps_explore=eps,
+            random_state=0,
+            **FAST,  # type: ignore[arg-type]
+        )
+        learner.initialise()
+        while not learner.done:
+            record = learner.step()
+            assert record.action == "S2"
+            assert record.object in (1, 3)
+        assert len(learner.history_) == 4  # two pairs, two more recordings each

@@ -150,3 +150,15 @@ def test_fixed_hyperparameters_are_not_free() -> None:
 def test_bad_parameters_are_refused(build: Callable[[], object], match: str) -> None:
     with pytest.raises(AtiktError, match=match):
         build()
+
+
+@pytest.mark.parametrize(("kernel", "X"), kernels())
+def test_evaluator_equals_with_theta_gradient(kernel: Kernel, X: np.ndarray) -> None:
+    evaluate = kernel.evaluator(X)
+    rng = np.random.default_rng(9)
+    for _ in range(3):
+        theta = rng.uniform(kernel.bounds[:, 0], kernel.bounds[:, 1])
+        K, dK = evaluate(theta)
+        K_ref, dK_ref = kernel.with_theta(theta).gradient(X)
+        np.testing.assert_allclose(K, K_ref, rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(dK, dK_ref, rtol=1e-12, atol=1e-300)

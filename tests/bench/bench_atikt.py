@@ -1,0 +1,231 @@
+"""Benchmark of one ATIKT active-learning iteration, atikt against the scikit-learn reference.
+
+Setting: 5 new objects, 3 old objects, 7 actions (P1, P2, S1-S4, C1), 20 prior observations per
+old object and action, model prediction transfer, one initial observation per (new object,
+action) and then 40 steps. Printed:
+
+- the median latency of ``ActiveLearner.step()`` (decision + observation + update of the chosen
+  action's models + record), over the first 5 steps (up to 40 collected observations) and over
+  all 40 steps;
+- side by side, on the same inputs (the learner's state just before each update, copied): the
+  median time of atikt's update of the chosen action and of the same update done with
+  scikit-learn's GaussianProcessClassifier (tests/atikt/sklearn_reference.py), and their ratio;
+- with ``--accuracy``: final test accuracy of the amplitude kernel against the thesis kernel
+  (no signal variance), baseline and transfer, over a few seeds.
+
+BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` unless set): at these matrix sizes
+threads only add contention, for both implementations; studies running learners in joblib
+workers get the same setting from joblib. scikit-learn's ConvergenceWarnings are silenced.
+
+Run: ``python tests/bench/bench_atikt.py [--steps 40] [--accuracy]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import copy
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "atikt"))
+
+from atikt_synthetic import ACTIONS, NEW_OBJECTS, OLD_OBJECTS, PoolObserver, pool
+from sklearn_reference import reference_old_model, reference_update
+
+from atikt import ActiveLearner, fit_prior_models
+
+N_NEW = len(NEW_OBJECTS)
+
+
+class TimedLearner(ActiveLearner):
+    """An ActiveLearner that, before each step's update, times both implementations on copies."""
+
+    def __init__(self, *args: Any, reference: dict[str, Any], **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.reference = reference
+        self.compare = False
+        self.ours: list[float] = []
+        self.theirs: list[float] = []
+        self.unc_gap: list[float] = []
+
+    def _update(self, action: str, *, n_restarts: int, max_iter: int) -> None:
+        if self.compare:
+            reference, self.reference = self.reference, {}
+            mine = copy.deepcopy(self)
+            self.reference = reference
+            mine.compare = False
+            state = copy.deepcopy(self.states_[action])
+            start = time.perf_counter()
+            mine._update(action, n_restarts=n_restarts, max_iter=max_iter)
+            self.ours.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            unc = reference_update(
+                state,
+                n_new_objects=self.n_new_objects,
+                amplitude=self.amplitude,
+                n_thermal_components=self.n_thermal_components,
+                eps_neg1=self.eps_neg1,
+                max_iter=max_iter,
+                old_model=self.reference.get(action),
+            )
+            self.theirs.append(time.perf_counter() - start)
+            self.unc_gap.append(float(np.abs(unc - mine.states_[action].uncertainty).max()))
+        super()._update(action, n_restarts=n_restarts, max_iter=max_iter)
+
+
+def sklearn_old_models(priors: dict[str, Any]) -> dict[str, Any]:
+    """The old objects' models in scikit-learn at atikt's fitted hyperparameters."""
+    out = {}
+    for action, prior in priors.items():
+        X = prior.transformer.transform(prior.observations)
+        kernels = [e.kernel_ for e in prior.model.estimators_]
+        out[action] = reference_old_model(kernels, X, prior.labels)
+    return out
+
+
+def latency(steps: int) -> None:
+    """Step latency and the side-by-side update comparison."""
+    actions = list(ACTIONS)
+    train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
+    raw_priors = pool(OLD_OBJECTS, actions, n_trials=20, seed=2)
+    priors = fit_prior_models(raw_priors, random_state=0)
+    learner = TimedLearner(
+        actions,
+        N_NEW,
+        observe=PoolObserver(train),
+        priors=priors,
+        budget=steps,
+        random_state=0,
+        reference=sklearn_old_models(priors),
+    )
+    start = time.perf_counter()
+    learner.initialise()
+    print(f"initialise (35 observations, prior models given): {time.perf_counter() - start:.2f} s")
+    step_times = []
+    while not learner.done:
+        start = time.perf_counter()
+        learner.step()
+        step_times.append(time.perf_counter() - start)
+    early = statistics.median(step_times[:5]) * 1e3
+    print(f"step latency, first 5 steps (<= 40 observations): median {early:.1f} ms")
+    print(f"step latency, all {len(step_times)} steps: median {np.median(step_times) * 1e3:.1f} ms")
+    print(
+        f"                             90th percentile {np.percentile(step_times, 90) * 1e3:.1f} ms"
+    )
+
+    compare = TimedLearner(
+        actions,
+        N_NEW,
+        observe=PoolObserver(train),
+        priors=priors,
+        budget=steps,
+        random_state=0,
+        reference=learner.reference,
+    )
+    compare.initialise()
+    compare.compare = True
+    while not compare.done:
+        compare.step()
+    ours, theirs = np.median(compare.ours) * 1e3, np.median(compare.theirs) * 1e3
+    print(f"action update, same inputs ({len(compare.ours)} updates):")
+    print(f"  atikt        median {ours:.1f} ms")
+    print(f"  scikit-learn median {theirs:.1f} ms")
+    ratios = np.array(compare.theirs) / np.array(compare.ours)
+    print(
+        f"  speed ratio {theirs / ours:.1f}x (median of per-update ratios {np.median(ratios):.1f}x)"
+    )
+    print(f"  max |UNC atikt - UNC scikit-learn| = {max(compare.unc_gap):.2e} nats")
+
+
+def other_modes(steps: int) -> None:
+    """Median step latency of the baseline and of the model optimisation approach (atikt)."""
+    actions = list(ACTIONS)
+    train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
+    priors = fit_prior_models(pool(OLD_OBJECTS, actions, n_trials=20, seed=2), random_state=0)
+    for transfer in ("none", "optimization"):
+        learner = ActiveLearner(
+            actions,
+            N_NEW,
+            observe=PoolObserver(train),
+            priors=priors,
+            transfer=transfer,
+            budget=steps,
+            random_state=0,
+        )
+        learner.initialise()
+        times = []
+        while not learner.done:
+            start = time.perf_counter()
+            learner.step()
+            times.append(time.perf_counter() - start)
+        print(f"step latency, transfer={transfer!r}: median {np.median(times) * 1e3:.1f} ms")
+
+
+def accuracy(seeds: int, steps: int) -> None:
+    """Final test accuracy of the amplitude and the thesis kernel (synthetic objects)."""
+    actions = list(ACTIONS)
+    raw_priors = pool(OLD_OBJECTS, actions, n_trials=20, seed=2)
+    test = pool(NEW_OBJECTS, actions, n_trials=10, seed=3)
+    test_set = {
+        a: (
+            [o for j in range(N_NEW) for o in test[a][j]],
+            [j for j in range(N_NEW) for _ in test[a][j]],
+        )
+        for a in actions
+    }
+    for amplitude in (True, False):
+        priors = fit_prior_models(raw_priors, amplitude=amplitude, random_state=0)
+        for transfer in ("none", "prediction"):
+            finals, initials = [], []
+            for seed in range(seeds):
+                train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=100 + seed)
+                learner = ActiveLearner(
+                    actions,
+                    N_NEW,
+                    observe=PoolObserver(train),
+                    priors=priors,
+                    transfer=transfer,
+                    budget=steps,
+                    amplitude=amplitude,
+                    random_state=seed,
+                )
+                learner.initialise()
+                initials.append(learner.score(test_set))
+                while not learner.done:
+                    learner.step()
+                finals.append(learner.score(test_set))
+            name = "amplitude" if amplitude else "thesis   "
+            print(
+                f"{name} transfer={transfer:10s} accuracy after init {np.mean(initials):.3f}, "
+                f"after {steps} steps {np.mean(finals):.3f} +- {np.std(finals):.3f} ({seeds} seeds)"
+            )
+
+
+def main() -> None:
+    """Parse the options and run the benchmarks."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--accuracy", action="store_true", help="also compare the kernels")
+    parser.add_argument("--seeds", type=int, default=5)
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    print(f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
+    latency(args.steps)
+    other_modes(args.steps)
+    if args.accuracy:
+        accuracy(args.seeds, args.steps)
+
+
+if __name__ == "__main__":
+    main()
