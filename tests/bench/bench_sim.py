@@ -1,0 +1,152 @@
+"""Benchmark of the simulated rig: simulation speed as a multiple of real time, per action.
+
+Usage::
+
+    python tests/bench/bench_sim.py [--repeats 5] [--separability]
+
+For every action it simulates each catalog object ``repeats`` times (different trials) and
+prints the median wall time of one execution, the simulated duration and their ratio (how many
+times faster than real time one core simulates). It then projects the simulation time of the
+thesis dataset (15 objects x (P1, P2, S1-S4 x 20 + C1 x 10) = 1950 executions). The target is
+at least 300x real time, so that simulation plus MCAP writing stays above 50x.
+
+``--separability`` also checks the data's quality: the thesis features of every execution
+(20 trials per object and action), an RBF SVC and a 3-NN classifier trained on 10 trials and
+tested on the other 10 per object; it prints the 15-class accuracy per action and with all
+actions stacked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from recorder import (
+    Modality,
+    Phase,
+    PhaseEvent,
+    SimulatedRig,
+    SkinBlock,
+    load_actions,
+    load_objects,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from recorder import ActionSpec, StreamItem
+
+
+def _time_action(rig: SimulatedRig, action: ActionSpec, repeats: int) -> tuple[float, float]:
+    """Return the median wall time of one execution and the median simulated duration, s."""
+    walls, durations = [], []
+    for trial in range(repeats):
+        for obj in load_objects().values():
+            start = time.perf_counter()
+            items = list(rig.perform(obj, action, trial))
+            walls.append(time.perf_counter() - start)
+            durations.append(items[-1].receive_ns / 1e9)
+    return statistics.median(walls), statistics.median(durations)
+
+
+def bench_speed(repeats: int) -> None:
+    """Print the speed table and the dataset projection."""
+    actions = load_actions()
+    n_objects = len(load_objects())
+    total_wall = total_real = 0.0
+    print(f"{'action':8s} {'median wall':>12s} {'duration':>9s} {'x real time':>12s}")
+    with SimulatedRig(0) as rig:
+        list(rig.perform(next(iter(load_objects().values())), actions["P1"], 0))  # warm up
+        for action in actions.values():
+            wall, duration = _time_action(rig, action, repeats)
+            print(f"{action.id:8s} {wall * 1e3:10.1f} ms {duration:8.1f}s {duration / wall:11.0f}x")
+            total_wall += wall * action.trials * n_objects
+            total_real += duration * action.trials * n_objects
+    print(
+        f"dataset ({n_objects} objects, catalog trial counts): {total_real / 60:.0f} min of "
+        f"recordings simulated in {total_wall:.0f} s on one core = {total_real / total_wall:.0f}x"
+    )
+
+
+def _window(items: list[StreamItem], modality: Modality) -> np.ndarray:
+    """Return one modality's samples of the execute phase, (samples, cells, channels)."""
+    events = {item.phase: item.stamp_ns for item in items if isinstance(item, PhaseEvent)}
+    blocks = [item for item in items if isinstance(item, SkinBlock) and item.modality is modality]
+    data = np.concatenate([block.data for block in blocks])
+    times = np.concatenate([b.stamp_ns + b.period_ns * np.arange(b.data.shape[0]) for b in blocks])
+    keep = (times >= events[Phase.EXECUTE]) & (times < events[Phase.RETRACT])
+    result: np.ndarray = data[keep]
+    return result
+
+
+def bench_separability(trials: int = 20) -> None:
+    """Print the per-action and stacked 15-class accuracy of simple classifiers."""
+    from sklearn.neighbors import KNeighborsClassifier  # noqa: PLC0415
+    from sklearn.svm import SVC  # noqa: PLC0415
+
+    from atikt.features import FeatureTransformer, RawFeatures, extract_features  # noqa: PLC0415
+
+    objects, actions = load_objects(), load_actions()
+    features: dict[str, list[RawFeatures]] = {action_id: [] for action_id in actions}
+    with SimulatedRig(0) as rig:
+        for obj in objects.values():
+            for action in actions.values():
+                for trial in range(trials):
+                    items = list(rig.perform(obj, action, trial))
+                    features[action.id].append(
+                        extract_features(
+                            action.kind.value,
+                            _window(items, Modality.FORCE),
+                            _window(items, Modality.ACCELERATION),
+                            _window(items, Modality.TEMPERATURE)[..., 0],
+                        )
+                    )
+    labels = np.repeat(np.arange(len(objects)), trials)
+    train = np.tile(np.arange(trials) < trials // 2, len(objects))
+    models: dict[str, Callable[[], Any]] = {
+        "SVC": lambda: SVC(C=10.0, gamma="scale"),
+        "3-NN": lambda: KNeighborsClassifier(3),
+    }
+    stacked: list[tuple[np.ndarray, np.ndarray]] = []
+    for action_id, observations in features.items():
+        fitting = [obs for obs, keep in zip(observations, train, strict=True) if keep]
+        testing = [obs for obs, keep in zip(observations, train, strict=True) if not keep]
+        transformer = FeatureTransformer().fit(fitting)
+        split = (transformer.transform(fitting), transformer.transform(testing))
+        stacked.append(split)
+        line = "  ".join(
+            f"{name} {_accuracy(make(), split, labels, train):.2f}" for name, make in models.items()
+        )
+        print(f"{action_id:8s} {line}")
+    both = (np.hstack([s[0] for s in stacked]), np.hstack([s[1] for s in stacked]))
+    line = "  ".join(
+        f"{name} {_accuracy(make(), both, labels, train):.2f}" for name, make in models.items()
+    )
+    print(f"{'stacked':8s} {line}")
+
+
+def _accuracy(
+    model: Any, split: tuple[np.ndarray, np.ndarray], labels: np.ndarray, train: np.ndarray
+) -> float:
+    """Fit ``model`` on the training rows and return its accuracy on the test rows."""
+    model.fit(split[0], labels[train])
+    return float((model.predict(split[1]) == labels[~train]).mean())
+
+
+def main() -> None:
+    """Run the benchmark."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5, help="trials per object and action")
+    parser.add_argument("--separability", action="store_true", help="also classify objects")
+    args = parser.parse_args()
+    bench_speed(args.repeats)
+    if args.separability:
+        bench_separability()
+
+
+if __name__ == "__main__":
+    main()
