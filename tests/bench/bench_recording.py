@@ -112,7 +112,7 @@ def main() -> None:
     """Run the benchmarks."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rig", default="sim")
-    parser.add_argument("--objects", default="wood,sponge_soft,aluminium_box")
+    parser.add_argument("--objects", default="wood,soft_sponge,aluminium_plate")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--full", action="store_true", help="also generate the whole dataset")
     parser.add_argument("--workers", type=int, default=2)
