@@ -19,6 +19,11 @@ class SimConfig:
         approach_speed_m_s: Cruise speed of the approach, m/s.
         creep_speed_m_s: Slowest approach speed, reached near the surface, m/s.
         slowdown_s: The approach speed is the proximity reading over this time, s.
+        guard_gap_m: Within this gap of where the robot believes the surface is, it moves at
+            most at the guard speed, m.
+        guard_speed_m_s: Speed limit near the believed surface, m/s.
+        height_spread_m: Objects' heights are known within +- this: the true surface is that
+            much higher or lower than the robot believes, m.
         contact_force_n: Total force that counts as light contact, N.
         settle_s: Pause in light contact before the action starts, s.
         press_speed_m_s: Peak speed when pressing in or setting the sliding force, m/s.
@@ -36,6 +41,9 @@ class SimConfig:
     approach_speed_m_s: float = 0.03
     creep_speed_m_s: float = 0.003
     slowdown_s: float = 0.25
+    guard_gap_m: float = 0.003
+    guard_speed_m_s: float = 0.008
+    height_spread_m: float = 0.002
     contact_force_n: float = 0.05
     settle_s: float = 0.2
     press_speed_m_s: float = 0.01
@@ -62,11 +70,17 @@ class SimConfig:
                 f"(0, approach_speed_m_s = {self.approach_speed_m_s}]"
             )
             raise RigError(msg)
-        reach = 2.0 * self.approach_speed_m_s * self.slowdown_s
-        if self.start_gap_m < reach or self.slowdown_s <= 0:
+        if not self.creep_speed_m_s <= self.guard_speed_m_s:
             msg = (
-                f"SimConfig: start_gap_m = {self.start_gap_m} must be >= 2 * approach_speed_m_s"
-                f" * slowdown_s = {reach:.4g} (and slowdown_s > 0); raise the start gap"
+                f"SimConfig: guard_speed_m_s = {self.guard_speed_m_s} must be >= "
+                f"creep_speed_m_s = {self.creep_speed_m_s}"
+            )
+            raise RigError(msg)
+        nearest = self.guard_gap_m + self.height_spread_m
+        if self.start_gap_m <= nearest or self.slowdown_s <= 0:
+            msg = (
+                f"SimConfig: start_gap_m = {self.start_gap_m} must exceed guard_gap_m + "
+                f"height_spread_m = {nearest:.4g} (and slowdown_s > 0); raise the start gap"
             )
             raise RigError(msg)
         if self.contact_force_n <= 0 or self.press_speed_m_s <= 0 or self.retract_speed_m_s <= 0:

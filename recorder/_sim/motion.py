@@ -2,9 +2,10 @@
 
 The motion is planned in the object's surface coordinates: the depth of the skin patch's
 centre below the undeformed surface (negative: a gap) and the distance slid along the patch's
-x axis. Phases: approach (cruise, then slowed in proportion to the proximity reading, then a
-creep speed) until the skin reports light contact; a short settle; the action (press and hold,
-or set the normal force and slide); the retract; a short rest up to the next 0.1 s boundary.
+x axis. Phases: approach (accelerate, cruise, slow down in proportion to the proximity reading,
+creep, at most a guard speed near the believed surface) until the skin reports light contact,
+then brake; a short settle; the action (press and hold, or set the normal force and slide);
+the retract; a short rest up to the next 0.1 s boundary.
 """
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ DT_S: Final = 1.0 / RATE_HZ
 FORCE_DECIMATION: Final = 4
 """The controller sees the force at 250 Hz."""
 STOP_SAMPLES: Final = 8
-"""The arm stops one RTDE cycle (8 ms) after the force crossed the threshold."""
+"""The arm starts braking one RTDE cycle (8 ms) after the force crossed the threshold."""
 BLOCK_SAMPLES: Final = 100
 """Recordings end on a 0.1 s boundary, so that every channel has whole blocks."""
-START_RAMP_S: Final = 0.1
-"""Time the arm takes to reach cruise speed."""
+ACCELERATION_M_S2: Final = 0.3
+"""Acceleration of the arm from rest at the start of the approach."""
+STOP_DECELERATION_M_S2: Final = 1.0
+"""Deceleration of the guarded stop after light contact."""
 SLIDE_RAMP_S: Final = 0.05
 """Time the arm takes to reach (or leave) the sliding speed."""
 REST_S: Final = 0.1
@@ -75,36 +78,60 @@ def _move(start: float, stop: float, peak_speed: float) -> F64:
     return _cosine(start, stop, round(seconds * RATE_HZ))
 
 
-def approach_gap(config: SimConfig, slope: float, offset: float, seconds: float) -> F64:
-    """Return the true gap during the approach, sampled from 0 for ``seconds``.
+def approach_speed(config: SimConfig, gap: F64, bias: tuple[float, float], believed: F64) -> F64:
+    """Return the commanded approach speed at each true gap.
 
-    The controller commands ``v = clip(reading / slowdown_s, creep, cruise)`` where the
-    proximity reading is ``slope * gap + offset`` (reflectance bias); in terms of the reading
-    this is a cruise (after a linear start ramp), an exponential slowdown and a creep.
+    The speed is the proximity reading over ``slowdown_s``, clipped to ``[creep, cruise]``;
+    within ``guard_gap_m`` of where the robot believes the surface is it is at most
+    ``guard_speed_m_s`` (a guarded move: a dark surface reads farther than it is).
 
     Args:
         config: Controller settings.
-        slope: Slope of the reading over the true gap.
-        offset: Offset of the reading at zero gap, m.
-        seconds: Length of the profile, s.
+        gap: True gaps, m.
+        bias: Slope and offset of the proximity reading over the true gap.
+        believed: The gaps the robot believes in (true gap plus the height error), m.
 
     Returns:
-        Gap, shape (round(seconds * 1000),), m; it goes negative past the surface.
+        Speeds, m/s, the shape of ``gap``.
     """
-    tau, v_max, v_min = config.slowdown_s, config.approach_speed_m_s, config.creep_speed_m_s
-    t = np.arange(round(seconds * RATE_HZ)) * DT_S
-    reading0 = slope * config.start_gap_m + offset
-    cruise_end = tau * v_max
-    t_cruise = START_RAMP_S / 2 + (reading0 - cruise_end) / (slope * v_max)
-    t_creep = t_cruise + tau / slope * np.log(cruise_end / (tau * v_min))
-    ramp = reading0 - slope * v_max * t**2 / (2 * START_RAMP_S)
-    cruise = reading0 - slope * v_max * (t - START_RAMP_S / 2)
-    slow = cruise_end * np.exp(-slope * (t - t_cruise) / tau)
-    creep = tau * v_min - slope * v_min * (t - t_creep)
-    reading = np.select(
-        [t < START_RAMP_S, t < t_cruise, t < t_creep], [ramp, cruise, slow], default=creep
-    )
-    gap: F64 = (reading - offset) / slope
+    slope, offset = bias
+    reading = slope * gap + offset
+    speed = np.clip(reading / config.slowdown_s, config.creep_speed_m_s, config.approach_speed_m_s)
+    guarded: F64 = np.where(believed < config.guard_gap_m, config.guard_speed_m_s, speed)
+    return np.minimum(speed, guarded)
+
+
+def approach_gap(
+    config: SimConfig, bias: tuple[float, float], height_error: float, end_gap: float
+) -> F64:
+    """Return the true gap during the approach on the 1 kHz clock, until ``end_gap``.
+
+    The speed depends on the gap alone: the proximity law and the guard, limited so that the
+    arm accelerates (from rest) and decelerates at most at ``ACCELERATION_M_S2``
+    (``v^2`` changes by at most ``2 a`` per metre travelled). The time to reach each gap is
+    then the integral of ``1 / v`` over the gap, evaluated on a 1 um grid and inverted.
+
+    Args:
+        config: Controller settings.
+        bias: Slope and offset of the proximity reading over the true gap.
+        height_error: How much taller the object is than the robot believes, m.
+        end_gap: Gap (negative: depth) at which the profile ends, m.
+
+    Returns:
+        Gap at 0, 1, 2, ... ms, m.
+    """
+    start = config.start_gap_m - height_error
+    step = 1e-6
+    gaps = start - step * np.arange(int((start - end_gap) / step) + 1, dtype=np.float64)
+    middle: F64 = gaps[:-1] - step / 2
+    target = approach_speed(config, middle, bias, middle + height_error) ** 2
+    travelled = 2.0 * ACCELERATION_M_S2 * (start - middle)
+    braking = np.minimum.accumulate((target + travelled)[::-1])[::-1] - travelled
+    speeding = np.minimum.accumulate(np.minimum(target - travelled, 0.0)) + travelled
+    speed = np.sqrt(np.maximum(np.minimum(braking, speeding), 1e-12))
+    reached = np.concatenate([[0.0], np.cumsum(step / speed)])
+    times = np.arange(0.0, reached[-1], DT_S)
+    gap: F64 = np.interp(times, reached, gaps)
     return gap
 
 
@@ -115,27 +142,33 @@ def _detect_contact(depth: F64, light_depth: float) -> int:
     return index * FORCE_DECIMATION
 
 
+def _stop(depth: F64, stop: int) -> F64:
+    """Return the depth profile up to ``stop``, then braking to rest at constant deceleration."""
+    speed = float(depth[stop] - depth[stop - 1]) / DT_S
+    samples = max(1, int(np.ceil(speed / STOP_DECELERATION_M_S2 / DT_S)))
+    braking = np.arange(1, samples + 1) * DT_S
+    braking = np.minimum(braking, speed / STOP_DECELERATION_M_S2)
+    tail = depth[stop] + speed * braking - 0.5 * STOP_DECELERATION_M_S2 * braking**2
+    return np.concatenate([depth[: stop + 1], tail])
+
+
 def plan_approach(
-    config: SimConfig, slope: float, offset: float, light_depth: float
+    config: SimConfig, bias: tuple[float, float], height_error: float, light_depth: float
 ) -> tuple[F64, int]:
-    """Plan the approach up to the stop after light contact.
+    """Plan the approach up to the arm's rest after light contact.
 
     Args:
         config: Controller settings.
-        slope: Slope of the proximity reading over the true gap.
-        offset: Offset of the proximity reading at zero gap, m.
+        bias: Slope and offset of the proximity reading over the true gap.
+        height_error: How much taller the object is than the robot believes, m.
         light_depth: Patch-centre depth at which the skin reports light contact, m.
 
     Returns:
-        The depth profile up to and including the stop, and the contact sample.
+        The depth profile up to the rest, and the sample at which contact was detected.
     """
-    worst = config.start_gap_m + light_depth + 1e-3
-    seconds = 1.0 + config.slowdown_s * 8.0 + worst / config.creep_speed_m_s
-    seconds = min(seconds, 60.0)
-    depth = -approach_gap(config, slope, offset, seconds)
+    depth = -approach_gap(config, bias, height_error, -(light_depth + 1e-3))
     contact = _detect_contact(depth, light_depth)
-    stop = contact + STOP_SAMPLES
-    return depth[: stop + 1], contact
+    return _stop(depth, contact + STOP_SAMPLES), contact
 
 
 def _press(depth: float, action: ActionSpec, config: SimConfig) -> F64:

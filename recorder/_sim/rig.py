@@ -94,6 +94,7 @@ class Conditions:
         yaw: The object's orientation about the vertical relative to the patch, rad.
         tilt: Slope of the top face relative to the patch along its x and y, shape (2,).
         irregularity: Height of the surface under each cell, shape (7,), m.
+        height_error: How much higher the top face is than the robot believes, m.
         force_error: Relative error of the sliding force controller.
         force_gain: Gain of each force sensor during this execution, shape (7, 3).
         slide: Ridge angle and phases of the slide.
@@ -106,6 +107,7 @@ class Conditions:
     yaw: float
     tilt: F64
     irregularity: F64
+    height_error: float
     force_error: float
     force_gain: F64
     slide: SlideConditions
@@ -144,6 +146,7 @@ class Conditions:
             yaw=yaw,
             tilt=np.tan(np.deg2rad(config.tilt_deg)) * rng.standard_normal(2),
             irregularity=obj.flatness_m * rng.standard_normal(skin.N_CELLS),
+            height_error=config.height_spread_m * float(rng.uniform(-1.0, 1.0)),
             force_error=config.force_control_error * float(rng.standard_normal()),
             force_gain=hardware.force_gain
             * (1.0 + skin.FORCE_GAIN_DRIFT * float(rng.standard_normal())),
@@ -319,8 +322,8 @@ class SimulatedRig:
         light = contact.depth_for_force(law, offsets, gain, self._config.contact_force_n)
         target = action.force_n * (1.0 + conditions.force_error)
         slide_depth = contact.depth_for_force(law, offsets, gain, target)
-        slope, offset = skin.reading_bias(obj.reflectance)
-        approach = motion.plan_approach(self._config, slope, offset, light)
+        bias = skin.reading_bias(obj.reflectance)
+        approach = motion.plan_approach(self._config, bias, conditions.height_error, light)
         plan = motion.plan_execution(action, self._config, approach, slide_depth)
         force = self._forces(action, law, plan, offsets, conditions)
         cell_force = force.sum(axis=2)
@@ -340,7 +343,7 @@ class SimulatedRig:
         temperature = thermal.sensor_temperature(
             cell_force, FORCE_DT_S, obj, conditions.room_c, conditions.skin_state
         )
-        distance = _cell_distances(obj, plan, offsets)
+        distance = _cell_distances(obj, plan, offsets, conditions.height_error)
         return Signals(plan, force, specific, _resample(temperature, TEMPERATURE_STEP), distance)
 
     def _forces(
@@ -403,7 +406,8 @@ class SimulatedRig:
         pose[:, :3, :3] = TCP_ROTATION
         pose[:, 0, 3] = WORKSPACE_XY_M[0] + conditions.location[0]
         pose[:, 1, 3] = WORKSPACE_XY_M[1] + conditions.location[1] + slide
-        pose[:, 2, 3] = obj.height_m + conditions.tilt[0] * slide - depth
+        surface = obj.height_m + conditions.height_error
+        pose[:, 2, 3] = surface + conditions.tilt[0] * slide - depth
         q = ur10.inverse(pose, Q_REFERENCE, TOOL)
         frames = ur10.link_frames(q)
         tcp = frames[:, 6] @ TOOL
@@ -468,11 +472,11 @@ def _motion_specific_force(plan: motion.Plan) -> F64:
     return specific
 
 
-def _cell_distances(obj: ObjectSpec, plan: motion.Plan, offsets: F64) -> F64:
+def _cell_distances(obj: ObjectSpec, plan: motion.Plan, offsets: F64, height_error: float) -> F64:
     """Return each cell's distance to the surface below it over time, shape (n, 7), m."""
     cell_offset = offsets.mean(axis=1)
     over_object = -(plan.depth[:, None] + np.nan_to_num(cell_offset, nan=0.0))
-    over_table = -plan.depth[:, None] + obj.height_m
+    over_table = -plan.depth[:, None] + obj.height_m + height_error
     distance: F64 = np.where(np.isnan(cell_offset), over_table, np.maximum(over_object, 0.0))
     return distance
 
