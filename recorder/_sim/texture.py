@@ -13,10 +13,12 @@ Sources, each in the patch frame (x: sliding direction, z: into the object):
   stores tangential force until ``mu_s F`` and slips to ``mu_k F``, every
   ``(mu_s - mu_k) F / (k_t v)`` seconds; a single break-away slip starts every slide.
 
-The cell rides on the cover and the object like a mass on a spring: every source passes a
-second-order resonance whose frequency grows with the contact stiffness (about 210 Hz on hard
-objects, lower and better damped on foam), which puts the spectral centroid in the
-140-230 Hz range that sliding on everyday materials shows.
+The relief of a soft surface is pressed flat under the cover, in proportion to the object's
+share of the contact compliance. The cell rides on the cover and the object like a mass on a
+spring: every source passes a second-order resonance whose frequency grows with the contact
+stiffness (210 Hz on hard objects, about 120 Hz and better damped on foam). At 2 cm/s this puts
+the spectral centroid of sliding on the hard and medium catalog objects at 140-225 Hz, the
+range BioTac measurements on everyday materials show (foams: 100-125 Hz).
 """
 
 from __future__ import annotations

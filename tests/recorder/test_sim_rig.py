@@ -300,3 +300,36 @@ def test_config_is_validated() -> None:
         SimConfig(tilt_deg=-1.0)
     with pytest.raises(RigError, match="seed"):
         SimulatedRig(-1)
+
+
+def test_cells_off_a_small_object_feel_nothing_and_see_the_table() -> None:
+    small = replace(OBJECTS["hard_box"], id="small", length_m=0.03, width_m=0.03, height_m=0.04)
+    with SimulatedRig(0) as rig:
+        for trial in range(5):
+            stream = collect(list(rig.perform(small, ACTIONS["P2"], trial)))
+            t = stream.times(Modality.FORCE)
+            hold = (t > stream.phase_ns(Phase.EXECUTE) + 500_000_000) & (
+                t < stream.phase_ns(Phase.RETRACT)
+            )
+            cell_force = stream.data(Modality.FORCE)[hold].sum(axis=2).mean(axis=0)
+            on = cell_force > 0.05
+            if on.any() and not on.all():
+                break
+        else:
+            pytest.fail("no execution with partial contact")
+    assert cell_force[~on].max() < 0.03
+    tp = stream.times(Modality.PROXIMITY)
+    hold_p = (tp > stream.phase_ns(Phase.EXECUTE) + 500_000_000) & (
+        tp < stream.phase_ns(Phase.RETRACT)
+    )
+    distance = stream.data(Modality.PROXIMITY)[hold_p][..., 0].mean(axis=0)
+    assert distance[on].max() < 0.01
+    assert distance[~on].min() > 0.025  # the table, about 4 cm below the top face
+
+
+def test_approach_accelerates_gently(press: Stream) -> None:
+    acc = press.data(Modality.ACCELERATION)[..., 2].astype(np.float64).mean(axis=1)
+    t = press.times(Modality.ACCELERATION)
+    approach = acc[t < press.phase_ns(Phase.CONTACT)]
+    motion = approach - np.median(approach)
+    assert np.abs(motion).max() < 0.5  # about 0.3 m/s^2 plus noise; no velocity steps
