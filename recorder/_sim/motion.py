@@ -34,12 +34,13 @@ STOP_SAMPLES: Final = 8
 BLOCK_SAMPLES: Final = 100
 """Recordings end on a 0.1 s boundary, so that every channel has whole blocks."""
 ACCELERATION_M_S2: Final = 0.3
-"""Acceleration of the arm from rest at the start of the approach."""
+"""Largest acceleration and deceleration of the arm during the approach."""
 STOP_DECELERATION_M_S2: Final = 1.0
 """Deceleration of the guarded stop after light contact."""
 SLIDE_RAMP_S: Final = 0.05
 """Time the arm takes to reach (or leave) the sliding speed."""
 REST_S: Final = 0.1
+"""Rest after the retract before the recording ends (then up to the next 0.1 s boundary)."""
 
 
 @dataclass(frozen=True, slots=True)
