@@ -7,6 +7,8 @@ from recorder._dataset import (
     plan_dataset,
     recording_path,
     register_rig,
+    rig_factory,
+    rig_names,
     write_index,
 )
 from recorder._rig import Rig
@@ -20,7 +22,13 @@ from recorder._stream import (
     SkinBlock,
     StreamItem,
 )
-from recorder._writer import RecordingInfo, RecordingWriter, WrittenRecording, record_action
+from recorder._writer import (
+    RecordingInfo,
+    RecordingWriter,
+    WrittenRecording,
+    record_action,
+    software_version,
+)
 from recorder.errors import CatalogError, OutputExistsError, RecorderError, RigError
 
 __all__ = [
@@ -52,5 +60,8 @@ __all__ = [
     "record_action",
     "recording_path",
     "register_rig",
+    "rig_factory",
+    "rig_names",
+    "software_version",
     "write_index",
 ]

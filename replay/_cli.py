@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 
 PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("replay._commands",)
 _NS_PER_S = 1e9
 
 

@@ -1,0 +1,247 @@
+"""Subcommands of ``atikt-replay`` that learn: ``features``, ``learn`` and ``study``."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import polars as pl
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+from replay._cli import arg, command
+from replay._datasets import ensure_default_dataset
+from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay._features import FeatureTable, build_features
+from replay._plots import plot_learning_curves
+from replay._session import TRANSFER_MODES, RunSpec, fit_priors, prior_data, run_learning
+from replay._studies import ACTIONS, STUDIES, StudyConfig, objects_of, prior_groups, run_study
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable
+
+_CONSOLE = Console(stderr=True)
+
+
+def _progress(description: str) -> tuple[Progress, Callable[[int, int], None]]:
+    """Return a rich progress bar on stderr and a ``(done, total)`` callback that drives it."""
+    bar = Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=_CONSOLE,
+        disable=not _CONSOLE.is_terminal and bool(os.environ.get("CI")),
+    )
+    task = bar.add_task(description, total=None)
+
+    def update(done: int, total: int) -> None:
+        bar.update(task, completed=done, total=total)
+
+    return bar, update
+
+
+def _workers(value: int | None) -> int:
+    """Return the worker count: the option, else every core."""
+    return value if value is not None else os.cpu_count() or 1
+
+
+def _dataset(path: Path | None, workers: int) -> Path:
+    """Return the dataset to use: the given one, else the default simulated dataset."""
+    if path is not None:
+        if not path.is_dir():
+            msg = f"{path}: not a directory; give a dataset directory (atikt-record dataset)"
+            raise ReplayError(msg)
+        return path
+    bar, update = _progress("recording the default simulated dataset")
+    with bar:
+        return ensure_default_dataset(workers=workers, on_progress=update)
+
+
+def _features(root: Path, workers: int) -> FeatureTable:
+    """Build or update a dataset's feature cache with a progress bar."""
+    bar, update = _progress(f"features of {root}")
+    with bar:
+        table = build_features(root, workers=workers, on_progress=update)
+    for path, reason in table.quarantined.iter_rows():
+        _CONSOLE.print(f"[yellow]quarantined[/] {path}: {reason}", highlight=False)
+    return table
+
+
+def _ids(text: str | None) -> list[str] | None:
+    """Split a comma-separated option."""
+    return None if text is None else [part for part in text.split(",") if part]
+
+
+_DATASET = arg(
+    "--recordings",
+    type=Path,
+    default=None,
+    help="dataset directory (default: the simulated dataset, recorded on first use)",
+)
+_WORKERS = arg("--workers", type=int, default=None, help="worker processes (default: all cores)")
+_SEED = arg("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+
+
+@command(
+    "features",
+    "extract (or update) the feature cache of a dataset",
+    arg("dataset", type=Path, help="dataset directory"),
+    _WORKERS,
+)
+def _features_command(args: argparse.Namespace) -> int:
+    table = _features(_dataset(args.dataset, _workers(args.workers)), _workers(args.workers))
+    print(  # noqa: T201 (the command's output)
+        f"{table.frame.height} recordings ({table.extracted} extracted, "
+        f"{table.quarantined.height} quarantined) -> {table.root / 'features.parquet'}"
+    )
+    return 0 if table.quarantined.height == 0 else 1
+
+
+def _step_line(row: dict[str, Any]) -> str:
+    """Return the printed line of one learning step."""
+    if row["step"] == 0:
+        return f"step  0  initial observations           accuracy {100 * row['accuracy']:5.1f} %"
+    prior = f"{row['prior']} rho={row['rho']:.2f}" if row["prior"] else "no prior"
+    how = "explore" if row["explored"] else "exploit"
+    return (
+        f"step {row['step']:2d}  {row['object']:>14s} {row['action']:<3s} ({how})  "
+        f"{prior:<24s} accuracy {100 * row['accuracy']:5.1f} %"
+    )
+
+
+@command(
+    "learn",
+    "one active-learning run, offline over recordings or live on a rig",
+    _DATASET,
+    arg("--rig", default=None, help="run live on this rig (e.g. sim) instead of recordings"),
+    arg("--new", default=None, help="new objects, comma-separated (default: the novel ones)"),
+    arg("--priors", default=None, help="prior objects, comma-separated (default: 3 by seed)"),
+    arg("--actions", default=None, help=f"actions (default: {','.join(ACTIONS)})"),
+    arg("--budget", type=int, default=40, help="actively collected observations (default 40)"),
+    arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
+    arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
+    arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
+    arg("--out", type=Path, default=None, help="output directory (default: runs/learn-<seed>)"),
+    _SEED,
+    _WORKERS,
+)
+def _learn_command(args: argparse.Namespace) -> int:
+    workers = _workers(args.workers)
+    prior_root = _dataset(args.recordings if args.rig is None else None, workers)
+    table = _features(prior_root, workers)
+    new_default, old = objects_of(table.frame)
+    spec = RunSpec(
+        new_objects=tuple(_ids(args.new) or new_default),
+        prior_objects=tuple(_ids(args.priors) or prior_groups(old, 3, 1, args.seed)[0]),
+        actions=tuple(
+            _ids(args.actions) or [a for a in ACTIONS if a in set(table.frame["action_id"])]
+        ),
+        budget=args.budget,
+        transfer=args.transfer,
+        seed=args.seed,
+    )
+    out = args.out or Path("runs") / f"learn-{args.seed}"
+    out.mkdir(parents=True, exist_ok=True)
+    priors = prior_data(FeatureLookup(table.frame), spec.prior_objects, spec.actions)
+    models = None if spec.transfer == "none" else fit_priors(priors, args.seed)
+    on_step = lambda row: print(_step_line(row), flush=True)  # noqa: E731, T201
+    if args.rig is not None:
+        frame = _learn_live(args, spec, models, out, on_step)
+    else:
+        frame = _learn_offline(args, table, spec, models, on_step)
+    frame.write_parquet(out / "history.parquet")
+    plot_learning_curves(
+        frame.with_columns(pl.lit(spec.transfer).alias("method")),
+        out / "learning_curve.png",
+        x="step",
+        title=f"learning run, seed {spec.seed}",
+    )
+    print(f"history -> {out / 'history.parquet'}, plot -> {out / 'learning_curve.png'}")  # noqa: T201
+    return 0
+
+
+def _learn_offline(
+    args: argparse.Namespace,
+    table: FeatureTable,
+    spec: RunSpec,
+    models: Any,  # noqa: ANN401
+    on_step: Callable[[dict[str, Any]], Any],
+) -> pl.DataFrame:
+    """Run offline over a dataset (or over a recorded live session's split)."""
+    frame = table.frame
+    if args.session is not None:
+        session = _features(args.session, _workers(args.workers))
+        split, frame = Split.from_session(args.session), session.frame
+    else:
+        split = Split.random(frame, spec.new_objects, spec.actions, seed=spec.seed)
+    executor = PoolExecutor(FeatureLookup(frame), spec.new_objects, split)
+    test = executor.test_set(spec.actions)
+    return run_learning(spec, executor, test, models, on_step=on_step).frame()
+
+
+def _learn_live(
+    args: argparse.Namespace,
+    spec: RunSpec,
+    models: Any,  # noqa: ANN401
+    out: Path,
+    on_step: Callable[[dict[str, Any]], Any],
+) -> pl.DataFrame:
+    """Run live: record test trials first, then every requested observation."""
+    from recorder import load_actions, load_objects, rig_factory  # noqa: PLC0415 (live only)
+
+    objects = load_objects()
+    unknown = [o for o in spec.new_objects if o not in objects]
+    if unknown:
+        msg = f"--new {','.join(unknown)}: not in the object catalog"
+        raise ReplayError(msg)
+    rig = rig_factory(args.rig)(args.seed)
+    executor = LiveExecutor(
+        rig, [objects[o] for o in spec.new_objects], load_actions(), out / "session", seed=args.seed
+    )
+    with executor:
+        test = executor.record_test_set(spec.actions, args.test_trials)
+        return run_learning(spec, executor, test, models, on_step=on_step).frame()
+
+
+@command(
+    "study",
+    "run a study of the thesis (fusion, transfer, single-action, priors, negative, all)",
+    arg("name", choices=[*STUDIES, "all"], help="which study"),
+    _DATASET,
+    arg("--out", type=Path, default=None, help="output directory (default: studies/<name>)"),
+    arg("--quick", action="store_true", help="a reduced version for a first look"),
+    arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
+    arg("--transfer", default="prediction", choices=TRANSFER_MODES[:2], help="ATIKT mode"),
+    _SEED,
+    _WORKERS,
+)
+def _study_command(args: argparse.Namespace) -> int:
+    workers = _workers(args.workers)
+    table = _features(_dataset(args.recordings, workers), workers)
+    names = list(STUDIES) if args.name == "all" else [args.name]
+    for name in names:
+        out = (
+            (args.out or Path("studies")) / name
+            if args.name == "all" or args.out is None
+            else args.out
+        )
+        config = StudyConfig(
+            out=out,
+            seed=args.seed,
+            workers=workers,
+            scheduler=args.scheduler,
+            transfer=args.transfer,
+        )
+        config = config.quick() if args.quick else config
+        bar, update = _progress(f"study {name}")
+        with bar:
+            output = run_study(
+                name, table.frame, config, quarantined=table.quarantined, on_progress=update
+            )
+        print(output.text)  # noqa: T201 (the command's output)
+        print(f"results -> {output.results}\nplot -> {output.plot}\nsummary -> {output.summary}")  # noqa: T201
+    return 0

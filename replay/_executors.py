@@ -1,0 +1,310 @@
+"""Executors: where the learner's requested observations come from.
+
+Both executors serve ``executor(object_index, action) -> RawFeatures`` and both go through the
+one path MCAP file -> reader -> features. The :class:`PoolExecutor` serves recordings of a
+dataset (through its feature cache, built by that same path); the :class:`LiveExecutor` performs
+the action on a rig, records it, and reads back the file it just wrote.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, Self
+
+import numpy as np
+import polars as pl
+
+from replay._features import as_raw, file_features
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from types import TracebackType
+
+    from atikt import RawFeatures
+    from recorder import ActionSpec, ObjectSpec, Rig
+
+#: Manifest of a live session: every recording in the order it was made, with its role.
+SESSION_NAME = "session.parquet"
+
+Pair = tuple[str, str]  # (object id, action id)
+TestSet = dict[str, tuple[list["RawFeatures"], list[int]]]
+
+
+class Executor(Protocol):
+    """Serves observations to the learner."""
+
+    def __call__(self, obj: int, action: str) -> RawFeatures:
+        """Return a new observation of ``action`` on new object number ``obj``."""
+        ...
+
+    def available(self, obj: int, action: str) -> bool:
+        """Return whether another observation of (``obj``, ``action``) can be served."""
+        ...
+
+
+def _stable(text: str) -> int:
+    """Return a hash of ``text`` that is the same in every process and Python version."""
+    return zlib.crc32(text.encode())
+
+
+@dataclass(frozen=True, slots=True)
+class Split:
+    """Per (object, action): the held-out test trials and the pool in serving order.
+
+    Attributes:
+        test: (object, action) -> trials kept for testing.
+        pool: (object, action) -> trials the learner may draw, in the order they are served.
+    """
+
+    test: Mapping[Pair, tuple[int, ...]]
+    pool: Mapping[Pair, tuple[int, ...]]
+
+    @classmethod
+    def random(
+        cls,
+        frame: pl.DataFrame,
+        objects: Sequence[str],
+        actions: Sequence[str],
+        *,
+        seed: int,
+        test_fraction: float = 0.5,
+    ) -> Split:
+        """Split each (object, action)'s trials at random, by seed.
+
+        The permutation of a pair depends only on (seed, object, action), not on which other
+        objects or actions take part.
+
+        Raises:
+            ReplayError: A pair has fewer than two recordings.
+        """
+        test: dict[Pair, tuple[int, ...]] = {}
+        pool: dict[Pair, tuple[int, ...]] = {}
+        for obj in objects:
+            for action in actions:
+                trials = _trials(frame, obj, action)
+                rng = np.random.default_rng([seed, _stable(obj), _stable(action)])
+                order = [trials[i] for i in rng.permutation(len(trials))]
+                n_test = min(max(1, round(test_fraction * len(trials))), len(trials) - 1)
+                test[obj, action] = tuple(sorted(order[:n_test]))
+                pool[obj, action] = tuple(order[n_test:])
+        return cls(test, pool)
+
+    @classmethod
+    def from_session(cls, root: Path) -> Split:
+        """Return the split a live session used, from its manifest.
+
+        Raises:
+            ReplayError: The directory has no readable session manifest.
+        """
+        target = Path(root) / SESSION_NAME
+        try:
+            frame = pl.read_parquet(target)
+        except (OSError, pl.exceptions.PolarsError) as err:
+            msg = f"{target}: cannot read the session manifest ({err}); is {root} a live session?"
+            raise ReplayError(msg) from err
+        test: dict[Pair, list[int]] = {}
+        pool: dict[Pair, list[int]] = {}
+        for row in frame.sort("order").iter_rows(named=True):
+            into = test if row["role"] == "test" else pool
+            into.setdefault((row["object_id"], row["action_id"]), []).append(row["trial"])
+        return cls(
+            {k: tuple(sorted(v)) for k, v in test.items()},
+            {k: tuple(v) for k, v in pool.items()},
+        )
+
+
+def _trials(frame: pl.DataFrame, obj: str, action: str) -> list[int]:
+    """Return the sorted trials of (obj, action) in a feature table.
+
+    Raises:
+        ReplayError: Fewer than two recordings.
+    """
+    part = frame.filter((pl.col("object_id") == obj) & (pl.col("action_id") == action))
+    trials = sorted(part["trial"].to_list())
+    if len(trials) < 2:  # noqa: PLR2004
+        msg = (
+            f"object {obj!r}, action {action!r}: {len(trials)} usable recording(s); a run "
+            "needs >= 2 (one to learn, one to test); record more trials"
+        )
+        raise ReplayError(msg)
+    return trials
+
+
+class FeatureLookup:
+    """Raw features of a feature table by (object, action, trial)."""
+
+    def __init__(self, frame: pl.DataFrame) -> None:
+        """Index the table's rows."""
+        self._rows: dict[tuple[str, str, int], dict[str, Any]] = {
+            (row["object_id"], row["action_id"], row["trial"]): row
+            for row in frame.iter_rows(named=True)
+        }
+
+    def get(self, obj: str, action: str, trial: int) -> RawFeatures:
+        """Return the features of one recording.
+
+        Raises:
+            ReplayError: The table has no such recording.
+        """
+        row = self._rows.get((obj, action, trial))
+        if row is None:
+            msg = f"no recording of object {obj!r}, action {action!r}, trial {trial}"
+            raise ReplayError(msg)
+        return as_raw(row)
+
+    def trials(self, obj: str, action: str) -> list[int]:
+        """Return the sorted trials of (obj, action)."""
+        return sorted(t for (o, a, t) in self._rows if (o, a) == (obj, action))
+
+
+@dataclass(slots=True)
+class PoolExecutor:
+    """Serves the next unused pool recording of the requested (object, action).
+
+    Attributes:
+        lookup: Features of the dataset.
+        objects: New object ids, in the learner's index order.
+        split: Test trials and pool order.
+        served: (object, action, trial) of every served recording, in order.
+    """
+
+    lookup: FeatureLookup
+    objects: Sequence[str]
+    split: Split
+    served: list[tuple[str, str, int]] = field(default_factory=list)
+    _next: dict[Pair, int] = field(default_factory=dict)
+
+    def available(self, obj: int, action: str) -> bool:
+        """Return whether the pool of (obj, action) still has an unused recording."""
+        pair = (self.objects[obj], action)
+        return self._next.get(pair, 0) < len(self.split.pool.get(pair, ()))
+
+    def __call__(self, obj: int, action: str) -> RawFeatures:
+        """Return the features of the next unused pool recording.
+
+        Raises:
+            ReplayError: The pool of (obj, action) is used up.
+        """
+        pair = (self.objects[obj], action)
+        pool = self.split.pool.get(pair, ())
+        position = self._next.get(pair, 0)
+        if position >= len(pool):
+            msg = (
+                f"object {pair[0]!r}, action {action!r}: all {len(pool)} pool recordings "
+                "are used; record more trials or lower the budget"
+            )
+            raise ReplayError(msg)
+        self._next[pair] = position + 1
+        self.served.append((*pair, pool[position]))
+        return self.lookup.get(*pair, pool[position])
+
+    def test_set(self, actions: Sequence[str]) -> TestSet:
+        """Return the held-out observations of every action, labelled by object index."""
+        test: TestSet = {}
+        for action in actions:
+            observations, labels = [], []
+            for index, obj in enumerate(self.objects):
+                for trial in self.split.test.get((obj, action), ()):
+                    observations.append(self.lookup.get(obj, action, trial))
+                    labels.append(index)
+            test[action] = (observations, labels)
+        return test
+
+
+class LiveExecutor:
+    """Performs each requested action on a rig, records it, and reads the file back.
+
+    Recordings go to ``<session>/<object>/<action>/<trial>.mcap``; ``session.parquet`` lists
+    them in the order they were made, with their role (``test`` or ``pool``), so that an
+    offline run over the session (``Split.from_session``) serves exactly the same files.
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        objects: Sequence[ObjectSpec],
+        actions: Mapping[str, ActionSpec],
+        session: Path,
+        *,
+        seed: int,
+    ) -> None:
+        """Store the rig and where to record; nothing is performed before ``__enter__``."""
+        self.rig = rig
+        self.objects = list(objects)
+        self.actions = dict(actions)
+        self.session = Path(session)
+        self.seed = seed
+        self.made: list[dict[str, Any]] = []
+        self._trials: dict[Pair, int] = {}
+
+    def __enter__(self) -> Self:
+        """Connect the rig; refuse a session directory that already holds recordings."""
+        if (self.session / SESSION_NAME).exists() or any(self.session.rglob("*.mcap")):
+            msg = f"{self.session}: already holds a session; choose a new --session directory"
+            raise ReplayError(msg)
+        self.session.mkdir(parents=True, exist_ok=True)
+        self.rig.__enter__()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Disconnect the rig and write the manifest of what was recorded."""
+        try:
+            self.rig.__exit__(exc_type, exc, tb)
+        finally:
+            self._write_manifest()
+
+    def available(self, obj: int, action: str) -> bool:  # noqa: ARG002
+        """A rig can always perform another trial."""
+        return True
+
+    def _perform(self, obj: ObjectSpec, action_id: str, role: str) -> Path:
+        """Record one more trial of (obj, action) and return its file."""
+        from recorder import record_action, recording_path  # noqa: PLC0415 (live only)
+
+        pair = (obj.id, action_id)
+        trial = self._trials.get(pair, 0) + 1
+        self._trials[pair] = trial
+        path = recording_path(self.session, obj.id, action_id, trial)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        record_action(self.rig, obj, self.actions[action_id], trial, path, seed=self.seed)
+        self.made.append(
+            {"order": len(self.made), "object_id": obj.id, "action_id": action_id}
+            | {"trial": trial, "role": role, "path": path.relative_to(self.session).as_posix()}
+        )
+        return path
+
+    def __call__(self, obj: int, action: str) -> RawFeatures:
+        """Perform, record and read back one observation."""
+        return file_features(self._perform(self.objects[obj], action, "pool"))
+
+    def record_test_set(self, actions: Sequence[str], trials: int) -> TestSet:
+        """Record ``trials`` held-out trials of every (new object, action) and return them."""
+        test: TestSet = {}
+        for action in actions:
+            observations, labels = [], []
+            for index, obj in enumerate(self.objects):
+                for _ in range(trials):
+                    observations.append(file_features(self._perform(obj, action, "test")))
+                    labels.append(index)
+            test[action] = (observations, labels)
+        return test
+
+    def _write_manifest(self) -> None:
+        """Write ``session.parquet`` (the recordings made so far, in order)."""
+        schema = {
+            "order": pl.Int64,
+            "object_id": pl.String,
+            "action_id": pl.String,
+            "trial": pl.Int64,
+            "role": pl.String,
+            "path": pl.String,
+        }
+        pl.DataFrame(self.made, schema=schema).write_parquet(self.session / SESSION_NAME)

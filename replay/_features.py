@@ -1,0 +1,241 @@
+"""Features of recordings: the one path MCAP file -> reader -> features, and its cache.
+
+A dataset's features are extracted once into ``<dataset>/features.parquet`` (polars), one row
+per recording keyed by the SHA-256 of the file's bytes; a rebuild re-extracts only the files
+whose content changed, and drops rows of files that are gone. Files that cannot be read are
+quarantined: listed with the reason, never silently used.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import polars as pl
+
+from atikt import AtiktError, RawFeatures, extract_features
+from replay._parallel import run_tasks
+from replay._reader import read_recording
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from replay._reader import ActionRecording
+
+#: File name of the feature cache inside a dataset directory.
+FEATURES_NAME = "features.parquet"
+#: Version of the feature definition; a cache of another version is rebuilt.
+FEATURES_VERSION = 1
+#: Points of the resampled thermal sequence (the same for every action).
+THERMAL_POINTS = 20
+
+_VECTOR = pl.List(pl.Float64)
+_SCHEMA: dict[str, Any] = {
+    "path": pl.String,
+    "sha256": pl.String,
+    "object_id": pl.String,
+    "novel": pl.Boolean,
+    "action_id": pl.String,
+    "action_kind": pl.String,
+    "trial": pl.Int64,
+    "force": _VECTOR,
+    "texture": _VECTOR,
+    "thermal": _VECTOR,
+    "features_version": pl.Int64,
+}
+_QUARANTINE_SCHEMA: dict[str, Any] = {"path": pl.String, "reason": pl.String}
+
+
+def recording_features(recording: ActionRecording) -> RawFeatures:
+    """Return the raw features of one recording, computed on its execute phase.
+
+    Raises:
+        ReplayError: The recording's signals do not give features; the message names the file.
+    """
+    start_ns, stop_ns = recording.phase_range("execute")
+    temperature = recording.temperature.between(start_ns, stop_ns)
+    try:
+        return extract_features(
+            recording.metadata.action_kind,
+            recording.force.between(start_ns, stop_ns).data,
+            recording.acceleration.between(start_ns, stop_ns).data,
+            temperature.data[..., 0],
+            n_thermal_points=THERMAL_POINTS,
+            temperature_rate_hz=1e9 / temperature.period_ns,
+        )
+    except AtiktError as err:
+        msg = f"{recording.path}: no features from the execute phase ({err}); check the recording"
+        raise ReplayError(msg) from err
+
+
+def file_features(path: Path) -> RawFeatures:
+    """Read one recording and return its raw features (the live and offline path)."""
+    return recording_features(read_recording(path))
+
+
+def _vector(values: np.ndarray[Any, Any] | None) -> list[float] | None:
+    return None if values is None else [float(v) for v in values]
+
+
+def _row(root: Path, path: Path, digest: str) -> dict[str, Any]:
+    """Return the cache row of one recording (raises ReplayError for a bad file)."""
+    recording = read_recording(path)
+    features = recording_features(recording)
+    meta = recording.metadata
+    return {
+        "path": path.relative_to(root).as_posix(),
+        "sha256": digest,
+        "object_id": meta.object_id,
+        "novel": meta.object_novel,
+        "action_id": meta.action_id,
+        "action_kind": meta.action_kind,
+        "trial": meta.trial,
+        "force": _vector(features.force),
+        "texture": _vector(features.texture),
+        "thermal": _vector(features.thermal),
+        "features_version": FEATURES_VERSION,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class _Job:
+    """Extract the features of some recordings of one dataset (one parallel task)."""
+
+    root: Path
+    files: tuple[tuple[str, str], ...]  # (relative path, sha256)
+
+
+def _extract(job: _Job) -> tuple[list[dict[str, Any]], list[dict[str, str]]]:
+    """Run one job: rows of the good files, (path, reason) of the bad ones."""
+    rows, bad = [], []
+    for relative, digest in job.files:
+        try:
+            rows.append(_row(job.root, job.root / relative, digest))
+        except ReplayError as err:
+            bad.append({"path": relative, "reason": str(err)})
+    return rows, bad
+
+
+def _digest(path: Path) -> str:
+    """Return the SHA-256 of a file's bytes."""
+    try:
+        with path.open("rb") as stream:
+            return hashlib.file_digest(stream, "sha256").hexdigest()
+    except OSError as err:
+        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
+        raise ReplayError(msg) from err
+
+
+def _cached(target: Path) -> pl.DataFrame:
+    """Return the usable rows of an existing cache (none if absent or of another version)."""
+    if not target.exists():
+        return pl.DataFrame(schema=_SCHEMA)
+    try:
+        frame = pl.read_parquet(target)
+    except (OSError, pl.exceptions.PolarsError):
+        return pl.DataFrame(schema=_SCHEMA)
+    if frame.schema != pl.Schema(_SCHEMA):
+        return pl.DataFrame(schema=_SCHEMA)
+    return frame.filter(pl.col("features_version") == FEATURES_VERSION)
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureTable:
+    """The features of a dataset and the recordings that were refused.
+
+    Attributes:
+        root: The dataset directory.
+        frame: One row per good recording (see ``_SCHEMA``), sorted by path.
+        quarantined: One row per refused recording: path and reason.
+        extracted: How many recordings were (re-)extracted by this build.
+    """
+
+    root: Path
+    frame: pl.DataFrame
+    quarantined: pl.DataFrame
+    extracted: int
+
+
+def build_features(
+    root: Path,
+    *,
+    workers: int = 1,
+    chunk: int = 32,
+    on_progress: Callable[[int, int], Any] | None = None,
+) -> FeatureTable:
+    """Extract (or update) the feature cache of the dataset at ``root``.
+
+    Args:
+        root: Dataset directory (``<object>/<action>/<trial>.mcap`` files).
+        workers: Worker processes for the extraction.
+        chunk: Recordings per parallel task.
+        on_progress: Called with (recordings done, recordings to extract).
+
+    Returns:
+        The features; ``<root>/features.parquet`` is rewritten atomically.
+
+    Raises:
+        ReplayError: ``root`` holds no recordings or the cache cannot be written.
+    """
+    root = Path(root)
+    paths = sorted(root.rglob("*.mcap"))
+    if not paths:
+        msg = f"{root}: no recordings (*.mcap) found; record a dataset with atikt-record dataset"
+        raise ReplayError(msg)
+    digests = {p.relative_to(root).as_posix(): _digest(p) for p in paths}
+    cached = _cached(root / FEATURES_NAME)
+    current = pl.DataFrame(
+        {"path": list(digests), "sha256": list(digests.values())},
+        schema={"path": pl.String, "sha256": pl.String},
+    )
+    keep = cached.join(current, on=["path", "sha256"], how="semi")
+    known = set(keep["path"].to_list())
+    todo = [(p, d) for p, d in digests.items() if p not in known]
+    jobs = [_Job(root, tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
+    sizes = [len(job.files) for job in jobs]
+
+    def progress(done: int) -> None:
+        if on_progress is not None:
+            on_progress(sum(sizes[:done]), len(todo))
+
+    results = run_tasks(_extract, jobs, workers=workers, on_done=progress)
+    rows = [row for good, _ in results for row in good]
+    bad = [entry for _, entries in results for entry in entries]
+    frame = pl.concat([keep, pl.DataFrame(rows, schema=_SCHEMA)]).sort("path")
+    _write(frame, root / FEATURES_NAME)
+    quarantined = pl.DataFrame(bad, schema=_QUARANTINE_SCHEMA).sort("path")
+    return FeatureTable(root, frame, quarantined, extracted=len(todo))
+
+
+def _write(frame: pl.DataFrame, target: Path) -> None:
+    """Write the cache atomically (temporary file, then rename)."""
+    temporary = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        frame.write_parquet(temporary)
+        temporary.replace(target)
+    except OSError as err:
+        temporary.unlink(missing_ok=True)
+        msg = f"{target}: cannot write the feature cache ({err.strerror}); check the directory"
+        raise ReplayError(msg) from err
+
+
+def as_raw(row: dict[str, Any]) -> RawFeatures:
+    """Return the :class:`atikt.RawFeatures` of one cache row."""
+
+    def array(values: Sequence[float] | None) -> np.ndarray[Any, Any] | None:
+        if values is None:
+            return None
+        out = np.asarray(values, dtype=np.float64)
+        out.setflags(write=False)
+        return out
+
+    thermal = array(row["thermal"])
+    if thermal is None:
+        msg = f"{row['path']}: feature row without thermal features; rebuild the cache"
+        raise ReplayError(msg)
+    return RawFeatures(row["action_kind"], array(row["force"]), array(row["texture"]), thermal)

@@ -1,0 +1,171 @@
+"""One active-learning run: the ATIKT loop against an executor, scored after every step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import polars as pl
+
+from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping, Sequence
+
+    from atikt import RawFeatures
+    from replay._executors import Executor, FeatureLookup, TestSet
+
+#: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
+TRANSFER_MODES = ("prediction", "optimization", "none")
+
+PriorData = dict[str, dict[int, list["RawFeatures"]]]
+
+
+@dataclass(frozen=True, slots=True)
+class RunSpec:
+    """Everything that determines one learning run (with the data and the seed).
+
+    Attributes:
+        new_objects: Ids of the objects to learn, in label order.
+        prior_objects: Ids of the old objects whose observations may be transferred.
+        actions: Actions the learner may choose.
+        budget: Actively collected observations after the initial one per (object, action).
+        transfer: ``prediction`` (ATIKT, thesis default), ``optimization`` or ``none``.
+        eps_explore: Probability of a random (object, action) instead of the most uncertain.
+        eps_neg1: Smallest mean probability for a prior to be transferred (prediction).
+        seed: Seed of every random choice of the run.
+        test_fraction: Share of each (object, action)'s recordings held out for testing.
+    """
+
+    new_objects: tuple[str, ...]
+    prior_objects: tuple[str, ...]
+    actions: tuple[str, ...]
+    budget: int = 40
+    transfer: str = "prediction"
+    eps_explore: float = 0.3
+    eps_neg1: float = 0.6
+    seed: int = 0
+    test_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        """Check the spec; errors name the option to fix."""
+        if self.transfer not in TRANSFER_MODES:
+            msg = f"--transfer {self.transfer}: use one of {', '.join(TRANSFER_MODES)}"
+            raise ReplayError(msg)
+        if len(self.new_objects) < 2:  # noqa: PLR2004
+            msg = f"--new {','.join(self.new_objects)}: a run needs at least two new objects"
+            raise ReplayError(msg)
+        if overlap := set(self.new_objects) & set(self.prior_objects):
+            msg = f"{', '.join(sorted(overlap))}: an object cannot be new and prior at once"
+            raise ReplayError(msg)
+
+
+def prior_data(
+    lookup: FeatureLookup, prior_objects: Sequence[str], actions: Sequence[str]
+) -> PriorData:
+    """Return every recording of the prior objects, action -> prior index -> features."""
+    return {
+        action: {
+            index: [lookup.get(obj, action, t) for t in lookup.trials(obj, action)]
+            for index, obj in enumerate(prior_objects)
+        }
+        for action in actions
+    }
+
+
+def fit_priors(data: PriorData, seed: int) -> dict[str, PriorModel]:
+    """Fit the prior objects' models once, to share them between runs.
+
+    Raises:
+        ReplayError: The prior data cannot be fitted.
+    """
+    try:
+        return fit_prior_models(data, random_state=seed)
+    except AtiktError as err:
+        msg = f"prior objects: cannot fit their models ({err})"
+        raise ReplayError(msg) from err
+
+
+@dataclass(slots=True)
+class RunResult:
+    """The outcome of one run: one row per step (step 0 is the state after initialisation)."""
+
+    spec: RunSpec
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+    def frame(self) -> pl.DataFrame:
+        """Return the rows as a table."""
+        return pl.DataFrame(self.rows, infer_schema_length=None)
+
+
+def _named(spec: RunSpec, row: dict[str, Any]) -> dict[str, Any]:
+    """Replace object and prior indices of a step row by catalog ids."""
+    objects, priors = spec.new_objects, spec.prior_objects
+    row["object"] = objects[row["object"]]
+    row["prior"] = "" if row["prior"] < 0 else priors[row["prior"]]
+    row["priors"] = ["" if p < 0 else priors[p] for p in row["priors"]]
+    row["candidates"] = [priors[c] for c in row["candidates"]]
+    return row
+
+
+def _scores(learner: ActiveLearner, test: TestSet) -> dict[str, float]:
+    """Return the accuracy of all actions together and of each action."""
+    per_action = learner.score_per_action(test)
+    overall = sum(per_action.values()) / len(per_action)
+    return {"accuracy": overall} | {f"accuracy_{a}": v for a, v in per_action.items()}
+
+
+def run_learning(
+    spec: RunSpec,
+    executor: Executor,
+    test: TestSet,
+    priors: Mapping[str, PriorModel] | PriorData | None,
+    *,
+    on_step: Callable[[dict[str, Any]], Any] | None = None,
+) -> RunResult:
+    """Run the ATIKT loop (or the baseline) and score it on ``test`` after every step.
+
+    Args:
+        spec: What to run.
+        executor: Serves observations (offline pool or live rig).
+        test: Held-out observations per action, labelled by new-object index.
+        priors: Fitted prior models or raw prior data (ignored without transfer).
+        on_step: Called with every row as soon as it is known (for live printing).
+
+    Returns:
+        The rows of the run.
+
+    Raises:
+        ReplayError: The learner refused its input; the message says why.
+    """
+    learner = ActiveLearner(
+        spec.actions,
+        len(spec.new_objects),
+        observe=executor,
+        available=executor.available,
+        priors=None if spec.transfer == "none" else dict(priors or {}),
+        budget=spec.budget,
+        eps_explore=spec.eps_explore,
+        eps_neg1=spec.eps_neg1,
+        transfer=spec.transfer,  # type: ignore[arg-type]
+        random_state=spec.seed,
+    )
+    result = RunResult(spec)
+    try:
+        learner.initialise()
+        initial = {"step": 0, "object": "", "action": "", "explored": False, "prior": ""}
+        result.rows.append(initial | {"n_observations": learner.n_observations_})
+        result.rows[-1] |= _scores(learner, test)
+        if on_step is not None:
+            on_step(result.rows[-1])
+        while not learner.done:
+            record = learner.step()
+            row = _named(spec, record.as_row()) | {"step": record.step + 1}
+            result.rows.append(row | _scores(learner, test))
+            if on_step is not None:
+                on_step(result.rows[-1])
+    except AtiktError as err:
+        msg = f"learning run (seed {spec.seed}): {err}"
+        raise ReplayError(msg) from err
+    return result

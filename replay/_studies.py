@@ -1,0 +1,574 @@
+"""The thesis's studies over a dataset's feature cache: runs, results, plots, summary.
+
+Every study is a list of independent tasks (a task carries its data and its own seed), run
+through :func:`replay._parallel.run_tasks`, so that results are the same bytes for any number
+of local workers or a Dask cluster. Results are long-format parquet (one row per run and step,
+or per repetition and training size), PNG figures, and ``summary.md``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import zlib
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import polars as pl
+
+from atikt import AtiktError, MultiModalGPC
+from replay._executors import FeatureLookup, PoolExecutor, Split
+from replay._parallel import run_tasks
+from replay._plots import plot_learning_curves
+from replay._relatedness import least_similar, similarity_to_new
+from replay._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from pathlib import Path
+
+#: The thesis's actions, in catalog order.
+ACTIONS = ("P1", "P2", "S1", "S2", "S3", "S4", "C1")
+#: Label of the ATIKT runs and of the no-transfer baseline in results.
+ATIKT, BASELINE = "ATIKT", "baseline"
+_METHODS = {ATIKT: "prediction", BASELINE: "none"}
+
+
+@dataclass(frozen=True, slots=True)
+class StudyConfig:
+    """Options shared by every study.
+
+    Attributes:
+        out: Directory for results, plots and summary.
+        seed: Seed of group selection, splits and learners.
+        groups: Random groups of prior objects (transfer, single-action, priors).
+        trials: Runs per group.
+        budget: Actively collected observations per run.
+        workers: Local worker processes.
+        scheduler: Dask scheduler address, or None for local processes.
+        fusion_groups: Random groups of objects in the fusion study.
+        fusion_repetitions: Repetitions per fusion group.
+        fusion_objects: Objects per fusion group.
+        prior_counts: Prior-object counts of the priors study.
+        transfer: Transfer mode of the ATIKT runs.
+    """
+
+    out: Path
+    seed: int = 0
+    groups: int = 10
+    trials: int = 5
+    budget: int = 40
+    workers: int = 1
+    scheduler: str | None = None
+    fusion_groups: int = 10
+    fusion_repetitions: int = 10
+    fusion_objects: int = 5
+    prior_counts: tuple[int, ...] = (3, 5, 7, 10)
+    transfer: str = "prediction"
+
+    def quick(self) -> StudyConfig:
+        """Return a reduced version of this configuration for a first look."""
+        return replace(
+            self,
+            groups=2,
+            trials=2,
+            budget=min(self.budget, 10),
+            fusion_groups=2,
+            fusion_repetitions=2,
+            prior_counts=(3, 7),
+        )
+
+
+def _seed(*parts: int | str) -> int:
+    """Derive a 31-bit seed from parts, the same in every process."""
+    words = [p if isinstance(p, int) else zlib.crc32(p.encode()) for p in parts]
+    return int(np.random.SeedSequence(words).generate_state(1)[0] >> 1)
+
+
+def objects_of(frame: pl.DataFrame) -> tuple[list[str], list[str]]:
+    """Return the (new, old) object ids of a feature table, sorted.
+
+    Raises:
+        ReplayError: There are fewer than two new or one old object.
+    """
+    pairs = frame.select("object_id", "novel").unique().sort("object_id")
+    new = pairs.filter(pl.col("novel"))["object_id"].to_list()
+    old = pairs.filter(~pl.col("novel"))["object_id"].to_list()
+    if len(new) < 2 or not old:  # noqa: PLR2004
+        msg = (
+            f"the dataset has {len(new)} new and {len(old)} old objects; a study needs >= 2 new "
+            "and >= 1 old (see the 'novel' flag of the object catalog)"
+        )
+        raise ReplayError(msg)
+    return new, old
+
+
+def prior_groups(old: Sequence[str], size: int, count: int, seed: int) -> list[tuple[str, ...]]:
+    """Return ``count`` distinct random groups of ``size`` old objects (fewer if not possible)."""
+    combos = list(itertools.combinations(sorted(old), size))
+    rng = np.random.default_rng(_seed(seed, "groups", size))
+    chosen = rng.choice(len(combos), size=min(count, len(combos)), replace=False)
+    return [combos[i] for i in sorted(chosen)]
+
+
+@dataclass(frozen=True, slots=True)
+class TransferTask:
+    """Runs of ATIKT and baseline for one group of prior objects (one parallel task).
+
+    Attributes:
+        frame: The feature table (the rows the task needs).
+        new: New object ids.
+        priors: Prior object ids.
+        actions: Action sets, each run separately (one set: all actions together).
+        trials: Runs per action set.
+        budget: Actively collected observations per run.
+        seed: Seed of the group's splits and learners.
+        transfer: Transfer mode of the ATIKT runs.
+        labels: Extra columns written into every row (group, prior count, ...).
+    """
+
+    frame: pl.DataFrame
+    new: tuple[str, ...]
+    priors: tuple[str, ...]
+    actions: tuple[tuple[str, ...], ...]
+    trials: int
+    budget: int
+    seed: int
+    transfer: str = "prediction"
+    labels: dict[str, Any] = field(default_factory=dict)
+
+
+def run_transfer_task(task: TransferTask) -> pl.DataFrame:
+    """Run ATIKT and the baseline on the same splits; return one row per run and step."""
+    lookup = FeatureLookup(task.frame)
+    every_action = tuple(sorted({a for group in task.actions for a in group}, key=ACTIONS.index))
+    models = fit_priors(prior_data(lookup, task.priors, every_action), _seed(task.seed, "prior"))
+    frames = []
+    for actions, trial in itertools.product(task.actions, range(task.trials)):
+        run_seed = _seed(task.seed, trial, *actions)
+        split = Split.random(task.frame, task.new, actions, seed=run_seed)
+        for method, mode in ((ATIKT, task.transfer), (BASELINE, "none")):
+            spec = RunSpec(task.new, task.priors, actions, task.budget, mode, seed=run_seed)
+            executor = PoolExecutor(lookup, task.new, split)
+            result = run_learning(spec, executor, executor.test_set(actions), models)
+            labels = task.labels | {"method": method, "trial": trial}
+            labels |= {"actions": ",".join(actions), "priors": ",".join(task.priors)}
+            frames.append(_rows(result.frame(), labels))
+    return pl.concat(frames, how="diagonal_relaxed")
+
+
+def _rows(frame: pl.DataFrame, labels: dict[str, Any]) -> pl.DataFrame:
+    """Return the columns of a run kept in study results, with the run's labels."""
+    keep = [c for c in frame.columns if c.startswith("accuracy")]
+    keep += ["step", "object", "action", "explored", "prior", "rho"]
+    return frame.select(keep).with_columns(
+        *(pl.lit(value).alias(name) for name, value in labels.items())
+    )
+
+
+def _columns_first(frame: pl.DataFrame, first: Sequence[str]) -> pl.DataFrame:
+    """Return ``frame`` with the label columns first, then the rest in a fixed order."""
+    rest = sorted(c for c in frame.columns if c not in first)
+    return frame.select([*first, *rest])
+
+
+# ------------------------------------------------------------------------------ studies
+
+
+def _run(
+    tasks: Sequence[Any],
+    function: Callable[[Any], pl.DataFrame],
+    config: StudyConfig,
+    on_progress: Callable[[int, int], Any] | None,
+) -> pl.DataFrame:
+    """Run tasks in parallel and stack their tables."""
+
+    def done(count: int) -> None:
+        if on_progress is not None:
+            on_progress(count, len(tasks))
+
+    frames = run_tasks(
+        function, tasks, workers=config.workers, scheduler=config.scheduler, on_done=done
+    )
+    return pl.concat(frames, how="diagonal_relaxed")
+
+
+def transfer_tasks(
+    frame: pl.DataFrame, config: StudyConfig, *, single_action: bool = False
+) -> list[TransferTask]:
+    """Return the tasks of the transfer (or single-action) study: one per prior group."""
+    new, old = objects_of(frame)
+    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    sets = tuple((a,) for a in actions) if single_action else (actions,)
+    return [
+        TransferTask(
+            frame,
+            tuple(new),
+            group,
+            sets,
+            config.trials,
+            config.budget,
+            _seed(config.seed, "transfer", number),
+            config.transfer,
+            {"group": number},
+        )
+        for number, group in enumerate(prior_groups(old, 3, config.groups, config.seed))
+    ]
+
+
+def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
+    """Return the tasks of the priors study: groups of each prior count."""
+    new, old = objects_of(frame)
+    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    tasks = []
+    for count in (c for c in config.prior_counts if c <= len(old)):
+        for number, group in enumerate(prior_groups(old, count, config.groups, config.seed)):
+            seed = _seed(config.seed, "priors", count, number)
+            labels = {"group": number, "n_priors": count}
+            tasks.append(
+                TransferTask(
+                    frame,
+                    tuple(new),
+                    group,
+                    (actions,),
+                    config.trials,
+                    config.budget,
+                    seed,
+                    config.transfer,
+                    labels,
+                )
+            )
+    return tasks
+
+
+def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
+    """Return the tasks of the negative-transfer study: the priors least like the new objects.
+
+    Similarity is the confusion of per-action Gaussian mixtures (see ``_relatedness``); the
+    three least similar old objects are the priors of every run.
+    """
+    new, old = objects_of(frame)
+    objects = [*new, *old]
+    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    per_action = {}
+    for action in actions:
+        part = frame.filter(pl.col("action_id") == action).sort("path")
+        matrix = np.vstack([_flat(row) for row in part.iter_rows(named=True)])
+        labels = np.array([objects.index(o) for o in part["object_id"]], dtype=np.int64)
+        per_action[action] = (matrix, labels)
+    similarity = similarity_to_new(
+        per_action, len(objects), range(len(new)), _seed(config.seed, "gmm")
+    )
+    chosen = least_similar(similarity, range(len(new), len(objects)), 3)
+    priors = tuple(objects[i] for i in chosen)
+    runs = config.groups * config.trials
+    return [
+        TransferTask(
+            frame,
+            tuple(new),
+            priors,
+            (actions,),
+            1,
+            config.budget,
+            _seed(config.seed, "negative", number),
+            config.transfer,
+            {"group": 0, "repetition": number},
+        )
+        for number in range(runs)
+    ]
+
+
+def _flat(row: dict[str, Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """Return the raw features of a cache row as one vector (for the mixture)."""
+    parts = [row[m] for m in ("force", "texture", "thermal") if row[m] is not None]
+    return np.concatenate([np.asarray(p, dtype=np.float64) for p in parts])
+
+
+@dataclass(frozen=True, slots=True)
+class FusionTask:
+    """Learning curves of one action and group of objects, all modality subsets.
+
+    Attributes:
+        frame: The feature table.
+        action: The action.
+        objects: Object ids of the group.
+        repetitions: Random train/test splits.
+        seed: Seed of the splits and fits.
+        group: Group number (a result column).
+    """
+
+    frame: pl.DataFrame
+    action: str
+    objects: tuple[str, ...]
+    repetitions: int
+    seed: int
+    group: int
+
+
+def run_fusion_task(task: FusionTask) -> pl.DataFrame:
+    """Fit multi-modal and single-modality GPCs on 1..n training samples; test accuracy rows."""
+    lookup = FeatureLookup(task.frame)
+    kind = task.frame.filter(pl.col("action_id") == task.action)["action_kind"][0]
+    modalities = ("force", "thermal") if kind in {"press", "static"} else ("texture", "thermal")
+    subsets = {"multi-modal": None} | {m: (m,) for m in modalities}
+    rows = []
+    for repetition in range(task.repetitions):
+        seed = _seed(task.seed, repetition)
+        split = Split.random(task.frame, task.objects, (task.action,), seed=seed)
+        executor = PoolExecutor(lookup, task.objects, split)
+        test_obs, test_labels = executor.test_set((task.action,))[task.action]
+        pools = [split.pool[o, task.action] for o in task.objects]
+        for size in range(1, min(len(p) for p in pools) + 1):
+            train = [
+                lookup.get(o, task.action, t)
+                for o, p in zip(task.objects, pools, strict=True)
+                for t in p[:size]
+            ]
+            labels = [i for i, p in enumerate(pools) for _ in p[:size]]
+            for name, subset in subsets.items():
+                model = MultiModalGPC(subset, random_state=seed)
+                try:
+                    predicted = model.fit(train, labels).predict(test_obs)
+                except AtiktError as err:
+                    msg = f"fusion study, action {task.action}, {name}: {err}"
+                    raise ReplayError(msg) from err
+                accuracy = float(np.mean(np.asarray(predicted) == np.asarray(test_labels)))
+                rows.append(
+                    {"action": task.action, "group": task.group, "repetition": repetition}
+                    | {"modalities": name, "samples": size, "accuracy": accuracy}
+                )
+    return pl.DataFrame(rows)
+
+
+def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
+    """Return the fusion study's tasks: per action, random groups of objects."""
+    objects = sorted(set(frame["object_id"]))
+    actions = [a for a in ACTIONS if a in set(frame["action_id"])]
+    rng = np.random.default_rng(_seed(config.seed, "fusion"))
+    size = min(config.fusion_objects, len(objects))
+    groups = [
+        tuple(sorted(rng.choice(objects, size, replace=False))) for _ in range(config.fusion_groups)
+    ]
+    return [
+        FusionTask(
+            frame,
+            action,
+            group,
+            config.fusion_repetitions,
+            _seed(config.seed, action, number),
+            number,
+        )
+        for action in actions
+        for number, group in enumerate(groups)
+    ]
+
+
+# ------------------------------------------------------------------------------ reports
+
+
+def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFrame:
+    """Return accuracy after the initial observations, mean over steps 1..budget, and final.
+
+    Accuracies are averaged over runs first per step, then over steps.
+    """
+    per_step = frame.group_by([*by, "step"]).agg(pl.col("accuracy").mean())
+    return (
+        per_step.group_by(by)
+        .agg(
+            pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
+            pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
+            pl.col("accuracy").sort_by("step").last().alias("final"),
+        )
+        .sort(by)
+    )
+
+
+def _markdown(frame: pl.DataFrame) -> str:
+    """Render a small table as GitHub markdown, floats as percentages."""
+    header = "| " + " | ".join(frame.columns) + " |"
+    rule = "|" + "|".join("---" for _ in frame.columns) + "|"
+    lines = [header, rule]
+    for row in frame.iter_rows():
+        cells = [f"{100 * v:.1f} %" if isinstance(v, float) else str(v) for v in row]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _gain(table: pl.DataFrame, by: Sequence[str]) -> pl.DataFrame:
+    """Return ATIKT minus baseline of each headline column, per ``by``."""
+    wide = table.pivot(on="method", index=list(by), values=["initial", "mean", "final"])
+    return wide.select(
+        *by,
+        *(
+            (pl.col(f"{c}_{ATIKT}") - pl.col(f"{c}_{BASELINE}")).alias(f"gain_{c}")
+            for c in ("initial", "mean", "final")
+        ),
+    )
+
+
+def report_transfer(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
+    """Plot and summarise a transfer-type study; return the markdown summary."""
+    table = headline(frame, ["method"], config.budget)
+    gain = _gain(table.with_columns(pl.lit("all").alias("set")), ["set"])
+    plot_learning_curves(frame, config.out / "learning_curves.png", x="step", title=title)
+    runs = frame.select("method", "group", "trial").unique().height // 2
+    return (
+        f"# {title}\n\n{runs} paired runs (ATIKT and baseline on the same splits), "
+        f"budget {config.budget}; test accuracy of all actions together.\n\n"
+        f"{_markdown(table)}\n\n{_markdown(gain.drop('set'))}\n"
+    )
+
+
+def report_single_action(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
+    """Plot and summarise the single-action study."""
+    table = headline(frame, ["actions", "method"], config.budget)
+    gain = _gain(table, ["actions"])
+    plot_learning_curves(
+        frame, config.out / "learning_curves.png", x="step", panel="actions", title=title
+    )
+    return (
+        f"# {title}\n\nOne action at a time, ATIKT vs baseline, budget {config.budget}.\n\n"
+        f"{_markdown(gain)}\n\n{_markdown(table)}\n"
+    )
+
+
+def report_priors(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
+    """Plot and summarise the prior-count study."""
+    table = headline(frame, ["n_priors", "method"], config.budget)
+    gain = _gain(table, ["n_priors"])
+    plot_learning_curves(
+        frame, config.out / "learning_curves.png", x="step", panel="n_priors", title=title
+    )
+    return (
+        f"# {title}\n\nATIKT vs baseline with 3, 5, 7, 10 prior objects.\n\n"
+        f"{_markdown(gain)}\n\n{_markdown(table)}\n"
+    )
+
+
+def report_fusion(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
+    """Plot and summarise the fusion study."""
+    plot_learning_curves(
+        frame,
+        config.out / "learning_curves.png",
+        x="samples",
+        label="modalities",
+        panel="action",
+        title=title,
+        xlabel="training samples per object",
+    )
+    table = (
+        frame.group_by("action", "modalities")
+        .agg(pl.col("accuracy").mean().alias("mean"))
+        .pivot(on="modalities", index="action", values="mean")
+        .sort("action")
+    )
+    return (
+        f"# {title}\n\nMean test accuracy over training sizes, groups of "
+        f"{config.fusion_objects} objects, multi-modal kernel vs single modalities.\n\n"
+        f"{_markdown(table)}\n"
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Study:
+    """A study: how to make its tasks, run one, and report the results."""
+
+    title: str
+    tasks: Callable[[pl.DataFrame, StudyConfig], Sequence[Any]]
+    run: Callable[[Any], pl.DataFrame]
+    report: Callable[[pl.DataFrame, StudyConfig, str], str]
+    labels: tuple[str, ...]
+
+
+def _single_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
+    return transfer_tasks(frame, config, single_action=True)
+
+
+STUDIES: dict[str, Study] = {
+    "fusion": Study(
+        "Multi-modal fusion vs single modalities",
+        fusion_tasks,
+        run_fusion_task,
+        report_fusion,
+        ("action", "group", "repetition", "modalities", "samples"),
+    ),
+    "transfer": Study(
+        "ATIKT vs no transfer, all actions",
+        transfer_tasks,
+        run_transfer_task,
+        report_transfer,
+        ("method", "group", "trial", "step"),
+    ),
+    "single-action": Study(
+        "ATIKT vs no transfer, one action at a time",
+        _single_action_tasks,
+        run_transfer_task,
+        report_single_action,
+        ("actions", "method", "group", "trial", "step"),
+    ),
+    "priors": Study(
+        "ATIKT vs no transfer with 3, 5, 7, 10 prior objects",
+        priors_tasks,
+        run_transfer_task,
+        report_priors,
+        ("n_priors", "method", "group", "trial", "step"),
+    ),
+    "negative": Study(
+        "ATIKT with dissimilar priors (negative transfer)",
+        negative_tasks,
+        run_transfer_task,
+        report_transfer,
+        ("method", "repetition", "trial", "step"),
+    ),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class StudyOutput:
+    """Where a study wrote its results."""
+
+    name: str
+    results: Path
+    plot: Path
+    summary: Path
+    text: str
+
+
+def run_study(
+    name: str,
+    frame: pl.DataFrame,
+    config: StudyConfig,
+    *,
+    quarantined: pl.DataFrame | None = None,
+    on_progress: Callable[[int, int], Any] | None = None,
+) -> StudyOutput:
+    """Run one study over a feature table and write results, plot and summary.
+
+    Args:
+        name: A key of :data:`STUDIES`.
+        frame: The dataset's feature table.
+        config: Study options; ``config.out`` is created.
+        quarantined: Recordings refused while building the features (listed in the summary).
+        on_progress: Called with (tasks done, tasks).
+
+    Raises:
+        ReplayError: Unknown study, or a run failed.
+    """
+    if name not in STUDIES:
+        msg = f"unknown study {name!r}; choose one of {', '.join([*STUDIES, 'all'])}"
+        raise ReplayError(msg)
+    study = STUDIES[name]
+    out = config.out
+    out.mkdir(parents=True, exist_ok=True)
+    results = _run(study.tasks(frame, config), study.run, config, on_progress)
+    results = _columns_first(results, study.labels).sort(list(study.labels))
+    path = out / "results.parquet"
+    results.write_parquet(path)
+    text = study.report(results, config, study.title)
+    if quarantined is not None and quarantined.height:
+        listing = "\n".join(f"- `{p}`: {r}" for p, r in quarantined.iter_rows())
+        text += f"\n## Quarantined recordings ({quarantined.height})\n\n{listing}\n"
+    summary = out / "summary.md"
+    summary.write_text(text, encoding="utf-8")
+    return StudyOutput(name, path, out / "learning_curves.png", summary, text)
