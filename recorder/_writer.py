@@ -366,6 +366,14 @@ def _exists_error(final: Path) -> OutputExistsError:
     return OutputExistsError(msg)
 
 
+def _write_error(final: Path, err: OSError) -> RecorderError:
+    """Return the error for a failed write (disk full, file system gone, ...)."""
+    return RecorderError(
+        f"{final}: writing the recording failed ({err.strerror or err}); "
+        "check free space and the directory, then record the action again"
+    )
+
+
 def _link_no_replace(temporary: Path, final: Path) -> None:
     """Give the complete file ``temporary`` the name ``final``, never replacing a file.
 
@@ -460,7 +468,13 @@ class RecordingWriter:
         except OSError as err:
             msg = f"{self.path}: cannot create the recording ({err.strerror}); check --out"
             raise RecorderError(msg) from err
-        self._writer = self._start(self._stream)
+        try:
+            self._writer = self._start(self._stream)
+        except BaseException as err:
+            self._discard()
+            if isinstance(err, OSError):
+                raise _write_error(self.path, err) from err
+            raise
         return self
 
     def _start(self, stream: IO[bytes]) -> Writer:
@@ -496,8 +510,11 @@ class RecordingWriter:
         log_ns = item.receive_ns
         sequence = self._sequences[topic]
         self._sequences[topic] = sequence + 1
-        self._writer.add_message(self._channel_ids[topic], log_ns, payload, stamp_ns, sequence)
-        self._track_time(log_ns)
+        try:
+            self._writer.add_message(self._channel_ids[topic], log_ns, payload, stamp_ns, sequence)
+            self._track_time(log_ns)
+        except OSError as err:
+            raise _write_error(self.path, err) from err
 
     def _track_time(self, log_ns: int) -> None:
         """Remember the time range and flush when ``flush_interval_ns`` of log time passed."""
@@ -536,8 +553,10 @@ class RecordingWriter:
             os.fsync(self._stream.fileno())
             self._stream.close()
             _link_no_replace(self._temporary, self.path)
-        except BaseException:
+        except BaseException as err:
             self._discard()
+            if isinstance(err, OSError):
+                raise _write_error(self.path, err) from err
             raise
         self.result = WrittenRecording(
             path=self.path,

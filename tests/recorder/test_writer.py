@@ -278,3 +278,22 @@ def test_fixed_layout_messages_match_rosbags_serialization(
         position, orientation = rng.normal(size=3), rng.normal(size=4)
         pose = PoseSample(stamp, stamp, position, orientation)
         assert encoder.encode(pose)[2] == encoder._pose_message(stamp, position, orientation)
+
+
+def test_full_disk_is_a_recorder_error_and_leaves_no_file(
+    tmp_path: Path, objects: Objects, actions: Actions, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls = []
+
+    def add_message(*args: object) -> None:
+        calls.append(args)
+        if len(calls) > 100:
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("mcap.writer.Writer.add_message", add_message)
+    with (
+        pytest.raises(RecorderError, match=r"001\.mcap: writing .*No space left on device"),
+        FakeRig() as rig,
+    ):
+        record_action(rig, objects["wood"], actions["P1"], 1, tmp_path / "001.mcap", seed=0)
+    assert list(tmp_path.iterdir()) == []
