@@ -50,6 +50,8 @@ ROBOT_LATENCY_NS: Final = (1_000_000, 500_000)
 """RTDE transport latency: fixed part and uniform jitter, ns."""
 SKIN_LATENCY_NS: Final = (2_000_000, 1_000_000)
 """Skin bus transport latency of a block: fixed part and uniform jitter, ns."""
+EFFORT_DECIMATION: Final = 5
+"""Gravity torques and the Jacobian are evaluated every 5 RTDE samples and interpolated."""
 EFFORT_NOISE_N_M: Final = 0.1
 """Noise of the joint torques the controller estimates from motor currents."""
 ORIENTATION_SPREAD_DEG: Final = 10.0
@@ -228,6 +230,10 @@ class SimulatedRig:
         self._config = SimConfig() if config is None else config
         hardware_seed = np.random.SeedSequence([seed, stable_hash("skin hardware")])
         self._hardware = skin.SkinHardware.draw(np.random.default_rng(hardware_seed))
+        above = np.eye(4)
+        above[:3, :3] = TCP_ROTATION
+        above[:3, 3] = (*WORKSPACE_XY_M, 0.1)
+        self._branch = ur10.select_branch(above, Q_REFERENCE, TOOL)
         self._connected = False
 
     def __enter__(self) -> Self:
@@ -408,20 +414,19 @@ class SimulatedRig:
         pose[:, 1, 3] = WORKSPACE_XY_M[1] + conditions.location[1] + slide
         surface = obj.height_m + conditions.height_error
         pose[:, 2, 3] = surface + conditions.tilt[0] * slide - depth
-        q = ur10.inverse(pose, Q_REFERENCE, TOOL)
-        frames = ur10.link_frames(q)
-        tcp = frames[:, 6] @ TOOL
+        q = ur10.inverse(pose, Q_REFERENCE, TOOL, self._branch)
         normal = signals.force[index // motion.FORCE_DECIMATION].sum(axis=(1, 2))
         wrench = np.zeros((index.shape[0], 3))
         wrench[:, 2] = normal
         moving = np.gradient(slide) > 0
         if action.kind is ActionKind.SLIDE:
             wrench[:, 1] = -obj.friction_kinetic * normal * moving
-        effort = ur10.static_torques(frames, TOOL, wrench)
+        effort = _static_efforts(q, wrench)
         effort += EFFORT_NOISE_N_M * rng.standard_normal(effort.shape)
         velocity = np.gradient(q, ROBOT_DECIMATION * motion.DT_S, axis=0)
-        quat = ur10.quaternions(tcp)
-        position = np.ascontiguousarray(tcp[:, :3, 3])
+        # The closed-form solution is exact: forward kinematics of q gives back ``pose``.
+        quat = ur10.quaternions(pose)
+        position = np.ascontiguousarray(pose[:, :3, 3])
         for array in (q, velocity, effort, quat, position):
             array.setflags(write=False)
         stamps = index * 1_000_000
@@ -435,6 +440,29 @@ class SimulatedRig:
             samples.append(JointSample(stamp, rec, q_k, v_k, e_k))
             samples.append(PoseSample(stamp, rec, p_k, o_k))
         return samples
+
+
+def _static_efforts(q: F64, wrench: F64) -> F64:
+    """Return the joint torques against gravity and the contact force on the tool.
+
+    Gravity torques and the Jacobian change slowly while the arm moves a few centimetres;
+    they are computed every ``EFFORT_DECIMATION`` samples and interpolated linearly, while the
+    force enters exactly: ``tau = g(q) - J_v(q)^T f``.
+    """
+    n = q.shape[0]
+    coarse = np.unique(np.r_[np.arange(0, n, EFFORT_DECIMATION), n - 1])
+    frames = ur10.link_frames(q[coarse])
+    gravity = ur10.static_torques(frames, TOOL, np.zeros((coarse.shape[0], 3)))
+    linear = ur10.frame_jacobian(frames, TOOL)[:, :3]
+    table = np.concatenate([gravity, linear.reshape(coarse.shape[0], -1)], axis=1)
+    samples = np.arange(n)
+    right = np.clip(np.searchsorted(coarse, samples), 1, coarse.shape[0] - 1)
+    left = right - 1
+    weight = ((samples - coarse[left]) / (coarse[right] - coarse[left]))[:, None]
+    smooth = (1.0 - weight) * table[left] + weight * table[right]
+    jac = smooth[:, 6:].reshape(n, 3, 6)
+    efforts: F64 = smooth[:, :6] - np.einsum("nij,ni->nj", jac, wrench)
+    return efforts
 
 
 def _resample(signal: F64, step: float) -> F64:

@@ -12,7 +12,6 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 F64 = NDArray[np.float64]
 
@@ -93,8 +92,20 @@ def jacobian(q: F64, tool: F64 | None = None) -> F64:
     Returns:
         Shape (n, 6, 6): rows are linear then angular velocity, columns the joints.
     """
-    frames = link_frames(q)
-    end = frames[:, 6] if tool is None else frames[:, 6] @ tool
+    return frame_jacobian(link_frames(q), np.eye(4) if tool is None else tool)
+
+
+def frame_jacobian(frames: F64, tool: F64) -> F64:
+    """Return the geometric Jacobian of the tool point from the DH frames.
+
+    Args:
+        frames: DH frames, shape (n, 7, 4, 4) (:func:`link_frames`).
+        tool: Tool transform in the flange frame, shape (4, 4).
+
+    Returns:
+        Shape (n, 6, 6): rows are linear then angular velocity, columns the joints.
+    """
+    end = frames[:, 6] @ tool
     axes = frames[:, :6, :3, 2]
     origins = frames[:, :6, :3, 3]
     jac = np.empty((frames.shape[0], 6, 6))
@@ -176,25 +187,44 @@ def _wrap_near(q: F64, reference: F64) -> F64:
     return reference + (q - reference + np.pi) % (2 * np.pi) - np.pi
 
 
-def inverse(target: F64, reference: F64, tool: F64 | None = None) -> F64:
-    """Solve the inverse kinematics in closed form, on the branch nearest ``reference``.
+def select_branch(target: F64, reference: F64, tool: F64 | None = None) -> F64:
+    """Return the branch (shoulder, wrist, elbow signs) whose solution is nearest ``reference``.
 
-    The UR arm has eight solutions per pose; the branch (shoulder, wrist, elbow) is chosen once,
-    as the one whose solution for the first pose is nearest to ``reference``, and kept for
-    every pose (an action moves the arm a few centimetres, far from singularities).
+    Args:
+        target: One flange (or tool) pose, shape (4, 4).
+        reference: A configuration near the wanted solution, shape (6,), rad.
+        tool: Optional tool transform in the flange frame, shape (4, 4).
+
+    Returns:
+        The branch, shape (3,).
+    """
+    flange = target if tool is None else target @ _rigid_inverse(tool)
+    solutions = _wrap_near(_solve_branch(np.repeat(flange[None], 8, axis=0), BRANCHES), reference)
+    branch: F64 = BRANCHES[int(np.argmin(np.abs(solutions - reference).sum(axis=1)))]
+    return branch
+
+
+def inverse(target: F64, reference: F64, tool: F64 | None = None, branch: F64 | None = None) -> F64:
+    """Solve the inverse kinematics in closed form, on one branch for every pose.
+
+    The UR arm has eight solutions per pose; unless given, the branch (shoulder, wrist,
+    elbow) is the one whose solution for the first pose is nearest to ``reference``, and it
+    is kept for every pose (an action moves the arm a few centimetres, far from
+    singularities).
 
     Args:
         target: Desired flange (or tool) poses, shape (n, 4, 4).
         reference: A configuration near the wanted solution, shape (6,), rad.
         tool: Optional tool transform in the flange frame, shape (4, 4).
+        branch: The branch to use (:func:`select_branch`); chosen from the first pose if None.
 
     Returns:
         Joint angles, shape (n, 6), rad, each within pi of ``reference``.
     """
+    if branch is None:
+        branch = select_branch(target[0], reference, tool)
     flange = target if tool is None else target @ _rigid_inverse(tool)
-    first = _wrap_near(_solve_branch(np.repeat(flange[:1], 8, axis=0), BRANCHES), reference)
-    best = int(np.argmin(np.abs(first - reference).sum(axis=1)))
-    return _wrap_near(_solve_branch(flange, BRANCHES[best]), reference)
+    return _wrap_near(_solve_branch(flange, branch), reference)
 
 
 def static_torques(frames: F64, tool: F64, force: F64) -> F64:
@@ -225,6 +255,38 @@ def static_torques(frames: F64, tool: F64, force: F64) -> F64:
 
 
 def quaternions(pose: F64) -> F64:
-    """Return the orientation of poses (n, 4, 4) as unit quaternions (x, y, z, w), (n, 4)."""
-    quat: F64 = Rotation.from_matrix(pose[:, :3, :3]).as_quat()
-    return quat
+    """Return the orientation of poses as unit quaternions (x, y, z, w), sign made unique.
+
+    Shepperd's method: of the four ways to read the quaternion off the rotation matrix, use
+    the one with the largest pivot, for accuracy.
+
+    Args:
+        pose: Homogeneous transforms or rotations, shape (n, 4, 4) or (n, 3, 3).
+
+    Returns:
+        Quaternions, shape (n, 4).
+    """
+    m = pose[:, :3, :3]
+    m00, m11, m22 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    pivots = np.stack([m00 + m11 + m22, m00 - m11 - m22, m11 - m00 - m22, m22 - m00 - m11], 1)
+    choice = np.argmax(pivots, axis=1)
+    root = np.sqrt(np.maximum(1.0 + pivots[np.arange(m.shape[0]), choice], 1e-300))
+    a, b, c = m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]
+    d, e, f = m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1]
+    candidates = np.stack(
+        [
+            np.stack([a, b, c, root * root], 1),  # w largest
+            np.stack([root * root, d, e, a], 1),  # x largest
+            np.stack([d, root * root, f, b], 1),  # y largest
+            np.stack([e, f, root * root, c], 1),  # z largest
+        ],
+        1,
+    )
+    quat = candidates[np.arange(m.shape[0]), choice] / (2.0 * root[:, None])
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    # q and -q are the same rotation: make the first clearly non-zero of w, x, y, z positive.
+    ordered = quat[:, [3, 0, 1, 2]]
+    first = np.argmax(np.abs(ordered) > 1e-9, axis=1)  # noqa: PLR2004 - numerical zero
+    sign = np.sign(ordered[np.arange(m.shape[0]), first])
+    canonical: F64 = quat * sign[:, None]
+    return canonical
