@@ -514,7 +514,7 @@ class ActiveLearner:
         action = self.actions[action_index]
         observation = self._observe(obj, action)
         self._record(action, obj, observation, {})
-        self._update(action, n_restarts=0, max_iter=self.max_iter_step)
+        self._update(action, n_restarts=0, max_iter=self.max_iter_step, changed=obj)
         self.uncertainty_[action_index] = self.states_[action].uncertainty
         record = self._step_record(obj, action, entropies, explored=explored)
         self.history_.append(record)
@@ -550,8 +550,15 @@ class ActiveLearner:
 
     # ---------------------------------------------------------------------- the update
 
-    def _update(self, action: str, *, n_restarts: int, max_iter: int) -> None:
-        """Refit one action's features, transfer choices and classifiers; recompute its UNC."""
+    def _update(
+        self, action: str, *, n_restarts: int, max_iter: int, changed: int | None = None
+    ) -> None:
+        """Refit one action's features, transfer choices and classifiers; recompute its UNC.
+
+        ``changed`` names the only new object whose observations changed: the relatedness of
+        the others (model prediction approach) depends on their own observations and the fixed
+        prior models only, so their previous choices are kept (None: recompute all).
+        """
         state = self.states_[action]
         prior = state.prior
         training = list(state.observations)
@@ -577,10 +584,12 @@ class ActiveLearner:
             mine = [
                 o for o, lab in zip(state.observations, state.labels, strict=True) if lab == obj
             ]
+            keep = changed is not None and obj != changed and self.transfer == "prediction"
             choice, model = self._fit_object(
                 kernel,
                 X,
                 y,
+                known=state.choices[obj] if keep else None,
                 mine=mine,
                 prior=prior,
                 auxiliary=auxiliary,
@@ -609,6 +618,7 @@ class ActiveLearner:
         X: FloatArray,
         y: FloatArray,
         *,
+        known: PriorChoice | None,
         mine: Sequence[RawFeatures],
         prior: PriorModel | None,
         auxiliary: Mapping[int, FloatArray],
@@ -632,8 +642,8 @@ class ActiveLearner:
             )
             rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
             return choice, model
-        choice = _NO_CHOICE
-        if prior is not None and prior.model is not None:
+        choice = _NO_CHOICE if known is None else known
+        if known is None and prior is not None and prior.model is not None:
             features = prior.transformer.transform(mine)
             choice = choose_by_prediction(prior.model, features, self.eps_neg1)
         aux = None if choice.source is None else auxiliary[choice.source]

@@ -40,6 +40,7 @@ RandomState = int | np.random.Generator | None
 LAMBDAS: Final = np.array([0.41, 0.4, 0.37, 0.44, 0.39])
 COEFS: Final = np.array([-1854.8214151, 3516.89893646, 221.29346712, 128.12323805, -2010.49422654])
 _MAX_HALVINGS: Final = 20
+_SAME_POINT: Final = 1e-8
 
 
 def _rng(random_state: RandomState) -> np.random.Generator:
@@ -121,38 +122,64 @@ def _tri_solve(L: FloatArray, b: FloatArray) -> FloatArray:
     return np.asarray(x, dtype=np.float64)
 
 
+def _damped(
+    K: FloatArray, sign: FloatArray, a: FloatArray, a_new: FloatArray, psi: float
+) -> tuple[FloatArray, FloatArray, float]:
+    """Halve a Newton step that lowered ``Psi`` until it does not (rarely needed)."""
+    for _ in range(_MAX_HALVINGS):
+        a_new = 0.5 * (a + a_new)
+        f_new = K @ a_new
+        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
+        if psi_new >= psi:
+            break
+    return a_new, f_new, psi_new
+
+
 def laplace_mode(
     K: FloatArray,
     y: FloatArray,
-    a0: FloatArray | None = None,
+    f0: FloatArray | None = None,
     *,
     max_iter: int = 100,
     tol: float = 1e-10,
 ) -> LaplaceMode:
     """Find the posterior mode of a binary GP classifier by Newton's method (R&W Alg. 3.1).
 
+    Newton's method stops when a step raises the objective ``Psi(f) = -a'f/2 + log p(y|f)`` by
+    less than ``tol``. ``W`` and ``L`` (hence the log determinant, the predictions and the
+    gradient) are then recomputed at the returned mode, unless the last step moved no latent
+    value by more than ``_SAME_POINT`` (then the last linearisation point is kept, saving one
+    factorisation at an error below that size).
+
     Args:
         K: Prior covariance of the training points, shape (n, n).
         y: Labels in {0, 1}, shape (n,) float.
-        a0: Warm start ``a`` (the start is ``f = K a0``); zeros when None.
+        f0: Starting latent values, e.g. a previous mode or a prediction of it; zeros when None.
         max_iter: Maximum Newton iterations.
-        tol: Stop when the objective ``Psi(f) = -a'f/2 + log p(y|f)`` rises by less.
+        tol: Stopping tolerance on the rise of ``Psi``.
 
     Returns:
-        The mode and the quantities Alg. 3.2 and Alg. 5.1 reuse, all evaluated at the mode.
+        The mode and the quantities Alg. 3.2 and Alg. 5.1 reuse.
 
     Raises:
-        NumericalError: ``B`` could not be factorised or the objective is not finite.
+        NumericalError: ``K`` is not finite, ``B`` could not be factorised, or the objective
+            is not finite.
     """
-    if not np.all(np.isfinite(K)):
+    if max_iter < 1:
+        msg = f"max_iter={max_iter}; Newton's method needs at least one iteration"
+        raise AtiktError(msg)
+    if not np.isfinite(K).all():
         msg = "the kernel matrix has NaN or inf entries; check the features and hyperparameters"
         raise NumericalError(msg)
     sign = 2.0 * y - 1.0
-    a = np.zeros(y.shape[0]) if a0 is None else a0
-    f = K @ a
-    psi = -0.5 * float(a @ f) + _log_likelihood(sign, f)
+    a: FloatArray | None = None
+    if f0 is None:  # f = K a with a = 0: Psi(0) = log p(y | 0)
+        f, a = np.zeros(y.shape[0]), np.zeros(y.shape[0])
+        psi = _log_likelihood(sign, f)
+    else:  # no a with K a = f0: the first Newton step is always taken
+        f, psi = f0, -np.inf
     n_iter = 0
-    for n_iter in range(1, max_iter + 1):  # noqa: B007 - n_iter is reported
+    for n_iter in range(1, max_iter + 1):
         pi = expit(f)  # line 4: W = -grad grad log p(y|f)
         W = pi * (1.0 - pi)
         sqrt_w = np.sqrt(W)
@@ -161,24 +188,25 @@ def laplace_mode(
         a_new = b - sqrt_w * _cho_solve(L, sqrt_w * (K @ b))  # line 7
         f_new = K @ a_new  # line 8
         psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
-        for _ in range(_MAX_HALVINGS):  # damped Newton: rarely needed, never increases Psi
-            if psi_new >= psi - tol:
-                break
-            a_new = 0.5 * (a + a_new)
-            f_new = K @ a_new
-            psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
-        converged = psi_new - psi < tol
-        a, f, psi = a_new, f_new, psi_new
-        if converged:
+        if a is not None and psi_new < psi - tol:
+            a_new, f_new, psi_new = _damped(K, sign, a, a_new, psi)
+        if not np.isfinite(psi_new):
+            msg = "the Laplace objective is not finite; check the features and hyperparameters"
+            raise NumericalError(msg)
+        if psi_new - psi < tol:  # line 10
+            if np.abs(f_new - f).max() <= _SAME_POINT:
+                lml = psi_new - float(np.log(np.diag(L)).sum())
+                return LaplaceMode(f_new, a_new, pi, sqrt_w, L, lml, n_iter)
+            a, f, psi = a_new, f_new, psi_new
             break
-    if not np.isfinite(psi):
-        msg = "the Laplace objective is not finite; check the features and hyperparameters"
-        raise NumericalError(msg)
-    pi = expit(f)
+        a, f, psi = a_new, f_new, psi_new
+    pi = expit(f)  # W and L at the returned mode
     sqrt_w = np.sqrt(pi * (1.0 - pi))
     L = _cholesky_b(K, sqrt_w)
-    lml = psi - float(np.log(np.diag(L)).sum())  # line 10
-    return LaplaceMode(f, a, pi, sqrt_w, L, lml, n_iter)
+    if a is None:  # cannot happen: every iteration that does not return sets a
+        msg = "Newton's method produced no iterate; report this with the inputs"
+        raise NumericalError(msg)
+    return LaplaceMode(f, a, pi, sqrt_w, L, psi - float(np.log(np.diag(L)).sum()), n_iter)
 
 
 def lml_gradient(K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode) -> FloatArray:
@@ -193,17 +221,24 @@ def lml_gradient(K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode
     Returns:
         ``d log q(y | X, theta) / d theta``, shape (n_params,).
     """
+    return _gradient_terms(K, dK, y, mode)[0]
+
+
+def _gradient_terms(
+    K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode
+) -> tuple[FloatArray, FloatArray]:
+    """Alg. 5.1 lines 7-15; also returns ``d f_hat / d theta`` (R&W Eq. 5.25), (n_params, n)."""
     sqrt_w, L, pi = mode.sqrt_w, mode.L, mode.pi
-    V = _tri_solve(L, np.diag(sqrt_w))  # L \ W^1/2, so that R = V'V and C = V K
-    R = V.T @ V  # line 7: R = W^1/2 L' \ (L \ W^1/2)
-    C = V @ K  # line 8: C = L \ (W^1/2 K)
+    V = _tri_solve(L, np.diag(sqrt_w))  # L \\ W^1/2, so that R = V'V and C = V K
+    R = V.T @ V  # line 7: R = W^1/2 L' \\ (L \\ W^1/2)
+    C = V @ K  # line 8: C = L \\ (W^1/2 K)
     # line 9: d^3 log p / df^3 = -pi (1 - pi) (1 - 2 pi) for the logistic likelihood
     s2 = -0.5 * (np.diag(K) - np.einsum("ij,ij->j", C, C)) * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
     # line 12, all hyperparameters at once: a' dK_j a / 2 - tr(R dK_j) / 2
     s1 = dK.reshape(dK.shape[0], -1) @ (0.5 * (np.outer(mode.a, mode.a) - R)).ravel()
     b = dK @ (y - pi)  # line 13, one row per hyperparameter
-    s3 = b - (b @ R) @ K  # line 14 (K and R are symmetric)
-    return np.asarray(s1 + s3 @ s2, dtype=np.float64)  # line 15
+    s3 = b - (b @ R) @ K  # line 14 (K and R are symmetric): s3_j = d f_hat / d theta_j
+    return np.asarray(s1 + s3 @ s2, dtype=np.float64), s3  # line 15
 
 
 def predictive_probability(mean: FloatArray, var: FloatArray) -> FloatArray:
@@ -321,19 +356,19 @@ class BinaryGPC:
             NumericalError: Every start of the hyperparameter search failed numerically.
         """
         self.X_train_, self.y_train_ = _check_xy(X, y)
-        kernel, mode, a0 = self.kernel, None, None
+        kernel, mode, f0 = self.kernel, None, None
         self.n_evaluations_ = 0
         if self.optimize and kernel.n_params > 0:
             objective = self._objective(self.X_train_, self.y_train_)
             theta = self._search(objective)
             kernel, mode = kernel.with_theta(theta), objective.mode_at(theta)
-            a0 = None if objective.last_mode is None else objective.last_mode.a
+            f0 = objective.start(theta)
             self.n_evaluations_ = objective.n_calls
         self.kernel_ = kernel
         if mode is None:  # the search ended elsewhere than its last evaluation, or no search
             K = self._covariance(kernel, self.X_train_)
             mode = laplace_mode(
-                K, self.y_train_, a0, max_iter=self.newton_max_iter, tol=self.newton_tol
+                K, self.y_train_, f0, max_iter=self.newton_max_iter, tol=self.newton_tol
             )
         self.mode_ = mode
         self.log_marginal_likelihood_value_ = mode.log_marginal_likelihood
@@ -439,9 +474,14 @@ class BinaryGPC:
 class _NegativeLml:
     """``theta -> (-log q, -d log q / d theta)`` with a warm-started Newton search.
 
-    The last evaluation (theta, covariance, mode) is kept, so that the fit after the search
-    does not redo it.
+    Newton's method starts from a first-order prediction of the new mode,
+    ``f_hat(theta) ~ f_hat(theta') + (theta - theta') d f_hat / d theta`` (R&W Eq. 5.25, a
+    by-product of the gradient), which usually leaves two Newton iterations per evaluation. The
+    last evaluation (theta, mode) is kept, so the fit after the search does not redo it.
     """
+
+    max_prediction: Final = 3.0
+    """Largest predicted change of a latent value; farther jumps start from the last mode."""
 
     def __init__(
         self,
@@ -457,19 +497,29 @@ class _NegativeLml:
         self.y = y
         self.jitter, self.newton_max_iter, self.newton_tol = jitter, newton_max_iter, newton_tol
         self.last_theta: FloatArray | None = None
-        self.last_K: FloatArray | None = None
         self.last_mode: LaplaceMode | None = None
+        self.last_slope: FloatArray | None = None
         self.n_calls = 0
+
+    def start(self, theta: FloatArray) -> FloatArray | None:
+        """Predicted mode at ``theta`` from the last evaluation (None: start from zero)."""
+        if self.last_mode is None or self.last_theta is None or self.last_slope is None:
+            return None
+        change = (theta - self.last_theta) @ self.last_slope
+        if np.abs(change).max(initial=0.0) > self.max_prediction:
+            return self.last_mode.f
+        return np.asarray(self.last_mode.f + change, dtype=np.float64)
 
     def __call__(self, theta: FloatArray) -> tuple[float, FloatArray]:
         """Evaluate at ``theta`` (log space)."""
         self.n_calls += 1
         K, dK = self.evaluate(theta)
         add_to_diagonal(K, self.jitter)
-        a0 = None if self.last_mode is None else self.last_mode.a
-        mode = laplace_mode(K, self.y, a0, max_iter=self.newton_max_iter, tol=self.newton_tol)
-        self.last_theta, self.last_K, self.last_mode = np.array(theta, dtype=np.float64), K, mode
-        gradient = lml_gradient(K, dK, self.y, mode)
+        f0 = self.start(theta)
+        mode = laplace_mode(K, self.y, f0, max_iter=self.newton_max_iter, tol=self.newton_tol)
+        gradient, slope = _gradient_terms(K, dK, self.y, mode)
+        self.last_theta = np.array(theta, dtype=np.float64)
+        self.last_mode, self.last_slope = mode, slope
         return -mode.log_marginal_likelihood, -gradient
 
     def mode_at(self, theta: FloatArray) -> LaplaceMode | None:

@@ -260,6 +260,7 @@ def reference_update(
     eps_neg1: float,
     max_iter: int,
     old_model: Sequence[GaussianProcessClassifier] | None,
+    changed: int | None = None,
 ) -> FloatArray:
     """One action update of the model prediction approach with scikit-learn; returns UNC.
 
@@ -267,7 +268,8 @@ def reference_update(
     observations, relatedness by the old objects' binary classifiers, one classifier per new
     object (dependent kernel with the chosen old object's observations as auxiliary positives),
     each warm-started from the state's previous hyperparameters, then the mean entropy of each
-    object's own observations.
+    object's own observations. As in atikt, only the ``changed`` object's relatedness is
+    recomputed (the others' depends on unchanged observations and fixed prior models).
     """
     prior = state.prior
     training: list[RawFeatures] = list(state.observations)
@@ -286,7 +288,9 @@ def reference_update(
             kernel = kernel.with_theta(theta)
         y = (labels == obj).astype(np.float64)
         source, rho = None, 0.0
-        if prior is not None and old_model is not None:
+        if changed is not None and obj != changed:
+            source, rho = state.choices[obj].source, state.choices[obj].rho
+        elif prior is not None and old_model is not None:
             mine = [
                 o for o, lab in zip(state.observations, state.labels, strict=True) if lab == obj
             ]

@@ -76,8 +76,9 @@ def test_mode_is_stationary() -> None:
     # at the mode f = K grad log p(y|f) = K (y - pi)  (R&W Eq. 3.17)
     np.testing.assert_allclose(mode.f, K @ (y - mode.pi), atol=1e-8)
     np.testing.assert_allclose(mode.a, y - mode.pi, atol=1e-8)
-    warm = laplace_mode(K, y, mode.a, tol=1e-14)
-    assert warm.n_iter <= 2
+    warm = laplace_mode(K, y, mode.f, tol=1e-14)
+    assert warm.n_iter == 2  # one step from the mode, then the stopping test
+    np.testing.assert_allclose(warm.f, mode.f, atol=1e-10)
     assert warm.log_marginal_likelihood == pytest.approx(mode.log_marginal_likelihood, abs=1e-10)
 
 
@@ -192,3 +193,15 @@ def test_multimodal_gpc_on_chosen_modalities() -> None:
     assert accuracies["None"] > 0.6  # five objects: chance is 0.2
     with pytest.raises(NotFittedError):
         MultiModalGPC().predict(test_obs)
+
+
+def test_mode_from_a_bad_start_is_the_same_mode() -> None:
+    X, y = problem(25, seed=11)
+    K = modality_kernel(SLICES, variance=50.0)(X)
+    cold = laplace_mode(K, y, tol=1e-14)
+    for f0 in (30.0 * (1.0 - 2.0 * y), np.full(25, -40.0), cold.f + 5.0):
+        warm = laplace_mode(K, y, f0, tol=1e-14)
+        np.testing.assert_allclose(warm.f, cold.f, atol=1e-7)
+        assert warm.log_marginal_likelihood == pytest.approx(cold.log_marginal_likelihood, abs=1e-7)
+    with pytest.raises(AtiktError, match="max_iter"):
+        laplace_mode(K, y, max_iter=0)
