@@ -437,7 +437,7 @@ class ActiveLearner:
             amplitude=self.amplitude,
             n_thermal_components=self.n_thermal_components,
             n_restarts=self.n_restarts,
-            random_state=int(self._rng.integers(0, 2**31 - 1)),
+            random_state=self._rng.spawn(1)[0],  # leaves the decisions' stream untouched
         )
         models = {**given, **fitted}
         for action, prior in models.items():
@@ -561,12 +561,10 @@ class ActiveLearner:
         """
         state = self.states_[action]
         prior = state.prior
-        training = list(state.observations)
-        if prior is not None:
-            training += prior.observations
+        # The new objects' feature space comes from their own observations (the learning task's
+        # training set), exactly as without priors; auxiliary observations are mapped into it.
         transformer = FeatureTransformer(n_thermal_components=self.n_thermal_components)
-        transformer.fit(training)
-        X = transformer.transform(state.observations)
+        X = transformer.fit_transform(state.observations)
         labels = np.asarray(state.labels)
         auxiliary = self._auxiliary(prior, transformer)
         if not state.models:

@@ -22,7 +22,6 @@ from atikt import (
     DependentKernel,
     FeatureTransformer,
     ModalityKernel,
-    RawFeatures,
     entropy,
     modality_kernel,
 )
@@ -264,19 +263,18 @@ def reference_update(
 ) -> FloatArray:
     """One action update of the model prediction approach with scikit-learn; returns UNC.
 
-    Mirrors :meth:`atikt.ActiveLearner._update`: features fitted on priors + collected
-    observations, relatedness by the old objects' binary classifiers, one classifier per new
-    object (dependent kernel with the chosen old object's observations as auxiliary positives),
-    each warm-started from the state's previous hyperparameters, then the mean entropy of each
+    Mirrors :meth:`atikt.ActiveLearner._update`: features fitted on the collected observations
+    (prior observations mapped into that space), relatedness by the old objects' binary
+    classifiers, one classifier per new object (dependent kernel with the chosen old object's
+    observations as auxiliary positives),
+    each warm-started from the state's previous hyperparameters (and scikit-learn's own
+    ``warm_start`` of the Newton iterations within a search), then the mean entropy of each
     object's own observations. As in atikt, only the ``changed`` object's relatedness is
     recomputed (the others' depends on unchanged observations and fixed prior models).
     """
     prior = state.prior
-    training: list[RawFeatures] = list(state.observations)
-    if prior is not None:
-        training += prior.observations
-    transformer = FeatureTransformer(n_thermal_components=n_thermal_components).fit(training)
-    X = transformer.transform(state.observations)
+    transformer = FeatureTransformer(n_thermal_components=n_thermal_components)
+    X = transformer.fit_transform(state.observations)
     labels = np.asarray(state.labels)
     groups = prior.by_object() if prior is not None else {}
     auxiliary = {old: transformer.transform(obs) for old, obs in groups.items()}
@@ -302,7 +300,9 @@ def reference_update(
         sk_kernel = reference_kernel(kernel)
         if source is not None:
             sk_kernel = DomainKernel(sk_kernel, rho, "fixed")
-        gpc = GaussianProcessClassifier(kernel=sk_kernel, optimizer=lbfgs(max_iter))
+        gpc = GaussianProcessClassifier(
+            kernel=sk_kernel, optimizer=lbfgs(max_iter), warm_start=True
+        )
         if source is None:
             models.append((gpc.fit(X, y), False))
         else:

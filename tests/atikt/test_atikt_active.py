@@ -248,3 +248,18 @@ def test_only_available_pairs_are_chosen(train: dict[str, dict[int, list[RawFeat
             assert record.action == "S2"
             assert record.object in (1, 3)
         assert len(learner.history_) == 4  # two pairs, two more recordings each
+
+
+def test_refusing_every_prior_is_the_baseline(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    baseline, calls = run(train, budget=4, transfer="none")
+    refused, refused_calls = run(
+        train, budget=4, transfer="prediction", priors=priors, eps_neg1=1.0
+    )
+    assert refused_calls.calls == calls.calls
+    assert all(r.candidates == (0, 1, 2) and r.prior is None for r in refused.history_)
+    ignore = {"relatedness", "candidates"}
+    strip = [{k: v for k, v in row.items() if k not in ignore} for row in rows(refused)]
+    assert strip == [{k: v for k, v in row.items() if k not in ignore} for row in rows(baseline)]
