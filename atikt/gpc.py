@@ -302,6 +302,7 @@ class BinaryGPC:
         mode_: The Laplace approximation at ``kernel_``.
         log_marginal_likelihood_value_: ``log q(y | X, theta)`` at ``kernel_``.
         n_evaluations_: Objective evaluations spent on the hyperparameter search.
+        n_iter_: L-BFGS-B iterations of the start that won (0 without a search).
     """
 
     def __init__(
@@ -357,7 +358,7 @@ class BinaryGPC:
         """
         self.X_train_, self.y_train_ = _check_xy(X, y)
         kernel, mode, f0 = self.kernel, None, None
-        self.n_evaluations_ = 0
+        self.n_evaluations_, self.n_iter_ = 0, 0
         if self.optimize and kernel.n_params > 0:
             objective = self._objective(self.X_train_, self.y_train_)
             theta = self._search(objective)
@@ -401,6 +402,7 @@ class BinaryGPC:
                 continue
             if np.isfinite(result.fun) and result.fun < best_value:
                 best_theta, best_value = np.asarray(result.x, dtype=np.float64), float(result.fun)
+                self.n_iter_ = int(result.nit)
         if best_theta is None:
             msg = "the hyperparameter search failed from every start; check the training data"
             raise NumericalError(msg) from failure

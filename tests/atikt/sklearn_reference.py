@@ -260,6 +260,7 @@ def reference_update(
     max_iter: int,
     old_model: Sequence[GaussianProcessClassifier] | None,
     changed: int | None = None,
+    warm_start: bool = True,
 ) -> FloatArray:
     """One action update of the model prediction approach with scikit-learn; returns UNC.
 
@@ -267,8 +268,10 @@ def reference_update(
     (prior observations mapped into that space), relatedness by the old objects' binary
     classifiers, one classifier per new object (dependent kernel with the chosen old object's
     observations as auxiliary positives),
-    each warm-started from the state's previous hyperparameters (and scikit-learn's own
-    ``warm_start`` of the Newton iterations within a search), then the mean entropy of each
+    each warm-started from the state's previous hyperparameters (and, with ``warm_start``,
+    scikit-learn's reuse of the last Newton mode within a search: faster, but its objective is
+    then only accurate to the Newton tolerance, which moves capped searches elsewhere), then
+    the mean entropy of each
     object's own observations. As in atikt, only the ``changed`` object's relatedness is
     recomputed (the others' depends on unchanged observations and fixed prior models).
     """
@@ -301,7 +304,7 @@ def reference_update(
         if source is not None:
             sk_kernel = DomainKernel(sk_kernel, rho, "fixed")
         gpc = GaussianProcessClassifier(
-            kernel=sk_kernel, optimizer=lbfgs(max_iter), warm_start=True
+            kernel=sk_kernel, optimizer=lbfgs(max_iter), warm_start=warm_start
         )
         if source is None:
             models.append((gpc.fit(X, y), False))
