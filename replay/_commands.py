@@ -178,7 +178,8 @@ def _learn_offline(
         split, frame = Split.from_session(args.session), session.frame
     else:
         split = Split.random(frame, spec.new_objects, spec.actions, seed=spec.seed)
-    executor = PoolExecutor(FeatureLookup(frame), spec.new_objects, split)
+    like_rig = args.session is not None
+    executor = PoolExecutor(FeatureLookup(frame), spec.new_objects, split, like_rig=like_rig)
     test = executor.test_set(spec.actions)
     return run_learning(spec, executor, test, models, on_step=on_step).frame()
 

@@ -168,17 +168,22 @@ class PoolExecutor:
         lookup: Features of the dataset.
         objects: New object ids, in the learner's index order.
         split: Test trials and pool order.
+        like_rig: Report every pair as available, as the rig of a live session did, so that a
+            replay of the session makes the same decisions (see ``Split.from_session``).
         served: (object, action, trial) of every served recording, in order.
     """
 
     lookup: FeatureLookup
     objects: Sequence[str]
     split: Split
+    like_rig: bool = False
     served: list[tuple[str, str, int]] = field(default_factory=list)
     _next: dict[Pair, int] = field(default_factory=dict)
 
     def available(self, obj: int, action: str) -> bool:
         """Return whether the pool of (obj, action) still has an unused recording."""
+        if self.like_rig:
+            return True
         pair = (self.objects[obj], action)
         return self._next.get(pair, 0) < len(self.split.pool.get(pair, ()))
 
@@ -195,6 +200,7 @@ class PoolExecutor:
             msg = (
                 f"object {pair[0]!r}, action {action!r}: all {len(pool)} pool recordings "
                 "are used; record more trials or lower the budget"
+                + (" (the replay left the recorded session's path)" if self.like_rig else "")
             )
             raise ReplayError(msg)
         self._next[pair] = position + 1

@@ -1,0 +1,72 @@
+import shutil
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from replay._features import FEATURES_NAME, as_raw, build_features, file_features
+from replay.errors import ReplayError
+from tests.replay.conftest import ACTIONS, NEW, OLD, TRIALS
+
+
+@pytest.fixture
+def dataset(small_dataset: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "dataset"
+    shutil.copytree(small_dataset, copy)
+    (copy / FEATURES_NAME).unlink(missing_ok=True)
+    return copy
+
+
+def test_cache_has_one_row_per_recording_with_the_kind_s_modalities(dataset: Path) -> None:
+    table = build_features(dataset)
+    assert table.frame.height == len(OLD + NEW) * len(ACTIONS) * TRIALS
+    assert table.extracted == table.frame.height
+    assert table.quarantined.height == 0
+    press = table.frame.filter(pl.col("action_kind") == "press")
+    slide = table.frame.filter(pl.col("action_kind") == "slide")
+    assert press["texture"].null_count() == press.height
+    assert slide["force"].null_count() == slide.height
+    assert (dataset / FEATURES_NAME).exists()
+
+
+def test_cached_features_equal_the_file_path(dataset: Path) -> None:
+    table = build_features(dataset)
+    row = table.frame.row(0, named=True)
+    direct = file_features(dataset / row["path"])
+    cached = as_raw(row)
+    np.testing.assert_array_equal(direct.thermal, cached.thermal)
+    assert direct.kind == cached.kind
+
+
+def test_rebuild_extracts_only_changed_files_and_drops_removed_ones(dataset: Path) -> None:
+    first = build_features(dataset)
+    assert build_features(dataset).extracted == 0
+    paths = sorted(dataset.rglob("*.mcap"))
+    shutil.copyfile(paths[1], paths[0])  # content changed: another recording's bytes
+    paths[2].unlink()
+    again = build_features(dataset)
+    assert again.extracted == 1
+    assert again.frame.height == first.frame.height - 1
+
+
+def test_two_workers_give_the_same_cache_bytes(dataset: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other"
+    shutil.copytree(dataset, other)
+    build_features(dataset, workers=1)
+    build_features(other, workers=2, chunk=7)
+    assert (dataset / FEATURES_NAME).read_bytes() == (other / FEATURES_NAME).read_bytes()
+
+
+def test_bad_recording_is_quarantined_with_its_reason(dataset: Path) -> None:
+    bad = sorted(dataset.rglob("*.mcap"))[3]
+    bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
+    table = build_features(dataset)
+    assert table.quarantined["path"].to_list() == [bad.relative_to(dataset).as_posix()]
+    assert str(bad.name) in table.quarantined["reason"][0]
+    assert table.frame.height == len(OLD + NEW) * len(ACTIONS) * TRIALS - 1
+
+
+def test_empty_directory_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ReplayError, match="no recordings"):
+        build_features(tmp_path)

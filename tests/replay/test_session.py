@@ -1,0 +1,107 @@
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from recorder import SimulatedRig, load_actions, load_objects
+from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay._features import build_features
+from replay._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.errors import ReplayError
+from tests.replay.conftest import ACTIONS, NEW, OLD, TRIALS
+
+
+@pytest.fixture(scope="module")
+def features(small_dataset: Path) -> pl.DataFrame:
+    return build_features(small_dataset).frame
+
+
+def test_split_is_disjoint_complete_and_seeded(features: pl.DataFrame) -> None:
+    split = Split.random(features, NEW, ACTIONS, seed=3)
+    for pair in split.pool:
+        assert set(split.pool[pair]).isdisjoint(split.test[pair])
+        assert sorted(split.pool[pair] + split.test[pair]) == list(range(1, TRIALS + 1))
+    assert split == Split.random(features, NEW, ACTIONS, seed=3)
+    assert split != Split.random(features, NEW, ACTIONS, seed=4)
+    # a pair's split does not depend on which other objects take part
+    alone = Split.random(features, NEW[:1], ACTIONS[:1], seed=3)
+    assert alone.pool[NEW[0], ACTIONS[0]] == split.pool[NEW[0], ACTIONS[0]]
+
+
+def test_pool_serves_each_recording_once_then_refuses(features: pl.DataFrame) -> None:
+    split = Split.random(features, NEW, ACTIONS, seed=0)
+    executor = PoolExecutor(FeatureLookup(features), NEW, split)
+    pool = split.pool[NEW[1], "P1"]
+    for _ in pool:
+        assert executor.available(1, "P1")
+        executor(1, "P1")
+    assert not executor.available(1, "P1")
+    assert [t for _, _, t in executor.served] == list(pool)
+    with pytest.raises(ReplayError, match="pool recordings are used"):
+        executor(1, "P1")
+
+
+def test_test_set_holds_the_held_out_trials(features: pl.DataFrame) -> None:
+    split = Split.random(features, NEW, ACTIONS, seed=0)
+    test = PoolExecutor(FeatureLookup(features), NEW, split).test_set(ACTIONS)
+    for action in ACTIONS:
+        observations, labels = test[action]
+        assert len(observations) == sum(len(split.test[o, action]) for o in NEW)
+        assert sorted(set(labels)) == [0, 1, 2]
+
+
+def test_offline_run_is_deterministic(features: pl.DataFrame) -> None:
+    spec = RunSpec(NEW, OLD, ACTIONS, budget=4, seed=5)
+    models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=5)
+
+    def run() -> pl.DataFrame:
+        split = Split.random(features, NEW, ACTIONS, seed=5)
+        executor = PoolExecutor(FeatureLookup(features), NEW, split)
+        return run_learning(spec, executor, executor.test_set(ACTIONS), models).frame()
+
+    first = run()
+    assert first["step"].to_list() == list(range(5))
+    assert first.equals(run())
+
+
+def test_live_run_then_offline_replay_of_its_session_agree(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    spec = RunSpec(NEW, OLD, ACTIONS, budget=3, seed=2)
+    models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=2)
+    objects = load_objects()
+    session = tmp_path / "session"
+    live = LiveExecutor(
+        SimulatedRig(seed=9), [objects[o] for o in NEW], load_actions(), session, seed=9
+    )
+    with live:
+        test = live.record_test_set(ACTIONS, trials=1)
+        live_run = run_learning(spec, live, test, models).frame()
+
+    offline_features = build_features(session).frame
+    split = Split.from_session(session)
+    pool = PoolExecutor(FeatureLookup(offline_features), NEW, split, like_rig=True)
+    offline_run = run_learning(spec, pool, pool.test_set(ACTIONS), models).frame()
+
+    assert offline_run.equals(live_run)
+    served = [(o, a) for o, a, _ in pool.served]
+    assert served == [(r["object_id"], r["action_id"]) for r in live.made if r["role"] == "pool"]
+
+
+def test_live_session_refuses_a_directory_with_recordings(
+    features: pl.DataFrame, small_dataset: Path
+) -> None:
+    objects = load_objects()
+    live = LiveExecutor(
+        SimulatedRig(seed=0), [objects[o] for o in NEW], load_actions(), small_dataset, seed=0
+    )
+    with pytest.raises(ReplayError, match="already holds a session"), live:
+        pass
+    assert features.height > 0
+
+
+def test_spec_refuses_an_object_that_is_new_and_prior() -> None:
+    with pytest.raises(ReplayError, match="new and prior"):
+        RunSpec(NEW, (NEW[0],), ACTIONS)
+    with pytest.raises(ReplayError, match="--transfer"):
+        RunSpec(NEW, OLD, ACTIONS, transfer="maybe")
