@@ -22,7 +22,11 @@ from recorder import (
     PoseSample,
     SkinBlock,
     StreamItem,
+    generate_dataset,
     load_actions,
+    load_objects,
+    plan_dataset,
+    rig_factory,
 )
 from recorder._catalog import ObjectSpec
 from recorder._writer import record_action
@@ -162,3 +166,22 @@ def fake_recording(
     with FakeRig(seed=7) as rig:
         record_action(rig, objects["sponge"], actions["S2"], 3, path, seed=7)
     return path
+
+
+#: A small simulated dataset for the replay engine's tests: old objects (priors), new objects,
+#: actions and trials per (object, action).
+OLD = ("metal_toolbox", "soft_sponge", "wood")
+NEW = ("aluminium_plate", "foam_block", "pine_board")
+ACTIONS = ("P1", "S2")
+TRIALS = 5
+
+
+@pytest.fixture(scope="session")
+def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Record 6 objects x 2 actions x 5 trials with the simulated rig (seed 0)."""
+    root = tmp_path_factory.mktemp("small") / "dataset"
+    tasks = plan_dataset(
+        load_objects(), load_actions(), object_ids=[*OLD, *NEW], action_ids=ACTIONS, trials=TRIALS
+    )
+    generate_dataset(tasks, root, rig_factory("sim"), seed=0, workers=1)
+    return root

@@ -4,10 +4,10 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
+from conftest import ACTIONS, NEW, OLD, TRIALS
 
 from replay._features import FEATURES_NAME, as_raw, build_features, file_features
 from replay.errors import ReplayError
-from tests.replay.conftest import ACTIONS, NEW, OLD, TRIALS
 
 
 @pytest.fixture

@@ -2,13 +2,13 @@ from pathlib import Path
 
 import polars as pl
 import pytest
+from conftest import ACTIONS, NEW, OLD, TRIALS
 
 from recorder import SimulatedRig, load_actions, load_objects
 from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
 from replay._features import build_features
 from replay._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.errors import ReplayError
-from tests.replay.conftest import ACTIONS, NEW, OLD, TRIALS
 
 
 @pytest.fixture(scope="module")
