@@ -592,7 +592,7 @@ class OneVsAllGPC:
             self.
         """
         Xa = np.asarray(X, dtype=np.float64)
-        labels = _check_labels(y, Xa.shape[0] if Xa.ndim else -1)
+        labels = _check_labels(y, Xa.shape[0] if Xa.ndim == 2 else -1)  # noqa: PLR2004
         self.classes_ = np.unique(labels)
         seeds = spawn_seeds(self.random_state, self.classes_.shape[0])
         self.estimators_ = [
