@@ -9,6 +9,8 @@ It deletes ``recordings/data``, records the selection below with the simulated r
 every recording ``<trial>.golden.json``: what the reader must decode from it (message and
 sample counts, stamps, mean and standard deviation of every modality and robot signal,
 phases, metadata). ``tests/replay/test_recordings.py`` replays the recordings against them.
+It also runs a short learning session over the recordings and writes its decisions and
+per-step accuracies to ``learn.golden.json`` (``tests/replay/test_learn_regression.py``).
 """
 
 # ruff: noqa: INP001 (a script beside the data it makes, not a package)
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,8 +31,11 @@ from recorder._catalog import load_objects
 from recorder._dataset import generate_dataset, rig_factory
 from replay import MODALITIES, read_recording
 from replay._container import read_summary
+from replay._features import build_features
+from replay._session import RunSpec, run_offline
 
 if TYPE_CHECKING:
+    import polars as pl
     from numpy.typing import NDArray
 
     from replay import ActionRecording
@@ -46,6 +52,15 @@ TRIALS = 2
 SEED = 0
 #: Suffix of a recording's golden summary, replacing ``.mcap``.
 GOLDEN_SUFFIX = ".golden.json"
+#: The regression learning run: more trials of two actions for the new objects, so that the
+#: learner has a pool to choose from (old objects' recordings are its priors).
+LEARN_NEW = ("aluminium_plate", "foam_block", "pine_board")
+LEARN_PRIORS = ("metal_toolbox", "soft_sponge", "wood")
+LEARN_ACTIONS = ("P2", "S2")
+LEARN_TRIALS = 4
+LEARN_BUDGET = 6
+#: Decisions and per-step accuracies of the regression learning run.
+LEARN_GOLDEN = DATA.parent / "learn.golden.json"
 
 
 def _stats(values: NDArray[Any]) -> dict[str, Any]:
@@ -114,6 +129,23 @@ def golden_path(recording: Path) -> Path:
     return recording.with_name(recording.name.removesuffix(".mcap") + GOLDEN_SUFFIX)
 
 
+def regression_run(data: Path) -> pl.DataFrame:
+    """Return the rows of the regression learning run over the recordings in ``data``."""
+    with tempfile.TemporaryDirectory() as scratch:
+        frame = build_features(data, cache=Path(scratch) / "features.parquet").frame
+    spec = RunSpec(
+        LEARN_NEW, LEARN_PRIORS, LEARN_ACTIONS, budget=LEARN_BUDGET, seed=SEED, test_fraction=0.25
+    )
+    return run_offline(frame, spec).frame()
+
+
+def learn_summary(rows: pl.DataFrame) -> list[dict[str, Any]]:
+    """Return what the regression learning run must reproduce: decisions and accuracies."""
+    keep = ["step", "object", "action", "explored", "prior", "rho", "accuracy"]
+    keep += sorted(c for c in rows.columns if c.startswith("accuracy_"))
+    return rows.select(keep).to_dicts()
+
+
 def regenerate(workers: int | None) -> None:
     """Delete and record the selection again, then write every golden summary."""
     if DATA.exists():
@@ -121,10 +153,19 @@ def regenerate(workers: int | None) -> None:
     tasks = plan_dataset(
         load_objects(), load_actions(), object_ids=OBJECTS, action_ids=ACTIONS, trials=TRIALS
     )
+    tasks += plan_dataset(
+        load_objects(),
+        load_actions(),
+        object_ids=LEARN_NEW,
+        action_ids=LEARN_ACTIONS,
+        trials=LEARN_TRIALS,
+    )
     report = generate_dataset(tasks, DATA, rig_factory("sim"), seed=SEED, workers=workers)
     for path in sorted(DATA.rglob("*.mcap")):
         text = json.dumps(summarize(read_recording(path)), indent=1, sort_keys=True)
         golden_path(path).write_text(text + "\n")
+    text = json.dumps(learn_summary(regression_run(DATA)), indent=1, sort_keys=True)
+    LEARN_GOLDEN.write_text(text + "\n")
     size = sum(p.stat().st_size for p in DATA.rglob("*") if p.is_file())
     print(f"{report.written} recordings and goldens in {DATA}, {size / 1e6:.1f} MB")  # noqa: T201
 

@@ -15,7 +15,14 @@ from replay._datasets import ensure_default_dataset
 from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
 from replay._features import FeatureTable, build_features
 from replay._plots import plot_learning_curves
-from replay._session import TRANSFER_MODES, RunSpec, fit_priors, prior_data, run_learning
+from replay._session import (
+    TRANSFER_MODES,
+    RunSpec,
+    fit_priors,
+    prior_data,
+    run_learning,
+    run_offline,
+)
 from replay._studies import ACTIONS, STUDIES, StudyConfig, objects_of, prior_groups, run_study
 from replay.errors import ReplayError
 
@@ -171,15 +178,13 @@ def _learn_offline(
     models: Any,  # noqa: ANN401
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
-    """Run offline over a dataset (or over a recorded live session's split)."""
-    frame = table.frame
-    if args.session is not None:
-        session = _features(args.session, _workers(args.workers))
-        split, frame = Split.from_session(args.session), session.frame
-    else:
-        split = Split.random(frame, spec.new_objects, spec.actions, seed=spec.seed)
-    like_rig = args.session is not None
-    executor = PoolExecutor(FeatureLookup(frame), spec.new_objects, split, like_rig=like_rig)
+    """Run offline over a dataset, or over a recorded live session with its own split."""
+    if args.session is None:
+        return run_offline(table.frame, spec, priors=models, on_step=on_step).frame()
+    session = _features(args.session, _workers(args.workers))
+    lookup = FeatureLookup(session.frame)
+    split = Split.from_session(args.session)
+    executor = PoolExecutor(lookup, spec.new_objects, split, like_rig=True)
     test = executor.test_set(spec.actions)
     return run_learning(spec, executor, test, models, on_step=on_step).frame()
 

@@ -166,6 +166,7 @@ def build_features(
     *,
     workers: int = 1,
     chunk: int = 32,
+    cache: Path | None = None,
     on_progress: Callable[[int, int], Any] | None = None,
 ) -> FeatureTable:
     """Extract (or update) the feature cache of the dataset at ``root``.
@@ -174,10 +175,11 @@ def build_features(
         root: Dataset directory (``<object>/<action>/<trial>.mcap`` files).
         workers: Worker processes for the extraction.
         chunk: Recordings per parallel task.
+        cache: The cache file; ``<root>/features.parquet`` when None.
         on_progress: Called with (recordings done, recordings to extract).
 
     Returns:
-        The features; ``<root>/features.parquet`` is rewritten atomically.
+        The features; the cache file is rewritten atomically.
 
     Raises:
         ReplayError: ``root`` holds no recordings or the cache cannot be written.
@@ -188,7 +190,8 @@ def build_features(
         msg = f"{root}: no recordings (*.mcap) found; record a dataset with atikt-record dataset"
         raise ReplayError(msg)
     digests = {p.relative_to(root).as_posix(): _digest(p) for p in paths}
-    cached = _cached(root / FEATURES_NAME)
+    cache = root / FEATURES_NAME if cache is None else Path(cache)
+    cached = _cached(cache)
     current = pl.DataFrame(
         {"path": list(digests), "sha256": list(digests.values())},
         schema={"path": pl.String, "sha256": pl.String},
@@ -207,7 +210,7 @@ def build_features(
     rows = [row for good, _ in results for row in good]
     bad = [entry for _, entries in results for entry in entries]
     frame = pl.concat([keep, pl.DataFrame(rows, schema=_SCHEMA)]).sort("path")
-    _write(frame, root / FEATURES_NAME)
+    _write(frame, cache)
     quarantined = pl.DataFrame(bad, schema=_QUARANTINE_SCHEMA).sort("path")
     return FeatureTable(root, frame, quarantined, extracted=len(todo))
 

@@ -8,13 +8,14 @@ from typing import TYPE_CHECKING, Any
 import polars as pl
 
 from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
+from replay._executors import FeatureLookup, PoolExecutor, Split
 from replay.errors import ReplayError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
     from atikt import RawFeatures
-    from replay._executors import Executor, FeatureLookup, TestSet
+    from replay._executors import Executor, TestSet
 
 #: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
 TRANSFER_MODES = ("prediction", "optimization", "none")
@@ -169,3 +170,31 @@ def run_learning(
         msg = f"learning run (seed {spec.seed}): {err}"
         raise ReplayError(msg) from err
     return result
+
+
+def run_offline(
+    frame: pl.DataFrame,
+    spec: RunSpec,
+    *,
+    priors: Mapping[str, PriorModel] | None = None,
+    on_step: Callable[[dict[str, Any]], Any] | None = None,
+) -> RunResult:
+    """Run one learning session over a dataset's feature table (random split by the seed).
+
+    Args:
+        frame: The feature table of the dataset.
+        spec: What to run; its seed also draws the test/pool split.
+        priors: Prior models fitted beforehand (fitted here from ``frame`` when None).
+        on_step: Called with every row as soon as it is known.
+
+    Returns:
+        The rows of the run.
+    """
+    lookup = FeatureLookup(frame)
+    if priors is None and spec.transfer != "none":
+        priors = fit_priors(prior_data(lookup, spec.prior_objects, spec.actions), spec.seed)
+    split = Split.random(
+        frame, spec.new_objects, spec.actions, seed=spec.seed, test_fraction=spec.test_fraction
+    )
+    executor = PoolExecutor(lookup, spec.new_objects, split)
+    return run_learning(spec, executor, executor.test_set(spec.actions), priors, on_step=on_step)
