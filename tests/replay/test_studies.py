@@ -1,0 +1,109 @@
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import ACTIONS, NEW, OLD
+
+from replay._features import build_features
+from replay._studies import STUDIES, StudyConfig, prior_groups, run_study
+from replay.errors import ReplayError
+
+
+@pytest.fixture(scope="module")
+def features(small_dataset: Path) -> pl.DataFrame:
+    return build_features(small_dataset).frame
+
+
+def _config(out: Path, **changes: object) -> StudyConfig:
+    base = StudyConfig(out=out, groups=1, trials=1, budget=4, fusion_groups=1, fusion_repetitions=1)
+    return replace(base, **changes)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("name", list(STUDIES))
+def test_every_study_writes_results_plot_and_summary(
+    name: str, features: pl.DataFrame, tmp_path: Path
+) -> None:
+    output = run_study(name, features, _config(tmp_path / name))
+    results = pl.read_parquet(output.results)
+    assert results.height > 0
+    assert results["accuracy"].is_between(0.0, 1.0).all()
+    assert output.plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert output.summary.read_text().startswith("# ")
+
+
+def test_transfer_study_pairs_atikt_with_the_baseline(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    output = run_study("transfer", features, _config(tmp_path, budget=6))
+    results = pl.read_parquet(output.results)
+    assert set(results["method"]) == {"ATIKT", "baseline"}
+    per_method = results.group_by("method").agg(pl.col("step").max())
+    assert per_method["step"].to_list() == [6, 6]
+    assert "| ATIKT |" in output.text
+    assert "| baseline |" in output.text
+
+
+def test_results_are_the_same_bytes_for_one_and_two_workers(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    one = run_study("single-action", features, _config(tmp_path / "one", workers=1))
+    two = run_study("single-action", features, _config(tmp_path / "two", workers=2))
+    assert one.results.read_bytes() == two.results.read_bytes()
+    assert one.summary.read_bytes() == two.summary.read_bytes()
+
+
+@pytest.mark.slow
+def test_results_are_the_same_bytes_on_a_dask_cluster(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    distributed = pytest.importorskip("dask.distributed")
+    one = run_study("transfer", features, _config(tmp_path / "one", groups=2, trials=2))
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        config = _config(tmp_path / "dask", groups=2, trials=2, scheduler=cluster.scheduler_address)
+        dask = run_study("transfer", features, config)
+    assert one.results.read_bytes() == dask.results.read_bytes()
+
+
+def test_study_over_bad_files_equals_the_study_without_them(
+    small_dataset: Path, tmp_path: Path
+) -> None:
+    damaged, pruned = tmp_path / "damaged", tmp_path / "pruned"
+    for copy in (damaged, pruned):
+        shutil.copytree(small_dataset, copy)
+        (copy / "features.parquet").unlink(missing_ok=True)
+    bad = [f"{NEW[0]}/{ACTIONS[0]}/002.mcap", f"{OLD[1]}/{ACTIONS[1]}/004.mcap"]
+    (damaged / bad[0]).write_bytes(b"not an mcap file")
+    data = (damaged / bad[1]).read_bytes()
+    (damaged / bad[1]).write_bytes(data[: len(data) * 9 // 10])
+    for name in bad:
+        (pruned / name).unlink()
+
+    with_bad = build_features(damaged)
+    without = build_features(pruned)
+    assert sorted(with_bad.quarantined["path"]) == sorted(bad)
+    out_bad = run_study(
+        "transfer", with_bad.frame, _config(tmp_path / "a"), quarantined=with_bad.quarantined
+    )
+    out_clean = run_study("transfer", without.frame, _config(tmp_path / "b"))
+    assert out_bad.results.read_bytes() == out_clean.results.read_bytes()
+    assert "Quarantined recordings (2)" in out_bad.text
+    assert all(name in out_bad.text for name in bad)
+
+
+def test_prior_groups_are_distinct_and_seeded() -> None:
+    old = [f"o{i}" for i in range(10)]
+    groups = prior_groups(old, 3, 10, seed=1)
+    assert len(set(groups)) == 10
+    assert all(len(set(g)) == 3 for g in groups)
+    assert groups == prior_groups(old, 3, 10, seed=1)
+    assert groups != prior_groups(old, 3, 10, seed=2)
+    assert prior_groups(old, 10, 10, seed=1) == [tuple(sorted(old))]
+
+
+def test_unknown_study_is_a_clear_error(features: pl.DataFrame, tmp_path: Path) -> None:
+    with pytest.raises(ReplayError, match="unknown study"):
+        run_study("nope", features, _config(tmp_path))
