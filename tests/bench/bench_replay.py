@@ -1,0 +1,122 @@
+"""Benchmark of the replay engine on the default simulated dataset (1950 recordings).
+
+Printed, measured in one run:
+
+- feature extraction of the whole dataset from the MCAP files (cold cache), with 1 and with
+  ``--workers`` processes, their ratio, and the time against the 60 s target;
+- the full ``transfer`` study with cached features (10 groups x 5 trials x ATIKT and baseline,
+  40 observations each), against the 3 minute target;
+- one ATIKT run of that study (5 new objects, 3 priors, 7 actions, 40 steps) on the dataset's
+  features: every action update timed side by side with the same update done by the
+  scikit-learn reference (tests/atikt/sklearn_reference.py), and their ratio.
+
+The dataset is recorded into the cache on first use (see ``atikt-replay study``).
+
+Run: ``python tests/bench/bench_replay.py [--workers 2] [--skip-study] [--skip-one-worker]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_atikt import TimedLearner, sklearn_old_models
+
+from replay._datasets import ensure_default_dataset
+from replay._executors import FeatureLookup, PoolExecutor, Split
+from replay._features import build_features
+from replay._session import fit_priors, prior_data
+from replay._studies import ACTIONS, StudyConfig, objects_of, prior_groups, run_study
+
+
+def extraction(root: Path, workers: int, *, one_worker: bool) -> None:
+    """Time the cold feature extraction of the whole dataset."""
+    times = {}
+    for count in ([1] if one_worker else []) + [workers]:
+        with tempfile.TemporaryDirectory() as scratch:
+            start = time.perf_counter()
+            table = build_features(root, workers=count, cache=Path(scratch) / "f.parquet")
+            times[count] = time.perf_counter() - start
+        rate = table.frame.height / times[count]
+        print(f"feature extraction, {count} worker(s): {times[count]:.1f} s ({rate:.0f} files/s)")
+    if one_worker:
+        print(f"  speed-up {workers} workers vs 1: {times[1] / times[workers]:.2f}x")
+    print(f"  against the 60 s target: {times[workers] / 60:.2f} of the budget")
+
+
+def study(root: Path, workers: int) -> None:
+    """Time the full transfer study with cached features."""
+    frame = build_features(root, workers=workers).frame
+    with tempfile.TemporaryDirectory() as scratch:
+        config = StudyConfig(out=Path(scratch), workers=workers)
+        start = time.perf_counter()
+        run_study("transfer", frame, config)
+        elapsed = time.perf_counter() - start
+    print(f"transfer study (100 runs of 40 steps), {workers} workers: {elapsed:.1f} s")
+    print(f"  against the 3 min target: {elapsed / 180:.2f} of the budget")
+
+
+def one_run(root: Path) -> None:
+    """Time every update of one ATIKT run next to the scikit-learn reference's."""
+    frame = build_features(root).frame
+    new, old = objects_of(frame)
+    priors_ids = prior_groups(old, 3, 1, seed=0)[0]
+    lookup = FeatureLookup(frame)
+    priors = fit_priors(prior_data(lookup, priors_ids, ACTIONS), seed=0)
+    split = Split.random(frame, new, ACTIONS, seed=0)
+    executor = PoolExecutor(lookup, new, split)
+    learner = TimedLearner(
+        ACTIONS,
+        len(new),
+        observe=executor,
+        available=executor.available,
+        priors=priors,
+        budget=40,
+        random_state=0,
+        reference=sklearn_old_models(priors),
+    )
+    learner.initialise()
+    learner.compare = True
+    steps = []
+    while not learner.done:
+        start = time.perf_counter()
+        learner.step()
+        steps.append(time.perf_counter() - start)
+    ours, theirs = sum(learner.ours), sum(learner.theirs)
+    print(f"one ATIKT run on the dataset ({len(learner.ours)} updates):")
+    for name, times in (("atikt       ", learner.ours), ("scikit-learn", learner.theirs)):
+        median = statistics.median(times) * 1e3
+        print(f"  {name} total {sum(times):.2f} s, median update {median:.1f} ms")
+    print(f"  speed ratio {theirs / ours:.1f}x; max |UNC gap| {max(learner.unc_gap):.1e} nats")
+
+
+def main() -> None:
+    """Parse options and run the measurements."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--skip-study", action="store_true")
+    parser.add_argument("--skip-one-worker", action="store_true")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    root = ensure_default_dataset(workers=args.workers)
+    print(f"dataset: {root}")
+    extraction(root, args.workers, one_worker=not args.skip_one_worker)
+    if not args.skip_study:
+        study(root, args.workers)
+    one_run(root)
+
+
+if __name__ == "__main__":
+    main()
