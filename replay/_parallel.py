@@ -30,7 +30,7 @@ def _pinned(function: Callable[[T], R], task: T) -> R:
 
 
 @contextlib.contextmanager
-def _dask_backend(scheduler: str) -> Iterator[None]:
+def _dask_backend(scheduler: str, timeout_s: float) -> Iterator[None]:
     """Route joblib to the Dask cluster at ``scheduler`` for the duration of the block."""
     try:
         from dask.distributed import Client  # noqa: PLC0415 (optional dependency)
@@ -41,7 +41,7 @@ def _dask_backend(scheduler: str) -> Iterator[None]:
         )
         raise ReplayError(msg) from err
     try:
-        client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
+        client = Client(scheduler, timeout=f"{timeout_s}s")  # type: ignore[no-untyped-call]
     except OSError as err:
         msg = f"--scheduler {scheduler}: cannot reach the Dask scheduler ({err}); check the address"
         raise ReplayError(msg) from err
@@ -59,6 +59,7 @@ def run_tasks(
     workers: int = 1,
     scheduler: str | None = None,
     on_done: Callable[[int], Any] | None = None,
+    connect_timeout_s: float = 10.0,
 ) -> list[R]:
     """Apply ``function`` to every task, in parallel, and return the results in task order.
 
@@ -68,6 +69,7 @@ def run_tasks(
         workers: Local worker processes; 1 runs in this process.
         scheduler: Address of a Dask scheduler (``tcp://host:8786``); overrides ``workers``.
         on_done: Called with the number of finished tasks after each one (for progress bars).
+        connect_timeout_s: How long to wait for the Dask scheduler.
 
     Returns:
         ``[function(task) for task in tasks]``, computed in parallel.
@@ -82,7 +84,7 @@ def run_tasks(
             if on_done is not None:
                 on_done(done)
         return results
-    backend = _dask_backend(scheduler) if scheduler else contextlib.nullcontext()
+    backend = _dask_backend(scheduler, connect_timeout_s) if scheduler else contextlib.nullcontext()
     n_jobs = -1 if scheduler else workers
     with backend:
         parallel = joblib.Parallel(n_jobs=n_jobs, return_as="generator")

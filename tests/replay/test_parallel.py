@@ -27,7 +27,7 @@ def test_zero_workers_is_refused() -> None:
 def test_unreachable_scheduler_is_a_clear_error() -> None:
     pytest.importorskip("dask.distributed")
     with pytest.raises(ReplayError, match="cannot reach the Dask scheduler"):
-        run_tasks(statistics.fmean, TASKS, scheduler="tcp://127.0.0.1:1")
+        run_tasks(statistics.fmean, TASKS, scheduler="tcp://127.0.0.1:1", connect_timeout_s=1.0)
 
 
 @pytest.mark.slow
