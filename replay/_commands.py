@@ -123,7 +123,13 @@ def _step_line(row: dict[str, Any]) -> str:
 @command(
     "learn",
     "one active-learning run, offline over recordings or live on a rig",
-    _DATASET,
+    arg(
+        "--recordings",
+        type=Path,
+        default=None,
+        help="dataset directory; live, where the prior objects' recordings come from "
+        "(default: the simulated dataset, recorded on first use)",
+    ),
     arg("--rig", default=None, help="run live on this rig (e.g. sim) instead of recordings"),
     arg("--new", default=None, help="new objects, comma-separated (default: the novel ones)"),
     arg("--priors", default=None, help="prior objects, comma-separated (default: 3 by seed)"),
@@ -138,7 +144,7 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     workers = _workers(args.workers)
-    prior_root = _dataset(args.recordings if args.rig is None else None, workers)
+    prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
     new_default, old = objects_of(table.frame)
     spec = RunSpec(

@@ -1,0 +1,59 @@
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import NEW
+
+from replay._cli import main
+
+
+def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    argv = ["learn", "--recordings", str(small_dataset), "--budget", "3", "--out", str(out)]
+    assert main([*argv, "--workers", "1"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("step")]
+    assert len(lines) == 4
+    assert "initial observations" in lines[0]
+    assert all("accuracy" in line for line in lines)
+    history = pl.read_parquet(out / "history.parquet")
+    assert history["step"].to_list() == [0, 1, 2, 3]
+    assert set(history["object"][1:]) <= set(NEW)
+    assert (out / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_live_learn_then_offline_replay_of_the_session_print_the_same_steps(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    common = ["--recordings", str(small_dataset), "--budget", "2", "--actions", "P1,S2"]
+    common += ["--workers", "1", "--seed", "4"]
+    live_out, replay_out = tmp_path / "live", tmp_path / "replay"
+    extra = ["--test-trials", "1"]
+    assert main(["learn", "--rig", "sim", *common, *extra, "--out", str(live_out)]) == 0
+    live = capsys.readouterr().out.splitlines()
+    session = str(live_out / "session")
+    assert main(["learn", "--session", session, *common, "--out", str(replay_out)]) == 0
+    replay = capsys.readouterr().out.splitlines()
+    assert [x for x in live if x.startswith("step")] == [x for x in replay if x.startswith("step")]
+    assert (live_out / "session" / "session.parquet").exists()
+
+
+def test_quick_study_prints_its_summary(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["study", "negative", "--recordings", str(small_dataset), "--quick"]
+    assert main([*argv, "--out", str(tmp_path), "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "| ATIKT |" in printed
+    assert (tmp_path / "summary.md").read_text() in printed
+
+
+def test_learn_refuses_a_missing_dataset(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "nowhere"
+    assert main(["learn", "--recordings", str(missing)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert str(missing) in err[0]
