@@ -1,5 +1,6 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
+from recorder._bagimport import ImportReport, import_bag
 from recorder._catalog import ActionKind, ActionSpec, ObjectSpec, load_actions, load_objects
 from recorder._dataset import (
     RecordingTask,
@@ -22,6 +23,7 @@ from recorder._stream import (
     SkinBlock,
     StreamItem,
 )
+from recorder._topicmap import TopicMap, load_topic_map
 from recorder._writer import (
     RecordingInfo,
     RecordingWriter,
@@ -29,12 +31,20 @@ from recorder._writer import (
     record_action,
     software_version,
 )
-from recorder.errors import CatalogError, OutputExistsError, RecorderError, RigError
+from recorder.errors import (
+    BagImportError,
+    CatalogError,
+    OutputExistsError,
+    RecorderError,
+    RigError,
+)
 
 __all__ = [
     "ActionKind",
     "ActionSpec",
+    "BagImportError",
     "CatalogError",
+    "ImportReport",
     "JointSample",
     "Modality",
     "ObjectSpec",
@@ -52,10 +62,13 @@ __all__ = [
     "SimulatedRig",
     "SkinBlock",
     "StreamItem",
+    "TopicMap",
     "WrittenRecording",
     "generate_dataset",
+    "import_bag",
     "load_actions",
     "load_objects",
+    "load_topic_map",
     "plan_dataset",
     "record_action",
     "recording_path",

@@ -9,6 +9,7 @@ traceback.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 from dataclasses import dataclass
@@ -48,6 +49,8 @@ if TYPE_CHECKING:
 
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
+#: Modules whose import registers further subcommands (``import-bag``).
+COMMAND_MODULES: tuple[str, ...] = ("recorder._import_command",)
 
 
 @dataclass(frozen=True, slots=True)
@@ -219,6 +222,8 @@ def _index(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser with every registered subcommand."""
+    for module in COMMAND_MODULES:
+        importlib.import_module(module)
     parser = argparse.ArgumentParser(
         prog=PROG, description="Record exploratory actions of a UR10 with skin into MCAP files."
     )

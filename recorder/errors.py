@@ -20,3 +20,7 @@ class OutputExistsError(RecorderError):
 
 class RigError(RecorderError):
     """A rig failed to connect, perform or disconnect."""
+
+
+class BagImportError(RecorderError):
+    """A bag or its topic map cannot be imported: unknown topic, type mismatch, bad window."""
