@@ -13,6 +13,8 @@ Nothing in a file depends on the wall clock: the same rig, seed and software giv
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import secrets
@@ -366,12 +368,49 @@ def _exists_error(final: Path) -> OutputExistsError:
     return OutputExistsError(msg)
 
 
+_FIXES = {
+    errno.ENOSPC: "the disk is full: free space, then record the action again",
+    errno.EDQUOT: "the disk quota is exhausted: free space, then record the action again",
+    errno.EACCES: "the directory is not writable: fix its permissions or choose another --out",
+    errno.EPERM: "the directory is not writable: fix its permissions or choose another --out",
+    errno.EROFS: "the file system is read-only: choose another --out",
+}
+
+
+def _fix(err: OSError) -> str:
+    """Return what to do about a failed file operation."""
+    return _FIXES.get(
+        err.errno or 0, "check free space and the directory, then record the action again"
+    )
+
+
 def _write_error(final: Path, err: OSError) -> RecorderError:
     """Return the error for a failed write (disk full, file system gone, ...)."""
     return RecorderError(
-        f"{final}: writing the recording failed ({err.strerror or err}); "
-        "check free space and the directory, then record the action again"
+        f"{final}: writing the recording failed ({err.strerror or err}); {_fix(err)}; "
+        "no file was left under this name"
     )
+
+
+def _create_error(final: Path, err: OSError) -> RecorderError:
+    """Return the error for a recording that cannot be created (directory missing, read-only)."""
+    return RecorderError(
+        f"{final}: cannot create the recording ({err.strerror or err}); {_fix(err)}"
+    )
+
+
+def _sync_directory(directory: Path) -> None:
+    """Make a new name in ``directory`` durable (best effort: not every system allows it)."""
+    try:
+        descriptor = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover (Windows cannot open directories)
+        return
+    try:
+        os.fsync(descriptor)
+    except OSError:  # pragma: no cover (some file systems refuse to sync a directory)
+        pass
+    finally:
+        os.close(descriptor)
 
 
 def _link_no_replace(temporary: Path, final: Path) -> None:
@@ -401,8 +440,7 @@ def _reserve_and_replace(temporary: Path, final: Path) -> None:
     except FileExistsError as err:
         raise _exists_error(final) from err
     except OSError as err:
-        msg = f"{final}: cannot create the recording ({err.strerror}); check the directory"
-        raise RecorderError(msg) from err
+        raise _create_error(final, err) from err
     temporary.replace(final)
 
 
@@ -466,8 +504,7 @@ class RecordingWriter:
             self._temporary = _temporary_path(self.path)
             self._stream = self._temporary.open("xb")
         except OSError as err:
-            msg = f"{self.path}: cannot create the recording ({err.strerror}); check --out"
-            raise RecorderError(msg) from err
+            raise _create_error(self.path, err) from err
         try:
             self._writer = self._start(self._stream)
         except BaseException as err:
@@ -553,6 +590,7 @@ class RecordingWriter:
             os.fsync(self._stream.fileno())
             self._stream.close()
             _link_no_replace(self._temporary, self.path)
+            _sync_directory(self.path.parent)
         except BaseException as err:
             self._discard()
             if isinstance(err, OSError):
@@ -568,12 +606,17 @@ class RecordingWriter:
         self._writer = None
 
     def _discard(self) -> None:
-        """Close and delete the temporary file."""
+        """Close and delete the temporary file (whatever closing it says: the disk may be full)."""
         self._writer = None
-        if self._stream is not None:
-            self._stream.close()
-        if self._temporary is not None:
-            self._temporary.unlink(missing_ok=True)
+        try:
+            if self._stream is not None:
+                self._stream.close()
+        except OSError:
+            pass  # the buffered rest could not be written; the file is deleted anyway
+        finally:
+            if self._temporary is not None:
+                with contextlib.suppress(OSError):  # a leftover .part is never read as complete
+                    self._temporary.unlink(missing_ok=True)
 
 
 def record_action(

@@ -27,10 +27,12 @@ from typing import TYPE_CHECKING, Any
 import joblib
 import polars as pl
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-from replay._container import read_summary
-from replay._reader import MODALITIES, parse_metadata, read_recording
+from replay._container import PART_SUFFIX, read_summary, recover_command
+from replay._reader import MODALITIES, check_dataset_location, parse_metadata, read_recording
+from replay._recover import salvage
 from replay.errors import ReplayError
 
 if TYPE_CHECKING:
@@ -38,10 +40,11 @@ if TYPE_CHECKING:
 
     from replay._container import ContainerSummary
     from replay._reader import ActionRecording
+    from replay._recover import RecoveryReport
 
 PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
-COMMAND_MODULES: tuple[str, ...] = ("replay._commands",)
+COMMAND_MODULES: tuple[str, ...] = ("replay._commands", "replay._view_commands")
 _NS_PER_S = 1e9
 
 
@@ -189,23 +192,72 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def one_line(text: str) -> str:
+    """Return ``text`` on one line (an error message printed by the CLI)."""
+    return " ".join(text.split())
+
+
 def _check_one(path: Path) -> str | None:
     """Return None if the recording reads and validates, else the error message."""
     try:
-        read_recording(path)
+        check_dataset_location(read_recording(path))
     except ReplayError as err:
-        return str(err)
+        return one_line(str(err))
     return None
+
+
+def _unfinished(root: Path) -> list[str]:
+    """Return one problem per unfinished recording (``*.mcap.part``) under ``root``."""
+    return [
+        f"{part}: an unfinished recording (the recorder was interrupted); salvage it with "
+        f"{recover_command(part)}"
+        for part in sorted(root.rglob(f"*{PART_SUFFIX}"))
+    ]
+
+
+def _print_salvage(report: RecoveryReport) -> None:
+    """Print what a salvage kept, per channel."""
+    console = Console()
+    lost = f"; the rest is lost ({report.stopped})" if report.stopped else ""
+    console.print(
+        f"salvaged {report.messages} messages from {report.source} into {report.target}: "
+        f"{report.intact_bytes} of {report.source_bytes} bytes intact, "
+        f"{report.damaged_chunks} damaged chunks skipped{lost}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    table = Table("channel", "messages kept", "seconds kept", title="kept per channel")
+    for channel in report.channels:
+        table.add_row(channel.topic, str(channel.messages), f"{channel.seconds:.3f}")
+    console.print(table)
+
+
+def _recover(path: Path, out: Path | None) -> int:
+    """Salvage one file (``check --recover``)."""
+    if path.is_dir():
+        msg = f"{path}: --recover salvages one file; give the *.mcap.part or damaged *.mcap file"
+        raise ReplayError(msg)
+    _print_salvage(salvage(path, out))
+    return 0
 
 
 @command(
     "check",
-    "validate recordings (CRCs, schema version, channels, decoding); exit 1 if any is bad",
-    arg("path", type=Path, help="a recording (.mcap) or a dataset directory"),
+    "validate recordings (CRCs, schema version, channels, decoding, dataset path and index); "
+    "exit 1 if any is bad; --recover salvages an unfinished or damaged file",
+    arg("path", type=Path, help="a recording (.mcap or .mcap.part) or a dataset directory"),
     arg("--workers", type=int, help="worker processes for a directory (default: all cores)"),
+    arg(
+        "--recover",
+        action="store_true",
+        help="copy every intact message of PATH into <name>.recovered.mcap (PATH is unchanged)",
+    ),
+    arg("--out", type=Path, help="with --recover: the salvaged file (must not exist)"),
 )
 def _check(args: argparse.Namespace) -> int:
     path = _existing(args.path)
+    if args.recover:
+        return _recover(path, args.out)
     files = dataset_files(path) if path.is_dir() else [path]
     workers = args.workers or os.cpu_count() or 1
     problems = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)))(
@@ -213,13 +265,16 @@ def _check(args: argparse.Namespace) -> int:
     )
     console = Console(stderr=True)
     bad = [problem for problem in problems if problem is not None]
-    for problem in bad:
-        console.print(f"[red]FAIL[/red] {problem}", highlight=False, soft_wrap=True)
+    unfinished = _unfinished(path) if path.is_dir() else []
+    for problem in bad + unfinished:
+        console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
     Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
-    if not files:
+    if unfinished:
+        Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})")
+    if not files and not unfinished:
         msg = f"{path}: no recordings (*.mcap) found"
         raise ReplayError(msg)
-    return 1 if bad else 0
+    return 1 if bad or unfinished else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -244,6 +299,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status: int = args.run(args)
     except ReplayError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)  # noqa: T201 (one line, no traceback)
+        print(f"{PROG}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201 (no traceback)
         return 1
     return status

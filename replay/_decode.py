@@ -76,18 +76,29 @@ class _Walker:
     def align(self, size: int) -> None:
         self.pos = _HEADER + ((self.pos - _HEADER + size - 1) & -size)
 
-    def length(self) -> int:
+    def length(self, path: str) -> int:
+        """Read a uint32 length prefix; refuse one longer than the rest of the payload."""
         self.align(4)
         (value,) = struct.unpack_from(f"{self.order}I", self.data, self.pos)
         self.layout.fixed.append((self.pos, self.pos + 4))
         self.pos += 4
+        if value > len(self.data) - self.pos:
+            msg = (
+                f"field {path}: length prefix {value} at byte {self.pos - 4} exceeds the "
+                f"{len(self.data) - self.pos} bytes left in the payload"
+            )
+            raise RecordingError(msg)
         return int(value)
 
     def string(self, path: str) -> None:
-        size = self.length()
+        size = self.length(path)
         self.layout.fixed.append((self.pos, self.pos + size))
         raw = self.data[self.pos : self.pos + max(size - 1, 0)]
-        self.layout.strings[path] = raw.decode("utf-8")
+        try:
+            self.layout.strings[path] = raw.decode("utf-8")
+        except UnicodeDecodeError as err:
+            msg = f"field {path}: the string is not UTF-8 ({err})"
+            raise RecordingError(msg) from err
         self.pos += size
 
     def primitive(self, path: str, typename: str, count: int) -> None:
@@ -111,7 +122,7 @@ class _Walker:
         elif nodetype == Nodetype.ARRAY:
             self.element(path, details[0], details[1])
         else:
-            self.element(path, details[0], self.length())
+            self.element(path, details[0], self.length(path))
 
     def element(self, path: str, desc: tuple[int, Any], count: int) -> None:
         """Walk ``count`` elements of an array, a sequence, or one primitive."""
@@ -133,7 +144,8 @@ def message_layout(store: Typestore, msgtype: str, data: bytes) -> Layout:
     """Return the layout of one CDR payload of ``msgtype``.
 
     Raises:
-        RecordingError: The payload is shorter than its layout or has an unknown header.
+        RecordingError: The payload is shorter than its layout, has an unknown header, a
+            length prefix beyond its end, or a string that is not UTF-8.
         struct.error: A length prefix lies beyond the payload.
     """
     if len(data) < _HEADER or data[0] != 0 or data[1] not in {0, 1}:
@@ -201,7 +213,7 @@ def decode_topic(store: Typestore, msgtype: str, payloads: Sequence[bytes]) -> l
         first = int(remaining[0])
         try:
             layout = message_layout(store, msgtype, payloads[first])
-        except struct.error as err:
+        except (struct.error, RecordingError) as err:
             msg = f"{msgtype}: message {first} is malformed ({err})"
             raise RecordingError(msg) from err
         same = remaining[lengths[remaining] == lengths[first]]

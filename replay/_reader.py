@@ -18,6 +18,16 @@ import numpy as np
 
 from replay._container import RawChannel, read_container
 from replay._decode import DecodedGroup, decode_topic, gather
+from replay._validate import (
+    check_definitions,
+    check_duration,
+    check_finite,
+    check_location,
+    check_parameters,
+    check_phases,
+    check_stamps,
+    time_scale,
+)
 from replay.errors import RecordingError
 from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
 
@@ -34,6 +44,8 @@ METADATA_NAME = "atikt.recording"
 MODALITIES = ("force", "temperature", "acceleration", "proximity")
 
 _NS_PER_S = 1_000_000_000
+_MAX_PERIOD_NS = 2**40  # about 18 minutes: a longer sample period is a damaged field
+_DAMAGED = "the file is damaged: restore it from a copy or record the action again"
 _SKIN_TYPES = {
     "force": "SkinForce",
     "temperature": "SkinTemperature",
@@ -273,7 +285,7 @@ def parse_metadata(path: Path, records: Mapping[str, Mapping[str, str]]) -> Reco
     try:
         version = int(record["schema_version"])
         _check_schema_version(path, version)
-        return RecordingMetadata(
+        metadata = RecordingMetadata(
             object_id=record["object_id"],
             object_name=record["object_name"],
             object_novel=bool(json.loads(record["object_novel"])),
@@ -290,6 +302,8 @@ def parse_metadata(path: Path, records: Mapping[str, Mapping[str, str]]) -> Reco
         )
     except (ValueError, TypeError, AttributeError) as err:
         raise _metadata_error(path, f"malformed metadata record ({err})") from err
+    check_parameters(path, metadata.action_parameters)
+    return metadata
 
 
 def check_contract(container: Container) -> None:
@@ -321,21 +335,66 @@ def check_contract(container: Container) -> None:
                 f"{channel.msgtype} (ros2msg/cdr); not an atikt recording"
             )
             raise RecordingError(msg)
+    check_definitions(path, list(summary.channels.values()))
 
 
-def _stamps(groups: Sequence[DecodedGroup], total: int) -> NDArray[np.int64]:
+def _groups(path: Path, raw: RawChannel, msgtype: str) -> list[DecodedGroup]:
+    """Decode a channel's payloads (see :func:`replay._decode.decode_topic`).
+
+    Raises:
+        RecordingError: A payload is malformed; the message names the file and the channel.
+    """
+    try:
+        return decode_topic(build_typestore(), msgtype, raw.payloads)
+    except RecordingError as err:
+        msg = f"{path}: {raw.info.topic}: {err}; {_DAMAGED}"
+        raise RecordingError(msg) from err
+
+
+def _gather(path: Path, topic: str, groups: Sequence[DecodedGroup], name: str) -> NDArray[Any]:
+    """Return field ``name`` of every message (see :func:`replay._decode.gather`).
+
+    Raises:
+        RecordingError: The field's length differs between messages.
+    """
+    total = sum(group.indices.size for group in groups)
+    try:
+        return gather(groups, name, total)
+    except RecordingError as err:
+        msg = f"{path}: {topic}: {err}; {_DAMAGED}"
+        raise RecordingError(msg) from err
+
+
+def _to_ns(path: Path, topic: str, sec: NDArray[Any], nanosec: NDArray[Any]) -> NDArray[np.int64]:
+    """Return ``builtin_interfaces/Time`` fields as int64 ns.
+
+    Raises:
+        RecordingError: A nanosecond field is not below one second.
+    """
+    if nanosec.size and int(nanosec.max()) >= _NS_PER_S:
+        msg = f"{path}: {topic}: a stamp has {int(nanosec.max())} nanoseconds; {_DAMAGED}"
+        raise RecordingError(msg)
+    return sec.astype(np.int64) * _NS_PER_S + nanosec.astype(np.int64)
+
+
+def _stamps(path: Path, topic: str, groups: Sequence[DecodedGroup]) -> NDArray[np.int64]:
     """Return ``header.stamp`` of every message as int64 ns."""
-    sec = gather(groups, "header.stamp.sec", total)[:, 0].astype(np.int64)
-    nanosec = gather(groups, "header.stamp.nanosec", total)[:, 0].astype(np.int64)
-    return sec * _NS_PER_S + nanosec
+    sec = _gather(path, topic, groups, "header.stamp.sec")[:, 0]
+    return _to_ns(path, topic, sec, _gather(path, topic, groups, "header.stamp.nanosec")[:, 0])
 
 
-def _ordered(stamps: NDArray[np.int64], *arrays: NDArray[Any]) -> list[NDArray[Any]]:
-    """Return stamps and arrays sorted by stamp (stable), all read-only."""
-    if stamps.size > 1 and bool(np.any(np.diff(stamps) < 0)):
-        order = np.argsort(stamps, kind="stable")
-        stamps, arrays = stamps[order], tuple(a[order] for a in arrays)
-    return [_frozen(np.ascontiguousarray(a)) for a in (stamps, *arrays)]
+def _checked(
+    path: Path, topic: str, stamps: NDArray[np.int64], **signals: NDArray[Any]
+) -> list[NDArray[Any]]:
+    """Check stamps (strictly increasing) and signals (finite); return them read-only.
+
+    Raises:
+        RecordingError: A stamp repeats or goes back, or a value is not finite.
+    """
+    check_stamps(path, topic, stamps)
+    for what, values in signals.items():
+        check_finite(path, topic, stamps, values, what)
+    return [_frozen(np.ascontiguousarray(a)) for a in (stamps, *signals.values())]
 
 
 @dataclass(frozen=True, slots=True)
@@ -349,29 +408,55 @@ class _SkinPart:
     cells: NDArray[np.uint16]
 
 
+def _block_shape(path: Path, topic: str, group: DecodedGroup) -> tuple[int, int, int]:
+    """Return (samples, cells, channels) shared by a group of skin blocks.
+
+    Raises:
+        RecordingError: The blocks' shape fields differ or disagree with their data.
+    """
+    fields = ("n_samples", "n_cells", "n_channels")
+    shape = np.concatenate([group.numeric[f].astype(np.int64) for f in fields], axis=1)
+    n_samples, n_cells, n_channels = (int(v) for v in shape[0])  # Python ints: no overflow
+    size = group.numeric["data"].shape[1]
+    if not (bool(np.all(shape == shape[0])) and n_samples * n_cells * n_channels == size):
+        msg = f"{path}: {topic}: n_samples * n_cells * n_channels does not match len(data); "
+        raise RecordingError(msg + _DAMAGED)
+    return n_samples, n_cells, n_channels
+
+
+def _periods(path: Path, topic: str, group: DecodedGroup) -> NDArray[np.int64]:
+    """Return the blocks' sample periods, ns.
+
+    Raises:
+        RecordingError: A period is not positive or absurdly long.
+    """
+    periods = group.numeric["sample_period_ns"][:, 0]
+    low, high = int(periods.min()), int(periods.max())
+    if not 0 < low <= high < _MAX_PERIOD_NS:
+        msg = f"{path}: {topic}: sample_period_ns {low}..{high} is not a positive period; "
+        raise RecordingError(msg + _DAMAGED)
+    return periods.astype(np.int64)
+
+
 def _skin_part(path: Path, topic: str, group: DecodedGroup) -> _SkinPart:
     """Unpack one group of skin blocks into per-sample stamps and data, vectorised.
 
     Raises:
-        RecordingError: A block's shape fields disagree with its data.
+        RecordingError: A block's fields are inconsistent or of another schema version.
     """
     numeric = group.numeric
-    shape = np.concatenate([numeric[f] for f in ("n_samples", "n_cells", "n_channels")], axis=1)
-    data = numeric["data"]
-    if not (bool(np.all(shape == shape[0])) and int(shape[0].prod()) == data.shape[1]):
-        msg = f"{path}: {topic}: n_samples * n_cells * n_channels does not match len(data)"
-        raise RecordingError(msg)
-    n_samples, n_cells, n_channels = (int(v) for v in shape[0])
+    n_samples, n_cells, n_channels = _block_shape(path, topic, group)
+    _check_versions(path, topic, numeric["schema_version"])
+    stamp = numeric["header.stamp.sec"][:, 0], numeric["header.stamp.nanosec"][:, 0]
+    firsts = _to_ns(path, topic, *stamp)
+    periods = _periods(path, topic, group)
     n_blocks = group.indices.size
-    firsts = numeric["header.stamp.sec"][:, 0].astype(np.int64) * _NS_PER_S
-    firsts += numeric["header.stamp.nanosec"][:, 0]
-    periods = numeric["sample_period_ns"][:, 0].astype(np.int64)
     within = np.tile(np.arange(n_samples, dtype=np.int64), n_blocks)
     return _SkinPart(
         message=np.repeat(group.indices, n_samples),
         stamps=np.repeat(firsts, n_samples) + within * np.repeat(periods, n_samples),
         periods=periods,
-        data=data.reshape(n_blocks * n_samples, n_cells, n_channels),
+        data=numeric["data"].reshape(n_blocks * n_samples, n_cells, n_channels),
         cells=numeric["cell_ids"][0].astype(np.uint16),
     )
 
@@ -379,7 +464,7 @@ def _skin_part(path: Path, topic: str, group: DecodedGroup) -> _SkinPart:
 def _decode_skin(path: Path, modality: str, raw: RawChannel) -> SkinSeries:
     """Decode a skin channel into per-sample stamps and a (n, cells, channels) array."""
     msgtype = full_type_name(_SKIN_TYPES[modality])
-    groups = decode_topic(build_typestore(), msgtype, raw.payloads)
+    groups = _groups(path, raw, msgtype)
     parts = [_skin_part(path, raw.info.topic, group) for group in groups]
     shapes = {part.data.shape[1:] for part in parts}
     if len(shapes) != 1:
@@ -390,7 +475,7 @@ def _decode_skin(path: Path, modality: str, raw: RawChannel) -> SkinSeries:
     if len(parts) > 1:  # restore file order: by message, then sample (stable)
         order = np.argsort(np.concatenate([part.message for part in parts]), kind="stable")
         stamps, data = stamps[order], data[order]
-    stamps, data = _ordered(stamps, data)
+    stamps, data = _checked(path, raw.info.topic, stamps, **{modality: data})
     return SkinSeries(
         modality=modality,
         stamps_ns=stamps,
@@ -400,44 +485,148 @@ def _decode_skin(path: Path, modality: str, raw: RawChannel) -> SkinSeries:
     )
 
 
-def _decode_joints(raw: RawChannel) -> JointStates:
+def _joint_names(path: Path, topic: str, groups: Sequence[DecodedGroup]) -> tuple[str, ...]:
+    """Return the joint names, the same in every message.
+
+    Raises:
+        RecordingError: Messages name different joints.
+    """
+    named = set()
+    for group in groups:
+        count = sum(1 for key in group.strings if key.startswith("name["))
+        named.add(tuple(group.strings[f"name[{i}]"] for i in range(count)))
+    if len(named) != 1:
+        msg = f"{path}: {topic}: messages name different joints {sorted(named)}; {_DAMAGED}"
+        raise RecordingError(msg)
+    return named.pop()
+
+
+def _decode_joints(path: Path, raw: RawChannel) -> JointStates:
     """Decode ``sensor_msgs/msg/JointState`` messages."""
-    msgtype = raw.info.msgtype
-    groups = decode_topic(build_typestore(), msgtype, raw.payloads)
-    total = len(raw.payloads)
-    strings = groups[0].strings
-    count = sum(1 for key in strings if key.startswith("name["))
-    names = tuple(strings[f"name[{i}]"] for i in range(count))
-    stamps, position, velocity, effort = _ordered(
-        _stamps(groups, total),
-        *(gather(groups, field, total) for field in ("position", "velocity", "effort")),
+    topic = raw.info.topic
+    groups = _groups(path, raw, raw.info.msgtype)
+    names = _joint_names(path, topic, groups)
+    columns = {
+        field: _gather(path, topic, groups, field) for field in ("position", "velocity", "effort")
+    }
+    if any(values.shape[1] != len(names) for values in columns.values()):
+        widths = {field: values.shape[1] for field, values in columns.items()}
+        msg = f"{path}: {topic}: {len(names)} joint names but {widths} values; {_DAMAGED}"
+        raise RecordingError(msg)
+    stamps, position, velocity, effort = _checked(
+        path, topic, _stamps(path, topic, groups), **columns
     )
     return JointStates(names, stamps, position, velocity, effort)
 
 
-def _decode_poses(raw: RawChannel) -> TcpPoses:
+def _decode_poses(path: Path, raw: RawChannel) -> TcpPoses:
     """Decode ``geometry_msgs/msg/PoseStamped`` messages."""
-    groups = decode_topic(build_typestore(), raw.info.msgtype, raw.payloads)
-    total = len(raw.payloads)
+    topic = raw.info.topic
+    groups = _groups(path, raw, raw.info.msgtype)
 
     def columns(prefix: str, axes: str) -> NDArray[np.float64]:
-        return np.concatenate([gather(groups, f"{prefix}.{a}", total) for a in axes], axis=1)
+        fields = [_gather(path, topic, groups, f"{prefix}.{a}") for a in axes]
+        return np.concatenate(fields, axis=1)
 
-    stamps, position, orientation = _ordered(
-        _stamps(groups, total), columns("pose.position", "xyz"), columns("pose.orientation", "xyzw")
+    stamps, position, orientation = _checked(
+        path,
+        topic,
+        _stamps(path, topic, groups),
+        position=columns("pose.position", "xyz"),
+        orientation=columns("pose.orientation", "xyzw"),
     )
     return TcpPoses(groups[0].strings["header.frame_id"], stamps, position, orientation)
 
 
-def _decode_phases(raw: RawChannel) -> tuple[PhaseStart, ...]:
-    """Decode the action events into phase starts, in time order."""
-    store = build_typestore()
-    marks = []
-    for payload in raw.payloads:
-        event: Any = store.deserialize_cdr(payload, raw.info.msgtype)
-        stamp = int(event.header.stamp.sec) * _NS_PER_S + int(event.header.stamp.nanosec)
-        marks.append(PhaseStart(str(event.phase), stamp))
-    return tuple(sorted(marks, key=lambda mark: mark.start_ns))
+def _check_versions(path: Path, topic: str, versions: NDArray[Any]) -> None:
+    """Check the ``schema_version`` field of a channel's messages.
+
+    Raises:
+        RecordingError: A message has another version than this software reads.
+    """
+    found = sorted({int(v) for v in np.unique(versions)} - {SCHEMA_VERSION})
+    if found:
+        msg = (
+            f"{path}: {topic}: messages of schema version {found[0]}, this software reads "
+            f"version {SCHEMA_VERSION}; read the file with the atikt release that wrote it "
+            "(or upgrade atikt: 'pip install -U atikt')"
+        )
+        raise RecordingError(msg)
+
+
+def _check_event_subject(path: Path, group: DecodedGroup, metadata: RecordingMetadata) -> None:
+    """Check that action events name the object and action of the metadata record.
+
+    Raises:
+        RecordingError: They name another object, action or trial.
+    """
+    said = {"object_id": metadata.object_id, "action_id": metadata.action_id}
+    events = {key: group.strings[key] for key in said}
+    trials = {int(v) for v in np.unique(group.numeric["trial"])}
+    if events != said or trials != {metadata.trial}:
+        msg = (
+            f"{path}: the action events are about {events['object_id']} "
+            f"{events['action_id']} trial {sorted(trials)}, the metadata record about "
+            f"{metadata.object_id} {metadata.action_id} trial {metadata.trial}; {_DAMAGED}"
+        )
+        raise RecordingError(msg)
+
+
+def _decode_phases(
+    path: Path, raw: RawChannel, metadata: RecordingMetadata
+) -> tuple[PhaseStart, ...]:
+    """Decode the action events into phase starts, in file order, and check them."""
+    topic = raw.info.topic
+    groups = _groups(path, raw, raw.info.msgtype)
+    stamps = _stamps(path, topic, groups)
+    names = [""] * stamps.size
+    for group in groups:
+        _check_versions(path, topic, group.numeric["schema_version"])
+        _check_event_subject(path, group, metadata)
+        for index in group.indices:
+            names[int(index)] = group.strings["phase"]
+    marks = tuple(PhaseStart(name, int(stamp)) for name, stamp in zip(names, stamps, strict=True))
+    check_phases(path, marks)
+    return marks
+
+
+def _check_duration(recording: ActionRecording) -> None:
+    """Check the execute phase and the skin channels against the action's duration.
+
+    Raises:
+        RecordingError: The action is shorter than its parameters say.
+    """
+    path, meta = recording.path, recording.metadata
+    duration_s = meta.action_parameters.get("duration_s", 0.0) * time_scale(path, meta.rig)
+    coverage = {}
+    for modality in MODALITIES:
+        series = recording.skin(modality)
+        first = int(series.stamps_ns[0]) if series.stamps_ns.size else recording.end_ns
+        last = int(series.stamps_ns[-1]) + series.period_ns if series.stamps_ns.size else 0
+        coverage[_TOPICS[full_type_name(_SKIN_TYPES[modality])]] = (first, last)
+    execute = recording.phase_range("execute")
+    check_duration(path, (meta.action_id, duration_s), execute, coverage)
+
+
+def check_dataset_location(recording: ActionRecording) -> None:
+    """Check a recording inside a dataset against its path and its row of the dataset index.
+
+    :func:`read_recording` checks a file on its own; this adds the dataset's view (used by
+    ``atikt-replay check`` and ``info``). Outside a dataset (no ``index.parquet`` three
+    levels up) nothing is checked.
+
+    Raises:
+        RecordingError: The metadata says another object, action or trial than the path, or
+            the index says another object, action, trial, seed or size.
+    """
+    path, meta = recording.path, recording.metadata
+    said = {key: getattr(meta, key) for key in ("object_id", "action_id", "trial", "seed")}
+    try:
+        size = Path(path).stat().st_size
+    except OSError as err:
+        msg = f"{path}: cannot read the recording ({err.strerror}); check the path"
+        raise RecordingError(msg) from err
+    check_location(path, said, size)
 
 
 def decode_recording(container: Container) -> ActionRecording:
@@ -454,22 +643,19 @@ def decode_recording(container: Container) -> ActionRecording:
         modality: _decode_skin(path, modality, topics[_TOPICS[full_type_name(name)]])
         for modality, name in _SKIN_TYPES.items()
     }
-    try:
-        phases = _decode_phases(topics[_TOPICS[full_type_name("ActionEvent")]])
-    except Exception as err:  # rosbags raises SerdeError, struct.error, ...
-        msg = f"{path}: malformed action event ({err}); record the action again"
-        raise RecordingError(msg) from err
-    return ActionRecording(
+    recording = ActionRecording(
         path=path,
         metadata=metadata,
         force=skins["force"],
         temperature=skins["temperature"],
         acceleration=skins["acceleration"],
         proximity=skins["proximity"],
-        joints=_decode_joints(topics[_TOPICS["sensor_msgs/msg/JointState"]]),
-        tcp=_decode_poses(topics[_TOPICS["geometry_msgs/msg/PoseStamped"]]),
-        phases=phases,
+        joints=_decode_joints(path, topics[_TOPICS["sensor_msgs/msg/JointState"]]),
+        tcp=_decode_poses(path, topics[_TOPICS["geometry_msgs/msg/PoseStamped"]]),
+        phases=_decode_phases(path, topics[_TOPICS[full_type_name("ActionEvent")]], metadata),
     )
+    _check_duration(recording)
+    return recording
 
 
 def read_recording(path: Path | str) -> ActionRecording:

@@ -42,7 +42,8 @@ Actions = dict[str, ActionSpec]
 
 
 def _info(obj: ObjectSpec, action: ActionSpec, trial: int = 1, seed: int = 0) -> RecordingInfo:
-    return RecordingInfo(obj.id, obj.name, obj.novel, action, trial, {"kind": "fake"}, seed)
+    rig = FakeRig(seed=seed).describe()  # the time scale of its actions, for the reader
+    return RecordingInfo(obj.id, obj.name, obj.novel, action, trial, rig, seed)
 
 
 def _record(

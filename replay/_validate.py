@@ -1,0 +1,293 @@
+"""Contract checks on what a recording holds, beyond an intact container.
+
+Each check raises :class:`replay.errors.RecordingError` naming the file, the offending value
+and the fix; none of them repairs or reorders data silently:
+
+- message definitions: a contract channel's custom type must be defined as this software
+  defines it (a file written under another schema version is refused, not misread);
+- stamps: every channel's sensor stamps strictly increase in file order (a duplicated or
+  reordered message is refused);
+- values: no NaN or infinity in any signal or action parameter;
+- phases: the action events are known phases in their order (approach, contact, execute,
+  retract, end), strictly increasing in time, and include ``execute``;
+- duration: the execute phase lasts as long as the action's ``duration_s`` says, and every
+  skin channel covers it. A rig that runs actions faster than real time (a test rig) says
+  so with a ``time_scale`` entry in its description (``rig`` metadata); durations are scaled
+  by it. The tolerance is :data:`DURATION_TOLERANCE` of the duration plus 1 ms;
+- location: a recording inside a dataset (``<root>/<object>/<action>/<trial>.mcap`` with
+  ``<root>/index.parquet``) must say the object, action and trial its path says, and agree
+  with its row of the index.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import polars as pl
+
+from replay.errors import RecordingError
+from schemas import PACKAGE, SCHEMA_VERSION, build_typestore
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+    from numpy.typing import NDArray
+
+    from replay._container import ChannelInfo
+
+#: The action phases, in the order a recording has them.
+PHASES = ("approach", "contact", "execute", "retract", "end")
+#: How much shorter than ``duration_s`` an execute phase may be (relative; plus 1 ms).
+DURATION_TOLERANCE = 0.01
+#: File name of a dataset's index, beside the object directories.
+INDEX_NAME = "index.parquet"
+
+_NS_PER_S = 1_000_000_000
+_SLACK_NS = 1_000_000
+_TRIAL_NAME = re.compile(r"(\d+)(?:\..*)?\.mcap")
+_RERECORD = "the file is damaged or was not written by atikt-record: record the action again"
+
+
+def _normalized(definition: str) -> list[str]:
+    """Return the main message of a ``ros2msg`` definition without comments or layout."""
+    main = re.split(r"^=+\s*$", definition, maxsplit=1, flags=re.MULTILINE)[0]
+    lines = (" ".join(line.split("#", 1)[0].split()) for line in main.splitlines())
+    return [line.replace("/msg/", "/") for line in lines if line]
+
+
+@functools.cache
+def _own_definition(msgtype: str) -> tuple[str, ...]:
+    """Return this software's normalized definition of ``msgtype``."""
+    text, _ = build_typestore().generate_msgdef(msgtype, ros_version=2)
+    return tuple(_normalized(text))
+
+
+def check_definitions(path: Path, channels: Sequence[ChannelInfo]) -> None:
+    """Check that the project's own message types are defined as this software defines them.
+
+    Raises:
+        RecordingError: A channel's definition of a ``tactile_msgs`` type differs.
+    """
+    for info in channels:
+        if not info.msgtype.startswith(f"{PACKAGE}/") or not info.definition:
+            continue
+        if tuple(_normalized(info.definition)) != _own_definition(info.msgtype):
+            msg = (
+                f"{path}: channel {info.topic} defines {info.msgtype} differently from this "
+                f"software (schema version {SCHEMA_VERSION}): the file was written under "
+                "another schema version; read it with the atikt release that wrote it, or "
+                "upgrade atikt ('pip install -U atikt')"
+            )
+            raise RecordingError(msg)
+
+
+def check_stamps(path: Path, topic: str, stamps: NDArray[np.int64]) -> None:
+    """Check that a channel's sensor stamps strictly increase in file order.
+
+    Raises:
+        RecordingError: A stamp repeats or goes back; the message gives the first one.
+    """
+    if stamps.size < 2:  # noqa: PLR2004 (a pair is the smallest step)
+        return
+    steps = np.diff(stamps)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size == 0:
+        return
+    index = int(bad[0]) + 1
+    what = "repeats" if steps[index - 1] == 0 else "goes back from"
+    msg = (
+        f"{path}: {topic}: sample {index} has stamp {int(stamps[index])} ns, which {what} "
+        f"{int(stamps[index - 1])} ns (duplicated or reordered messages); {_RERECORD}"
+    )
+    raise RecordingError(msg)
+
+
+def check_finite(
+    path: Path, topic: str, stamps: NDArray[np.int64], values: NDArray[Any], what: str
+) -> None:
+    """Check that a signal has no NaN or infinite value.
+
+    Args:
+        path: The recording.
+        topic: Its channel.
+        stamps: One stamp per sample, shape (n,).
+        values: Samples, shape (n, ...).
+        what: Name of the signal in the message.
+
+    Raises:
+        RecordingError: A value is not finite; the message gives the first one.
+    """
+    finite = np.isfinite(values).reshape(values.shape[0], -1).all(axis=1)
+    if bool(finite.all()):
+        return
+    index = int(np.argmin(finite))
+    count = int(np.size(values) - np.count_nonzero(np.isfinite(values)))
+    msg = (
+        f"{path}: {topic}: {count} {what} values are NaN or infinite, the first in sample "
+        f"{index} (stamp {int(stamps[index])} ns); a sensor or driver fault: check the rig "
+        "and record the action again"
+    )
+    raise RecordingError(msg)
+
+
+def check_parameters(path: Path, parameters: Mapping[str, float]) -> None:
+    """Check that the action's parameters are finite and not negative.
+
+    Raises:
+        RecordingError: A parameter is NaN, infinite or negative.
+    """
+    for name, value in parameters.items():
+        if not math.isfinite(value) or value < 0:
+            msg = (
+                f"{path}: action parameter {name} = {value} in the metadata record; "
+                f"parameters are finite and >= 0: {_RERECORD}"
+            )
+            raise RecordingError(msg)
+
+
+def check_phases(path: Path, phases: Sequence[tuple[str, int]]) -> None:
+    """Check the action events: known phases, in order, strictly increasing, with execute.
+
+    Raises:
+        RecordingError: The first violation.
+    """
+    names = [name for name, _ in phases]
+    ranks = [PHASES.index(name) if name in PHASES else -1 for name in names]
+    stamps = [stamp for _, stamp in phases]
+    in_order = all(b > a for a, b in itertools.pairwise(ranks))
+    increasing = all(b > a for a, b in itertools.pairwise(stamps))
+    if -1 in ranks or not in_order or not increasing or "execute" not in names:
+        listed = ", ".join(f"{name} at {stamp} ns" for name, stamp in phases) or "none"
+        msg = (
+            f"{path}: the action events ({listed}) are not the phases "
+            f"{', '.join(PHASES)} in this order with increasing stamps and an execute phase; "
+            f"{_RERECORD}"
+        )
+        raise RecordingError(msg)
+
+
+def time_scale(path: Path, rig: Mapping[str, str]) -> float:
+    """Return the rig's ``time_scale`` (1 when it has none).
+
+    Raises:
+        RecordingError: The entry is not a positive finite number.
+    """
+    text = rig.get("time_scale", "1")
+    try:
+        scale = float(text)
+    except ValueError:
+        scale = math.nan
+    if not (math.isfinite(scale) and scale > 0):
+        msg = f"{path}: rig time_scale {text!r} in the metadata record is not a positive number; "
+        raise RecordingError(msg + _RERECORD)
+    return scale
+
+
+def check_duration(
+    path: Path,
+    action: tuple[str, float],
+    execute: tuple[int, int],
+    coverage: Mapping[str, tuple[int, int]],
+) -> None:
+    """Check that the execute phase and every skin channel last as long as the action says.
+
+    Args:
+        path: The recording.
+        action: The action id and its (time-scaled) duration, s.
+        execute: The execute phase, ``[start_ns, stop_ns)``.
+        coverage: Per channel, ``[first stamp, last stamp + period)`` in ns.
+
+    Raises:
+        RecordingError: The phase or a channel ends too early.
+    """
+    action_id, duration_s = action
+    needed = round(duration_s * (1 - DURATION_TOLERANCE) * _NS_PER_S) - _SLACK_NS
+    start, stop = execute
+    if stop - start < needed:
+        msg = (
+            f"{path}: the execute phase of {action_id} lasts {(stop - start) / _NS_PER_S:.3f} s, "
+            f"its parameters say {duration_s:g} s: the action was cut short; record it again"
+        )
+        raise RecordingError(msg)
+    for topic, (first, end) in coverage.items():
+        if first > start or end - start < needed:
+            msg = (
+                f"{path}: {topic} covers {(max(end - start, 0)) / _NS_PER_S:.3f} s of the "
+                f"{duration_s:g} s execute phase of {action_id}: the channel stopped early; "
+                "check the skin driver and record the action again"
+            )
+            raise RecordingError(msg)
+
+
+@functools.lru_cache(maxsize=8)
+def _index_rows(index: Path, _mtime_ns: int, _size: int) -> dict[str, dict[str, Any]]:
+    """Return a dataset index's rows by relative path (cached while the file is unchanged)."""
+    frame = pl.read_parquet(index)
+    return {row["path"]: row for row in frame.iter_rows(named=True)}
+
+
+def _read_index(index: Path, root: Path) -> dict[str, dict[str, Any]]:
+    """Return a dataset index's rows by relative path.
+
+    Raises:
+        RecordingError: The index cannot be read.
+    """
+    try:
+        stat = index.stat()
+        return _index_rows(index, stat.st_mtime_ns, stat.st_size)
+    except (OSError, pl.exceptions.PolarsError, KeyError) as err:
+        msg = (
+            f"{index}: the dataset index cannot be read ({' '.join(str(err).split())}); it is "
+            f"derived data: rebuild it with 'atikt-record index {root}'"
+        )
+        raise RecordingError(msg) from err
+
+
+def check_location(path: Path, said: Mapping[str, Any], size_bytes: int) -> None:
+    """Check a recording inside a dataset against its path and its row of the index.
+
+    A file is inside a dataset when ``index.parquet`` lies three levels up
+    (``<root>/<object>/<action>/<trial>.mcap``); elsewhere nothing is checked.
+
+    Args:
+        path: The recording.
+        said: What its metadata says: ``object_id``, ``action_id``, ``trial``, ``seed``.
+        size_bytes: The file's size.
+
+    Raises:
+        RecordingError: The metadata contradicts the path or the index.
+    """
+    path = Path(path)
+    root = path.parent.parent.parent
+    index = root / INDEX_NAME
+    if not index.is_file():
+        return
+    match = _TRIAL_NAME.fullmatch(path.name)
+    located: dict[str, Any] = {"object_id": path.parent.parent.name, "action_id": path.parent.name}
+    located["trial"] = int(match.group(1)) if match else said["trial"]
+    if wrong := [key for key, value in located.items() if said[key] != value]:
+        proper = root / str(said["object_id"]) / str(said["action_id"]) / f"{said['trial']:03d}"
+        msg = (
+            f"{path}: the metadata says {', '.join(f'{k} {said[k]}' for k in wrong)}, the "
+            f"dataset path says {', '.join(f'{k} {located[k]}' for k in wrong)}; move the file "
+            f"to {proper}.mcap (or record it again), then rebuild the index with "
+            f"'atikt-record index {root}'"
+        )
+        raise RecordingError(msg)
+    row = _read_index(index, root).get(path.relative_to(root).as_posix())
+    if row is None:
+        return
+    facts = dict(said) | {"size_bytes": size_bytes}
+    if wrong := [key for key in facts if key in row and row[key] != facts[key]]:
+        listed = ", ".join(f"{key} {row[key]} (the file: {facts[key]})" for key in wrong)
+        msg = (
+            f"{path}: the dataset index {index} says {listed}; the index is derived data: "
+            f"rebuild it with 'atikt-record index {root}'"
+        )
+        raise RecordingError(msg)
