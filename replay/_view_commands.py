@@ -1,0 +1,197 @@
+"""Subcommands of ``atikt-replay`` that show and hand over data: ``view`` and ``export``.
+
+rerun and matplotlib are imported when a command runs, not when the command line is parsed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+from replay._cli import arg, command, dataset_files
+from replay._export import FORMATS, LAYOUTS, export
+from replay._run_history import LearnRun, is_run_directory
+from replay.errors import ReplayError
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Sequence
+
+    import rerun as rr
+
+_CONSOLE = Console(stderr=True)
+#: Default ports of the web viewer and of the gRPC server it reads from.
+WEB_PORT = 9090
+GRPC_PORT = 9876
+
+
+@dataclass(frozen=True, slots=True)
+class Inputs:
+    """What the command line named: recordings and learn-run directories.
+
+    Attributes:
+        recordings: Recording files, in the order given (directories expanded, sorted).
+        runs: Learn output directories.
+        root: The deepest directory holding every input (names in exports are relative to it).
+    """
+
+    recordings: tuple[Path, ...]
+    runs: tuple[Path, ...]
+    root: Path
+
+
+def collect_inputs(paths: Sequence[Path], *, allow_runs: bool = True) -> Inputs:
+    """Sort the given paths into recordings and learn runs.
+
+    A file is a recording; a directory holding ``history.parquet`` is a learn run (when
+    ``allow_runs``); any other directory contributes every ``*.mcap`` below it.
+
+    Raises:
+        ReplayError: A path does not exist, or nothing to show was found.
+    """
+    recordings: list[Path] = []
+    runs: list[Path] = []
+    for path in paths:
+        if not path.exists():
+            msg = f"{path}: no such file or directory; give recordings (.mcap) or directories"
+            raise ReplayError(msg)
+        if path.is_file():
+            recordings.append(path)
+        elif allow_runs and is_run_directory(path):
+            runs.append(path)
+        else:
+            recordings.extend(dataset_files(path))
+    if not recordings and not runs:
+        names = ", ".join(str(p) for p in paths)
+        msg = f"{names}: no recordings (*.mcap){' or learn runs' if allow_runs else ''} found"
+        raise ReplayError(msg)
+    parents = [p if p.is_dir() else p.parent for p in paths]
+    root = Path(os.path.commonpath([p.resolve() for p in parents]))
+    return Inputs(tuple(recordings), tuple(runs), root)
+
+
+def _view_name(inputs: Inputs) -> str:
+    """Return the name of the rerun recording of a view."""
+    items = [*inputs.recordings, *inputs.runs]
+    if len(items) == 1:
+        return str(items[0])
+    return f"{len(inputs.recordings)} recordings, {len(inputs.runs)} runs under {inputs.root}"
+
+
+def _attach_sink(stream: rr.RecordingStream, args: argparse.Namespace) -> str | None:
+    """Connect the stream to a file, a served web viewer or a spawned viewer.
+
+    Returns:
+        The web viewer's address when serving, else None.
+
+    Raises:
+        ReplayError: The sink cannot be set up; the message says which option to change.
+    """
+    import rerun as rr  # noqa: PLC0415 (only when viewing)
+
+    try:
+        if args.save is not None:
+            args.save.parent.mkdir(parents=True, exist_ok=True)
+            stream.save(args.save)
+            return None
+        if args.serve:
+            url = stream.serve_grpc(grpc_port=args.grpc_port)
+            rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
+            return f"http://localhost:{args.web_port}/?url={url}"
+        stream.spawn()
+    except (OSError, RuntimeError, ValueError) as err:
+        how = "--save" if args.save is not None else "--serve" if args.serve else "the viewer"
+        msg = f"{how}: rerun could not start ({err}); use --save FILE.rrd to write a file instead"
+        raise ReplayError(msg) from err
+    return None
+
+
+def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
+    """Write the PNG figures of every learn run and print where."""
+    from replay._run_figures import plot_run  # noqa: PLC0415 (matplotlib only when needed)
+
+    for run in runs:
+        directory = run.path / "figures" if args.figures is None else args.figures
+        if args.figures is not None and len(runs) > 1:
+            directory = args.figures / run.path.name
+        for path in plot_run(run, directory):
+            print(f"figure -> {path}")  # noqa: T201 (the command's output)
+
+
+@command(
+    "view",
+    "show recordings and learn runs in rerun (a file with --save, a web viewer with --serve)",
+    arg("paths", nargs="+", type=Path, help="recordings (.mcap), dataset or learn --out dirs"),
+    arg("--save", type=Path, default=None, help="write FILE.rrd instead of opening a viewer"),
+    arg("--serve", action="store_true", help="serve the web viewer on localhost until Ctrl-C"),
+    arg("--web-port", type=int, default=WEB_PORT, help=f"web viewer port (default {WEB_PORT})"),
+    arg("--grpc-port", type=int, default=GRPC_PORT, help=f"data port (default {GRPC_PORT})"),
+    arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
+    arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
+)
+def _view_command(args: argparse.Namespace) -> int:
+    from replay._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
+    from replay._run_history import load_run  # noqa: PLC0415
+    from replay._view import log_recordings, log_run, new_stream  # noqa: PLC0415
+
+    if args.save is not None and args.serve:
+        msg = "--save and --serve: choose one (a file, or a web viewer)"
+        raise ReplayError(msg)
+    inputs = collect_inputs(args.paths)
+    runs = [load_run(path) for path in inputs.runs]
+    stream = new_stream(_view_name(inputs))
+    address = _attach_sink(stream, args)
+    log_recordings(stream, [read_recording(path) for path in inputs.recordings])
+    for run in runs:
+        log_run(stream, run, "run" if len(runs) == 1 else f"run/{run.path.name}")
+    stream.flush()
+    if not args.no_figures:
+        _figures(args, runs)
+    if args.save is not None:
+        stream.disconnect()
+        print(f"view -> {args.save}  (open it with: rerun {args.save})")  # noqa: T201
+    elif address is not None:
+        print(f"web viewer on {address}; Ctrl-C stops serving", flush=True)  # noqa: T201
+        with contextlib.suppress(KeyboardInterrupt):
+            threading.Event().wait()
+    return 0
+
+
+@command(
+    "export",
+    "write each channel of recordings as one table (parquet or csv) for other tools",
+    arg("paths", nargs="+", type=Path, help="recordings (.mcap) or dataset directories"),
+    arg("--format", dest="fmt", choices=FORMATS, default="parquet", help="file format"),
+    arg("--layout", choices=LAYOUTS, default="long", help="skin tables: long (a row per cell)"),
+    arg("--out", type=Path, default=Path("export"), help="output directory (default: ./export)"),
+)
+def _export_command(args: argparse.Namespace) -> int:
+    inputs = collect_inputs(args.paths, allow_runs=False)
+    progress = Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=_CONSOLE,
+        disable=not _CONSOLE.is_terminal,
+    )
+    task = progress.add_task("exporting", total=len(inputs.recordings))
+    with progress:
+        report = export(
+            inputs.recordings,
+            args.out,
+            fmt=args.fmt,
+            layout=args.layout,
+            root=inputs.root,
+            on_recording=lambda _path: progress.advance(task),
+        )
+    for path in report.files:
+        print(f"{path}  {report.rows[path.stem]} rows")  # noqa: T201 (the command's output)
+    return 0

@@ -1,0 +1,112 @@
+"""``atikt-replay export``: one table per channel, long and wide, parquet and CSV."""
+
+from __future__ import annotations
+
+import shutil
+from typing import TYPE_CHECKING
+
+import numpy as np
+import polars as pl
+import pytest
+
+from replay import MODALITIES, ReplayError, read_recording
+from replay._cli import main
+from replay._export import CHANNEL_COLUMNS, TABLES, export, phase_labels
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def _dataset(fake_recording: Path, root: Path, trials: tuple[str, ...] = ("003", "004")) -> Path:
+    for trial in trials:
+        target = root / "sponge" / "S2" / f"{trial}.mcap"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(fake_recording, target)
+    return root
+
+
+def test_long_tables_hold_every_value(fake_recording: Path, tmp_path: Path) -> None:
+    recording = read_recording(fake_recording)
+    report = export([fake_recording], tmp_path / "out", root=fake_recording.parent)
+    assert [p.name for p in report.files] == [f"{t}.parquet" for t in TABLES]
+    for modality in MODALITIES:
+        series = recording.skin(modality)
+        table = pl.read_parquet(tmp_path / "out" / f"{modality}.parquet")
+        n, cells, _ = series.data.shape
+        assert table.height == n * cells == report.rows[modality]
+        assert table["recording"].unique().to_list() == [fake_recording.name]
+        table = table.sort("stamp_ns", "cell", maintain_order=True)
+        assert table["stamp_ns"].to_list() == np.repeat(series.stamps_ns, cells).tolist()
+        assert table["cell"].to_list() == np.tile(series.cell_ids, n).tolist()
+        values = table.select(CHANNEL_COLUMNS[modality]).to_numpy()
+        np.testing.assert_array_equal(values, series.data.reshape(n * cells, -1))
+    joints = pl.read_parquet(tmp_path / "out" / "joint_states.parquet")
+    np.testing.assert_array_equal(
+        joints.select(f"effort_{name}" for name in recording.joints.names).to_numpy(),
+        recording.joints.effort,
+    )
+    tcp = pl.read_parquet(tmp_path / "out" / "tcp_pose.parquet")
+    np.testing.assert_array_equal(
+        tcp.select("qx", "qy", "qz", "qw").to_numpy(), recording.tcp.orientation
+    )
+    phases = pl.read_parquet(tmp_path / "out" / "phases.parquet")
+    assert phases.select("phase", "start_ns").rows() == list(recording.phases)
+    assert phases["stop_ns"].to_list()[:-1] == phases["start_ns"].to_list()[1:]
+    meta = pl.read_parquet(tmp_path / "out" / "recordings.parquet").row(0, named=True)
+    assert (meta["object_id"], meta["action_id"], meta["trial"]) == ("sponge", "S2", 3)
+    assert meta["speed_m_s"] == recording.metadata.action_parameters["speed_m_s"]
+
+
+def test_phase_labels_are_half_open(fake_recording: Path) -> None:
+    recording = read_recording(fake_recording)
+    starts = np.array([start for _, start in recording.phases], dtype=np.int64)
+    labels = phase_labels(recording, np.concatenate([starts - 1, starts])).to_list()
+    names = [phase for phase, _ in recording.phases]
+    assert labels[len(starts) :] == names  # a sample at a phase's start belongs to it
+    assert labels[: len(starts)] == ["", *names[:-1]]  # one ns earlier: the phase before
+
+
+def test_wide_layout_has_a_column_per_cell_and_channel(
+    fake_recording: Path, tmp_path: Path
+) -> None:
+    recording = read_recording(fake_recording)
+    export([fake_recording], tmp_path / "out", layout="wide")
+    force = pl.read_parquet(tmp_path / "out" / "force.parquet")
+    assert force.height == recording.force.stamps_ns.size
+    for c, cell in enumerate(recording.force.cell_ids):
+        for k, channel in enumerate(CHANNEL_COLUMNS["force"]):
+            column = force[f"c{cell}_{channel}"].to_numpy()
+            np.testing.assert_array_equal(column, recording.force.data[:, c, k])
+
+
+def test_csv_equals_parquet_over_a_dataset(fake_recording: Path, tmp_path: Path) -> None:
+    root = _dataset(fake_recording, tmp_path / "data")
+    assert main(["export", str(root), "--out", str(tmp_path / "pq")]) == 0
+    assert main(["export", str(root), "--format", "csv", "--out", str(tmp_path / "csv")]) == 0
+    for table in TABLES:
+        parquet = pl.read_parquet(tmp_path / "pq" / f"{table}.parquet")
+        csv = pl.read_csv(tmp_path / "csv" / f"{table}.csv", schema=parquet.schema)
+        assert csv.equals(parquet), table
+    force = pl.read_parquet(tmp_path / "pq" / "force.parquet")
+    assert force["recording"].unique(maintain_order=True).to_list() == [
+        "sponge/S2/003.mcap",
+        "sponge/S2/004.mcap",
+    ]
+    assert not list((tmp_path / "pq").glob(".*"))  # no parts left
+
+
+def test_existing_tables_are_never_overwritten(fake_recording: Path, tmp_path: Path) -> None:
+    export([fake_recording], tmp_path / "out")
+    before = (tmp_path / "out" / "force.parquet").read_bytes()
+    with pytest.raises(ReplayError, match=r"never overwritten"):
+        export([fake_recording], tmp_path / "out")
+    assert (tmp_path / "out" / "force.parquet").read_bytes() == before
+
+
+def test_a_bad_recording_leaves_no_table(fake_recording: Path, tmp_path: Path) -> None:
+    root = _dataset(fake_recording, tmp_path / "data")
+    bad = root / "sponge" / "S2" / "004.mcap"
+    bad.write_bytes(bad.read_bytes()[:-200])
+    with pytest.raises(ReplayError, match=r"004.mcap"):
+        export(sorted(root.rglob("*.mcap")), tmp_path / "out", fmt="csv")
+    assert list((tmp_path / "out").iterdir()) == []
