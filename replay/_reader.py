@@ -315,7 +315,10 @@ def check_contract(container: Container) -> None:
     summary = container.summary
     path = summary.path
     if summary.profile != "ros2":
-        msg = f"{path}: MCAP profile {summary.profile!r}, expected 'ros2'; not an atikt recording"
+        msg = (
+            f"{path}: MCAP profile {summary.profile!r}, expected 'ros2': not an atikt "
+            "recording; give one written by atikt-record"
+        )
         raise RecordingError(msg)
     for channel in CHANNELS:
         found = summary.channels.get(channel.topic)
@@ -332,7 +335,8 @@ def check_contract(container: Container) -> None:
             msg = (
                 f"{path}: channel {channel.topic} carries {found.msgtype} "
                 f"({found.schema_encoding}/{found.message_encoding}), expected "
-                f"{channel.msgtype} (ros2msg/cdr); not an atikt recording"
+                f"{channel.msgtype} (ros2msg/cdr): not an atikt recording; give one written "
+                "by atikt-record"
             )
             raise RecordingError(msg)
     check_definitions(path, list(summary.channels.values()))
