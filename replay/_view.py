@@ -35,11 +35,18 @@ import rerun as rr
 from replay._reader import MODALITIES
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Container, Iterable, Sequence
+    from pathlib import Path
 
     from numpy.typing import NDArray
 
-    from replay._reader import ActionRecording, JointStates, SkinSeries, TcpPoses
+    from replay._reader import (
+        ActionRecording,
+        JointStates,
+        RecordingMetadata,
+        SkinSeries,
+        TcpPoses,
+    )
     from replay._run_history import LearnRun
 
 #: Application id of every view.
@@ -161,15 +168,16 @@ def log_recording(stream: rr.RecordingStream, recording: ActionRecording, key: s
 
 @dataclass(frozen=True, slots=True)
 class ViewedRecording:
-    """A recording and the entity path it is logged under."""
+    """A logged recording: the entity path it is under, its file and metadata."""
 
     key: str
-    recording: ActionRecording
+    path: Path
+    metadata: RecordingMetadata
 
 
 def send_properties(stream: rr.RecordingStream, viewed: Sequence[ViewedRecording]) -> None:
     """Send the ``object``, ``action`` and ``recording`` properties, one value per recording."""
-    metas = [item.recording.metadata for item in viewed]
+    metas = [item.metadata for item in viewed]
     parameters = {
         name: [float(m.action_parameters.get(name, 0.0)) for m in metas]
         for name in ("depth_m", "force_n", "speed_m_s", "duration_s")
@@ -198,7 +206,7 @@ def send_properties(stream: rr.RecordingStream, viewed: Sequence[ViewedRecording
         "recording",
         rr.AnyValues(
             key=[item.key for item in viewed],
-            path=[str(item.recording.path) for item in viewed],
+            path=[str(item.path) for item in viewed],
             rig=[m.rig.get("kind", "") for m in metas],
             seed=[m.seed for m in metas],
             software_version=[m.software_version for m in metas],
@@ -207,31 +215,31 @@ def send_properties(stream: rr.RecordingStream, viewed: Sequence[ViewedRecording
     )
 
 
-def unique_keys(recordings: Sequence[ActionRecording]) -> list[str]:
-    """Return each recording's key; repeated keys get a suffix ``-2``, ``-3``, ..."""
-    keys: list[str] = []
-    for recording in recordings:
-        key, number = recording_key(recording), 1
-        while (candidate := key if number == 1 else f"{key}-{number}") in keys:
-            number += 1
-        keys.append(candidate)
-    return keys
+def unique_key(recording: ActionRecording, taken: Container[str]) -> str:
+    """Return the recording's key, with a suffix ``-2``, ``-3``, ... if ``taken`` has it."""
+    key, number = recording_key(recording), 1
+    while (candidate := key if number == 1 else f"{key}-{number}") in taken:
+        number += 1
+    return candidate
 
 
 def log_recordings(
-    stream: rr.RecordingStream, recordings: Sequence[ActionRecording]
+    stream: rr.RecordingStream, recordings: Iterable[ActionRecording]
 ) -> list[ViewedRecording]:
-    """Log several recordings, each under its own key, and their properties.
+    """Log recordings one after the other, each under its own key, then their properties.
+
+    ``recordings`` may be a generator: only one recording is held at a time.
 
     Returns:
-        The recordings with their keys, in the given order.
+        What was logged, in order.
     """
-    viewed = [
-        ViewedRecording(key, recording)
-        for key, recording in zip(unique_keys(recordings), recordings, strict=True)
-    ]
-    for item in viewed:
-        log_recording(stream, item.recording, item.key)
+    viewed: list[ViewedRecording] = []
+    keys: set[str] = set()
+    for recording in recordings:
+        key = unique_key(recording, keys)
+        keys.add(key)
+        log_recording(stream, recording, key)
+        viewed.append(ViewedRecording(key, recording.path, recording.metadata))
     if viewed:
         send_properties(stream, viewed)
     return viewed

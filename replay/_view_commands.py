@@ -148,7 +148,7 @@ def _view_command(args: argparse.Namespace) -> int:
     runs = [load_run(path) for path in inputs.runs]
     stream = new_stream(_view_name(inputs))
     address = _attach_sink(stream, args)
-    log_recordings(stream, [read_recording(path) for path in inputs.recordings])
+    log_recordings(stream, (read_recording(path) for path in inputs.recordings))
     for run in runs:
         log_run(stream, run, "run" if len(runs) == 1 else f"run/{run.path.name}")
     stream.flush()
