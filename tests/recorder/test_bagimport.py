@@ -33,7 +33,7 @@ float32[3] acc
 float32 temp
 """
 CELL_TYPE = "lab_skin/msg/CellData"
-CELLS = (10, 11, 12, 13)
+CELLS: tuple[int, ...] = (10, 11, 12, 13)
 SKIN_PERIOD = 4_000_000  # 250 Hz
 ROBOT_PERIOD = 8_000_000  # 125 Hz
 START = 1_700_000_000 * NS  # a wall-clock-like origin, as in real bags
@@ -68,7 +68,7 @@ class Note:
     phases: tuple[float, ...]
 
 
-ANNOTATIONS = (
+ANNOTATIONS: tuple[Note, ...] = (
     Note("wood", "P1", None, (0.2, 0.5, 0.8, 3.9, 4.2)),
     Note("lab_mug", "S2", 5, (4.4, 4.6, 4.8, 5.9, 6.2)),
 )

@@ -84,7 +84,7 @@ def test_object_and_action_are_properties(fake_recording: Path, fake_view: Path)
 
 
 def test_bulk_data_goes_through_the_columnar_api(
-    fake_recording: Path, monkeypatch: pytest.MonkeyPatch
+    fake_recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     calls: dict[str, list[Any]] = {"log": [], "send_columns": []}
     for name in calls:
@@ -99,8 +99,9 @@ def test_bulk_data_goes_through_the_columnar_api(
         monkeypatch.setattr(rr.RecordingStream, name, spy)
     recording = read_recording(fake_recording)
     stream = new_stream("test")
-    stream.memory_recording()
+    stream.save(tmp_path / "spied.rrd")
     log_recordings(stream, [recording])
+    stream.disconnect()
     cells = recording.force.data.shape[1]
     assert len(calls["send_columns"]) == len(MODALITIES) * cells + 3 + 1 + 1
     assert all(kw.get("static") for kw in calls["log"])  # only names, axes, path: static
