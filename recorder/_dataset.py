@@ -13,11 +13,13 @@ recordings are skipped (an interrupted run resumes) and never overwritten.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import hashlib
 import io
 import json
 import os
+import secrets
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +37,7 @@ from recorder.errors import OutputExistsError, RecorderError
 from schemas import CHANNELS
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Mapping, Sequence
+    from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._rig import Rig
@@ -351,15 +353,40 @@ def write_index(root: Path) -> Path:
         RecorderError: A file is not a readable recording, or the index cannot be written.
     """
     root = Path(root)
-    frame = build_index(root)
     target = root / INDEX_NAME
-    temporary = root / f".{INDEX_NAME}.{os.getpid()}.tmp"
+    temporary = root / f".{INDEX_NAME}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
     try:
         root.mkdir(parents=True, exist_ok=True)
-        frame.write_parquet(temporary)
-        temporary.replace(target)
+        with _index_lock(root):  # the last writer lists every file linked before it
+            build_index(root).write_parquet(temporary)
+            temporary.replace(target)
     except OSError as err:
-        temporary.unlink(missing_ok=True)
-        msg = f"{target}: cannot write the index ({err.strerror}); check the directory"
+        with contextlib.suppress(OSError):
+            temporary.unlink(missing_ok=True)
+        msg = (
+            f"{target}: cannot write the index ({err.strerror}); check free space and that "
+            f"the directory is writable, then run 'atikt-record index {root}'"
+        )
         raise RecorderError(msg) from err
     return target
+
+
+@contextlib.contextmanager
+def _index_lock(root: Path) -> Iterator[None]:
+    """Serialise index rebuilds of one dataset between processes (an advisory lock on ``root``).
+
+    Two runs recording into one dataset both rebuild the index when they finish; under the
+    lock the later rebuild lists every recording of both. Without ``fcntl`` (Windows) the
+    atomic rename still keeps the index whole, and ``atikt-record index`` refreshes it.
+    """
+    try:
+        import fcntl  # noqa: PLC0415 (POSIX only)
+    except ImportError:  # pragma: no cover (Windows)
+        yield
+        return
+    descriptor = os.open(root, os.O_RDONLY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock

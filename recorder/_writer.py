@@ -360,6 +360,11 @@ def _temporary_path(final: Path) -> Path:
     return final.with_name(f"{stem}.{os.getpid()}-{secrets.token_hex(4)}{PART_SUFFIX}")
 
 
+def _open_exclusive(path: Path) -> IO[bytes]:
+    """Create ``path`` for writing; fail if it exists (two recorders never share a file)."""
+    return path.open("xb")
+
+
 def _exists_error(final: Path) -> OutputExistsError:
     msg = (
         f"{final}: a recording with this name exists and is never overwritten; "
@@ -502,7 +507,7 @@ class RecordingWriter:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._temporary = _temporary_path(self.path)
-            self._stream = self._temporary.open("xb")
+            self._stream = _open_exclusive(self._temporary)
         except OSError as err:
             raise _create_error(self.path, err) from err
         try:
