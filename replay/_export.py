@@ -349,8 +349,9 @@ class ExportReport:
 
 def _name(path: Path, root: Path | None) -> str:
     """Return the ``recording`` column value: the path relative to ``root``, else its name."""
-    if root is not None and path.is_relative_to(root):
-        return path.relative_to(root).as_posix()
+    resolved = Path(path).resolve()
+    if root is not None and resolved.is_relative_to(Path(root).resolve()):
+        return resolved.relative_to(Path(root).resolve()).as_posix()
     return path.name
 
 

@@ -79,10 +79,13 @@ def test_wide_layout_has_a_column_per_cell_and_channel(
             np.testing.assert_array_equal(column, recording.force.data[:, c, k])
 
 
-def test_csv_equals_parquet_over_a_dataset(fake_recording: Path, tmp_path: Path) -> None:
-    root = _dataset(fake_recording, tmp_path / "data")
-    assert main(["export", str(root), "--out", str(tmp_path / "pq")]) == 0
-    assert main(["export", str(root), "--format", "csv", "--out", str(tmp_path / "csv")]) == 0
+def test_csv_equals_parquet_over_a_dataset(
+    fake_recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _dataset(fake_recording, tmp_path / "data")
+    monkeypatch.chdir(tmp_path)  # a relative path, as typed by a user
+    assert main(["export", "data", "--out", str(tmp_path / "pq")]) == 0
+    assert main(["export", "data", "--format", "csv", "--out", str(tmp_path / "csv")]) == 0
     for table in TABLES:
         parquet = pl.read_parquet(tmp_path / "pq" / f"{table}.parquet")
         csv = pl.read_csv(tmp_path / "csv" / f"{table}.csv", schema=parquet.schema)
