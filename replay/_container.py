@@ -56,6 +56,7 @@ _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish tim
 _CHUNK = struct.Struct("<QQQI")  # start time, end time, uncompressed size, uncompressed CRC
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
+_MAX_TIME = 2**63 - 1  # times are int64 ns in the reader
 #: Foreign exceptions that mean "this file is not a readable MCAP file".
 _FORMAT_ERRORS = (
     McapError,
@@ -709,6 +710,9 @@ def _raw_channels(section: DataSection, summary: ContainerSummary) -> dict[str, 
     topics = {}
     for topic, info in summary.channels.items():
         lists = section.messages.get(ids[topic], ChannelMessages())
+        if max(lists.log_ns, default=0) > _MAX_TIME or max(lists.publish_ns, default=0) > _MAX_TIME:
+            msg = f"a message on {topic} has a time beyond 2**63 - 1 ns (the year 2262)"
+            raise FormatError(msg)
         topics[topic] = RawChannel(
             info=info,
             log_ns=np.array(lists.log_ns, dtype=np.int64),

@@ -170,6 +170,17 @@ def _cut_during_execute(entries: list[Entry]) -> list[Entry]:
     return [e for e in entries if e.log_ns < stop]
 
 
+def _late(log_ns: int) -> Edit:
+    """Return an edit giving one temperature message an out-of-range log time (found by fuzzing)."""
+
+    def edit(entries: list[Entry]) -> list[Entry]:
+        position = [i for i, e in enumerate(entries) if e.topic == "/skin/temperature"][3]
+        entries[position] = dataclasses.replace(entries[position], log_ns=log_ns)
+        return entries
+
+    return edit
+
+
 def _meta(source: Path, **changes: str) -> dict[str, str]:
     with source.open("rb") as stream:
         records = {m.name: dict(m.metadata) for m in make_reader(stream).iter_metadata()}
@@ -376,6 +387,9 @@ ROWS: dict[str, Row] = {
     ),
     "non-monotonic stamps": Row(
         _rewritten(edit=_swap(_JOINTS, 20)), r"sample 21 .* goes back", "record the action again"
+    ),
+    "time beyond int64": Row(
+        _rewritten(edit=_late(2**64 - 1)), "a time beyond 2\\*\\*63 - 1 ns", "restore it"
     ),
     "NaN in a skin signal": Row(
         _rewritten(edit=_on(_FORCE, 3, _poison("data", math.nan, 17))),
