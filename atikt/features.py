@@ -22,8 +22,9 @@ from typing import TYPE_CHECKING, Final, Self
 
 import numpy as np
 import numpy.typing as npt
+import scipy.linalg
 
-from atikt.errors import AtiktError, NotFittedError
+from atikt.errors import AtiktError, NotFittedError, NumericalError
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -337,6 +338,26 @@ def _stack(observations: Sequence[RawFeatures], modality: str) -> FloatArray:
     return np.vstack(vectors)
 
 
+def _svd(z: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Thin SVD of ``z``; LAPACK's divide and conquer (gesdd) first, then the QR method.
+
+    gesdd occasionally fails to converge on finite, well-scaled matrices (a known LAPACK
+    behaviour); gesvd is slower but robust.
+
+    Raises:
+        NumericalError: Both drivers failed (e.g. non-finite values).
+    """
+    try:
+        u, singular, vt = np.linalg.svd(z, full_matrices=False)
+    except np.linalg.LinAlgError:
+        try:
+            u, singular, vt = scipy.linalg.svd(z, full_matrices=False, lapack_driver="gesvd")
+        except (np.linalg.LinAlgError, ValueError) as err:
+            msg = f"thermal PCA: SVD of a {z.shape} matrix failed ({err}); check for NaN features"
+            raise NumericalError(msg) from err
+    return u, singular, vt
+
+
 class FeatureTransformer:
     """Standardise raw features and reduce the thermal sequence by PCA, fitted on training data.
 
@@ -450,7 +471,7 @@ class FeatureTransformer:
     def _fit_pca(self, z: FloatArray) -> None:
         """Fit the principal axes of the centred, scaled thermal block ``z`` (n, d)."""
         n, d = z.shape
-        _, singular, vt = np.linalg.svd(z, full_matrices=False)
+        _, singular, vt = _svd(z)
         keep = singular > max(singular.max(initial=0.0), _TINY) * 1e-10
         signs = np.sign(vt[np.arange(vt.shape[0]), np.argmax(np.abs(vt), axis=1)])
         vt = vt * np.where(signs == 0, 1.0, signs)[:, None]

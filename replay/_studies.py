@@ -32,7 +32,8 @@ if TYPE_CHECKING:
 ACTIONS = ("P1", "P2", "S1", "S2", "S3", "S4", "C1")
 #: Label of the ATIKT runs and of the no-transfer baseline in results.
 ATIKT, BASELINE = "ATIKT", "baseline"
-_METHODS = {ATIKT: "prediction", BASELINE: "none"}
+#: Training samples per object at which the fusion study measures accuracy.
+FUSION_SIZES = (1, 2, 3, 5, 7, 10)
 
 
 @dataclass(frozen=True, slots=True)
@@ -319,7 +320,8 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
         executor = PoolExecutor(lookup, task.objects, split)
         test_obs, test_labels = executor.test_set((task.action,))[task.action]
         pools = [split.pool[o, task.action] for o in task.objects]
-        for size in range(1, min(len(p) for p in pools) + 1):
+        largest = min(len(p) for p in pools)
+        for size in [n for n in FUSION_SIZES if n <= largest]:
             train = [
                 lookup.get(o, task.action, t)
                 for o, p in zip(task.objects, pools, strict=True)

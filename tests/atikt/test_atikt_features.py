@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import atikt.features as features_module
 from atikt import (
     AtiktError,
     FeatureTransformer,
@@ -260,3 +261,20 @@ def test_transformer_errors() -> None:
         transformer.transform(random_observations(1, seed=17, kind="slide"))
     with pytest.raises(AtiktError, match="no observations"):
         FeatureTransformer().fit([])
+
+
+def test_thermal_pca_survives_an_svd_that_gesdd_cannot_converge(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    calls = []
+
+    def failing_svd(z: np.ndarray, **_: object) -> object:
+        calls.append(z.shape)
+        message = "SVD did not converge"
+        raise np.linalg.LinAlgError(message)
+
+    monkeypatch.setattr(np.linalg, "svd", failing_svd)
+    z = np.random.default_rng(0).standard_normal((12, 8))
+    u, singular, vt = features_module._svd(z)
+    assert calls == [(12, 8)]
+    np.testing.assert_allclose((u * singular) @ vt, z, atol=1e-10)
