@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,6 +17,7 @@ from replay._datasets import ensure_default_dataset
 from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
 from replay._features import FeatureTable, build_features
 from replay._plots import plot_learning_curves
+from replay._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay._session import (
     TRANSFER_MODES,
     RunSpec,
@@ -166,7 +169,10 @@ def _learn_command(args: argparse.Namespace) -> int:
         frame = _learn_live(args, spec, models, out, on_step)
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
-    frame.write_parquet(out / "history.parquet")
+    frame.write_parquet(out / HISTORY_NAME)
+    source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
+    settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
+    (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")
     plot_learning_curves(
         frame.with_columns(pl.lit(spec.transfer).alias("method")),
         out / "learning_curve.png",

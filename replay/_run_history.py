@@ -15,6 +15,7 @@ order, so it is recovered from the history itself:
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,6 +29,8 @@ if TYPE_CHECKING:
 
 #: File name of a run's history inside a learn output directory.
 HISTORY_NAME = "history.parquet"
+#: The run's settings beside its history: objects and actions in label order, seed, ...
+SETTINGS_NAME = "run.json"
 _REQUIRED = ("step", "object", "action", "explored", "prior", "rho", "accuracy")
 
 
@@ -133,5 +136,20 @@ def load_run(path: Path) -> LearnRun:
     path = Path(path)
     history = path / HISTORY_NAME if path.is_dir() else path
     frame = _read(history)
+    settings = _settings(history.with_name(SETTINGS_NAME))
+    if settings is not None:
+        actions, objects = tuple(settings["actions"]), tuple(settings["new_objects"])
+        return LearnRun(path=path, frame=frame, actions=actions, objects=objects)
     actions = _actions(frame)
     return LearnRun(path=path, frame=frame, actions=actions, objects=_objects(frame, actions))
+
+
+def _settings(path: Path) -> dict[str, Any] | None:
+    """Return the run's settings (``run.json`` written by ``learn``), None for older runs."""
+    try:
+        settings: dict[str, Any] = json.loads(path.read_text("utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not {"actions", "new_objects"} <= settings.keys():
+        return None
+    return settings

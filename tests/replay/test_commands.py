@@ -5,6 +5,7 @@ import pytest
 from conftest import NEW
 
 from replay._cli import main
+from replay._run_history import load_run
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
@@ -21,6 +22,9 @@ def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
     assert history["step"].to_list() == [0, 1, 2, 3]
     assert set(history["object"][1:]) <= set(NEW)
     assert (out / "learning_curve.png").read_bytes()[:4] == b"\x89PNG"
+    run = load_run(out)
+    assert run.objects == NEW
+    assert run.actions == ("P1", "S2")
 
 
 def test_live_learn_then_offline_replay_of_the_session_print_the_same_steps(
