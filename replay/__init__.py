@@ -9,8 +9,10 @@ from replay._reader import (
     RecordingMetadata,
     SkinSeries,
     TcpPoses,
+    check_dataset_location,
     read_recording,
 )
+from replay._recover import RecoveryReport, recovered_path, salvage
 from replay._run_history import LearnRun, load_run
 from replay.errors import RecordingError, ReplayError
 
@@ -23,10 +25,14 @@ __all__ = [
     "PhaseStart",
     "RecordingError",
     "RecordingMetadata",
+    "RecoveryReport",
     "ReplayError",
     "SkinSeries",
     "TcpPoses",
+    "check_dataset_location",
     "export",
     "load_run",
     "read_recording",
+    "recovered_path",
+    "salvage",
 ]
