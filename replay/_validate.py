@@ -263,13 +263,15 @@ def check_location(path: Path, said: Mapping[str, Any], size_bytes: int) -> None
     Raises:
         RecordingError: The metadata contradicts the path or the index.
     """
-    path = Path(path)
-    root = path.parent.parent.parent
+    full = Path(path).resolve()
+    if len(full.parents) < 3:  # noqa: PLR2004 (<root>/<object>/<action>/<trial>.mcap)
+        return
+    root = full.parents[2]
     index = root / INDEX_NAME
     if not index.is_file():
         return
-    match = _TRIAL_NAME.fullmatch(path.name)
-    located: dict[str, Any] = {"object_id": path.parent.parent.name, "action_id": path.parent.name}
+    match = _TRIAL_NAME.fullmatch(full.name)
+    located: dict[str, Any] = {"object_id": full.parents[1].name, "action_id": full.parent.name}
     located["trial"] = int(match.group(1)) if match else said["trial"]
     if wrong := [key for key, value in located.items() if said[key] != value]:
         proper = root / str(said["object_id"]) / str(said["action_id"]) / f"{said['trial']:03d}"
@@ -280,7 +282,7 @@ def check_location(path: Path, said: Mapping[str, Any], size_bytes: int) -> None
             f"'atikt-record index {root}'"
         )
         raise RecordingError(msg)
-    row = _read_index(index, root).get(path.relative_to(root).as_posix())
+    row = _read_index(index, root).get(full.relative_to(root).as_posix())
     if row is None:
         return
     facts = dict(said) | {"size_bytes": size_bytes}

@@ -494,7 +494,10 @@ def test_cli_says_one_line_and_exits_non_zero(
 
 
 def test_the_good_file_passes_the_same_checks(
-    fake_recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    fake_recording: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     _load(fake_recording)
     _load(_copy(fake_recording, tmp_path / "copy.mcap"))  # the rewriting itself breaks nothing
@@ -503,6 +506,10 @@ def test_the_good_file_passes_the_same_checks(
     shutil.copyfile(fake_recording, root / "sponge" / "S2" / "003.mcap")
     write_index(root)
     _load(root / "sponge" / "S2" / "003.mcap")
+    monkeypatch.chdir(root / "sponge")  # relative paths name the same dataset location
+    _load(Path("S2/003.mcap"))
+    monkeypatch.chdir(root / "sponge" / "S2")
+    _load(Path("003.mcap"))
     assert main(["check", str(root), "--workers", "1"]) == 0
     assert capsys.readouterr().err == ""
 
