@@ -510,6 +510,10 @@ def test_the_good_file_passes_the_same_checks(
     _load(Path("S2/003.mcap"))
     monkeypatch.chdir(root / "sponge" / "S2")
     _load(Path("003.mcap"))
+    shutil.copyfile("003.mcap", "004.mcap")  # misplaced: refused by a relative path too
+    with pytest.raises(RecordingError, match=r"^004\.mcap: the metadata says trial 3"):
+        _load(Path("004.mcap"))
+    Path("004.mcap").unlink()
     assert main(["check", str(root), "--workers", "1"]) == 0
     assert capsys.readouterr().err == ""
 
