@@ -377,7 +377,9 @@ class FeatureTransformer:
         modalities: Modalities to keep, in any order (output order follows
             :data:`MODALITIES`); None keeps all modalities of the action kind.
         n_thermal_components: Principal components of the thermal sequence (thesis: 10).
-        min_std: Standard deviations below this count as zero (the column is only centred).
+        min_std: A standard deviation below ``min_std`` times the magnitude of the column's
+            mean counts as zero: the column is constant and is only centred. Relative, so that
+            features in tiny or huge units are treated alike.
 
     Attributes:
         kind_: Action kind of the training observations.
@@ -455,14 +457,15 @@ class FeatureTransformer:
         centred = raw - mean
         if modality != "thermal":
             std = centred.std(axis=0)
-            scale = np.where(std > self.min_std, std, 1.0) * np.sqrt(raw.shape[1])
+            informative = std > self.min_std * np.maximum(np.abs(mean), _TINY)
+            scale = np.where(informative, std, 1.0) * np.sqrt(raw.shape[1])
             self.means_[modality], self.scales_[modality] = mean, scale
             return int(raw.shape[1])
         half = raw.shape[1] // 2
-        pooled = [
-            np.sqrt(np.mean(centred[:, part] ** 2)) for part in (slice(0, half), slice(half, None))
-        ]
-        pooled = [p if p > self.min_std else 1.0 for p in pooled]
+        parts = (slice(0, half), slice(half, None))
+        pooled = [float(np.sqrt(np.mean(centred[:, part] ** 2))) for part in parts]
+        size = [max(float(np.abs(mean[part]).max()), _TINY) for part in parts]
+        pooled = [p if p > self.min_std * m else 1.0 for p, m in zip(pooled, size, strict=True)]
         scale = np.concatenate([np.full(half, pooled[0]), np.full(raw.shape[1] - half, pooled[1])])
         self.means_[modality], self.scales_[modality] = mean, scale
         self._fit_pca(centred / scale)
