@@ -2,7 +2,10 @@
 
 Three layers: :mod:`replay._container` reads the file and checks its CRCs, :mod:`replay._decode`
 turns CDR payloads into arrays, and this module validates the contract (profile, metadata,
-schema version, required channels) and assembles the typed recording. Every array is
+schema version, required channels, and with :mod:`replay._validate` message definitions,
+strictly increasing stamps, finite values, phases and the action's duration) and assembles
+the typed recording. Nothing is repaired or reordered silently: a file that breaks a rule is
+refused with a :class:`replay.errors.RecordingError` naming it and the fix. Every array is
 read-only; time is int64 nanoseconds of the sensor clock; ranges are half-open.
 """
 
@@ -663,7 +666,11 @@ def decode_recording(container: Container) -> ActionRecording:
 
 
 def read_recording(path: Path | str) -> ActionRecording:
-    """Read one recording: check its CRCs, schema version and channels, decode it.
+    """Read one recording: check its CRCs, schema version and channels, decode and check it.
+
+    An unfinished (``*.mcap.part``) or truncated file is refused with the command that
+    salvages it (``atikt-replay check FILE --recover``). The dataset's view of the file
+    (path and index) is :func:`check_dataset_location`.
 
     Args:
         path: An ``.mcap`` file written by the recorder.
