@@ -156,7 +156,8 @@ def _report(console: Console, report: DatasetReport) -> None:
     if report.incomplete:
         console.print(
             f"[yellow]{len(report.incomplete)} unfinished recordings (*.mcap.part) from "
-            "interrupted runs; delete them when no recorder is running"
+            "interrupted runs; salvage one with 'atikt-replay check FILE --recover', or "
+            "delete them when no recorder is running (the run records those trials again)"
         )
 
 
@@ -216,7 +217,10 @@ def _index(args: argparse.Namespace) -> int:
     console = Console()
     console.print(f"{path}")
     if leftovers := incomplete_files(args.dir):
-        console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part) ignored")
+        console.print(
+            f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part) ignored; "
+            "salvage one with 'atikt-replay check FILE --recover'"
+        )
     return 0
 
 

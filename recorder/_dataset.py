@@ -32,9 +32,9 @@ from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
 from recorder._sim import SimulatedRig
-from recorder._writer import METADATA_NAME, PART_SUFFIX, record_action
+from recorder._writer import METADATA_NAME, record_action
 from recorder.errors import OutputExistsError, RecorderError
-from schemas import CHANNELS
+from schemas import CHANNELS, PART_SUFFIX, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -324,7 +324,7 @@ def index_row(root: Path, path: Path) -> dict[str, Any]:
 
 def recordings(root: Path) -> list[Path]:
     """Return the finished recordings under ``root``, sorted by path."""
-    return sorted(Path(root).rglob("*.mcap"))
+    return dataset_recordings(root)
 
 
 def incomplete_files(root: Path) -> tuple[Path, ...]:

@@ -29,7 +29,7 @@ from mcap.writer import CompressionType, Writer
 
 from recorder._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
 from recorder.errors import OutputExistsError, RecorderError
-from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
+from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore, full_type_name
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -58,7 +58,6 @@ UR10_JOINTS = (
 #: Default time between flushes, in log time: a killed recorder loses less than this.
 FLUSH_INTERVAL_NS = 500_000_000
 #: Suffix of a recording that is still being written (or was abandoned).
-PART_SUFFIX = ".mcap.part"
 
 _NS_PER_S = 1_000_000_000
 _SKIN_TYPES = {

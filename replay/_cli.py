@@ -30,10 +30,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from replay._container import PART_SUFFIX, read_summary, recover_command
+from replay._container import read_summary, recover_command
 from replay._reader import MODALITIES, check_dataset_location, parse_metadata, read_recording
 from replay._recover import salvage
 from replay.errors import ReplayError
+from schemas import PART_SUFFIX, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -100,7 +101,7 @@ def _existing(path: Path) -> Path:
 
 def dataset_files(root: Path) -> list[Path]:
     """Return the recordings (``*.mcap``) under a dataset directory, sorted by path."""
-    return sorted(Path(root).rglob("*.mcap"))
+    return dataset_recordings(root)
 
 
 def _seconds(ns: int) -> str:

@@ -33,6 +33,7 @@ from mcap.records import Channel, Header, Metadata, Schema
 from numpy.typing import NDArray
 
 from replay.errors import RecordingError
+from schemas import PART_SUFFIX
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -42,7 +43,6 @@ if TYPE_CHECKING:
 I64 = NDArray[np.int64]
 
 #: Suffix of a recording the recorder has not finished (still writing, or interrupted).
-PART_SUFFIX = ".mcap.part"
 #: Largest uncompressed chunk the reader accepts, bytes (the recorder's chunks are < 4 MiB).
 MAX_CHUNK_BYTES = 256 * 2**20
 #: Largest ratio of a chunk's uncompressed to compressed size (the contract's signals: ~3).

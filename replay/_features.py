@@ -21,6 +21,7 @@ from atikt import AtiktError, RawFeatures, extract_features
 from replay._parallel import run_tasks
 from replay._reader import read_recording
 from replay.errors import ReplayError
+from schemas import dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -185,7 +186,7 @@ def build_features(
         ReplayError: ``root`` holds no recordings or the cache cannot be written.
     """
     root = Path(root)
-    paths = sorted(root.rglob("*.mcap"))
+    paths = dataset_recordings(root)
     if not paths:
         msg = f"{root}: no recordings (*.mcap) found; record a dataset with atikt-record dataset"
         raise ReplayError(msg)

@@ -33,11 +33,11 @@ from mcap.writer import CompressionType, Writer
 
 from replay._container import (
     MAGIC,
-    PART_SUFFIX,
     FormatError,
     walk_data_section,
 )
 from replay.errors import RecordingError
+from schemas import PART_SUFFIX, RECOVERED_SUFFIX
 
 if TYPE_CHECKING:
     from replay._container import ChannelMessages, DataSection
@@ -45,7 +45,6 @@ if TYPE_CHECKING:
 #: Name of the metadata record that marks a salvaged file.
 RECOVERY_NAME = "atikt.recovery"
 #: Suffix of a salvaged file, replacing ``.mcap`` or ``.mcap.part``.
-RECOVERED_SUFFIX = ".recovered.mcap"
 
 _NS_PER_S = 1e9
 

@@ -1,5 +1,12 @@
 """Message definitions of the tactile recording contract (ROS 2 ``.msg``, CDR encoded)."""
 
+from schemas._layout import (
+    PART_SUFFIX,
+    RECORDING_SUFFIX,
+    RECOVERED_SUFFIX,
+    dataset_recordings,
+    is_recording,
+)
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
     CUSTOM_TYPES,
@@ -14,10 +21,15 @@ __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
     "PACKAGE",
+    "PART_SUFFIX",
+    "RECORDING_SUFFIX",
+    "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
     "Channel",
     "build_typestore",
     "channel_for_topic",
+    "dataset_recordings",
     "full_type_name",
+    "is_recording",
     "msg_definition",
 ]

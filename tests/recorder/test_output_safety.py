@@ -19,8 +19,9 @@ from conftest import FakeRig, fake_objects
 from recorder import OutputExistsError, RecorderError, load_actions, write_index
 from recorder import _dataset as dataset_module
 from recorder._cli import main as record_main
-from recorder._writer import PART_SUFFIX, RecordingInfo, RecordingWriter, record_action
+from recorder._writer import RecordingInfo, RecordingWriter, record_action
 from replay import read_recording
+from schemas import PART_SUFFIX
 
 TESTS = Path(__file__).resolve().parents[1]
 

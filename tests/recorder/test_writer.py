@@ -26,7 +26,6 @@ from recorder import (
 from recorder._catalog import ObjectSpec
 from recorder._writer import (
     METADATA_NAME,
-    PART_SUFFIX,
     RecordingInfo,
     RecordingWriter,
     WrittenRecording,
@@ -35,7 +34,7 @@ from recorder._writer import (
     software_version,
 )
 from replay._reader import read_recording
-from schemas import CHANNELS, SCHEMA_VERSION, build_typestore
+from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore
 
 Objects = dict[str, ObjectSpec]
 Actions = dict[str, ActionSpec]

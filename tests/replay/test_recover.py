@@ -20,10 +20,11 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
 from recorder import load_actions
-from recorder._writer import FLUSH_INTERVAL_NS, PART_SUFFIX, RecordingInfo, _Encoder, record_action
+from recorder._writer import FLUSH_INTERVAL_NS, RecordingInfo, _Encoder, record_action
 from replay import MODALITIES, RecordingError, read_recording
 from replay._cli import main
 from replay._recover import RECOVERY_NAME, recovered_path, salvage
+from schemas import PART_SUFFIX
 
 NS = 1_000_000_000
 TESTS = Path(__file__).resolve().parents[1]
