@@ -386,13 +386,20 @@ def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFram
     )
 
 
+def _cell(value: object) -> str:
+    """Render one table cell: floats as percentages, missing values as a dash."""
+    if value is None:
+        return "-"
+    return f"{100 * value:.1f} %" if isinstance(value, float) else str(value)
+
+
 def _markdown(frame: pl.DataFrame) -> str:
     """Render a small table as GitHub markdown, floats as percentages."""
     header = "| " + " | ".join(frame.columns) + " |"
     rule = "|" + "|".join("---" for _ in frame.columns) + "|"
     lines = [header, rule]
     for row in frame.iter_rows():
-        cells = [f"{100 * v:.1f} %" if isinstance(v, float) else str(v) for v in row]
+        cells = [_cell(v) for v in row]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
