@@ -386,11 +386,13 @@ def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFram
     )
 
 
-def _cell(value: object) -> str:
-    """Render one table cell: floats as percentages, missing values as a dash."""
+def _cell(value: object, column: str) -> str:
+    """Render one table cell: accuracies as percentages, gains as signed percentage points."""
     if value is None:
         return "-"
-    return f"{100 * value:.1f} %" if isinstance(value, float) else str(value)
+    if not isinstance(value, float):
+        return str(value)
+    return f"{100 * value:+.1f} pts" if column.startswith("gain") else f"{100 * value:.1f} %"
 
 
 def _markdown(frame: pl.DataFrame) -> str:
@@ -399,7 +401,7 @@ def _markdown(frame: pl.DataFrame) -> str:
     rule = "|" + "|".join("---" for _ in frame.columns) + "|"
     lines = [header, rule]
     for row in frame.iter_rows():
-        cells = [_cell(v) for v in row]
+        cells = [_cell(v, c) for v, c in zip(row, frame.columns, strict=True)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
