@@ -115,7 +115,7 @@ def fit_prior_model(
         amplitude: Learn a signal variance (False: the thesis kernel).
         n_thermal_components: Thermal PCA dimensions.
         n_restarts: Random restarts per binary classifier.
-        max_iter: L-BFGS-B iteration limit per start.
+        max_iter: Iteration limit of the hyperparameter search per start.
         random_state: Seed of the restarts.
 
     Returns:
@@ -299,8 +299,8 @@ class ActiveLearner:
         amplitude: Learn a signal variance (False: the thesis kernel, ``|w|_1 = 1`` only).
         n_thermal_components: Thermal PCA dimensions (thesis: 10).
         n_restarts: Random restarts of each hyperparameter search in :meth:`initialise`.
-        max_iter_initial: L-BFGS-B iteration limit per start in :meth:`initialise`.
-        max_iter_step: L-BFGS-B iteration limit of the warm-started search of each step.
+        max_iter_initial: Search iteration limit per start in :meth:`initialise`.
+        max_iter_step: Iteration limit of the warm-started search of each step.
         random_state: Seed of every random choice (exploration, restarts).
 
     Attributes:
@@ -573,8 +573,9 @@ class ActiveLearner:
             state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         models = []
+        initial = modality_kernel(transformer.slices_, amplitude=self.amplitude)
         for obj, seed in enumerate(seeds):
-            kernel = modality_kernel(transformer.slices_, amplitude=self.amplitude)
+            kernel = initial  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
@@ -592,6 +593,7 @@ class ActiveLearner:
                 prior=prior,
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
+                previous=state.models[obj] if state.models else None,
                 n_restarts=n_restarts,
                 max_iter=max_iter,
                 seed=seed,
@@ -621,6 +623,7 @@ class ActiveLearner:
         prior: PriorModel | None,
         auxiliary: Mapping[int, FloatArray],
         rho_starts: dict[int, float],
+        previous: TransferGPC | None,
         n_restarts: int,
         max_iter: int,
         seed: int,
@@ -646,13 +649,19 @@ class ActiveLearner:
             choice = choose_by_prediction(prior.model, features, self.eps_neg1)
         aux = None if choice.source is None else auxiliary[choice.source]
         model = TransferGPC(
-            kernel, rho=choice.rho, n_restarts=n_restarts, max_iter=max_iter, random_state=seed
+            kernel,
+            rho=choice.rho,
+            n_restarts=n_restarts,
+            max_iter=max_iter,
+            previous=previous,
+            random_state=seed,
         ).fit(X, y, aux)
         return choice, model
 
     def _uncertainty(self, state: ActionState) -> FloatArray:
         """``UNC`` of each new object: mean entropy of its own observations' posteriors."""
-        entropies = entropy(self._posterior(state, state.X))
+        posterior = normalise(np.column_stack([m.training_positive() for m in state.models]))
+        entropies = entropy(posterior)
         labels = np.asarray(state.labels)
         return np.array([entropies[labels == obj].mean() for obj in range(self.n_new_objects)])
 

@@ -7,7 +7,8 @@ marginal likelihood). The likelihood is the logistic sigmoid; the predictive int
 Barber (1998, appendix A), the same as scikit-learn, so that both implementations agree.
 
 - :class:`BinaryGPC`: one binary classifier, hyperparameters by maximising the log marginal
-  likelihood (L-BFGS-B, analytic gradient, seeded restarts).
+  likelihood (projected BFGS of :mod:`atikt.optimize`, analytic gradient, seeded restarts,
+  curvature carried over from a previous fit).
 - :class:`OneVsAllGPC`: one binary classifier per class (object), probabilities normalised
   over the classes.
 - :class:`MultiModalGPC`: feature normalisation + one-vs-all GPC over a chosen subset of
@@ -21,13 +22,13 @@ from typing import TYPE_CHECKING, Final, Self
 
 import numpy as np
 import numpy.typing as npt
-import scipy.optimize
 from scipy.linalg import lapack
 from scipy.special import erf, expit
 
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import FeatureTransformer, RawFeatures
 from atikt.kernels import Kernel, modality_kernel
+from atikt.optimize import minimize_box
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -41,6 +42,7 @@ LAMBDAS: Final = np.array([0.41, 0.4, 0.37, 0.44, 0.39])
 COEFS: Final = np.array([-1854.8214151, 3516.89893646, 221.29346712, 128.12323805, -2010.49422654])
 _MAX_HALVINGS: Final = 20
 _SAME_POINT: Final = 1e-8
+_SHORT_STEP: Final = 1e-5
 
 
 def _rng(random_state: RandomState) -> np.random.Generator:
@@ -64,9 +66,11 @@ class LaplaceMode:
         a: ``K^-1 f`` (equal to ``y - pi`` at the mode), shape (n,).
         pi: ``sigmoid(f)``, shape (n,).
         sqrt_w: ``W^1/2`` with ``W = pi (1 - pi)``, shape (n,).
-        L: Lower Cholesky factor of ``B = I + W^1/2 K W^1/2``, shape (n, n).
+        L: Lower Cholesky factor of ``B = I + W^1/2 K W^1/2`` in the lower triangle, shape
+            (n, n); the strict upper triangle is not part of it (read it with ``lower=1``).
         log_marginal_likelihood: Approximate ``log q(y | X, theta)`` (R&W Eq. 3.32).
         n_iter: Newton iterations used.
+        K: The prior covariance the mode was found for (jitter included), shape (n, n).
     """
 
     f: FloatArray
@@ -76,6 +80,7 @@ class LaplaceMode:
     L: FloatArray
     log_marginal_likelihood: float
     n_iter: int
+    K: FloatArray
 
 
 def _log_likelihood(sign: FloatArray, f: FloatArray) -> float:
@@ -98,8 +103,10 @@ def _cholesky_b(K: FloatArray, sqrt_w: FloatArray) -> FloatArray:
     Raises:
         NumericalError: ``B`` is not positive definite (non-finite or asymmetric ``K``).
     """
-    B = add_to_diagonal(sqrt_w[:, None] * K * sqrt_w[None, :], 1.0)
-    L, info = lapack.dpotrf(B, lower=1, clean=1, overwrite_a=1)
+    B = add_to_diagonal(K * (sqrt_w[:, None] * sqrt_w), 1.0)
+    # B is symmetric: its transpose is the Fortran-ordered array LAPACK factorises in place.
+    # The strict upper triangle of the result keeps B's entries (every user reads the lower).
+    L, info = lapack.dpotrf(B.T, lower=1, clean=0, overwrite_a=1)
     if info != 0 or not np.isfinite(L[-1, -1]):
         msg = (
             f"Cholesky of B = I + W^1/2 K W^1/2 failed (LAPACK info {info}): the kernel matrix "
@@ -146,7 +153,9 @@ def laplace_mode(
     """Find the posterior mode of a binary GP classifier by Newton's method (R&W Alg. 3.1).
 
     Newton's method stops when a step raises the objective ``Psi(f) = -a'f/2 + log p(y|f)`` by
-    less than ``tol``. ``W`` and ``L`` (hence the log determinant, the predictions and the
+    less than ``tol``, or when an undamped step moved no latent value by more than
+    ``_SHORT_STEP`` (Newton's method converges quadratically: the error left is of the order
+    of that step squared). ``W`` and ``L`` (hence the log determinant, the predictions and the
     gradient) are then recomputed at the returned mode, unless the last step moved no latent
     value by more than ``_SAME_POINT`` (then the last linearisation point is kept, saving one
     factorisation at an error below that size).
@@ -188,15 +197,19 @@ def laplace_mode(
         a_new = b - sqrt_w * _cho_solve(L, sqrt_w * (K @ b))  # line 7
         f_new = K @ a_new  # line 8
         psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
+        damped = False
         if a is not None and psi_new < psi - tol:
             a_new, f_new, psi_new = _damped(K, sign, a, a_new, psi)
+            damped = True
         if not np.isfinite(psi_new):
             msg = "the Laplace objective is not finite; check the features and hyperparameters"
             raise NumericalError(msg)
-        if psi_new - psi < tol:  # line 10
-            if np.abs(f_new - f).max() <= _SAME_POINT:
+        step = float(np.abs(f_new - f).max())
+        # line 10; a full Newton step this short leaves an error of its square
+        if psi_new - psi < tol or (step <= _SHORT_STEP and not damped):
+            if step <= _SAME_POINT:
                 lml = psi_new - float(np.log(np.diag(L)).sum())
-                return LaplaceMode(f_new, a_new, pi, sqrt_w, L, lml, n_iter)
+                return LaplaceMode(f_new, a_new, pi, sqrt_w, L, lml, n_iter, K)
             a, f, psi = a_new, f_new, psi_new
             break
         a, f, psi = a_new, f_new, psi_new
@@ -206,7 +219,8 @@ def laplace_mode(
     if a is None:  # cannot happen: every iteration that does not return sets a
         msg = "Newton's method produced no iterate; report this with the inputs"
         raise NumericalError(msg)
-    return LaplaceMode(f, a, pi, sqrt_w, L, psi - float(np.log(np.diag(L)).sum()), n_iter)
+    lml = psi - float(np.log(np.diag(L)).sum())
+    return LaplaceMode(f, a, pi, sqrt_w, L, lml, n_iter, K)
 
 
 def lml_gradient(K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode) -> FloatArray:
@@ -277,19 +291,29 @@ def _check_xy(X: npt.ArrayLike, y: npt.ArrayLike) -> tuple[FloatArray, FloatArra
 class BinaryGPC:
     """Binary GP classifier with the Laplace approximation (R&W Alg. 3.1, 3.2, 5.1).
 
-    Hyperparameters maximise the approximate log marginal likelihood with L-BFGS-B and the
-    analytic gradient, starting from the kernel's own ``theta`` (so passing the previous
-    optimum warm-starts the search) and from ``n_restarts`` points drawn uniformly in the
-    bounds with ``random_state``. Within one search, Newton's method starts from the previous
-    evaluation's ``a``, which typically halves the Newton iterations. A class may be absent
-    from ``y`` (e.g. only positives); the classifier is then simply confident.
+    Hyperparameters maximise the approximate log marginal likelihood with the analytic
+    gradient (:func:`atikt.optimize.minimize_box`, a projected BFGS), starting from the
+    kernel's own ``theta`` with the curvature ``inverse_hessian`` (so passing the previous
+    optimum and its ``inverse_hessian_`` warm-starts the search) and from ``n_restarts`` points
+    drawn uniformly in the bounds with ``random_state``. Within one search, Newton's method
+    starts from a prediction of the mode, which typically halves the Newton iterations. A class
+    may be absent from ``y`` (e.g. only positives); the classifier is then simply confident.
 
     Args:
         kernel: Covariance function; its ``theta`` is the first starting point.
         optimize: False keeps the kernel's hyperparameters.
         n_restarts: Additional random starting points.
-        max_iter: L-BFGS-B iteration limit per start (small values are deliberate: warm
-            starts from the previous optimum only need a few).
+        max_iter: Iteration limit per start (small values are deliberate: warm starts from the
+            previous optimum only need a few).
+        tol: A search stops when its quadratic model predicts a rise of the log marginal
+            likelihood below ``tol`` nats.
+        inverse_hessian: Starting curvature of the search from the kernel's ``theta`` (the
+            ``inverse_hessian_`` of a previous fit); None starts from the identity. Ignored
+            when its shape does not match the kernel's hyperparameters.
+        mode_start: Latent values to start the first Newton search from, for the first
+            ``len(mode_start)`` training points (the others start at 0): the ``mode_.f`` of a
+            previous fit whose training points were the first ones of this fit. None, or longer
+            than the training set: start from 0. Only the cost depends on it, not the mode.
         newton_max_iter: Newton iteration limit of the mode search.
         newton_tol: Newton stopping tolerance on the Laplace objective.
         jitter: Added to the diagonal of ``K``; it keeps predictive variances non-negative.
@@ -301,8 +325,9 @@ class BinaryGPC:
         y_train_: Training labels in {0, 1}, shape (n,).
         mode_: The Laplace approximation at ``kernel_``.
         log_marginal_likelihood_value_: ``log q(y | X, theta)`` at ``kernel_``.
+        inverse_hessian_: The search's curvature at ``kernel_`` (None without a search).
         n_evaluations_: Objective evaluations spent on the hyperparameter search.
-        n_iter_: L-BFGS-B iterations of the start that won (0 without a search).
+        n_iter_: Iterations of the start that won (0 without a search).
     """
 
     def __init__(
@@ -312,6 +337,9 @@ class BinaryGPC:
         optimize: bool = True,
         n_restarts: int = 0,
         max_iter: int = 50,
+        tol: float = 1e-3,
+        inverse_hessian: FloatArray | None = None,
+        mode_start: FloatArray | None = None,
         newton_max_iter: int = 100,
         newton_tol: float = 1e-10,
         jitter: float = 1e-10,
@@ -322,6 +350,9 @@ class BinaryGPC:
         self.optimize = optimize
         self.n_restarts = n_restarts
         self.max_iter = max_iter
+        self.tol = tol
+        self.inverse_hessian = inverse_hessian
+        self.mode_start = mode_start
         self.newton_max_iter = newton_max_iter
         self.newton_tol = newton_tol
         self.jitter = jitter
@@ -330,6 +361,15 @@ class BinaryGPC:
     def _covariance(self, kernel: Kernel, X: FloatArray) -> FloatArray:
         """Return ``K(X, X)`` plus jitter."""
         return add_to_diagonal(kernel(X), self.jitter)
+
+    def _mode_start(self, n: int) -> FloatArray | None:
+        """``mode_start`` padded with zeros to ``n`` points (None: no usable start)."""
+        start = self.mode_start
+        if start is None or not 0 < len(start) <= n:
+            return None
+        f_start = np.zeros(n)
+        f_start[: len(start)] = start
+        return f_start
 
     def _objective(self, X: FloatArray, y: FloatArray) -> _NegativeLml:
         """Return the negative log marginal likelihood of ``(X, y)`` as a function of theta."""
@@ -340,6 +380,7 @@ class BinaryGPC:
             jitter=self.jitter,
             newton_max_iter=self.newton_max_iter,
             newton_tol=self.newton_tol,
+            f_start=self._mode_start(y.shape[0]),
         )
 
     def fit(self, X: npt.ArrayLike, y: npt.ArrayLike) -> Self:
@@ -357,8 +398,9 @@ class BinaryGPC:
             NumericalError: Every start of the hyperparameter search failed numerically.
         """
         self.X_train_, self.y_train_ = _check_xy(X, y)
-        kernel, mode, f0 = self.kernel, None, None
+        kernel, mode, f0 = self.kernel, None, self._mode_start(self.y_train_.shape[0])
         self.n_evaluations_, self.n_iter_ = 0, 0
+        self.inverse_hessian_: FloatArray | None = None
         if self.optimize and kernel.n_params > 0:
             objective = self._objective(self.X_train_, self.y_train_)
             theta = self._search(objective)
@@ -376,37 +418,43 @@ class BinaryGPC:
         return self
 
     def _search(self, objective: _NegativeLml) -> FloatArray:
-        """Run L-BFGS-B from the kernel's theta and the random restarts; return the best theta.
+        """Search from the kernel's theta and the random restarts; return the best theta.
 
         Raises:
             NumericalError: No start produced a finite optimum.
         """
         bounds = self.kernel.bounds
-        starts = [np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1])]
+        n = bounds.shape[0]
+        curvature = self.inverse_hessian
+        if curvature is not None and np.shape(curvature) != (n, n):
+            curvature = None
+        starts = [(np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1]), curvature)]
         if self.n_restarts > 0:
             rng = _rng(self.random_state)
-            starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(self.n_restarts)]
-        best_theta, best_value, failure = None, np.inf, None
-        for start in starts:
+            starts += [
+                (rng.uniform(bounds[:, 0], bounds[:, 1]), None) for _ in range(self.n_restarts)
+            ]
+        best, failure = None, None
+        for start, inverse_hessian in starts:
             try:
-                result = scipy.optimize.minimize(
+                result = minimize_box(
                     objective,
                     start,
-                    jac=True,
-                    method="L-BFGS-B",
-                    bounds=bounds,
-                    options={"maxiter": self.max_iter},
+                    bounds,
+                    inverse_hessian=inverse_hessian,
+                    max_iter=self.max_iter,
+                    tol=self.tol,
                 )
             except NumericalError as err:
                 failure = err
                 continue
-            if np.isfinite(result.fun) and result.fun < best_value:
-                best_theta, best_value = np.asarray(result.x, dtype=np.float64), float(result.fun)
-                self.n_iter_ = int(result.nit)
-        if best_theta is None:
+            if best is None or result.fun < best.fun:
+                best = result
+        if best is None:
             msg = "the hyperparameter search failed from every start; check the training data"
             raise NumericalError(msg) from failure
-        return best_theta
+        self.n_iter_, self.inverse_hessian_ = best.n_iter, best.inverse_hessian
+        return best.x
 
     def log_marginal_likelihood(
         self, theta: npt.ArrayLike | None = None, *, eval_gradient: bool = False
@@ -459,9 +507,35 @@ class BinaryGPC:
         var = self.kernel_.diag(Xs) - np.einsum("ij,ij->j", v, v)  # line 6
         return mean, var
 
+    def latent_mean(self, X: npt.ArrayLike) -> FloatArray:
+        """Latent predictive mean at ``X`` only (R&W Alg. 3.2, line 4), shape (m,)."""
+        self._check_fitted()
+        K_star = self.kernel_(self.X_train_, np.asarray(X, dtype=np.float64))
+        return np.asarray(K_star.T @ (self.y_train_ - self.mode_.pi), dtype=np.float64)
+
     def predict_positive(self, X: npt.ArrayLike) -> FloatArray:
         """Probability of the positive class at ``X``, shape (m,) (Alg. 3.2, line 7)."""
         return predictive_probability(*self.latent(X))
+
+    def training_latent(self, rows: slice = slice(None)) -> tuple[FloatArray, FloatArray]:
+        r"""Latent predictive mean and variance at training inputs, without a kernel call.
+
+        At a training input the predictive mean ``k(x_i)' (y - pi) = (K K^-1 f)_i`` is the
+        mode itself, and ``v = L \ W^1/2 K`` reuses the covariance of the fit; this equals
+        :meth:`latent` of ``X_train_[rows]`` up to the jitter (1e-10 by default).
+
+        Args:
+            rows: The training rows, e.g. ``slice(n_aux, None)``.
+
+        Returns:
+            Mean and variance, each of the rows' length.
+        """
+        self._check_fitted()
+        mode = self.mode_
+        K = mode.K[:, rows]
+        v = _tri_solve(mode.L, mode.sqrt_w[:, None] * K)
+        var = np.diagonal(K[rows]) - np.einsum("ij,ij->j", v, v)
+        return mode.f[rows], var
 
     def predict_proba(self, X: npt.ArrayLike) -> FloatArray:
         """Class probabilities ``[p(y=0), p(y=1)]`` at ``X``, shape (m, 2)."""
@@ -494,8 +568,10 @@ class _NegativeLml:
         jitter: float,
         newton_max_iter: int,
         newton_tol: float,
+        f_start: FloatArray | None = None,
     ) -> None:
         self.evaluate = kernel.evaluator(X)
+        self.f_start = f_start
         self.y = y
         self.jitter, self.newton_max_iter, self.newton_tol = jitter, newton_max_iter, newton_tol
         self.last_theta: FloatArray | None = None
@@ -506,7 +582,7 @@ class _NegativeLml:
     def start(self, theta: FloatArray) -> FloatArray | None:
         """Predicted mode at ``theta`` from the last evaluation (None: start from zero)."""
         if self.last_mode is None or self.last_theta is None or self.last_slope is None:
-            return None
+            return self.f_start
         change = (theta - self.last_theta) @ self.last_slope
         if np.abs(change).max(initial=0.0) > self.max_prediction:
             return self.last_mode.f
@@ -554,7 +630,7 @@ class OneVsAllGPC:
         kernel: Starting kernel of every binary classifier.
         optimize: False keeps the kernel's hyperparameters.
         n_restarts: Additional random starts per binary classifier.
-        max_iter: L-BFGS-B iteration limit per start.
+        max_iter: Iteration limit of the hyperparameter search per start.
         jitter: Diagonal jitter.
         random_state: Seed or generator; each binary classifier gets its own derived seed.
 
@@ -658,7 +734,7 @@ class MultiModalGPC:
         n_thermal_components: Thermal PCA dimensions.
         amplitude: Learn a signal variance (False: the thesis kernel).
         n_restarts: Random restarts per binary classifier.
-        max_iter: L-BFGS-B iteration limit per start.
+        max_iter: Iteration limit of the hyperparameter search per start.
         random_state: Seed of the restarts.
 
     Attributes:

@@ -18,6 +18,7 @@ free ones, ``bounds`` their (log) box, ``with_theta`` returns a new kernel, and
 from __future__ import annotations
 
 import abc
+import math
 from typing import TYPE_CHECKING, Final, Literal, Self, TypeAlias
 
 import numpy as np
@@ -101,10 +102,16 @@ class Kernel(abc.ABC):
         """
         return lambda theta: self.with_theta(theta).gradient(X)
 
+    def _copy(self) -> Self:
+        """A shallow copy (``with_theta`` then replaces the values that change)."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        return new
+
     @property
     def n_params(self) -> int:
         """Number of free hyperparameters."""
-        return int(self.theta.shape[0])
+        return int(self.bounds.shape[0])
 
     def _check_theta(self, theta: npt.ArrayLike) -> FloatArray:
         """Return ``theta`` as a float array of the right length.
@@ -166,8 +173,10 @@ class SliceRBF(Kernel):
     def with_theta(self, theta: npt.ArrayLike) -> Self:
         """Return a copy with ``log l = theta[0]``."""
         values = self._check_theta(theta)
-        length_scale = float(np.exp(values[0])) if values.shape[0] else self.length_scale
-        return type(self)(self.columns, length_scale, self.length_scale_bounds, self.name)
+        new = self._copy()  # the bounds stay: only the value changes
+        if values.shape[0]:
+            new.length_scale = math.exp(values[0])
+        return new
 
     def sq_dist(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
         """Squared Euclidean distances of the slice, shape (n_X, n_Y)."""
@@ -298,10 +307,12 @@ class ModalityKernel(Kernel):
         for part in self.parts:
             parts.append(part.with_theta(values[start : start + part.n_params]))
             start += part.n_params
-        n_logits = len(self.parts) - 1
-        logits = values[start : start + n_logits]
-        variance = float(np.exp(values[-1])) if self._learn_variance else self.variance
-        return type(self)(parts, logits, variance, self.logit_bounds, self.variance_bounds)
+        new = self._copy()  # the bounds stay: only the values change
+        new.parts = tuple(parts)
+        new.logits = values[start : start + len(self.parts) - 1].copy()
+        if self._learn_variance:
+            new.variance = math.exp(values[-1])
+        return new
 
     def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
         """Return ``s^2 * sum_m w_m K_m(X, Y)``."""
@@ -417,9 +428,11 @@ class DependentKernel(Kernel):
         """Return a copy with the free hyperparameters set from ``theta``."""
         values = self._check_theta(theta)
         n_base = self.base.n_params
-        base = self.base.with_theta(values[:n_base])
-        rho = float(np.exp(values[n_base])) if self.learn_rho else self.rho
-        return type(self)(base, min(rho, 1.0), self.rho_bounds, self.flag_column)
+        new = self._copy()  # the bounds stay: only the values change
+        new.base = self.base.with_theta(values[:n_base])
+        if self.learn_rho:
+            new.rho = min(math.exp(values[n_base]), 1.0)
+        return new
 
     def _cross(self, X: FloatArray, Y: FloatArray | None) -> npt.NDArray[np.bool_]:
         """Return True where the two observations come from different domains."""

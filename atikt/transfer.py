@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atikt.errors import AtiktError, NotFittedError
-from atikt.gpc import BinaryGPC, OneVsAllGPC, RandomState
+from atikt.gpc import BinaryGPC, OneVsAllGPC, RandomState, predictive_probability
 from atikt.kernels import DEFAULT_RHO_BOUNDS, DependentKernel, Kernel, ModalityKernel
 
 FloatArray = npt.NDArray[np.float64]
@@ -57,7 +57,11 @@ class TransferGPC:
         rho_bounds: Box of a learned ``rho``.
         optimize: False keeps all hyperparameters.
         n_restarts: Additional random starts of the hyperparameter search.
-        max_iter: L-BFGS-B iteration limit per start.
+        max_iter: Iteration limit of the hyperparameter search per start.
+        previous: A fitted classifier of the same object whose new-object observations were
+            the first ones of this fit's (the previous update of active learning): its search
+            curvature and Laplace mode start this fit's search (see :class:`BinaryGPC`'s
+            ``inverse_hessian`` and ``mode_start``); only the cost depends on it.
         jitter: Diagonal jitter.
         random_state: Seed of the restarts.
 
@@ -67,6 +71,7 @@ class TransferGPC:
         transferred_: Whether auxiliary data were used.
         rho_: The transfer coefficient used (0 when not transferring).
         base_kernel_: The fitted base kernel (for weights and warm starts).
+        n_auxiliary_: Auxiliary observations used (0 when not transferring).
     """
 
     def __init__(
@@ -79,11 +84,13 @@ class TransferGPC:
         optimize: bool = True,
         n_restarts: int = 0,
         max_iter: int = 50,
+        previous: TransferGPC | None = None,
         jitter: float = 1e-10,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
         self.kernel = kernel
+        self.previous = previous
         self.rho = rho
         self.learn_rho = learn_rho
         self.rho_bounds = rho_bounds
@@ -93,13 +100,29 @@ class TransferGPC:
         self.jitter = jitter
         self.random_state = random_state
 
-    def _estimator(self, kernel: Kernel) -> BinaryGPC:
-        """Return an unfitted binary classifier with this object's settings."""
+    def _estimator(self, kernel: Kernel, n_aux: int, Xn: FloatArray) -> BinaryGPC:
+        """Return an unfitted binary classifier with this object's settings and warm start."""
+        inverse_hessian, mode_start = None, None
+        previous = self.previous
+        if previous is not None and hasattr(previous, "estimator_"):
+            inverse_hessian = previous.estimator_.inverse_hessian_
+            f = previous.estimator_.mode_.f
+            n_prev_aux = previous.n_auxiliary_
+            aux_start = f[:n_prev_aux] if n_prev_aux == n_aux else np.zeros(n_aux)
+            known = f[n_prev_aux:]
+            if known.shape[0] <= Xn.shape[0]:  # the added observations: the previous mean
+                added = Xn[known.shape[0] :]
+                if previous.transferred_:
+                    added = with_domain(added, NEW_DOMAIN)
+                known = np.concatenate([known, previous.estimator_.latent_mean(added)])
+            mode_start = np.concatenate([aux_start, known])
         return BinaryGPC(
             kernel,
             optimize=self.optimize,
             n_restarts=self.n_restarts,
             max_iter=self.max_iter,
+            inverse_hessian=inverse_hessian,
+            mode_start=mode_start,
             jitter=self.jitter,
             random_state=self.random_state,
         )
@@ -128,8 +151,8 @@ class TransferGPC:
         self.transferred_ = aux is not None and aux.shape[0] > 0
         self.transferred_ &= self.learn_rho or self.rho > 0.0
         if not self.transferred_ or aux is None:
-            self.estimator_ = self._estimator(self.kernel).fit(Xn, yn)
-            self.rho_ = 0.0
+            self.estimator_ = self._estimator(self.kernel, 0, Xn).fit(Xn, yn)
+            self.rho_, self.n_auxiliary_ = 0.0, 0
             self.base_kernel_ = self.estimator_.kernel_
             return self
         if aux.ndim != 2 or aux.shape[1] != Xn.shape[1]:  # noqa: PLR2004
@@ -145,7 +168,8 @@ class TransferGPC:
         )
         X_all = np.vstack([with_domain(aux, OLD_DOMAIN), with_domain(Xn, NEW_DOMAIN)])
         y_all = np.concatenate([np.ones(aux.shape[0]), yn])
-        self.estimator_ = self._estimator(dependent).fit(X_all, y_all)
+        self.estimator_ = self._estimator(dependent, aux.shape[0], Xn).fit(X_all, y_all)
+        self.n_auxiliary_ = aux.shape[0]
         fitted = self.estimator_.kernel_
         assert isinstance(fitted, DependentKernel)  # noqa: S101 - built just above
         self.rho_ = fitted.rho
@@ -159,6 +183,18 @@ class TransferGPC:
             raise NotFittedError(msg)
         Xs = with_domain(X, NEW_DOMAIN) if self.transferred_ else np.asarray(X, np.float64)
         return self.estimator_.predict_positive(Xs)
+
+    def training_positive(self) -> FloatArray:
+        """Probability of this object at its own new-object training observations, shape (n,).
+
+        Equals ``predict_positive(X)`` of the ``X`` given to :meth:`fit`, without evaluating the
+        kernel again (see :meth:`BinaryGPC.training_latent`).
+        """
+        if not hasattr(self, "estimator_"):
+            msg = "TransferGPC is not fitted; call fit(X, y, X_aux) first"
+            raise NotFittedError(msg)
+        latent = self.estimator_.training_latent(slice(self.n_auxiliary_, None))
+        return predictive_probability(*latent)
 
     def predict_proba(self, X: npt.ArrayLike) -> FloatArray:
         """Class probabilities ``[p(other), p(this object)]``, shape (m, 2)."""
@@ -260,7 +296,7 @@ def choose_by_optimization(
         rho0: Starting ``rho`` of every search, or per old object (warm start; 0.5 for the
             old objects it does not name).
         n_restarts: Additional random starts per search.
-        max_iter: L-BFGS-B iteration limit per start.
+        max_iter: Iteration limit of each hyperparameter search per start.
         random_state: Seed of the restarts.
 
     Returns:

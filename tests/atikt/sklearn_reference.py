@@ -261,8 +261,11 @@ def reference_update(
     old_model: Sequence[GaussianProcessClassifier] | None,
     changed: int | None = None,
     warm_start: bool = True,
-) -> FloatArray:
-    """One action update of the model prediction approach with scikit-learn; returns UNC.
+) -> tuple[FloatArray, FloatArray]:
+    """One action update of the model prediction approach with scikit-learn.
+
+    Returns UNC per new object and the log marginal likelihood each new object's classifier
+    reached.
 
     Mirrors :meth:`atikt.ActiveLearner._update`: features fitted on the collected observations
     (prior observations mapped into that space), relatedness by the old objects' binary
@@ -317,7 +320,8 @@ def reference_update(
         m.predict_proba(with_domain(X, 1.0) if flagged else X)[:, 1] for m, flagged in models
     ]
     entropies = entropy(normalise(np.column_stack(columns)))
-    return np.array([entropies[labels == obj].mean() for obj in range(n_new_objects)])
+    unc = np.array([entropies[labels == obj].mean() for obj in range(n_new_objects)])
+    return unc, np.array([m.log_marginal_likelihood_value_ for m, _ in models])
 
 
 def reference_old_model(

@@ -135,3 +135,24 @@ def test_transfer_errors() -> None:
         TransferGPC(modality_kernel(SLICES), rho=0.5).fit(X, y, np.zeros((2, 5)))
     with pytest.raises(NotFittedError):
         TransferGPC(modality_kernel(SLICES)).predict_positive(X)
+
+
+def test_training_positive_and_warm_start_from_the_previous_update() -> None:
+    rng = np.random.default_rng(5)
+    X, y = new_data(rng)
+    aux = cluster(CENTRES[0] + 0.5, 12, rng)
+    kernel = modality_kernel(SLICES)
+    for source in (None, aux):
+        previous = TransferGPC(kernel, rho=0.7).fit(X[:-1], y[:-1], source)
+        np.testing.assert_allclose(
+            previous.training_positive(), previous.predict_positive(X[:-1]), atol=1e-8
+        )
+        for later_source in (None, aux):  # the source may change between updates
+            start = kernel.with_theta(previous.base_kernel_.theta)
+            cold = TransferGPC(start, rho=0.7).fit(X, y, later_source)
+            warm = TransferGPC(start, rho=0.7, previous=previous)
+            warm.fit(X, y, later_source)
+            assert warm.estimator_.n_evaluations_ <= cold.estimator_.n_evaluations_
+            np.testing.assert_allclose(
+                warm.predict_positive(X), cold.predict_positive(X), atol=0.02
+            )
