@@ -17,6 +17,7 @@ Barber (1998, appendix A), the same as scikit-learn, so that both implementation
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Final, Self
 
@@ -107,14 +108,14 @@ def _cholesky_b(K: FloatArray, sqrt_w: FloatArray) -> FloatArray:
     # B is symmetric: its transpose is the Fortran-ordered array LAPACK factorises in place.
     # The strict upper triangle of the result keeps B's entries (every user reads the lower).
     L, info = lapack.dpotrf(B.T, lower=1, clean=0, overwrite_a=1)
-    if info != 0 or not np.isfinite(L[-1, -1]):
+    if info != 0 or not math.isfinite(L[-1, -1]):
         msg = (
             f"Cholesky of B = I + W^1/2 K W^1/2 failed (LAPACK info {info}): the kernel matrix "
             "is not a valid covariance (NaN/inf features or hyperparameters?); check the "
             "training features"
         )
         raise NumericalError(msg)
-    return np.asarray(L, dtype=np.float64)
+    return L  # type: ignore[no-any-return]  # LAPACK returns float64 for float64 input
 
 
 def _cho_solve(L: FloatArray, b: FloatArray) -> FloatArray:
@@ -201,14 +202,14 @@ def laplace_mode(
         if a is not None and psi_new < psi - tol:
             a_new, f_new, psi_new = _damped(K, sign, a, a_new, psi)
             damped = True
-        if not np.isfinite(psi_new):
+        if not math.isfinite(psi_new):
             msg = "the Laplace objective is not finite; check the features and hyperparameters"
             raise NumericalError(msg)
         step = float(np.abs(f_new - f).max())
         # line 10; a full Newton step this short leaves an error of its square
         if psi_new - psi < tol or (step <= _SHORT_STEP and not damped):
             if step <= _SAME_POINT:
-                lml = psi_new - float(np.log(np.diag(L)).sum())
+                lml = psi_new - float(np.log(L.diagonal()).sum())
                 return LaplaceMode(f_new, a_new, pi, sqrt_w, L, lml, n_iter, K)
             a, f, psi = a_new, f_new, psi_new
             break
@@ -219,7 +220,7 @@ def laplace_mode(
     if a is None:  # cannot happen: every iteration that does not return sets a
         msg = "Newton's method produced no iterate; report this with the inputs"
         raise NumericalError(msg)
-    lml = psi - float(np.log(np.diag(L)).sum())
+    lml = psi - float(np.log(L.diagonal()).sum())
     return LaplaceMode(f, a, pi, sqrt_w, L, lml, n_iter, K)
 
 
@@ -247,7 +248,7 @@ def _gradient_terms(
     R = V.T @ V  # line 7: R = W^1/2 L' \\ (L \\ W^1/2)
     C = V @ K  # line 8: C = L \\ (W^1/2 K)
     # line 9: d^3 log p / df^3 = -pi (1 - pi) (1 - 2 pi) for the logistic likelihood
-    s2 = -0.5 * (np.diag(K) - np.einsum("ij,ij->j", C, C)) * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
+    s2 = -0.5 * (K.diagonal() - np.einsum("ij,ij->j", C, C)) * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
     # line 12, all hyperparameters at once: a' dK_j a / 2 - tr(R dK_j) / 2
     s1 = dK.reshape(dK.shape[0], -1) @ (0.5 * (np.outer(mode.a, mode.a) - R)).ravel()
     b = dK @ (y - pi)  # line 13, one row per hyperparameter
