@@ -17,11 +17,13 @@ where they come from (a rig, or a pool of recordings). Given the same observatio
 order and the same ``random_state``, it makes the same decisions, bit for bit. The baseline is
 ``transfer="none"``: the same loop without prior knowledge.
 
-Cost control (a step must take tens of milliseconds): the hyperparameter search of every
-classifier starts from that classifier's optimum of the previous update (warm start), uses no
-random restarts after :meth:`ActiveLearner.initialise`, and stops after ``max_iter_step``
-L-BFGS-B iterations; the old objects' models are fitted once per learner (or once per study,
-see :func:`fit_prior_models`).
+Cost control (a step must take milliseconds): the hyperparameter search of every classifier
+starts from that classifier's optimum, search curvature and Laplace mode of the previous
+update (warm start, :mod:`atikt.optimize`), uses no random restarts after
+:meth:`ActiveLearner.initialise`, and stops after ``max_iter_step`` iterations or when it
+predicts less than 1e-3 nats of improvement (``tol`` of :class:`~atikt.gpc.BinaryGPC`); the
+old objects' models are fitted once per learner (or once per study, see
+:func:`fit_prior_models`).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atikt.errors import AtiktError, NotFittedError
-from atikt.features import FeatureTransformer, RawFeatures
+from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, stack_features
 from atikt.gpc import OneVsAllGPC, RandomState, normalise, spawn_seeds
 from atikt.kernels import ModalityKernel, modality_kernel
 from atikt.transfer import (
@@ -258,6 +260,7 @@ class ActionState:
         thetas: Warm-start hyperparameters (base kernel) per new object.
         rhos: Warm-start learned rho per new object and old object (model optimisation).
         uncertainty: ``UNC`` per new object, shape (n_new,).
+        prior_stacks: The prior observations of each old object, stacked on first use.
     """
 
     kind: str
@@ -271,6 +274,7 @@ class ActionState:
     thetas: list[FloatArray | None] = field(default_factory=list)
     rhos: list[dict[int, float]] = field(default_factory=list)
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
+    prior_stacks: dict[int, StackedFeatures] | None = None
 
 
 class ActiveLearner:
@@ -566,7 +570,7 @@ class ActiveLearner:
         transformer = FeatureTransformer(n_thermal_components=self.n_thermal_components)
         X = transformer.fit_transform(state.observations)
         labels = np.asarray(state.labels)
-        auxiliary = self._auxiliary(prior, transformer)
+        auxiliary = self._auxiliary(state, transformer)
         if not state.models:
             n = self.n_new_objects
             state.models, state.choices = [], [_NO_CHOICE] * n
@@ -605,12 +609,15 @@ class ActiveLearner:
         state.uncertainty = self._uncertainty(state)
 
     def _auxiliary(
-        self, prior: PriorModel | None, transformer: FeatureTransformer
+        self, state: ActionState, transformer: FeatureTransformer
     ) -> dict[int, FloatArray]:
         """Each old object's prior observations in the current feature space."""
-        if prior is None:
+        if state.prior is None:
             return {}
-        return {old: transformer.transform(obs) for old, obs in prior.by_object().items()}
+        if state.prior_stacks is None:  # stacked once: the prior observations never change
+            groups = state.prior.by_object().items()
+            state.prior_stacks = {old: stack_features(obs) for old, obs in groups}
+        return {old: transformer.transform(obs) for old, obs in state.prior_stacks.items()}
 
     def _fit_object(
         self,

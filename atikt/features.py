@@ -321,6 +321,36 @@ def _check_observations(observations: Sequence[RawFeatures]) -> str:
     return kinds.pop()
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class StackedFeatures:
+    """Observations of one action stacked per modality, for repeated transforms.
+
+    A learner maps the same prior observations into a new feature space at every update;
+    stacking them once (:func:`stack_features`) saves the per-observation work.
+
+    Attributes:
+        kind: Action kind of every observation.
+        blocks: Modality name -> matrix (n, d) of that modality's vectors.
+    """
+
+    kind: str
+    blocks: Mapping[str, FloatArray]
+
+    def __len__(self) -> int:
+        """Number of observations."""
+        return int(next(iter(self.blocks.values())).shape[0])
+
+
+def stack_features(observations: Sequence[RawFeatures]) -> StackedFeatures:
+    """Stack every modality of one action's observations.
+
+    Raises:
+        AtiktError: No observations, mixed kinds or vectors of different lengths.
+    """
+    kind = _check_observations(observations)
+    return StackedFeatures(kind, {m: _stack(observations, m) for m in MODALITIES_BY_KIND[kind]})
+
+
 def _stack(observations: Sequence[RawFeatures], modality: str) -> FloatArray:
     """Stack one modality of all observations into shape (n, d).
 
@@ -434,18 +464,21 @@ class FeatureTransformer:
         Raises:
             AtiktError: No observations, mixed kinds, or a bad ``n_thermal_components``.
         """
+        return self._fit_stacked(stack_features(observations))
+
+    def _fit_stacked(self, stacked: StackedFeatures) -> Self:
+        """Fit on stacked training observations (see :meth:`fit`)."""
         if self.n_thermal_components < 1:
             msg = f"n_thermal_components={self.n_thermal_components}; use at least 1"
             raise AtiktError(msg)
-        self.kind_ = _check_observations(observations)
+        self.kind_ = stacked.kind
         self.modalities_ = self._resolve_modalities(self.kind_)
         self.means_: dict[str, FloatArray] = {}
         self.scales_: dict[str, FloatArray] = {}
         self.slices_: dict[str, slice] = {}
         start = 0
         for modality in self.modalities_:
-            raw = _stack(observations, modality)
-            width = self._fit_modality(modality, raw)
+            width = self._fit_modality(modality, stacked.blocks[modality])
             self.slices_[modality] = slice(start, start + width)
             start += width
         self.n_features_out_ = start
@@ -488,11 +521,12 @@ class FeatureTransformer:
         self.explained_variance_ = variance
         self.thermal_scale_ = float(np.sqrt(total)) if total > self.min_std**2 else 1.0
 
-    def transform(self, observations: Sequence[RawFeatures]) -> FloatArray:
+    def transform(self, observations: Sequence[RawFeatures] | StackedFeatures) -> FloatArray:
         """Map observations to the standardised feature matrix.
 
         Args:
-            observations: Observations of the kind the transformer was fitted on.
+            observations: Observations of the kind the transformer was fitted on, or such
+                observations stacked by :func:`stack_features`.
 
         Returns:
             Shape (n, n_features_out_) float64; columns per modality as in ``slices_``.
@@ -504,12 +538,21 @@ class FeatureTransformer:
         if not hasattr(self, "slices_"):
             msg = "FeatureTransformer is not fitted; call fit(training observations) first"
             raise NotFittedError(msg)
-        kind = _check_observations(observations)
+        if isinstance(observations, StackedFeatures):
+            stacked = observations
+        else:
+            kind = _check_observations(observations)
+            self._check_kind(kind)
+            stacked = StackedFeatures(kind, {m: _stack(observations, m) for m in self.modalities_})
+        self._check_kind(stacked.kind)
+        columns = [self._transform_modality(m, stacked.blocks[m]) for m in self.modalities_]
+        return np.asarray(np.hstack(columns), dtype=np.float64)
+
+    def _check_kind(self, kind: str) -> None:
+        """Raise AtiktError for observations of another kind than the training ones."""
         if kind != self.kind_:
             msg = f"transformer fitted on {self.kind_!r} observations, got {kind!r} ones"
             raise AtiktError(msg)
-        blocks = [self._transform_modality(m, _stack(observations, m)) for m in self.modalities_]
-        return np.hstack(blocks)
 
     def _transform_modality(self, modality: str, raw: FloatArray) -> FloatArray:
         """Standardise (and for thermal, project) one modality block.
@@ -531,4 +574,5 @@ class FeatureTransformer:
 
     def fit_transform(self, observations: Sequence[RawFeatures]) -> FloatArray:
         """Fit on ``observations`` and return their feature matrix."""
-        return self.fit(observations).transform(observations)
+        stacked = stack_features(observations)
+        return self._fit_stacked(stacked).transform(stacked)

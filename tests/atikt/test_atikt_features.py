@@ -278,3 +278,19 @@ def test_thermal_pca_survives_an_svd_that_gesdd_cannot_converge(
     u, singular, vt = features_module._svd(z)
     assert calls == [(12, 8)]
     np.testing.assert_allclose((u * singular) @ vt, z, atol=1e-10)
+
+
+def test_stacked_observations_transform_like_the_observations() -> None:
+    train = random_observations(12, seed=8)
+    test = random_observations(5, seed=9, shift=1.0)
+    transformer = FeatureTransformer(n_thermal_components=4).fit(train)
+    stacked = features_module.stack_features(test)
+    assert len(stacked) == 5
+    np.testing.assert_array_equal(transformer.transform(stacked), transformer.transform(test))
+    np.testing.assert_array_equal(
+        FeatureTransformer(n_thermal_components=4).fit_transform(train),
+        transformer.transform(train),
+    )
+    other_kind = features_module.StackedFeatures("slide", {"texture": np.zeros((1, 4))})
+    with pytest.raises(AtiktError, match="fitted on"):
+        transformer.transform(other_kind)
