@@ -44,6 +44,8 @@ COEFS: Final = np.array([-1854.8214151, 3516.89893646, 221.29346712, 128.1232380
 _MAX_HALVINGS: Final = 20
 _SAME_POINT: Final = 1e-8
 _SHORT_STEP: Final = 1e-5
+COLD_TOL: Final = 1e-8
+"""Stopping tolerance (nats) of a search without a carried curvature: searched to convergence."""
 
 
 def _rng(random_state: RandomState) -> np.random.Generator:
@@ -306,8 +308,11 @@ class BinaryGPC:
         n_restarts: Additional random starting points.
         max_iter: Iteration limit per start (small values are deliberate: warm starts from the
             previous optimum only need a few).
-        tol: A search stops when its quadratic model predicts a rise of the log marginal
-            likelihood below ``tol`` nats.
+        tol: A search that starts with a carried ``inverse_hessian`` stops when its quadratic
+            model predicts a rise of the log marginal likelihood below ``tol`` nats; a cold
+            search (random restarts, or no curvature given) runs to convergence
+            (``COLD_TOL``), as the first fit on a few observations has a flat, uninformative
+            start.
         inverse_hessian: Starting curvature of the search from the kernel's ``theta`` (the
             ``inverse_hessian_`` of a previous fit); None starts from the identity. Ignored
             when its shape does not match the kernel's hyperparameters.
@@ -444,7 +449,7 @@ class BinaryGPC:
                     bounds,
                     inverse_hessian=inverse_hessian,
                     max_iter=self.max_iter,
-                    tol=self.tol,
+                    tol=self.tol if inverse_hessian is not None else min(self.tol, COLD_TOL),
                 )
             except NumericalError as err:
                 failure = err

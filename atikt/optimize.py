@@ -12,7 +12,10 @@ search and an ``O(n^3)`` gradient, so evaluations are what a search costs.
 The search stops when the quadratic model predicts an improvement below ``tol`` (the same units
 as the objective: nats for a log marginal likelihood), when the projected gradient is below
 ``gtol``, after ``max_iter`` iterations, or when no step along the search direction lowers the
-objective. It is deterministic: pure numpy, no randomness.
+objective. The model's prediction is trusted only with an informed curvature (one that was
+passed in, or after the first BFGS update): the identity of a cold start says nothing about the
+objective's scale, and a flat start would otherwise end the search before it moved. It is
+deterministic: pure numpy, no randomness.
 """
 
 from __future__ import annotations
@@ -131,7 +134,8 @@ def minimize_box(
             the ``inverse_hessian`` of a previous search). None: the identity, rescaled after
             the first step (Nocedal & Wright Eq. 6.20).
         max_iter: Maximum accepted steps.
-        tol: Stop when the quadratic model predicts an improvement below ``tol``.
+        tol: Stop when the quadratic model predicts an improvement below ``tol`` (not tested
+            while the curvature is the uninformed identity of a cold start).
         gtol: Stop when the largest projected gradient entry is below ``gtol``.
 
     Returns:
@@ -166,7 +170,7 @@ def minimize_box(
             H, scale_first = np.eye(n), True
             d = -g_free
             slope = float(g @ d)
-        if -0.5 * slope < tol:  # the model's predicted improvement
+        if not scale_first and -0.5 * slope < tol:  # the model's predicted improvement
             converged = True
             break
         step = _line_search(fun, x, f, g, d, lo=lo, hi=hi)
