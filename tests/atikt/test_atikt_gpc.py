@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+import scipy.optimize
 from atikt_synthetic import NEW_OBJECTS, pool
 
 from atikt import (
@@ -256,3 +257,19 @@ def test_mode_start_changes_the_cost_not_the_result() -> None:
     # a curvature of the wrong shape or a mode start longer than the data are ignored
     odd = BinaryGPC(start, inverse_hessian=np.eye(9), mode_start=np.zeros(99)).fit(X, y)
     assert np.isfinite(odd.log_marginal_likelihood_value_)
+
+
+def test_cold_search_on_few_points_converges_like_lbfgsb() -> None:
+    # a first fit on a handful of observations has a flat start; the search must not stop
+    # there on the uninformed identity curvature's prediction (it may end at another of the
+    # flat landscape's local optima than L-BFGS-B, hence the 0.01 nats)
+    for seed in range(4):
+        X, y = problem(6, seed=20 + seed)
+        kernel = modality_kernel(SLICES)
+        ours = BinaryGPC(kernel, max_iter=100).fit(X, y)
+        objective = BinaryGPC(kernel)._objective(ours.X_train_, ours.y_train_)
+        theirs = scipy.optimize.minimize(
+            objective, kernel.theta, jac=True, method="L-BFGS-B", bounds=kernel.bounds
+        )
+        assert ours.n_iter_ > 0
+        assert ours.log_marginal_likelihood_value_ >= -theirs.fun - 0.01
