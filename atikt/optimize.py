@@ -10,7 +10,8 @@ box), so a warm search usually needs one or two evaluations. Each evaluation is 
 search and an ``O(n^3)`` gradient, so evaluations are what a search costs.
 
 The search stops when the quadratic model predicts an improvement below ``tol`` (the same units
-as the objective: nats for a log marginal likelihood), when the projected gradient is below
+as the objective: nats for a log marginal likelihood) or a step gained less than that, when
+the projected gradient is below
 ``gtol``, after ``max_iter`` iterations, or when no step along the search direction lowers the
 objective. The model's prediction is trusted only with an informed curvature (one that was
 passed in, or after the first BFGS update): the identity of a cold start says nothing about the
@@ -96,6 +97,31 @@ def _bfgs_update(H: FloatArray, s: FloatArray, y: FloatArray, sy: float) -> Floa
     return H
 
 
+def _capped(d: FloatArray, max_step: float) -> FloatArray:
+    """``d`` shortened to at most ``max_step`` in every variable.
+
+    A stale or uninformed curvature can propose huge steps.
+    """
+    longest = float(np.abs(d).max(initial=0.0))
+    return d * (max_step / longest) if longest > max_step else d
+
+
+def _learn_curvature(
+    H: FloatArray, s: FloatArray, y: FloatArray, *, scale_first: bool
+) -> tuple[FloatArray, bool]:
+    """BFGS-update ``H`` with the step ``s`` and gradient change ``y`` when ``s'y > 0``.
+
+    The first update of an uninformed identity rescales it first (Nocedal & Wright Eq. 6.20).
+    Returns the curvature and whether it is still uninformed.
+    """
+    sy = float(s @ y)
+    if sy <= _CURVATURE * math.sqrt(float(s @ s) * float(y @ y)):
+        return H, scale_first
+    if scale_first:
+        H = np.eye(H.shape[0]) * (sy / float(y @ y))
+    return _bfgs_update(H, s, y, sy), False
+
+
 def _direction(
     H: FloatArray, x: FloatArray, g: FloatArray, lo: FloatArray, hi: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -122,6 +148,7 @@ def minimize_box(
     max_iter: int = 50,
     tol: float = 1e-4,
     gtol: float = 1e-5,
+    max_step: float = 2.0,
 ) -> SearchResult:
     """Minimise ``fun`` over a box with projected BFGS steps and a backtracking line search.
 
@@ -134,9 +161,12 @@ def minimize_box(
             the ``inverse_hessian`` of a previous search). None: the identity, rescaled after
             the first step (Nocedal & Wright Eq. 6.20).
         max_iter: Maximum accepted steps.
-        tol: Stop when the quadratic model predicts an improvement below ``tol`` (not tested
-            while the curvature is the uninformed identity of a cold start).
+        tol: Stop when the quadratic model predicts an improvement below ``tol``, or after a
+            step that improved by less (neither is tested while the curvature is the
+            uninformed identity of a cold start).
         gtol: Stop when the largest projected gradient entry is below ``gtol``.
+        max_step: Largest change of any variable in one full step (a trust region; 2 in log
+            space is a factor of 7.4 on a hyperparameter).
 
     Returns:
         The best point and the curvature there.
@@ -173,18 +203,17 @@ def minimize_box(
         if not scale_first and -0.5 * slope < tol:  # the model's predicted improvement
             converged = True
             break
-        step = _line_search(fun, x, f, g, d, lo=lo, hi=hi)
+        step = _line_search(fun, x, f, g, _capped(d, max_step), lo=lo, hi=hi)
         n_eval += step.n_evaluations
         if step.x is None:
             break
-        s, y = step.x - x, step.g - g
-        sy = float(s @ y)
-        if sy > _CURVATURE * math.sqrt(float(s @ s) * float(y @ y)):
-            if scale_first:
-                H, scale_first = np.eye(n) * (sy / float(y @ y)), False
-            H = _bfgs_update(H, s, y, sy)
+        H, scale_first = _learn_curvature(H, step.x - x, step.g - g, scale_first=scale_first)
+        gained = f - step.f
         x, f, g = step.x, step.f, step.g
         n_iter += 1
+        if gained < tol and not scale_first:  # a step that gained less than tol: done
+            converged = True
+            break
     return SearchResult(x, float(f), g, H, n_iter, n_eval, converged)
 
 
@@ -213,12 +242,16 @@ def _line_search(
     A rejected trial shrinks ``t`` to the minimiser of the quadratic through ``f``, the slope
     and the trial value, kept within ``[t/10, t/2]``; a failed evaluation shrinks it tenfold.
     """
-    t = 1.0
-    for k in range(1, _MAX_BACKTRACKS + 1):
+    t, k, last = 1.0, 0, None
+    for _ in range(_MAX_BACKTRACKS):
         trial = np.minimum(np.maximum(x + t * d, lo), hi)
         decrease = float(g @ (trial - x))
         if decrease >= 0.0:  # the projection left no descent (all movement clipped away)
-            return _Step(None, f, g, k - 1)
+            return _Step(None, f, g, k)
+        if last is not None and np.array_equal(trial, last):  # still clipped to the same point
+            t *= 0.5
+            continue
+        k, last = k + 1, trial
         try:
             f_new, g_new = fun(trial)
         except NumericalError:
@@ -233,7 +266,7 @@ def _line_search(
             t = min(max(t_new, 0.1 * t), 0.5 * t)
         else:
             t *= 0.1
-    return _Step(None, f, g, _MAX_BACKTRACKS)
+    return _Step(None, f, g, k)
 
 
 def _extrapolate(

@@ -168,3 +168,17 @@ def test_deterministic() -> None:
     runs = [minimize_box(quadratic(A, centre), np.ones(4), BOX, max_iter=5) for _ in range(2)]
     assert np.array_equal(runs[0].x, runs[1].x)
     assert np.array_equal(runs[0].inverse_hessian, runs[1].inverse_hessian)
+
+
+def test_a_full_step_is_at_most_max_step() -> None:
+    # an inflated curvature proposes a step of 400; the first trial stays within max_step
+    visited: list[np.ndarray] = []
+    inner = quadratic(np.eye(2), np.array([4.0, 0.0]))
+
+    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+        visited.append(x.copy())
+        return inner(x)
+
+    box = np.array([[-500.0, 500.0]] * 2)
+    minimize_box(fun, [0.0, 0.0], box, inverse_hessian=100.0 * np.eye(2), max_step=2.0)
+    assert np.abs(visited[1] - visited[0]).max() == pytest.approx(2.0)
