@@ -61,7 +61,8 @@ class TransferGPC:
         previous: A fitted classifier of the same object whose new-object observations were
             the first ones of this fit's (the previous update of active learning): its search
             curvature and Laplace mode start this fit's search (see :class:`BinaryGPC`'s
-            ``inverse_hessian`` and ``mode_start``); only the cost depends on it.
+            ``inverse_hessian`` and ``mode_start``); only the cost depends on it. Released
+            by :meth:`fit`.
         jitter: Diagonal jitter.
         random_state: Seed of the restarts.
 
@@ -103,7 +104,9 @@ class TransferGPC:
     def _estimator(self, kernel: Kernel, n_aux: int, Xn: FloatArray) -> BinaryGPC:
         """Return an unfitted binary classifier with this object's settings and warm start."""
         inverse_hessian, mode_start = None, None
-        previous = self.previous
+        # the warm start is consumed here, not kept: every fit would otherwise hold the whole
+        # chain of earlier fits (and their covariances) alive
+        previous, self.previous = self.previous, None
         if previous is not None and hasattr(previous, "estimator_"):
             inverse_hessian = previous.estimator_.inverse_hessian_
             f = previous.estimator_.mode_.f
