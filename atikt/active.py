@@ -44,7 +44,7 @@ from atikt.transfer import (
     TransferGPC,
     check_threshold,
     choose_by_optimization,
-    choose_by_prediction,
+    choose_by_relatedness,
 )
 
 if TYPE_CHECKING:
@@ -261,6 +261,9 @@ class ActionState:
         rhos: Warm-start learned rho per new object and old object (model optimisation).
         uncertainty: ``UNC`` per new object, shape (n_new,).
         prior_stacks: The prior observations of each old object, stacked on first use.
+        prior_probabilities: The old objects' one-vs-all probabilities of each observation
+            scored so far (model prediction approach; the old models never change, so each
+            observation is scored once), shape (n_scored, n_old).
     """
 
     kind: str
@@ -275,6 +278,7 @@ class ActionState:
     rhos: list[dict[int, float]] = field(default_factory=list)
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
     prior_stacks: dict[int, StackedFeatures] | None = None
+    prior_probabilities: FloatArray | None = None
 
 
 class ActiveLearner:
@@ -576,6 +580,7 @@ class ActiveLearner:
             state.models, state.choices = [], [_NO_CHOICE] * n
             state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
         seeds = spawn_seeds(self._rng, self.n_new_objects)
+        probabilities = self._prior_probabilities(state)
         models = []
         initial = modality_kernel(transformer.slices_, amplitude=self.amplitude)
         for obj, seed in enumerate(seeds):
@@ -584,16 +589,13 @@ class ActiveLearner:
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            mine = [
-                o for o, lab in zip(state.observations, state.labels, strict=True) if lab == obj
-            ]
             keep = changed is not None and obj != changed and self.transfer == "prediction"
             choice, model = self._fit_object(
                 kernel,
                 X,
                 y,
                 known=state.choices[obj] if keep else None,
-                mine=mine,
+                related=None if probabilities is None else probabilities[labels == obj],
                 prior=prior,
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
@@ -607,6 +609,23 @@ class ActiveLearner:
             models.append(model)
         state.transformer, state.X, state.models = transformer, X, models
         state.uncertainty = self._uncertainty(state)
+
+    def _prior_probabilities(self, state: ActionState) -> FloatArray | None:
+        """The old models' probabilities of every observation (model prediction approach).
+
+        Only the observations not scored before are predicted.
+        """
+        prior = state.prior
+        if prior is None or prior.model is None or self.transfer != "prediction":
+            return None
+        done = 0 if state.prior_probabilities is None else state.prior_probabilities.shape[0]
+        if done < len(state.observations):
+            features = prior.transformer.transform(state.observations[done:])
+            new = prior.model.predict_binary(features)
+            old = state.prior_probabilities
+            state.prior_probabilities = new if old is None else np.vstack([old, new])
+        assert state.prior_probabilities is not None  # noqa: S101 - set just above
+        return state.prior_probabilities
 
     def _auxiliary(
         self, state: ActionState, transformer: FeatureTransformer
@@ -626,7 +645,7 @@ class ActiveLearner:
         y: FloatArray,
         *,
         known: PriorChoice | None,
-        mine: Sequence[RawFeatures],
+        related: FloatArray | None,
         prior: PriorModel | None,
         auxiliary: Mapping[int, FloatArray],
         rho_starts: dict[int, float],
@@ -651,9 +670,12 @@ class ActiveLearner:
             rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
             return choice, model
         choice = _NO_CHOICE if known is None else known
-        if known is None and prior is not None and prior.model is not None:
-            features = prior.transformer.transform(mine)
-            choice = choose_by_prediction(prior.model, features, self.eps_neg1)
+        scored = related is not None and related.shape[0] > 0
+        if known is None and prior is not None and prior.model is not None and scored:
+            assert related is not None  # noqa: S101 - scored
+            # relatedness: the mean of the old models' probabilities of this object's observations
+            scores = related.mean(axis=0)
+            choice = choose_by_relatedness(scores, prior.model.classes_, self.eps_neg1)
         aux = None if choice.source is None else auxiliary[choice.source]
         model = TransferGPC(
             kernel,

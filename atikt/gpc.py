@@ -42,7 +42,6 @@ RandomState = int | np.random.Generator | None
 LAMBDAS: Final = np.array([0.41, 0.4, 0.37, 0.44, 0.39])
 COEFS: Final = np.array([-1854.8214151, 3516.89893646, 221.29346712, 128.12323805, -2010.49422654])
 _MAX_HALVINGS: Final = 20
-_SAME_POINT: Final = 1e-8
 _SHORT_STEP: Final = 1e-5
 COLD_TOL: Final = 1e-8
 """Stopping tolerance (nats) of a search without a carried curvature: searched to convergence."""
@@ -158,10 +157,12 @@ def laplace_mode(
     Newton's method stops when a step raises the objective ``Psi(f) = -a'f/2 + log p(y|f)`` by
     less than ``tol``, or when an undamped step moved no latent value by more than
     ``_SHORT_STEP`` (Newton's method converges quadratically: the error left is of the order
-    of that step squared). ``W`` and ``L`` (hence the log determinant, the predictions and the
-    gradient) are then recomputed at the returned mode, unless the last step moved no latent
-    value by more than ``_SAME_POINT`` (then the last linearisation point is kept, saving one
-    factorisation at an error below that size).
+    of that step squared). When the last step moved no latent value by more than
+    ``_SHORT_STEP``, ``W`` and ``L`` (hence the log determinant, the predictions and the
+    gradient) are those of the last linearisation point, at most that far from the returned
+    mode (the log determinant moves by ``O(n * _SHORT_STEP * max W')``, ``|W'| < 0.1``: below
+    1e-4 nats here, far below the hyperparameter search's tolerance); after a longer last step
+    they are recomputed at the returned mode.
 
     Args:
         K: Prior covariance of the training points, shape (n, n).
@@ -210,7 +211,7 @@ def laplace_mode(
         step = float(np.abs(f_new - f).max())
         # line 10; a full Newton step this short leaves an error of its square
         if psi_new - psi < tol or (step <= _SHORT_STEP and not damped):
-            if step <= _SAME_POINT:
+            if step <= _SHORT_STEP:  # W and L of f are those of the mode, up to the step
                 lml = psi_new - float(np.log(L.diagonal()).sum())
                 return LaplaceMode(f_new, a_new, pi, sqrt_w, L, lml, n_iter, K)
             a, f, psi = a_new, f_new, psi_new
@@ -243,19 +244,25 @@ def lml_gradient(K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode
 
 def _gradient_terms(
     K: FloatArray, dK: FloatArray, y: FloatArray, mode: LaplaceMode
-) -> tuple[FloatArray, FloatArray]:
-    """Alg. 5.1 lines 7-15; also returns ``d f_hat / d theta`` (R&W Eq. 5.25), (n_params, n)."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Alg. 5.1 lines 7-15.
+
+    Also returns ``d f_hat / d theta`` (R&W Eq. 5.25), shape (n_params, n), and the latent
+    predictive variance at the training inputs, ``diag(K - C'C)`` (line 9's ``diag(Sigma)``,
+    equal to Alg. 3.2 line 6 at the training inputs), shape (n,).
+    """
     sqrt_w, L, pi = mode.sqrt_w, mode.L, mode.pi
     V = _tri_solve(L, np.diag(sqrt_w))  # L \\ W^1/2, so that R = V'V and C = V K
     R = V.T @ V  # line 7: R = W^1/2 L' \\ (L \\ W^1/2)
     C = V @ K  # line 8: C = L \\ (W^1/2 K)
+    variance = K.diagonal() - np.einsum("ij,ij->j", C, C)
     # line 9: d^3 log p / df^3 = -pi (1 - pi) (1 - 2 pi) for the logistic likelihood
-    s2 = -0.5 * (K.diagonal() - np.einsum("ij,ij->j", C, C)) * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
+    s2 = -0.5 * variance * (pi * (1.0 - pi) * (1.0 - 2.0 * pi))
     # line 12, all hyperparameters at once: a' dK_j a / 2 - tr(R dK_j) / 2
     s1 = dK.reshape(dK.shape[0], -1) @ (0.5 * (np.outer(mode.a, mode.a) - R)).ravel()
     b = dK @ (y - pi)  # line 13, one row per hyperparameter
     s3 = b - (b @ R) @ K  # line 14 (K and R are symmetric): s3_j = d f_hat / d theta_j
-    return np.asarray(s1 + s3 @ s2, dtype=np.float64), s3  # line 15
+    return np.asarray(s1 + s3 @ s2, dtype=np.float64), s3, variance  # line 15
 
 
 def predictive_probability(mean: FloatArray, var: FloatArray) -> FloatArray:
@@ -407,10 +414,13 @@ class BinaryGPC:
         kernel, mode, f0 = self.kernel, None, self._mode_start(self.y_train_.shape[0])
         self.n_evaluations_, self.n_iter_ = 0, 0
         self.inverse_hessian_: FloatArray | None = None
+        self._training_variance: FloatArray | None = None
         if self.optimize and kernel.n_params > 0:
             objective = self._objective(self.X_train_, self.y_train_)
             theta = self._search(objective)
-            kernel, mode = kernel.with_theta(theta), objective.mode_at(theta)
+            kernel, last = kernel.with_theta(theta), objective.mode_at(theta)
+            if last is not None:
+                mode, self._training_variance = last
             f0 = objective.start(theta)
             self.n_evaluations_ = objective.n_calls
         self.kernel_ = kernel
@@ -508,7 +518,7 @@ class BinaryGPC:
         self._check_fitted()
         Xs = np.asarray(X, dtype=np.float64)
         K_star = self.kernel_(self.X_train_, Xs)
-        mean = K_star.T @ (self.y_train_ - self.mode_.pi)  # line 4
+        mean = K_star.T @ self.mode_.a  # line 4, a = K^-1 f = y - pi at the mode
         v = _tri_solve(self.mode_.L, self.mode_.sqrt_w[:, None] * K_star)  # line 5
         var = self.kernel_.diag(Xs) - np.einsum("ij,ij->j", v, v)  # line 6
         return mean, var
@@ -517,7 +527,7 @@ class BinaryGPC:
         """Latent predictive mean at ``X`` only (R&W Alg. 3.2, line 4), shape (m,)."""
         self._check_fitted()
         K_star = self.kernel_(self.X_train_, np.asarray(X, dtype=np.float64))
-        return np.asarray(K_star.T @ (self.y_train_ - self.mode_.pi), dtype=np.float64)
+        return np.asarray(K_star.T @ self.mode_.a, dtype=np.float64)
 
     def predict_positive(self, X: npt.ArrayLike) -> FloatArray:
         """Probability of the positive class at ``X``, shape (m,) (Alg. 3.2, line 7)."""
@@ -527,8 +537,10 @@ class BinaryGPC:
         r"""Latent predictive mean and variance at training inputs, without a kernel call.
 
         At a training input the predictive mean ``k(x_i)' (y - pi) = (K K^-1 f)_i`` is the
-        mode itself, and ``v = L \ W^1/2 K`` reuses the covariance of the fit; this equals
-        :meth:`latent` of ``X_train_[rows]`` up to the jitter (1e-10 by default).
+        mode itself, and the variance ``diag(K - v'v)`` with ``v = L \ W^1/2 K`` reuses the
+        covariance of the fit (and is the one the search's last gradient evaluation already
+        computed, Alg. 5.1 line 9, when the fit ended there); this equals :meth:`latent` of
+        ``X_train_[rows]`` up to the jitter (1e-10 by default).
 
         Args:
             rows: The training rows, e.g. ``slice(n_aux, None)``.
@@ -538,10 +550,10 @@ class BinaryGPC:
         """
         self._check_fitted()
         mode = self.mode_
-        K = mode.K[:, rows]
-        v = _tri_solve(mode.L, mode.sqrt_w[:, None] * K)
-        var = np.diagonal(K[rows]) - np.einsum("ij,ij->j", v, v)
-        return mode.f[rows], var
+        if self._training_variance is None:  # not left by the search: one solve, kept
+            v = _tri_solve(mode.L, mode.sqrt_w[:, None] * mode.K)
+            self._training_variance = mode.K.diagonal() - np.einsum("ij,ij->j", v, v)
+        return mode.f[rows], self._training_variance[rows]
 
     def predict_proba(self, X: npt.ArrayLike) -> FloatArray:
         """Class probabilities ``[p(y=0), p(y=1)]`` at ``X``, shape (m, 2)."""
@@ -583,6 +595,7 @@ class _NegativeLml:
         self.last_theta: FloatArray | None = None
         self.last_mode: LaplaceMode | None = None
         self.last_slope: FloatArray | None = None
+        self.last_variance = np.zeros(0)
         self.n_calls = 0
 
     def start(self, theta: FloatArray) -> FloatArray | None:
@@ -601,15 +614,16 @@ class _NegativeLml:
         add_to_diagonal(K, self.jitter)
         f0 = self.start(theta)
         mode = laplace_mode(K, self.y, f0, max_iter=self.newton_max_iter, tol=self.newton_tol)
-        gradient, slope = _gradient_terms(K, dK, self.y, mode)
+        gradient, slope, variance = _gradient_terms(K, dK, self.y, mode)
         self.last_theta = np.array(theta, dtype=np.float64)
-        self.last_mode, self.last_slope = mode, slope
+        self.last_mode, self.last_slope, self.last_variance = mode, slope, variance
         return -mode.log_marginal_likelihood, -gradient
 
-    def mode_at(self, theta: FloatArray) -> LaplaceMode | None:
-        """The Laplace mode of the last evaluation if it was at ``theta``, else None."""
+    def mode_at(self, theta: FloatArray) -> tuple[LaplaceMode, FloatArray] | None:
+        """The last evaluation's Laplace mode and training variance if it was at ``theta``."""
         if self.last_theta is not None and np.array_equal(self.last_theta, theta):
-            return self.last_mode
+            assert self.last_mode is not None  # noqa: S101 - set with last_theta
+            return self.last_mode, self.last_variance
         return None
 
 

@@ -76,9 +76,20 @@ class Kernel(abc.ABC):
     def names(self) -> tuple[str, ...]:
         """One name per entry of ``theta``."""
 
-    @abc.abstractmethod
     def with_theta(self, theta: npt.ArrayLike) -> Self:
-        """Return a copy with the free hyperparameters set to ``theta`` (log space)."""
+        """Return a copy with the free hyperparameters set to ``theta`` (log space).
+
+        Raises:
+            AtiktError: Wrong length or non-finite values.
+        """
+        return self._with_values(self._check_theta(theta))
+
+    @abc.abstractmethod
+    def _with_values(self, values: FloatArray) -> Self:
+        """:meth:`with_theta` of an already checked float array.
+
+        Composite kernels pass their parts slices of it without checking each again.
+        """
 
     @abc.abstractmethod
     def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
@@ -92,15 +103,24 @@ class Kernel(abc.ABC):
     def diag(self, X: FloatArray) -> FloatArray:
         """Return the diagonal of ``K(X, X)``, shape (n,)."""
 
-    def evaluator(self, X: FloatArray) -> Evaluator:
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
         """Return ``theta -> (K(X, X), dK/dtheta)`` for this ``X``.
 
         The hyperparameter search evaluates the kernel of one training set at many ``theta``;
         subclasses precompute what does not depend on ``theta`` (squared distances, domain
         masks) and build no kernel objects per call. The result equals
-        ``self.with_theta(theta).gradient(X)``.
+        ``self.with_theta(theta).gradient(X)``, multiplied elementwise by ``scale`` (n, n)
+        when given (a fixed factor such as the dependent kernel's domain mask, which
+        subclasses fold into their parts instead of multiplying every output).
         """
-        return lambda theta: self.with_theta(theta).gradient(X)
+        if scale is None:
+            return lambda theta: self.with_theta(theta).gradient(X)
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            K, dK = self.with_theta(theta).gradient(X)
+            return K * scale, dK * scale
+
+        return evaluate
 
     def _copy(self) -> Self:
         """A shallow copy (``with_theta`` then replaces the values that change)."""
@@ -170,9 +190,8 @@ class SliceRBF(Kernel):
         """``(f"{name}.length_scale",)`` or empty."""
         return () if self.length_scale_bounds == "fixed" else (f"{self.name}.length_scale",)
 
-    def with_theta(self, theta: npt.ArrayLike) -> Self:
-        """Return a copy with ``log l = theta[0]``."""
-        values = self._check_theta(theta)
+    def _with_values(self, values: FloatArray) -> Self:
+        """Return a copy with ``log l = values[0]``."""
         new = self._copy()  # the bounds stay: only the value changes
         if values.shape[0]:
             new.length_scale = math.exp(values[0])
@@ -200,17 +219,21 @@ class SliceRBF(Kernel):
         """Return ones: the RBF has unit variance."""
         return np.ones(X.shape[0])
 
-    def evaluator(self, X: FloatArray) -> Evaluator:
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
         """Return ``theta -> (K, dK)`` with the squared distances computed once."""
         D = self.sq_dist(X)
         if self.length_scale_bounds == "fixed":
             K = np.exp(D / (-2.0 * self.length_scale**2))
+            if scale is not None:
+                K *= scale
             empty = np.zeros((0, *D.shape))
             return lambda _theta: (K.copy(), empty)
 
         def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-            scaled = D * np.exp(-2.0 * theta[0])  # d^2 / l^2
+            scaled = D * math.exp(-2.0 * theta[0])  # d^2 / l^2
             K = np.exp(-0.5 * scaled)
+            if scale is not None:
+                K *= scale
             return K, (K * scaled)[None]
 
         return evaluate
@@ -300,13 +323,13 @@ class ModalityKernel(Kernel):
         logit_names = [f"{p.name}.weight_logit" for p in self.parts[1:]]
         return (*part_names, *logit_names, *(["signal_variance"] if self._learn_variance else []))
 
-    def with_theta(self, theta: npt.ArrayLike) -> Self:
-        """Return a copy with the free hyperparameters set from ``theta``."""
-        values = self._check_theta(theta)
+    def _with_values(self, values: FloatArray) -> Self:
+        """Return a copy with the free hyperparameters set from ``values``."""
         parts, start = [], 0
         for part in self.parts:
-            parts.append(part.with_theta(values[start : start + part.n_params]))
-            start += part.n_params
+            n = part.n_params
+            parts.append(part._with_values(values[start : start + n]))  # noqa: SLF001
+            start += n
         new = self._copy()  # the bounds stay: only the values change
         new.parts = tuple(parts)
         new.logits = values[start : start + len(self.parts) - 1].copy()
@@ -340,30 +363,36 @@ class ModalityKernel(Kernel):
         """Return ``s^2`` for every row (each RBF has unit variance and ``|w|_1 = 1``)."""
         return np.full(X.shape[0], self.signal_variance)
 
-    def evaluator(self, X: FloatArray) -> Evaluator:
-        """Return ``theta -> (K, dK)`` built on the parts' evaluators (same maths as gradient)."""
-        parts = [(part.evaluator(X), part.n_params) for part in self.parts]
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
+        """Return ``theta -> (K, dK)`` built on the parts' evaluators (same maths as gradient).
+
+        ``scale`` goes into every part's ``K_m``: all outputs are linear in them.
+        """
+        parts = [(part.evaluator(X, scale), part.n_params) for part in self.parts]
         n_part = sum(k for _, k in parts)
         n_logits = len(self.parts) - 1
         n, n_params = X.shape[0], self.n_params
         learn_variance, fixed_variance = self._learn_variance, self.signal_variance
 
         def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-            z = np.concatenate([[0.0], theta[n_part : n_part + n_logits]])
+            z = np.zeros(n_logits + 1)
+            z[1:] = theta[n_part : n_part + n_logits]
             w = np.exp(z - z.max())
             w /= w.sum()
-            s2 = float(np.exp(theta[-1])) if learn_variance else fixed_variance
+            s2 = math.exp(theta[-1]) if learn_variance else fixed_variance
             dK = np.empty((n_params, n, n))
-            mixture = np.zeros((n, n))
             kernels, start = [], 0
             for (evaluate_part, k), wm in zip(parts, w, strict=True):
                 Km, dKm = evaluate_part(theta[start : start + k])
-                dK[start : start + k] = (s2 * wm) * dKm
-                mixture += wm * Km
+                np.multiply(dKm, s2 * wm, out=dK[start : start + k])
                 kernels.append(Km)
                 start += k
+            mixture = w[0] * kernels[0]
+            for wm, Km in zip(w[1:], kernels[1:], strict=True):
+                mixture += wm * Km
             for j in range(1, len(parts)):  # dK / d logit_j = s2 w_j (K_j - mixture)
-                dK[n_part + j - 1] = (s2 * w[j]) * (kernels[j] - mixture)
+                np.subtract(kernels[j], mixture, out=dK[n_part + j - 1])
+                dK[n_part + j - 1] *= s2 * w[j]
             K = s2 * mixture
             if learn_variance:
                 dK[-1] = K
@@ -424,12 +453,11 @@ class DependentKernel(Kernel):
         """Names of the ``theta`` entries."""
         return (*self.base.names, *(["rho"] if self.learn_rho else []))
 
-    def with_theta(self, theta: npt.ArrayLike) -> Self:
-        """Return a copy with the free hyperparameters set from ``theta``."""
-        values = self._check_theta(theta)
+    def _with_values(self, values: FloatArray) -> Self:
+        """Return a copy with the free hyperparameters set from ``values``."""
         n_base = self.base.n_params
         new = self._copy()  # the bounds stay: only the values change
-        new.base = self.base.with_theta(values[:n_base])
+        new.base = self.base._with_values(values[:n_base])  # noqa: SLF001
         if self.learn_rho:
             new.rho = min(math.exp(values[n_base]), 1.0)
         return new
@@ -458,17 +486,21 @@ class DependentKernel(Kernel):
         """Return the base kernel's diagonal (each point shares its own domain)."""
         return self.base.diag(X)
 
-    def evaluator(self, X: FloatArray) -> Evaluator:
-        """Return ``theta -> (K, dK)`` with the domain mask computed once."""
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
+        """Return ``theta -> (K, dK)`` with the domain mask computed once.
+
+        A fixed ``rho``'s mask is folded into the base kernel's evaluator (``scale``).
+        """
         cross = self._cross(X, None)
-        evaluate_base, n_base = self.base.evaluator(X), self.base.n_params
-        learn_rho, fixed_mask = self.learn_rho, np.where(cross, self.rho, 1.0)
+        n_base = self.base.n_params
+        if not self.learn_rho:
+            mask = np.where(cross, self.rho, 1.0)
+            return self.base.evaluator(X, mask if scale is None else mask * scale)
+        evaluate_base = self.base.evaluator(X, scale)
 
         def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
             K_base, dK_base = evaluate_base(theta[:n_base])
-            if not learn_rho:
-                return K_base * fixed_mask, dK_base * fixed_mask
-            rho = float(np.exp(theta[n_base]))
+            rho = math.exp(theta[n_base])
             K = K_base * np.where(cross, rho, 1.0)
             dK = np.empty((n_base + 1, *K.shape))
             dK[:n_base] = dK_base * np.where(cross, rho, 1.0)

@@ -46,6 +46,30 @@ def with_domain(X: npt.ArrayLike, flag: float) -> FloatArray:
     return np.hstack([Xa, np.full((Xa.shape[0], 1), flag)])
 
 
+def _stack_domains(X_old: FloatArray, X_new: FloatArray) -> FloatArray:
+    """``[with_domain(X_old, OLD_DOMAIN); with_domain(X_new, NEW_DOMAIN)]`` in one array."""
+    n_old, d = X_old.shape
+    out = np.empty((n_old + X_new.shape[0], d + 1))
+    out[:n_old, :d], out[:n_old, d] = X_old, OLD_DOMAIN
+    out[n_old:, :d], out[n_old:, d] = X_new, NEW_DOMAIN
+    return out
+
+
+def _added_start(known: FloatArray, y: FloatArray) -> FloatArray:
+    """Starting latent values of the observations after the ``len(known)`` earlier ones.
+
+    Each starts at the mean of ``known`` over the earlier observations with its label (0 when
+    there are none).
+    """
+    earlier, added = y[: known.shape[0]], y[known.shape[0] :]
+    start = np.zeros(added.shape[0])
+    for label in (0.0, 1.0):
+        same = earlier == label
+        if same.any():
+            start[added == label] = known[same].mean()
+    return start
+
+
 class TransferGPC:
     """Binary classifier of one new object with optional auxiliary positives from an old one.
 
@@ -101,8 +125,13 @@ class TransferGPC:
         self.jitter = jitter
         self.random_state = random_state
 
-    def _estimator(self, kernel: Kernel, n_aux: int, Xn: FloatArray) -> BinaryGPC:
-        """Return an unfitted binary classifier with this object's settings and warm start."""
+    def _estimator(self, kernel: Kernel, n_aux: int, yn: FloatArray) -> BinaryGPC:
+        """Return an unfitted binary classifier with this object's settings and warm start.
+
+        The previous fit's mode starts the Newton search at its own observations; an added
+        observation starts at the mean mode of the earlier observations with its label (a
+        start only: the mode found does not depend on it).
+        """
         inverse_hessian, mode_start = None, None
         # the warm start is consumed here, not kept: every fit would otherwise hold the whole
         # chain of earlier fits (and their covariances) alive
@@ -113,11 +142,8 @@ class TransferGPC:
             n_prev_aux = previous.n_auxiliary_
             aux_start = f[:n_prev_aux] if n_prev_aux == n_aux else np.zeros(n_aux)
             known = f[n_prev_aux:]
-            if known.shape[0] <= Xn.shape[0]:  # the added observations: the previous mean
-                added = Xn[known.shape[0] :]
-                if previous.transferred_:
-                    added = with_domain(added, NEW_DOMAIN)
-                known = np.concatenate([known, previous.estimator_.latent_mean(added)])
+            if known.shape[0] <= yn.shape[0]:
+                known = np.concatenate([known, _added_start(known, yn)])
             mode_start = np.concatenate([aux_start, known])
         return BinaryGPC(
             kernel,
@@ -154,7 +180,7 @@ class TransferGPC:
         self.transferred_ = aux is not None and aux.shape[0] > 0
         self.transferred_ &= self.learn_rho or self.rho > 0.0
         if not self.transferred_ or aux is None:
-            self.estimator_ = self._estimator(self.kernel, 0, Xn).fit(Xn, yn)
+            self.estimator_ = self._estimator(self.kernel, 0, yn).fit(Xn, yn)
             self.rho_, self.n_auxiliary_ = 0.0, 0
             self.base_kernel_ = self.estimator_.kernel_
             return self
@@ -169,9 +195,9 @@ class TransferGPC:
         dependent = DependentKernel(
             self.kernel, rho0, self.rho_bounds if self.learn_rho else "fixed"
         )
-        X_all = np.vstack([with_domain(aux, OLD_DOMAIN), with_domain(Xn, NEW_DOMAIN)])
+        X_all = _stack_domains(aux, Xn)
         y_all = np.concatenate([np.ones(aux.shape[0]), yn])
-        self.estimator_ = self._estimator(dependent, aux.shape[0], Xn).fit(X_all, y_all)
+        self.estimator_ = self._estimator(dependent, aux.shape[0], yn).fit(X_all, y_all)
         self.n_auxiliary_ = aux.shape[0]
         fitted = self.estimator_.kernel_
         assert isinstance(fitted, DependentKernel)  # noqa: S101 - built just above
@@ -263,9 +289,28 @@ def choose_by_prediction(
         The most related old object and ``rho`` = its mean probability, or no source when that
         probability is below ``eps_neg1``.
     """
+    return choose_by_relatedness(relatedness(old_model, X), old_model.classes_, eps_neg1)
+
+
+def choose_by_relatedness(
+    scores: npt.ArrayLike, classes: npt.ArrayLike, eps_neg1: float = 0.6
+) -> PriorChoice:
+    """:func:`choose_by_prediction` from the :func:`relatedness` scores already computed.
+
+    Args:
+        scores: Mean probability of each old object, shape (n_old,).
+        classes: The old objects' labels, in the order of ``scores``.
+        eps_neg1: Minimum mean probability for a transfer, in (0.5, 1].
+
+    Returns:
+        The choice (see :func:`choose_by_prediction`).
+    """
     check_threshold("eps_neg1", eps_neg1)
-    scores = relatedness(old_model, X)
-    candidates = tuple(int(c) for c in old_model.classes_)
+    scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+    candidates = tuple(int(c) for c in np.asarray(classes).reshape(-1))
+    if len(candidates) != scores.shape[0] or not candidates:
+        msg = f"{scores.shape[0]} relatedness scores for old objects {candidates}"
+        raise AtiktError(msg)
     best = int(np.argmax(scores))
     rho = float(scores[best])
     if rho < eps_neg1:
