@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from atikt.errors import AtiktError, NotFittedError
 from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, stack_features
-from atikt.gpc import OneVsAllGPC, RandomState, normalise, spawn_seeds
+from atikt.gpc import OneVsAllGPC, RandomState, normalise, predictive_probability, spawn_seeds
 from atikt.kernels import ModalityKernel, modality_kernel
 from atikt.transfer import (
     PriorChoice,
@@ -689,10 +689,14 @@ class ActiveLearner:
 
     def _uncertainty(self, state: ActionState) -> FloatArray:
         """``UNC`` of each new object: mean entropy of its own observations' posteriors."""
-        posterior = normalise(np.column_stack([m.training_positive() for m in state.models]))
-        entropies = entropy(posterior)
+        latents = [m.training_latent() for m in state.models]  # one probability call for all
+        mean = np.concatenate([m for m, _ in latents])
+        var = np.concatenate([v for _, v in latents])
+        positive = predictive_probability(mean, var).reshape(len(latents), -1).T
+        entropies = entropy(normalise(positive))
         labels = np.asarray(state.labels)
-        return np.array([entropies[labels == obj].mean() for obj in range(self.n_new_objects)])
+        n = self.n_new_objects
+        return np.bincount(labels, entropies, n) / np.bincount(labels, minlength=n)
 
     @staticmethod
     def _posterior(state: ActionState, X: FloatArray) -> FloatArray:

@@ -41,8 +41,14 @@ RandomState = int | np.random.Generator | None
 # Williams & Barber (1998), appendix A: sigmoid(x) ~ sum_i c_i (1 + erf(lambda_i x)) / 2.
 LAMBDAS: Final = np.array([0.41, 0.4, 0.37, 0.44, 0.39])
 COEFS: Final = np.array([-1854.8214151, 3516.89893646, 221.29346712, 128.12323805, -2010.49422654])
+_LAMBDAS: Final = LAMBDAS[:, None]
+_TWO_LAMBDAS_SQ: Final = 2.0 * LAMBDAS[:, None] ** 2
+_HALF_COEFS: Final = 0.5 * COEFS
+_HALF_COEFS_SUM: Final = 0.5 * float(COEFS.sum())
 _MAX_HALVINGS: Final = 20
 _SHORT_STEP: Final = 1e-5
+_CONVERGED: Final = 1e-6
+"""Predicted length of the next Newton step below which the current iterate is the mode."""
 COLD_TOL: Final = 1e-8
 """Stopping tolerance (nats) of a search without a carried curvature: searched to convergence."""
 
@@ -144,6 +150,16 @@ def _damped(
     return a_new, f_new, psi_new
 
 
+def _check_newton(K: FloatArray, max_iter: int) -> None:
+    """Raise for an iteration limit below 1 or a non-finite covariance."""
+    if max_iter < 1:
+        msg = f"max_iter={max_iter}; Newton's method needs at least one iteration"
+        raise AtiktError(msg)
+    if not np.isfinite(K).all():
+        msg = "the kernel matrix has NaN or inf entries; check the features and hyperparameters"
+        raise NumericalError(msg)
+
+
 def laplace_mode(
     K: FloatArray,
     y: FloatArray,
@@ -157,7 +173,10 @@ def laplace_mode(
     Newton's method stops when a step raises the objective ``Psi(f) = -a'f/2 + log p(y|f)`` by
     less than ``tol``, or when an undamped step moved no latent value by more than
     ``_SHORT_STEP`` (Newton's method converges quadratically: the error left is of the order
-    of that step squared). When the last step moved no latent value by more than
+    of that step squared), or when the quadratic convergence of the last two steps predicts
+    the next one to be shorter than ``_CONVERGED`` (``step^3 / last_step^2``; ``W`` and ``L``
+    are then computed at the returned ``f``, which is the mode up to about that length,
+    instead of taking that step). When the last step moved no latent value by more than
     ``_SHORT_STEP``, ``W`` and ``L`` (hence the log determinant, the predictions and the
     gradient) are those of the last linearisation point, at most that far from the returned
     mode (the log determinant moves by ``O(n * _SHORT_STEP * max W')``, ``|W'| < 0.1``: below
@@ -178,12 +197,7 @@ def laplace_mode(
         NumericalError: ``K`` is not finite, ``B`` could not be factorised, or the objective
             is not finite.
     """
-    if max_iter < 1:
-        msg = f"max_iter={max_iter}; Newton's method needs at least one iteration"
-        raise AtiktError(msg)
-    if not np.isfinite(K).all():
-        msg = "the kernel matrix has NaN or inf entries; check the features and hyperparameters"
-        raise NumericalError(msg)
+    _check_newton(K, max_iter)
     sign = 2.0 * y - 1.0
     a: FloatArray | None = None
     if f0 is None:  # f = K a with a = 0: Psi(0) = log p(y | 0)
@@ -191,7 +205,7 @@ def laplace_mode(
         psi = _log_likelihood(sign, f)
     else:  # no a with K a = f0: the first Newton step is always taken
         f, psi = f0, -np.inf
-    n_iter = 0
+    n_iter, last_step = 0, math.inf
     for n_iter in range(1, max_iter + 1):
         pi = expit(f)  # line 4: W = -grad grad log p(y|f)
         W = pi * (1.0 - pi)
@@ -217,6 +231,11 @@ def laplace_mode(
             a, f, psi = a_new, f_new, psi_new
             break
         a, f, psi = a_new, f_new, psi_new
+        # quadratic convergence: the next step would be about step^3 / last_step^2 long; if that
+        # is short, f is the mode up to it and only W and L are still needed there
+        if not damped and step < last_step < math.inf and step**3 <= _CONVERGED * last_step**2:
+            break
+        last_step = math.inf if damped else step
     pi = expit(f)  # W and L at the returned mode
     sqrt_w = np.sqrt(pi * (1.0 - pi))
     L = _cholesky_b(K, sqrt_w)
@@ -275,10 +294,9 @@ def predictive_probability(mean: FloatArray, var: FloatArray) -> FloatArray:
     Returns:
         Probabilities of the positive class in [0, 1], shape (n,).
     """
-    var = np.maximum(var, 0.0)
-    z = LAMBDAS[:, None] * mean[None, :] / np.sqrt(1.0 + 2.0 * var[None, :] * LAMBDAS[:, None] ** 2)
-    p = 0.5 * COEFS.sum() + 0.5 * (COEFS @ erf(z))
-    return np.asarray(np.clip(p, 0.0, 1.0), dtype=np.float64)
+    z = _LAMBDAS * mean / np.sqrt(1.0 + _TWO_LAMBDAS_SQ * np.maximum(var, 0.0))
+    p = _HALF_COEFS_SUM + _HALF_COEFS @ erf(z)
+    return np.asarray(np.minimum(np.maximum(p, 0.0), 1.0), dtype=np.float64)
 
 
 def _check_xy(X: npt.ArrayLike, y: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -713,7 +731,11 @@ class OneVsAllGPC:
     def predict_binary(self, X: npt.ArrayLike) -> FloatArray:
         """Each class's own one-vs-all probability (not normalised), shape (m, k)."""
         self._check_fitted()
-        return np.column_stack([e.predict_positive(X) for e in self.estimators_])
+        Xs = np.asarray(X, dtype=np.float64)
+        latents = [e.latent(Xs) for e in self.estimators_]  # one probability call for all
+        mean = np.concatenate([m for m, _ in latents])
+        var = np.concatenate([v for _, v in latents])
+        return predictive_probability(mean, var).reshape(len(latents), -1).T
 
     def predict_proba(self, X: npt.ArrayLike) -> FloatArray:
         """Probabilities normalised over the classes, shape (m, k), rows sum to 1."""

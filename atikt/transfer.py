@@ -219,11 +219,17 @@ class TransferGPC:
         Equals ``predict_positive(X)`` of the ``X`` given to :meth:`fit`, without evaluating the
         kernel again (see :meth:`BinaryGPC.training_latent`).
         """
+        return predictive_probability(*self.training_latent())
+
+    def training_latent(self) -> tuple[FloatArray, FloatArray]:
+        """Latent mean and variance at its own new-object training observations, each (n,).
+
+        See :meth:`training_positive`.
+        """
         if not hasattr(self, "estimator_"):
             msg = "TransferGPC is not fitted; call fit(X, y, X_aux) first"
             raise NotFittedError(msg)
-        latent = self.estimator_.training_latent(slice(self.n_auxiliary_, None))
-        return predictive_probability(*latent)
+        return self.estimator_.training_latent(slice(self.n_auxiliary_, None))
 
     def predict_proba(self, X: npt.ArrayLike) -> FloatArray:
         """Class probabilities ``[p(other), p(this object)]``, shape (m, 2)."""
