@@ -133,10 +133,8 @@ def _direction(
     held = ((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0))
     if not held.any():
         return -(H @ g), g
-    free = ~held
-    d = np.zeros(x.shape[0])
-    d[free] = -(H[free][:, free] @ g[free])
-    return d, np.where(held, 0.0, g)
+    g_free = np.where(held, 0.0, g)  # H g_free restricted to the free rows is H_ff g_f
+    return np.where(held, 0.0, -(H @ g_free)), g_free
 
 
 def minimize_box(
