@@ -276,6 +276,7 @@ class ModalityKernel(Kernel):
             msg = f"variance={variance}; it must be > 0 (or None for the thesis variant)"
             raise AtiktError(msg)
         self.logits = values
+        self._weights = self._softmax(values)
         self.variance = variance
         self.logit_bounds = logit_bounds
         self.variance_bounds = variance_bounds
@@ -291,7 +292,12 @@ class ModalityKernel(Kernel):
     @property
     def weights(self) -> FloatArray:
         """Modality weights, shape (M,), non-negative, summing to 1."""
-        z = np.concatenate([[0.0], self.logits])
+        return self._weights.copy()
+
+    @staticmethod
+    def _softmax(logits: FloatArray) -> FloatArray:
+        """``softmax([0, *logits])``."""
+        z = np.concatenate([[0.0], logits])
         e = np.exp(z - z.max())
         return np.asarray(e / e.sum(), dtype=np.float64)
 
@@ -333,13 +339,14 @@ class ModalityKernel(Kernel):
         new = self._copy()  # the bounds stay: only the values change
         new.parts = tuple(parts)
         new.logits = values[start : start + len(self.parts) - 1].copy()
+        new._weights = self._softmax(new.logits)  # noqa: SLF001 - a copy of this class
         if self._learn_variance:
             new.variance = math.exp(values[-1])
         return new
 
     def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
         """Return ``s^2 * sum_m w_m K_m(X, Y)``."""
-        weights = self.weights * self.signal_variance
+        weights = self._weights * self.signal_variance
         K: FloatArray = weights[0] * self.parts[0](X, Y)
         for w, part in zip(weights[1:], self.parts[1:], strict=True):
             K += w * part(X, Y)
@@ -401,7 +408,6 @@ class ModalityKernel(Kernel):
             return K, dK
 
         return evaluate
-
 
     def _rbf_evaluator(self, X: FloatArray, scale: FloatArray | None) -> Evaluator:
         """:meth:`evaluator` of learned-length-scale RBF parts, the parts' work inlined.

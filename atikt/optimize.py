@@ -178,13 +178,13 @@ def minimize_box(
     n = x.shape[0]
     scale_first = inverse_hessian is None
     H = np.eye(n) if inverse_hessian is None else np.array(inverse_hessian, dtype=np.float64)
-    if H.shape != (n, n) or not np.all(np.isfinite(H)):
+    if H.shape != (n, n) or not np.isfinite(H).all():
         msg = f"inverse_hessian of shape {H.shape}: need a finite ({n}, {n}) matrix"
         raise AtiktError(msg)
     x = np.minimum(np.maximum(x, lo), hi)
     f, g = fun(x)
     g = np.asarray(g, dtype=np.float64)
-    if not (np.isfinite(f) and np.all(np.isfinite(g))):
+    if not (math.isfinite(f) and np.isfinite(g).all()):
         msg = "the objective is not finite at the starting point"
         raise NumericalError(msg)
     n_eval, n_iter, converged = 1, 0, False
@@ -254,10 +254,10 @@ def _line_search(
             f_new, g_new = fun(trial)
         except NumericalError:
             f_new, g_new = np.inf, g
-        if np.isfinite(f_new) and f_new <= f + _ARMIJO * decrease:
+        if math.isfinite(f_new) and f_new <= f + _ARMIJO * decrease:
             step = _Step(trial, float(f_new), np.asarray(g_new, dtype=np.float64), k)
             return _extrapolate(fun, x, g, d, step, lo=lo, hi=hi) if k == 1 else step
-        if np.isfinite(f_new):
+        if math.isfinite(f_new):
             slope = decrease / t
             curvature = f_new - f - slope * t
             t_new = -slope * t * t / (2.0 * curvature) if curvature > 0.0 else 0.5 * t
@@ -297,7 +297,7 @@ def _extrapolate(
             f_new, g_new = fun(trial)
         except NumericalError:
             return _Step(step.x, step.f, step.g, step.n_evaluations + 1)
-        if not (np.isfinite(f_new) and f_new < step.f):
+        if not (math.isfinite(f_new) and f_new < step.f):
             return _Step(step.x, step.f, step.g, step.n_evaluations + 1)
         step = _Step(
             trial, float(f_new), np.asarray(g_new, dtype=np.float64), step.n_evaluations + 1
