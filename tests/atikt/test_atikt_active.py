@@ -263,3 +263,24 @@ def test_refusing_every_prior_is_the_baseline(
     ignore = {"relatedness", "candidates"}
     strip = [{k: v for k, v in row.items() if k not in ignore} for row in rows(refused)]
     assert strip == [{k: v for k, v in row.items() if k not in ignore} for row in rows(baseline)]
+
+
+def test_relatedness_scores_each_observation_once_and_equals_a_fresh_prediction(
+    train: dict[str, dict[int, list[RawFeatures]]], priors: dict[str, dict[int, list[RawFeatures]]]
+) -> None:
+    fitted = fit_prior_models(priors, n_restarts=0, max_iter=15, random_state=0)
+    learner, _ = run(train, budget=6, priors=fitted)
+    for action in ACTIONS:
+        state, prior = learner.states_[action], fitted[action]
+        assert prior.model is not None
+        cached = state.prior_probabilities
+        assert cached is not None
+        assert cached.shape == (len(state.observations), len(prior.old_objects))
+        fresh = prior.model.predict_binary(prior.transformer.transform(state.observations))
+        np.testing.assert_allclose(cached, fresh, rtol=0, atol=1e-12)
+        labels = np.asarray(state.labels)
+        for obj, choice in enumerate(state.choices):  # each choice is its object's mean score
+            scores = fresh[labels == obj].mean(axis=0)
+            np.testing.assert_allclose(choice.scores, scores, rtol=0, atol=1e-12)
+            expected = prior.old_objects[int(np.argmax(scores))] if scores.max() >= 0.6 else None
+            assert choice.source == expected
