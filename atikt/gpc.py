@@ -115,6 +115,12 @@ def _cholesky_b(K: FloatArray, sqrt_w: FloatArray) -> FloatArray:
     # B is symmetric: its transpose is the Fortran-ordered array LAPACK factorises in place.
     # The strict upper triangle of the result keeps B's entries (every user reads the lower).
     L, info = lapack.dpotrf(B.T, lower=1, clean=0, overwrite_a=1)
+    _check_cholesky(L, info)
+    return L  # type: ignore[no-any-return]  # LAPACK returns float64 for float64 input
+
+
+def _check_cholesky(L: FloatArray, info: int) -> None:
+    """Raise NumericalError when LAPACK's Cholesky factorisation of ``B`` failed."""
     if info != 0 or not math.isfinite(L[-1, -1]):
         msg = (
             f"Cholesky of B = I + W^1/2 K W^1/2 failed (LAPACK info {info}): the kernel matrix "
@@ -122,13 +128,6 @@ def _cholesky_b(K: FloatArray, sqrt_w: FloatArray) -> FloatArray:
             "training features"
         )
         raise NumericalError(msg)
-    return L  # type: ignore[no-any-return]  # LAPACK returns float64 for float64 input
-
-
-def _cho_solve(L: FloatArray, b: FloatArray) -> FloatArray:
-    """Solve ``L L' x = b`` for the lower Cholesky factor ``L``."""
-    x, _ = lapack.dpotrs(L, b, lower=1)
-    return np.asarray(x, dtype=np.float64)
 
 
 def _tri_solve(L: FloatArray, b: FloatArray) -> FloatArray:
@@ -161,13 +160,7 @@ def _newton_step(
     rhs *= sqrt_w
     # B (symmetric) transposed is the Fortran-ordered array LAPACK factorises in place
     L, z, info = lapack.dposv(B.T, rhs, lower=1, overwrite_a=1, overwrite_b=1)
-    if info != 0 or not math.isfinite(L[-1, -1]):
-        msg = (
-            f"Cholesky of B = I + W^1/2 K W^1/2 failed (LAPACK info {info}): the kernel matrix "
-            "is not a valid covariance (NaN/inf features or hyperparameters?); check the "
-            "training features"
-        )
-        raise NumericalError(msg)
+    _check_cholesky(L, info)
     z *= sqrt_w
     b -= z
     return b, pi, sqrt_w, L
