@@ -1,6 +1,5 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
-from recorder._bagimport import ImportReport, import_bag
 from recorder._catalog import ActionKind, ActionSpec, ObjectSpec, load_actions, load_objects
 from recorder._dataset import (
     RecordingTask,
@@ -14,7 +13,16 @@ from recorder._dataset import (
 )
 from recorder._rig import Rig
 from recorder._sim import SimConfig, SimulatedRig
-from recorder._stream import (
+from recorder.bagimport._importer import ImportReport, import_bag
+from recorder.bagimport._topicmap import TopicMap, load_topic_map
+from recorder.errors import (
+    BagImportError,
+    CatalogError,
+    OutputExistsError,
+    RecorderError,
+    RigError,
+)
+from recorder.writing._stream import (
     JointSample,
     Modality,
     Phase,
@@ -23,20 +31,12 @@ from recorder._stream import (
     SkinBlock,
     StreamItem,
 )
-from recorder._topicmap import TopicMap, load_topic_map
-from recorder._writer import (
+from recorder.writing._writer import (
     RecordingInfo,
     RecordingWriter,
     WrittenRecording,
     record_action,
     software_version,
-)
-from recorder.errors import (
-    BagImportError,
-    CatalogError,
-    OutputExistsError,
-    RecorderError,
-    RigError,
 )
 
 __all__ = [

@@ -39,8 +39,8 @@ from recorder._dataset import (
     rig_names,
     write_index,
 )
-from recorder._writer import record_action
 from recorder.errors import RecorderError
+from recorder.writing._writer import record_action
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
-COMMAND_MODULES: tuple[str, ...] = ("recorder._import_command",)
+COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command",)
 
 
 @dataclass(frozen=True, slots=True)

@@ -32,8 +32,8 @@ from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
 from recorder._sim import SimulatedRig
-from recorder._writer import METADATA_NAME, record_action
 from recorder.errors import OutputExistsError, RecorderError
+from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import CHANNELS, PART_SUFFIX, dataset_recordings
 
 if TYPE_CHECKING:

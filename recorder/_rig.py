@@ -9,7 +9,7 @@ if TYPE_CHECKING:
     from types import TracebackType
 
     from recorder._catalog import ActionSpec, ObjectSpec
-    from recorder._stream import StreamItem
+    from recorder.writing._stream import StreamItem
 
 
 class Rig(Protocol):

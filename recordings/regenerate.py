@@ -30,9 +30,9 @@ from recorder import load_actions, plan_dataset
 from recorder._catalog import load_objects
 from recorder._dataset import generate_dataset, rig_factory
 from replay import MODALITIES, read_recording
-from replay._container import read_summary
-from replay._features import build_features
-from replay._session import RunSpec, run_offline
+from replay.learning._features import build_features
+from replay.learning._session import RunSpec, run_offline
+from replay.recording._container import read_summary
 
 if TYPE_CHECKING:
     import polars as pl

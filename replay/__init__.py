@@ -1,7 +1,9 @@
 """Replay MCAP recordings through feature extraction and the ATIKT active-learning loop."""
 
-from replay._export import ExportReport, export
-from replay._reader import (
+from replay.errors import RecordingError, ReplayError
+from replay.learning._run_history import LearnRun, load_run
+from replay.outputs._export import ExportReport, export
+from replay.recording._reader import (
     MODALITIES,
     ActionRecording,
     JointStates,
@@ -12,9 +14,7 @@ from replay._reader import (
     check_dataset_location,
     read_recording,
 )
-from replay._recover import RecoveryReport, recovered_path, salvage
-from replay._run_history import LearnRun, load_run
-from replay.errors import RecordingError, ReplayError
+from replay.recording._salvage import RecoveryReport, recovered_path, salvage
 
 __all__ = [
     "MODALITIES",

@@ -2,6 +2,6 @@
 
 import sys
 
-from replay._cli import main
+from replay.cli._main import main
 
 sys.exit(main())

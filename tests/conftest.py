@@ -29,7 +29,7 @@ from recorder import (
     rig_factory,
 )
 from recorder._catalog import ObjectSpec
-from recorder._writer import record_action
+from recorder.writing._writer import record_action
 from schemas import CHANNELS
 
 if TYPE_CHECKING:

@@ -23,8 +23,8 @@ from recorder._catalog import ActionKind, check_object
 from recorder._sim import contact, motion, skin, thermal, ur10
 from recorder._sim.config import SimConfig
 from recorder._sim.texture import SlideConditions, ridge_relief, sliding_vibration
-from recorder._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
 from recorder.errors import RigError
+from recorder.writing._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
 from schemas import channel_for_topic
 
 if TYPE_CHECKING:
@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from types import TracebackType
 
     from recorder._catalog import ActionSpec, ObjectSpec
-    from recorder._stream import StreamItem
+    from recorder.writing._stream import StreamItem
 
 F64 = NDArray[np.float64]
 

@@ -34,11 +34,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_atikt import TimedLearner, print_quality, sklearn_old_models
 
-from replay._datasets import ensure_default_dataset
-from replay._executors import FeatureLookup, PoolExecutor, Split
-from replay._features import build_features
-from replay._session import fit_priors, prior_data
-from replay._studies import ACTIONS, StudyConfig, objects_of, prior_groups, run_study
+from replay.learning._datasets import ensure_default_dataset
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
+from replay.learning._features import build_features
+from replay.learning._session import fit_priors, prior_data
+from replay.studies._studies import ACTIONS, StudyConfig, objects_of, prior_groups, run_study
 
 
 def extraction(root: Path, workers: int, *, one_worker: bool) -> None:

@@ -4,7 +4,7 @@ Prints medians measured side by side in one run:
 
 1. rerun logging of one recording's acceleration channel, one cell: the columnar API
    (``send_columns``, what ``atikt-replay view`` does) against one ``log`` call per sample;
-   and a whole recording logged by ``replay._view.log_recording`` against reading it;
+   and a whole recording logged by ``replay.outputs._view.log_recording`` against reading it;
 2. export of a recording to parquet and CSV (long layout) against reading it;
 3. import of a lab-shaped ROS 1 bag (7 cells at 250 Hz, joint states and poses at 125 Hz):
    bag messages per second.
@@ -24,11 +24,11 @@ import numpy as np
 import rerun as rr
 
 from recorder import load_actions, load_objects
-from recorder._bagimport import import_bag
-from recorder._topicmap import load_topic_map
+from recorder.bagimport._importer import import_bag
+from recorder.bagimport._topicmap import load_topic_map
 from replay import read_recording
-from replay._export import export
-from replay._view import log_recording, new_stream
+from replay.outputs._export import export
+from replay.outputs._view import log_recording, new_stream
 
 if TYPE_CHECKING:
     from collections.abc import Callable

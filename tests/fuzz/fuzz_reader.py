@@ -40,8 +40,8 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from replay import read_recording
-from replay._recover import salvage
 from replay.errors import ReplayError
+from replay.recording._salvage import salvage
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence

@@ -16,12 +16,12 @@ from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from recorder import Modality, load_actions, load_objects
-from recorder._bagimport import import_bag
 from recorder._cli import main
-from recorder._topicmap import EXAMPLE, TopicMap, load_topic_map
+from recorder.bagimport._importer import import_bag
+from recorder.bagimport._topicmap import EXAMPLE, TopicMap, load_topic_map
 from recorder.errors import BagImportError
 from replay import read_recording
-from replay._features import build_features
+from replay.learning._features import build_features
 
 NS = 1_000_000_000
 G = 9.80665

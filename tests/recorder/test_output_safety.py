@@ -19,7 +19,7 @@ from conftest import FakeRig, fake_objects
 from recorder import OutputExistsError, RecorderError, load_actions, write_index
 from recorder import _dataset as dataset_module
 from recorder._cli import main as record_main
-from recorder._writer import RecordingInfo, RecordingWriter, record_action
+from recorder.writing._writer import RecordingInfo, RecordingWriter, record_action
 from replay import read_recording
 from schemas import PART_SUFFIX
 
@@ -59,7 +59,7 @@ def test_disk_full_at_any_stage_is_named_and_leaves_nothing(
 def test_disk_full_when_syncing_leaves_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("recorder._writer.os.fsync", _fail(errno.ENOSPC))
+    monkeypatch.setattr("recorder.writing._writer.os.fsync", _fail(errno.ENOSPC))
     with pytest.raises(RecorderError, match="disk is full"):
         _record(tmp_path / "001.mcap")
     assert _files(tmp_path) == []
@@ -75,7 +75,7 @@ def test_a_real_full_device_is_a_recorder_error(
         path.touch()  # the temporary name exists, as it would on a real disk
         return Path("/dev/full").open("wb")
 
-    monkeypatch.setattr("recorder._writer._open_exclusive", full)
+    monkeypatch.setattr("recorder.writing._writer._open_exclusive", full)
     with pytest.raises(RecorderError, match=r"001\.mcap: .*No space left on device.*disk is full"):
         _record(tmp_path / "001.mcap")
     assert _files(tmp_path) == []
@@ -92,7 +92,7 @@ def test_a_real_full_device_is_a_recorder_error(
 def test_unwritable_output_is_named_with_its_fix(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, err: int, fix: str
 ) -> None:
-    monkeypatch.setattr("recorder._writer._open_exclusive", _fail(err))
+    monkeypatch.setattr("recorder.writing._writer._open_exclusive", _fail(err))
     with pytest.raises(RecorderError, match=rf"001\.mcap: cannot create the recording.*{fix}"):
         _record(tmp_path / "001.mcap")
     assert _files(tmp_path) == []
@@ -124,7 +124,7 @@ def test_cli_says_one_line_for_an_unwritable_output(
     assert err.count("\n") == 1
     assert "never overwritten" in err
     assert path.read_bytes() == before
-    monkeypatch.setattr("recorder._writer._open_exclusive", _fail(errno.EROFS))
+    monkeypatch.setattr("recorder.writing._writer._open_exclusive", _fail(errno.EROFS))
     assert record_main([*args, "fake", "--trial", "2"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1

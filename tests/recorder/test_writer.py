@@ -24,7 +24,7 @@ from recorder import (
     StreamItem,
 )
 from recorder._catalog import ObjectSpec
-from recorder._writer import (
+from recorder.writing._writer import (
     METADATA_NAME,
     RecordingInfo,
     RecordingWriter,
@@ -33,7 +33,7 @@ from recorder._writer import (
     record_action,
     software_version,
 )
-from replay._reader import read_recording
+from replay.recording._reader import read_recording
 from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore
 
 Objects = dict[str, ObjectSpec]
@@ -227,7 +227,7 @@ _KILLED_RECORDER = textwrap.dedent(
     from pathlib import Path
     import numpy as np
     from recorder import JointSample, load_actions
-    from recorder._writer import RecordingInfo, RecordingWriter
+    from recorder.writing._writer import RecordingInfo, RecordingWriter
 
     action = load_actions()["C1"]
     info = RecordingInfo("wood", "Wood", False, action, 1, {"kind": "fake"}, 0)

@@ -31,10 +31,10 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from recorder import write_index
-from recorder._writer import METADATA_NAME
+from recorder.writing._writer import METADATA_NAME
 from replay import RecordingError, ReplayError, read_recording
-from replay._cli import main
-from replay._reader import check_dataset_location
+from replay.cli._main import main
+from replay.recording._reader import check_dataset_location
 from schemas import build_typestore
 
 #: Largest Python allocation (tracemalloc peak) allowed while refusing any bad file.

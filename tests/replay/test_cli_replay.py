@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from replay import _cli
-from replay._cli import arg, command, main
+from replay.cli import _main as _cli
+from replay.cli._main import arg, command, main
 
 
 def _dataset(fake_recording: Path, tmp_path: Path) -> Path:

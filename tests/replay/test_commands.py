@@ -4,8 +4,8 @@ import polars as pl
 import pytest
 from conftest import NEW
 
-from replay._cli import main
-from replay._run_history import load_run
+from replay.cli._main import main
+from replay.learning._run_history import load_run
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(

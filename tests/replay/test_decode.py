@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.interfaces import Nodetype
 
-from replay._decode import decode_topic, gather, message_layout
 from replay.errors import RecordingError
+from replay.recording._decode import decode_topic, gather, message_layout
 from schemas import CHANNELS, build_typestore, full_type_name
 
 if TYPE_CHECKING:

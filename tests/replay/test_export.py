@@ -10,8 +10,8 @@ import polars as pl
 import pytest
 
 from replay import MODALITIES, ReplayError, read_recording
-from replay._cli import main
-from replay._export import CHANNEL_COLUMNS, TABLES, export, phase_labels
+from replay.cli._main import main
+from replay.outputs._export import CHANNEL_COLUMNS, TABLES, export, phase_labels
 
 if TYPE_CHECKING:
     from pathlib import Path

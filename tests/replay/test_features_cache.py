@@ -6,8 +6,8 @@ import polars as pl
 import pytest
 from conftest import ACTIONS, NEW, OLD, TRIALS
 
-from replay._features import FEATURES_NAME, as_raw, build_features, file_features
 from replay.errors import ReplayError
+from replay.learning._features import FEATURES_NAME, as_raw, build_features, file_features
 
 
 @pytest.fixture

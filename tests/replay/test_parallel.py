@@ -2,8 +2,8 @@ import statistics
 
 import pytest
 
-from replay._parallel import run_tasks
 from replay.errors import ReplayError
+from replay.learning._parallel import run_tasks
 
 TASKS = [tuple(float(i * j % 7) / 3 for j in range(1, 50)) for i in range(12)]
 EXPECTED = [statistics.fmean(task) for task in TASKS]

@@ -9,9 +9,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from recorder._writer import METADATA_NAME
+from recorder.writing._writer import METADATA_NAME
 from replay import MODALITIES, ActionRecording, RecordingError, read_recording
-from replay._container import read_container, read_summary
+from replay.recording._container import read_container, read_summary
 from schemas import SCHEMA_VERSION
 
 

@@ -20,10 +20,10 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
 from recorder import load_actions
-from recorder._writer import FLUSH_INTERVAL_NS, RecordingInfo, _Encoder, record_action
+from recorder.writing._writer import FLUSH_INTERVAL_NS, RecordingInfo, _Encoder, record_action
 from replay import MODALITIES, RecordingError, read_recording
-from replay._cli import main
-from replay._recover import RECOVERY_NAME, recovered_path, salvage
+from replay.cli._main import main
+from replay.recording._salvage import RECOVERY_NAME, recovered_path, salvage
 from schemas import PART_SUFFIX
 
 NS = 1_000_000_000
@@ -39,7 +39,7 @@ _KILLED_RECORDER = textwrap.dedent(
     sys.path.append(sys.argv[3])  # recorder; conftest (the fake rig) after them
     from conftest import FakeRig, fake_objects
     from recorder import load_actions
-    from recorder._writer import RecordingInfo, RecordingWriter
+    from recorder.writing._writer import RecordingInfo, RecordingWriter
 
     obj, action = fake_objects()["wood"], load_actions()["C1"]
     rig = FakeRig(seed=5, time_scale=1.0)

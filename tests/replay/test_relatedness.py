@@ -1,6 +1,6 @@
 import numpy as np
 
-from replay._relatedness import confusion_matrix, least_similar, similarity_to_new
+from replay.studies._relatedness import confusion_matrix, least_similar, similarity_to_new
 
 
 def _clusters(centres: list[float], n: int = 30, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

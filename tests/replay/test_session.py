@@ -5,10 +5,10 @@ import pytest
 from conftest import ACTIONS, NEW, OLD, TRIALS
 
 from recorder import SimulatedRig, load_actions, load_objects
-from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
-from replay._features import build_features
-from replay._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.errors import ReplayError
+from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay.learning._features import build_features
+from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
 
 
 @pytest.fixture(scope="module")

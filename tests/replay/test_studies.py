@@ -6,9 +6,9 @@ import polars as pl
 import pytest
 from conftest import ACTIONS, NEW, OLD
 
-from replay._features import build_features
-from replay._studies import STUDIES, StudyConfig, prior_groups, run_study
 from replay.errors import ReplayError
+from replay.learning._features import build_features
+from replay.studies._studies import STUDIES, StudyConfig, prior_groups, run_study
 
 
 @pytest.fixture(scope="module")

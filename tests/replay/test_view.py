@@ -13,10 +13,10 @@ import rerun as rr
 from rerun_frames import nanoseconds, read_rrd
 
 from replay import MODALITIES, read_recording
-from replay._cli import main
-from replay._run_figures import plot_run
-from replay._run_history import load_run
-from replay._view import CHANNEL_NAMES, log_recordings, new_stream
+from replay.cli._main import main
+from replay.learning._run_history import load_run
+from replay.outputs._run_figures import plot_run
+from replay.outputs._view import CHANNEL_NAMES, log_recordings, new_stream
 
 RECORDINGS = Path(__file__).parents[2] / "recordings" / "data"
 NEW = ("aluminium_plate", "foam_block", "pine_board")

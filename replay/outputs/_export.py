@@ -42,15 +42,15 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from replay._reader import MODALITIES, read_recording
 from replay.errors import ReplayError
+from replay.recording._reader import MODALITIES, read_recording
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from numpy.typing import NDArray
 
-    from replay._reader import ActionRecording
+    from replay.recording._reader import ActionRecording
 
 #: Output formats.
 FORMATS = ("parquet", "csv")

@@ -18,15 +18,15 @@ import numpy as np
 import polars as pl
 
 from atikt import AtiktError, RawFeatures, extract_features
-from replay._parallel import run_tasks
-from replay._reader import read_recording
 from replay.errors import ReplayError
+from replay.learning._parallel import run_tasks
+from replay.recording._reader import read_recording
 from schemas import dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
-    from replay._reader import ActionRecording
+    from replay.recording._reader import ActionRecording
 
 #: File name of the feature cache inside a dataset directory.
 FEATURES_NAME = "features.parquet"

@@ -1,12 +1,13 @@
 """One recording -> an immutable, typed :class:`ActionRecording` (numpy arrays, phases, metadata).
 
-Three layers: :mod:`replay._container` reads the file and checks its CRCs, :mod:`replay._decode`
-turns CDR payloads into arrays, and this module validates the contract (profile, metadata,
-schema version, required channels, and with :mod:`replay._validate` message definitions,
-strictly increasing stamps, finite values, phases and the action's duration) and assembles
-the typed recording. Nothing is repaired or reordered silently: a file that breaks a rule is
-refused with a :class:`replay.errors.RecordingError` naming it and the fix. Every array is
-read-only; time is int64 nanoseconds of the sensor clock; ranges are half-open.
+Three layers: :mod:`replay.recording._container` reads the file and checks its CRCs,
+:mod:`replay.recording._decode` turns CDR payloads into arrays, and this module validates the
+contract (profile, metadata, schema version, required channels, and with
+:mod:`replay.recording._checks` message definitions, strictly increasing stamps, finite values,
+phases and the action's duration) and assembles the typed recording. Nothing is repaired or
+reordered silently: a file that breaks a rule is refused with a
+:class:`replay.errors.RecordingError` naming it and the fix. Every array is read-only; time is
+int64 nanoseconds of the sensor clock; ranges are half-open.
 """
 
 from __future__ import annotations
@@ -19,9 +20,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from replay._container import RawChannel, read_container
-from replay._decode import DecodedGroup, decode_topic, gather
-from replay._validate import (
+from replay.errors import RecordingError
+from replay.recording._checks import (
     check_definitions,
     check_duration,
     check_finite,
@@ -31,7 +31,8 @@ from replay._validate import (
     check_stamps,
     time_scale,
 )
-from replay.errors import RecordingError
+from replay.recording._container import RawChannel, read_container
+from replay.recording._decode import DecodedGroup, decode_topic, gather
 from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
 
 if TYPE_CHECKING:
@@ -39,7 +40,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-    from replay._container import Container
+    from replay.recording._container import Container
 
 #: Name of the file-level metadata record written by the recorder.
 METADATA_NAME = "atikt.recording"
@@ -346,7 +347,7 @@ def check_contract(container: Container) -> None:
 
 
 def _groups(path: Path, raw: RawChannel, msgtype: str) -> list[DecodedGroup]:
-    """Decode a channel's payloads (see :func:`replay._decode.decode_topic`).
+    """Decode a channel's payloads (see :func:`replay.recording._decode.decode_topic`).
 
     Raises:
         RecordingError: A payload is malformed; the message names the file and the channel.
@@ -359,7 +360,7 @@ def _groups(path: Path, raw: RawChannel, msgtype: str) -> list[DecodedGroup]:
 
 
 def _gather(path: Path, topic: str, groups: Sequence[DecodedGroup], name: str) -> NDArray[Any]:
-    """Return field ``name`` of every message (see :func:`replay._decode.gather`).
+    """Return field ``name`` of every message (see :func:`replay.recording._decode.gather`).
 
     Raises:
         RecordingError: The field's length differs between messages.

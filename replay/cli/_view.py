@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-from replay._cli import arg, command, dataset_files
-from replay._export import FORMATS, LAYOUTS, export
-from replay._run_history import LearnRun, is_run_directory
+from replay.cli._main import arg, command, dataset_files
 from replay.errors import ReplayError
+from replay.learning._run_history import LearnRun, is_run_directory
+from replay.outputs._export import FORMATS, LAYOUTS, export
 
 if TYPE_CHECKING:
     import argparse
@@ -115,7 +115,7 @@ def _attach_sink(stream: rr.RecordingStream, args: argparse.Namespace) -> str | 
 
 def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     """Write the PNG figures of every learn run and print where."""
-    from replay._run_figures import plot_run  # noqa: PLC0415 (matplotlib only when needed)
+    from replay.outputs._run_figures import plot_run  # noqa: PLC0415 (matplotlib only when needed)
 
     for run in runs:
         directory = run.path / "figures" if args.figures is None else args.figures
@@ -137,9 +137,9 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
 )
 def _view_command(args: argparse.Namespace) -> int:
-    from replay._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
-    from replay._run_history import load_run  # noqa: PLC0415
-    from replay._view import log_recordings, log_run, new_stream  # noqa: PLC0415
+    from replay.learning._run_history import load_run  # noqa: PLC0415
+    from replay.outputs._view import log_recordings, log_run, new_stream  # noqa: PLC0415
+    from replay.recording._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
 
     if args.save is not None and args.serve:
         msg = "--save and --serve: choose one (a file, or a web viewer)"

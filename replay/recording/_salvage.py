@@ -4,7 +4,7 @@ The recorder flushes a complete, CRC-protected chunk at least every 0.5 s of log
 killed recorder leaves a ``<trial>.<pid>-<token>.mcap.part`` file whose data section holds
 every message up to the last flush, followed by a cut-off chunk and no summary. The reader
 refuses such a file; :func:`salvage` walks its data section record by record
-(:func:`replay._container.walk_data_section` in its tolerant mode), keeps every record of
+(:func:`replay.recording._container.walk_data_section` in its tolerant mode), keeps every record of
 every intact chunk, skips chunks whose CRC or compression is damaged, stops at the first
 record that is cut off, and writes what it kept to a new file:
 
@@ -31,16 +31,16 @@ from typing import IO, TYPE_CHECKING
 
 from mcap.writer import CompressionType, Writer
 
-from replay._container import (
+from replay.errors import RecordingError
+from replay.recording._container import (
     MAGIC,
     FormatError,
     walk_data_section,
 )
-from replay.errors import RecordingError
 from schemas import PART_SUFFIX, RECOVERED_SUFFIX
 
 if TYPE_CHECKING:
-    from replay._container import ChannelMessages, DataSection
+    from replay.recording._container import ChannelMessages, DataSection
 
 #: Name of the metadata record that marks a salvaged file.
 RECOVERY_NAME = "atikt.recovery"

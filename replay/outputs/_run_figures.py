@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from replay._run_history import LearnRun
+    from replay.learning._run_history import LearnRun
 
 _METADATA = {"Software": None}
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")

@@ -11,7 +11,7 @@ and the fix.
 
 An unfinished recording (``*.mcap.part``, left by an interrupted recorder) or a truncated file
 is never read as complete: the error says to salvage it with ``atikt-replay check --recover``
-(:mod:`replay._recover`), which uses the same walk in its tolerant mode.
+(:mod:`replay.recording._salvage`), which uses the same walk in its tolerant mode.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Import a lab's ROS 1 / ROS 2 bags as per-action recordings (``atikt-record import-bag``).
 
-rosbags' ``AnyReader`` reads ROS 1 ``.bag`` files and ROS 2 bags (sqlite3 or MCAP storage).
-A topic map (:mod:`recorder._topicmap`) says which topics carry the joint states, the TCP pose
-and each skin cell's modalities, in which units, and where the actions are annotated. Every
-action window becomes one file ``<out>/<object>/<action>/<trial>.mcap`` written by the
-recorder's own :class:`~recorder.RecordingWriter`, then the dataset index is rebuilt: the
-output is indistinguishable in layout from a simulated dataset, so replay works unchanged.
+rosbags' ``AnyReader`` reads ROS 1 ``.bag`` files and ROS 2 bags (sqlite3 or MCAP storage). A topic
+map (:mod:`recorder.bagimport._topicmap`) says which topics carry the joint states, the TCP pose
+and each skin cell's modalities, in which units, and where the actions are annotated. Every action
+window becomes one file ``<out>/<object>/<action>/<trial>.mcap`` written by the recorder's own
+:class:`~recorder.RecordingWriter`, then the dataset index is rebuilt: the output is
+indistinguishable in layout from a simulated dataset, so replay works unchanged.
 
 Nothing is resampled. Per-cell skin samples are grouped into the recording's skin blocks:
 
@@ -48,10 +48,10 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from recorder._dataset import recording_path, write_index
-from recorder._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
-from recorder._topicmap import CHANNELS_PER_CELL, TIME_UNITS
-from recorder._writer import RecordingInfo, RecordingWriter
+from recorder.bagimport._topicmap import CHANNELS_PER_CELL, TIME_UNITS
 from recorder.errors import BagImportError
+from recorder.writing._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
+from recorder.writing._writer import RecordingInfo, RecordingWriter
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -60,8 +60,8 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
     from recorder._catalog import ActionSpec, ObjectSpec
-    from recorder._stream import StreamItem
-    from recorder._topicmap import TopicMap
+    from recorder.bagimport._topicmap import TopicMap
+    from recorder.writing._stream import StreamItem
 
 #: Time of samples per skin block, ns, as in the recorder's own files.
 BLOCK_NS = 100_000_000
@@ -856,7 +856,8 @@ def import_bag(
 
     Args:
         bag: A ROS 1 ``.bag`` file or a ROS 2 bag directory (sqlite3 or MCAP).
-        topic_map: What the bag's topics carry (:func:`recorder._topicmap.load_topic_map`).
+        topic_map: What the bag's topics carry
+            (:func:`recorder.bagimport._topicmap.load_topic_map`).
         out: Dataset directory; existing recordings are never overwritten.
         objects: Object catalog (the map's declarations take precedence).
         actions: Action catalog (the map's declarations take precedence).

@@ -1,9 +1,9 @@
 """The thesis's studies over a dataset's feature cache: runs, results, plots, summary.
 
-Every study is a list of independent tasks (a task carries its data and its own seed), run
-through :func:`replay._parallel.run_tasks`, so that results are the same bytes for any number
-of local workers or a Dask cluster. Results are long-format parquet (one row per run and step,
-or per repetition and training size), PNG figures, and ``summary.md``.
+Every study is a list of independent tasks (a task carries its data and its own seed), run through
+:func:`replay.learning._parallel.run_tasks`, so that results are the same bytes for any number of
+local workers or a Dask cluster. Results are long-format parquet (one row per run and step, or per
+repetition and training size), PNG figures, and ``summary.md``.
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ import numpy as np
 import polars as pl
 
 from atikt import AtiktError, MultiModalGPC
-from replay._executors import FeatureLookup, PoolExecutor, Split
-from replay._parallel import run_tasks
-from replay._plots import plot_learning_curves
-from replay._relatedness import least_similar, similarity_to_new
-from replay._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.errors import ReplayError
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
+from replay.learning._parallel import run_tasks
+from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.outputs._plots import plot_learning_curves
+from replay.studies._relatedness import least_similar, similarity_to_new
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence

@@ -32,7 +32,7 @@ import numpy as np
 import polars as pl
 import rerun as rr
 
-from replay._reader import MODALITIES
+from replay.recording._reader import MODALITIES
 
 if TYPE_CHECKING:
     from collections.abc import Container, Iterable, Sequence
@@ -40,14 +40,14 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-    from replay._reader import (
+    from replay.learning._run_history import LearnRun
+    from replay.recording._reader import (
         ActionRecording,
         JointStates,
         RecordingMetadata,
         SkinSeries,
         TcpPoses,
     )
-    from replay._run_history import LearnRun
 
 #: Application id of every view.
 APPLICATION_ID = "atikt"

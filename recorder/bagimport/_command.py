@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING
 from rich.console import Console
 from rich.table import Table
 
-from recorder._bagimport import ImportReport, bag_topics, import_bag
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import _CATALOGS, arg, command
-from recorder._topicmap import EXAMPLE, load_topic_map
+from recorder.bagimport._importer import ImportReport, bag_topics, import_bag
+from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:

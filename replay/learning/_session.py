@@ -8,14 +8,14 @@ from typing import TYPE_CHECKING, Any
 import polars as pl
 
 from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
-from replay._executors import FeatureLookup, PoolExecutor, Split
 from replay.errors import ReplayError
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
     from atikt import RawFeatures
-    from replay._executors import Executor, TestSet
+    from replay.learning._executors import Executor, TestSet
 
 #: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
 TRANSFER_MODES = ("prediction", "optimization", "none")

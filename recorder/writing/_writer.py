@@ -27,8 +27,8 @@ from typing import IO, TYPE_CHECKING, Any, Self
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from recorder._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
 from recorder.errors import OutputExistsError, RecorderError
+from recorder.writing._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
 from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore, full_type_name
 
 if TYPE_CHECKING:
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._rig import Rig
-    from recorder._stream import StreamItem
+    from recorder.writing._stream import StreamItem
 
 #: Name of the file-level MCAP metadata record describing the recording.
 METADATA_NAME = "atikt.recording"

@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-    from replay._container import ChannelInfo
+    from replay.recording._container import ChannelInfo
 
 #: The action phases, in the order a recording has them.
 PHASES = ("approach", "contact", "execute", "retract", "end")

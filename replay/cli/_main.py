@@ -3,7 +3,7 @@
 A subcommand is one function registered with :func:`command`; its arguments are declared
 with :func:`arg`; it returns the exit status::
 
-    from replay._cli import arg, command
+    from replay.cli._main import arg, command
 
     @command("features", "extract features of a dataset", arg("dir", type=Path))
     def _features(args: argparse.Namespace) -> int: ...
@@ -30,22 +30,27 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from replay._container import read_summary, recover_command
-from replay._reader import MODALITIES, check_dataset_location, parse_metadata, read_recording
-from replay._recover import salvage
 from replay.errors import ReplayError
+from replay.recording._container import read_summary, recover_command
+from replay.recording._reader import (
+    MODALITIES,
+    check_dataset_location,
+    parse_metadata,
+    read_recording,
+)
+from replay.recording._salvage import salvage
 from schemas import PART_SUFFIX, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
-    from replay._container import ContainerSummary
-    from replay._reader import ActionRecording
-    from replay._recover import RecoveryReport
+    from replay.recording._container import ContainerSummary
+    from replay.recording._reader import ActionRecording
+    from replay.recording._salvage import RecoveryReport
 
 PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
-COMMAND_MODULES: tuple[str, ...] = ("replay._commands", "replay._view_commands")
+COMMAND_MODULES: tuple[str, ...] = ("replay.cli._learn", "replay.cli._view")
 _NS_PER_S = 1e9
 
 

@@ -16,9 +16,9 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from recorder._catalog import ActionKind, ActionSpec, ObjectSpec
-from recorder._stream import Modality
-from recorder._writer import UR10_JOINTS
 from recorder.errors import BagImportError
+from recorder.writing._stream import Modality
+from recorder.writing._writer import UR10_JOINTS
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

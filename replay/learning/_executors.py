@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any, Protocol, Self
 import numpy as np
 import polars as pl
 
-from replay._features import as_raw, file_features
 from replay.errors import ReplayError
+from replay.learning._features import as_raw, file_features
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence

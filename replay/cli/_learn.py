@@ -12,13 +12,13 @@ import polars as pl
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-from replay._cli import arg, command
-from replay._datasets import ensure_default_dataset
-from replay._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
-from replay._features import FeatureTable, build_features
-from replay._plots import plot_learning_curves
-from replay._run_history import HISTORY_NAME, SETTINGS_NAME
-from replay._session import (
+from replay.cli._main import arg, command
+from replay.errors import ReplayError
+from replay.learning._datasets import ensure_default_dataset
+from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay.learning._features import FeatureTable, build_features
+from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
+from replay.learning._session import (
     TRANSFER_MODES,
     RunSpec,
     fit_priors,
@@ -26,8 +26,15 @@ from replay._session import (
     run_learning,
     run_offline,
 )
-from replay._studies import ACTIONS, STUDIES, StudyConfig, objects_of, prior_groups, run_study
-from replay.errors import ReplayError
+from replay.outputs._plots import plot_learning_curves
+from replay.studies._studies import (
+    ACTIONS,
+    STUDIES,
+    StudyConfig,
+    objects_of,
+    prior_groups,
+    run_study,
+)
 
 if TYPE_CHECKING:
     import argparse

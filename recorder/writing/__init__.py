@@ -1,0 +1,1 @@
+"""What a rig produces (typed stream items) and the MCAP writer that records it."""

@@ -1,0 +1,1 @@
+"""The ``atikt-replay`` command line: one subcommand registry, inspect, learn and view commands."""

@@ -1,0 +1,1 @@
+"""Observations for the learner: features and their cache, executors, the learning session."""

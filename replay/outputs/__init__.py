@@ -1,0 +1,1 @@
+"""What people look at: rerun views, figures (PNG) and table exports."""

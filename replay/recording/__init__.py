@@ -1,0 +1,1 @@
+"""One recording file: container I/O, decoding, contract checks, the typed recording, salvage."""

@@ -1,0 +1,1 @@
+"""The thesis's studies over a dataset: tasks, parallel runs, results and summaries."""
