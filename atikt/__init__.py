@@ -14,7 +14,6 @@ from atikt.active import (
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import (
     MODALITIES,
-    MODALITIES_BY_KIND,
     FeatureTransformer,
     RawFeatures,
     extract_features,
@@ -36,7 +35,6 @@ from atikt.transfer import (
 
 __all__ = [
     "MODALITIES",
-    "MODALITIES_BY_KIND",
     "ActiveLearner",
     "AtiktError",
     "BinaryGPC",

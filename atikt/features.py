@@ -11,13 +11,17 @@ feedbacks, features", following Kaboli et al.'s robust tactile descriptors:
   a fixed number of points so that every duration yields the same length, then reduced by a PCA
   fitted on training observations only (:class:`FeatureTransformer`).
 
-Pressing (``"press"``) and static contact (``"static"``) use force + thermal; sliding
-(``"slide"``) uses texture + thermal. All functions take numpy arrays and never see a file.
+Which blocks an observation has is the caller's choice (the recording contract assigns them
+to action kinds: the thesis gives pressing and static contact force + thermal, sliding texture
++ thermal); an observation carries any subset of :data:`MODALITIES`, and every function here
+works with the blocks present. All functions take numpy arrays and never see a file.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Final, Self
 
 import numpy as np
@@ -31,18 +35,11 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
-KINDS: Final = ("press", "slide", "static")
-"""Action kinds, as in the action catalog."""
-
 MODALITIES: Final = ("force", "texture", "thermal")
-"""Feature modalities, in the column order of every feature matrix."""
+"""Feature blocks atikt computes (one function each), in the column order of every matrix."""
 
-MODALITIES_BY_KIND: Final[Mapping[str, tuple[str, ...]]] = {
-    "press": ("force", "thermal"),
-    "slide": ("texture", "thermal"),
-    "static": ("force", "thermal"),
-}
-"""The modalities each action kind perceives (thesis: press/static -> stiffness + thermal)."""
+SEQUENCE_MODALITIES: Final = frozenset({"thermal"})
+"""Blocks that are sequences: normalised per half and reduced by PCA (the others z-scored)."""
 
 AXIS_PAIRS: Final = ((0, 1), (1, 2), (0, 2))
 """Axis pairs of the linear-correlation feature: xy, yz, xz."""
@@ -149,37 +146,44 @@ def linear_correlation(a: npt.ArrayLike, b: npt.ArrayLike, axis: int = 0) -> Flo
     return np.clip(_safe_ratio(covariance, scale), -1.0, 1.0)
 
 
+def _axis_pairs(n_axes: int) -> tuple[tuple[int, int], ...]:
+    """Return the axis pairs of the correlation feature: xy, yz, xz for 3 axes (thesis order)."""
+    if n_axes == len(AXIS_PAIRS):
+        return AXIS_PAIRS
+    return tuple(itertools.combinations(range(n_axes), 2))
+
+
 def texture(acceleration: npt.ArrayLike, *, per_axis: bool = True) -> FloatArray:
     """Texture descriptor ``[Act, Mob, Comp, Lcorr]`` of a sliding action.
 
     Hjorth parameters are computed for every cell and axis and averaged over cells; the linear
-    correlation of the axis pairs xy, yz, xz is computed per cell and averaged over cells.
+    correlation of every axis pair (xy, yz, xz for three axes) is computed per cell and
+    averaged over cells. A single-axis vibration sensor has no pairs: ``[Act, Mob, Comp]``.
 
     Args:
-        acceleration: Shape (n_samples, n_cells, 3) float, m/s^2, axes x, y, z; the execute
-            (sliding) phase.
-        per_axis: True keeps the axes apart (12 values, named by :data:`TEXTURE_NAMES`:
-            Act x/y/z, Mob x/y/z, Comp x/y/z, Lcorr xy/yz/xz); False also averages over the
-            axes and the pairs (4 values: Act, Mob, Comp, Lcorr).
+        acceleration: Shape (n_samples, n_cells, n_axes) float, m/s^2; the execute (sliding)
+            phase. Three axes x, y, z on the thesis's skin; one on a single-axis sensor.
+        per_axis: True keeps the axes apart (for 3 axes 12 values, named by
+            :data:`TEXTURE_NAMES`: Act x/y/z, Mob x/y/z, Comp x/y/z, Lcorr xy/yz/xz); False
+            also averages over the axes and the pairs (4 values, 3 for one axis).
 
     Returns:
-        Shape (12,) or (4,) float64.
+        Shape (3 * n_axes + n_pairs,) or (4,) float64 ((3,) for one axis).
 
     Raises:
         AtiktError: Wrong shape, fewer than 3 samples, or non-finite values.
     """
     acc = _as_float_array("acceleration", acceleration, 3)
-    if acc.shape[2] != len("xyz") or acc.shape[0] < len("xyz"):
-        msg = (
-            f"acceleration: expected shape (n_samples >= 3, n_cells, 3), got {acc.shape}; "
-            "pass x, y, z of every cell"
-        )
+    if acc.shape[0] < len("xyz"):
+        msg = f"acceleration: expected shape (n_samples >= 3, n_cells, n_axes), got {acc.shape}"
         raise AtiktError(msg)
     activity, mobility, complexity = (p.mean(axis=0) for p in hjorth(acc, axis=0))
-    lcorr = np.array([linear_correlation(acc[:, :, i], acc[:, :, j]).mean() for i, j in AXIS_PAIRS])
+    pairs = _axis_pairs(acc.shape[2])
+    lcorr = np.array([linear_correlation(acc[:, :, i], acc[:, :, j]).mean() for i, j in pairs])
     if per_axis:
         return np.concatenate([activity, mobility, complexity, lcorr])
-    return np.array([activity.mean(), mobility.mean(), complexity.mean(), lcorr.mean()])
+    means = [activity.mean(), mobility.mean(), complexity.mean()]
+    return np.array(means + ([lcorr.mean()] if pairs else []))
 
 
 def thermal_sequence(
@@ -192,7 +196,8 @@ def thermal_sequence(
     appended.
 
     Args:
-        temperature: Shape (n_samples >= 2, n_cells) float, degrees C; the execute phase.
+        temperature: Shape (n_samples >= 2, n_sensors) float, degrees C; the execute phase
+            (every temperature sensor of every cell, e.g. two thermistors of a probe).
         n_points: Length of the resampled sequence (>= 2); fixes the feature length for every
             action duration.
         rate_hz: Sample rate of ``temperature``, Hz; scales the gradient to C/s.
@@ -223,29 +228,29 @@ class RawFeatures:
     """Raw (unstandardised, pre-PCA) feature vectors of one observation.
 
     Attributes:
-        kind: Action kind: ``"press"``, ``"slide"`` or ``"static"``.
-        force: Shape (1,) stiffness feature, None for sliding.
-        texture: Shape (12,) or (4,) texture descriptor, None for press/static.
-        thermal: Shape (2 * n_points,) ``[T, dT]`` sequence.
+        kind: Label of the observations that can be stacked together (the action's kind).
+        blocks: Feature block name (one of :data:`MODALITIES`) -> vector; the blocks the
+            observation has, e.g. ``force`` shape (1,), ``texture`` (12,), ``thermal``
+            (2 * n_points,).
     """
 
     kind: str
-    force: FloatArray | None
-    texture: FloatArray | None
-    thermal: FloatArray
+    blocks: Mapping[str, FloatArray]
+
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the blocks the observation has, in :data:`MODALITIES` order."""
+        return tuple(m for m in MODALITIES if m in self.blocks)
 
     def modality(self, name: str) -> FloatArray:
-        """Return the vector of one modality.
+        """Return the vector of one block.
 
         Raises:
-            AtiktError: The observation has no such modality (e.g. texture of a press).
+            AtiktError: The observation has no such block (e.g. texture of a press).
         """
-        value = {"force": self.force, "texture": self.texture, "thermal": self.thermal}.get(name)
+        value = self.blocks.get(name)
         if value is None:
-            msg = (
-                f"a {self.kind!r} observation has no {name!r} features; "
-                f"choose among {MODALITIES_BY_KIND.get(self.kind, ())}"
-            )
+            msg = f"a {self.kind!r} observation has no {name!r} features; it has {self.modalities}"
             raise AtiktError(msg)
         return value
 
@@ -258,51 +263,47 @@ def _frozen(array: FloatArray) -> FloatArray:
 
 def extract_features(
     kind: str,
-    force: npt.ArrayLike | None,
-    acceleration: npt.ArrayLike | None,
-    temperature: npt.ArrayLike,
+    signals: Mapping[str, tuple[npt.ArrayLike, float]],
     *,
     n_thermal_points: int = 20,
-    temperature_rate_hz: float = 20.0,
     texture_per_axis: bool = True,
 ) -> RawFeatures:
     """Extract the raw features of one observation (one action's execute phase).
 
     Args:
-        kind: ``"press"``, ``"slide"`` or ``"static"``.
-        force: Shape (n, n_cells, 3) float, N, 250 Hz; required for press/static, else ignored.
-        acceleration: Shape (n, n_cells, 3) float, m/s^2, 1 kHz; required for slide, else
-            ignored.
-        temperature: Shape (n, n_cells) float, degrees C, ``temperature_rate_hz``.
+        kind: Label of the observation (the action's kind).
+        signals: Feature block -> (samples, rate in Hz) of the sensor that feeds it:
+            ``force``: (n, n_cells, n_sensors) N; ``texture``: (n, n_cells, n_axes) m/s^2;
+            ``thermal``: (n, n_cells, n_sensors) or (n, n_sensors) degrees C.
         n_thermal_points: Resampled length of the thermal sequence (same for all actions that
             are compared).
-        temperature_rate_hz: Sample rate of ``temperature``.
         texture_per_axis: See :func:`texture`.
 
     Returns:
-        The raw per-modality vectors, read-only.
+        The raw vector of every block given, read-only.
 
     Raises:
-        AtiktError: Unknown kind, a missing modality, or a malformed array.
+        AtiktError: No signals, an unknown block, or a malformed array.
     """
-    if kind not in MODALITIES_BY_KIND:
-        msg = f"unknown action kind {kind!r}; use one of {KINDS}"
+    if not signals or set(signals) - set(MODALITIES):
+        msg = f"signals {sorted(signals)}: give a non-empty subset of {MODALITIES}"
         raise AtiktError(msg)
-    needed = MODALITIES_BY_KIND[kind]
-    force_vector: FloatArray | None = None
-    texture_vector: FloatArray | None = None
-    if "force" in needed:
-        if force is None:
-            msg = f"a {kind!r} action needs the force array; pass force (n, n_cells, 3)"
-            raise AtiktError(msg)
-        force_vector = _frozen(stiffness(force))
-    if "texture" in needed:
-        if acceleration is None:
-            msg = f"a {kind!r} action needs the acceleration array; pass (n, n_cells, 3)"
-            raise AtiktError(msg)
-        texture_vector = _frozen(texture(acceleration, per_axis=texture_per_axis))
-    thermal = thermal_sequence(temperature, n_points=n_thermal_points, rate_hz=temperature_rate_hz)
-    return RawFeatures(kind, force_vector, texture_vector, _frozen(thermal))
+    blocks: dict[str, FloatArray] = {}
+    for name in MODALITIES:
+        if name not in signals:
+            continue
+        data, rate_hz = signals[name]
+        if name == "force":
+            blocks[name] = _frozen(stiffness(data))
+        elif name == "texture":
+            blocks[name] = _frozen(texture(data, per_axis=texture_per_axis))
+        else:
+            array = np.asarray(data, dtype=np.float64)
+            flat = array.reshape(array.shape[0], -1) if array.ndim == 3 else array  # noqa: PLR2004
+            blocks[name] = _frozen(
+                thermal_sequence(flat, n_points=n_thermal_points, rate_hz=rate_hz)
+            )
+    return RawFeatures(kind, MappingProxyType(blocks))
 
 
 def _check_observations(observations: Sequence[RawFeatures]) -> str:
@@ -317,6 +318,10 @@ def _check_observations(observations: Sequence[RawFeatures]) -> str:
     kinds = {obs.kind for obs in observations}
     if len(kinds) != 1:
         msg = f"observations of different kinds {sorted(kinds)}; pass one action's observations"
+        raise AtiktError(msg)
+    held = {obs.modalities for obs in observations}
+    if len(held) != 1:
+        msg = f"observations with different feature blocks {sorted(held)}; give every one the same"
         raise AtiktError(msg)
     return kinds.pop()
 
@@ -348,7 +353,7 @@ def stack_features(observations: Sequence[RawFeatures]) -> StackedFeatures:
         AtiktError: No observations, mixed kinds or vectors of different lengths.
     """
     kind = _check_observations(observations)
-    return StackedFeatures(kind, {m: _stack(observations, m) for m in MODALITIES_BY_KIND[kind]})
+    return StackedFeatures(kind, {m: _stack(observations, m) for m in observations[0].modalities})
 
 
 def _stack(observations: Sequence[RawFeatures], modality: str) -> FloatArray:
@@ -405,7 +410,7 @@ class FeatureTransformer:
 
     Args:
         modalities: Modalities to keep, in any order (output order follows
-            :data:`MODALITIES`); None keeps all modalities of the action kind.
+            :data:`MODALITIES`); None keeps every block the training observations have.
         n_thermal_components: Principal components of the thermal sequence (thesis: 10).
         min_std: A standard deviation below ``min_std`` times the magnitude of the column's
             mean counts as zero: the column is constant and is only centred. Relative, so that
@@ -434,13 +439,12 @@ class FeatureTransformer:
         self.n_thermal_components = n_thermal_components
         self.min_std = min_std
 
-    def _resolve_modalities(self, kind: str) -> tuple[str, ...]:
-        """Return the modalities to use for ``kind``, in output order.
+    def _resolve_modalities(self, kind: str, available: tuple[str, ...]) -> tuple[str, ...]:
+        """Return the modalities to use, in output order.
 
         Raises:
-            AtiktError: A requested modality is not perceived by this kind of action.
+            AtiktError: A requested modality is not among the observations' blocks.
         """
-        available = MODALITIES_BY_KIND[kind]
         if self.modalities is None:
             return available
         unknown = set(self.modalities) - set(available)
@@ -472,7 +476,8 @@ class FeatureTransformer:
             msg = f"n_thermal_components={self.n_thermal_components}; use at least 1"
             raise AtiktError(msg)
         self.kind_ = stacked.kind
-        self.modalities_ = self._resolve_modalities(self.kind_)
+        held = tuple(m for m in MODALITIES if m in stacked.blocks)
+        self.modalities_ = self._resolve_modalities(self.kind_, held)
         self.means_: dict[str, FloatArray] = {}
         self.scales_: dict[str, FloatArray] = {}
         self.slices_: dict[str, slice] = {}
@@ -488,7 +493,7 @@ class FeatureTransformer:
         """Fit the statistics of one modality block and return its output width."""
         mean = raw.mean(axis=0)
         centred = raw - mean
-        if modality != "thermal":
+        if modality not in SEQUENCE_MODALITIES:
             std = centred.std(axis=0)
             informative = std > self.min_std * np.maximum(np.abs(mean), _TINY)
             scale = np.where(informative, std, 1.0) * np.sqrt(raw.shape[1])
@@ -568,7 +573,7 @@ class FeatureTransformer:
             )
             raise AtiktError(msg)
         z = (raw - mean) / self.scales_[modality]
-        if modality != "thermal":
+        if modality not in SEQUENCE_MODALITIES:
             return z
         return (z @ self.components_.T) / self.thermal_scale_
 

@@ -36,8 +36,8 @@ from recorder.writing._writer import (
     RecordingWriter,
     WrittenRecording,
     record_action,
-    software_version,
 )
+from schemas import software_version
 
 __all__ = [
     "ActionKind",

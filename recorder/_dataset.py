@@ -21,6 +21,7 @@ import json
 import os
 import secrets
 import struct
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
@@ -34,7 +35,14 @@ from threadpoolctl import threadpool_limits
 from recorder._sim import SimulatedRig
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._writer import METADATA_NAME, record_action
-from schemas import CHANNELS, PART_SUFFIX, dataset_recordings
+from schemas import (
+    CHANNELS,
+    PART_SUFFIX,
+    VOCABULARY,
+    ContractError,
+    dataset_recordings,
+    parse_metadata,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -233,6 +241,7 @@ def generate_dataset(
     for result in results:
         skipped += result.status == TaskStatus.SKIPPED
         notify(result)
+    declare_objects(root, [task.obj for task in tasks])
     index = write_index(root)
     frame = pl.read_parquet(index)
     return DatasetReport(
@@ -254,12 +263,12 @@ _INDEX_SCHEMA: dict[str, Any] = {
     "path": pl.String,
     "object_id": pl.String,
     "object_name": pl.String,
-    "novel": pl.Boolean,
     "action_id": pl.String,
     "action_kind": pl.String,
     "trial": pl.Int64,
     "seed": pl.Int64,
     "rig": pl.String,
+    "source": pl.String,
     "software_version": pl.String,
     "schema_version": pl.Int64,
     "size_bytes": pl.Int64,
@@ -279,22 +288,30 @@ def _summary_row(path: Path, data: bytes) -> dict[str, Any]:
     if summary is None or summary.statistics is None or METADATA_NAME not in records:
         msg = f"{path}: no summary or no {METADATA_NAME!r} record; not a finished recording"
         raise RecorderError(msg)
-    meta, stats = records[METADATA_NAME], summary.statistics
+    try:
+        meta = parse_metadata(records[METADATA_NAME])
+    except ContractError as err:
+        msg = f"{path}: metadata record: {err}; check the file with 'atikt-replay check'"
+        raise RecorderError(msg) from err
+    stats = summary.statistics
     counts = {
         channel.topic: stats.channel_message_counts.get(channel.id, 0)
         for channel in summary.channels.values()
     }
+    legacy = VOCABULARY.legacy.get(meta.schema_version)
+    renamed = legacy.topics if legacy is not None else {}
+    counts = {renamed.get(topic, topic): count for topic, count in counts.items()}
     return {
-        "object_id": meta["object_id"],
-        "object_name": meta["object_name"],
-        "novel": bool(json.loads(meta["object_novel"])),
-        "action_id": meta["action_id"],
-        "action_kind": meta["action_kind"],
-        "trial": int(meta["trial"]),
-        "seed": int(meta["seed"]),
-        "rig": json.loads(meta["rig"]).get("kind", ""),
-        "software_version": meta["software_version"],
-        "schema_version": int(meta["schema_version"]),
+        "object_id": meta.object_id,
+        "object_name": meta.object_name,
+        "action_id": meta.action_id,
+        "action_kind": meta.action_kind,
+        "trial": meta.trial,
+        "seed": meta.seed,
+        "rig": str(meta.rig.get("kind", "")),
+        "source": meta.source,
+        "software_version": meta.software_version,
+        "schema_version": meta.schema_version,
         "start_ns": stats.message_start_time,
         "end_ns": stats.message_end_time,
         "duration_ns": stats.message_end_time - stats.message_start_time,
@@ -320,6 +337,47 @@ def index_row(root: Path, path: Path) -> dict[str, Any]:
     location = {"path": path.relative_to(root).as_posix()}
     content = {"size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
     return location | row | content
+
+
+#: A dataset's object declarations: id, name, description and the default role (``novel``).
+OBJECTS_FILE = "objects.toml"
+
+
+def _toml_text(value: str) -> str:
+    """Return a TOML basic string (JSON's escapes are TOML's for these characters)."""
+    return json.dumps(value, ensure_ascii=False)
+
+
+def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
+    """Add objects to ``<root>/objects.toml`` (existing declarations are kept as they are).
+
+    The file says which objects are new by default (``novel``); runs choose roles with
+    ``--new``/``--priors``. Written by dataset generation and bag import, read by the replay.
+
+    Raises:
+        RecorderError: The file cannot be read or written.
+    """
+    path = Path(root) / OBJECTS_FILE
+    try:
+        text = path.read_text("utf-8") if path.exists() else ""
+        declared = tomllib.loads(text)
+        new = [o for o in objects if o.id not in declared]
+        if not new:
+            return path
+        entries = [
+            f"[{o.id}]\nname = {_toml_text(o.name)}\ndescription = {_toml_text(o.description)}\n"
+            f"novel = {'true' if o.novel else 'false'}\n"
+            for o in sorted({o.id: o for o in new}.values(), key=lambda o: o.id)
+        ]
+        header = "# Objects of this dataset; novel = true: new by default.\n"
+        body = "\n".join([text.rstrip("\n"), *entries] if text else [header, *entries])
+        temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        temporary.write_text(body, "utf-8")
+        temporary.replace(path)
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        msg = f"{path}: cannot update the object declarations ({err}); fix or delete the file"
+        raise RecorderError(msg) from err
+    return path
 
 
 def recordings(root: Path) -> list[Path]:

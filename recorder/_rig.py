@@ -33,6 +33,11 @@ class Rig(Protocol):
         """Disconnect from the rig, whatever happened."""
         ...
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Return the arm's joint names in the order of its joint states (empty: no arm)."""
+        ...
+
     def describe(self) -> Mapping[str, str]:
         """Return the rig's kind and configuration, for the recording's metadata."""
         ...

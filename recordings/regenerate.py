@@ -29,7 +29,7 @@ import numpy as np
 from recorder import load_actions, plan_dataset
 from recorder._catalog import load_objects
 from recorder._dataset import generate_dataset, rig_factory
-from replay import MODALITIES, read_recording
+from replay import read_recording
 from replay.learning._features import build_features
 from replay.learning._session import RunSpec, run_offline
 from replay.recording._container import read_summary
@@ -92,9 +92,8 @@ def summarize(recording: ActionRecording) -> dict[str, Any]:
     summary = read_summary(recording.path)
     meta = recording.metadata
     skin = {
-        m: _series(recording.skin(m).stamps_ns, {"data": recording.skin(m).data})
-        | {"period_ns": recording.skin(m).period_ns}
-        for m in MODALITIES
+        m: _series(s.stamps_ns, {"data": s.data}) | {"period_ns": s.period_ns}
+        for m, s in recording.signals.items()
     }
     joints = recording.joints
     tcp = recording.tcp
@@ -102,23 +101,28 @@ def summarize(recording: ActionRecording) -> dict[str, Any]:
         "metadata": {
             "object_id": meta.object_id,
             "object_name": meta.object_name,
-            "object_novel": meta.object_novel,
+            "object_description": meta.object_description,
             "action_id": meta.action_id,
             "action_kind": meta.action_kind,
             "action_parameters": dict(meta.action_parameters),
             "trial": meta.trial,
             "rig": dict(meta.rig),
             "seed": meta.seed,
+            "source": meta.source,
             "schema_version": meta.schema_version,
         },
         "messages": {t: c.message_count for t, c in sorted(summary.channels.items())},
         "skin": skin,
-        "joints": _series(
+        "joints": None
+        if joints is None
+        else _series(
             joints.stamps_ns,
             {"position": joints.position, "velocity": joints.velocity, "effort": joints.effort},
         )
         | {"names": list(joints.names)},
-        "tcp": _series(tcp.stamps_ns, {"position": tcp.position, "orientation": tcp.orientation})
+        "tcp": None
+        if tcp is None
+        else _series(tcp.stamps_ns, {"position": tcp.position, "orientation": tcp.orientation})
         | {"frame_id": tcp.frame_id},
         "phases": [[mark.phase, mark.start_ns] for mark in recording.phases],
     }

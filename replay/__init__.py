@@ -8,13 +8,13 @@ from replay.recording._reader import (
     ActionRecording,
     JointStates,
     PhaseStart,
-    RecordingMetadata,
     SkinSeries,
     TcpPoses,
     check_dataset_location,
     read_recording,
 )
 from replay.recording._salvage import RecoveryReport, recovered_path, salvage
+from schemas import RecordingMetadata
 
 __all__ = [
     "MODALITIES",

@@ -1,4 +1,8 @@
-"""Message definitions of the tactile recording contract (ROS 2 ``.msg``, CDR encoded)."""
+"""The recording contract: its vocabulary as data, message definitions, metadata and layout.
+
+``VOCABULARY`` (from ``schemas/contract.toml``) lists the skin modalities, robot and event
+channels, phases, sources and action kinds; nothing else in the project lists them.
+"""
 
 from schemas._layout import (
     PART_SUFFIX,
@@ -7,29 +11,71 @@ from schemas._layout import (
     dataset_recordings,
     is_recording,
 )
+from schemas._metadata import (
+    MAX_SEED,
+    MAX_TRIAL,
+    RecordingMetadata,
+    RigValue,
+    check_id,
+    check_parameters,
+    check_rig,
+    parse_metadata,
+    software_version,
+)
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
     CUSTOM_TYPES,
+    MESSAGE_VERSION,
     PACKAGE,
     SCHEMA_VERSION,
+    VOCABULARY,
     build_typestore,
     full_type_name,
     msg_definition,
 )
+from schemas._vocabulary import (
+    ChannelSpec,
+    KindSpec,
+    LegacySpec,
+    ModalitySpec,
+    SourceSpec,
+    Vocabulary,
+    parse_vocabulary,
+)
+from schemas.errors import ContractError
 
 __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
+    "MAX_SEED",
+    "MAX_TRIAL",
+    "MESSAGE_VERSION",
     "PACKAGE",
     "PART_SUFFIX",
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "VOCABULARY",
     "Channel",
+    "ChannelSpec",
+    "ContractError",
+    "KindSpec",
+    "LegacySpec",
+    "ModalitySpec",
+    "RecordingMetadata",
+    "RigValue",
+    "SourceSpec",
+    "Vocabulary",
     "build_typestore",
     "channel_for_topic",
+    "check_id",
+    "check_parameters",
+    "check_rig",
     "dataset_recordings",
     "full_type_name",
     "is_recording",
     "msg_definition",
+    "parse_metadata",
+    "parse_vocabulary",
+    "software_version",
 ]

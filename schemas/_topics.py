@@ -1,8 +1,10 @@
-"""The channels of a recording: topic, type, rate, units and frame (see schemas/README.md)."""
+"""The channels of a recording, derived from the vocabulary (see schemas/README.md)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from schemas._typestore import VOCABULARY
 
 
 @dataclass(frozen=True, slots=True)
@@ -12,11 +14,12 @@ class Channel:
     Attributes:
         topic: Topic name, part of the contract.
         msgtype: ROS 2 message type name.
-        rate_hz: Nominal sample rate in Hz (0 for event channels).
-        block_samples: Samples carried per message (1 for per-sample channels).
+        rate_hz: Nominal sample rate in Hz of the thesis's rig (0 for event channels).
+        block_samples: Samples per message written by the simulated rig (1: per sample).
         units: Units of the payload.
         frame: Frame id written into the message headers.
-        required: Whether a recording without this channel is invalid.
+        required: Whether every recording has this channel (only the action events).
+        modality: The skin modality it carries ("" for robot and event channels).
     """
 
     topic: str
@@ -25,20 +28,29 @@ class Channel:
     block_samples: int
     units: str
     frame: str
-    required: bool = True
+    required: bool = False
+    modality: str = ""
 
 
-CHANNELS: tuple[Channel, ...] = (
-    Channel("/ur10/joint_states", "sensor_msgs/msg/JointState", 125.0, 1, "rad, rad/s, N m", ""),
-    Channel("/ur10/tcp_pose", "geometry_msgs/msg/PoseStamped", 125.0, 1, "m, quaternion", "base"),
-    Channel("/skin/force", "tactile_msgs/msg/SkinForce", 250.0, 25, "N", "skin"),
-    Channel("/skin/temperature", "tactile_msgs/msg/SkinTemperature", 20.0, 2, "C", "skin"),
-    Channel(
-        "/skin/acceleration", "tactile_msgs/msg/SkinAcceleration", 1000.0, 100, "m/s^2", "skin"
-    ),
-    Channel("/skin/proximity", "tactile_msgs/msg/SkinProximity", 50.0, 5, "m", "skin"),
-    Channel("/action/events", "tactile_msgs/msg/ActionEvent", 0.0, 1, "SI", "base"),
-)
+def _channels() -> tuple[Channel, ...]:
+    robot = [
+        Channel(c.topic, c.msgtype, c.rate_hz, 1, c.units, c.frame)
+        for c in VOCABULARY.robot.values()
+    ]
+    skin = [
+        Channel(m.topic, m.msgtype, m.rate_hz, m.block_samples, m.units, "skin", modality=m.name)
+        for m in VOCABULARY.modalities.values()
+    ]
+    events = VOCABULARY.events
+    return (
+        *robot,
+        *skin,
+        Channel(events.topic, events.msgtype, 0.0, 1, events.units, events.frame, required=True),
+    )
+
+
+#: Every channel of the contract: robot, skin modalities, action events.
+CHANNELS: tuple[Channel, ...] = _channels()
 
 _BY_TOPIC = {channel.topic: channel for channel in CHANNELS}
 

@@ -8,20 +8,24 @@ from typing import TYPE_CHECKING
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from schemas._vocabulary import load_vocabulary
+
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 #: ROS package name under which the custom message types live.
 PACKAGE = "tactile_msgs"
-#: Version of the custom message definitions and of the recording layout.
-SCHEMA_VERSION = 1
+#: The contract's vocabulary (``schemas/contract.toml``).
+VOCABULARY = load_vocabulary(PACKAGE)
+#: Version of the contract: layout, topics and metadata record.
+SCHEMA_VERSION = VOCABULARY.schema_version
+#: Version of the custom message definitions (the ``schema_version`` field of each message).
+MESSAGE_VERSION = VOCABULARY.message_version
 #: Custom message type names, each defined by ``schemas/msg/<Name>.msg``.
-CUSTOM_TYPES = (
-    "SkinForce",
-    "SkinTemperature",
-    "SkinAcceleration",
-    "SkinProximity",
-    "ActionEvent",
+CUSTOM_TYPES = tuple(
+    msgtype.rsplit("/", 1)[1]
+    for msgtype in (*(m.msgtype for m in VOCABULARY.modalities.values()), VOCABULARY.events.msgtype)
+    if msgtype.startswith(f"{PACKAGE}/")
 )
 
 

@@ -30,7 +30,7 @@ from recorder import (
 )
 from recorder._catalog import ObjectSpec
 from recorder.writing._writer import record_action
-from schemas import CHANNELS
+from schemas import CHANNELS, VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
@@ -80,6 +80,10 @@ class FakeRig:
     ) -> None:
         self.connected = False
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(f"joint_{i}" for i in range(6))
+
     def describe(self) -> Mapping[str, str]:
         return {"kind": "fake", "seed": str(self.seed), "time_scale": str(self.time_scale)}
 
@@ -126,7 +130,7 @@ class FakeRig:
         return blocks
 
     def _robot(self, rng: np.random.Generator, start: int, stop: int) -> list[StreamItem]:
-        period, _ = _channel("/ur10/joint_states")
+        period, _ = _channel(VOCABULARY.robot["joint_states"].topic)
         items: list[StreamItem] = []
         for stamp in range(start, stop, period):
             q = rng.normal(0.0, 1.0, 18)

@@ -255,6 +255,11 @@ class SimulatedRig:
         """The rig's settings."""
         return self._config
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Return the UR10's joint names, in the order of its joint-state arrays."""
+        return ur10.JOINT_NAMES
+
     def describe(self) -> Mapping[str, str]:
         """Return the rig's kind and configuration (deterministic), for the metadata."""
         return {

@@ -290,3 +290,14 @@ def quaternions(pose: F64) -> F64:
     sign = np.sign(ordered[np.arange(m.shape[0]), first])
     canonical: F64 = quat * sign[:, None]
     return canonical
+
+
+#: Joint names of the UR10, in the order of the joint-state arrays (ROS ur_robot_driver).
+JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)

@@ -52,6 +52,7 @@ from recorder.bagimport._topicmap import CHANNELS_PER_CELL, TIME_UNITS
 from recorder.errors import BagImportError
 from recorder.writing._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
 from recorder.writing._writer import RecordingInfo, RecordingWriter
+from schemas import SCHEMA_VERSION, RecordingMetadata, check_rig, software_version
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -899,7 +900,21 @@ def import_bag(
     rig = _rig_description(bag, topic_map, read[topic_map.joint_topic].missing)
     for (window, trial, path), (obj, action) in zip(planned, specs, strict=True):
         items = _window_items(window, signals, topic_map, report)
-        info = RecordingInfo(obj.id, obj.name, obj.novel, action, trial, rig, seed=0)
+        metadata = RecordingMetadata(
+            object_id=obj.id,
+            object_name=obj.name,
+            object_description=obj.description,
+            action_id=action.id,
+            action_kind=str(action.kind),
+            action_parameters=action.parameters(),
+            trial=trial,
+            rig=check_rig(rig),
+            seed=0,
+            source="import",
+            software_version=software_version(),
+            schema_version=SCHEMA_VERSION,
+        )
+        info = RecordingInfo(metadata, tuple(topic_map.joint_names))
         with RecordingWriter(path, info) as writer:
             for item in items:
                 writer.write(item)

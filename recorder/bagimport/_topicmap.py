@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any, NoReturn
 from recorder._catalog import ActionKind, ActionSpec, ObjectSpec
 from recorder.errors import BagImportError
 from recorder.writing._stream import Modality
-from recorder.writing._writer import UR10_JOINTS
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -38,6 +37,15 @@ WINDOW_SOURCES = ("topic", "csv")
 TIME_UNITS = {"s": 1_000_000_000, "ns": 1}
 #: The packaged, commented example map.
 EXAMPLE = "topic_map.example.toml"
+#: Joint names of a UR arm (ROS ur_robot_driver): the default of [joint_states] names.
+UR10_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
 
 
 @dataclass(frozen=True, slots=True)

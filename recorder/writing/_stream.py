@@ -48,7 +48,7 @@ class SkinBlock:
         data: Samples, shape (samples, cells, channels), float32, SI units (C for temperature).
     """
 
-    modality: Modality
+    modality: str
     stamp_ns: int
     period_ns: int
     receive_ns: int

@@ -15,12 +15,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import json
 import os
 import secrets
 import struct
 from dataclasses import dataclass, field
-from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Self
 
@@ -28,8 +26,17 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import OutputExistsError, RecorderError
-from recorder.writing._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
-from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore, full_type_name
+from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
+from schemas import (
+    MESSAGE_VERSION,
+    PART_SUFFIX,
+    SCHEMA_VERSION,
+    VOCABULARY,
+    RecordingMetadata,
+    build_typestore,
+    check_rig,
+    software_version,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -43,91 +50,56 @@ if TYPE_CHECKING:
     from recorder.writing._stream import StreamItem
 
 #: Name of the file-level MCAP metadata record describing the recording.
-METADATA_NAME = "atikt.recording"
+METADATA_NAME = VOCABULARY.metadata_record
 #: MCAP profile of every recording.
 PROFILE = "ros2"
-#: Joint names of the UR10, in the order of the joint-state arrays.
-UR10_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 #: Default time between flushes, in log time: a killed recorder loses less than this.
-FLUSH_INTERVAL_NS = 500_000_000
-#: Suffix of a recording that is still being written (or was abandoned).
+FLUSH_INTERVAL_NS = 350_000_000
 
 _NS_PER_S = 1_000_000_000
-_SKIN_TYPES = {
-    Modality.FORCE: "SkinForce",
-    Modality.TEMPERATURE: "SkinTemperature",
-    Modality.ACCELERATION: "SkinAcceleration",
-    Modality.PROXIMITY: "SkinProximity",
-}
-
-
-def software_version() -> str:
-    """Return the installed version of the project's distribution ("unknown" if not installed)."""
-    try:
-        return importlib_metadata.version("atikt")
-    except importlib_metadata.PackageNotFoundError:
-        return "unknown"
 
 
 @dataclass(frozen=True, slots=True)
 class RecordingInfo:
-    """What a recording is: the content of its ``atikt.recording`` metadata record.
+    """What a recording is: its metadata record and the layout of its robot channel.
 
     Attributes:
-        object_id: Catalog id of the explored object.
-        object_name: Human-readable object name.
-        object_novel: True for a "new" object, False for an "old" (prior) one.
-        action: The executed action.
-        trial: Trial number of this (object, action).
-        rig: The rig's kind and configuration (``Rig.describe()``).
-        seed: Seed the rig was created with.
+        metadata: The metadata record (object, action, trial, rig, seed, source, versions).
+        joint_names: The robot's joint names in the order of its joint-state arrays (empty for
+            a rig without an arm: then no joint states may be written).
     """
 
-    object_id: str
-    object_name: str
-    object_novel: bool
-    action: ActionSpec
-    trial: int
-    rig: Mapping[str, str]
-    seed: int
+    metadata: RecordingMetadata
+    joint_names: tuple[str, ...] = ()
 
     @classmethod
     def create(
         cls, obj: ObjectSpec, action: ActionSpec, trial: int, rig: Rig, seed: int
     ) -> RecordingInfo:
-        """Describe the execution of ``action`` on ``obj`` by ``rig``.
+        """Describe the execution of ``action`` on ``obj`` by ``rig`` (source: recorder).
 
         Returns:
             The recording's description.
         """
-        return cls(obj.id, obj.name, obj.novel, action, trial, dict(rig.describe()), seed)
+        metadata = RecordingMetadata(
+            object_id=obj.id,
+            object_name=obj.name,
+            object_description=obj.description,
+            action_id=action.id,
+            action_kind=str(action.kind),
+            action_parameters=action.parameters(),
+            trial=trial,
+            rig=check_rig(rig.describe()),
+            seed=seed,
+            source="recorder",
+            software_version=software_version(),
+            schema_version=SCHEMA_VERSION,
+        )
+        return cls(metadata, tuple(getattr(rig, "joint_names", ())))
 
     def to_metadata(self) -> dict[str, str]:
-        """Return the metadata record's key-value pairs (JSON for structured values).
-
-        Returns:
-            Keys and string values, deterministic (sorted JSON keys, no wall-clock time).
-        """
-        return {
-            "object_id": self.object_id,
-            "object_name": self.object_name,
-            "object_novel": json.dumps(self.object_novel),
-            "action_id": self.action.id,
-            "action_kind": str(self.action.kind),
-            "action_parameters": json.dumps(self.action.parameters(), sort_keys=True),
-            "trial": str(self.trial),
-            "rig": json.dumps(dict(self.rig), sort_keys=True),
-            "seed": str(self.seed),
-            "software_version": software_version(),
-            "schema_version": str(SCHEMA_VERSION),
-        }
+        """Return the metadata record's key-value pairs (deterministic, no wall-clock time)."""
+        return self.metadata.encode()
 
 
 @dataclass(frozen=True, slots=True)
@@ -215,7 +187,7 @@ class _Encoder:
             PoseSample: self._pose,
             PhaseEvent: self._event,
         }
-        runs = [_sentinels(6, seed) for seed in range(3)]
+        runs = [_sentinels(max(len(self.info.joint_names), 1), seed) for seed in range(3)]
         self._joints = _Template.create(self._joint_message(0, *runs), runs)
         pose = _sentinels(7, 3)
         self._poses = _Template.create(self._pose_message(0, pose[:3], pose[3:]), [pose])
@@ -249,11 +221,16 @@ class _Encoder:
                 "(samples >= 1, cells, channels)"
             )
             raise RecorderError(msg)
-        msgtype = full_type_name(_SKIN_TYPES[block.modality])
+        spec = VOCABULARY.modalities.get(str(block.modality))
+        if spec is None:
+            known = ", ".join(VOCABULARY.modalities)
+            msg = f"rig yielded a block of modality {block.modality!r}; known: {known}"
+            raise RecorderError(msg)
+        msgtype = spec.msgtype
         n_samples, n_cells, n_channels = data.shape
         message = self.store.types[msgtype](
             header=self._header(block.stamp_ns, "skin"),
-            schema_version=SCHEMA_VERSION,
+            schema_version=MESSAGE_VERSION,
             sample_period_ns=block.period_ns,
             n_samples=n_samples,
             n_cells=n_cells,
@@ -261,7 +238,7 @@ class _Encoder:
             cell_ids=np.arange(n_cells, dtype=np.uint16),
             data=np.ascontiguousarray(data).reshape(-1),
         )
-        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+        return spec.topic, self._serialize(message, msgtype)
 
     def _joint_message(
         self,
@@ -271,10 +248,10 @@ class _Encoder:
         effort: NDArray[np.float64],
     ) -> bytes:
         """Serialise a ``sensor_msgs/msg/JointState`` with rosbags (the reference encoding)."""
-        msgtype = "sensor_msgs/msg/JointState"
+        msgtype = _JOINTS.msgtype
         message = self.store.types[msgtype](
-            header=self._header(stamp_ns, _FRAME_BY_TYPE[msgtype]),
-            name=list(UR10_JOINTS),
+            header=self._header(stamp_ns, _JOINTS.frame),
+            name=list(self.info.joint_names) or [""],
             position=position,
             velocity=velocity,
             effort=effort,
@@ -282,20 +259,22 @@ class _Encoder:
         return self._serialize(message, msgtype)
 
     def _joint(self, sample: JointSample) -> tuple[str, bytes]:
+        size = len(self.info.joint_names)
+        if size == 0:
+            msg = "rig yielded a joint state but names no joints (Rig.joint_names is empty)"
+            raise RecorderError(msg)
         runs = (
-            _vector(sample.position, 6, "joint position"),
-            _vector(sample.velocity, 6, "joint velocity"),
-            _vector(sample.effort, 6, "joint effort"),
+            _vector(sample.position, size, "joint position"),
+            _vector(sample.velocity, size, "joint velocity"),
+            _vector(sample.effort, size, "joint effort"),
         )
-        return _TOPIC_BY_TYPE["sensor_msgs/msg/JointState"], self._joints.fill(
-            sample.stamp_ns, runs
-        )
+        return _JOINTS.topic, self._joints.fill(sample.stamp_ns, runs)
 
     def _pose_message(
         self, stamp_ns: int, position: NDArray[np.float64], orientation: NDArray[np.float64]
     ) -> bytes:
         """Serialise a ``geometry_msgs/msg/PoseStamped`` with rosbags (the reference encoding)."""
-        msgtype = "geometry_msgs/msg/PoseStamped"
+        msgtype = _POSES.msgtype
         types = self.store.types
         x, y, z = (float(v) for v in position)
         qx, qy, qz, qw = (float(v) for v in orientation)
@@ -303,7 +282,7 @@ class _Encoder:
             position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z),
             orientation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
         )
-        message = types[msgtype](header=self._header(stamp_ns, _FRAME_BY_TYPE[msgtype]), pose=pose)
+        message = types[msgtype](header=self._header(stamp_ns, _POSES.frame), pose=pose)
         return self._serialize(message, msgtype)
 
     def _pose(self, sample: PoseSample) -> tuple[str, bytes]:
@@ -313,31 +292,35 @@ class _Encoder:
                 _vector(sample.orientation, 4, "TCP orientation"),
             ]
         )
-        return _TOPIC_BY_TYPE["geometry_msgs/msg/PoseStamped"], self._poses.fill(
-            sample.stamp_ns, [run]
-        )
+        return _POSES.topic, self._poses.fill(sample.stamp_ns, [run])
 
     def _event(self, event: PhaseEvent) -> tuple[str, bytes]:
-        msgtype = full_type_name("ActionEvent")
-        action = self.info.action
-        message = self.store.types[msgtype](
-            header=self._header(event.stamp_ns, _FRAME_BY_TYPE[msgtype]),
-            schema_version=SCHEMA_VERSION,
-            object_id=self.info.object_id,
-            action_id=action.id,
-            action_kind=str(action.kind),
-            trial=self.info.trial,
+        events = VOCABULARY.events
+        meta = self.info.metadata
+        parameters = meta.action_parameters
+        message = self.store.types[events.msgtype](
+            header=self._header(event.stamp_ns, events.frame),
+            schema_version=MESSAGE_VERSION,
+            object_id=meta.object_id,
+            action_id=meta.action_id,
+            action_kind=meta.action_kind,
+            trial=meta.trial,
             phase=str(event.phase),
-            depth_m=action.depth_m,
-            force_n=action.force_n,
-            speed_m_s=action.speed_m_s,
-            duration_s=action.duration_s,
+            depth_m=parameters.get("depth_m", 0.0),
+            force_n=parameters.get("force_n", 0.0),
+            speed_m_s=parameters.get("speed_m_s", 0.0),
+            duration_s=parameters["duration_s"],
         )
-        return _TOPIC_BY_TYPE[msgtype], self._serialize(message, msgtype)
+        return events.topic, self._serialize(message, events.msgtype)
 
 
-_TOPIC_BY_TYPE = {channel.msgtype: channel.topic for channel in CHANNELS}
-_FRAME_BY_TYPE = {channel.msgtype: channel.frame for channel in CHANNELS}
+_JOINTS = VOCABULARY.robot["joint_states"]
+_POSES = VOCABULARY.robot["tcp_pose"]
+_TYPE_OF_TOPIC = {
+    **{spec.topic: spec.msgtype for spec in VOCABULARY.robot.values()},
+    **{spec.topic: spec.msgtype for spec in VOCABULARY.modalities.values()},
+    VOCABULARY.events.topic: VOCABULARY.events.msgtype,
+}
 
 
 def _vector(values: Iterable[float], size: int, what: str) -> NDArray[np.float64]:
@@ -528,15 +511,18 @@ class RecordingWriter:
         )
         writer.start(profile=PROFILE, library=f"atikt/{software_version()}")
         writer.add_metadata(METADATA_NAME, self.info.to_metadata())
-        store = self._encoder.store
-        for channel in CHANNELS:
-            text, _ = store.generate_msgdef(channel.msgtype, ros_version=2)
-            schema_id = writer.register_schema(channel.msgtype, "ros2msg", text.encode())
-            self._channel_ids[channel.topic] = writer.register_channel(
-                channel.topic, "cdr", schema_id
-            )
-            self._sequences[channel.topic] = 0
+        self._register(writer, VOCABULARY.events.topic)
         return writer
+
+    def _register(self, writer: Writer, topic: str) -> int:
+        """Register a topic's schema and channel (on its first message: absent ones stay out)."""
+        msgtype = _TYPE_OF_TOPIC[topic]
+        text, _ = self._encoder.store.generate_msgdef(msgtype, ros_version=2)
+        schema_id = writer.register_schema(msgtype, "ros2msg", text.encode())
+        channel_id = writer.register_channel(topic, "cdr", schema_id)
+        self._channel_ids[topic] = channel_id
+        self._sequences[topic] = 0
+        return channel_id
 
     def write(self, item: StreamItem) -> None:
         """Encode and write one stream item; flush when the flush interval has passed.
@@ -549,10 +535,13 @@ class RecordingWriter:
             raise RecorderError(msg)
         topic, stamp_ns, payload = self._encoder.encode(item)
         log_ns = item.receive_ns
-        sequence = self._sequences[topic]
-        self._sequences[topic] = sequence + 1
         try:
-            self._writer.add_message(self._channel_ids[topic], log_ns, payload, stamp_ns, sequence)
+            channel_id = self._channel_ids.get(topic)
+            if channel_id is None:
+                channel_id = self._register(self._writer, topic)
+            sequence = self._sequences[topic]
+            self._sequences[topic] = sequence + 1
+            self._writer.add_message(channel_id, log_ns, payload, stamp_ns, sequence)
             self._track_time(log_ns)
         except OSError as err:
             raise _write_error(self.path, err) from err

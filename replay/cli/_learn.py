@@ -14,9 +14,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedCo
 
 from replay.cli._main import arg, command
 from replay.errors import ReplayError
-from replay.learning._datasets import ensure_default_dataset
+from replay.learning._datasets import check_names, dataset_roles, ensure_default_dataset
 from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
-from replay.learning._features import FeatureTable, build_features
+from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     TRANSFER_MODES,
@@ -28,10 +28,9 @@ from replay.learning._session import (
 )
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._studies import (
-    ACTIONS,
     STUDIES,
     StudyConfig,
-    objects_of,
+    dataset_actions,
     prior_groups,
     run_study,
 )
@@ -101,6 +100,18 @@ _DATASET = arg(
 )
 _WORKERS = arg("--workers", type=int, default=None, help="worker processes (default: all cores)")
 _SEED = arg("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+_FEATURES = arg(
+    "--features",
+    default="thesis",
+    choices=FEATURE_POLICIES,
+    help="feature blocks per action: the thesis's per kind, or all the recording's sensors "
+    "give (default: thesis)",
+)
+_ROLES = (
+    arg("--new", default=None, help="new objects (default: those the dataset declares new)"),
+    arg("--priors", default=None, help="old objects to draw priors from (default: the others)"),
+    arg("--actions", default=None, help="actions (default: all of the dataset)"),
+)
 
 
 @command(
@@ -141,9 +152,18 @@ def _step_line(row: dict[str, Any]) -> str:
         "(default: the simulated dataset, recorded on first use)",
     ),
     arg("--rig", default=None, help="run live on this rig (e.g. sim) instead of recordings"),
-    arg("--new", default=None, help="new objects, comma-separated (default: the novel ones)"),
-    arg("--priors", default=None, help="prior objects, comma-separated (default: 3 by seed)"),
-    arg("--actions", default=None, help=f"actions (default: {','.join(ACTIONS)})"),
+    arg(
+        "--new",
+        default=None,
+        help="new objects, comma-separated (default: those the dataset declares new)",
+    ),
+    arg(
+        "--priors",
+        default=None,
+        help="prior objects, comma-separated (default: 3 of the others, by seed)",
+    ),
+    arg("--actions", default=None, help="actions, comma-separated (default: all of the dataset)"),
+    _FEATURES,
     arg("--budget", type=int, default=40, help="actively collected observations (default 40)"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
@@ -156,21 +176,35 @@ def _learn_command(args: argparse.Namespace) -> int:
     workers = _workers(args.workers)
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
-    new_default, old = objects_of(table.frame)
+    roles = dataset_roles(
+        prior_root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)
+    )
+    known_actions = dataset_actions(table.frame)
+    actions = _ids(args.actions)
+    priors = roles.old
+    if args.priors is None and args.transfer != "none":
+        if not roles.old:
+            msg = (
+                f"{prior_root}: no old objects to transfer from (all are new); give --priors "
+                "or --transfer none"
+            )
+            raise ReplayError(msg)
+        priors = prior_groups(roles.old, min(3, len(roles.old)), 1, args.seed)[0]
     spec = RunSpec(
-        new_objects=tuple(_ids(args.new) or new_default),
-        prior_objects=tuple(_ids(args.priors) or prior_groups(old, 3, 1, args.seed)[0]),
-        actions=tuple(
-            _ids(args.actions) or [a for a in ACTIONS if a in set(table.frame["action_id"])]
-        ),
+        new_objects=roles.new,
+        prior_objects=tuple(priors),
+        actions=check_names("--actions", actions, known_actions) if actions else known_actions,
         budget=args.budget,
         transfer=args.transfer,
         seed=args.seed,
+        features=args.features,
     )
     out = args.out or Path("runs") / f"learn-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
-    priors = prior_data(FeatureLookup(table.frame), spec.prior_objects, spec.actions)
-    models = None if spec.transfer == "none" else fit_priors(priors, args.seed)
+    models = None
+    if spec.transfer != "none":
+        lookup = FeatureLookup(table.frame, spec.features)
+        models = fit_priors(prior_data(lookup, spec.prior_objects, spec.actions), args.seed)
     on_step = lambda row: print(_step_line(row), flush=True)  # noqa: E731, T201
     if args.rig is not None:
         frame = _learn_live(args, spec, models, out, on_step)
@@ -201,7 +235,7 @@ def _learn_offline(
     if args.session is None:
         return run_offline(table.frame, spec, priors=models, on_step=on_step).frame()
     session = _features(args.session, _workers(args.workers))
-    lookup = FeatureLookup(session.frame)
+    lookup = FeatureLookup(session.frame, spec.features)
     split = Split.from_session(args.session)
     executor = PoolExecutor(lookup, spec.new_objects, split, like_rig=True)
     test = executor.test_set(spec.actions)
@@ -241,12 +275,21 @@ def _learn_live(
     arg("--quick", action="store_true", help="a reduced version for a first look"),
     arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES[:2], help="ATIKT mode"),
+    *_ROLES,
+    _FEATURES,
     _SEED,
     _WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
     workers = _workers(args.workers)
-    table = _features(_dataset(args.recordings, workers), workers)
+    root = _dataset(args.recordings, workers)
+    table = _features(root, workers)
+    roles = dataset_roles(
+        root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)
+    )
+    known_actions = dataset_actions(table.frame)
+    chosen = _ids(args.actions)
+    actions = check_names("--actions", chosen, known_actions) if chosen else known_actions
     names = list(STUDIES) if args.name == "all" else [args.name]
     for name in names:
         out = (
@@ -260,6 +303,10 @@ def _study_command(args: argparse.Namespace) -> int:
             workers=workers,
             scheduler=args.scheduler,
             transfer=args.transfer,
+            new=roles.new,
+            old=roles.old,
+            actions=tuple(actions),
+            features=args.features,
         )
         config = config.quick() if args.quick else config
         bar, update = _progress(f"study {name}")

@@ -33,7 +33,6 @@ from rich.table import Table
 from replay.errors import ReplayError
 from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
-    MODALITIES,
     check_dataset_location,
     parse_metadata,
     read_recording,
@@ -117,7 +116,7 @@ def _print_recording(console: Console, recording: ActionRecording) -> None:
     """Print what a recording holds: metadata, channels, phases."""
     meta = recording.metadata
     about = Table(title=str(recording.path), show_header=False)
-    for key in ("object_id", "object_name", "object_novel", "action_id", "action_kind", "trial"):
+    for key in ("object_id", "object_name", "action_id", "action_kind", "trial", "source"):
         about.add_row(key, str(getattr(meta, key)))
     about.add_row("action parameters", str(dict(meta.action_parameters)))
     about.add_row("rig", str(dict(meta.rig)))
@@ -125,9 +124,12 @@ def _print_recording(console: Console, recording: ActionRecording) -> None:
     about.add_row("software / schema", f"{meta.software_version} / {meta.schema_version}")
     console.print(about)
     channels = Table("channel", "samples", "shape", "rate (Hz)", title="channels")
-    series = [(m, recording.skin(m).stamps_ns, recording.skin(m).data.shape) for m in MODALITIES]
-    series += [("joint states", recording.joints.stamps_ns, recording.joints.position.shape)]
-    series += [("tcp pose", recording.tcp.stamps_ns, recording.tcp.position.shape)]
+    series = [(m, s.stamps_ns, s.data.shape) for m, s in recording.signals.items()]
+    if recording.joints is not None:
+        joints = recording.joints
+        series += [("joint states", joints.stamps_ns, joints.position.shape)]
+    if recording.tcp is not None:
+        series += [("tcp pose", recording.tcp.stamps_ns, recording.tcp.position.shape)]
     for name, stamps, shape in series:
         span = int(stamps[-1] - stamps[0]) if stamps.size > 1 else 0
         rate = (stamps.size - 1) / (span / _NS_PER_S) if span else 0.0
@@ -150,13 +152,12 @@ def _summaries(files: Sequence[Path]) -> pl.DataFrame:
         rows.append(
             {
                 "object": meta.object_id,
-                "novel": meta.object_novel,
                 "action": meta.action_id,
                 "size": summary.size_bytes,
                 "duration_ns": summary.end_ns - summary.start_ns,
             }
         )
-    schema = {"object": pl.String, "novel": pl.Boolean, "action": pl.String}
+    schema: dict[str, Any] = {"object": pl.String, "action": pl.String}
     schema |= {"size": pl.Int64, "duration_ns": pl.Int64}
     return pl.DataFrame(rows, schema=schema)
 
@@ -168,7 +169,7 @@ def _print_dataset(console: Console, root: Path) -> None:
         msg = f"{root}: no recordings (*.mcap) in this directory; give a dataset directory"
         raise ReplayError(msg)
     counts = frame.pivot(
-        on="action", index=["object", "novel"], values="size", aggregate_function="len"
+        on="action", index=["object"], values="size", aggregate_function="len"
     ).fill_null(0)
     table = Table(*counts.columns, title=f"{root}", caption="trials per object and action")
     for row in counts.iter_rows():

@@ -17,7 +17,7 @@ import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
-from replay.learning._features import as_raw, file_features
+from replay.learning._features import as_raw, file_features, row_blocks, select_blocks
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -134,13 +134,27 @@ def _trials(frame: pl.DataFrame, obj: str, action: str) -> list[int]:
 
 
 class FeatureLookup:
-    """Raw features of a feature table by (object, action, trial)."""
+    """Raw features of a feature table by (object, action, trial).
 
-    def __init__(self, frame: pl.DataFrame) -> None:
-        """Index the table's rows."""
+    Every observation of an action has the same feature blocks: those the feature policy
+    selects among the blocks every recording of the action has (see
+    :func:`replay.learning._features.select_blocks`).
+    """
+
+    def __init__(self, frame: pl.DataFrame, policy: str = "thesis") -> None:
+        """Index the table's rows and choose each action's feature blocks."""
         self._rows: dict[tuple[str, str, int], dict[str, Any]] = {
             (row["object_id"], row["action_id"], row["trial"]): row
             for row in frame.iter_rows(named=True)
+        }
+        held: dict[str, set[str]] = {}
+        kinds: dict[str, str] = {}
+        for (_, action, _), row in self._rows.items():
+            blocks = set(row_blocks(row))
+            held[action] = held[action] & blocks if action in held else blocks
+            kinds[action] = row["action_kind"]
+        self.blocks: dict[str, tuple[str, ...]] = {
+            action: select_blocks(kinds[action], blocks, policy) for action, blocks in held.items()
         }
 
     def get(self, obj: str, action: str, trial: int) -> RawFeatures:
@@ -153,7 +167,7 @@ class FeatureLookup:
         if row is None:
             msg = f"no recording of object {obj!r}, action {action!r}, trial {trial}"
             raise ReplayError(msg)
-        return as_raw(row)
+        return as_raw(row, self.blocks[action])
 
     def trials(self, obj: str, action: str) -> list[int]:
         """Return the sorted trials of (obj, action)."""

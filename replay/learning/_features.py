@@ -12,6 +12,7 @@ import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,63 +21,121 @@ import polars as pl
 from atikt import AtiktError, RawFeatures, extract_features
 from replay.errors import ReplayError
 from replay.learning._parallel import run_tasks
-from replay.recording._reader import read_recording
-from schemas import dataset_recordings
+from replay.recording._reader import check_not_partial, read_recording
+from schemas import VOCABULARY, dataset_recordings
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Iterable, Mapping, Sequence
 
     from replay.recording._reader import ActionRecording
 
 #: File name of the feature cache inside a dataset directory.
 FEATURES_NAME = "features.parquet"
 #: Version of the feature definition; a cache of another version is rebuilt.
-FEATURES_VERSION = 1
+FEATURES_VERSION = 2
 #: Points of the resampled thermal sequence (the same for every action).
 THERMAL_POINTS = 20
+#: Which feature blocks an action's observations use: the thesis's assignment per action kind
+#: (``schemas`` kinds' ``features``), or every block whose sensor the recording has.
+FEATURE_POLICIES = ("thesis", "all")
 
 _VECTOR = pl.List(pl.Float64)
 _SCHEMA: dict[str, Any] = {
     "path": pl.String,
     "sha256": pl.String,
     "object_id": pl.String,
-    "novel": pl.Boolean,
+    "object_name": pl.String,
     "action_id": pl.String,
     "action_kind": pl.String,
     "trial": pl.Int64,
-    "force": _VECTOR,
-    "texture": _VECTOR,
-    "thermal": _VECTOR,
+    "seed": pl.Int64,
+    **dict.fromkeys(VOCABULARY.features, _VECTOR),
     "features_version": pl.Int64,
 }
 _QUARANTINE_SCHEMA: dict[str, Any] = {"path": pl.String, "reason": pl.String}
 
 
-def recording_features(recording: ActionRecording) -> RawFeatures:
-    """Return the raw features of one recording, computed on its execute phase.
+def select_blocks(kind: str, available: Iterable[str], policy: str = "thesis") -> tuple[str, ...]:
+    """Return the feature blocks an observation uses, in contract order.
+
+    Args:
+        kind: The action's kind.
+        available: Blocks whose sensor the recordings have.
+        policy: ``thesis`` (the kind's assigned blocks) or ``all`` (every available block).
+
+    Raises:
+        ReplayError: Unknown policy.
+    """
+    if policy not in FEATURE_POLICIES:
+        msg = f"feature policy {policy!r}; use one of {', '.join(FEATURE_POLICIES)}"
+        raise ReplayError(msg)
+    have = set(available)
+    wanted = VOCABULARY.kind(kind).features if policy == "thesis" else VOCABULARY.features
+    return tuple(f for f in VOCABULARY.features if f in have and f in wanted)
+
+
+def _all_features(recording: ActionRecording) -> RawFeatures:
+    """Return every feature block whose sensor the recording has (its execute phase).
 
     Raises:
         ReplayError: The recording's signals do not give features; the message names the file.
     """
     start_ns, stop_ns = recording.phase_range("execute")
-    temperature = recording.temperature.between(start_ns, stop_ns)
+    signals = {}
+    for feature in VOCABULARY.features:
+        modality = VOCABULARY.modality_of_feature(feature).name
+        if modality in recording.signals:
+            series = recording.signals[modality].between(start_ns, stop_ns)
+            signals[feature] = (series.data, 1e9 / series.period_ns)
     try:
         return extract_features(
-            recording.metadata.action_kind,
-            recording.force.between(start_ns, stop_ns).data,
-            recording.acceleration.between(start_ns, stop_ns).data,
-            temperature.data[..., 0],
-            n_thermal_points=THERMAL_POINTS,
-            temperature_rate_hz=1e9 / temperature.period_ns,
+            recording.metadata.action_kind, signals, n_thermal_points=THERMAL_POINTS
         )
     except AtiktError as err:
         msg = f"{recording.path}: no features from the execute phase ({err}); check the recording"
         raise ReplayError(msg) from err
 
 
-def file_features(path: Path) -> RawFeatures:
+def _subset(features: RawFeatures, blocks: Sequence[str], where: str) -> RawFeatures:
+    """Return ``features`` restricted to ``blocks``.
+
+    Raises:
+        ReplayError: A block is missing or none is left.
+    """
+    if not blocks or any(b not in features.blocks for b in blocks):
+        held = ", ".join(features.modalities) or "none"
+        msg = (
+            f"{where}: no features {', '.join(blocks) or '(none selected)'} (it has: {held}); "
+            "the recording lacks the sensor, or choose another feature policy"
+        )
+        raise ReplayError(msg)
+    return RawFeatures(features.kind, MappingProxyType({b: features.blocks[b] for b in blocks}))
+
+
+def recording_features(
+    recording: ActionRecording, blocks: Sequence[str] | None = None, policy: str = "thesis"
+) -> RawFeatures:
+    """Return the raw features of one recording, computed on its execute phase.
+
+    Args:
+        recording: The recording.
+        blocks: The blocks to return; None selects them by ``policy`` from what it has.
+        policy: See :func:`select_blocks`.
+
+    Raises:
+        ReplayError: The recording's signals do not give features; the message names the file.
+    """
+    features = _all_features(recording)
+    if blocks is None:
+        blocks = select_blocks(features.kind, features.modalities, policy)
+    return _subset(features, blocks, str(recording.path))
+
+
+def file_features(
+    path: Path, blocks: Sequence[str] | None = None, policy: str = "thesis"
+) -> RawFeatures:
     """Read one recording and return its raw features (the live and offline path)."""
-    return recording_features(read_recording(path))
+    return recording_features(read_recording(path), blocks, policy)
 
 
 def _vector(values: np.ndarray[Any, Any] | None) -> list[float] | None:
@@ -86,19 +145,19 @@ def _vector(values: np.ndarray[Any, Any] | None) -> list[float] | None:
 def _row(root: Path, path: Path, digest: str) -> dict[str, Any]:
     """Return the cache row of one recording (raises ReplayError for a bad file)."""
     recording = read_recording(path)
-    features = recording_features(recording)
+    check_not_partial(recording)
+    features = _all_features(recording)
     meta = recording.metadata
     return {
         "path": path.relative_to(root).as_posix(),
         "sha256": digest,
         "object_id": meta.object_id,
-        "novel": meta.object_novel,
+        "object_name": meta.object_name,
         "action_id": meta.action_id,
         "action_kind": meta.action_kind,
         "trial": meta.trial,
-        "force": _vector(features.force),
-        "texture": _vector(features.texture),
-        "thermal": _vector(features.thermal),
+        "seed": meta.seed,
+        **{f: _vector(features.blocks.get(f)) for f in VOCABULARY.features},
         "features_version": FEATURES_VERSION,
     }
 
@@ -228,18 +287,27 @@ def _write(frame: pl.DataFrame, target: Path) -> None:
         raise ReplayError(msg) from err
 
 
-def as_raw(row: dict[str, Any]) -> RawFeatures:
-    """Return the :class:`atikt.RawFeatures` of one cache row."""
+def row_blocks(row: Mapping[str, Any]) -> tuple[str, ...]:
+    """Return the feature blocks a cache row has."""
+    return tuple(f for f in VOCABULARY.features if row.get(f) is not None)
 
-    def array(values: Sequence[float] | None) -> np.ndarray[Any, Any] | None:
-        if values is None:
-            return None
-        out = np.asarray(values, dtype=np.float64)
+
+def as_raw(row: Mapping[str, Any], blocks: Sequence[str] | None = None) -> RawFeatures:
+    """Return the :class:`atikt.RawFeatures` of one cache row.
+
+    Args:
+        row: A row of the feature cache.
+        blocks: Blocks to return; None: the kind's thesis blocks among those it has.
+
+    Raises:
+        ReplayError: The row lacks one of ``blocks``.
+    """
+    arrays = {}
+    for feature in row_blocks(row):
+        out = np.asarray(row[feature], dtype=np.float64)
         out.setflags(write=False)
-        return out
-
-    thermal = array(row["thermal"])
-    if thermal is None:
-        msg = f"{row['path']}: feature row without thermal features; rebuild the cache"
-        raise ReplayError(msg)
-    return RawFeatures(row["action_kind"], array(row["force"]), array(row["texture"]), thermal)
+        arrays[feature] = out
+    features = RawFeatures(row["action_kind"], MappingProxyType(arrays))
+    if blocks is None:
+        blocks = select_blocks(features.kind, features.modalities)
+    return _subset(features, blocks, str(row["path"]))

@@ -37,6 +37,7 @@ class RunSpec:
         eps_neg1: Smallest mean probability for a prior to be transferred (prediction).
         seed: Seed of every random choice of the run.
         test_fraction: Share of each (object, action)'s recordings held out for testing.
+        features: Feature policy (``thesis`` or ``all``; see ``select_blocks``).
     """
 
     new_objects: tuple[str, ...]
@@ -48,6 +49,7 @@ class RunSpec:
     eps_neg1: float = 0.6
     seed: int = 0
     test_fraction: float = 0.5
+    features: str = "thesis"
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
@@ -55,7 +57,16 @@ class RunSpec:
             msg = f"--transfer {self.transfer}: use one of {', '.join(TRANSFER_MODES)}"
             raise ReplayError(msg)
         if len(self.new_objects) < 2:  # noqa: PLR2004
-            msg = f"--new {','.join(self.new_objects)}: a run needs at least two new objects"
+            msg = (
+                f"--new {','.join(self.new_objects) or '(none)'}: a run needs at least two new "
+                "objects; name them with --new or declare them new in the dataset's objects.toml"
+            )
+            raise ReplayError(msg)
+        if self.budget < 0:
+            msg = f"--budget {self.budget}: give 0 or more observations"
+            raise ReplayError(msg)
+        if not 0 <= self.seed < 2**32:
+            msg = f"--seed {self.seed}: give an integer in 0..{2**32 - 1}"
             raise ReplayError(msg)
         if overlap := set(self.new_objects) & set(self.prior_objects):
             msg = f"{', '.join(sorted(overlap))}: an object cannot be new and prior at once"
@@ -190,7 +201,7 @@ def run_offline(
     Returns:
         The rows of the run.
     """
-    lookup = FeatureLookup(frame)
+    lookup = FeatureLookup(frame, spec.features)
     if priors is None and spec.transfer != "none":
         priors = fit_priors(prior_data(lookup, spec.prior_objects, spec.actions), spec.seed)
     split = Split.random(

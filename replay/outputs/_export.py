@@ -44,6 +44,7 @@ import polars as pl
 
 from replay.errors import ReplayError
 from replay.recording._reader import MODALITIES, read_recording
+from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -64,13 +65,18 @@ TABLES = (
     "tcp_pose",
     *MODALITIES,
 )
-#: Column names of each skin modality's channels.
-CHANNEL_COLUMNS: dict[str, tuple[str, ...]] = {
-    "force": ("force_0", "force_1", "force_2"),
-    "temperature": ("temperature",),
-    "acceleration": ("acc_x", "acc_y", "acc_z"),
-    "proximity": ("proximity",),
-}
+
+
+def value_columns(modality: str, width: int) -> tuple[str, ...]:
+    """Return the column names of a modality's values (names from the contract).
+
+    One value per cell: the modality's name; else ``<modality>_<value name>`` (``force_s0``,
+    ``acceleration_x``).
+    """
+    if width == 1:
+        return (modality,)
+    names = VOCABULARY.modalities[modality].value_names(width)
+    return tuple(f"{modality}_{name}" for name in names)
 
 
 def _key(recording: ActionRecording, name: str) -> dict[str, Any]:
@@ -109,14 +115,14 @@ def recording_row(recording: ActionRecording, name: str) -> pl.DataFrame:
     row = {
         "path": str(recording.path),
         "object_name": meta.object_name,
-        "object_novel": meta.object_novel,
         "action_kind": meta.action_kind,
         **{k: float(v) for k, v in sorted(meta.action_parameters.items())},
-        "rig": meta.rig.get("kind", ""),
+        "rig": str(meta.rig.get("kind", "")),
+        "source": meta.source,
         "seed": meta.seed,
         "software_version": meta.software_version,
         "schema_version": meta.schema_version,
-        "start_ns": min(int(recording.skin(m).stamps_ns[0]) for m in MODALITIES),
+        "start_ns": min(int(s.stamps_ns[0]) for s in recording.signals.values()),
         "end_ns": recording.end_ns,
     }
     return _with_key(pl.DataFrame([row]), _key(recording, name))
@@ -143,6 +149,9 @@ def _timed(recording: ActionRecording, stamps_ns: NDArray[np.int64]) -> dict[str
 def joint_table(recording: ActionRecording, name: str) -> pl.DataFrame:
     """Return the ``joint_states`` table: one row per sample, one column per joint quantity."""
     joints = recording.joints
+    if joints is None:
+        msg = f"{recording.path}: the recording has no joint states (a rig without an arm)"
+        raise ReplayError(msg)
     columns = _timed(recording, joints.stamps_ns)
     for quantity in ("position", "velocity", "effort"):
         values = getattr(joints, quantity)
@@ -155,6 +164,9 @@ def joint_table(recording: ActionRecording, name: str) -> pl.DataFrame:
 def tcp_table(recording: ActionRecording, name: str) -> pl.DataFrame:
     """Return the ``tcp_pose`` table: position (m) and unit quaternion per sample."""
     tcp = recording.tcp
+    if tcp is None:
+        msg = f"{recording.path}: the recording has no TCP poses (a rig without an arm)"
+        raise ReplayError(msg)
     columns = _timed(recording, tcp.stamps_ns)
     for index, column in enumerate(("x", "y", "z")):
         columns[column] = pl.Series(column, tcp.position[:, index], dtype=pl.Float64)
@@ -166,8 +178,8 @@ def tcp_table(recording: ActionRecording, name: str) -> pl.DataFrame:
 def skin_table(recording: ActionRecording, modality: str, name: str, layout: str) -> pl.DataFrame:
     """Return a skin modality's table in the ``long`` or ``wide`` layout (module docstring)."""
     series = recording.skin(modality)
-    n, cells, _ = series.data.shape
-    names = CHANNEL_COLUMNS[modality]
+    n, cells, width = series.data.shape
+    names = value_columns(modality, width)
     if layout == "wide":
         columns = _timed(recording, series.stamps_ns)
         for c, cell in enumerate(series.cell_ids):
@@ -191,10 +203,12 @@ def recording_tables(
     tables = {
         "recordings": recording_row(recording, name),
         "phases": phase_table(recording, name),
-        "joint_states": joint_table(recording, name),
-        "tcp_pose": tcp_table(recording, name),
     }
-    for modality in MODALITIES:
+    if recording.joints is not None:
+        tables["joint_states"] = joint_table(recording, name)
+    if recording.tcp is not None:
+        tables["tcp_pose"] = tcp_table(recording, name)
+    for modality in recording.modalities:
         tables[modality] = skin_table(recording, modality, name, layout)
     return tables
 

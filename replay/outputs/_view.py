@@ -32,7 +32,7 @@ import numpy as np
 import polars as pl
 import rerun as rr
 
-from replay.recording._reader import MODALITIES
+from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Container, Iterable, Sequence
@@ -44,10 +44,10 @@ if TYPE_CHECKING:
     from replay.recording._reader import (
         ActionRecording,
         JointStates,
-        RecordingMetadata,
         SkinSeries,
         TcpPoses,
     )
+    from schemas import RecordingMetadata
 
 #: Application id of every view.
 APPLICATION_ID = "atikt"
@@ -55,13 +55,14 @@ APPLICATION_ID = "atikt"
 TIMELINE = "log_time"
 #: Timeline of learning runs: the step number.
 STEP_TIMELINE = "step"
-#: Series names of each skin modality's channels, with units.
-CHANNEL_NAMES: dict[str, tuple[str, ...]] = {
-    "force": ("sensor 0 (N)", "sensor 1 (N)", "sensor 2 (N)"),
-    "temperature": ("temperature (C)",),
-    "acceleration": ("x (m/s^2)", "y (m/s^2)", "z (m/s^2)"),
-    "proximity": ("distance (m)",),
-}
+
+
+def series_names(modality: str, width: int) -> tuple[str, ...]:
+    """Return the series names of a modality's values with units (names from the contract)."""
+    spec = VOCABULARY.modalities[modality]
+    return tuple(f"{name} ({spec.units})" for name in spec.value_names(width))
+
+
 #: Length of the TCP's axes in the 3D view, m.
 TCP_AXIS_LENGTH = 0.05
 
@@ -117,7 +118,7 @@ def _series(
 
 def log_skin(stream: rr.RecordingStream, series: SkinSeries, prefix: str) -> None:
     """Log one skin modality: a scalar series per channel, one entity per cell."""
-    names = CHANNEL_NAMES[series.modality]
+    names = series_names(series.modality, series.data.shape[2])
     for column, cell in enumerate(series.cell_ids):
         entity = f"{prefix}/skin/{series.modality}/cell_{int(cell)}"
         _series(stream, entity, series.stamps_ns, series.data[:, column, :], names)
@@ -159,10 +160,12 @@ def log_phases(stream: rr.RecordingStream, recording: ActionRecording, prefix: s
 
 def log_recording(stream: rr.RecordingStream, recording: ActionRecording, key: str) -> None:
     """Log one recording's signals under ``key`` (its properties: :func:`send_properties`)."""
-    for modality in MODALITIES:
-        log_skin(stream, recording.skin(modality), key)
-    log_joints(stream, recording.joints, key)
-    log_tcp(stream, recording.tcp, key)
+    for series in recording.signals.values():
+        log_skin(stream, series, key)
+    if recording.joints is not None:
+        log_joints(stream, recording.joints, key)
+    if recording.tcp is not None:
+        log_tcp(stream, recording.tcp, key)
     log_phases(stream, recording, key)
 
 
@@ -187,7 +190,7 @@ def send_properties(stream: rr.RecordingStream, viewed: Sequence[ViewedRecording
         rr.AnyValues(
             id=[m.object_id for m in metas],
             name=[m.object_name for m in metas],
-            novel=[m.object_novel for m in metas],
+            description=[m.object_description for m in metas],
         ),
     )
     stream.send_property(

@@ -3,13 +3,17 @@
 Each check raises :class:`replay.errors.RecordingError` naming the file, the offending value
 and the fix; none of them repairs or reorders data silently:
 
-- message definitions: a contract channel's custom type must be defined as this software
-  defines it (a file written under another schema version is refused, not misread);
+- message definitions: every contract channel's type (the project's own and the standard ROS
+  types alike) must be defined as this software defines it, field by field and in order (a
+  file written under another schema version or by another tool is refused, not misread);
 - stamps: every channel's sensor stamps strictly increase in file order (a duplicated or
   reordered message is refused);
 - values: no NaN or infinity in any signal or action parameter;
 - phases: the action events are known phases in their order (approach, contact, execute,
-  retract, end), strictly increasing in time, and include ``execute``;
+  retract, end), strictly increasing in time, and include every phase the recording's
+  source promises (the recorder all five, an import execute and end);
+- gaps: inside the execute phase no skin channel pauses longer than :data:`MAX_GAP_PERIODS`
+  sample periods;
 - duration: the execute phase lasts as long as the action's ``duration_s`` says, and every
   skin channel covers it. A rig that runs actions faster than real time (a test rig) says
   so with a ``time_scale`` entry in its description (``rig`` metadata); durations are scaled
@@ -32,7 +36,7 @@ import numpy as np
 import polars as pl
 
 from replay.errors import RecordingError
-from schemas import PACKAGE, SCHEMA_VERSION, build_typestore
+from schemas import SCHEMA_VERSION, VOCABULARY, build_typestore
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -42,7 +46,9 @@ if TYPE_CHECKING:
     from replay.recording._container import ChannelInfo
 
 #: The action phases, in the order a recording has them.
-PHASES = ("approach", "contact", "execute", "retract", "end")
+PHASES = VOCABULARY.phases
+#: Longest pause inside the execute phase, in sample periods of the channel.
+MAX_GAP_PERIODS = 5
 #: How much shorter than ``duration_s`` an execute phase may be (relative; plus 1 ms).
 DURATION_TOLERANCE = 0.01
 #: File name of a dataset's index, beside the object directories.
@@ -69,22 +75,33 @@ def _own_definition(msgtype: str) -> tuple[str, ...]:
 
 
 def check_definitions(path: Path, channels: Sequence[ChannelInfo]) -> None:
-    """Check that the project's own message types are defined as this software defines them.
+    """Check that every channel's message type is defined as this software defines it.
+
+    Standard ROS types are compared too: a JointState whose fields are reordered would
+    otherwise decode velocities as positions.
 
     Raises:
-        RecordingError: A channel's definition of a ``tactile_msgs`` type differs.
+        RecordingError: A channel's definition is missing or differs; names the first field.
     """
     for info in channels:
-        if not info.msgtype.startswith(f"{PACKAGE}/") or not info.definition:
+        theirs, ours = tuple(_normalized(info.definition)), _own_definition(info.msgtype)
+        if theirs == ours:
             continue
-        if tuple(_normalized(info.definition)) != _own_definition(info.msgtype):
-            msg = (
-                f"{path}: channel {info.topic} defines {info.msgtype} differently from this "
-                f"software (schema version {SCHEMA_VERSION}): the file was written under "
-                "another schema version; read it with the atikt release that wrote it, or "
-                "upgrade atikt ('pip install -U atikt')"
-            )
-            raise RecordingError(msg)
+        first = next(
+            (
+                f"{a!r} where this software has {b!r}"
+                for a, b in zip(theirs, ours, strict=False)
+                if a != b
+            ),
+            f"{len(theirs)} fields where this software has {len(ours)}",
+        )
+        msg = (
+            f"{path}: channel {info.topic} defines {info.msgtype} differently from this "
+            f"software (schema version {SCHEMA_VERSION}): {first}; the file was written under "
+            "another schema or by another tool: convert it with atikt-record import-bag, or "
+            "read it with the atikt release that wrote it"
+        )
+        raise RecordingError(msg)
 
 
 def check_stamps(path: Path, topic: str, stamps: NDArray[np.int64]) -> None:
@@ -136,23 +153,15 @@ def check_finite(
     raise RecordingError(msg)
 
 
-def check_parameters(path: Path, parameters: Mapping[str, float]) -> None:
-    """Check that the action's parameters are finite and not negative.
+def check_phases(
+    path: Path, phases: Sequence[tuple[str, int]], promised: Sequence[str] = ("execute",)
+) -> None:
+    """Check the action events: known phases, in order, strictly increasing, none missing.
 
-    Raises:
-        RecordingError: A parameter is NaN, infinite or negative.
-    """
-    for name, value in parameters.items():
-        if not math.isfinite(value) or value < 0:
-            msg = (
-                f"{path}: action parameter {name} = {value} in the metadata record; "
-                f"parameters are finite and >= 0: {_RERECORD}"
-            )
-            raise RecordingError(msg)
-
-
-def check_phases(path: Path, phases: Sequence[tuple[str, int]]) -> None:
-    """Check the action events: known phases, in order, strictly increasing, with execute.
+    Args:
+        path: The recording.
+        phases: (phase, start ns) in file order.
+        promised: Phases the recording's source promises (``schemas`` sources).
 
     Raises:
         RecordingError: The first violation.
@@ -162,23 +171,59 @@ def check_phases(path: Path, phases: Sequence[tuple[str, int]]) -> None:
     stamps = [stamp for _, stamp in phases]
     in_order = all(b > a for a, b in itertools.pairwise(ranks))
     increasing = all(b > a for a, b in itertools.pairwise(stamps))
-    if -1 in ranks or not in_order or not increasing or "execute" not in names:
-        listed = ", ".join(f"{name} at {stamp} ns" for name, stamp in phases) or "none"
+    listed = ", ".join(f"{name} at {stamp} ns" for name, stamp in phases) or "none"
+    if -1 in ranks or not in_order or not increasing:
         msg = (
-            f"{path}: the action events ({listed}) are not the phases "
-            f"{', '.join(PHASES)} in this order with increasing stamps and an execute phase; "
-            f"{_RERECORD}"
+            f"{path}: the action events ({listed}) are not phases of "
+            f"{', '.join(PHASES)} in this order with increasing stamps; {_RERECORD}"
+        )
+        raise RecordingError(msg)
+    if missing := [name for name in promised if name not in names]:
+        msg = (
+            f"{path}: the recording lacks the phases {', '.join(missing)} (it has: {listed}): "
+            f"it is incomplete; salvage it with 'atikt-replay check {path} --recover' (a "
+            "salvage stays a salvage) or record the action again"
         )
         raise RecordingError(msg)
 
 
-def time_scale(path: Path, rig: Mapping[str, str]) -> float:
+def check_gaps(path: Path, execute: tuple[int, int], signals: Mapping[str, Any]) -> None:
+    """Check that no skin channel pauses inside the execute phase.
+
+    Args:
+        path: The recording.
+        execute: The execute phase, ``[start_ns, stop_ns)``.
+        signals: Modality -> series with ``stamps_ns`` and ``period_ns``.
+
+    Raises:
+        RecordingError: A pause longer than :data:`MAX_GAP_PERIODS` periods; names it.
+    """
+    start, stop = execute
+    for modality, series in signals.items():
+        stamps = series.stamps_ns
+        lo, hi = np.searchsorted(stamps, [start, stop])
+        inside = stamps[max(int(lo) - 1, 0) : int(hi) + 1]
+        if inside.size < 2:  # noqa: PLR2004 (a pair is the smallest step)
+            continue
+        steps = np.diff(inside)
+        worst = int(np.argmax(steps))
+        if steps[worst] > MAX_GAP_PERIODS * series.period_ns:
+            msg = (
+                f"{path}: {modality} pauses {steps[worst] / _NS_PER_S:.3f} s at "
+                f"{int(inside[worst])} ns inside the execute phase (more than "
+                f"{MAX_GAP_PERIODS} sample periods): samples were lost; check the skin "
+                "driver and record the action again"
+            )
+            raise RecordingError(msg)
+
+
+def time_scale(path: Path, rig: Mapping[str, object]) -> float:
     """Return the rig's ``time_scale`` (1 when it has none).
 
     Raises:
         RecordingError: The entry is not a positive finite number.
     """
-    text = rig.get("time_scale", "1")
+    text = str(rig.get("time_scale", "1"))
     try:
         scale = float(text)
     except ValueError:

@@ -89,6 +89,7 @@ class Damage(enum.StrEnum):
     NOT_MCAP = "not MCAP"
     TRUNCATED = "truncated"
     CORRUPT = "corrupt"
+    CONTRACT = "contract"
 
 
 class FormatError(McapError):
@@ -262,6 +263,8 @@ def _hint(path: Path, damage: Damage) -> str:
         return "the file is empty: nothing was recorded; record the action again"
     if damage is Damage.NOT_MCAP:
         return "give a recording written by atikt-record (*.mcap)"
+    if damage is Damage.CONTRACT:
+        return "it was not written by atikt-record or atikt-record import-bag; convert it"
     if damage is Damage.TRUNCATED:
         return (
             "the file is truncated or corrupt (an interrupted recorder or an incomplete "
@@ -277,6 +280,8 @@ def _format_error(path: Path, err: BaseException) -> RecordingError:
     """Return the error for a file that is not a complete, intact MCAP file."""
     damage = err.damage if isinstance(err, FormatError) else Damage.CORRUPT
     detail = " ".join(str(err).split()) or type(err).__name__
+    if damage is Damage.CONTRACT:
+        return RecordingError(f"{path}: {detail}; {_hint(path, damage)}")
     return RecordingError(f"{path}: not a valid MCAP recording ({detail}); {_hint(path, damage)}")
 
 
@@ -629,6 +634,12 @@ def _channels(summary: Summary) -> dict[str, ChannelInfo]:
     channels: dict[str, ChannelInfo] = {}
     for channel in summary.channels.values():
         schema = summary.schemas.get(channel.schema_id)
+        if channel.topic in channels:
+            msg = (
+                f"two channels carry the topic {channel.topic} (one channel per topic: the "
+                "file was merged or written by another tool; split or rewrite it)"
+            )
+            raise FormatError(msg, Damage.CONTRACT)
         channels[channel.topic] = ChannelInfo(
             topic=channel.topic,
             msgtype=schema.name if schema else "",

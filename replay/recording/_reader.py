@@ -12,7 +12,6 @@ int64 nanoseconds of the sensor clock; ranges are half-open.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -25,15 +24,22 @@ from replay.recording._checks import (
     check_definitions,
     check_duration,
     check_finite,
+    check_gaps,
     check_location,
-    check_parameters,
     check_phases,
     check_stamps,
     time_scale,
 )
 from replay.recording._container import RawChannel, read_container
 from replay.recording._decode import DecodedGroup, decode_topic, gather
-from schemas import CHANNELS, SCHEMA_VERSION, build_typestore, full_type_name
+from schemas import (
+    MESSAGE_VERSION,
+    VOCABULARY,
+    ContractError,
+    RecordingMetadata,
+    build_typestore,
+)
+from schemas import parse_metadata as read_metadata
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -43,33 +49,19 @@ if TYPE_CHECKING:
     from replay.recording._container import Container
 
 #: Name of the file-level metadata record written by the recorder.
-METADATA_NAME = "atikt.recording"
-#: Skin modalities, each on its own channel, in contract order.
-MODALITIES = ("force", "temperature", "acceleration", "proximity")
+METADATA_NAME = VOCABULARY.metadata_record
+#: Skin modalities of the contract, in contract order (a recording holds any subset).
+MODALITIES = tuple(VOCABULARY.modalities)
 
 _NS_PER_S = 1_000_000_000
 _MAX_PERIOD_NS = 2**40  # about 18 minutes: a longer sample period is a damaged field
 _DAMAGED = "the file is damaged: restore it from a copy or record the action again"
-_SKIN_TYPES = {
-    "force": "SkinForce",
-    "temperature": "SkinTemperature",
-    "acceleration": "SkinAcceleration",
-    "proximity": "SkinProximity",
+_ROBOT_OF_TOPIC_NAME = VOCABULARY.robot
+_TYPE_OF_TOPIC = {
+    **{spec.topic: spec.msgtype for spec in VOCABULARY.robot.values()},
+    **{spec.topic: spec.msgtype for spec in VOCABULARY.modalities.values()},
+    VOCABULARY.events.topic: VOCABULARY.events.msgtype,
 }
-_TOPICS = {channel.msgtype: channel.topic for channel in CHANNELS}
-_METADATA_KEYS = (
-    "object_id",
-    "object_name",
-    "object_novel",
-    "action_id",
-    "action_kind",
-    "action_parameters",
-    "trial",
-    "rig",
-    "seed",
-    "software_version",
-    "schema_version",
-)
 
 
 def _frozen(array: NDArray[Any]) -> NDArray[Any]:
@@ -85,44 +77,14 @@ def _span(stamps: NDArray[np.int64], start_ns: int, stop_ns: int) -> slice:
 
 
 @dataclass(frozen=True, slots=True)
-class RecordingMetadata:
-    """The recording's ``atikt.recording`` metadata record, typed.
-
-    Attributes:
-        object_id: Catalog id of the explored object.
-        object_name: Human-readable object name.
-        object_novel: True for a "new" object, False for an "old" (prior) object.
-        action_id: Catalog id of the action (P1, P2, S1..S4, C1, ...).
-        action_kind: press, slide or static.
-        action_parameters: depth_m, force_n, speed_m_s, duration_s (SI units).
-        trial: Trial number of this (object, action).
-        rig: The rig's kind and configuration.
-        seed: Seed the rig was created with.
-        software_version: Version of the software that recorded the file.
-        schema_version: Version of the message definitions and layout.
-    """
-
-    object_id: str
-    object_name: str
-    object_novel: bool
-    action_id: str
-    action_kind: str
-    action_parameters: Mapping[str, float]
-    trial: int
-    rig: Mapping[str, str]
-    seed: int
-    software_version: str
-    schema_version: int
-
-
-@dataclass(frozen=True, slots=True)
 class SkinSeries:
     """The samples of one skin modality.
 
     Attributes:
-        modality: force, temperature, acceleration or proximity.
-        stamps_ns: Sensor time of every sample, int64 ns, shape (n,), non-decreasing.
-        data: Samples, float32, shape (n, cells, channels), SI units (C for temperature).
+        modality: One of the contract's modalities (``schemas.VOCABULARY.modalities``).
+        stamps_ns: Sensor time of every sample, int64 ns, shape (n,), strictly increasing.
+        data: Samples, float32, shape (n, cells, values), SI units (C for temperature); the
+            number of cells and of values per cell are those of the recording's skin.
         cell_ids: Id of each cell, shape (cells,).
         period_ns: Nominal time between samples, ns.
     """
@@ -143,7 +105,7 @@ class SkinSeries:
 
 @dataclass(frozen=True, slots=True)
 class JointStates:
-    """UR10 joint states.
+    """Joint states of the robot arm (joint count and names from the data).
 
     Attributes:
         names: Joint names, in array column order.
@@ -191,42 +153,43 @@ class ActionRecording:
     Attributes:
         path: The file it was read from.
         metadata: What was recorded.
-        force: Normal forces, N, shape (n, cells, 3).
-        temperature: Temperatures, C, shape (n, cells, 1).
-        acceleration: Accelerations, m/s^2, shape (n, cells, 3).
-        proximity: Distances, m, shape (n, cells, 1).
-        joints: UR10 joint states.
-        tcp: TCP poses.
-        phases: Phase starts in time order: approach, contact, execute, retract, end.
+        signals: The skin modalities the recording holds, by name, in contract order.
+        joints: Joint states of the arm, or None (a fixed probe has no arm).
+        tcp: TCP poses, or None.
+        phases: Phase starts in time order (approach, contact, execute, retract, end; an
+            import holds at least execute and end).
     """
 
     path: Path
     metadata: RecordingMetadata
-    force: SkinSeries
-    temperature: SkinSeries
-    acceleration: SkinSeries
-    proximity: SkinSeries
-    joints: JointStates
-    tcp: TcpPoses
+    signals: Mapping[str, SkinSeries]
+    joints: JointStates | None
+    tcp: TcpPoses | None
     phases: tuple[PhaseStart, ...]
+
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the skin modalities the recording holds, in contract order."""
+        return tuple(self.signals)
 
     def skin(self, modality: str) -> SkinSeries:
         """Return the series of a modality by name.
 
         Raises:
-            RecordingError: ``modality`` is not one of :data:`MODALITIES`.
+            RecordingError: The recording holds no such modality; the message lists its own.
         """
-        if modality not in MODALITIES:
-            msg = f"unknown modality {modality!r}; use one of {', '.join(MODALITIES)}"
+        series = self.signals.get(modality)
+        if series is None:
+            held = ", ".join(self.signals) or "none"
+            msg = f"{self.path}: the recording has no {modality!r} channel (it has: {held})"
             raise RecordingError(msg)
-        series: SkinSeries = getattr(self, modality)
         return series
 
     @property
     def end_ns(self) -> int:
         """Return one nanosecond past the last stamp of any channel."""
-        lasts = [self.skin(m).stamps_ns[-1:] for m in MODALITIES]
-        lasts += [self.joints.stamps_ns[-1:], self.tcp.stamps_ns[-1:]]
+        lasts = [series.stamps_ns[-1:] for series in self.signals.values()]
+        lasts += [robot.stamps_ns[-1:] for robot in (self.joints, self.tcp) if robot is not None]
         lasts += [np.array([p.start_ns for p in self.phases], dtype=np.int64)]
         return int(np.concatenate(lasts).max()) + 1
 
@@ -251,70 +214,43 @@ class ActionRecording:
         return self.skin(modality).between(*self.phase_range(phase))
 
 
-def _metadata_error(path: Path, detail: str) -> RecordingError:
-    return RecordingError(
-        f"{path}: {detail}; the file was not written by atikt-record or is damaged: "
-        "record it again with atikt-record"
-    )
-
-
-def _check_schema_version(path: Path, version: int) -> None:
-    """Reject recordings whose schema this software cannot read, with migration advice."""
-    if version > SCHEMA_VERSION:
-        msg = (
-            f"{path}: recorded with schema version {version}, newer than this software reads "
-            f"({SCHEMA_VERSION}); upgrade atikt ('pip install -U atikt') to read it"
-        )
-        raise RecordingError(msg)
-    if version != SCHEMA_VERSION:
-        msg = (
-            f"{path}: schema version {version} is not supported (this software reads version "
-            f"{SCHEMA_VERSION}, and no migration from {version} exists); record it again "
-            "or read it with the atikt release that wrote it (see schemas/README.md)"
-        )
-        raise RecordingError(msg)
-
-
 def parse_metadata(path: Path, records: Mapping[str, Mapping[str, str]]) -> RecordingMetadata:
-    """Return the typed ``atikt.recording`` metadata record, checking the schema version.
+    """Return the typed metadata record (:func:`schemas.parse_metadata`), checking it strictly.
 
     Raises:
-        RecordingError: The record is missing or malformed, or its schema version unsupported.
+        RecordingError: The record is missing or breaks the contract; the message names the
+            file, the key and the fix.
     """
     record = records.get(METADATA_NAME)
     if record is None:
-        raise _metadata_error(path, f"no {METADATA_NAME!r} metadata record")
-    if missing := [key for key in _METADATA_KEYS if key not in record]:
-        raise _metadata_error(path, f"metadata record lacks {', '.join(missing)}")
-    try:
-        version = int(record["schema_version"])
-        _check_schema_version(path, version)
-        metadata = RecordingMetadata(
-            object_id=record["object_id"],
-            object_name=record["object_name"],
-            object_novel=bool(json.loads(record["object_novel"])),
-            action_id=record["action_id"],
-            action_kind=record["action_kind"],
-            action_parameters=MappingProxyType(
-                {k: float(v) for k, v in json.loads(record["action_parameters"]).items()}
-            ),
-            trial=int(record["trial"]),
-            rig=MappingProxyType({k: str(v) for k, v in json.loads(record["rig"]).items()}),
-            seed=int(record["seed"]),
-            software_version=record["software_version"],
-            schema_version=version,
+        msg = (
+            f"{path}: no {METADATA_NAME!r} metadata record: not written by atikt-record or "
+            "atikt-record import-bag; record or import it with them"
         )
-    except (ValueError, TypeError, AttributeError) as err:
-        raise _metadata_error(path, f"malformed metadata record ({err})") from err
-    check_parameters(path, metadata.action_parameters)
-    return metadata
+        raise RecordingError(msg)
+    try:
+        return read_metadata(record)
+    except ContractError as err:
+        msg = f"{path}: metadata record: {err}"
+        if "upgrade" not in str(err) and "release" not in str(err):
+            msg += "; the file was not written by atikt-record or is damaged: record it again"
+        raise RecordingError(msg) from err
 
 
-def check_contract(container: Container) -> None:
-    """Check the profile and that every required channel is present, typed and non-empty.
+def _topics(metadata: RecordingMetadata) -> Mapping[str, str]:
+    """Return the file's topic -> the contract's topic (schema 1 used other robot topics)."""
+    legacy = VOCABULARY.legacy.get(metadata.schema_version)
+    return legacy.topics if legacy is not None else {}
+
+
+def _contract_channels(container: Container, metadata: RecordingMetadata) -> dict[str, RawChannel]:
+    """Return the file's non-empty channels by contract topic, checking each one's type.
+
+    Channels on topics outside the contract are a lab's extras: kept in the file, not read.
 
     Raises:
-        RecordingError: The first violation found, naming the file and the fix.
+        RecordingError: The profile is not ros2, the events channel is missing, or a channel
+            carries another type or encoding than the contract says.
     """
     summary = container.summary
     path = summary.path
@@ -324,26 +260,47 @@ def check_contract(container: Container) -> None:
             "recording; give one written by atikt-record"
         )
         raise RecordingError(msg)
-    for channel in CHANNELS:
-        found = summary.channels.get(channel.topic)
-        fix = "the recording is incomplete: record the action again"
-        if found is None or (channel.required and found.message_count == 0):
-            state = "missing" if found is None else "empty"
-            msg = f"{path}: required channel {channel.topic} ({channel.msgtype}) is {state}; {fix}"
-            raise RecordingError(msg)
-        if (found.msgtype, found.schema_encoding, found.message_encoding) != (
-            channel.msgtype,
-            "ros2msg",
-            "cdr",
-        ):
+    renamed = _topics(metadata)
+    channels: dict[str, RawChannel] = {}
+    for raw in container.topics.values():
+        topic = renamed.get(raw.info.topic, raw.info.topic)
+        expected = _TYPE_OF_TOPIC.get(topic)
+        if expected is None or raw.info.message_count == 0:
+            continue
+        found = (raw.info.msgtype, raw.info.schema_encoding, raw.info.message_encoding)
+        if found != (expected, "ros2msg", "cdr"):
             msg = (
-                f"{path}: channel {channel.topic} carries {found.msgtype} "
-                f"({found.schema_encoding}/{found.message_encoding}), expected "
-                f"{channel.msgtype} (ros2msg/cdr): not an atikt recording; give one written "
-                "by atikt-record"
+                f"{path}: channel {raw.info.topic} carries {found[0]} ({found[1]}/{found[2]}), "
+                f"the contract says {expected} (ros2msg/cdr): not an atikt recording; convert "
+                "it with atikt-record import-bag"
             )
             raise RecordingError(msg)
-    check_definitions(path, list(summary.channels.values()))
+        channels[topic] = raw
+    events = VOCABULARY.events
+    if events.topic not in channels:
+        msg = (
+            f"{path}: the action events channel {events.topic} ({events.msgtype}) is missing "
+            "or empty: the recording is incomplete; record the action again"
+        )
+        raise RecordingError(msg)
+    check_definitions(path, [raw.info for raw in channels.values()])
+    return channels
+
+
+def _check_needs(path: Path, metadata: RecordingMetadata, held: Sequence[str]) -> None:
+    """Check that the recording holds every modality its action's kind needs.
+
+    Raises:
+        RecordingError: A needed modality is missing; names the kind, the modality and the fix.
+    """
+    kind = VOCABULARY.kind(metadata.action_kind)
+    if missing := [m for m in kind.needs if m not in held]:
+        msg = (
+            f"{path}: a {kind.name!r} action ({metadata.action_id}) needs the skin modality "
+            f"{', '.join(missing)}, the recording has {', '.join(held) or 'none'}; record it "
+            "with a skin that has it, or declare the action with a kind it fits"
+        )
+        raise RecordingError(msg)
 
 
 def _groups(path: Path, raw: RawChannel, msgtype: str) -> list[DecodedGroup]:
@@ -471,8 +428,7 @@ def _skin_part(path: Path, topic: str, group: DecodedGroup) -> _SkinPart:
 
 def _decode_skin(path: Path, modality: str, raw: RawChannel) -> SkinSeries:
     """Decode a skin channel into per-sample stamps and a (n, cells, channels) array."""
-    msgtype = full_type_name(_SKIN_TYPES[modality])
-    groups = _groups(path, raw, msgtype)
+    groups = _groups(path, raw, VOCABULARY.modalities[modality].msgtype)
     parts = [_skin_part(path, raw.info.topic, group) for group in groups]
     shapes = {part.data.shape[1:] for part in parts}
     if len(shapes) != 1:
@@ -552,11 +508,11 @@ def _check_versions(path: Path, topic: str, versions: NDArray[Any]) -> None:
     Raises:
         RecordingError: A message has another version than this software reads.
     """
-    found = sorted({int(v) for v in np.unique(versions)} - {SCHEMA_VERSION})
+    found = sorted({int(v) for v in np.unique(versions)} - {MESSAGE_VERSION})
     if found:
         msg = (
             f"{path}: {topic}: messages of schema version {found[0]}, this software reads "
-            f"version {SCHEMA_VERSION}; read the file with the atikt release that wrote it "
+            f"version {MESSAGE_VERSION}; read the file with the atikt release that wrote it "
             "(or upgrade atikt: 'pip install -U atikt')"
         )
         raise RecordingError(msg)
@@ -568,14 +524,19 @@ def _check_event_subject(path: Path, group: DecodedGroup, metadata: RecordingMet
     Raises:
         RecordingError: They name another object, action or trial.
     """
-    said = {"object_id": metadata.object_id, "action_id": metadata.action_id}
+    said = {
+        "object_id": metadata.object_id,
+        "action_id": metadata.action_id,
+        "action_kind": metadata.action_kind,
+    }
     events = {key: group.strings[key] for key in said}
     trials = {int(v) for v in np.unique(group.numeric["trial"])}
     if events != said or trials != {metadata.trial}:
         msg = (
             f"{path}: the action events are about {events['object_id']} "
-            f"{events['action_id']} trial {sorted(trials)}, the metadata record about "
-            f"{metadata.object_id} {metadata.action_id} trial {metadata.trial}; {_DAMAGED}"
+            f"{events['action_id']} ({events['action_kind']}) trial {sorted(trials)}, the "
+            f"metadata record about {metadata.object_id} {metadata.action_id} "
+            f"({metadata.action_kind}) trial {metadata.trial}; {_DAMAGED}"
         )
         raise RecordingError(msg)
 
@@ -593,9 +554,7 @@ def _decode_phases(
         _check_event_subject(path, group, metadata)
         for index in group.indices:
             names[int(index)] = group.strings["phase"]
-    marks = tuple(PhaseStart(name, int(stamp)) for name, stamp in zip(names, stamps, strict=True))
-    check_phases(path, marks)
-    return marks
+    return tuple(PhaseStart(name, int(stamp)) for name, stamp in zip(names, stamps, strict=True))
 
 
 def _check_duration(recording: ActionRecording) -> None:
@@ -605,15 +564,30 @@ def _check_duration(recording: ActionRecording) -> None:
         RecordingError: The action is shorter than its parameters say.
     """
     path, meta = recording.path, recording.metadata
-    duration_s = meta.action_parameters.get("duration_s", 0.0) * time_scale(path, meta.rig)
+    duration_s = meta.action_parameters["duration_s"] * time_scale(path, meta.rig)
     coverage = {}
-    for modality in MODALITIES:
-        series = recording.skin(modality)
+    for modality, series in recording.signals.items():
         first = int(series.stamps_ns[0]) if series.stamps_ns.size else recording.end_ns
         last = int(series.stamps_ns[-1]) + series.period_ns if series.stamps_ns.size else 0
-        coverage[_TOPICS[full_type_name(_SKIN_TYPES[modality])]] = (first, last)
+        coverage[VOCABULARY.modalities[modality].topic] = (first, last)
     execute = recording.phase_range("execute")
     check_duration(path, (meta.action_id, duration_s), execute, coverage)
+    check_gaps(path, execute, recording.signals)
+
+
+def check_not_partial(recording: ActionRecording) -> None:
+    """Refuse a salvaged recording that lost its end as a recording of a dataset.
+
+    Raises:
+        RecordingError: The recording is a salvage without its end phase.
+    """
+    meta = recording.metadata
+    if meta.source == "salvage" and "end" not in {mark.phase for mark in recording.phases}:
+        msg = (
+            f"{recording.path}: a salvaged recording that lost its end phase is not a recording "
+            "of the dataset; keep it out of the dataset and record the action again"
+        )
+        raise RecordingError(msg)
 
 
 def check_dataset_location(recording: ActionRecording) -> None:
@@ -627,6 +601,7 @@ def check_dataset_location(recording: ActionRecording) -> None:
         RecordingError: The metadata says another object, action or trial than the path, or
             the index says another object, action, trial, seed or size.
     """
+    check_not_partial(recording)
     path, meta = recording.path, recording.metadata
     said = {key: getattr(meta, key) for key in ("object_id", "action_id", "trial", "seed")}
     try:
@@ -640,27 +615,32 @@ def check_dataset_location(recording: ActionRecording) -> None:
 def decode_recording(container: Container) -> ActionRecording:
     """Validate a container against the contract and decode it into an :class:`ActionRecording`.
 
+    One pass per layer: the metadata record, then each channel's type and definition, then
+    each channel's payloads into arrays (stamps and values checked as they are decoded), then
+    the recording as a whole (the kind's modalities, phases, duration, gaps).
+
     Raises:
         RecordingError: The recording violates the contract or a message is malformed.
     """
     path = container.summary.path
     metadata = parse_metadata(path, container.summary.metadata)
-    check_contract(container)
-    topics = container.topics
-    skins = {
-        modality: _decode_skin(path, modality, topics[_TOPICS[full_type_name(name)]])
-        for modality, name in _SKIN_TYPES.items()
+    channels = _contract_channels(container, metadata)
+    signals = {
+        name: _decode_skin(path, name, channels[spec.topic])
+        for name, spec in VOCABULARY.modalities.items()
+        if spec.topic in channels
     }
+    _check_needs(path, metadata, tuple(signals))
+    joints, poses = (_ROBOT_OF_TOPIC_NAME[name].topic for name in ("joint_states", "tcp_pose"))
+    events = _decode_phases(path, channels[VOCABULARY.events.topic], metadata)
+    check_phases(path, events, VOCABULARY.sources[metadata.source].phases)
     recording = ActionRecording(
         path=path,
         metadata=metadata,
-        force=skins["force"],
-        temperature=skins["temperature"],
-        acceleration=skins["acceleration"],
-        proximity=skins["proximity"],
-        joints=_decode_joints(path, topics[_TOPICS["sensor_msgs/msg/JointState"]]),
-        tcp=_decode_poses(path, topics[_TOPICS["geometry_msgs/msg/PoseStamped"]]),
-        phases=_decode_phases(path, topics[_TOPICS[full_type_name("ActionEvent")]], metadata),
+        signals=MappingProxyType(signals),
+        joints=_decode_joints(path, channels[joints]) if joints in channels else None,
+        tcp=_decode_poses(path, channels[poses]) if poses in channels else None,
+        phases=events,
     )
     _check_duration(recording)
     return recording

@@ -37,7 +37,7 @@ from replay.recording._container import (
     FormatError,
     walk_data_section,
 )
-from schemas import PART_SUFFIX, RECOVERED_SUFFIX
+from schemas import PART_SUFFIX, RECOVERED_SUFFIX, VOCABULARY
 
 if TYPE_CHECKING:
     from replay.recording._container import ChannelMessages, DataSection
@@ -195,7 +195,10 @@ def _write(stream: IO[bytes], section: DataSection, report: RecoveryReport) -> N
     writer = Writer(stream, compression=CompressionType.ZSTD, enable_data_crcs=True)
     writer.start(profile=header.profile, library=header.library)
     for record in section.metadata:
-        writer.add_metadata(record.name, dict(record.metadata))
+        values = dict(record.metadata)
+        if record.name == VOCABULARY.metadata_record:
+            values["source"] = "salvage"  # it promises only what it kept: see schemas sources
+        writer.add_metadata(record.name, values)
     writer.add_metadata(RECOVERY_NAME, report.to_metadata())
     ids = _register(writer, section)
     for channel_id, index, lists in _file_order(section):

@@ -23,13 +23,12 @@ from replay.learning._parallel import run_tasks
 from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._relatedness import least_similar, similarity_to_new
+from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
     from pathlib import Path
 
-#: The thesis's actions, in catalog order.
-ACTIONS = ("P1", "P2", "S1", "S2", "S3", "S4", "C1")
 #: Label of the ATIKT runs and of the no-transfer baseline in results.
 ATIKT, BASELINE = "ATIKT", "baseline"
 #: Training samples per object at which the fusion study measures accuracy.
@@ -53,6 +52,11 @@ class StudyConfig:
         fusion_objects: Objects per fusion group.
         prior_counts: Prior-object counts of the priors study.
         transfer: Transfer mode of the ATIKT runs.
+        new: New objects (the dataset's declared ones unless chosen; see ``dataset_roles``).
+        old: Old objects, the candidates for priors.
+        actions: Actions of the study (every action of the dataset unless chosen).
+        features: Feature policy (``thesis`` or ``all``).
+        group_size: Prior objects per group in the transfer and single-action studies.
     """
 
     out: Path
@@ -67,6 +71,11 @@ class StudyConfig:
     fusion_objects: int = 5
     prior_counts: tuple[int, ...] = (3, 5, 7, 10)
     transfer: str = "prediction"
+    new: tuple[str, ...] = ()
+    old: tuple[str, ...] = ()
+    actions: tuple[str, ...] = ()
+    features: str = "thesis"
+    group_size: int = 3
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -87,22 +96,30 @@ def _seed(*parts: int | str) -> int:
     return int(np.random.SeedSequence(words).generate_state(1)[0] >> 1)
 
 
-def objects_of(frame: pl.DataFrame) -> tuple[list[str], list[str]]:
-    """Return the (new, old) object ids of a feature table, sorted.
+def dataset_actions(frame: pl.DataFrame) -> tuple[str, ...]:
+    """Return the action ids of a feature table, sorted (whatever a lab named them)."""
+    return tuple(sorted(set(frame["action_id"].to_list())))
+
+
+def _too_small(study: str, has: str, needs: str) -> ReplayError:
+    msg = (
+        f"study {study}: the dataset has {has}; the study needs {needs} (choose roles with "
+        "--new/--priors, or record more)"
+    )
+    return ReplayError(msg)
+
+
+def _roles(config: StudyConfig, study: str, *, min_old: int = 1) -> tuple[str, ...]:
+    """Return the study's actions after checking its roles fit the design.
 
     Raises:
-        ReplayError: There are fewer than two new or one old object.
+        ReplayError: Fewer than 2 new or ``min_old`` old objects, or no action.
     """
-    pairs = frame.select("object_id", "novel").unique().sort("object_id")
-    new = pairs.filter(pl.col("novel"))["object_id"].to_list()
-    old = pairs.filter(~pl.col("novel"))["object_id"].to_list()
-    if len(new) < 2 or not old:  # noqa: PLR2004
-        msg = (
-            f"the dataset has {len(new)} new and {len(old)} old objects; a study needs >= 2 new "
-            "and >= 1 old (see the 'novel' flag of the object catalog)"
-        )
-        raise ReplayError(msg)
-    return new, old
+    if len(config.new) < 2 or len(config.old) < min_old or not config.actions:  # noqa: PLR2004
+        has = f"{len(config.new)} new, {len(config.old)} old objects, {len(config.actions)} actions"
+        needs = f">= 2 new, >= {min_old} old objects and >= 1 action"
+        raise _too_small(study, has, needs)
+    return config.actions
 
 
 def prior_groups(old: Sequence[str], size: int, count: int, seed: int) -> list[tuple[str, ...]]:
@@ -127,6 +144,7 @@ class TransferTask:
         seed: Seed of the group's splits and learners.
         transfer: Transfer mode of the ATIKT runs.
         labels: Extra columns written into every row (group, prior count, ...).
+        features: Feature policy.
     """
 
     frame: pl.DataFrame
@@ -138,12 +156,13 @@ class TransferTask:
     seed: int
     transfer: str = "prediction"
     labels: dict[str, Any] = field(default_factory=dict)
+    features: str = "thesis"
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
     """Run ATIKT and the baseline on the same splits; return one row per run and step."""
-    lookup = FeatureLookup(task.frame)
-    every_action = tuple(sorted({a for group in task.actions for a in group}, key=ACTIONS.index))
+    lookup = FeatureLookup(task.frame, task.features)
+    every_action = tuple(sorted({a for group in task.actions for a in group}))
     models = fit_priors(prior_data(lookup, task.priors, every_action), _seed(task.seed, "prior"))
     frames = []
     for actions, trial in itertools.product(task.actions, range(task.trials)):
@@ -198,14 +217,18 @@ def _run(
 def transfer_tasks(
     frame: pl.DataFrame, config: StudyConfig, *, single_action: bool = False
 ) -> list[TransferTask]:
-    """Return the tasks of the transfer (or single-action) study: one per prior group."""
-    new, old = objects_of(frame)
-    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    """Return the tasks of the transfer (or single-action) study: one per prior group.
+
+    Groups hold ``config.group_size`` old objects (3 in the thesis), fewer when the dataset
+    has fewer old objects.
+    """
+    actions = _roles(config, "single-action" if single_action else "transfer")
     sets = tuple((a,) for a in actions) if single_action else (actions,)
+    size = min(config.group_size, len(config.old))
     return [
         TransferTask(
             frame,
-            tuple(new),
+            config.new,
             group,
             sets,
             config.trials,
@@ -213,24 +236,30 @@ def transfer_tasks(
             _seed(config.seed, "transfer", number),
             config.transfer,
             {"group": number},
+            config.features,
         )
-        for number, group in enumerate(prior_groups(old, 3, config.groups, config.seed))
+        for number, group in enumerate(prior_groups(config.old, size, config.groups, config.seed))
     ]
 
 
 def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
-    """Return the tasks of the priors study: groups of each prior count."""
-    new, old = objects_of(frame)
-    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    """Return the tasks of the priors study: groups of each prior count the dataset allows."""
+    actions = _roles(config, "priors")
+    counts = [c for c in config.prior_counts if c <= len(config.old)]
+    if not counts:
+        has = f"{len(config.old)} old objects"
+        needs = f"at least {min(config.prior_counts)} (prior counts {config.prior_counts})"
+        study = "priors"
+        raise _too_small(study, has, needs)
     tasks = []
-    for count in (c for c in config.prior_counts if c <= len(old)):
-        for number, group in enumerate(prior_groups(old, count, config.groups, config.seed)):
+    for count in counts:
+        for number, group in enumerate(prior_groups(config.old, count, config.groups, config.seed)):
             seed = _seed(config.seed, "priors", count, number)
             labels = {"group": number, "n_priors": count}
             tasks.append(
                 TransferTask(
                     frame,
-                    tuple(new),
+                    config.new,
                     group,
                     (actions,),
                     config.trials,
@@ -238,6 +267,7 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
                     seed,
                     config.transfer,
                     labels,
+                    config.features,
                 )
             )
     return tasks
@@ -247,11 +277,12 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
     """Return the tasks of the negative-transfer study: the priors least like the new objects.
 
     Similarity is the confusion of per-action Gaussian mixtures (see ``_relatedness``); the
-    three least similar old objects are the priors of every run.
+    least similar old objects (three, or all if fewer) are the priors of every run.
     """
-    new, old = objects_of(frame)
+    actions = _roles(config, "negative")
+    new, old = config.new, config.old
     objects = [*new, *old]
-    actions = tuple(a for a in ACTIONS if a in set(frame["action_id"]))
+    frame = frame.filter(pl.col("object_id").is_in(objects))
     per_action = {}
     for action in actions:
         part = frame.filter(pl.col("action_id") == action).sort("path")
@@ -261,13 +292,15 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
     similarity = similarity_to_new(
         per_action, len(objects), range(len(new)), _seed(config.seed, "gmm")
     )
-    chosen = least_similar(similarity, range(len(new), len(objects)), 3)
+    chosen = least_similar(
+        similarity, range(len(new), len(objects)), min(config.group_size, len(old))
+    )
     priors = tuple(objects[i] for i in chosen)
     runs = config.groups * config.trials
     return [
         TransferTask(
             frame,
-            tuple(new),
+            new,
             priors,
             (actions,),
             1,
@@ -275,6 +308,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
             _seed(config.seed, "negative", number),
             config.transfer,
             {"group": 0, "repetition": number},
+            config.features,
         )
         for number in range(runs)
     ]
@@ -282,7 +316,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
 
 def _flat(row: dict[str, Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
     """Return the raw features of a cache row as one vector (for the mixture)."""
-    parts = [row[m] for m in ("force", "texture", "thermal") if row[m] is not None]
+    parts = [row[m] for m in VOCABULARY.features if row[m] is not None]
     return np.concatenate([np.asarray(p, dtype=np.float64) for p in parts])
 
 
@@ -297,6 +331,7 @@ class FusionTask:
         repetitions: Random train/test splits.
         seed: Seed of the splits and fits.
         group: Group number (a result column).
+        features: Feature policy.
     """
 
     frame: pl.DataFrame
@@ -305,13 +340,13 @@ class FusionTask:
     repetitions: int
     seed: int
     group: int
+    features: str = "thesis"
 
 
 def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     """Fit multi-modal and single-modality GPCs on 1..n training samples; test accuracy rows."""
-    lookup = FeatureLookup(task.frame)
-    kind = task.frame.filter(pl.col("action_id") == task.action)["action_kind"][0]
-    modalities = ("force", "thermal") if kind in {"press", "static"} else ("texture", "thermal")
+    lookup = FeatureLookup(task.frame, task.features)
+    modalities = lookup.blocks[task.action]
     subsets = {"multi-modal": None} | {m: (m,) for m in modalities}
     rows = []
     for repetition in range(task.repetitions):
@@ -345,8 +380,12 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
 
 def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
     """Return the fusion study's tasks: per action, random groups of objects."""
-    objects = sorted(set(frame["object_id"]))
-    actions = [a for a in ACTIONS if a in set(frame["action_id"])]
+    objects = sorted({*config.new, *config.old})
+    actions = config.actions
+    if len(objects) < 2 or not actions:  # noqa: PLR2004
+        has = f"{len(objects)} objects and {len(actions)} actions"
+        study = "fusion"
+        raise _too_small(study, has, ">= 2 objects and >= 1 action")
     rng = np.random.default_rng(_seed(config.seed, "fusion"))
     size = min(config.fusion_objects, len(objects))
     groups = [
@@ -360,6 +399,7 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
             config.fusion_repetitions,
             _seed(config.seed, action, number),
             number,
+            config.features,
         )
         for action in actions
         for number, group in enumerate(groups)

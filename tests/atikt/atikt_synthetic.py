@@ -8,6 +8,7 @@ the execute phase, with sensor noise, then into raw features. Every draw is seed
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -88,11 +89,30 @@ def signals(
     return force, acceleration, temperature
 
 
+#: The thesis's feature blocks per action kind (the contract's assignment, for synthetic data).
+THESIS_BLOCKS = {"press": ("force", "thermal"), "slide": ("texture", "thermal")}
+THESIS_BLOCKS["static"] = THESIS_BLOCKS["press"]
+
+
+def thesis_features(
+    kind: str,
+    force: np.ndarray | None,
+    acceleration: np.ndarray | None,
+    temperature: np.ndarray,
+    **options: Any,
+) -> RawFeatures:
+    """Extract the thesis's blocks of ``kind`` from force, acceleration and temperature."""
+    given = {"force": (force, 250.0), "texture": (acceleration, 1000.0)}
+    given["thermal"] = (temperature, options.pop("temperature_rate_hz", 20.0))
+    signals = {b: given[b] for b in THESIS_BLOCKS.get(kind, ()) if given[b][0] is not None}
+    return extract_features(kind, signals, **options)  # type: ignore[arg-type]
+
+
 def observation(obj: SyntheticObject, action_id: str, rng: np.random.Generator) -> RawFeatures:
     """Raw features of one execution of ``action_id`` on ``obj``."""
     action = ACTIONS[action_id]
     force, acceleration, temperature = signals(obj, action, rng)
-    return extract_features(action.kind, force, acceleration, temperature)
+    return thesis_features(action.kind, force, acceleration, temperature)
 
 
 def pool(

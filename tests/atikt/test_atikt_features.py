@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from atikt_synthetic import thesis_features
 
 import atikt.features as features_module
 from atikt import (
@@ -135,16 +136,14 @@ def test_extract_features_per_kind() -> None:
     force = rng.uniform(0, 1, (750, 7, 3))
     acc = rng.standard_normal((1000, 7, 3))
     temp = 29 + rng.standard_normal((60, 7)) * 0.01
-    press = extract_features("press", force, None, temp, n_thermal_points=12)
-    slide = extract_features("slide", None, acc, temp, n_thermal_points=12)
-    assert press.force is not None
-    assert press.texture is None
-    assert press.thermal.shape == (24,)
-    assert slide.texture is not None
-    assert slide.texture.shape == (12,)
-    assert slide.force is None
+    press = thesis_features("press", force, None, temp, n_thermal_points=12)
+    slide = thesis_features("slide", None, acc, temp, n_thermal_points=12)
+    assert press.modalities == ("force", "thermal")
+    assert press.modality("thermal").shape == (24,)
+    assert slide.modalities == ("texture", "thermal")
+    assert slide.modality("texture").shape == (12,)
     with pytest.raises(ValueError, match="read-only"):
-        press.thermal[0] = 1.0
+        press.modality("thermal")[0] = 1.0
     with pytest.raises(AtiktError, match="texture"):
         press.modality("texture")
 
@@ -152,21 +151,40 @@ def test_extract_features_per_kind() -> None:
 @pytest.mark.parametrize(
     ("kind", "force", "acc", "temp", "match"),
     [
-        ("squeeze", np.ones((5, 7, 3)), None, np.ones((5, 7)), "unknown action kind"),
-        ("press", None, None, np.ones((5, 7)), "needs the force"),
-        ("slide", None, None, np.ones((5, 7)), "needs the acceleration"),
         ("press", np.ones((5, 7)), None, np.ones((5, 7)), "3-d array"),
         ("press", np.ones((0, 7, 3)), None, np.ones((5, 7)), "no samples"),
         ("press", np.full((5, 7, 3), np.nan), None, np.ones((5, 7)), "NaN"),
         ("press", np.ones((5, 7, 3)), None, np.ones((1, 7)), ">= 2 samples"),
-        ("slide", None, np.ones((5, 7, 2)), np.ones((5, 7)), "x, y, z"),
+        ("slide", None, np.ones((2, 7, 3)), np.ones((5, 7)), "n_samples >= 3"),
     ],
 )
 def test_extract_features_rejects_bad_input(
     kind: str, force: np.ndarray | None, acc: np.ndarray | None, temp: np.ndarray, match: str
 ) -> None:
     with pytest.raises(AtiktError, match=match):
-        extract_features(kind, force, acc, temp)
+        thesis_features(kind, force, acc, temp)
+
+
+def test_extract_features_takes_any_subset_of_blocks_and_widths() -> None:
+    rng = np.random.default_rng(9)
+    scalar_force = rng.uniform(0, 1, (100, 1, 1))
+    one_axis = rng.standard_normal((400, 1, 1))
+    two_sensors = 29 + rng.standard_normal((80, 1, 2)) * 0.01
+    features = extract_features(
+        "slide",
+        {
+            "force": (scalar_force, 100.0),
+            "texture": (one_axis, 2200.0),
+            "thermal": (two_sensors, 200.0),
+        },
+    )
+    assert features.modalities == ("force", "texture", "thermal")
+    assert features.modality("texture").shape == (3,)  # Act, Mob, Comp: no axis pairs
+    assert features.modality("force")[0] == pytest.approx(scalar_force.mean())
+    with pytest.raises(AtiktError, match="non-empty subset"):
+        extract_features("slide", {})
+    with pytest.raises(AtiktError, match="non-empty subset"):
+        extract_features("slide", {"vision": (one_axis, 1.0)})
 
 
 def random_observations(
@@ -178,7 +196,7 @@ def random_observations(
         force = rng.uniform(0, 2, (1, 1, 1)) + shift + 0.1 * rng.standard_normal((50, 7, 3))
         temp = 29 + np.cumsum(rng.standard_normal((60, 7)) * 0.05, axis=0) + shift
         acc = rng.standard_normal((200, 7, 3)) * (1 + shift)
-        out.append(extract_features(kind, force, acc, temp))
+        out.append(thesis_features(kind, force, acc, temp))
     return out
 
 
@@ -200,8 +218,8 @@ def test_pca_is_fitted_on_training_data_only() -> None:
     transformer = FeatureTransformer(n_thermal_components=4).fit(train)
     X_test = transformer.transform(test)
     # the same numbers by hand, from training statistics only
-    raw_train = np.vstack([o.thermal for o in train])
-    raw_test = np.vstack([o.thermal for o in test])
+    raw_train = np.vstack([o.modality("thermal") for o in train])
+    raw_test = np.vstack([o.modality("thermal") for o in test])
     mean = raw_train.mean(axis=0)
     half = raw_train.shape[1] // 2
     scale = np.concatenate(
@@ -213,8 +231,8 @@ def test_pca_is_fitted_on_training_data_only() -> None:
     _, s, vt = np.linalg.svd((raw_train - mean) / scale, full_matrices=False)
     scores = ((raw_test - mean) / scale) @ vt[:4].T / np.sqrt((s[:4] ** 2 / 30).sum())
     np.testing.assert_allclose(np.abs(X_test[:, 1:]), np.abs(scores), rtol=1e-9, atol=1e-12)
-    f_train = np.array([o.force[0] for o in train if o.force is not None])
-    f_test = np.array([o.force[0] for o in test if o.force is not None])
+    f_train = np.array([o.modality("force")[0] for o in train])
+    f_test = np.array([o.modality("force")[0] for o in test])
     np.testing.assert_allclose(X_test[:, 0], (f_test - f_train.mean()) / f_train.std())
     # fitting on training + test data would give other numbers: the check above can fail
     leaky = FeatureTransformer(n_thermal_components=4).fit(train + test).transform(test)

@@ -16,7 +16,8 @@ LABELS = [0, 0, 1, 1, 2, 2]
 
 
 def _press(force: float, thermal: np.ndarray) -> RawFeatures:
-    return RawFeatures("press", np.array([force]), None, np.asarray(thermal, dtype=np.float64))
+    blocks = {"force": np.array([force]), "thermal": np.asarray(thermal, dtype=np.float64)}
+    return RawFeatures("press", blocks)
 
 
 def _observations(scale: float = 1.0) -> list[RawFeatures]:

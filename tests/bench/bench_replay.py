@@ -34,11 +34,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_atikt import TimedLearner, print_quality, sklearn_old_models
 
-from replay.learning._datasets import ensure_default_dataset
+from replay.learning._datasets import dataset_roles, ensure_default_dataset
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
 from replay.learning._session import fit_priors, prior_data
-from replay.studies._studies import ACTIONS, StudyConfig, objects_of, prior_groups, run_study
+from replay.studies._studies import StudyConfig, dataset_actions, prior_groups, run_study
 
 
 def extraction(root: Path, workers: int, *, one_worker: bool) -> None:
@@ -60,7 +60,14 @@ def study(root: Path, workers: int) -> None:
     """Time the full transfer study with cached features."""
     frame = build_features(root, workers=workers).frame
     with tempfile.TemporaryDirectory() as scratch:
-        config = StudyConfig(out=Path(scratch), workers=workers)
+        roles = dataset_roles(root, frame["object_id"].to_list())
+        config = StudyConfig(
+            out=Path(scratch),
+            workers=workers,
+            new=roles.new,
+            old=roles.old,
+            actions=dataset_actions(frame),
+        )
         start = time.perf_counter()
         run_study("transfer", frame, config)
         elapsed = time.perf_counter() - start
@@ -71,7 +78,9 @@ def study(root: Path, workers: int) -> None:
 def one_run(root: Path) -> None:
     """Time every update of one ATIKT run next to the scikit-learn reference's."""
     frame = build_features(root).frame
-    new, old = objects_of(frame)
+    roles = dataset_roles(root, frame["object_id"].to_list())
+    new, old = roles.new, roles.old
+    ACTIONS = dataset_actions(frame)
     priors_ids = prior_groups(old, 3, 1, seed=0)[0]
     lookup = FeatureLookup(frame)
     priors = fit_priors(prior_data(lookup, priors_ids, ACTIONS), seed=0)

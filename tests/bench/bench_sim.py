@@ -20,10 +20,16 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "atikt"))
+
+from atikt_synthetic import thesis_features
 
 from recorder import (
     Modality,
@@ -88,7 +94,7 @@ def bench_separability(trials: int = 20) -> None:
     from sklearn.neighbors import KNeighborsClassifier  # noqa: PLC0415
     from sklearn.svm import SVC  # noqa: PLC0415
 
-    from atikt.features import FeatureTransformer, RawFeatures, extract_features  # noqa: PLC0415
+    from atikt.features import FeatureTransformer, RawFeatures  # noqa: PLC0415
 
     objects, actions = load_objects(), load_actions()
     features: dict[str, list[RawFeatures]] = {action_id: [] for action_id in actions}
@@ -98,7 +104,7 @@ def bench_separability(trials: int = 20) -> None:
                 for trial in range(trials):
                     items = list(rig.perform(obj, action, trial))
                     features[action.id].append(
-                        extract_features(
+                        thesis_features(
                             action.kind.value,
                             _window(items, Modality.FORCE),
                             _window(items, Modality.ACCELERATION),

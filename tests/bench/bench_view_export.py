@@ -57,7 +57,7 @@ def _stream() -> rr.RecordingStream:
 def bench_logging(repeat: int) -> None:
     """Columnar against row-wise logging, and a whole recording against reading it."""
     recording = read_recording(RECORDING)
-    series = recording.acceleration
+    series = recording.skin("acceleration")
     stamps = series.stamps_ns.view("datetime64[ns]")
     values = np.ascontiguousarray(series.data[:, 0, :])
 

@@ -277,13 +277,19 @@ def test_ros1_bag_with_annotations_imports_every_value(
         phases = [START + round(s * NS) for s in note.phases]
         assert list(recording.phases) == list(zip(PHASES, phases, strict=True))
         rows, picks = _rows(data, phases[0], phases[-1])
-        np.testing.assert_array_equal(recording.force.stamps_ns, rows)
+        np.testing.assert_array_equal(recording.skin("force").stamps_ns, rows)
         for c, pick in enumerate(picks):
-            np.testing.assert_array_equal(recording.force.data[:, c], data.force[c][pick])
+            np.testing.assert_array_equal(recording.skin("force").data[:, c], data.force[c][pick])
             expected_acc = (data.acc[c][pick].astype(np.float64) * G).astype(np.float32)
-            np.testing.assert_array_equal(recording.acceleration.data[:, c], expected_acc)
-            np.testing.assert_array_equal(recording.proximity.data[:, c, 0], data.prox[c][pick])
-            np.testing.assert_array_equal(recording.temperature.data[:, c, 0], data.temp[c][pick])
+            np.testing.assert_array_equal(recording.skin("acceleration").data[:, c], expected_acc)
+            np.testing.assert_array_equal(
+                recording.skin("proximity").data[:, c, 0], data.prox[c][pick]
+            )
+            np.testing.assert_array_equal(
+                recording.skin("temperature").data[:, c, 0], data.temp[c][pick]
+            )
+        assert recording.joints is not None
+        assert recording.tcp is not None
         robot = (data.robot_stamps >= phases[0]) & (data.robot_stamps < phases[-1])
         np.testing.assert_array_equal(recording.joints.stamps_ns, data.robot_stamps[robot])
         order = [LAB_JOINTS.index(name) for name in UR10]
@@ -293,12 +299,12 @@ def test_ros1_bag_with_annotations_imports_every_value(
         np.testing.assert_allclose(recording.tcp.position, data.position_mm[robot] / 1000, 1e-15)
         np.testing.assert_array_equal(recording.tcp.orientation, data.quaternion[robot])
     meta = read_recording(mug).metadata
-    assert (meta.object_id, meta.object_name, meta.object_novel) == ("lab_mug", "Lab mug", True)
+    assert (meta.object_id, meta.object_name, meta.source) == ("lab_mug", "Lab mug", "import")
     assert (meta.action_id, meta.action_kind, meta.trial) == ("S2", "slide", 5)
     assert meta.rig["kind"] == "imported"
     assert meta.rig["source"] == "session.bag"
-    assert json.loads(meta.rig["cells"]) == list(CELLS)
-    assert json.loads(meta.rig["joints_not_recorded"]) == ["velocity"]
+    assert json.loads(str(meta.rig["cells"])) == list(CELLS)
+    assert json.loads(str(meta.rig["joints_not_recorded"])) == ["velocity"]
     # the dropped sample of cell 2 falls in the second action: one row fewer, nothing else
     assert report.dropped_rows["force"] == 1
     assert 0 < report.max_cell_offset_ns["force"] < SKIN_PERIOD // 2

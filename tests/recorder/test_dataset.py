@@ -1,3 +1,4 @@
+import tomllib
 from pathlib import Path
 
 import polars as pl
@@ -8,6 +9,7 @@ from recorder import ActionSpec, RecorderError, load_objects
 from recorder._catalog import ObjectSpec
 from recorder._dataset import (
     INDEX_NAME,
+    OBJECTS_FILE,
     TaskResult,
     TaskStatus,
     build_index,
@@ -66,7 +68,7 @@ def test_dataset_is_identical_whatever_the_worker_count(
     assert _files(tmp_path / "one") == _files(tmp_path / "two")
     assert sorted(_files(tmp_path / "one")) == sorted(
         [recording_path(Path(), t.obj.id, t.action.id, t.trial).as_posix() for t in tasks]
-        + [INDEX_NAME]
+        + [INDEX_NAME, OBJECTS_FILE]
     )
 
 
@@ -80,7 +82,7 @@ def test_simulated_dataset_is_identical_whatever_the_worker_count(
     generate_dataset(tasks, tmp_path / "one", factory, seed=1, workers=1)
     generate_dataset(tasks, tmp_path / "two", factory, seed=1, workers=2)
     assert _files(tmp_path / "one") == _files(tmp_path / "two")
-    assert len(_files(tmp_path / "one")) == len(tasks) + 1
+    assert len(_files(tmp_path / "one")) == len(tasks) + 2  # the index and objects.toml
 
 
 def test_rerun_skips_existing_recordings_and_never_overwrites(
@@ -108,7 +110,9 @@ def test_index_has_one_row_per_recording_and_is_rebuilt_from_files(
     index = pl.read_parquet(report.index)
     assert index.height == 2
     assert index["path"].to_list() == ["sponge/C1/001.mcap", "wood/C1/001.mcap"]
-    assert index["novel"].to_list() == [True, False]
+    assert index["source"].to_list() == ["recorder", "recorder"]
+    declared = tomllib.loads((tmp_path / OBJECTS_FILE).read_text("utf-8"))
+    assert {k: v["novel"] for k, v in declared.items()} == {"sponge": True, "wood": False}
     assert index["seed"].to_list() == [9, 9]
     assert index["rig"].to_list() == ["fake", "fake"]
     assert (index["n_events"] == 5).all()

@@ -47,7 +47,7 @@ WIDTH = {
 @dataclass
 class Stream:
     items: list[StreamItem]
-    blocks: dict[Modality, list[SkinBlock]]
+    blocks: dict[str, list[SkinBlock]]
     joints: list[JointSample]
     poses: list[PoseSample]
     events: dict[Phase, PhaseEvent]

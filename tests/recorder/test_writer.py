@@ -31,18 +31,17 @@ from recorder.writing._writer import (
     WrittenRecording,
     _Encoder,
     record_action,
-    software_version,
 )
 from replay.recording._reader import read_recording
-from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore
+from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore, software_version
 
 Objects = dict[str, ObjectSpec]
 Actions = dict[str, ActionSpec]
 
 
 def _info(obj: ObjectSpec, action: ActionSpec, trial: int = 1, seed: int = 0) -> RecordingInfo:
-    rig = FakeRig(seed=seed).describe()  # the time scale of its actions, for the reader
-    return RecordingInfo(obj.id, obj.name, obj.novel, action, trial, rig, seed)
+    # the fake rig's description carries the time scale of its actions, for the reader
+    return RecordingInfo.create(obj, action, trial, FakeRig(seed=seed), seed)
 
 
 def _record(
@@ -89,6 +88,8 @@ def test_round_trip_gives_back_every_sample(
         np.testing.assert_array_equal(series.stamps_ns, expected)
         assert series.period_ns == blocks[0].period_ns
         assert result.message_counts[f"/skin/{modality}"] == len(blocks)
+    assert recording.joints is not None
+    assert recording.tcp is not None
     joints = [i for i in items if isinstance(i, JointSample)]
     np.testing.assert_array_equal(recording.joints.position, [j.position for j in joints])
     np.testing.assert_array_equal(recording.joints.effort, [j.effort for j in joints])
@@ -117,7 +118,7 @@ def test_file_follows_the_container_contract(fake_recording: Path) -> None:
     assert summary is not None
     assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
     topics = {c.topic: c for c in summary.channels.values()}
-    assert set(topics) == {c.topic for c in CHANNELS}
+    assert set(topics) == {c.topic for c in CHANNELS}  # the fake rig streams every channel
     for channel in CHANNELS:
         found = topics[channel.topic]
         schema = summary.schemas[found.schema_id]
@@ -146,15 +147,15 @@ def test_log_time_is_receive_time_and_publish_time_the_sensor_stamp(
     assert [m.publish_time for m in messages] == [i.stamp_ns for i in items]
 
 
-def test_chunks_are_flushed_every_half_second_of_log_time(fake_recording: Path) -> None:
+def test_chunks_are_flushed_every_0_35_s_of_log_time(fake_recording: Path) -> None:
     with fake_recording.open("rb") as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None
     chunks = summary.chunk_indexes
     spans = [c.message_end_time - c.message_start_time for c in chunks]
     duration = chunks[-1].message_end_time - chunks[0].message_start_time
-    assert max(spans) < 510_000_000  # 0.5 s plus one message interval
-    assert len(chunks) >= duration // 510_000_000
+    assert max(spans) < 360_000_000  # 0.35 s plus one message interval
+    assert len(chunks) >= duration // 360_000_000
 
 
 def test_same_seed_gives_identical_bytes_and_another_seed_does_not(
@@ -202,7 +203,7 @@ def test_failed_action_leaves_no_file(tmp_path: Path, objects: Objects, actions:
 
 
 def test_malformed_items_are_rejected(tmp_path: Path, objects: Objects, actions: Actions) -> None:
-    block = SkinBlock(Modality.FORCE, 0, 1, 0, np.zeros((4, 7), dtype=np.float32))
+    block = SkinBlock("force", 0, 1, 0, np.zeros((4, 7), dtype=np.float32))
     joint = JointSample(0, 0, np.zeros(5), np.zeros(6), np.zeros(6))
     for item, match in ((block, "shape"), (joint, "joint position has 5 values"), ("x", "str")):
         with (
@@ -226,11 +227,17 @@ _KILLED_RECORDER = textwrap.dedent(
     import os, signal, sys
     from pathlib import Path
     import numpy as np
-    from recorder import JointSample, load_actions
+    from recorder import JointSample, load_actions, load_objects
     from recorder.writing._writer import RecordingInfo, RecordingWriter
 
+    class FakeArm:
+        joint_names = tuple(f"joint_{i}" for i in range(6))
+
+        def describe(self):
+            return {"kind": "fake"}
+
     action = load_actions()["C1"]
-    info = RecordingInfo("wood", "Wood", False, action, 1, {"kind": "fake"}, 0)
+    info = RecordingInfo.create(load_objects()["wood"], action, 1, FakeArm(), 0)
     kill_at = int(sys.argv[2])
     with RecordingWriter(Path(sys.argv[1]), info) as writer:
         for i in range(10_000):

@@ -41,7 +41,7 @@ from schemas import build_typestore
 MEMORY_LIMIT = 64 * 2**20
 STORE = build_typestore()
 NS = 1_000_000_000
-_JOINTS = "/ur10/joint_states"
+_JOINTS = "/robot/joint_states"
 _FORCE = "/skin/force"
 _EVENTS = "/action/events"
 
@@ -342,13 +342,13 @@ ROWS: dict[str, Row] = {
     ),
     "newer schema version": Row(
         _rewritten(metadata_changes={"schema_version": "99"}),
-        "schema version 99, newer",
+        "schema version 99 is newer",
         "pip install -U atikt",
     ),
     "unknown schema version": Row(
         _rewritten(metadata_changes={"schema_version": "0"}),
         "schema version 0 is not supported",
-        "record it again",
+        "read it with the release that wrote it",
     ),
     "messages of another schema version": Row(
         _rewritten(edit=_every(_FORCE, _set("schema_version", 2))),
@@ -363,21 +363,22 @@ ROWS: dict[str, Row] = {
     "unknown message type": Row(
         _rewritten(schemas={_FORCE: ("tactile_msgs/msg/SkinWrench", b"float32[] data")}),
         "carries tactile_msgs/msg/SkinWrench",
-        "give one written by atikt-record",
+        "convert it with atikt-record import-bag",
     ),
-    "missing required channel": Row(
-        _rewritten(drop_channel="/skin/proximity"),
-        r"/skin/proximity \(tactile_msgs/msg/SkinProximity\) is missing",
-        "record the action again",
+    "missing needed modality": Row(
+        _rewritten(drop_channel="/skin/acceleration"),
+        r"a 'slide' action \(S2\) needs the skin modality acceleration, the recording has "
+        "force, temperature, proximity",
+        "record it with a skin that has it",
     ),
-    "empty required channel": Row(
-        _rewritten(edit=lambda entries: [e for e in entries if e.topic != "/skin/temperature"]),
-        "/skin/temperature .* is empty",
+    "empty events channel": Row(
+        _rewritten(edit=lambda entries: [e for e in entries if e.topic != _EVENTS]),
+        r"the action events channel /action/events .* is missing or empty",
         "record the action again",
     ),
     "duplicated message": Row(
         _rewritten(edit=_duplicate(_JOINTS, 10)),
-        r"/ur10/joint_states: sample 11 .* repeats",
+        r"/robot/joint_states: sample 11 .* repeats",
         "record the action again",
     ),
     "duplicated skin block": Row(
@@ -407,15 +408,28 @@ ROWS: dict[str, Row] = {
                 "action_parameters": json.dumps({"duration_s": math.nan, "force_n": 0.1})
             }
         ),
-        "action parameter duration_s = nan",
-        "record the action again",
+        "action parameter duration_s=nan is not a finite number",
+        "record it again",
+    ),
+    "recording cut during execute": Row(
+        _rewritten(edit=_cut_during_execute),
+        "the recording lacks the phases retract, end",
+        "--recover",
     ),
     "action shorter than its parameters": Row(
-        _rewritten(edit=_cut_during_execute), "the action was cut short", "record it again"
+        _rewritten(
+            metadata_changes={
+                "action_parameters": json.dumps(
+                    {"duration_s": 9.0, "force_n": 0.1, "speed_m_s": 0.05}
+                )
+            }
+        ),
+        "the action was cut short",
+        "record it again",
     ),
     "phases out of order": Row(
         _rewritten(edit=_on(_EVENTS, 1, _phase("retract"))),
-        "are not the phases approach, contact, execute, retract, end",
+        "are not phases of approach, contact, execute, retract, end",
         "record the action again",
     ),
     "events about another object": Row(
@@ -426,11 +440,11 @@ ROWS: dict[str, Row] = {
     "missing metadata record entry": Row(
         _rewritten(metadata={"object_id": "sponge"}),
         "metadata record lacks",
-        "record it again with atikt-record",
+        "record it again",
     ),
     "malformed metadata": Row(
         _rewritten(metadata_changes={"trial": "third"}),
-        "malformed metadata record",
+        "trial 'third' is not an integer",
         "record it again",
     ),
     "metadata contradicts the path": Row(

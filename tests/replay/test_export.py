@@ -11,7 +11,7 @@ import pytest
 
 from replay import MODALITIES, ReplayError, read_recording
 from replay.cli._main import main
-from replay.outputs._export import CHANNEL_COLUMNS, TABLES, export, phase_labels
+from replay.outputs._export import TABLES, export, phase_labels, value_columns
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -38,8 +38,10 @@ def test_long_tables_hold_every_value(fake_recording: Path, tmp_path: Path) -> N
         table = table.sort("stamp_ns", "cell", maintain_order=True)
         assert table["stamp_ns"].to_list() == np.repeat(series.stamps_ns, cells).tolist()
         assert table["cell"].to_list() == np.tile(series.cell_ids, n).tolist()
-        values = table.select(CHANNEL_COLUMNS[modality]).to_numpy()
+        values = table.select(value_columns(modality, series.data.shape[2])).to_numpy()
         np.testing.assert_array_equal(values, series.data.reshape(n * cells, -1))
+    assert recording.joints is not None
+    assert recording.tcp is not None
     joints = pl.read_parquet(tmp_path / "out" / "joint_states.parquet")
     np.testing.assert_array_equal(
         joints.select(f"effort_{name}" for name in recording.joints.names).to_numpy(),
@@ -72,11 +74,12 @@ def test_wide_layout_has_a_column_per_cell_and_channel(
     recording = read_recording(fake_recording)
     export([fake_recording], tmp_path / "out", layout="wide")
     force = pl.read_parquet(tmp_path / "out" / "force.parquet")
-    assert force.height == recording.force.stamps_ns.size
-    for c, cell in enumerate(recording.force.cell_ids):
-        for k, channel in enumerate(CHANNEL_COLUMNS["force"]):
+    series = recording.skin("force")
+    assert force.height == series.stamps_ns.size
+    for c, cell in enumerate(series.cell_ids):
+        for k, channel in enumerate(value_columns("force", series.data.shape[2])):
             column = force[f"c{cell}_{channel}"].to_numpy()
-            np.testing.assert_array_equal(column, recording.force.data[:, c, k])
+            np.testing.assert_array_equal(column, series.data[:, c, k])
 
 
 def test_csv_equals_parquet_over_a_dataset(

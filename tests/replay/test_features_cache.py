@@ -7,7 +7,13 @@ import pytest
 from conftest import ACTIONS, NEW, OLD, TRIALS
 
 from replay.errors import ReplayError
-from replay.learning._features import FEATURES_NAME, as_raw, build_features, file_features
+from replay.learning._features import (
+    FEATURES_NAME,
+    as_raw,
+    build_features,
+    file_features,
+    select_blocks,
+)
 
 
 @pytest.fixture
@@ -18,16 +24,25 @@ def dataset(small_dataset: Path, tmp_path: Path) -> Path:
     return copy
 
 
-def test_cache_has_one_row_per_recording_with_the_kind_s_modalities(dataset: Path) -> None:
+def test_cache_has_one_row_per_recording_with_every_block_its_sensors_give(
+    dataset: Path,
+) -> None:
     table = build_features(dataset)
     assert table.frame.height == len(OLD + NEW) * len(ACTIONS) * TRIALS
     assert table.extracted == table.frame.height
     assert table.quarantined.height == 0
-    press = table.frame.filter(pl.col("action_kind") == "press")
-    slide = table.frame.filter(pl.col("action_kind") == "slide")
-    assert press["texture"].null_count() == press.height
-    assert slide["force"].null_count() == slide.height
+    for block in ("force", "texture", "thermal"):  # the simulated skin has every sensor
+        assert table.frame[block].null_count() == 0
     assert (dataset / FEATURES_NAME).exists()
+    # the learner sees the thesis's blocks per kind, or every block with the "all" policy
+    press = table.frame.filter(pl.col("action_kind") == "press").row(0, named=True)
+    slide = table.frame.filter(pl.col("action_kind") == "slide").row(0, named=True)
+    assert as_raw(press).modalities == ("force", "thermal")
+    assert as_raw(slide).modalities == ("texture", "thermal")
+    every = ("force", "texture", "thermal")
+    assert set(select_blocks("slide", every, "all")) == set(every)
+    with pytest.raises(ReplayError, match="feature policy 'some'"):
+        select_blocks("slide", ("force",), "some")
 
 
 def test_cached_features_equal_the_file_path(dataset: Path) -> None:
@@ -35,7 +50,7 @@ def test_cached_features_equal_the_file_path(dataset: Path) -> None:
     row = table.frame.row(0, named=True)
     direct = file_features(dataset / row["path"])
     cached = as_raw(row)
-    np.testing.assert_array_equal(direct.thermal, cached.thermal)
+    np.testing.assert_array_equal(direct.modality("thermal"), cached.modality("thermal"))
     assert direct.kind == cached.kind
 
 

@@ -37,11 +37,13 @@ def _compare(recording: ActionRecording, decoded: list[tuple[str, Any]]) -> None
         firsts = [_stamp(m) for m in by_topic[topic]]
         starts = np.cumsum([0] + [len(b) for b in blocks[:-1]])
         np.testing.assert_array_equal(series.stamps_ns[starts], firsts)
-    joints = by_topic["/ur10/joint_states"]
+    assert recording.joints is not None
+    assert recording.tcp is not None
+    joints = by_topic["/robot/joint_states"]
     np.testing.assert_array_equal([m.position for m in joints], recording.joints.position)
     np.testing.assert_array_equal([m.effort for m in joints], recording.joints.effort)
     assert tuple(joints[0].name) == recording.joints.names
-    poses = by_topic["/ur10/tcp_pose"]
+    poses = by_topic["/robot/tcp_pose"]
     np.testing.assert_array_equal(
         [[p.pose.orientation.x, p.pose.orientation.w] for p in poses],
         recording.tcp.orientation[:, [0, 3]],

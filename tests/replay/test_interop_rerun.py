@@ -54,13 +54,15 @@ def _stamp(header: dict[str, Any]) -> int:
 
 def _check_rerun(entities: Entities, recording: ActionRecording) -> None:
     """Compare what rerun's MCAP loader decoded with our reader's arrays."""
-    joints = entities.temporal["/ur10/joint_states/position"]
+    assert recording.joints is not None
+    assert recording.tcp is not None
+    joints = entities.temporal["/robot/joint_states/position"]
     np.testing.assert_array_equal(
         np.array(joints["Scalars:scalars"].to_list()), recording.joints.position
     )
     assert nanoseconds(joints["message_publish_time"]) == recording.joints.stamps_ns.tolist()
     assert tuple(joints["SeriesLines:names"][0]) == recording.joints.names
-    tcp = entities.temporal["/ur10/tcp_pose"]
+    tcp = entities.temporal["/robot/tcp_pose"]
     translations = np.array([row[0] for row in tcp["InstancePoses3D:translations"].to_list()])
     quaternions = np.array([row[0] for row in tcp["InstancePoses3D:quaternions"].to_list()])
     np.testing.assert_array_equal(translations, recording.tcp.position.astype(np.float32))
@@ -113,7 +115,8 @@ def _check_messages(decoded: list[tuple[str, Any]], recording: ActionRecording) 
     for modality in MODALITIES:
         messages = [_as_dict(m) for m in by_topic[f"/skin/{modality}"]]
         np.testing.assert_array_equal(_blocks(messages), recording.skin(modality).data)
-    positions = np.array([m.position for m in by_topic["/ur10/joint_states"]])
+    assert recording.joints is not None
+    positions = np.array([m.position for m in by_topic["/robot/joint_states"]])
     np.testing.assert_array_equal(positions, recording.joints.position)
     events = [_as_dict(m) for m in by_topic["/action/events"]]
     assert [(m["phase"], _stamp(m["header"])) for m in events] == list(recording.phases)

@@ -50,13 +50,18 @@ def _rewrite(
     return target
 
 
+#: Two recordings of schema 1 (atikt 0.1), kept to show they stay readable.
+SCHEMA_1 = Path(__file__).resolve().parents[1] / "data" / "schema1"
+
+
 def test_recording_is_typed_and_immutable(fake_recording: Path) -> None:
     recording = read_recording(fake_recording)
     assert isinstance(recording, ActionRecording)
     assert recording.metadata.object_id == "sponge"
     assert recording.metadata.action_id == "S2"
     assert recording.metadata.trial == 3
-    assert recording.metadata.object_novel is True
+    assert recording.metadata.source == "recorder"
+    assert recording.modalities == MODALITIES  # the fake rig streams every modality
     assert recording.metadata.action_parameters["speed_m_s"] == 0.05
     assert recording.metadata.schema_version == SCHEMA_VERSION
     for modality in MODALITIES:
@@ -68,17 +73,21 @@ def test_recording_is_typed_and_immutable(fake_recording: Path) -> None:
         assert not series.data.flags.writeable
         assert not series.stamps_ns.flags.writeable
         assert bool(np.all(np.diff(series.stamps_ns) > 0))
-    assert recording.force.data.shape[2] == recording.acceleration.data.shape[2] == 3
-    assert recording.temperature.data.shape[2] == recording.proximity.data.shape[2] == 1
+    widths = {m: s.data.shape[2] for m, s in recording.signals.items()}
+    assert widths == {"force": 3, "temperature": 1, "acceleration": 3, "proximity": 1}
+    assert recording.joints is not None
+    assert recording.tcp is not None
     assert recording.joints.position.shape == (recording.joints.stamps_ns.size, 6)
-    assert recording.joints.names[0] == "shoulder_pan_joint"
+    assert recording.joints.names[0] == "joint_0"
     assert recording.tcp.orientation.shape == (recording.tcp.stamps_ns.size, 4)
     for array in (recording.joints.velocity, recording.tcp.position):
         assert not array.flags.writeable
         with pytest.raises(ValueError, match="read-only"):
             array[0] = 1.0
     with pytest.raises(dataclasses.FrozenInstanceError):
-        recording.force = recording.force  # type: ignore[misc]
+        recording.signals = recording.signals  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        recording.signals["force"] = recording.skin("force")  # type: ignore[index]
     with pytest.raises(TypeError):
         recording.metadata.rig["kind"] = "other"  # type: ignore[index]
 
@@ -88,7 +97,7 @@ def test_phase_ranges_are_half_open_and_tile_the_recording(fake_recording: Path)
     ranges = [recording.phase_range(mark.phase) for mark in recording.phases]
     assert all(stop == start for (_, stop), (start, _) in itertools.pairwise(ranges))
     start, stop = recording.phase_range("execute")
-    force = recording.force
+    force = recording.skin("force")
     inside = recording.during("execute", "force")
     assert inside.stamps_ns[0] >= start
     assert inside.stamps_ns[-1] < stop
@@ -101,7 +110,7 @@ def test_phase_ranges_are_half_open_and_tile_the_recording(fake_recording: Path)
     assert force.between(5, 5).data.shape == (0, 7, 3)
     with pytest.raises(RecordingError, match=r"no phase 'squeeze'.*approach, contact"):
         recording.phase_range("squeeze")
-    with pytest.raises(RecordingError, match="unknown modality"):
+    with pytest.raises(RecordingError, match=r"has no 'smell' channel"):
         recording.skin("smell")
 
 
@@ -165,10 +174,12 @@ def test_wrong_profile_is_rejected(fake_recording: Path, tmp_path: Path) -> None
 def test_newer_schema_version_asks_for_an_upgrade(fake_recording: Path, tmp_path: Path) -> None:
     meta = dict(read_summary(fake_recording).metadata[METADATA_NAME])
     newer = _rewrite(fake_recording, tmp_path / "n.mcap", metadata=meta | {"schema_version": "99"})
-    with pytest.raises(RecordingError, match=r"schema version 99, newer.*pip install -U atikt"):
+    with pytest.raises(RecordingError, match=r"schema version 99 is newer.*pip install -U atikt"):
         read_recording(newer)
     older = _rewrite(fake_recording, tmp_path / "o.mcap", metadata=meta | {"schema_version": "0"})
-    with pytest.raises(RecordingError, match=r"schema version 0 is not supported.*no migration"):
+    with pytest.raises(
+        RecordingError, match=r"schema version 0 is not supported.*the release that wrote it"
+    ):
         read_recording(older)
 
 
@@ -180,14 +191,33 @@ def test_missing_or_malformed_metadata_is_rejected(fake_recording: Path, tmp_pat
         read_recording(bad)
     meta["trial"] = "third"
     bad = _rewrite(fake_recording, tmp_path / "t.mcap", metadata=meta)
-    with pytest.raises(RecordingError, match="malformed metadata record"):
+    with pytest.raises(RecordingError, match=r"trial '.*' is not an integer"):
         read_recording(bad)
 
 
-def test_missing_channel_is_named(fake_recording: Path, tmp_path: Path) -> None:
-    bad = _rewrite(fake_recording, tmp_path / "c.mcap", drop_topic="/skin/proximity")
-    with pytest.raises(RecordingError, match=r"/skin/proximity \(tactile_msgs/msg/SkinProximity\)"):
+def test_optional_channels_may_be_absent_and_needed_ones_are_named(
+    fake_recording: Path, tmp_path: Path
+) -> None:
+    partial = _rewrite(fake_recording, tmp_path / "c.mcap", drop_topic="/skin/proximity")
+    assert read_recording(partial).modalities == ("force", "temperature", "acceleration")
+    armless = _rewrite(partial, tmp_path / "a.mcap", drop_topic="/robot/joint_states")
+    armless = _rewrite(armless, tmp_path / "b.mcap", drop_topic="/robot/tcp_pose")
+    recording = read_recording(armless)
+    assert recording.joints is None
+    assert recording.tcp is None
+    bad = _rewrite(fake_recording, tmp_path / "d.mcap", drop_topic="/skin/acceleration")
+    with pytest.raises(RecordingError, match=r"'slide' action \(S2\) needs .* acceleration"):
         read_recording(bad)
+
+
+def test_schema_1_recordings_stay_readable() -> None:
+    for path in sorted(SCHEMA_1.glob("*.mcap")):
+        recording = read_recording(path)
+        assert recording.metadata.schema_version == 1
+        assert recording.modalities == MODALITIES
+        assert recording.joints is not None
+        assert recording.joints.names[0] == "shoulder_pan_joint"
+        assert [p.phase for p in recording.phases][-1] == "end"
 
 
 def test_channel_with_the_wrong_type_is_rejected(fake_recording: Path, tmp_path: Path) -> None:

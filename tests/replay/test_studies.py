@@ -17,7 +17,17 @@ def features(small_dataset: Path) -> pl.DataFrame:
 
 
 def _config(out: Path, **changes: object) -> StudyConfig:
-    base = StudyConfig(out=out, groups=1, trials=1, budget=4, fusion_groups=1, fusion_repetitions=1)
+    base = StudyConfig(
+        out=out,
+        groups=1,
+        trials=1,
+        budget=4,
+        fusion_groups=1,
+        fusion_repetitions=1,
+        new=NEW,
+        old=OLD,
+        actions=ACTIONS,
+    )
     return replace(base, **changes)  # type: ignore[arg-type]
 
 

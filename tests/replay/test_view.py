@@ -16,7 +16,7 @@ from replay import MODALITIES, read_recording
 from replay.cli._main import main
 from replay.learning._run_history import load_run
 from replay.outputs._run_figures import plot_run
-from replay.outputs._view import CHANNEL_NAMES, log_recordings, new_stream
+from replay.outputs._view import log_recordings, new_stream, series_names
 
 RECORDINGS = Path(__file__).parents[2] / "recordings" / "data"
 NEW = ("aluminium_plate", "foam_block", "pine_board")
@@ -45,7 +45,9 @@ def test_every_skin_sample_is_a_scalar_on_the_recordings_clock(
             assert nanoseconds(frame["log_time"]) == series.stamps_ns.tolist()
             values = np.array(frame["Scalars:scalars"].to_list())
             np.testing.assert_array_equal(values, series.data[:, column, :])
-            assert view.static[entity]["SeriesLines:names"] == list(CHANNEL_NAMES[modality])
+            assert view.static[entity]["SeriesLines:names"] == list(
+                series_names(modality, series.data.shape[2])
+            )
     # the recording's own clock only: no wall-clock log_time/log_tick from rerun
     assert {name for names in view.timelines.values() for name in names} == {"log_time"}
 
@@ -53,6 +55,8 @@ def test_every_skin_sample_is_a_scalar_on_the_recordings_clock(
 def test_robot_state_and_phases(fake_recording: Path, fake_view: Path) -> None:
     recording = read_recording(fake_recording)
     view = read_rrd(fake_view)
+    assert recording.joints is not None
+    assert recording.tcp is not None
     for quantity in ("position", "velocity", "effort"):
         frame = view.temporal[f"/{KEY}/robot/joints/{quantity}"]
         assert nanoseconds(frame["log_time"]) == recording.joints.stamps_ns.tolist()
@@ -77,7 +81,8 @@ def test_object_and_action_are_properties(fake_recording: Path, fake_view: Path)
     meta = read_recording(fake_recording).metadata
     view = read_rrd(fake_view)
     obj, action = view.static["/__properties/object"], view.static["/__properties/action"]
-    assert (obj["id"], obj["name"], obj["novel"]) == ([meta.object_id], [meta.object_name], [True])
+    assert (obj["id"], obj["name"]) == ([meta.object_id], [meta.object_name])
+    assert obj["description"] == [meta.object_description]
     assert (action["id"], action["kind"], action["trial"]) == (["S2"], ["slide"], [3])
     assert action["speed_m_s"] == [meta.action_parameters["speed_m_s"]]
     assert view.static["/__properties/recording"]["key"] == [KEY]
@@ -102,7 +107,7 @@ def test_bulk_data_goes_through_the_columnar_api(
     stream.save(tmp_path / "spied.rrd")
     log_recordings(stream, [recording])
     stream.disconnect()
-    cells = recording.force.data.shape[1]
+    cells = recording.skin("force").data.shape[1]
     assert len(calls["send_columns"]) == len(MODALITIES) * cells + 3 + 1 + 1
     assert all(kw.get("static") for kw in calls["log"])  # only names, axes, path: static
     samples = sum(recording.skin(m).stamps_ns.size for m in MODALITIES)
