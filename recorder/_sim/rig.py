@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
 F64 = NDArray[np.float64]
 
-SIMULATOR_VERSION: Final = "1"
+SIMULATOR_VERSION: Final = "2"
 """Version of the physical model; recordings from different versions differ."""
 ROBOT_DECIMATION: Final = 8
 """RTDE publishes every 8 ms (125 Hz)."""
@@ -58,10 +58,16 @@ ORIENTATION_SPREAD_DEG: Final = 10.0
 """Objects are placed by hand: their yaw varies uniformly within +- this."""
 FRICTION_SPREAD: Final = 0.08
 """Relative spread of friction between executions (humidity, dust, wear of the cover)."""
-CONDUCTANCE_SPREAD: Final = 0.1
+CONDUCTANCE_SPREAD: Final = 0.03
 """Relative spread of the thermal contact conductance between executions."""
-SKIN_DEFICIT_C: Final = 0.2
-"""The skin starts up to this far below its set point, still recovering from the last touch."""
+CONDUCTANCE_MEDIAN: Final = 0.985
+"""Median factor on the contact conductance."""
+RESIDUAL_HEAT_C: Final = 0.1
+"""Mean deficit of the skin below its set point when an action starts, C."""
+RESIDUAL_HEAT_SHAPE: Final = 1.5
+"""Shape of the gamma distribution of that deficit (smaller: more spread)."""
+RECOVERY_SPREAD_C_S: Final = 0.025
+"""Spread of the rate at which the skin is still recovering when an action starts, C/s."""
 WORKSPACE_XY_M: Final = (-0.70, -0.20)
 """Where objects lie on the table, in the robot's base frame."""
 Q_REFERENCE: Final = np.array([0.05, -1.27, 2.04, -2.34, -np.pi / 2, 0.05])
@@ -99,6 +105,7 @@ class Conditions:
         height_error: How much higher the top face is than the robot believes, m.
         force_error: Relative error of the sliding force controller.
         force_gain: Gain of each force sensor during this execution, shape (7, 3).
+        temp_offset: Offset of each temperature sensor during this execution, shape (7,), C.
         slide: Ridge angle and phases of the slide.
     """
 
@@ -112,6 +119,7 @@ class Conditions:
     height_error: float
     force_error: float
     force_gain: F64
+    temp_offset: F64
     slide: SlideConditions
 
     @classmethod
@@ -121,8 +129,21 @@ class Conditions:
         config: SimConfig,
         hardware: skin.SkinHardware,
         rng: np.random.Generator,
+        trial: int = 0,
     ) -> Conditions:
-        """Draw the conditions of one execution."""
+        """Draw the conditions of one execution.
+
+        Args:
+            obj: The object as the catalog describes it.
+            config: The session's settings.
+            hardware: The skin patch.
+            rng: Random generator of this execution.
+            trial: The trial, which is the round of the session: the skin has aged that long.
+
+        Returns:
+            The conditions.
+        """
+        temp_offset, aged_gain = hardware.aged(trial)
         yaw = float(np.deg2rad(ORIENTATION_SPREAD_DEG) * rng.uniform(-1.0, 1.0))
         spread = rng.standard_normal(5)
         friction = float(np.exp(FRICTION_SPREAD * spread[3]))
@@ -137,8 +158,9 @@ class Conditions:
         )
         skin_state = thermal.SkinState(
             set_point_c=config.skin_c,
-            deficit_c=SKIN_DEFICIT_C * float(rng.uniform()),
-            conductance=float(np.exp(CONDUCTANCE_SPREAD * spread[4])),
+            deficit_c=RESIDUAL_HEAT_C * float(rng.gamma(RESIDUAL_HEAT_SHAPE)) / RESIDUAL_HEAT_SHAPE,
+            conductance=CONDUCTANCE_MEDIAN * float(np.exp(CONDUCTANCE_SPREAD * spread[4])),
+            recovery_c_s=RECOVERY_SPREAD_C_S * float(rng.standard_normal()),
         )
         return cls(
             obj=spot,
@@ -150,8 +172,8 @@ class Conditions:
             irregularity=obj.flatness_m * rng.standard_normal(skin.N_CELLS),
             height_error=config.height_spread_m * float(rng.uniform(-1.0, 1.0)),
             force_error=config.force_control_error * float(rng.standard_normal()),
-            force_gain=hardware.force_gain
-            * (1.0 + skin.FORCE_GAIN_DRIFT * float(rng.standard_normal())),
+            force_gain=aged_gain * (1.0 + skin.FORCE_GAIN_DRIFT * float(rng.standard_normal())),
+            temp_offset=temp_offset,
             slide=SlideConditions(
                 ridge_angle=float(np.deg2rad(obj.grain_angle_deg)) + yaw,
                 phases=rng.uniform(0.0, 2.0 * np.pi, 3),
@@ -275,7 +297,7 @@ class SimulatedRig:
             [self._seed, stable_hash(obj.id), stable_hash(action.id), trial]
         )
         rngs = [np.random.default_rng(child) for child in sequence.spawn(7)]
-        conditions = Conditions.draw(obj, self._config, self._hardware, rngs[0])
+        conditions = Conditions.draw(obj, self._config, self._hardware, rngs[0], trial)
         signals = self._simulate(action, conditions, rngs[1])
         items: list[StreamItem] = [
             *_phase_events(signals.plan),
@@ -381,7 +403,7 @@ class SimulatedRig:
         gain = conditions.force_gain
         force = skin.measure_force(signals.force, t[:: motion.FORCE_DECIMATION], gain, rngs[0])
         temperature = skin.measure_temperature(
-            signals.temperature, t[::TEMPERATURE_DECIMATION], hw, rngs[1]
+            signals.temperature, t[::TEMPERATURE_DECIMATION], conditions.temp_offset, rngs[1]
         )
         acceleration = skin.measure_acceleration(signals.specific_force, hw, rngs[2])
         proximity = skin.measure_proximity(signals.distance[::20], obj.reflectance, hw, rngs[3])

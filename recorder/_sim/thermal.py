@@ -42,6 +42,9 @@ HALF_CONDUCTANCE_FORCE_N: Final = 0.03
 """Cell force at which the contact conducts half as well as under firm pressure."""
 CONTACT_FORCE_N: Final = 1e-3
 """Cell force above which a cell counts as touching."""
+RECOVERY_S: Final = SENSOR_LAG_S
+"""Time constant of the skin's recovery from residual heat: that of its slow sensor and heater
+node."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,11 +56,15 @@ class SkinState:
         deficit_c: How far below the set point the skin still is (it has not fully
             recovered from the previous touch), C.
         conductance: Factor on the contact conductance (surface condition: dust, moisture).
+        recovery_c_s: Rate at which the skin's temperature is still changing when the action
+            starts (residual heat of earlier touches: > 0 still rising back, < 0 falling after
+            the heater overshot), C/s; the change decays with ``RECOVERY_S``.
     """
 
     set_point_c: float
     deficit_c: float = 0.0
     conductance: float = 1.0
+    recovery_c_s: float = 0.0
 
 
 def effusivity_over_time(obj: ObjectSpec, since_contact_s: F64) -> F64:
@@ -128,4 +135,9 @@ def sensor_temperature(
     surface = skin_c - conductance * (skin_c - interface)
     start = skin_c - skin.deficit_c
     cover = _lag(surface, COVER_LAG_S, dt_s, start)
-    return _lag(cover, SENSOR_LAG_S, dt_s, start)
+    sensor = _lag(cover, SENSOR_LAG_S, dt_s, start)
+    if skin.recovery_c_s != 0.0:
+        elapsed = np.arange(n) * dt_s
+        recovery = skin.recovery_c_s * RECOVERY_S * -np.expm1(-elapsed / RECOVERY_S)
+        sensor += recovery[:, None]
+    return sensor
