@@ -64,7 +64,7 @@ CONDUCTANCE_MEDIAN: Final = 0.985
 """Median factor on the contact conductance."""
 RESIDUAL_HEAT_C: Final = 0.1
 """Mean deficit of the skin below its set point when an action starts, C."""
-RESIDUAL_HEAT_SHAPE: Final = 1.5
+RESIDUAL_HEAT_SHAPE: Final = 3.0
 """Shape of the gamma distribution of that deficit (smaller: more spread)."""
 RECOVERY_SPREAD_C_S: Final = 0.025
 """Spread of the rate at which the skin is still recovering when an action starts, C/s."""
