@@ -47,6 +47,10 @@ TEMP_OFFSET_C: Final = 0.4
 TEMP_NOISE_C: Final = 0.012
 TEMP_DRIFT_C_S: Final = 0.002
 """Spread of a temperature sensor's drift rate during one execution."""
+TEMP_AGEING_C: Final = 0.003
+"""Spread of a temperature sensor's offset change per trial (round) of a session, C: the
+heated thermistor of the real probe data (shared/data/thermal-ambiguity-toh) reads 0.0020 to
+0.0032 C higher per run before contact over its 30 runs (CALIBRATION.md)."""
 
 FORCE_LSB_N: Final = 0.001
 """Resolution of the force channel after the driver's calibration."""
@@ -59,6 +63,10 @@ FORCE_OFFSET_N: Final = 0.002
 """Spread of the residual offsets left after the driver tares the sensors."""
 FORCE_DRIFT_N_S: Final = 0.0005
 """Spread of a force sensor's drift rate during one execution."""
+FORCE_AGEING: Final = 0.0015
+"""Spread of a force sensor's relative gain change per trial (round) of a session: over the 20
+rounds of a dataset the gains age by up to 3 % (1 sd), the sensors' 0.05 N accuracy at 1.5 N
+(CALIBRATION.md)."""
 
 PROXIMITY_RANGE_M: Final = 0.2
 PROXIMITY_FULL_SCALE: Final = 65535
@@ -92,6 +100,8 @@ class SkinHardware:
         temp_offset: Offset of each temperature sensor, shape (7,), C.
         acc_bias: Zero-g offset of each accelerometer axis, shape (7, 3), m/s^2.
         proximity_gain: Gain of each proximity sensor, shape (7,).
+        temp_ageing: Change of each temperature sensor's offset per trial, shape (7,), C.
+        force_ageing: Relative change of each force sensor's gain per trial, shape (7, 3).
     """
 
     cell_angle: F64
@@ -99,6 +109,8 @@ class SkinHardware:
     temp_offset: F64
     acc_bias: F64
     proximity_gain: F64
+    temp_ageing: F64
+    force_ageing: F64
 
     @classmethod
     def draw(cls, rng: np.random.Generator) -> SkinHardware:
@@ -111,7 +123,21 @@ class SkinHardware:
             ),
             acc_bias=ACC_BIAS_M_S2 * rng.standard_normal((N_CELLS, 3)),
             proximity_gain=1.0 + 0.05 * rng.standard_normal(N_CELLS),
+            temp_ageing=TEMP_AGEING_C * rng.standard_normal(N_CELLS),
+            force_ageing=FORCE_AGEING * rng.standard_normal((N_CELLS, FORCE_SENSORS)),
         )
+
+    def aged(self, trial: int) -> tuple[F64, F64]:
+        """Return the temperature offsets (7,) and force gains (7, 3) at trial ``trial``.
+
+        The skin ages through a session: trial ``k`` is recorded in the ``k``-th round, after
+        ``k`` rounds of drift from the calibration at trial 0. The drift is linear in the
+        round and fixed by the rig's seed, so an execution still depends only on
+        (seed, object, action, trial).
+        """
+        offset: F64 = self.temp_offset + self.temp_ageing * trial
+        gain: F64 = self.force_gain * (1.0 + self.force_ageing * trial)
+        return offset, gain
 
     def force_sensor_positions(self) -> F64:
         """Return the force sensors' positions in the patch frame, shape (7, 3, 2), m."""
@@ -152,14 +178,14 @@ def measure_force(force: F64, times_s: F64, gain: F64, rng: np.random.Generator)
 
 
 def measure_temperature(
-    temperature: F64, times_s: F64, hardware: SkinHardware, rng: np.random.Generator
+    temperature: F64, times_s: F64, offset: F64, rng: np.random.Generator
 ) -> F64:
     """Turn true sensor temperatures into LM71 readings.
 
     Args:
         temperature: True temperatures of the sensors, shape (n, 7), C.
         times_s: Sample times, shape (n,), s.
-        hardware: The patch.
+        offset: Offset of each sensor during this execution (aged), shape (7,), C.
         rng: Random generator of this execution.
 
     Returns:
@@ -167,7 +193,7 @@ def measure_temperature(
     """
     rate = TEMP_DRIFT_C_S * rng.standard_normal(N_CELLS)
     noise = TEMP_NOISE_C * rng.standard_normal(temperature.shape)
-    reading = temperature + hardware.temp_offset + drift(times_s, rate) + noise
+    reading = temperature + offset + drift(times_s, rate) + noise
     return quantize(reading, TEMP_LSB_C)
 
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python tests/bench/bench_sim.py [--repeats 5] [--separability]
+    python tests/bench/bench_sim.py [--repeats 5] [--separability] [--spread 60] [--seed 0]
 
 For every action it simulates each catalog object ``repeats`` times (different trials) and
 prints the median wall time of one execution, the simulated duration and their ratio (how many
@@ -14,6 +14,11 @@ at least 300x real time, so that simulation plus MCAP writing stays above 50x.
 (20 trials per object and action), an RBF SVC and a 3-NN classifier trained on 10 trials and
 tested on the other 10 per object; it prints the 15-class accuracy per action and with all
 actions stacked.
+
+``--spread N`` prints the trial-to-trial spread of static contact (C1) over N trials beside
+the real heated-probe data (shared/data/thermal-ambiguity-toh, 90 trials per material): the
+drop of the cell-averaged temperature 5 s after the total force exceeds 1 N, the temperature
+at that instant, and the force 5 s later (recorder/_sim/CALIBRATION.md).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from recorder import (
     Modality,
     Phase,
     PhaseEvent,
+    SimConfig,
     SimulatedRig,
     SkinBlock,
     load_actions,
@@ -143,12 +149,72 @@ def _accuracy(
     return float((model.predict(split[1]) == labels[~train]).mean())
 
 
+REAL_DROPS = {"wood": (0.48, 0.10), "aluminium": (2.40, 0.16), "cold wood": (2.64, 0.18)}
+"""Real 5 s drops, mean and sd over 90 trials each (thermal-ambiguity-toh README), C."""
+REAL_START_SD_C = 0.08
+"""Real sd of the heated sensor's temperature when the force exceeds 1 N, C."""
+REAL_FORCE_N = (4.49, 0.45)
+"""Real force 5 s after the onset, mean and sd, N."""
+
+
+def _series(items: list[StreamItem], modality: Modality) -> tuple[np.ndarray, np.ndarray]:
+    """Return one modality's sample times (ns) and samples over the whole execution."""
+    blocks = [item for item in items if isinstance(item, SkinBlock) and item.modality is modality]
+    data = np.concatenate([block.data for block in blocks]).astype(np.float64)
+    times = np.concatenate([b.stamp_ns + b.period_ns * np.arange(b.data.shape[0]) for b in blocks])
+    return times, data
+
+
+def _static_contact(items: list[StreamItem]) -> tuple[float, float, float]:
+    """Return the 5 s drop from the 1 N onset, the temperature then and the force 5 s later."""
+    t_force, force = _series(items, Modality.FORCE)
+    total = force.sum(axis=(1, 2))
+    onset = t_force[np.argmax(total > 1.0)]
+    t_temp, temperature = _series(items, Modality.TEMPERATURE)
+    mean = temperature[..., 0].mean(axis=1)
+    start, later = np.searchsorted(t_temp, [onset, onset + 5e9])
+    held = total[np.searchsorted(t_force, onset + 5e9)]
+    return float(mean[start] - mean[later]), float(mean[start]), float(held)
+
+
+def bench_spread(trials: int, seed: int) -> None:
+    """Print the simulated spread of static contact beside the real probe's."""
+    objects, action = load_objects(), load_actions()["C1"]
+    cases = {
+        "wood": ("wood", SimConfig()),
+        "aluminium": ("aluminium_plate", SimConfig()),
+        "cold wood": ("wood", SimConfig(room_c=15.7)),  # the probe study's cooled wood
+    }
+    print(f"C1, {trials} trials, seed {seed}: 5 s drop from the 1 N onset (real: 90 trials)")
+    for name, (object_id, config) in cases.items():
+        with SimulatedRig(seed, config) as rig:
+            rows = np.array(
+                [
+                    _static_contact(list(rig.perform(objects[object_id], action, trial)))
+                    for trial in range(trials)
+                ]
+            )
+        drop, start, held = rows.T
+        mean, sd = REAL_DROPS[name]
+        print(
+            f"{name:10s} drop {drop.mean():.3f} +- {drop.std(ddof=1):.3f} C (real {mean:.2f} +- "
+            f"{sd:.2f}); start sd {start.std(ddof=1):.3f} C (real {REAL_START_SD_C:.2f}); "
+            f"force {held.mean():.2f} +- {held.std(ddof=1):.2f} N (real {REAL_FORCE_N[0]:.2f} "
+            f"+- {REAL_FORCE_N[1]:.2f})"
+        )
+
+
 def main() -> None:
     """Run the benchmark."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5, help="trials per object and action")
     parser.add_argument("--separability", action="store_true", help="also classify objects")
+    parser.add_argument("--spread", type=int, default=0, help="C1 trials of the spread table")
+    parser.add_argument("--seed", type=int, default=0, help="rig seed of the spread table")
     args = parser.parse_args()
+    if args.spread:
+        bench_spread(args.spread, args.seed)
+        return
     bench_speed(args.repeats)
     if args.separability:
         bench_separability()

@@ -129,7 +129,8 @@ def test_static_contact_reproduces_the_measured_thermal_drops() -> None:
 
 def test_thermal_drop_grows_with_effusivity() -> None:
     order = ["soft_sponge", "wood", "glass_plate", "aluminium_plate"]
-    drops = [_drop_after(name, 5.0, trials=2)[0] for name in order]
+    # 6 trials: one trial's drop varies by about 0.1 C (the real probe's spread on wood)
+    drops = [_drop_after(name, 5.0, trials=6)[0] for name in order]
     assert drops == sorted(drops)
     assert abs(drops[0]) < 0.1  # foam insulates
 
@@ -181,12 +182,14 @@ def _steady_slide(items: list[StreamItem]) -> np.ndarray:
 def test_vibration_frequency_is_speed_over_texture_period(
     action_id: str, expected_hz: float
 ) -> None:
-    acc = _steady_slide(_run(_grating(1e-3), ACTIONS[action_id], trial=0))
-    normal = acc[..., 2].mean(axis=1)
-    spectrum = np.abs(np.fft.rfft(normal - normal.mean(), n=4096))
-    frequency = np.fft.rfftfreq(4096, DT_S)
-    peak = frequency[np.argmax(spectrum * (frequency > 3.0))]
-    assert peak == pytest.approx(expected_hz, rel=0.1)  # cos(yaw) >= 0.98
+    peaks = []
+    for trial in range(3):  # one slide's strongest line may be the ridges' second harmonic
+        acc = _steady_slide(_run(_grating(1e-3), ACTIONS[action_id], trial=trial))
+        normal = acc[..., 2].mean(axis=1)
+        spectrum = np.abs(np.fft.rfft(normal - normal.mean(), n=4096))
+        frequency = np.fft.rfftfreq(4096, DT_S)
+        peaks.append(frequency[np.argmax(spectrum * (frequency > 3.0))])
+    assert np.median(peaks) == pytest.approx(expected_hz, rel=0.1)  # cos(yaw) >= 0.98
 
 
 def test_sliding_on_hard_materials_has_a_realistic_spectral_centroid() -> None:
