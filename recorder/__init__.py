@@ -1,17 +1,29 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
-from recorder._catalog import ActionKind, ActionSpec, ObjectSpec, load_actions, load_objects
+from recorder._catalog import (
+    ActionKind,
+    ActionSpec,
+    ObjectPhysics,
+    ObjectSpec,
+    load_actions,
+    load_objects,
+)
 from recorder._dataset import (
     RecordingTask,
+    declare_objects,
     generate_dataset,
     plan_dataset,
     recording_path,
-    register_rig,
-    rig_factory,
-    rig_names,
     write_index,
 )
 from recorder._rig import Rig
+from recorder._rigconfig import (
+    RigConfig,
+    load_rig_config,
+    register_rig,
+    rig_factory,
+    rig_names,
+)
 from recorder._sim import SimConfig, SimulatedRig
 from recorder.bagimport._importer import ImportReport, import_bag
 from recorder.bagimport._topicmap import TopicMap, load_topic_map
@@ -47,6 +59,7 @@ __all__ = [
     "ImportReport",
     "JointSample",
     "Modality",
+    "ObjectPhysics",
     "ObjectSpec",
     "OutputExistsError",
     "Phase",
@@ -57,6 +70,7 @@ __all__ = [
     "RecordingTask",
     "RecordingWriter",
     "Rig",
+    "RigConfig",
     "RigError",
     "SimConfig",
     "SimulatedRig",
@@ -64,10 +78,12 @@ __all__ = [
     "StreamItem",
     "TopicMap",
     "WrittenRecording",
+    "declare_objects",
     "generate_dataset",
     "import_bag",
     "load_actions",
     "load_objects",
+    "load_rig_config",
     "load_topic_map",
     "plan_dataset",
     "record_action",

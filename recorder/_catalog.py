@@ -114,19 +114,13 @@ PROPERTIES = ("stiffness", "texture", "thermal")
 
 
 @dataclass(frozen=True, slots=True)
-class ObjectSpec:
-    """One object of the catalog with the physical parameters the simulator needs.
+class ObjectPhysics:
+    """The physical parameters of an object, as the simulator needs them (not its identity).
 
     Lengths in m, forces in N, times in s, effusivity in W s^0.5 m^-2 K^-1. The defaults
     describe a rigid, smooth, wood-like block, so a user only states what differs.
 
     Attributes:
-        id: Catalog id, e.g. ``"wood"``.
-        name: Human-readable name.
-        description: One line for people.
-        novel: True for the "new" objects ATIKT learns, False for the "old" prior objects.
-        related_to: For a new object, the id of the old object it resembles ("" if none).
-        shared: The properties (stiffness, texture, thermal) it shares with ``related_to``.
         height_m: Height of the top face above the table.
         length_m: Extent of the top face along the object's x axis.
         width_m: Extent of the top face along the object's y axis.
@@ -157,12 +151,6 @@ class ObjectSpec:
             spot (sponges and box lids vary more than glass).
     """
 
-    id: str
-    name: str
-    description: str
-    novel: bool
-    related_to: str = ""
-    shared: tuple[str, ...] = ()
     height_m: float = 0.05
     length_m: float = 0.15
     width_m: float = 0.1
@@ -189,9 +177,32 @@ class ObjectSpec:
     variability: float = 0.1
 
 
+@dataclass(frozen=True, slots=True)
+class ObjectSpec:
+    """One object: its identity, its default role, and (for simulation) its physics.
+
+    Attributes:
+        id: Catalog id, e.g. ``"wood"``.
+        name: Human-readable name.
+        description: One line for people.
+        novel: The default role: True for a "new" object ATIKT learns, False for an "old"
+            (prior) one; runs choose roles with ``--new``/``--priors``.
+        related_to: For a new object, the id of the old object it resembles ("" if none).
+        shared: The properties (stiffness, texture, thermal) it shares with ``related_to``.
+        physics: Physical parameters for the simulator; None for an object that is only
+            touched by real rigs (the simulator refuses it in one line).
+    """
+
+    id: str
+    name: str
+    description: str = ""
+    novel: bool = False
+    related_to: str = ""
+    shared: tuple[str, ...] = ()
+    physics: ObjectPhysics | None = None
+
+
 _REQUIRED_OBJECT_KEYS = (
-    "name",
-    "novel",
     "stiffness_n_m",
     "effusivity",
     "texture_period_m",
@@ -199,7 +210,6 @@ _REQUIRED_OBJECT_KEYS = (
     "friction_static",
     "friction_kinetic",
 )
-_TEXT_KEYS = ("name", "description", "related_to")
 _POSITIVE_KEYS = (
     "height_m",
     "length_m",
@@ -237,16 +247,16 @@ def _object_from_entry(object_id: str, entry: dict[str, Any]) -> ObjectSpec:
         KeyError: A required key is missing.
         ValueError: A key is unknown or a value has the wrong type.
     """
-    missing = [key for key in _REQUIRED_OBJECT_KEYS if key not in entry]
-    if missing:
-        raise KeyError(", ".join(missing))
-    known = set(ObjectSpec.__dataclass_fields__) - {"id"}
-    unknown = sorted(set(entry) - known)
-    if unknown:
+    identity_keys = set(ObjectSpec.__dataclass_fields__) - {"id", "physics"}
+    physics_keys = set(ObjectPhysics.__dataclass_fields__)
+    if unknown := sorted(set(entry) - identity_keys - physics_keys):
         msg = f"unknown keys {unknown}"
         raise ValueError(msg)
+    if "name" not in entry:
+        raise KeyError("name")  # noqa: EM101 (the missing key is the message)
     values: dict[str, Any] = {}
-    for key, value in entry.items():
+    for key in identity_keys & set(entry):
+        value = entry[key]
         if key == "novel":
             if not isinstance(value, bool):
                 msg = "novel must be true or false"
@@ -254,15 +264,17 @@ def _object_from_entry(object_id: str, entry: dict[str, Any]) -> ObjectSpec:
             values[key] = value
         elif key == "shared":
             values[key] = tuple(str(item) for item in value)
-        elif key in _TEXT_KEYS:
-            values[key] = str(value)
         else:
-            values[key] = float(value)
-    values.setdefault("description", "")
+            values[key] = str(value)
+    given = physics_keys & set(entry)
+    if given:  # an object for the simulator: its required physical keys
+        if missing := [key for key in _REQUIRED_OBJECT_KEYS if key not in entry]:
+            raise KeyError(", ".join(missing))
+        values["physics"] = ObjectPhysics(**{key: float(entry[key]) for key in given})
     return ObjectSpec(id=object_id, **values)
 
 
-def check_object(obj: ObjectSpec) -> str | None:
+def check_object(obj: ObjectPhysics) -> str | None:
     """Return what is physically wrong with an object's parameters, or None if nothing is."""
     layered = obj.yield_strain > 0 or obj.densification_strain > 0
     numbers = [f.name for f in fields(obj) if isinstance(getattr(obj, f.name), float)]
@@ -291,8 +303,12 @@ def check_object(obj: ObjectSpec) -> str | None:
 
 
 def _check_relation(obj: ObjectSpec, objects: dict[str, ObjectSpec]) -> str | None:
-    """Return what is wrong with a new object's relation to an old one, or None."""
-    if not obj.novel:
+    """Return what is wrong with a new simulated object's relation to an old one, or None.
+
+    The simulated catalog designs every new object after an old one (so that transfer has
+    something to transfer); a lab's objects without physics need no relation.
+    """
+    if not obj.novel or (obj.physics is None and not obj.related_to):
         return None
     related = objects.get(obj.related_to)
     if related is None or related.novel:
@@ -327,11 +343,13 @@ def load_objects(path: Path | None = None) -> dict[str, ObjectSpec]:
         except (KeyError, ValueError, TypeError, AttributeError) as err:
             msg = (
                 f"{name}: object [{object_id}] is malformed ({err}); it needs "
-                f"{', '.join(_REQUIRED_OBJECT_KEYS)} and only the keys of ObjectSpec, in SI units"
+                f"name, and for the simulator {', '.join(_REQUIRED_OBJECT_KEYS)}; only the keys "
+                "of ObjectSpec and ObjectPhysics, in SI units"
             )
             raise CatalogError(msg) from err
     for obj in objects.values():
-        problem = check_object(obj) or _check_relation(obj, objects)
+        physical = check_object(obj.physics) if obj.physics is not None else None
+        problem = physical or _check_relation(obj, objects)
         if problem is not None:
             msg = f"{name}: object [{obj.id}]: {problem}; fix the entry"
             raise CatalogError(msg)

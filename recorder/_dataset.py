@@ -24,7 +24,7 @@ import struct
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any
 
 import joblib
 import polars as pl
@@ -32,7 +32,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
-from recorder._sim import SimulatedRig
+from recorder._rigconfig import register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
@@ -48,38 +48,12 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
     from recorder._catalog import ActionSpec, ObjectSpec
-    from recorder._rig import Rig
+    from recorder._rigconfig import RigFactory
 
-#: Makes a rig (not yet connected) from a seed.
-RigFactory: TypeAlias = "Callable[[int], Rig]"
 #: File name of a dataset's index, beside the object directories.
 INDEX_NAME = "index.parquet"
-
-_RIGS: dict[str, RigFactory] = {"sim": SimulatedRig}
-
-
-def register_rig(name: str, factory: RigFactory) -> None:
-    """Make a rig available by name (``--rig NAME``); ``factory(seed)`` returns a new rig."""
-    _RIGS[name] = factory
-
-
-def rig_names() -> tuple[str, ...]:
-    """Return the names of the registered rigs."""
-    return tuple(_RIGS)
-
-
-def rig_factory(name: str) -> RigFactory:
-    """Return the factory of a registered rig.
-
-    Raises:
-        RecorderError: No rig of that name.
-    """
-    try:
-        return _RIGS[name]
-    except KeyError:
-        known = ", ".join(_RIGS) or "none"
-        msg = f"--rig {name}: unknown rig; registered rigs: {known}"
-        raise RecorderError(msg) from None
+#: The rig registry lives in recorder._rigconfig; these names stay importable from here.
+__all__ = ["INDEX_NAME", "register_rig", "rig_factory", "rig_names"]
 
 
 def recording_path(root: Path, object_id: str, action_id: str, trial: int) -> Path:

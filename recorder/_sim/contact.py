@@ -20,7 +20,7 @@ from scipy.signal import lfilter
 from recorder._sim.skin import FORCE_SENSORS, N_CELLS
 
 if TYPE_CHECKING:
-    from recorder._catalog import ObjectSpec
+    from recorder._catalog import ObjectPhysics
 
 F64 = NDArray[np.float64]
 
@@ -36,7 +36,7 @@ _TABLE_POINTS: Final = 600
 _DENSIFICATION_EXPONENT: Final = 2.0
 
 
-def object_force(obj: ObjectSpec, depth: F64) -> F64:
+def object_force(obj: ObjectPhysics, depth: F64) -> F64:
     """Force of one sensor's share of the object's surface at a given object deflection.
 
     Elastic range, then (foams) a plateau of lower stiffness past ``yield_strain``, smoothly
@@ -96,7 +96,7 @@ class ContactLaw:
         return force
 
 
-def _deflection_limit(obj: ObjectSpec) -> float:
+def _deflection_limit(obj: ObjectPhysics) -> float:
     """Return an object deflection at which a sensor's force exceeds the cap."""
     limit = FORCE_CAP_N * SENSORS / obj.stiffness_n_m
     if obj.densification_strain > 0:
@@ -106,7 +106,7 @@ def _deflection_limit(obj: ObjectSpec) -> float:
     return limit
 
 
-def contact_law(obj: ObjectSpec) -> ContactLaw:
+def contact_law(obj: ObjectPhysics) -> ContactLaw:
     """Tabulate the series law (cover + object) of one force sensor on ``obj``.
 
     Args:

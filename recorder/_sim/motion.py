@@ -16,8 +16,6 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 from numpy.typing import NDArray
 
-from recorder._catalog import ActionKind
-
 if TYPE_CHECKING:
     from recorder._catalog import ActionSpec
     from recorder._sim.config import SimConfig
@@ -211,7 +209,7 @@ def plan_execution(
     approach_depth, contact = approach
     stopped = float(approach_depth[-1])
     settle = np.full(round(config.settle_s * RATE_HZ), stopped)
-    if action.kind is ActionKind.SLIDE:
+    if action.kind == "slide":
         set_force = _move(stopped, slide_depth, config.press_speed_m_s)
         distance = _slide(action)
         act_depth = np.concatenate([set_force, np.full(distance.shape[0], set_force[-1])])

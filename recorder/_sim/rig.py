@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Final, Self
 import numpy as np
 from numpy.typing import NDArray
 
-from recorder._catalog import ActionKind, check_object
+from recorder._catalog import check_object
 from recorder._sim import contact, motion, skin, thermal, ur10
 from recorder._sim.config import SimConfig
 from recorder._sim.texture import SlideConditions, ridge_relief, sliding_vibration
@@ -34,12 +34,14 @@ if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
     from types import TracebackType
 
-    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder._catalog import ActionSpec, ObjectPhysics, ObjectSpec
     from recorder.writing._stream import StreamItem
 
 F64 = NDArray[np.float64]
 
 SIMULATOR_VERSION: Final = "2"
+#: Action kinds the simulator has a model of (its motion and contact for each).
+SIMULATED_KINDS: Final = ("press", "slide", "static")
 """Version of the physical model; recordings from different versions differ."""
 ROBOT_DECIMATION: Final = 8
 """RTDE publishes every 8 ms (125 Hz)."""
@@ -123,7 +125,7 @@ class Conditions:
         slide: Ridge angle and phases of the slide.
     """
 
-    obj: ObjectSpec
+    obj: ObjectPhysics
     room_c: float
     skin_state: thermal.SkinState
     location: F64
@@ -139,7 +141,7 @@ class Conditions:
     @classmethod
     def draw(
         cls,
-        obj: ObjectSpec,
+        obj: ObjectPhysics,
         config: SimConfig,
         hardware: skin.SkinHardware,
         rng: np.random.Generator,
@@ -195,7 +197,7 @@ class Conditions:
         )
 
 
-def _on_object(obj: ObjectSpec, conditions: Conditions, points: F64) -> NDArray[np.bool_]:
+def _on_object(obj: ObjectPhysics, conditions: Conditions, points: F64) -> NDArray[np.bool_]:
     """Return which patch points (..., 2) lie over the object's top face."""
     c, s = np.cos(conditions.yaw), np.sin(conditions.yaw)
     rotation = np.array([[c, -s], [s, c]])
@@ -206,7 +208,7 @@ def _on_object(obj: ObjectSpec, conditions: Conditions, points: F64) -> NDArray[
     return inside
 
 
-def sensor_offsets(obj: ObjectSpec, conditions: Conditions, hardware: skin.SkinHardware) -> F64:
+def sensor_offsets(obj: ObjectPhysics, conditions: Conditions, hardware: skin.SkinHardware) -> F64:
     """Return each force sensor's depth over the patch centre's, shape (7, 3), m.
 
     Tilt, the top face's curvature around its centre and its irregularity under each cell put
@@ -311,13 +313,13 @@ class SimulatedRig:
         Raises:
             RigError: The rig is not connected, or the object, action or trial is invalid.
         """
-        self._check(obj, action, trial)
+        physics = self._check(obj, action, trial)
         sequence = np.random.SeedSequence(
             [self._seed, stable_hash(obj.id), stable_hash(action.id), trial]
         )
         rngs = [np.random.default_rng(child) for child in sequence.spawn(7)]
-        conditions = Conditions.draw(obj, self._config, self._hardware, rngs[0], trial)
-        signals = self._simulate(action, conditions, rngs[1])
+        conditions = Conditions.draw(physics, self._config, self._hardware, rngs[0], trial)
+        signals = self._simulate(obj.id, action, conditions, rngs[1])
         items: list[StreamItem] = [
             *_phase_events(signals.plan),
             *self._skin_blocks(conditions, signals, rngs[2:6]),
@@ -328,22 +330,38 @@ class SimulatedRig:
         items.append(PhaseEvent(signals.plan.n * 1_000_000, last, Phase.END))
         return iter(items)
 
-    def _check(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> None:
-        """Refuse to perform outside a ``with`` block or with invalid inputs."""
+    def _check(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> ObjectPhysics:
+        """Refuse to perform outside a ``with`` block or with invalid inputs.
+
+        Returns:
+            The object's physical parameters.
+        """
         if not self._connected:
             msg = "SimulatedRig.perform outside a with block; use `with SimulatedRig() as rig:`"
             raise RigError(msg)
-        problem = check_object(obj)
+        if obj.physics is None:
+            msg = (
+                f"object {obj.id!r} has no physical parameters (stiffness_n_m, effusivity, ...) "
+                "in its catalog entry: the simulator cannot touch it; add them or use a real rig"
+            )
+            raise RigError(msg)
+        problem = check_object(obj.physics)
         if problem is not None:
             msg = f"object {obj.id!r}: {problem}; fix its catalog entry"
             raise RigError(msg)
         if trial < 0:
             msg = f"trial = {trial} must be >= 0"
             raise RigError(msg)
+        if action.kind not in SIMULATED_KINDS:
+            msg = (
+                f"action {action.id!r} is of kind {action.kind!r}, which the simulator cannot "
+                f"perform (it simulates {', '.join(SIMULATED_KINDS)}); use a real rig"
+            )
+            raise RigError(msg)
         needed = {
-            ActionKind.PRESS: action.depth_m,
-            ActionKind.STATIC: action.depth_m,
-            ActionKind.SLIDE: min(action.force_n, action.speed_m_s),
+            "press": action.depth_m,
+            "static": action.depth_m,
+            "slide": min(action.force_n, action.speed_m_s),
         }[action.kind]
         if not (needed > 0 and action.duration_s > 0):
             msg = (
@@ -351,9 +369,10 @@ class SimulatedRig:
                 "(depth_m, or force_n and speed_m_s) must be > 0; fix the action catalog"
             )
             raise RigError(msg)
+        return obj.physics
 
     def _simulate(
-        self, action: ActionSpec, conditions: Conditions, rng: np.random.Generator
+        self, object_id: str, action: ActionSpec, conditions: Conditions, rng: np.random.Generator
     ) -> Signals:
         """Plan the motion and compute the true signals."""
         obj = conditions.obj
@@ -361,7 +380,7 @@ class SimulatedRig:
         offsets = sensor_offsets(obj, conditions, self._hardware)
         if np.isnan(offsets).all():
             msg = (
-                f"object {obj.id!r}: its top face ({obj.length_m} x {obj.width_m} m) is too "
+                f"object {object_id!r}: its top face ({obj.length_m} x {obj.width_m} m) is too "
                 "small for the skin to land on; enlarge it or reduce location_spread_m"
             )
             raise RigError(msg)
@@ -375,7 +394,7 @@ class SimulatedRig:
         force = self._forces(action, law, plan, offsets, conditions)
         cell_force = force.sum(axis=2)
         specific = _motion_specific_force(plan)
-        if action.kind is ActionKind.SLIDE:
+        if action.kind == "slide":
             window = slice(plan.execute, plan.retract)
             held = np.repeat(cell_force, motion.FORCE_DECIMATION, axis=0)
             specific[window] += sliding_vibration(
@@ -405,7 +424,7 @@ class SimulatedRig:
         obj = conditions.obj
         samples = np.arange(0, plan.n, motion.FORCE_DECIMATION)
         relief = None
-        if action.kind is ActionKind.SLIDE:
+        if action.kind == "slide":
             relief = np.zeros((samples.shape[0], skin.N_CELLS, skin.FORCE_SENSORS))
             inside = (samples >= plan.execute) & (samples < plan.retract)
             points = self._hardware.force_sensor_positions()
@@ -460,7 +479,7 @@ class SimulatedRig:
         wrench = np.zeros((index.shape[0], 3))
         wrench[:, 2] = normal
         moving = np.gradient(slide) > 0
-        if action.kind is ActionKind.SLIDE:
+        if action.kind == "slide":
             wrench[:, 1] = -obj.friction_kinetic * normal * moving
         effort = _static_efforts(q, wrench)
         effort += EFFORT_NOISE_N_M * rng.standard_normal(effort.shape)
@@ -541,7 +560,9 @@ def _motion_specific_force(plan: motion.Plan) -> F64:
     return specific
 
 
-def _cell_distances(obj: ObjectSpec, plan: motion.Plan, offsets: F64, height_error: float) -> F64:
+def _cell_distances(
+    obj: ObjectPhysics, plan: motion.Plan, offsets: F64, height_error: float
+) -> F64:
     """Return each cell's distance to the surface below it over time, shape (n, 7), m."""
     cell_offset = offsets.mean(axis=1)
     over_object = -(plan.depth[:, None] + np.nan_to_num(cell_offset, nan=0.0))

@@ -34,7 +34,7 @@ from recorder._sim.contact import SKIN_STIFFNESS_N_M
 from recorder._sim.motion import DT_S, RATE_HZ
 
 if TYPE_CHECKING:
-    from recorder._catalog import ObjectSpec
+    from recorder._catalog import ObjectPhysics
     from recorder._sim.contact import ContactLaw
 
 F64 = NDArray[np.float64]
@@ -84,7 +84,7 @@ class Resonance:
     damping: float
 
     @classmethod
-    def on(cls, obj: ObjectSpec, law: ContactLaw) -> Resonance:
+    def on(cls, obj: ObjectPhysics, law: ContactLaw) -> Resonance:
         """Return the resonance on ``obj`` (stiffer contact: higher; lossier: more damped)."""
         series = 1.0 / (1.0 / SKIN_STIFFNESS_N_M + 1.0 / obj.stiffness_n_m)
         frequency = RIGID_RESONANCE_HZ * (series / SKIN_STIFFNESS_N_M) ** RESONANCE_EXPONENT
@@ -120,7 +120,7 @@ class SlideConditions:
     phases: F64
 
 
-def followed_relief(obj: ObjectSpec) -> float:
+def followed_relief(obj: ObjectPhysics) -> float:
     """Return the relief height the cell follows: a soft surface flattens under the cover.
 
     The relief is pressed flat in proportion to the object's share of the contact compliance,
@@ -135,7 +135,7 @@ def _smoothing(wavenumber: NDArray[np.floating[Any]] | float) -> F64:
     return gain
 
 
-def _ridge_coordinate(obj: ObjectSpec, slide: F64, points: F64, angle: float) -> F64:
+def _ridge_coordinate(obj: ObjectPhysics, slide: F64, points: F64, angle: float) -> F64:
     """Return the ridges' phase under each point over time, shape (m, *points.shape[:-1])."""
     normal = np.array([np.cos(angle), np.sin(angle)])
     along = points @ normal
@@ -144,7 +144,7 @@ def _ridge_coordinate(obj: ObjectSpec, slide: F64, points: F64, angle: float) ->
     return phase
 
 
-def ridge_relief(obj: ObjectSpec, slide: F64, points: F64, conditions: SlideConditions) -> F64:
+def ridge_relief(obj: ObjectPhysics, slide: F64, points: F64, conditions: SlideConditions) -> F64:
     """Return the ridges' height under each point over time (for the force sensors).
 
     Args:
@@ -166,7 +166,7 @@ def ridge_relief(obj: ObjectSpec, slide: F64, points: F64, conditions: SlideCond
 
 
 def _ridge_acceleration(
-    obj: ObjectSpec, slide: F64, cells: F64, conditions: SlideConditions
+    obj: ObjectPhysics, slide: F64, cells: F64, conditions: SlideConditions
 ) -> F64:
     """Return the normal acceleration the ridges cause at each cell, shape (m, 7)."""
     speed = np.gradient(slide, DT_S)
@@ -185,7 +185,7 @@ def _ridge_acceleration(
     return obj.anisotropy * followed_relief(obj) * out
 
 
-def _random_acceleration(obj: ObjectSpec, slide: F64, rng: np.random.Generator) -> F64:
+def _random_acceleration(obj: ObjectPhysics, slide: F64, rng: np.random.Generator) -> F64:
     """Return the normal acceleration of an isotropic random relief, per cell, shape (m, 7).
 
     The relief is a Gaussian process along each cell's path with a log-normal band around the
@@ -216,7 +216,7 @@ def _random_acceleration(obj: ObjectSpec, slide: F64, rng: np.random.Generator) 
     return out
 
 
-def _slip_train(obj: ObjectSpec, slide: F64, total_force: F64, rng: np.random.Generator) -> F64:
+def _slip_train(obj: ObjectPhysics, slide: F64, total_force: F64, rng: np.random.Generator) -> F64:
     """Return the stick-slip force drops over time (break-away included), shape (m,), N."""
     speed = np.gradient(slide, DT_S)
     drops = np.zeros(slide.shape[0])
@@ -240,7 +240,7 @@ def _slip_train(obj: ObjectSpec, slide: F64, total_force: F64, rng: np.random.Ge
 
 
 def sliding_vibration(
-    obj: ObjectSpec,
+    obj: ObjectPhysics,
     law: ContactLaw,
     slide: F64,
     *,

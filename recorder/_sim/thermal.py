@@ -34,7 +34,7 @@ from scipy.signal import lfilter, lfilter_zi
 from scipy.special import erfc
 
 if TYPE_CHECKING:
-    from recorder._catalog import ObjectSpec
+    from recorder._catalog import ObjectPhysics
 
 F64 = NDArray[np.float64]
 
@@ -73,7 +73,7 @@ class SkinState:
     recovery_c_s: float = 0.0
 
 
-def effusivity_over_time(obj: ObjectSpec, since_contact_s: F64) -> F64:
+def effusivity_over_time(obj: ObjectPhysics, since_contact_s: F64) -> F64:
     """Return the effusivity the skin feels, a time after contact began.
 
     A layer of crossing time ``tau = d^2 / alpha`` hides the base until heat has penetrated it:
@@ -112,7 +112,7 @@ def _lag(signal: F64, tau_s: float, dt_s: float, start: float) -> F64:
 def sensor_temperature(
     cell_force: F64,
     dt_s: float,
-    obj: ObjectSpec,
+    obj: ObjectPhysics,
     room_c: float,
     skin: SkinState,
 ) -> F64:

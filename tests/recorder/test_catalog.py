@@ -5,8 +5,8 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from recorder import CatalogError, ObjectSpec, load_actions, load_objects
-from recorder._catalog import PROPERTIES, check_object
+from recorder import CatalogError, RigError, SimulatedRig, load_actions, load_objects
+from recorder._catalog import PROPERTIES, ObjectPhysics, check_object
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -39,7 +39,8 @@ def test_packaged_catalog_has_ten_old_and_five_new_objects() -> None:
         assert obj.id == object_id
         assert obj.name
         assert obj.description
-        assert check_object(obj) is None
+        assert obj.physics is not None
+        assert check_object(obj.physics) is None
 
 
 def test_every_new_object_is_related_to_an_old_one() -> None:
@@ -79,11 +80,23 @@ def test_actions_catalog_is_unchanged() -> None:
 def test_minimal_user_entry_takes_the_defaults(tmp_path: Path) -> None:
     objects = load_objects(_write(tmp_path, MINIMAL.format(id="thing")))
     thing = objects["thing"]
-    default = ObjectSpec("x", "x", "", novel=False)
-    assert thing.stiffness_n_m == 2000.0
-    assert thing.height_m == default.height_m
+    default = ObjectPhysics()
+    assert thing.physics is not None
+    assert thing.physics.stiffness_n_m == 2000.0
+    assert thing.physics.height_m == default.height_m
     assert thing.description == ""
-    assert isinstance(thing.texture_period_m, float)
+    assert isinstance(thing.physics.texture_period_m, float)
+
+
+def test_objects_without_physics_are_identities_the_simulator_refuses(tmp_path: Path) -> None:
+    objects = load_objects(_write(tmp_path, '[mug]\nname = "Lab mug"\nnovel = true\n'))
+    assert objects["mug"].physics is None
+    assert (objects["mug"].name, objects["mug"].novel) == ("Lab mug", True)
+    with (
+        SimulatedRig(0) as rig,
+        pytest.raises(RigError, match="'mug' has no physical parameters"),
+    ):
+        next(iter(rig.perform(objects["mug"], load_actions()["P1"], 0)))
 
 
 def test_user_catalog_keeps_file_order(tmp_path: Path) -> None:

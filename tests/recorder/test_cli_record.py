@@ -6,14 +6,14 @@ import polars as pl
 import pytest
 from conftest import FakeRig
 
-from recorder import _dataset
+from recorder import _rigconfig as rigconfig
 from recorder._cli import main
 from replay import read_recording
 
 
 @pytest.fixture(autouse=True)
 def fake_rig(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(_dataset._RIGS, "fake", FakeRig)
+    monkeypatch.setitem(rigconfig._BUILDERS, "fake", lambda seed, _options: FakeRig(seed))
 
 
 def _action(out: Path, *extra: str) -> list[str]:

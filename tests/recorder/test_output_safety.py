@@ -17,7 +17,7 @@ import pytest
 from conftest import FakeRig, fake_objects
 
 from recorder import OutputExistsError, RecorderError, load_actions, write_index
-from recorder import _dataset as dataset_module
+from recorder import _rigconfig as rigconfig
 from recorder._cli import main as record_main
 from recorder.writing._writer import RecordingInfo, RecordingWriter, record_action
 from replay import read_recording
@@ -114,7 +114,7 @@ def test_read_only_directory(tmp_path: Path) -> None:
 def test_cli_says_one_line_for_an_unwritable_output(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setitem(dataset_module._RIGS, "fake", FakeRig)
+    monkeypatch.setitem(rigconfig._BUILDERS, "fake", lambda seed, _options: FakeRig(seed))
     args = ["action", "--object", "wood", "--action", "P1", "--out", str(tmp_path), "--rig"]
     assert record_main([*args, "fake"]) == 0
     path = tmp_path / "wood" / "P1" / "001.mcap"

@@ -17,6 +17,7 @@ from recorder import (
     load_actions,
     load_objects,
 )
+from recorder._catalog import ObjectPhysics
 from recorder._sim import contact, skin, texture, thermal
 from recorder._sim.motion import DT_S
 
@@ -51,6 +52,12 @@ def _mean_hold(object_id: str, action_id: str) -> float:
     return float(np.mean([_hold_force(object_id, action_id, trial).mean() for trial in range(3)]))
 
 
+def _physics(object_id: str) -> ObjectPhysics:
+    physics = OBJECTS[object_id].physics
+    assert physics is not None
+    return physics
+
+
 def test_on_a_hard_object_the_skin_cover_takes_the_deflection() -> None:
     expected = contact.SKIN_STIFFNESS_N_M * ACTIONS["P2"].depth_m
     assert _mean_hold("wood", "P2") == pytest.approx(expected, rel=0.12)
@@ -75,12 +82,12 @@ def test_foam_relaxes_during_a_hold_and_wood_hardly() -> None:
 
 
 def test_contact_law_is_the_series_of_cover_and_object() -> None:
-    rigid = contact.contact_law(OBJECTS["wood"])
+    rigid = contact.contact_law(_physics("wood"))
     depth = np.array([0.5e-3, 1e-3, 2e-3])
     per_sensor = contact.SKIN_STIFFNESS_N_M / contact.SENSORS
     np.testing.assert_allclose(rigid.elastic(depth), per_sensor * depth, rtol=0.01)
     assert rigid.elastic(np.array([-1e-3]))[0] == 0.0
-    foam = contact.contact_law(OBJECTS["soft_sponge"])
+    foam = contact.contact_law(_physics("soft_sponge"))
     assert np.all(np.diff(foam.force_n) > 0)
     assert foam.elastic(np.array([2e-3]))[0] < 0.1 * rigid.elastic(np.array([2e-3]))[0]
     assert foam.object_share > 0.9
@@ -88,7 +95,7 @@ def test_contact_law_is_the_series_of_cover_and_object() -> None:
 
 
 def test_depth_for_force_inverts_the_total_force() -> None:
-    law = contact.contact_law(OBJECTS["paper_box"])
+    law = contact.contact_law(_physics("paper_box"))
     rng = np.random.default_rng(0)
     offsets = 1e-4 * rng.standard_normal((7, 3))
     offsets[6] = np.nan  # a cell off the object
@@ -141,14 +148,12 @@ def test_interface_model_and_layers() -> None:
     state = thermal.SkinState(set_point_c=29.5)
     steady = {}
     for effusivity in (35.0, 450.0, 23400.0):
-        obj = ObjectSpec("x", "x", "", novel=False, effusivity=effusivity)
+        obj = ObjectPhysics(effusivity=effusivity)
         temp = thermal.sensor_temperature(cell_force, 0.004, obj, 22.5, state)
         assert temp[:250].max() == pytest.approx(29.5)
         steady[effusivity] = 29.5 - temp[-1, 0]
     assert steady[35.0] < steady[450.0] < steady[23400.0] < 7.0
-    layered = ObjectSpec(
-        "x", "x", "", novel=False, effusivity=40.0, base_effusivity=2600.0, thermal_layer_s=4.0
-    )
+    layered = ObjectPhysics(effusivity=40.0, base_effusivity=2600.0, thermal_layer_s=4.0)
     felt = thermal.effusivity_over_time(layered, np.array([0.0, 0.1, 4.0, 400.0, 1e6]))
     assert felt[0] == pytest.approx(40.0)
     assert felt[1] < 45.0
@@ -157,11 +162,7 @@ def test_interface_model_and_layers() -> None:
 
 
 def _grating(period_m: float) -> ObjectSpec:
-    return ObjectSpec(
-        "grating",
-        "Grating",
-        "",
-        novel=False,
+    physics = ObjectPhysics(
         texture_period_m=period_m,
         texture_amplitude_m=60e-6,
         anisotropy=1.0,
@@ -170,6 +171,7 @@ def _grating(period_m: float) -> ObjectSpec:
         friction_kinetic=0.3,
         variability=0.0,
     )
+    return ObjectSpec("grating", "Grating", physics=physics)
 
 
 def _steady_slide(items: list[StreamItem]) -> np.ndarray:
@@ -207,12 +209,12 @@ def test_stick_slip_needs_high_friction_difference_and_low_speed() -> None:
     force = np.full(1100, 0.2)
     slow = np.cumsum(np.r_[np.zeros(50), np.full(1050, 0.01 * DT_S)])
     fast = np.cumsum(np.r_[np.zeros(50), np.full(1050, 0.05 * DT_S)])
-    sticky = replace(OBJECTS["wood"], friction_static=1.2, friction_kinetic=0.7)
+    sticky = replace(_physics("wood"), friction_static=1.2, friction_kinetic=0.7)
     slips = texture._slip_train(sticky, slow, force, rng)
     interval = 0.5 * 0.2 / (texture.TANGENTIAL_STIFFNESS_N_M * 0.01)
     assert np.count_nonzero(slips) == pytest.approx(1.05 / interval, rel=0.2)
     assert np.count_nonzero(texture._slip_train(sticky, fast, force, rng)) == 1  # break-away
-    smooth = replace(OBJECTS["wood"], friction_static=0.4, friction_kinetic=0.35)
+    smooth = replace(_physics("wood"), friction_static=0.4, friction_kinetic=0.35)
     assert np.count_nonzero(texture._slip_train(smooth, slow, force, rng)) == 1
 
 

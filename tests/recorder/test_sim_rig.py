@@ -281,12 +281,15 @@ def test_perform_needs_a_connected_rig() -> None:
         ({"anisotropy": 2.0}, {}, 0, "anisotropy"),
         ({}, {"depth_m": 0.0}, 0, "depth_m"),
         ({"length_m": 0.001, "width_m": 0.001}, {}, 0, "too small"),
+        ({}, {"kind": "squeeze"}, 0, "kind 'squeeze', which the simulator cannot perform"),
     ],
 )
 def test_invalid_inputs_raise_rig_errors(
     object_change: dict[str, Any], action_change: dict[str, Any], trial: int, fragment: str
 ) -> None:
-    obj = replace(OBJECTS["wood"], **object_change)
+    wood = OBJECTS["wood"]
+    assert wood.physics is not None
+    obj = replace(wood, physics=replace(wood.physics, **object_change))
     action = replace(ACTIONS["P1"], **action_change)
     with SimulatedRig() as rig, pytest.raises(RigError, match=fragment):
         rig.perform(obj, action, trial)
@@ -304,7 +307,10 @@ def test_config_is_validated() -> None:
 
 
 def test_cells_off_a_small_object_feel_nothing_and_see_the_table() -> None:
-    small = replace(OBJECTS["hard_box"], id="small", length_m=0.03, width_m=0.03, height_m=0.04)
+    box = OBJECTS["hard_box"]
+    assert box.physics is not None
+    physics = replace(box.physics, length_m=0.03, width_m=0.03, height_m=0.04)
+    small = replace(box, id="small", physics=physics)
     with SimulatedRig(0) as rig:
         for trial in range(5):
             stream = collect(list(rig.perform(small, ACTIONS["P2"], trial)))

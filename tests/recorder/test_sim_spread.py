@@ -28,6 +28,9 @@ from recorder._sim import rig as sim_rig
 from recorder._sim import skin
 
 OBJECTS = load_objects()
+_WOOD = OBJECTS["wood"].physics
+assert _WOOD is not None
+WOOD = _WOOD
 ACTIONS = load_actions()
 TRIALS = 16
 """Executions per material: the sd of 16 draws is within about +-35 % of the true sd."""
@@ -107,7 +110,7 @@ def test_incomplete_recovery_sets_the_start_and_slows_the_drop() -> None:
 
 def _conditions(hardware: skin.SkinHardware, trial: int) -> sim_rig.Conditions:
     rng = np.random.default_rng(np.random.SeedSequence([0, trial]))
-    return sim_rig.Conditions.draw(OBJECTS["wood"], SimConfig(), hardware, rng, trial)
+    return sim_rig.Conditions.draw(WOOD, SimConfig(), hardware, rng, trial)
 
 
 def test_ambient_drifts_up_to_one_degree() -> None:

@@ -1,0 +1,45 @@
+from pathlib import Path
+
+import pytest
+
+from recorder import RecorderError, RigConfig, load_rig_config, rig_factory
+from recorder._sim import SimulatedRig
+
+
+def test_a_rig_is_configured_from_a_file_and_the_command_line(tmp_path: Path) -> None:
+    path = tmp_path / "rig.toml"
+    path.write_text('rig = "sim"\n[options]\nroom_c = 21.0\nlocation_spread_m = 0.005\n')
+    config = load_rig_config(path, options=["room_c=20.5", "tilt_deg=0"])
+    assert config == RigConfig("sim", {"location_spread_m": 0.005, "room_c": 20.5, "tilt_deg": 0})
+    rig = rig_factory(config)(3)
+    assert isinstance(rig, SimulatedRig)
+    assert rig.config.room_c == 20.5
+    assert rig.describe()["room_c"] == "20.5"
+
+
+@pytest.mark.parametrize(
+    ("text", "options", "match"),
+    [
+        ('rig = "sim"\n[options]\nroom = 21.0\n', [], "rig option 'room': the sim rig takes"),
+        ('rig = "sim"\n[options]\nroom_c = "warm"\n', [], "room_c='warm': give a number"),
+        ('rig = "ur10-lab"\n', [], "--rig ur10-lab: unknown rig; registered rigs: sim"),
+        ('rig = "sim"\n[options.nested]\nx = 1\n', [], "no nesting"),
+        ("rig = ", [], "cannot read the rig configuration"),
+        ('rig = "sim"\nhost = "x"\n', [], r"unknown keys \['host'\]"),
+        ('rig = "sim"\n', ["room_c"], "give key=value"),
+    ],
+)
+def test_bad_rig_configurations_are_one_line_errors(
+    tmp_path: Path, text: str, options: list[str], match: str
+) -> None:
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    with pytest.raises(RecorderError, match=match):
+        rig_factory(load_rig_config(path, options=options))(0)
+
+
+def test_rig_factories_pickle_into_worker_processes() -> None:
+    import pickle  # noqa: PLC0415
+
+    factory = rig_factory(load_rig_config(options=["room_c=21"]))
+    assert pickle.loads(pickle.dumps(factory))(1).config.room_c == 21.0  # noqa: S301
