@@ -23,6 +23,7 @@ from replay.learning._parallel import run_tasks
 from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._relatedness import least_similar, similarity_to_new
+from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, paired_gains
 from schemas import VOCABULARY
 
 if TYPE_CHECKING:
@@ -57,6 +58,7 @@ class StudyConfig:
         actions: Actions of the study (every action of the dataset unless chosen).
         features: Feature policy (``thesis`` or ``all``).
         group_size: Prior objects per group in the transfer and single-action studies.
+        reduced: A reduced run (``--quick``); its summary says so.
     """
 
     out: Path
@@ -76,11 +78,13 @@ class StudyConfig:
     actions: tuple[str, ...] = ()
     features: str = "thesis"
     group_size: int = 3
+    reduced: bool = False
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
         return replace(
             self,
+            reduced=True,
             groups=2,
             trials=2,
             budget=min(self.budget, 10),
@@ -446,54 +450,70 @@ def _markdown(frame: pl.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def _gain(table: pl.DataFrame, by: Sequence[str]) -> pl.DataFrame:
-    """Return ATIKT minus baseline of each headline column, per ``by``."""
-    wide = table.pivot(on="method", index=list(by), values=["initial", "mean", "final"])
-    return wide.select(
-        *by,
-        *(
-            (pl.col(f"{c}_{ATIKT}") - pl.col(f"{c}_{BASELINE}")).alias(f"gain_{c}")
-            for c in ("initial", "mean", "final")
-        ),
+def _gain_table(frame: pl.DataFrame, by: Sequence[str], unit: str, config: StudyConfig) -> str:
+    """Return the markdown table of paired gains with their 95 % bootstrap intervals."""
+    gains = paired_gains(frame, by, unit, config.budget, seed=config.seed)
+    header = [*by, f"{unit}s", "gain after 1 observation", "gain mean 1..budget", "gain final"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for row in gains.iter_rows(named=True):
+        cells = [str(row[key]) for key in by] + [str(row["units"])]
+        cells += [gain_cells(row, head) for head in HEADLINES]
+        lines.append("| " + " | ".join(cells) + " |")
+    note = (
+        f"Gains: ATIKT minus baseline in percentage points, paired on the same splits, mean "
+        f"over {unit}s; [95 % interval]: percentile bootstrap over {unit}s "
+        f'({RESAMPLES} resamples). "after 1 observation": after the initial round of one '
+        "observation per (new object, action)."
+    )
+    return "\n".join(lines) + "\n\n" + note
+
+
+def _reduced(config: StudyConfig) -> str:
+    """Return the summary's note on a reduced (``--quick``) run, or nothing."""
+    if not config.reduced:
+        return ""
+    return (
+        "\n> Reduced run (`--quick`): fewer groups, trials, steps and repetitions than the full "
+        "study; its numbers vary widely and are for a first look only.\n"
     )
 
 
 def report_transfer(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
     """Plot and summarise a transfer-type study; return the markdown summary."""
     table = headline(frame, ["method"], config.budget)
-    gain = _gain(table.with_columns(pl.lit("all").alias("set")), ["set"])
+    unit = "repetition" if "repetition" in frame.columns else "group"
     plot_learning_curves(frame, config.out / "learning_curves.png", x="step", title=title)
     runs = frame.filter(pl.col("step") == 0).height // 2
     return (
-        f"# {title}\n\n{runs} paired runs (ATIKT and baseline on the same splits), "
-        f"budget {config.budget}; test accuracy of all actions together.\n\n"
-        f"{_markdown(table)}\n\n{_markdown(gain.drop('set'))}\n"
+        f"# {title}\n{_reduced(config)}\n{runs} paired runs (ATIKT and baseline on the same "
+        f"splits), budget {config.budget}; test accuracy of all actions together.\n\n"
+        f"{_markdown(table)}\n\n{_gain_table(frame, [], unit, config)}\n"
     )
 
 
 def report_single_action(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
     """Plot and summarise the single-action study."""
     table = headline(frame, ["actions", "method"], config.budget)
-    gain = _gain(table, ["actions"])
     plot_learning_curves(
         frame, config.out / "learning_curves.png", x="step", panel="actions", title=title
     )
     return (
-        f"# {title}\n\nOne action at a time, ATIKT vs baseline, budget {config.budget}.\n\n"
-        f"{_markdown(gain)}\n\n{_markdown(table)}\n"
+        f"# {title}\n{_reduced(config)}\nOne action at a time, ATIKT vs baseline, budget "
+        f"{config.budget}.\n\n{_gain_table(frame, ['actions'], 'group', config)}\n\n"
+        f"{_markdown(table)}\n"
     )
 
 
 def report_priors(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
     """Plot and summarise the prior-count study."""
     table = headline(frame, ["n_priors", "method"], config.budget)
-    gain = _gain(table, ["n_priors"])
     plot_learning_curves(
         frame, config.out / "learning_curves.png", x="step", panel="n_priors", title=title
     )
+    counts = ", ".join(str(c) for c in sorted(set(frame["n_priors"].to_list())))
     return (
-        f"# {title}\n\nATIKT vs baseline with 3, 5, 7, 10 prior objects.\n\n"
-        f"{_markdown(gain)}\n\n{_markdown(table)}\n"
+        f"# {title}\n{_reduced(config)}\nATIKT vs baseline with {counts} prior objects.\n\n"
+        f"{_gain_table(frame, ['n_priors'], 'group', config)}\n\n{_markdown(table)}\n"
     )
 
 
@@ -514,10 +534,17 @@ def report_fusion(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
         .pivot(on="modalities", index="action", values="mean")
         .sort("action")
     )
+    sizes = (
+        frame.group_by("action", "modalities", "samples")
+        .agg(pl.col("accuracy").mean())
+        .pivot(on="modalities", index=["action", "samples"], values="accuracy")
+        .sort("action", "samples")
+    )
     return (
-        f"# {title}\n\nMean test accuracy over training sizes, groups of "
+        f"# {title}\n{_reduced(config)}\nMean test accuracy over training sizes, groups of "
         f"{config.fusion_objects} objects, multi-modal kernel vs single modalities.\n\n"
-        f"{_markdown(table)}\n"
+        f"{_markdown(table)}\n\nPer training size (samples per object):\n\n"
+        f"{_markdown(sizes)}\n"
     )
 
 
