@@ -1,3 +1,4 @@
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,3 +51,21 @@ def test_skin_block_round_trips_through_cdr() -> None:
     assert back.sample_period_ns == 1_000_000
     np.testing.assert_array_equal(back.data, data)
     assert back.header.stamp.nanosec == 5
+
+
+def test_the_contract_tables_of_the_readme_come_from_the_contract() -> None:
+    from schemas import contract_table  # noqa: PLC0415
+
+    assert contract_table.main(["--check"]) == 0
+
+
+def test_the_vocabulary_is_consistent_and_refuses_a_bad_edit() -> None:
+    from schemas import VOCABULARY, ContractError, parse_vocabulary  # noqa: PLC0415
+    from schemas._vocabulary import CONTRACT_FILE  # noqa: PLC0415
+
+    assert set(VOCABULARY.kinds) >= {"press", "slide", "static"}
+    assert VOCABULARY.modality_of_feature("texture").name == "acceleration"
+    text = (Path(__file__).resolve().parents[2] / "schemas" / CONTRACT_FILE).read_text()
+    broken = text.replace('needs = ["acceleration"]', 'needs = ["smell"]')
+    with pytest.raises(ContractError, match=r"\[kinds.slide\] needs unknown modality 'smell'"):
+        parse_vocabulary(broken, "tactile_msgs")
