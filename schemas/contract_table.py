@@ -25,46 +25,37 @@ def _rows(header: list[str], rows: list[list[str]]) -> str:
 
 def channels_table() -> str:
     """Return the channel table: robot, skin and event channels."""
-    rows = [
-        [f"`{c.topic}`", f"`{c.msgtype}`", f"{c.rate_hz:g} Hz (UR10 CB3 RTDE)", c.units]
-        + [f"`{c.frame}`" if c.frame else '`""`', f"optional: {c.description}"]
-        for c in VOCABULARY.robot.values()
-    ]
-    rows += [
-        [f"`{m.topic}`", f"`{m.msgtype}`", f"{m.rate_hz:g} Hz ({m.block_samples} per block)"]
-        + [m.units, "`skin`", f"optional: {m.description}"]
-        for m in VOCABULARY.modalities.values()
-    ]
+    rows = []
+    for c in VOCABULARY.robot.values():
+        frame = f"`{c.frame}`" if c.frame else '`""`'
+        rate = f"{c.rate_hz:g} Hz (UR10 CB3 RTDE)"
+        rows.append([f"`{c.topic}`", f"`{c.msgtype}`", rate, c.units, frame])
+        rows[-1].append(f"optional: {c.description}")
+    for m in VOCABULARY.modalities.values():
+        rate = f"{m.rate_hz:g} Hz ({m.block_samples} per block)"
+        rows.append([f"`{m.topic}`", f"`{m.msgtype}`", rate, m.units, "`skin`"])
+        rows[-1].append(f"optional: {m.description}")
     events = VOCABULARY.events
-    rows.append(
-        [f"`{events.topic}`", f"`{events.msgtype}`", "one per phase", events.units]
-        + [f"`{events.frame}`", f"required: {events.description}"]
-    )
+    rows.append([f"`{events.topic}`", f"`{events.msgtype}`", "one per phase", events.units])
+    rows[-1] += [f"`{events.frame}`", f"required: {events.description}"]
     return _rows(["topic", "type", "thesis rig's rate", "units", "frame", "role"], rows)
 
 
 def modalities_table() -> str:
     """Return the modality table: what one value of a cell is, the default names, feature."""
-    rows = [
-        [
-            f"`{m.name}`",
-            m.value,
-            ", ".join(m.values),
-            m.units,
-            f"`{m.feature}`" if m.feature else "-",
-        ]
-        for m in VOCABULARY.modalities.values()
-    ]
+    rows = []
+    for m in VOCABULARY.modalities.values():
+        feature = f"`{m.feature}`" if m.feature else "-"
+        rows.append([f"`{m.name}`", m.value, ", ".join(m.values), m.units, feature])
     return _rows(["modality", "a value is a", "thesis skin's values", "units", "feature"], rows)
 
 
 def kinds_table() -> str:
     """Return the action-kind table: needed modalities, thesis features, parameters."""
-    rows = [
-        [f"`{k.name}`", ", ".join(k.needs), ", ".join(k.features), ", ".join(k.parameters)]
-        + [k.description]
-        for k in VOCABULARY.kinds.values()
-    ]
+    rows = []
+    for k in VOCABULARY.kinds.values():
+        rows.append([f"`{k.name}`", ", ".join(k.needs), ", ".join(k.features)])
+        rows[-1] += [", ".join(k.parameters), k.description]
     header = ["kind", "needs", "thesis features", "required parameters", "what it does"]
     return _rows(header, rows)
 
@@ -95,11 +86,13 @@ def render(text: str) -> str:
         pattern = re.compile(
             rf"(<!-- contract:{name} -->\n)(?:.*?\n)?(<!-- /contract:{name} -->)", re.DOTALL
         )
-        if not pattern.search(text):
+        found = pattern.search(text)
+        if found is None:
             sys.exit(
                 f"{README}: no <!-- contract:{name} --> ... markers; add them around the table"
             )
-        text = pattern.sub(lambda m, make=make: m.group(1) + make() + "\n" + m.group(2), text)
+        start, stop = found.span()
+        text = text[:start] + found.group(1) + make() + "\n" + found.group(2) + text[stop:]
     return text
 
 
