@@ -72,8 +72,12 @@ def _copy(
     metadata: Mapping[str, str] | None = None,
     schemas: Mapping[str, tuple[str, bytes]] | None = None,
     drop_channel: str = "",
+    split_topic: str = "",
 ) -> Path:
-    """Copy a recording through the mcap writer, changing what the arguments say."""
+    """Copy a recording through the mcap writer, changing what the arguments say.
+
+    ``split_topic``: a second channel on that topic carries every other message of it.
+    """
     with source.open("rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
@@ -96,9 +100,16 @@ def _copy(
             name, text = (schemas or {}).get(channel.topic, (schema.name, schema.data))
             schema_id = writer.register_schema(name, schema.encoding, text)
             ids[channel.topic] = writer.register_channel(channel.topic, "cdr", schema_id)
+            if channel.topic == split_topic:
+                ids["split"] = writer.register_channel(channel.topic, "cdr", schema_id)
+        count = 0
         for entry in edit(entries):
             if entry.topic in ids:
-                writer.add_message(ids[entry.topic], entry.log_ns, entry.payload, entry.publish_ns)
+                key = entry.topic
+                if key == split_topic:
+                    count += 1
+                    key = "split" if count % 2 else key
+                writer.add_message(ids[key], entry.log_ns, entry.payload, entry.publish_ns)
         writer.finish()  # type: ignore[no-untyped-call]
     return target
 
@@ -170,6 +181,50 @@ def _cut_during_execute(entries: list[Entry]) -> list[Entry]:
     return [e for e in entries if e.log_ns < stop]
 
 
+def _execute_start(entries: list[Entry]) -> int:
+    events: list[Any] = [
+        STORE.deserialize_cdr(e.payload, _msgtype(_EVENTS)) for e in entries if e.topic == _EVENTS
+    ]
+    stamp = next(e for e in events if e.phase == "execute").header.stamp
+    return int(stamp.sec * NS + stamp.nanosec)
+
+
+def _pause_in_execute(entries: list[Entry]) -> list[Entry]:
+    """Delay every force block from the second one of the execute phase by 50 ms (a pause)."""
+    start = _execute_start(entries)
+    later = [i for i, e in enumerate(entries) if e.topic == _FORCE and e.publish_ns > start + 10**7]
+
+    def delay(message: Any) -> None:
+        stamp = message.header.stamp.sec * NS + message.header.stamp.nanosec + 50_000_000
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, NS)
+
+    for i in later:
+        entries[i] = _changed(entries[i], delay)
+    return entries
+
+
+def _without_end(entries: list[Entry]) -> list[Entry]:
+    """Drop the retract and end events (a file cut after its execute phase)."""
+    keep = []
+    for entry in entries:
+        if entry.topic == _EVENTS:
+            event: Any = STORE.deserialize_cdr(entry.payload, _msgtype(_EVENTS))
+            if event.phase in {"retract", "end"}:
+                continue
+        keep.append(entry)
+    return keep
+
+
+def _reordered_joint_state() -> dict[str, tuple[str, bytes]]:
+    text = STORE.generate_msgdef("sensor_msgs/msg/JointState", ros_version=2)[0]
+    swapped = text.replace("float64[] position", "@").replace(
+        "float64[] velocity", "float64[] position"
+    )
+    return {
+        _JOINTS: ("sensor_msgs/msg/JointState", swapped.replace("@", "float64[] velocity").encode())
+    }
+
+
 def _late(log_ns: int) -> Edit:
     """Return an edit giving one temperature message an out-of-range log time (found by fuzzing)."""
 
@@ -181,8 +236,8 @@ def _late(log_ns: int) -> Edit:
     return edit
 
 
-def _meta(source: Path, **changes: str) -> dict[str, str]:
-    with source.open("rb") as stream:
+def _meta(path: Path, **changes: str) -> dict[str, str]:
+    with path.open("rb") as stream:
         records = {m.name: dict(m.metadata) for m in make_reader(stream).iter_metadata()}
     return records[METADATA_NAME] | changes
 
@@ -446,6 +501,37 @@ ROWS: dict[str, Row] = {
         _rewritten(metadata_changes={"trial": "third"}),
         "trial 'third' is not an integer",
         "record it again",
+    ),
+    "two channels on one topic": Row(
+        _rewritten(split_topic=_FORCE),
+        "two channels carry the topic /skin/force",
+        "one channel per topic",
+    ),
+    "pause inside the execute phase": Row(
+        _rewritten(edit=_pause_in_execute),
+        r"force pauses 0\.05\d s .* inside the execute phase",
+        "record the action again",
+    ),
+    "kind contradicting the action": Row(
+        _rewritten(metadata_changes={"action_kind": "static"}),
+        r"events are about sponge S2 \(slide\) .* \(static\)",
+        "record the action again",
+    ),
+    "standard type reordered": Row(
+        _rewritten(schemas=_reordered_joint_state()),
+        r"defines sensor_msgs/msg/JointState differently from this software.*velocity",
+        "convert it with atikt-record import-bag",
+    ),
+    "recording without its end": Row(
+        _rewritten(edit=_without_end),
+        "lacks the phases retract, end",
+        "--recover",
+    ),
+    "salvage without its end in a dataset": Row(
+        _rewritten(edit=_without_end, metadata_changes={"source": "salvage"}),
+        "a salvaged recording that lost its end phase is not a recording of the dataset",
+        "record the action again",
+        file_level=False,
     ),
     "metadata contradicts the path": Row(
         _in_dataset(other_trial=True),
