@@ -12,7 +12,8 @@ from replay.recording._container import ChannelInfo
 from schemas import VOCABULARY, build_typestore
 
 TYPES = sorted(
-    {spec.msgtype for spec in (*VOCABULARY.robot.values(), *VOCABULARY.modalities.values())}
+    {c.msgtype for c in VOCABULARY.robot.values()}
+    | {m.msgtype for m in VOCABULARY.modalities.values()}
     | {VOCABULARY.events.msgtype}
 )
 PATH = Path("x.mcap")
