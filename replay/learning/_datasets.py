@@ -29,9 +29,11 @@ def cache_root() -> Path:
 def default_dataset_dir(seed: int = DEFAULT_SEED) -> Path:
     """Return where the default simulated dataset of ``seed`` lives."""
     from recorder import software_version  # noqa: PLC0415 (generation is the recorder's job)
+    from recorder._sim.rig import SIMULATOR_VERSION  # noqa: PLC0415
     from schemas import SCHEMA_VERSION  # noqa: PLC0415
 
-    return cache_root() / f"sim-seed{seed}-schema{SCHEMA_VERSION}-v{software_version()}"
+    name = f"sim{SIMULATOR_VERSION}-seed{seed}-schema{SCHEMA_VERSION}-v{software_version()}"
+    return cache_root() / name
 
 
 def ensure_default_dataset(
