@@ -17,8 +17,9 @@ file                 rows
 ``proximity``        skin proximity, m: ``proximity``
 ==================== =====================================================================
 
-Every table starts with the key columns ``recording`` (the file's path relative to the
-exported directory, or its name), ``object_id``, ``action_id``, ``trial``; the sample tables
+Every table starts with the key columns ``recording`` (the file's path relative to its
+dataset directory, e.g. ``wood/P1/001.mcap``, or to the exported directory when that lies
+higher up), ``object_id``, ``action_id``, ``trial``; the sample tables
 add ``stamp_ns`` (int64, sensor time) and ``phase`` (the phase the sample falls in, half-open;
 empty before the first phase).
 
@@ -361,12 +362,26 @@ class ExportReport:
     rows: dict[str, int]
 
 
-def _name(path: Path, root: Path | None) -> str:
-    """Return the ``recording`` column value: the path relative to ``root``, else its name."""
+def _name(path: Path, root: Path | None, recording: ActionRecording) -> str:
+    """Return the ``recording`` column value: the path relative to its dataset or ``root``.
+
+    A file laid out as ``<object>/<action>/<trial>.mcap`` (as its metadata says) is named
+    from its dataset directory (``wood/P1/001.mcap``: unique in the dataset), or from
+    ``root`` when that lies higher up (several datasets exported together).
+    """
     resolved = Path(path).resolve()
-    if root is not None and resolved.is_relative_to(Path(root).resolve()):
-        return resolved.relative_to(Path(root).resolve()).as_posix()
-    return path.name
+    meta = recording.metadata
+    anchors = [Path(root).resolve()] if root is not None else []
+    if len(resolved.parents) > 2 and (resolved.parents[1].name, resolved.parent.name) == (  # noqa: PLR2004
+        meta.object_id,
+        meta.action_id,
+    ):
+        anchors.append(resolved.parents[2])
+    usable = [anchor for anchor in anchors if resolved.is_relative_to(anchor)]
+    if not usable:
+        return path.name
+    top = min(usable, key=lambda anchor: len(anchor.parts))
+    return resolved.relative_to(top).as_posix()
 
 
 def export(
@@ -385,7 +400,8 @@ def export(
         out: Output directory (created if needed); existing tables are never overwritten.
         fmt: ``parquet`` or ``csv``.
         layout: Skin tables in the ``long`` or ``wide`` layout.
-        root: Directory the ``recording`` column is relative to (the file name when None).
+        root: Directory the ``recording`` column is relative to when it lies above each
+            file's dataset directory (see :func:`_name`).
         on_recording: Called after every exported recording (progress).
 
     Returns:
@@ -406,7 +422,9 @@ def export(
     try:
         for path in paths:
             recording = read_recording(path)
-            writer.append(recording_tables(recording, _name(path, root), layout), str(path))
+            writer.append(
+                recording_tables(recording, _name(path, root, recording), layout), str(path)
+            )
             if on_recording is not None:
                 on_recording(path)
         rows = writer.finish()
