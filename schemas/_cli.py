@@ -9,6 +9,7 @@ other) can use it. It gives
 - :func:`run`: the top level that prints a project error as one line (no traceback) and lets
   any other exception, a bug, keep its traceback;
 - :func:`workers`: the ``--workers`` type (an integer of at least 1) and :func:`worker_count`;
+  :func:`seed`: the ``--seed`` type of a run (0..2**32-1);
 - publishing outputs without overwriting: :func:`numbered_directory` (a fresh name when the
   user named none), :func:`publish_directory` (refuse an existing output unless ``--force``,
   which replaces it by writing a temporary directory and swapping it in), and
@@ -130,9 +131,13 @@ def run(
     """Parse ``argv`` and run the chosen subcommand; return its exit status.
 
     Errors of the project (``errors`` and :class:`CliError`) are printed as one line on
-    stderr with status 1; any other exception is a bug and keeps its traceback.
+    stderr with status 1, usage errors with status 2; any other exception is a bug and keeps
+    its traceback.
     """
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:  # a usage error (one line printed), --help or --version
+        return done.code if isinstance(done.code, int) else USAGE_STATUS * (done.code is not None)
     caught: tuple[type[Exception], ...] = (*errors, CliError)
     try:
         status: int = args.run(args)
@@ -155,6 +160,26 @@ def workers(text: str) -> int:
         raise argparse.ArgumentTypeError(msg) from None
     if value < 1:
         msg = f"{value}: give 1 or more worker processes (default: all cores)"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+#: Largest seed of a run: numpy's legacy generators take 32-bit seeds.
+MAX_RUN_SEED = 2**32 - 1
+
+
+def seed(text: str) -> int:
+    """Parse a ``--seed`` value: a whole number in 0..2**32-1 (argparse ``type``).
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_RUN_SEED:
+        msg = f"{text}: give a whole number in 0..{MAX_RUN_SEED}"
         raise argparse.ArgumentTypeError(msg)
     return value
 
@@ -292,6 +317,7 @@ __all__ = [
     "publish_file",
     "refuse_existing",
     "run",
+    "seed",
     "worker_count",
     "workers",
 ]

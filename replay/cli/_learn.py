@@ -94,7 +94,7 @@ _DATASET = arg(
     default=None,
     help="dataset directory (default: the simulated dataset, recorded on first use)",
 )
-_SEED = arg("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+_SEED = arg("--seed", type=cli.seed, default=0, help="seed of every random choice (default: 0)")
 _FEATURES = arg(
     "--features",
     default="thesis",

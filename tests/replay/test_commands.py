@@ -1,11 +1,12 @@
 from pathlib import Path
+from typing import Any
 
 import polars as pl
 import pytest
 from conftest import NEW
 
 from replay.cli._main import main
-from replay.learning._run_history import load_run
+from replay.learning._run_history import SETTINGS_NAME, load_run
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
@@ -61,3 +62,73 @@ def test_learn_refuses_a_missing_dataset(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert str(missing) in err[0]
+
+
+def _learn(data: Path, *extra: str) -> list[str]:
+    return ["learn", "--recordings", str(data), "--budget", "1", "--workers", "1", *extra]
+
+
+def test_learn_without_out_never_overwrites_an_earlier_run(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(_learn(small_dataset)) == 0
+    first = (tmp_path / "runs" / "learn-0" / "history.parquet").read_bytes()
+    assert main(_learn(small_dataset)) == 0
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["learn-0", "learn-0-2"]
+    assert (tmp_path / "runs" / "learn-0" / "history.parquet").read_bytes() == first
+    assert (tmp_path / "runs" / "learn-0-2" / "history.parquet").exists()
+
+
+def test_learn_force_replaces_the_named_out_whole(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "accuracy.png").write_bytes(b"a figure of an earlier run")
+    assert main(_learn(small_dataset, "--out", str(out))) == 1
+    assert "--force" in capsys.readouterr().err
+    assert main(_learn(small_dataset, "--out", str(out), "--force")) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "history.parquet",
+        "learning_curve.png",
+        SETTINGS_NAME,
+    ]
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary directory left
+
+
+def test_study_without_out_takes_a_new_numbered_directory(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    earlier = tmp_path / "studies" / "negative"
+    earlier.mkdir(parents=True)
+    (earlier / "summary.md").write_text("an earlier study\n")
+    argv = ["study", "negative", "--recordings", str(small_dataset), "--quick", "--workers", "1"]
+    assert main(argv) == 0
+    assert (earlier / "summary.md").read_text() == "an earlier study\n"
+    made = tmp_path / "studies" / "negative-2"
+    assert sorted(p.name for p in made.iterdir()) == [
+        "learning_curves.png",
+        "results.parquet",
+        "summary.md",
+    ]
+
+
+def test_a_complete_default_dataset_prints_no_recording_progress(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from replay.cli import _learn  # noqa: PLC0415
+
+    shown: list[str] = []
+    progress = _learn._progress
+
+    def spy(description: str) -> Any:
+        shown.append(description)
+        return progress(description)
+
+    monkeypatch.setattr(_learn, "_progress", spy)
+    monkeypatch.setattr(_learn, "default_dataset_ready", lambda: True)
+    monkeypatch.setattr(_learn, "ensure_default_dataset", lambda **_: small_dataset)
+    assert main(["learn", "--budget", "0", "--workers", "1", "--out", str(tmp_path / "r")]) == 0
+    assert not [text for text in shown if "recording" in text]

@@ -242,3 +242,14 @@ def test_learn_run_figures_are_pngs_and_reproducible(learn_run: Path, tmp_path: 
         width, _, dpi = png_size_and_dpi(path)
         assert dpi == pytest.approx(DPI, abs=0.5)
         assert width >= 1000
+
+
+def test_save_never_overwrites_without_force(fake_recording: Path, tmp_path: Path) -> None:
+    target = tmp_path / "view.rrd"
+    target.write_bytes(b"an earlier view")
+    assert main(["view", str(fake_recording), "--save", str(target)]) == 1
+    assert target.read_bytes() == b"an earlier view"
+    assert main(["view", str(fake_recording), "--save", str(target), "--force"]) == 0
+    assert target.read_bytes() != b"an earlier view"
+    assert read_rrd(target).static  # a complete view
+    assert [p.name for p in tmp_path.iterdir()] == ["view.rrd"]  # no temporary file left
