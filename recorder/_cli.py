@@ -111,6 +111,7 @@ def _progress(console: Console) -> Progress:
         TimeRemainingColumn(),
         console=console,
         transient=False,
+        disable=not console.is_terminal,  # a log or a pipe gets the report, not a bar
     )
 
 

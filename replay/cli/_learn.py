@@ -183,7 +183,7 @@ def _step_line(row: dict[str, Any]) -> str:
     ),
     arg("--actions", default=None, help="actions, comma-separated (default: all of the dataset)"),
     _FEATURES,
-    arg("--budget", type=int, default=40, help="actively collected observations (default 40)"),
+    arg("--budget", type=int, default=40, help="actively collected observations"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),

@@ -139,8 +139,8 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     ),
     arg("--force", action="store_true", help="replace an existing --save file"),
     arg("--serve", action="store_true", help="serve the web viewer on localhost until Ctrl-C"),
-    arg("--web-port", type=int, default=WEB_PORT, help=f"web viewer port (default {WEB_PORT})"),
-    arg("--grpc-port", type=int, default=GRPC_PORT, help=f"data port (default {GRPC_PORT})"),
+    arg("--web-port", type=int, default=WEB_PORT, help="web viewer port"),
+    arg("--grpc-port", type=int, default=GRPC_PORT, help="data port"),
     arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
     arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
 )

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import shutil
 from typing import TYPE_CHECKING
 
 import pytest
 
+from recorder import _cli as record_cli
+from replay.cli import _main as replay_cli
 from replay.cli._main import main
 
 if TYPE_CHECKING:
@@ -92,3 +95,31 @@ def test_every_error_is_one_line_and_a_non_zero_exit(
     assert lines[0].startswith("atikt-replay")
     assert expected.format(**places) in lines[0]
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("program", ["replay", "recorder"])
+def test_help_shows_the_default_of_every_option(program: str) -> None:
+    module = replay_cli if program == "replay" else record_cli
+    parser = module.build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sub in subparsers.choices.items():
+        formatter = sub._get_formatter()
+        for action in sub._actions:
+            if action.option_strings and action.default not in (None, False, argparse.SUPPRESS):
+                shown = formatter._get_help_string(action) or ""
+                assert "(default: " in shown, (name, action.dest)
+
+
+def test_defaults_named_by_users_are_shown(capsys: pytest.CaptureFixture[str]) -> None:
+    expected = {
+        "learn": ["--transfer", "(default: prediction)", "(default: thesis)", "(default: 40)"],
+        "study": ["(default: prediction)", "(default: thesis)"],
+        "export": ["(default: parquet)", "(default: long)", "(default: ./export)"],
+    }
+    for command, fragments in expected.items():
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for fragment in fragments:
+            assert fragment in text, (command, fragment)
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.startswith("atikt-replay ")
