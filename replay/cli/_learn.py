@@ -247,7 +247,11 @@ def _learn_into(
         frame = _learn_live(args, spec, models, out, on_step)
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
-    frame.write_parquet(out / HISTORY_NAME)
+    try:
+        frame.write_parquet(out / HISTORY_NAME)
+    except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
+        msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
+        raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
     (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")

@@ -222,8 +222,15 @@ def _temporary(path: Path) -> Path:
     return path.with_name(path.name + ".part")
 
 
-def _write_error(path: Path, err: OSError) -> ReplayError:
-    return ReplayError(f"{path}: cannot write the export ({err.strerror}); check --out")
+#: What writing a table may raise: the operating system's error, or polars' (ComputeError
+#: "underlying IO error: No space left on device" on a full disk).
+_WRITE_ERRORS = (OSError, pl.exceptions.PolarsError)
+
+
+def _write_error(path: Path, err: OSError | pl.exceptions.PolarsError) -> ReplayError:
+    """Return the error of a table that cannot be written, naming it and the fix."""
+    reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
+    return ReplayError(f"{path}: cannot write the export ({reason}); check free space and --out")
 
 
 @dataclass(slots=True)
@@ -292,7 +299,7 @@ class _Writer:
             table.check(frame, source)
             try:
                 self._append(name, table, frame)
-            except OSError as err:
+            except _WRITE_ERRORS as err:
                 raise _write_error(table.path, err) from err
             table.rows += frame.height
 
@@ -320,7 +327,7 @@ class _Writer:
         for table in self.tables.values():
             try:
                 self._finish(table)
-            except OSError as err:
+            except _WRITE_ERRORS as err:
                 raise _write_error(table.path, err) from err
         shutil.rmtree(self._parts, ignore_errors=True)
         return {name: table.rows for name, table in self.tables.items()}

@@ -102,25 +102,30 @@ def draw_curves(
         axes.fill_between(xs, low, high, color=shade, alpha=0.2, linewidth=0)
 
 
-def _band_note(counts: pl.Series) -> str:
-    """Return the legend text of the shaded band, with the number of runs it is over."""
+def _band_note(counts: pl.Series) -> str | None:
+    """Return the legend text of the shaded band and the runs it is over (None: one run)."""
     values = counts.to_numpy()
-    low, high = (int(values.min()), int(values.max())) if values.size else (0, 0)
+    low, high = (int(values.min()), int(values.max())) if values.size else (1, 1)
+    if high <= 1:
+        return None
     runs = f"{low}" if low == high else f"{low}-{high}"
     return f"band: {100 * CONFIDENCE:.0f} % interval\nof the mean over {runs} runs"
 
 
-def _figure_legend(fig: Figure, axes: Sequence[Axes], note: str) -> None:
+def _figure_legend(fig: Figure, axes: Sequence[Axes], note: str | None) -> None:
     """Put one legend for the whole figure beside the panels: each label once, and the band."""
     handles: dict[str, Artist] = {}
     for panel in axes:
         for handle, text in zip(*panel.get_legend_handles_labels(), strict=True):
             handles.setdefault(text, handle)
-    band = Patch(color="#888888", alpha=0.3, label=note)
     order = sorted(handles, key=lambda text: (_RANK.get(text.split(" (")[0], len(_RANK)), text))
+    shown, texts = [handles[text] for text in order], list(order)
+    if note is not None:
+        shown.append(Patch(color="#888888", alpha=0.3, label=note))
+        texts.append(note)
     fig.legend(
-        [*(handles[text] for text in order), band],
-        [*order, note],
+        shown,
+        texts,
         loc="outside right upper",
         fontsize=9,
         frameon=False,

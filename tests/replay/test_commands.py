@@ -132,3 +132,26 @@ def test_a_complete_default_dataset_prints_no_recording_progress(
     monkeypatch.setattr(_learn, "ensure_default_dataset", lambda **_: small_dataset)
     assert main(["learn", "--budget", "0", "--workers", "1", "--out", str(tmp_path / "r")]) == 0
     assert not [text for text in shown if "recording" in text]
+
+
+def test_a_full_disk_while_writing_the_run_is_one_line_and_leaves_nothing(
+    small_dataset: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    original = pl.DataFrame.write_parquet
+
+    def full_for_history(frame: pl.DataFrame, file: Any, *args: Any, **kwargs: Any) -> None:
+        if str(file).endswith("history.parquet"):
+            message = "parquet: underlying IO error: No space left on device (os error 28)"
+            raise pl.exceptions.ComputeError(message)
+        original(frame, file, *args, **kwargs)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", full_for_history)
+    out = tmp_path / "run"
+    assert main(_learn(small_dataset, "--out", str(out))) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "No space left on device" in err
+    assert list(tmp_path.iterdir()) == []  # neither the run nor its temporary directory

@@ -130,3 +130,22 @@ def test_one_file_of_a_dataset_is_named_from_the_dataset(
     shutil.copy(fake_recording, stray)  # not laid out as <object>/<action>/<trial>.mcap
     report = export([stray], tmp_path / "loose", root=tmp_path)
     assert pl.read_parquet(report.files[0])["recording"].to_list() == ["loose.mcap"]
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing(
+    fake_recording: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    def full(*_args: object, **_kwargs: object) -> None:
+        message = "parquet: underlying IO error: No space left on device (os error 28)"
+        raise pl.exceptions.ComputeError(message)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", full)
+    assert main(["export", str(fake_recording), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "cannot write the export" in err
+    assert "No space left on device" in err
+    assert list((tmp_path / "out").iterdir()) == []

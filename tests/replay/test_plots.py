@@ -129,3 +129,13 @@ def test_labels_outside_the_fixed_map_get_distinct_spare_colours() -> None:
     assert len(shades) == 3
     assert not shades & set(COLOURS.values())
     assert colour("ATIKT (optimization)") == COLOURS["ATIKT"]
+
+
+def test_one_run_has_no_band_in_the_legend() -> None:
+    one = _transfer().filter(pl.col("group") == 0, pl.col("method") == "ATIKT")
+    fig = learning_curves_figure(one, x="step")
+    try:
+        texts = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert texts == ["ATIKT"]
+    finally:
+        plt.close(fig)
