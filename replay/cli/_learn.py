@@ -290,6 +290,23 @@ def _learn_live(
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
+    from recorder import RecorderError  # noqa: PLC0415 (live only)
+
+    try:
+        return _record_and_learn(args, spec, models, out, on_step)
+    except RecorderError as err:  # the recorder's error, at the edge of the replay
+        msg = f"--rig {args.rig}: {cli.one_line(str(err))}"
+        raise ReplayError(msg) from err
+
+
+def _record_and_learn(
+    args: argparse.Namespace,
+    spec: RunSpec,
+    models: Any,  # noqa: ANN401
+    out: Path,
+    on_step: Callable[[dict[str, Any]], Any],
+) -> pl.DataFrame:
+    """Record the test trials, then every observation the learner asks for."""
     from recorder import load_actions, load_objects, rig_factory  # noqa: PLC0415 (live only)
 
     objects = load_objects()

@@ -1,10 +1,12 @@
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import polars as pl
 import pytest
-from conftest import NEW
+from conftest import NEW, FakeRig
 
+from recorder import _dataset as recorder_datasets
+from recorder.errors import RigError
 from replay.cli._main import main
 from replay.learning._run_history import SETTINGS_NAME, load_run
 
@@ -155,3 +157,24 @@ def test_a_full_disk_while_writing_the_run_is_one_line_and_leaves_nothing(
     assert err.count("\n") == 1
     assert "No space left on device" in err
     assert list(tmp_path.iterdir()) == []  # neither the run nor its temporary directory
+
+
+class _Unplugged(FakeRig):
+    def __enter__(self) -> Self:
+        msg = "the fake rig does not answer; check its cable"
+        raise RigError(msg)
+
+
+def test_a_failing_rig_in_a_live_run_is_one_line(
+    small_dataset: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setitem(recorder_datasets._RIGS, "unplugged", _Unplugged)
+    argv = _learn(small_dataset, "--rig", "unplugged", "--out", str(tmp_path / "live"))
+    assert main([*argv, "--actions", "P1", "--test-trials", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "--rig unplugged: the fake rig does not answer; check its cable" in err
+    assert list(tmp_path.iterdir()) == []
