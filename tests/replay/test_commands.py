@@ -67,7 +67,9 @@ def test_learn_refuses_a_missing_dataset(
 
 
 def _learn(data: Path, *extra: str) -> list[str]:
-    return ["learn", "--recordings", str(data), "--budget", "1", "--workers", "1", *extra]
+    """Return a short learn command line (no transfer: no prior models to fit)."""
+    argv = ["learn", "--recordings", str(data), "--budget", "1", "--transfer", "none"]
+    return [*argv, "--workers", "1", *extra]
 
 
 def test_learn_without_out_never_overwrites_an_earlier_run(
@@ -132,7 +134,8 @@ def test_a_complete_default_dataset_prints_no_recording_progress(
     monkeypatch.setattr(_learn, "_progress", spy)
     monkeypatch.setattr(_learn, "default_dataset_ready", lambda: True)
     monkeypatch.setattr(_learn, "ensure_default_dataset", lambda **_: small_dataset)
-    assert main(["learn", "--budget", "0", "--workers", "1", "--out", str(tmp_path / "r")]) == 0
+    argv = ["learn", "--budget", "0", "--transfer", "none", "--workers", "1"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 0
     assert not [text for text in shown if "recording" in text]
 
 
