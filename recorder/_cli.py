@@ -8,13 +8,10 @@ traceback.
 
 from __future__ import annotations
 
-import argparse
 import importlib
-import os
 import sys
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.progress import (
@@ -41,9 +38,11 @@ from recorder._dataset import (
 )
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
+from schemas import ContractError, cli, software_version
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    import argparse
+    from collections.abc import Sequence
 
     from recorder._dataset import DatasetReport
 
@@ -53,42 +52,11 @@ DEFAULT_RIG = "sim"
 COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command",)
 
 
-@dataclass(frozen=True, slots=True)
-class Argument:
-    """One ``add_argument`` call: flags and keyword options."""
-
-    flags: tuple[str, ...]
-    options: dict[str, Any]
-
-
-def arg(*flags: str, **options: Any) -> Argument:  # noqa: ANN401 (argparse's own options)
-    """Declare an argument of a subcommand, as for ``ArgumentParser.add_argument``."""
-    return Argument(flags, options)
-
-
-@dataclass(frozen=True, slots=True)
-class Command:
-    """A registered subcommand."""
-
-    name: str
-    help: str
-    arguments: tuple[Argument, ...]
-    run: Callable[[argparse.Namespace], int]
-
-
-COMMANDS: dict[str, Command] = {}
-
-
-def command(
-    name: str, help_text: str, *arguments: Argument
-) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
-    """Register the decorated function as subcommand ``name``; it returns the exit status."""
-
-    def register(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
-        COMMANDS[name] = Command(name, help_text, arguments, run)
-        return run
-
-    return register
+REGISTRY = cli.Registry()
+#: The registered subcommands, by name.
+COMMANDS = REGISTRY.commands
+arg = cli.arg
+command = REGISTRY.command
 
 
 def _names(text: str) -> list[str]:
@@ -102,8 +70,8 @@ _CATALOGS = (
 )
 
 
-def _rig_argument() -> Argument:
-    return arg("--rig", default=DEFAULT_RIG, help=f"rig to use (default: {DEFAULT_RIG})")
+def _rig_argument() -> cli.Argument:
+    return arg("--rig", default=DEFAULT_RIG, help=f"rig to use, one of {', '.join(rig_names())}")
 
 
 @command(
@@ -143,6 +111,7 @@ def _progress(console: Console) -> Progress:
         TimeRemainingColumn(),
         console=console,
         transient=False,
+        disable=not console.is_terminal,  # a log or a pipe gets the report, not a bar
     )
 
 
@@ -169,7 +138,7 @@ def _report(console: Console, report: DatasetReport) -> None:
     arg("--actions", type=_names, help="comma-separated action ids (default: all)"),
     arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
     arg("--seed", type=int, default=0, help="dataset seed (default: 0)"),
-    arg("--workers", type=int, help="worker processes (default: all cores)"),
+    arg("--workers", type=cli.workers, help="worker processes (default: all cores)"),
     _rig_argument(),
     *_CATALOGS,
 )
@@ -182,9 +151,6 @@ def _dataset(args: argparse.Namespace) -> int:
         trials=args.trials,
     )
     factory = rig_factory(args.rig)
-    if args.workers is not None and args.workers < 1:
-        msg = f"--workers {args.workers}: need at least one worker"
-        raise RecorderError(msg)
     console = Console(stderr=True)
     with _progress(console) as progress:
         bar = progress.add_task("recording", total=len(tasks))
@@ -197,7 +163,7 @@ def _dataset(args: argparse.Namespace) -> int:
             args.out,
             factory,
             seed=args.seed,
-            workers=args.workers or os.cpu_count(),
+            workers=cli.worker_count(args.workers),
             on_result=advance,
         )
     _report(Console(), report)
@@ -228,30 +194,21 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser with every registered subcommand."""
     for module in COMMAND_MODULES:
         importlib.import_module(module)
-    parser = argparse.ArgumentParser(
-        prog=PROG, description="Record exploratory actions of a UR10 with skin into MCAP files."
+    return cli.build_parser(
+        PROG,
+        "Record exploratory actions of a UR10 with skin into MCAP files.",
+        REGISTRY,
+        software_version(),
     )
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for entry in COMMANDS.values():
-        sub = subparsers.add_parser(entry.name, help=entry.help, description=entry.help)
-        for argument in entry.arguments:
-            sub.add_argument(*argument.flags, **argument.options)
-        sub.set_defaults(run=entry.run)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``atikt-record``; return the exit status (1 for a project error, 2 for usage)."""
-    args = build_parser().parse_args(argv)
     try:
-        status: int = args.run(args)
-    except RecorderError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)  # noqa: T201 (one line, no traceback)
-        return 1
+        return cli.run(build_parser(), argv, (RecorderError, ContractError))
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; finished recordings are kept", file=sys.stderr)  # noqa: T201
         return 130
-    return status
 
 
-__all__ = ["COMMANDS", "arg", "build_parser", "command", "main", "rig_names"]
+__all__ = ["COMMANDS", "REGISTRY", "arg", "build_parser", "command", "main", "rig_names"]

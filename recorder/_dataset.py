@@ -21,6 +21,7 @@ import json
 import os
 import secrets
 import struct
+import threading
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,8 @@ from schemas import (
     PART_SUFFIX,
     VOCABULARY,
     ContractError,
+    RecordingMetadata,
+    check_rig,
     dataset_recordings,
     parse_metadata,
 )
@@ -127,29 +130,73 @@ class TaskStatus(enum.StrEnum):
 
     WRITTEN = "written"
     SKIPPED = "skipped"
+    FAILED = "failed"
 
 
 @dataclass(frozen=True, slots=True)
 class TaskResult:
-    """The outcome of one task: status and size of the file on disk."""
+    """The outcome of one task: status, size of the file on disk, and why it failed."""
 
     task: RecordingTask
     status: TaskStatus
     size_bytes: int
+    error: str = ""
 
 
-def run_task(task: RecordingTask, root: Path, factory: RigFactory, seed: int) -> TaskResult:
+#: Seconds between a worker's checks that the process that started it is still alive.
+WATCH_INTERVAL_S = 0.5
+_watched: set[int] = set()
+
+
+def watch_parent(parent: int, interval_s: float = WATCH_INTERVAL_S) -> None:
+    """In a worker process started by ``parent``: exit as soon as ``parent`` has died.
+
+    A daemon thread compares the worker's parent process id with the one it had when the
+    watch began (an orphan is adopted by another process); it works wherever
+    ``os.getppid`` does. Nothing happens in ``parent`` itself (one worker runs in-process)
+    or when the watch is already running. A worker killed this way leaves its unfinished
+    recording as ``*.mcap.part``, as any killed recorder does.
+    """
+    if os.getpid() == parent or parent in _watched:
+        return
+    _watched.add(parent)
+    adopter = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == adopter:
+            threading.Event().wait(interval_s)
+        os._exit(1)  # the parent is gone: nobody reads this worker's results
+
+    threading.Thread(target=watch, name="atikt-parent-watch", daemon=True).start()
+
+
+def run_task(
+    task: RecordingTask, root: Path, factory: RigFactory, seed: int, parent: int | None = None
+) -> TaskResult:
     """Record one task with a fresh rig (one BLAS thread: results independent of workers).
 
+    Args:
+        task: The recording to make.
+        root: Dataset directory.
+        factory: Makes the rig.
+        seed: Dataset seed.
+        parent: Process id of the dataset run; a worker exits when it dies.
+
     Returns:
-        WRITTEN, or SKIPPED when the file existed (possibly written meanwhile by another run).
+        WRITTEN; SKIPPED when the file existed (possibly written meanwhile by another run);
+        FAILED with the error's message when the recorder refused (its temporary file is
+        removed then), so that the other workers finish their recordings cleanly.
     """
+    if parent is not None:
+        watch_parent(parent)
     path = task.path(root)
     try:
         with threadpool_limits(limits=1), factory(seed) as rig:
             written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
     except OutputExistsError:
         return TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size)
+    except RecorderError as err:
+        return TaskResult(task, TaskStatus.FAILED, 0, str(err))
     return TaskResult(task, TaskStatus.WRITTEN, written.size_bytes)
 
 
@@ -197,9 +244,12 @@ def generate_dataset(
         What was written and skipped, and the index.
 
     Raises:
-        RecorderError: A task failed; recordings finished before it are kept.
+        RecorderError: ``root`` holds recordings of another seed or rig configuration, or a
+            task failed: no new task starts, those running finish, and every recording
+            finished is kept.
     """
     root = Path(root)
+    check_configuration(root, seed, factory)
     notify = on_result or (lambda _result: None)
     pending = []
     for task in tasks:
@@ -209,12 +259,23 @@ def generate_dataset(
         else:
             pending.append(task)
     skipped = len(tasks) - len(pending)
+    failed: list[TaskResult] = []
+    parent = os.getpid()
     results = joblib.Parallel(
         n_jobs=workers or os.cpu_count() or 1, return_as="generator_unordered"
-    )(joblib.delayed(run_task)(task, root, factory, seed) for task in pending)
+    )(  # tasks are handed out lazily: after a failure, none starts
+        joblib.delayed(run_task)(task, root, factory, seed, parent)
+        for task in pending
+        if not failed
+    )
     for result in results:
         skipped += result.status == TaskStatus.SKIPPED
+        if result.status == TaskStatus.FAILED:
+            failed.append(result)
         notify(result)
+    if failed:
+        more = f" ({len(failed) - 1} more recordings failed)" if len(failed) > 1 else ""
+        raise RecorderError(failed[0].error + more)
     declare_objects(root, [task.obj for task in tasks])
     index = write_index(root)
     frame = pl.read_parquet(index)
@@ -226,6 +287,63 @@ def generate_dataset(
         size_bytes=int(frame["size_bytes"].sum()),
         incomplete=incomplete_files(root),
     )
+
+
+def _metadata_of(path: Path) -> RecordingMetadata:
+    """Return the metadata record of a finished recording (nothing else is read).
+
+    Raises:
+        RecorderError: The file cannot be read or has no valid metadata record.
+    """
+    try:
+        with path.open("rb") as stream:
+            records = {r.name: r.metadata for r in make_reader(stream).iter_metadata()}
+        return parse_metadata(records[METADATA_NAME])
+    except OSError as err:
+        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
+        raise RecorderError(msg) from err
+    except (McapError, ContractError, KeyError, ValueError, EOFError, struct.error) as err:
+        msg = f"{path}: not a readable recording ({err}); check it with 'atikt-replay check'"
+        raise RecorderError(msg) from err
+
+
+def _first_metadata(root: Path) -> tuple[Path, RecordingMetadata] | None:
+    """Return the first recording under ``root`` whose metadata reads, and its metadata."""
+    for path in dataset_recordings(root) if Path(root).is_dir() else []:
+        with contextlib.suppress(RecorderError):
+            return path, _metadata_of(path)
+    return None
+
+
+def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
+    """Refuse to record into a dataset whose recordings have another seed or rig configuration.
+
+    One dataset holds one seed and one rig configuration; the first readable recording stands
+    for the dataset (an unreadable one is left to the index, which names it).
+
+    Raises:
+        RecorderError: The seeds or rig descriptions differ; the message names both and the fix.
+    """
+    found = _first_metadata(root)
+    if found is None:
+        return
+    existing, meta = found
+    if meta.seed != seed:
+        msg = (
+            f"{root}: holds recordings of seed {meta.seed} (e.g. {existing}), this run has "
+            f"--seed {seed}; a dataset holds one seed: give another --out, or --seed "
+            f"{meta.seed} to resume it"
+        )
+        raise RecorderError(msg)
+    rig = dict(check_rig(factory(seed).describe()))
+    if differ := sorted(k for k in {*rig, *meta.rig} if rig.get(k) != meta.rig.get(k)):
+        theirs = ", ".join(f"{k}={meta.rig.get(k)!r}" for k in differ)
+        wanted = ", ".join(f"{k}={rig.get(k)!r}" for k in differ)
+        msg = (
+            f"{root}: holds recordings of another rig configuration ({theirs}; this run: "
+            f"{wanted}, e.g. {existing}); give another --out"
+        )
+        raise RecorderError(msg)
 
 
 def _topic_column(topic: str) -> str:
@@ -392,11 +510,12 @@ def write_index(root: Path) -> Path:
         with _index_lock(root):  # the last writer lists every file linked before it
             build_index(root).write_parquet(temporary)
             temporary.replace(target)
-    except OSError as err:
+    except (OSError, pl.exceptions.PolarsError) as err:
         with contextlib.suppress(OSError):
             temporary.unlink(missing_ok=True)
+        reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
         msg = (
-            f"{target}: cannot write the index ({err.strerror}); check free space and that "
+            f"{target}: cannot write the index ({reason}); check free space and that "
             f"the directory is writable, then run 'atikt-record index {root}'"
         )
         raise RecorderError(msg) from err

@@ -4,6 +4,7 @@
 channels, phases, sources and action kinds; nothing else in the project lists them.
 """
 
+from schemas import _cli as cli
 from schemas._layout import (
     PART_SUFFIX,
     RECORDING_SUFFIX,
@@ -71,6 +72,7 @@ __all__ = [
     "check_id",
     "check_parameters",
     "check_rig",
+    "cli",
     "dataset_recordings",
     "full_type_name",
     "is_recording",

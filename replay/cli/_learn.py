@@ -4,17 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import polars as pl
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-from replay.cli._main import arg, command
+from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
-from replay.learning._datasets import check_names, dataset_roles, ensure_default_dataset
+from replay.learning._datasets import (
+    check_names,
+    dataset_roles,
+    default_dataset_ready,
+    ensure_default_dataset,
+)
 from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
@@ -34,35 +37,26 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
+from schemas import cli
 
 if TYPE_CHECKING:
     import argparse
     from collections.abc import Callable
+
+    from rich.progress import Progress
 
 _CONSOLE = Console(stderr=True)
 
 
 def _progress(description: str) -> tuple[Progress, Callable[[int, int], None]]:
     """Return a rich progress bar on stderr and a ``(done, total)`` callback that drives it."""
-    bar = Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=_CONSOLE,
-        disable=not _CONSOLE.is_terminal and bool(os.environ.get("CI")),
-    )
+    bar = progress_bar(_CONSOLE)
     task = bar.add_task(description, total=None)
 
     def update(done: int, total: int) -> None:
         bar.update(task, completed=done, total=total)
 
     return bar, update
-
-
-def _workers(value: int | None) -> int:
-    """Return the worker count: the option, else every core."""
-    return value if value is not None else os.cpu_count() or 1
 
 
 def _dataset(path: Path | None, workers: int) -> Path:
@@ -72,6 +66,8 @@ def _dataset(path: Path | None, workers: int) -> Path:
             msg = f"{path}: not a directory; give a dataset directory (atikt-record dataset)"
             raise ReplayError(msg)
         return path
+    if default_dataset_ready():
+        return ensure_default_dataset(workers=workers)
     bar, update = _progress("recording the default simulated dataset")
     with bar:
         return ensure_default_dataset(workers=workers, on_progress=update)
@@ -98,8 +94,7 @@ _DATASET = arg(
     default=None,
     help="dataset directory (default: the simulated dataset, recorded on first use)",
 )
-_WORKERS = arg("--workers", type=int, default=None, help="worker processes (default: all cores)")
-_SEED = arg("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+_SEED = arg("--seed", type=cli.seed, default=0, help="seed of every random choice (default: 0)")
 _FEATURES = arg(
     "--features",
     default="thesis",
@@ -114,14 +109,38 @@ _ROLES = (
 )
 
 
+_FORCE = arg(
+    "--force", action="store_true", help="replace an existing --out (written aside, then swapped)"
+)
+
+
+def _check_rig(name: str) -> None:
+    """Refuse an unknown ``--rig`` before any work, listing the registered rigs."""
+    from recorder import rig_names  # noqa: PLC0415 (live execution only)
+
+    if name not in rig_names():
+        msg = f"--rig {name}: unknown rig; registered rigs: {', '.join(rig_names()) or 'none'}"
+        raise ReplayError(msg)
+
+
+def _output(out: Path | None, default: Path, *, force: bool) -> Path:
+    """Return ``--out`` (refused if it exists, unless ``--force``), else a free ``default``."""
+    if out is None:
+        return cli.numbered_directory(default)
+    cli.refuse_existing(out, force=force)
+    return out
+
+
 @command(
     "features",
     "extract (or update) the feature cache of a dataset",
     arg("dataset", type=Path, help="dataset directory"),
-    _WORKERS,
+    WORKERS,
 )
 def _features_command(args: argparse.Namespace) -> int:
-    table = _features(_dataset(args.dataset, _workers(args.workers)), _workers(args.workers))
+    table = _features(
+        _dataset(args.dataset, cli.worker_count(args.workers)), cli.worker_count(args.workers)
+    )
     print(  # noqa: T201 (the command's output)
         f"{table.frame.height} recordings ({table.extracted} extracted, "
         f"{table.quarantined.height} quarantined) -> {table.root / 'features.parquet'}"
@@ -164,16 +183,26 @@ def _step_line(row: dict[str, Any]) -> str:
     ),
     arg("--actions", default=None, help="actions, comma-separated (default: all of the dataset)"),
     _FEATURES,
-    arg("--budget", type=int, default=40, help="actively collected observations (default 40)"),
+    arg("--budget", type=int, default=40, help="actively collected observations"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
-    arg("--out", type=Path, default=None, help="output directory (default: runs/learn-<seed>)"),
+    arg(
+        "--out",
+        type=Path,
+        default=None,
+        help="output directory, never overwritten (default: the first free of "
+        "runs/learn-<seed>, runs/learn-<seed>-2, ...)",
+    ),
+    _FORCE,
     _SEED,
-    _WORKERS,
+    WORKERS,
 )
 def _learn_command(args: argparse.Namespace) -> int:
-    workers = _workers(args.workers)
+    workers = cli.worker_count(args.workers)
+    if args.rig is not None:
+        _check_rig(args.rig)
+    target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
     roles = dataset_roles(
@@ -199,8 +228,16 @@ def _learn_command(args: argparse.Namespace) -> int:
         seed=args.seed,
         features=args.features,
     )
-    out = args.out or Path("runs") / f"learn-{args.seed}"
-    out.mkdir(parents=True, exist_ok=True)
+    with cli.publish_directory(target, force=args.force) as out:
+        _learn_into(args, table, spec, prior_root, out)
+    print(f"history -> {target / HISTORY_NAME}, plot -> {target / 'learning_curve.png'}")  # noqa: T201
+    return 0
+
+
+def _learn_into(
+    args: argparse.Namespace, table: FeatureTable, spec: RunSpec, prior_root: Path, out: Path
+) -> None:
+    """Run the learning and write its history, settings and plot into ``out``."""
     models = None
     if spec.transfer != "none":
         lookup = FeatureLookup(table.frame, spec.features)
@@ -210,18 +247,21 @@ def _learn_command(args: argparse.Namespace) -> int:
         frame = _learn_live(args, spec, models, out, on_step)
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
-    frame.write_parquet(out / HISTORY_NAME)
+    try:
+        frame.write_parquet(out / HISTORY_NAME)
+    except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
+        msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
+        raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
     (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")
+    method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
     plot_learning_curves(
-        frame.with_columns(pl.lit(spec.transfer).alias("method")),
+        frame.with_columns(pl.lit(method).alias("method")),
         out / "learning_curve.png",
         x="step",
         title=f"learning run, seed {spec.seed}",
     )
-    print(f"history -> {out / 'history.parquet'}, plot -> {out / 'learning_curve.png'}")  # noqa: T201
-    return 0
 
 
 def _learn_offline(
@@ -234,7 +274,7 @@ def _learn_offline(
     """Run offline over a dataset, or over a recorded live session with its own split."""
     if args.session is None:
         return run_offline(table.frame, spec, priors=models, on_step=on_step).frame()
-    session = _features(args.session, _workers(args.workers))
+    session = _features(args.session, cli.worker_count(args.workers))
     lookup = FeatureLookup(session.frame, spec.features)
     split = Split.from_session(args.session)
     executor = PoolExecutor(lookup, spec.new_objects, split, like_rig=True)
@@ -250,12 +290,32 @@ def _learn_live(
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
+    from recorder import RecorderError  # noqa: PLC0415 (live only)
+
+    try:
+        return _record_and_learn(args, spec, models, out, on_step)
+    except RecorderError as err:  # the recorder's error, at the edge of the replay
+        msg = f"--rig {args.rig}: {cli.one_line(str(err))}"
+        raise ReplayError(msg) from err
+
+
+def _record_and_learn(
+    args: argparse.Namespace,
+    spec: RunSpec,
+    models: Any,  # noqa: ANN401
+    out: Path,
+    on_step: Callable[[dict[str, Any]], Any],
+) -> pl.DataFrame:
+    """Record the test trials, then every observation the learner asks for."""
     from recorder import load_actions, load_objects, rig_factory  # noqa: PLC0415 (live only)
 
     objects = load_objects()
     unknown = [o for o in spec.new_objects if o not in objects]
     if unknown:
-        msg = f"--new {','.join(unknown)}: not in the object catalog"
+        msg = (
+            f"--new {','.join(unknown)}: not in the object catalog, so the rig cannot perform "
+            f"on it; choose from {', '.join(objects)}"
+        )
         raise ReplayError(msg)
     rig = rig_factory(args.rig)(args.seed)
     executor = LiveExecutor(
@@ -271,17 +331,26 @@ def _learn_live(
     "run a study of the thesis (fusion, transfer, single-action, priors, negative, all)",
     arg("name", choices=[*STUDIES, "all"], help="which study"),
     _DATASET,
-    arg("--out", type=Path, default=None, help="output directory (default: studies/<name>)"),
+    arg(
+        "--out",
+        type=Path,
+        default=None,
+        help="output directory, never overwritten; with all, one directory per study inside "
+        "it (default: the first free of studies/<name>, studies/<name>-2, ...)",
+    ),
+    _FORCE,
     arg("--quick", action="store_true", help="a reduced version for a first look"),
     arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES[:2], help="ATIKT mode"),
     *_ROLES,
     _FEATURES,
     _SEED,
-    _WORKERS,
+    WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
-    workers = _workers(args.workers)
+    names = list(STUDIES) if args.name == "all" else [args.name]
+    targets = {name: _study_output(args, name) for name in names}  # refused before any work
+    workers = cli.worker_count(args.workers)
     root = _dataset(args.recordings, workers)
     table = _features(root, workers)
     roles = dataset_roles(
@@ -290,30 +359,33 @@ def _study_command(args: argparse.Namespace) -> int:
     known_actions = dataset_actions(table.frame)
     chosen = _ids(args.actions)
     actions = check_names("--actions", chosen, known_actions) if chosen else known_actions
-    names = list(STUDIES) if args.name == "all" else [args.name]
-    for name in names:
-        out = (
-            (args.out or Path("studies")) / name
-            if args.name == "all" or args.out is None
-            else args.out
-        )
-        config = StudyConfig(
-            out=out,
-            seed=args.seed,
-            workers=workers,
-            scheduler=args.scheduler,
-            transfer=args.transfer,
-            new=roles.new,
-            old=roles.old,
-            actions=tuple(actions),
-            features=args.features,
-        )
-        config = config.quick() if args.quick else config
-        bar, update = _progress(f"study {name}")
-        with bar:
-            output = run_study(
-                name, table.frame, config, quarantined=table.quarantined, on_progress=update
+    for name, target in targets.items():
+        with cli.publish_directory(target, force=args.force) as out:
+            config = StudyConfig(
+                out=out,
+                seed=args.seed,
+                workers=workers,
+                scheduler=args.scheduler,
+                transfer=args.transfer,
+                new=roles.new,
+                old=roles.old,
+                actions=tuple(actions),
+                features=args.features,
             )
+            config = config.quick() if args.quick else config
+            bar, update = _progress(f"study {name}")
+            with bar:
+                output = run_study(
+                    name, table.frame, config, quarantined=table.quarantined, on_progress=update
+                )
         print(output.text)  # noqa: T201 (the command's output)
-        print(f"results -> {output.results}\nplot -> {output.plot}\nsummary -> {output.summary}")  # noqa: T201
+        paths = (target / p.name for p in (output.results, output.plot, output.summary))
+        print("results -> {}\nplot -> {}\nsummary -> {}".format(*paths))  # noqa: T201
     return 0
+
+
+def _study_output(args: argparse.Namespace, name: str) -> Path:
+    """Return a study's output directory (``--out``, ``--out/<name>`` for all, or numbered)."""
+    if args.out is None:
+        return cli.numbered_directory(Path("studies") / name)
+    return _output(args.out / name if args.name == "all" else args.out, args.out, force=args.force)

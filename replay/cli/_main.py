@@ -16,11 +16,7 @@ traceback.
 
 from __future__ import annotations
 
-import argparse
 import importlib
-import os
-import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,6 +24,7 @@ import joblib
 import polars as pl
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
 from replay.errors import ReplayError
@@ -38,10 +35,11 @@ from replay.recording._reader import (
     read_recording,
 )
 from replay.recording._salvage import salvage
-from schemas import PART_SUFFIX, dataset_recordings
+from schemas import PART_SUFFIX, ContractError, cli, dataset_recordings, software_version
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    import argparse
+    from collections.abc import Sequence
 
     from replay.recording._container import ContainerSummary
     from replay.recording._reader import ActionRecording
@@ -53,42 +51,14 @@ COMMAND_MODULES: tuple[str, ...] = ("replay.cli._learn", "replay.cli._view")
 _NS_PER_S = 1e9
 
 
-@dataclass(frozen=True, slots=True)
-class Argument:
-    """One ``add_argument`` call: flags and keyword options."""
-
-    flags: tuple[str, ...]
-    options: dict[str, Any]
-
-
-def arg(*flags: str, **options: Any) -> Argument:  # noqa: ANN401 (argparse's own options)
-    """Declare an argument of a subcommand, as for ``ArgumentParser.add_argument``."""
-    return Argument(flags, options)
-
-
-@dataclass(frozen=True, slots=True)
-class Command:
-    """A registered subcommand."""
-
-    name: str
-    help: str
-    arguments: tuple[Argument, ...]
-    run: Callable[[argparse.Namespace], int]
-
-
-COMMANDS: dict[str, Command] = {}
-
-
-def command(
-    name: str, help_text: str, *arguments: Argument
-) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
-    """Register the decorated function as subcommand ``name``; it returns the exit status."""
-
-    def register(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
-        COMMANDS[name] = Command(name, help_text, arguments, run)
-        return run
-
-    return register
+REGISTRY = cli.Registry()
+#: The registered subcommands, by name.
+COMMANDS = REGISTRY.commands
+arg = cli.arg
+command = REGISTRY.command
+one_line = cli.one_line
+#: ``--workers``: worker processes, at least 1 (default: all cores).
+WORKERS = arg("--workers", type=cli.workers, help="worker processes (default: all cores)")
 
 
 def _existing(path: Path) -> Path:
@@ -199,11 +169,6 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-def one_line(text: str) -> str:
-    """Return ``text`` on one line (an error message printed by the CLI)."""
-    return " ".join(text.split())
-
-
 def _check_one(path: Path) -> str | None:
     """Return None if the recording reads and validates, else the error message."""
     try:
@@ -248,12 +213,40 @@ def _recover(path: Path, out: Path | None) -> int:
     return 0
 
 
+def progress_bar(console: Console) -> Progress:
+    """Return a rich progress bar (description, bar, done of total, elapsed) on ``console``."""
+    return Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=not console.is_terminal,
+    )
+
+
+def _check_all(files: Sequence[Path], workers: int) -> list[str]:
+    """Check every file on ``workers`` processes with a progress bar; return the problems."""
+    bar = progress_bar(Console(stderr=True))
+    task = bar.add_task("checking", total=len(files))
+    problems: list[str] = []
+    with bar:
+        results = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)), return_as="generator")(
+            joblib.delayed(_check_one)(file) for file in files
+        )
+        for problem in results:
+            bar.advance(task)
+            if problem is not None:
+                problems.append(problem)
+    return problems
+
+
 @command(
     "check",
     "validate recordings (CRCs, schema version, channels, decoding, dataset path and index); "
     "exit 1 if any is bad; --recover salvages an unfinished or damaged file",
     arg("path", type=Path, help="a recording (.mcap or .mcap.part) or a dataset directory"),
-    arg("--workers", type=int, help="worker processes for a directory (default: all cores)"),
+    WORKERS,
     arg(
         "--recover",
         action="store_true",
@@ -266,12 +259,8 @@ def _check(args: argparse.Namespace) -> int:
     if args.recover:
         return _recover(path, args.out)
     files = dataset_files(path) if path.is_dir() else [path]
-    workers = args.workers or os.cpu_count() or 1
-    problems = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)))(
-        joblib.delayed(_check_one)(file) for file in files
-    )
+    bad = _check_all(files, cli.worker_count(args.workers))
     console = Console(stderr=True)
-    bad = [problem for problem in problems if problem is not None]
     unfinished = _unfinished(path) if path.is_dir() else []
     for problem in bad + unfinished:
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
@@ -288,24 +277,14 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser with every registered subcommand."""
     for module in COMMAND_MODULES:
         importlib.import_module(module)
-    parser = argparse.ArgumentParser(
-        prog=PROG, description="Replay, inspect and learn from tactile MCAP recordings."
+    return cli.build_parser(
+        PROG,
+        "Replay, inspect and learn from tactile MCAP recordings.",
+        REGISTRY,
+        software_version(),
     )
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for entry in COMMANDS.values():
-        sub = subparsers.add_parser(entry.name, help=entry.help, description=entry.help)
-        for argument in entry.arguments:
-            sub.add_argument(*argument.flags, **argument.options)
-        sub.set_defaults(run=entry.run)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``atikt-replay``; return the exit status (1 for a project error, 2 for usage)."""
-    args = build_parser().parse_args(argv)
-    try:
-        status: int = args.run(args)
-    except ReplayError as err:
-        print(f"{PROG}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201 (no traceback)
-        return 1
-    return status
+    return cli.run(build_parser(), argv, (ReplayError, ContractError))

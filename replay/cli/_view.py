@@ -19,6 +19,7 @@ from replay.cli._main import arg, command, dataset_files
 from replay.errors import ReplayError
 from replay.learning._run_history import LearnRun, is_run_directory
 from replay.outputs._export import FORMATS, LAYOUTS, export
+from schemas import cli
 
 if TYPE_CHECKING:
     import argparse
@@ -85,8 +86,10 @@ def _view_name(inputs: Inputs) -> str:
     return f"{len(inputs.recordings)} recordings, {len(inputs.runs)} runs under {inputs.root}"
 
 
-def _attach_sink(stream: rr.RecordingStream, args: argparse.Namespace) -> str | None:
-    """Connect the stream to a file, a served web viewer or a spawned viewer.
+def _attach_sink(
+    stream: rr.RecordingStream, args: argparse.Namespace, save: Path | None
+) -> str | None:
+    """Connect the stream to a file (``save``), a served web viewer or a spawned viewer.
 
     Returns:
         The web viewer's address when serving, else None.
@@ -97,9 +100,8 @@ def _attach_sink(stream: rr.RecordingStream, args: argparse.Namespace) -> str | 
     import rerun as rr  # noqa: PLC0415 (only when viewing)
 
     try:
-        if args.save is not None:
-            args.save.parent.mkdir(parents=True, exist_ok=True)
-            stream.save(args.save)
+        if save is not None:
+            stream.save(save)
             return None
         if args.serve:
             url = stream.serve_grpc(grpc_port=args.grpc_port)
@@ -129,39 +131,59 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     "view",
     "show recordings and learn runs in rerun (a file with --save, a web viewer with --serve)",
     arg("paths", nargs="+", type=Path, help="recordings (.mcap), dataset or learn --out dirs"),
-    arg("--save", type=Path, default=None, help="write FILE.rrd instead of opening a viewer"),
+    arg(
+        "--save",
+        type=Path,
+        default=None,
+        help="write FILE.rrd instead of opening a viewer (never overwritten without --force)",
+    ),
+    arg("--force", action="store_true", help="replace an existing --save file"),
     arg("--serve", action="store_true", help="serve the web viewer on localhost until Ctrl-C"),
-    arg("--web-port", type=int, default=WEB_PORT, help=f"web viewer port (default {WEB_PORT})"),
-    arg("--grpc-port", type=int, default=GRPC_PORT, help=f"data port (default {GRPC_PORT})"),
+    arg("--web-port", type=int, default=WEB_PORT, help="web viewer port"),
+    arg("--grpc-port", type=int, default=GRPC_PORT, help="data port"),
     arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
     arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
 )
 def _view_command(args: argparse.Namespace) -> int:
     from replay.learning._run_history import load_run  # noqa: PLC0415
-    from replay.outputs._view import log_recordings, log_run, new_stream  # noqa: PLC0415
-    from replay.recording._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
 
     if args.save is not None and args.serve:
         msg = "--save and --serve: choose one (a file, or a web viewer)"
         raise ReplayError(msg)
     inputs = collect_inputs(args.paths)
     runs = [load_run(path) for path in inputs.runs]
-    stream = new_stream(_view_name(inputs))
-    address = _attach_sink(stream, args)
-    log_recordings(stream, (read_recording(path) for path in inputs.recordings))
-    for run in runs:
-        log_run(stream, run, "run" if len(runs) == 1 else f"run/{run.path.name}")
-    stream.flush()
+    if args.save is None:
+        address = _log(args, inputs, runs, None)
+    else:
+        with cli.publish_file(args.save, force=args.force, option="--save") as temporary:
+            _log(args, inputs, runs, temporary)
+        print(f"view -> {args.save}  (open it with: rerun {args.save})")  # noqa: T201
+        address = None
     if not args.no_figures:
         _figures(args, runs)
-    if args.save is not None:
-        stream.disconnect()
-        print(f"view -> {args.save}  (open it with: rerun {args.save})")  # noqa: T201
-    elif address is not None:
+    if address is not None:
         print(f"web viewer on {address}; Ctrl-C stops serving", flush=True)  # noqa: T201
         with contextlib.suppress(KeyboardInterrupt):
             threading.Event().wait()
     return 0
+
+
+def _log(
+    args: argparse.Namespace, inputs: Inputs, runs: Sequence[LearnRun], save: Path | None
+) -> str | None:
+    """Log recordings and runs to the chosen sink; return the web viewer's address if served."""
+    from replay.outputs._view import log_recordings, log_run, new_stream  # noqa: PLC0415
+    from replay.recording._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
+
+    stream = new_stream(_view_name(inputs))
+    address = _attach_sink(stream, args, save)
+    log_recordings(stream, (read_recording(path) for path in inputs.recordings))
+    for run in runs:
+        log_run(stream, run, "run" if len(runs) == 1 else f"run/{run.path.name}")
+    stream.flush()
+    if save is not None:
+        stream.disconnect()
+    return address
 
 
 @command(

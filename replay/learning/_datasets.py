@@ -179,3 +179,8 @@ def dataset_roles(
         msg = f"{', '.join(both)}: both new (--new) and prior (--priors); give each object one role"
         raise ReplayError(msg)
     return Roles(tuple(sorted(chosen_new)), tuple(sorted(chosen_old)))
+
+
+def default_dataset_ready(seed: int = DEFAULT_SEED) -> bool:
+    """Return True if the default simulated dataset of ``seed`` is complete (nothing to record)."""
+    return (default_dataset_dir(seed) / _DONE).exists()

@@ -281,9 +281,10 @@ def _write(frame: pl.DataFrame, target: Path) -> None:
     try:
         frame.write_parquet(temporary)
         temporary.replace(target)
-    except OSError as err:
+    except (OSError, pl.exceptions.PolarsError) as err:  # polars: ComputeError on a full disk
         temporary.unlink(missing_ok=True)
-        msg = f"{target}: cannot write the feature cache ({err.strerror}); check the directory"
+        reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
+        msg = f"{target}: cannot write the feature cache ({reason}); check free space"
         raise ReplayError(msg) from err
 
 

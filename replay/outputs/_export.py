@@ -17,8 +17,9 @@ file                 rows
 ``proximity``        skin proximity, m: ``proximity``
 ==================== =====================================================================
 
-Every table starts with the key columns ``recording`` (the file's path relative to the
-exported directory, or its name), ``object_id``, ``action_id``, ``trial``; the sample tables
+Every table starts with the key columns ``recording`` (the file's path relative to its
+dataset directory, e.g. ``wood/P1/001.mcap``, or to the exported directory when that lies
+higher up), ``object_id``, ``action_id``, ``trial``; the sample tables
 add ``stamp_ns`` (int64, sensor time) and ``phase`` (the phase the sample falls in, half-open;
 empty before the first phase).
 
@@ -221,8 +222,15 @@ def _temporary(path: Path) -> Path:
     return path.with_name(path.name + ".part")
 
 
-def _write_error(path: Path, err: OSError) -> ReplayError:
-    return ReplayError(f"{path}: cannot write the export ({err.strerror}); check --out")
+#: What writing a table may raise: the operating system's error, or polars' (ComputeError
+#: "underlying IO error: No space left on device" on a full disk).
+_WRITE_ERRORS = (OSError, pl.exceptions.PolarsError)
+
+
+def _write_error(path: Path, err: OSError | pl.exceptions.PolarsError) -> ReplayError:
+    """Return the error of a table that cannot be written, naming it and the fix."""
+    reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
+    return ReplayError(f"{path}: cannot write the export ({reason}); check free space and --out")
 
 
 @dataclass(slots=True)
@@ -291,7 +299,7 @@ class _Writer:
             table.check(frame, source)
             try:
                 self._append(name, table, frame)
-            except OSError as err:
+            except _WRITE_ERRORS as err:
                 raise _write_error(table.path, err) from err
             table.rows += frame.height
 
@@ -319,7 +327,7 @@ class _Writer:
         for table in self.tables.values():
             try:
                 self._finish(table)
-            except OSError as err:
+            except _WRITE_ERRORS as err:
                 raise _write_error(table.path, err) from err
         shutil.rmtree(self._parts, ignore_errors=True)
         return {name: table.rows for name, table in self.tables.items()}
@@ -361,12 +369,26 @@ class ExportReport:
     rows: dict[str, int]
 
 
-def _name(path: Path, root: Path | None) -> str:
-    """Return the ``recording`` column value: the path relative to ``root``, else its name."""
+def _name(path: Path, root: Path | None, recording: ActionRecording) -> str:
+    """Return the ``recording`` column value: the path relative to its dataset or ``root``.
+
+    A file laid out as ``<object>/<action>/<trial>.mcap`` (as its metadata says) is named
+    from its dataset directory (``wood/P1/001.mcap``: unique in the dataset), or from
+    ``root`` when that lies higher up (several datasets exported together).
+    """
     resolved = Path(path).resolve()
-    if root is not None and resolved.is_relative_to(Path(root).resolve()):
-        return resolved.relative_to(Path(root).resolve()).as_posix()
-    return path.name
+    meta = recording.metadata
+    anchors = [Path(root).resolve()] if root is not None else []
+    if len(resolved.parents) > 2 and (resolved.parents[1].name, resolved.parent.name) == (  # noqa: PLR2004
+        meta.object_id,
+        meta.action_id,
+    ):
+        anchors.append(resolved.parents[2])
+    usable = [anchor for anchor in anchors if resolved.is_relative_to(anchor)]
+    if not usable:
+        return path.name
+    top = min(usable, key=lambda anchor: len(anchor.parts))
+    return resolved.relative_to(top).as_posix()
 
 
 def export(
@@ -385,7 +407,8 @@ def export(
         out: Output directory (created if needed); existing tables are never overwritten.
         fmt: ``parquet`` or ``csv``.
         layout: Skin tables in the ``long`` or ``wide`` layout.
-        root: Directory the ``recording`` column is relative to (the file name when None).
+        root: Directory the ``recording`` column is relative to when it lies above each
+            file's dataset directory (see :func:`_name`).
         on_recording: Called after every exported recording (progress).
 
     Returns:
@@ -406,7 +429,9 @@ def export(
     try:
         for path in paths:
             recording = read_recording(path)
-            writer.append(recording_tables(recording, _name(path, root), layout), str(path))
+            writer.append(
+                recording_tables(recording, _name(path, root, recording), layout), str(path)
+            )
             if on_recording is not None:
                 on_recording(path)
         rows = writer.finish()

@@ -2,14 +2,16 @@
 
 :func:`plot_run` writes into a directory:
 
-- ``accuracy.png``: test accuracy after every step, all actions together and per action;
+- ``accuracy.png``: test accuracy (%) after every step, all actions together and per action;
 - ``decisions.png``: which (object, action) was chosen at every step (filled: the most
   uncertain pair, hollow: a random exploration), and below it the transfer coefficient rho
   of the explored object's classifier, labelled with the chosen prior object;
 - ``weights.png``: the explored classifier's modality weights per step (stacked, sum 1);
 - ``entropy.png``: the entropy map before every decision, one row per (action, object).
 
-The PNGs carry no version string: the same run gives the same bytes.
+Each action and modality has one colour in every figure (``replay.outputs._plots.colour``);
+each figure has one legend; step 0 is the initial round (one observation per new object and
+action). The PNGs carry no version string: the same run gives the same bytes.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import polars as pl
 from matplotlib.ticker import MaxNLocator
 
 from replay.errors import ReplayError
+from replay.outputs._plots import ACCURACY_LABEL, DPI, STEP_LABEL, colour
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -36,7 +39,6 @@ if TYPE_CHECKING:
 
 _METADATA = {"Software": None}
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
-_DPI = 120
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -46,11 +48,10 @@ def _save(fig: Figure, path: Path) -> Path:
         ReplayError: The file cannot be written.
     """
     for axes in fig.axes:
-        if axes.get_xlabel() == "step":
+        if axes.get_xlabel() in {"step", STEP_LABEL}:
             axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     try:
-        fig.tight_layout()
-        fig.savefig(path, dpi=_DPI, metadata=_METADATA)
+        fig.savefig(path, dpi=DPI, metadata=_METADATA)
     except OSError as err:
         msg = f"{path}: cannot write the figure ({err.strerror}); check the --figures directory"
         raise ReplayError(msg) from err
@@ -62,19 +63,25 @@ def _save(fig: Figure, path: Path) -> Path:
 def plot_accuracy(run: LearnRun, path: Path) -> Path:
     """Plot the test accuracy after every step (all actions and each action)."""
     frame = run.frame.filter(pl.col("accuracy").is_not_null())
-    fig, axes = plt.subplots(figsize=(6.0, 3.6))
+    fig, axes = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
     steps = frame["step"].to_numpy()
-    axes.plot(steps, frame["accuracy"].to_numpy(), color="black", linewidth=2.0, label="all")
+    every = 100 * frame["accuracy"].to_numpy()
+    axes.plot(steps, every, color="black", linewidth=2.0, label="all actions")
     for action in run.actions:
-        values = frame[f"accuracy_{action}"].cast(pl.Float64).to_numpy()
-        axes.plot(steps, values, linewidth=1.2, alpha=0.8, label=action)
-    axes.set_xlabel("step")
-    axes.set_ylabel("test accuracy")
-    axes.set_ylim(-0.02, 1.02)
+        values = 100 * frame[f"accuracy_{action}"].cast(pl.Float64).to_numpy()
+        axes.plot(steps, values, color=_action_colour(run, action), linewidth=1.2, label=action)
+    axes.set_xlabel(STEP_LABEL)
+    axes.set_ylabel(ACCURACY_LABEL)
+    axes.set_ylim(-2, 102)
     axes.grid(visible=True, alpha=0.3)
-    axes.legend(fontsize=8, ncol=2)
-    axes.set_title("accuracy")
+    fig.legend(loc="outside right upper", fontsize=8, frameon=False)
+    axes.set_title("test accuracy of the run (held-out recordings)")
     return _save(fig, path)
+
+
+def _action_colour(run: LearnRun, action: str) -> str:
+    """Return the colour of an action, the same in every figure of the run."""
+    return colour(action, run.actions)
 
 
 def _decision_points(axes: Axes, run: LearnRun, decisions: pl.DataFrame) -> None:
@@ -87,7 +94,7 @@ def _decision_points(axes: Axes, run: LearnRun, decisions: pl.DataFrame) -> None
             continue
         ys = np.array([rows.setdefault(o, len(rows)) for o in part["object"].to_list()])
         explored = part["explored"].to_numpy()
-        color = f"C{index % 10}"
+        color = _action_colour(run, action)
         marker = _MARKERS[index % len(_MARKERS)]
         for mask, face in ((~explored, color), (explored, "none")):
             axes.scatter(
@@ -103,7 +110,6 @@ def _decision_points(axes: Axes, run: LearnRun, decisions: pl.DataFrame) -> None
     axes.set_ylim(-0.6, len(rows) - 0.4)
     axes.set_ylabel("object")
     axes.grid(visible=True, alpha=0.3)
-    axes.legend(fontsize=8, title="action (hollow: explore)", title_fontsize=8, ncol=2)
 
 
 def _rho_bars(axes: Axes, decisions: pl.DataFrame) -> None:
@@ -116,7 +122,7 @@ def _rho_bars(axes: Axes, decisions: pl.DataFrame) -> None:
             axes.text(step, value + 0.02, prior, rotation=90, fontsize=7, ha="center", va="bottom")
     axes.set_ylim(0.0, 1.6)
     axes.set_ylabel("rho (prior)")
-    axes.set_xlabel("step")
+    axes.set_xlabel(STEP_LABEL)
     axes.grid(visible=True, alpha=0.3)
 
 
@@ -124,10 +130,16 @@ def plot_decisions(run: LearnRun, path: Path) -> Path:
     """Plot the decision timeline and the chosen prior's rho per step."""
     decisions = run.decisions
     fig, (top, bottom) = plt.subplots(
-        2, 1, figsize=(7.0, 5.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]}
+        2,
+        1,
+        figsize=(8.0, 6.0),
+        sharex=True,
+        gridspec_kw={"height_ratios": [3, 2]},
+        layout="constrained",
     )
     _decision_points(top, run, decisions)
-    top.set_title("decisions")
+    top.set_title("decisions (filled: most uncertain pair, hollow: random exploration)")
+    fig.legend(loc="outside right upper", fontsize=8, title="action", frameon=False)
     _rho_bars(bottom, decisions)
     return _save(fig, path)
 
@@ -135,7 +147,7 @@ def plot_decisions(run: LearnRun, path: Path) -> Path:
 def plot_weights(run: LearnRun, path: Path) -> Path:
     """Plot the explored classifier's modality weights per step, stacked."""
     decisions = run.decisions
-    fig, axes = plt.subplots(figsize=(6.0, 3.4))
+    fig, axes = plt.subplots(figsize=(7.0, 4.0), layout="constrained")
     if {"weights", "modalities"} <= set(decisions.columns):
         table = decisions.select("step", "modalities", "weights").explode("modalities", "weights")
         table = table.drop_nulls().pivot(on="modalities", index="step", values="weights")
@@ -143,10 +155,12 @@ def plot_weights(run: LearnRun, path: Path) -> Path:
         bottom = np.zeros(table.height)
         for modality in table.columns[1:]:
             values = table[modality].to_numpy()
-            axes.bar(table["step"].to_numpy(), values, bottom=bottom, width=0.8, label=modality)
+            shade = colour(modality, table.columns[1:])
+            steps = table["step"].to_numpy()
+            axes.bar(steps, values, bottom=bottom, width=0.8, label=modality, color=shade)
             bottom += values
-        axes.legend(fontsize=8)
-    axes.set_xlabel("step")
+        fig.legend(loc="outside right upper", fontsize=8, title="modality", frameon=False)
+    axes.set_xlabel(STEP_LABEL)
     axes.set_ylabel("modality weight")
     axes.set_ylim(0.0, 1.05)
     axes.set_title("modality weights of the explored classifier")
@@ -162,7 +176,8 @@ def plot_entropy(run: LearnRun, path: Path) -> Path:
         else []
     )
     fig, axes = plt.subplots(
-        figsize=(7.0, 0.5 + 0.32 * max(len(run.actions) * len(run.objects), 4))
+        figsize=(8.0, 1.2 + 0.32 * max(len(run.actions) * len(run.objects), 4)),
+        layout="constrained",
     )
     if rows:
         maps = np.array([r["entropies"] for r in rows], dtype=np.float64)
@@ -179,7 +194,7 @@ def plot_entropy(run: LearnRun, path: Path) -> Path:
         labels = [f"{a} {o}" for a in run.actions[:n_actions] for o in run.objects[:n_objects]]
         axes.set_yticks(range(len(labels)), labels, fontsize=7)
         fig.colorbar(shown, ax=axes, label="mean posterior entropy")
-    axes.set_xlabel("step")
+    axes.set_xlabel(STEP_LABEL)
     axes.set_title("entropy map before each decision")
     return _save(fig, path)
 

@@ -126,10 +126,11 @@ def test_index_of_a_missing_directory_is_a_user_error(
     assert "not a directory" in capsys.readouterr().err
 
 
-def test_usage_errors_exit_2() -> None:
-    with pytest.raises(SystemExit) as exit_info:
-        main(["action", "--object", "wood"])
-    assert exit_info.value.code == 2
+def test_usage_errors_exit_2_with_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["action", "--object", "wood"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("atikt-record action: error: the following arguments are required")
 
 
 def test_python_dash_m_recorder_is_the_same_program() -> None:

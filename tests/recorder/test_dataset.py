@@ -1,4 +1,11 @@
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
 import polars as pl
@@ -124,3 +131,116 @@ def test_index_has_one_row_per_recording_and_is_rebuilt_from_files(
     write_index(tmp_path)
     assert pl.read_parquet(tmp_path / INDEX_NAME).equals(index)
     assert build_index(tmp_path / "nothing").height == 0
+
+
+def test_a_second_seed_into_one_dataset_is_refused(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=1)
+    generate_dataset(tasks, tmp_path, FakeRig, seed=0, workers=1)
+    more = plan_dataset(objects, actions, object_ids=["sponge"], action_ids=["P1"], trials=1)
+    with pytest.raises(RecorderError, match=r"seed 0 .*--seed 1.*another --out, or --seed 0"):
+        generate_dataset(more, tmp_path, FakeRig, seed=1, workers=1)
+    assert not (tmp_path / "sponge").exists()
+    report = generate_dataset(more, tmp_path, FakeRig, seed=0, workers=1)  # the same seed resumes
+    assert report.written == 1
+
+
+def test_another_rig_configuration_into_one_dataset_is_refused(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=1)
+    generate_dataset(tasks, tmp_path, FakeRig, seed=0, workers=1)
+
+    def faster(seed: int) -> FakeRig:
+        return FakeRig(seed, time_scale=0.05)
+
+    with pytest.raises(RecorderError, match=r"another rig configuration \(time_scale='0.1'"):
+        generate_dataset(tasks, tmp_path, faster, seed=0, workers=1)
+
+
+def test_a_full_disk_in_one_worker_leaves_no_temporary_file(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
+    from worker_rigs import FullDiskOnTrialOne  # noqa: PLC0415 (importable by the workers)
+
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=4)
+    results: list[TaskResult] = []
+    with pytest.raises(RecorderError, match=r"001\.mcap: .*disk is full"):
+        generate_dataset(
+            tasks, tmp_path, FullDiskOnTrialOne, seed=0, workers=2, on_result=results.append
+        )
+    left = sorted(p.name for p in tmp_path.rglob("*") if p.is_file())
+    assert set(left) <= {"002.mcap", "003.mcap", "004.mcap"}  # finished ones kept, no .part
+    assert TaskStatus.FAILED in [r.status for r in results]
+
+
+def test_a_full_disk_while_indexing_is_one_error_and_leaves_no_temporary_file(
+    tmp_path: Path, objects: Objects, actions: Actions, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=1)
+    generate_dataset(tasks, tmp_path, FakeRig, seed=0, workers=1)
+    before = sorted(tmp_path.rglob("*"))
+
+    def full(*_args: object, **_kwargs: object) -> None:
+        message = "parquet: underlying IO error: No space left on device (os error 28)"
+        raise pl.exceptions.ComputeError(message)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", full)
+    with pytest.raises(RecorderError, match=r"index\.parquet: cannot write the index .*space"):
+        write_index(tmp_path)
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def _alive(pid: int) -> bool:
+    """Return True if ``pid`` runs (a zombie waiting to be reaped does not)."""
+    stat = Path(f"/proc/{pid}/stat")
+    if stat.exists():
+        return stat.read_text().rsplit(")", 1)[1].split()[0] not in {"Z", "X"}
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def _wait(condition: Callable[[], bool], seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+_KILLED_PARENT = """
+import sys
+sys.path[:0] = {paths!r}
+from conftest import fake_objects
+from recorder import generate_dataset, load_actions, plan_dataset
+from worker_rigs import SleepingRig
+tasks = plan_dataset(fake_objects(), load_actions(), action_ids=["P1"], trials=4)
+generate_dataset(tasks, {root!r}, SleepingRig, seed=0, workers=2)
+"""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGKILL")
+def test_workers_exit_when_the_dataset_run_is_killed(tmp_path: Path) -> None:
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    here = Path(__file__).resolve().parent
+    paths = [str(here.parent), str(here), str(here.parents[1])]
+    script = _KILLED_PARENT.format(paths=paths, root=str(tmp_path / "data"))
+    env = os.environ | {"ATIKT_TEST_PIDS": str(pids)}
+    parent = subprocess.Popen([sys.executable, "-c", script], env=env)  # noqa: S603
+    try:
+        assert _wait(lambda: len(list(pids.iterdir())) >= 2, 120), "workers did not start"
+        workers = [int(p.name) for p in pids.iterdir()]
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        assert _wait(lambda: not any(_alive(pid) for pid in workers), 60), "workers run on"
+    finally:
+        parent.kill()
+        for pid in [int(p.name) for p in pids.iterdir()]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)

@@ -65,7 +65,7 @@ def test_missing_path_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_a_subcommand_is_one_registered_function(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(_cli, "COMMANDS", dict(_cli.COMMANDS))
+    monkeypatch.setattr(_cli.REGISTRY, "commands", dict(_cli.REGISTRY.commands))
 
     @command("greet", "say hello", arg("name"), arg("--times", type=int, default=1))
     def _greet(args: argparse.Namespace) -> int:

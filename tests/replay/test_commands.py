@@ -1,11 +1,14 @@
 from pathlib import Path
+from typing import Any, Self
 
 import polars as pl
 import pytest
-from conftest import NEW
+from conftest import NEW, FakeRig
 
+from recorder import _dataset as recorder_datasets
+from recorder.errors import RigError
 from replay.cli._main import main
-from replay.learning._run_history import load_run
+from replay.learning._run_history import SETTINGS_NAME, load_run
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
@@ -61,3 +64,120 @@ def test_learn_refuses_a_missing_dataset(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert str(missing) in err[0]
+
+
+def _learn(data: Path, *extra: str) -> list[str]:
+    """Return a short learn command line (no transfer: no prior models to fit)."""
+    argv = ["learn", "--recordings", str(data), "--budget", "1", "--transfer", "none"]
+    return [*argv, "--workers", "1", *extra]
+
+
+def test_learn_without_out_never_overwrites_an_earlier_run(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(_learn(small_dataset)) == 0
+    first = (tmp_path / "runs" / "learn-0" / "history.parquet").read_bytes()
+    assert main(_learn(small_dataset)) == 0
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["learn-0", "learn-0-2"]
+    assert (tmp_path / "runs" / "learn-0" / "history.parquet").read_bytes() == first
+    assert (tmp_path / "runs" / "learn-0-2" / "history.parquet").exists()
+
+
+def test_learn_force_replaces_the_named_out_whole(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "accuracy.png").write_bytes(b"a figure of an earlier run")
+    assert main(_learn(small_dataset, "--out", str(out))) == 1
+    assert "--force" in capsys.readouterr().err
+    assert main(_learn(small_dataset, "--out", str(out), "--force")) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "history.parquet",
+        "learning_curve.png",
+        SETTINGS_NAME,
+    ]
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary directory left
+
+
+def test_study_without_out_takes_a_new_numbered_directory(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    earlier = tmp_path / "studies" / "negative"
+    earlier.mkdir(parents=True)
+    (earlier / "summary.md").write_text("an earlier study\n")
+    argv = ["study", "negative", "--recordings", str(small_dataset), "--quick", "--workers", "1"]
+    assert main(argv) == 0
+    assert (earlier / "summary.md").read_text() == "an earlier study\n"
+    made = tmp_path / "studies" / "negative-2"
+    assert sorted(p.name for p in made.iterdir()) == [
+        "learning_curves.png",
+        "results.parquet",
+        "summary.md",
+    ]
+
+
+def test_a_complete_default_dataset_prints_no_recording_progress(
+    small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from replay.cli import _learn  # noqa: PLC0415
+
+    shown: list[str] = []
+    progress = _learn._progress
+
+    def spy(description: str) -> Any:
+        shown.append(description)
+        return progress(description)
+
+    monkeypatch.setattr(_learn, "_progress", spy)
+    monkeypatch.setattr(_learn, "default_dataset_ready", lambda: True)
+    monkeypatch.setattr(_learn, "ensure_default_dataset", lambda **_: small_dataset)
+    argv = ["learn", "--budget", "0", "--transfer", "none", "--workers", "1"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 0
+    assert not [text for text in shown if "recording" in text]
+
+
+def test_a_full_disk_while_writing_the_run_is_one_line_and_leaves_nothing(
+    small_dataset: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    original = pl.DataFrame.write_parquet
+
+    def full_for_history(frame: pl.DataFrame, file: Any, *args: Any, **kwargs: Any) -> None:
+        if str(file).endswith("history.parquet"):
+            message = "parquet: underlying IO error: No space left on device (os error 28)"
+            raise pl.exceptions.ComputeError(message)
+        original(frame, file, *args, **kwargs)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", full_for_history)
+    out = tmp_path / "run"
+    assert main(_learn(small_dataset, "--out", str(out))) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "No space left on device" in err
+    assert list(tmp_path.iterdir()) == []  # neither the run nor its temporary directory
+
+
+class _Unplugged(FakeRig):
+    def __enter__(self) -> Self:
+        msg = "the fake rig does not answer; check its cable"
+        raise RigError(msg)
+
+
+def test_a_failing_rig_in_a_live_run_is_one_line(
+    small_dataset: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setitem(recorder_datasets._RIGS, "unplugged", _Unplugged)
+    argv = _learn(small_dataset, "--rig", "unplugged", "--out", str(tmp_path / "live"))
+    assert main([*argv, "--actions", "P1", "--test-trials", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "--rig unplugged: the fake rig does not answer; check its cable" in err
+    assert list(tmp_path.iterdir()) == []

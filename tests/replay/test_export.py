@@ -34,7 +34,7 @@ def test_long_tables_hold_every_value(fake_recording: Path, tmp_path: Path) -> N
         table = pl.read_parquet(tmp_path / "out" / f"{modality}.parquet")
         n, cells, _ = series.data.shape
         assert table.height == n * cells == report.rows[modality]
-        assert table["recording"].unique().to_list() == [fake_recording.name]
+        assert table["recording"].unique().to_list() == ["sponge/S2/003.mcap"]
         table = table.sort("stamp_ns", "cell", maintain_order=True)
         assert table["stamp_ns"].to_list() == np.repeat(series.stamps_ns, cells).tolist()
         assert table["cell"].to_list() == np.tile(series.cell_ids, n).tolist()
@@ -115,4 +115,37 @@ def test_a_bad_recording_leaves_no_table(fake_recording: Path, tmp_path: Path) -
     bad.write_bytes(bad.read_bytes()[:-200])
     with pytest.raises(ReplayError, match=r"004.mcap"):
         export(sorted(root.rglob("*.mcap")), tmp_path / "out", fmt="csv")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_one_file_of_a_dataset_is_named_from_the_dataset(
+    fake_recording: Path, tmp_path: Path
+) -> None:
+    root = _dataset(fake_recording, tmp_path / "data")
+    one = root / "sponge" / "S2" / "004.mcap"
+    assert main(["export", str(one), "--out", str(tmp_path / "one")]) == 0
+    names = pl.read_parquet(tmp_path / "one" / "recordings.parquet")["recording"].to_list()
+    assert names == ["sponge/S2/004.mcap"]
+    stray = tmp_path / "loose.mcap"
+    shutil.copy(fake_recording, stray)  # not laid out as <object>/<action>/<trial>.mcap
+    report = export([stray], tmp_path / "loose", root=tmp_path)
+    assert pl.read_parquet(report.files[0])["recording"].to_list() == ["loose.mcap"]
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing(
+    fake_recording: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    def full(*_args: object, **_kwargs: object) -> None:
+        message = "parquet: underlying IO error: No space left on device (os error 28)"
+        raise pl.exceptions.ComputeError(message)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", full)
+    assert main(["export", str(fake_recording), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "cannot write the export" in err
+    assert "No space left on device" in err
     assert list((tmp_path / "out").iterdir()) == []

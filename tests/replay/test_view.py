@@ -11,10 +11,12 @@ import polars as pl
 import pytest
 import rerun as rr
 from rerun_frames import nanoseconds, read_rrd
+from test_plots import png_size_and_dpi
 
 from replay import MODALITIES, read_recording
 from replay.cli._main import main
 from replay.learning._run_history import load_run
+from replay.outputs._plots import DPI
 from replay.outputs._run_figures import plot_run
 from replay.outputs._view import log_recordings, new_stream, series_names
 
@@ -237,3 +239,17 @@ def test_learn_run_figures_are_pngs_and_reproducible(learn_run: Path, tmp_path: 
     again = plot_run(load_run(learn_run), tmp_path / "again")
     for path in again:
         assert path.read_bytes() == (learn_run / "figures" / path.name).read_bytes()
+        width, _, dpi = png_size_and_dpi(path)
+        assert dpi == pytest.approx(DPI, abs=0.5)
+        assert width >= 1000
+
+
+def test_save_never_overwrites_without_force(fake_recording: Path, tmp_path: Path) -> None:
+    target = tmp_path / "view.rrd"
+    target.write_bytes(b"an earlier view")
+    assert main(["view", str(fake_recording), "--save", str(target)]) == 1
+    assert target.read_bytes() == b"an earlier view"
+    assert main(["view", str(fake_recording), "--save", str(target), "--force"]) == 0
+    assert target.read_bytes() != b"an earlier view"
+    assert read_rrd(target).static  # a complete view
+    assert [p.name for p in tmp_path.iterdir()] == ["view.rrd"]  # no temporary file left

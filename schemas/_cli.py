@@ -1,0 +1,323 @@
+"""The tiny command-line toolkit that ``atikt-record`` and ``atikt-replay`` share.
+
+``schemas`` holds the recording contract and, beside it, this toolkit: it imports nothing of
+the project, so both command lines (the recorder and the replay, which must not depend on each
+other) can use it. It gives
+
+- a registry of subcommands (:class:`Registry`, :func:`arg`) and the parser built from it,
+  whose usage errors are one line, whose ``--help`` shows every default, and ``--version``;
+- :func:`run`: the top level that prints a project error as one line (no traceback) and lets
+  any other exception, a bug, keep its traceback;
+- :func:`workers`: the ``--workers`` type (an integer of at least 1) and :func:`worker_count`;
+  :func:`seed`: the ``--seed`` type of a run (0..2**32-1);
+- publishing outputs without overwriting: :func:`numbered_directory` (a fresh name when the
+  user named none), :func:`publish_directory` (refuse an existing output unless ``--force``,
+  which replaces it by writing a temporary directory and swapping it in), and
+  :func:`check_new_file` for single files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import secrets
+import shutil
+import sys
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, NoReturn
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator, Sequence
+    from pathlib import Path
+
+#: Exit status of a refused input (a project error) and of a usage error.
+ERROR_STATUS, USAGE_STATUS = 1, 2
+
+
+class CliError(Exception):
+    """A command-line value or an output path is refused; the message names it and the fix."""
+
+
+@dataclass(frozen=True, slots=True)
+class Argument:
+    """One ``add_argument`` call: flags and keyword options."""
+
+    flags: tuple[str, ...]
+    options: dict[str, Any]
+
+
+def arg(*flags: str, **options: Any) -> Argument:  # noqa: ANN401 (argparse's own options)
+    """Declare an argument of a subcommand, as for ``ArgumentParser.add_argument``."""
+    return Argument(flags, options)
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A registered subcommand."""
+
+    name: str
+    help: str
+    arguments: tuple[Argument, ...]
+    run: Callable[[argparse.Namespace], int]
+
+
+@dataclass(slots=True)
+class Registry:
+    """The subcommands of one program, in registration order."""
+
+    commands: dict[str, Command] = field(default_factory=dict)
+
+    def command(
+        self, name: str, help_text: str, *arguments: Argument
+    ) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
+        """Register the decorated function as subcommand ``name``; it returns the exit status."""
+
+        def register(
+            run: Callable[[argparse.Namespace], int],
+        ) -> Callable[[argparse.Namespace], int]:
+            self.commands[name] = Command(name, help_text, arguments, run)
+            return run
+
+        return register
+
+
+def one_line(text: str) -> str:
+    """Return ``text`` on one line (an error message printed by a command line)."""
+    return " ".join(text.split())
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr (exit status 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``prog: error: message`` and where help is, then exit with status 2."""
+        self.exit(USAGE_STATUS, f"{self.prog}: error: {one_line(message)}; see {self.prog} -h\n")
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Adds ``(default: X)`` to every option's help that has a default and does not say it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        shown = action.default not in (None, False, argparse.SUPPRESS)
+        if shown and "default" not in text and (action.option_strings or action.nargs == "?"):
+            return f"{text} (default: %(default)s)"
+        return text
+
+
+def build_parser(
+    prog: str, description: str, registry: Registry, version: str
+) -> argparse.ArgumentParser:
+    """Return the parser of ``prog`` with every subcommand of ``registry``."""
+    parser = _Parser(prog=prog, description=description, formatter_class=_HelpFormatter)
+    parser.add_argument("--version", action="version", version=f"{prog} {version}")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for entry in registry.commands.values():
+        sub = subparsers.add_parser(
+            entry.name, help=entry.help, description=entry.help, formatter_class=_HelpFormatter
+        )
+        for argument in entry.arguments:
+            sub.add_argument(*argument.flags, **argument.options)
+        sub.set_defaults(run=entry.run)
+    return parser
+
+
+def run(
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    errors: tuple[type[Exception], ...],
+) -> int:
+    """Parse ``argv`` and run the chosen subcommand; return its exit status.
+
+    Errors of the project (``errors`` and :class:`CliError`) are printed as one line on
+    stderr with status 1, usage errors with status 2; any other exception is a bug and keeps
+    its traceback.
+    """
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:  # a usage error (one line printed), --help or --version
+        return done.code if isinstance(done.code, int) else USAGE_STATUS * (done.code is not None)
+    caught: tuple[type[Exception], ...] = (*errors, CliError)
+    try:
+        status: int = args.run(args)
+    except caught as err:
+        print(f"{parser.prog}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201
+        return ERROR_STATUS
+    return status
+
+
+def workers(text: str) -> int:
+    """Parse a ``--workers`` value: an integer of at least 1 (argparse ``type``).
+
+    Raises:
+        argparse.ArgumentTypeError: Not an integer, or below 1.
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        msg = f"{text!r} is not a whole number; give 1 or more worker processes"
+        raise argparse.ArgumentTypeError(msg) from None
+    if value < 1:
+        msg = f"{value}: give 1 or more worker processes (default: all cores)"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+#: Largest seed of a run: numpy's legacy generators take 32-bit seeds.
+MAX_RUN_SEED = 2**32 - 1
+
+
+def seed(text: str) -> int:
+    """Parse a ``--seed`` value: a whole number in 0..2**32-1 (argparse ``type``).
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_RUN_SEED:
+        msg = f"{text}: give a whole number in 0..{MAX_RUN_SEED}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def worker_count(value: int | None) -> int:
+    """Return the worker count: the option's value, else every core."""
+    return value if value is not None else os.cpu_count() or 1
+
+
+def _is_taken(path: Path) -> bool:
+    """Return True if ``path`` exists and is not an empty directory."""
+    return path.exists() and not (path.is_dir() and not any(path.iterdir()))
+
+
+def numbered_directory(base: Path) -> Path:
+    """Return ``base`` if it is free, else the first free ``base-2``, ``base-3``, ..."""
+    candidate, number = base, 1
+    while _is_taken(candidate):
+        number += 1
+        candidate = base.with_name(f"{base.name}-{number}")
+    return candidate
+
+
+def refuse_existing(path: Path, *, force: bool, option: str = "--out") -> None:
+    """Refuse an existing output unless ``force``.
+
+    Raises:
+        CliError: ``path`` exists (a non-empty directory or a file) and ``force`` is False.
+    """
+    if not force and _is_taken(path):
+        msg = (
+            f"{option} {path}: exists, and outputs are never overwritten; give another "
+            f"{option}, or add --force to replace it"
+        )
+        raise CliError(msg)
+
+
+def check_new_file(path: Path, *, force: bool, option: str = "--out") -> None:
+    """Refuse an existing file (or a directory) at ``path`` unless ``force`` (and a file).
+
+    Raises:
+        CliError: The file exists and ``force`` is False, or ``path`` is a directory.
+    """
+    if path.is_dir():
+        msg = f"{option} {path}: is a directory; give a file name"
+        raise CliError(msg)
+    refuse_existing(path, force=force, option=option)
+
+
+def _temporary_sibling(target: Path, what: str) -> Path:
+    """Return an unused hidden name beside ``target``."""
+    return target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.{what}")
+
+
+def _swap_in(temporary: Path, target: Path) -> None:
+    """Move ``temporary`` to ``target``, replacing what was there (moved aside, then removed)."""
+    old = _temporary_sibling(target, "old") if target.exists() else None
+    if old is not None:
+        target.rename(old)
+    try:
+        temporary.rename(target)
+    except OSError:
+        if old is not None:
+            old.rename(target)
+        raise
+    if old is not None and old.is_dir():
+        shutil.rmtree(old, ignore_errors=True)
+    elif old is not None:
+        old.unlink()
+
+
+@contextlib.contextmanager
+def publish_directory(target: Path, *, force: bool, option: str = "--out") -> Iterator[Path]:
+    """Yield a temporary directory beside ``target``; on success it becomes ``target``.
+
+    Nothing is written at ``target`` until the block finished: a failed or interrupted run
+    leaves the previous output as it was and removes its temporary directory.
+
+    Args:
+        target: The output directory.
+        force: Replace an existing output (else it is refused).
+        option: The option that named ``target``, for messages.
+
+    Raises:
+        CliError: ``target`` exists and ``force`` is False, or it cannot be written.
+    """
+    refuse_existing(target, force=force, option=option)
+    temporary = _temporary_sibling(target, "tmp")
+    try:
+        temporary.mkdir(parents=True)
+    except OSError as err:
+        msg = f"{option} {target}: cannot create it ({err.strerror}); check the directory"
+        raise CliError(msg) from err
+    try:
+        yield temporary
+        _swap_in(temporary, target)
+    except OSError as err:
+        msg = f"{option} {target}: cannot write it ({err.strerror}); check free space"
+        raise CliError(msg) from err
+    finally:
+        shutil.rmtree(temporary, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterator[Path]:
+    """Yield a temporary file name beside ``target``; on success it is renamed to ``target``.
+
+    Raises:
+        CliError: ``target`` exists and ``force`` is False, or it cannot be written.
+    """
+    check_new_file(target, force=force, option=option)
+    temporary = _temporary_sibling(target, f"tmp{target.suffix}")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        yield temporary
+        temporary.replace(target)
+    except OSError as err:
+        msg = f"{option} {target}: cannot write it ({err.strerror}); check the directory"
+        raise CliError(msg) from err
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+__all__ = [
+    "Argument",
+    "CliError",
+    "Command",
+    "Registry",
+    "arg",
+    "build_parser",
+    "check_new_file",
+    "numbered_directory",
+    "one_line",
+    "publish_directory",
+    "publish_file",
+    "refuse_existing",
+    "run",
+    "seed",
+    "worker_count",
+    "workers",
+]

@@ -1,0 +1,73 @@
+"""Every error path of ``atikt-record``: one line on stderr, a non-zero exit, no traceback."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import FakeRig
+
+from recorder import _dataset
+from recorder._cli import main
+
+_ACTION = "action --object wood --action P1 --rig fake --out {data}"
+_DATASET = "dataset --objects wood --actions P1 --trials 1 --rig fake --out {data}"
+#: argv (``{data}``: a dataset of seed 0 holding wood/P1/001.mcap, ``{tmp}``: an empty
+#: directory) -> a fragment the one-line message must contain.
+CASES: list[tuple[str, str]] = [
+    ("nosuch", "invalid choice: 'nosuch'"),
+    ("action --object wood --action P1", "the following arguments are required: --out"),
+    (_ACTION, "001.mcap: a recording with this name exists and is never overwritten"),
+    (_ACTION + " --trial 0", "--trial 0: trials are numbered from 1"),
+    (_ACTION + " --object marble", "--objects marble: not in the objects catalog"),
+    (_ACTION + " --action S9", "--actions S9: not in the actions catalog"),
+    (_ACTION + " --rig nosuch", "--rig nosuch: unknown rig; registered rigs: sim"),
+    (_ACTION + " --objects-catalog {tmp}/none.toml", "none.toml: cannot read the catalog"),
+    (_DATASET + " --workers 0", "argument --workers: 0: give 1 or more worker processes"),
+    (_DATASET + " --trials 0", "--trials 0: need at least one trial"),
+    (_DATASET + " --objects woood", "--objects woood: not in the objects catalog; known:"),
+    (_DATASET + " --seed 1", "holds recordings of seed 0"),
+    (_DATASET + " --seed 1", "give another --out, or --seed 0 to resume it"),
+    (_DATASET + " --rig nosuch", "--rig nosuch: unknown rig"),
+    ("index {tmp}/missing", "not a directory; give the dataset directory"),
+    ("import-bag {tmp}/missing.bag --topics", "missing.bag: cannot read the bag"),
+    ("import-bag {tmp}/missing.bag", "--topic-map and --out are required"),
+]
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    base = tmp_path_factory.mktemp("errors")
+    (base / "tmp").mkdir()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(_dataset._RIGS, "fake", FakeRig)
+        assert main(_ACTION.format(data=base / "data").split()) == 0
+    return {"data": str(base / "data"), "tmp": str(base / "tmp")}
+
+
+@pytest.mark.parametrize(("argv", "expected"), CASES, ids=[argv for argv, _ in CASES])
+def test_every_error_is_one_line_and_a_non_zero_exit(
+    places: dict[str, str],
+    argv: str,
+    expected: str,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(_dataset._RIGS, "fake", FakeRig)
+    capsys.readouterr()
+    assert main(argv.format(**places).split()) != 0
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("atikt-record")
+    assert expected in lines[0]
+    assert "Traceback" not in err
+
+
+def test_help_shows_every_default_and_version_is_printed(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.startswith("atikt-record ")
+    assert main(["dataset", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for option in ("--seed SEED dataset seed (default: 0)", "--rig RIG", "(default: sim)"):
+        assert option in text

@@ -1,0 +1,142 @@
+"""README result tables written from study results: idempotent, checked, with intervals."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import polars as pl
+import pytest
+
+from replay.outputs.readme_tables import gain_intervals, main, rewrite
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+README = """# project
+
+Prose before.
+
+<!-- results:transfer -->
+| an old table |
+<!-- /results:transfer -->
+
+Prose between.
+
+<!-- results:fusion -->
+<!-- /results:fusion -->
+
+Prose after.
+"""
+
+
+def _transfer(gain_per_group: list[float], seed: int = 0) -> pl.DataFrame:
+    rng = np.random.default_rng(seed)
+    rows = []
+    for group, gain in enumerate(gain_per_group):
+        for trial in range(2):
+            for step in range(4):
+                base = float(rng.uniform(0.4, 0.8))
+                rows += [
+                    {"method": "baseline", "group": group, "trial": trial, "step": step}
+                    | {"accuracy": base},
+                    {"method": "ATIKT", "group": group, "trial": trial, "step": step}
+                    | {"accuracy": base + gain},
+                ]
+    return pl.DataFrame(rows)
+
+
+def _fusion() -> pl.DataFrame:
+    rows = [
+        {"action": action, "group": 0, "repetition": 0, "modalities": modality}
+        | {"samples": samples, "accuracy": accuracy}
+        for action, modality, accuracy in (
+            ("P1", "multi-modal", 0.9),
+            ("P1", "force", 0.6),
+            ("S2", "multi-modal", 0.8),
+            ("S2", "texture", 0.7),
+        )
+        for samples in (1, 2)
+    ]
+    return pl.DataFrame(rows)
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    for name, frame in (
+        ("transfer", _transfer([0.05, 0.02, 0.08, 0.01, 0.04])),
+        ("fusion", _fusion()),
+    ):
+        (tmp_path / "studies" / name).mkdir(parents=True)
+        frame.write_parquet(tmp_path / "studies" / name / "results.parquet")
+    (tmp_path / "README.md").write_text(README)
+    return tmp_path
+
+
+def _args(project: Path, *extra: str) -> list[str]:
+    return ["--readme", str(project / "README.md"), "--studies", str(project / "studies"), *extra]
+
+
+def test_tables_are_rewritten_between_the_markers_and_twice_changes_nothing(
+    project: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(_args(project, "--check")) == 1
+    assert "differ" in capsys.readouterr().err
+    assert main(_args(project)) == 0
+    once = (project / "README.md").read_text()
+    assert main(_args(project)) == 0
+    assert (project / "README.md").read_text() == once
+    assert main(_args(project, "--check")) == 0
+    for prose in ("Prose before.", "Prose between.", "Prose after."):
+        assert prose in once
+    assert "an old table" not in once
+    assert "| ATIKT |" in once
+    assert "| gain, points [95 % interval] | +" in once
+    assert "10000 paired bootstrap resamples of the 5 prior groups" in once
+    assert "| action | multi-modal | force | texture |" in once
+    assert "| P1 | 90.0 % | 60.0 % | - |" in once
+
+
+def test_a_constant_gain_has_a_degenerate_interval() -> None:
+    low, high = gain_intervals(_transfer([0.05] * 6), budget=3, seed=0)
+    assert low == pytest.approx([0.05] * 3)
+    assert high == pytest.approx([0.05] * 3)
+
+
+def test_the_interval_holds_the_paired_gain_and_depends_only_on_the_seed() -> None:
+    frame = _transfer([0.05, -0.02, 0.08, 0.01, 0.04, 0.0, 0.03])
+    low, high = gain_intervals(frame, budget=3, seed=1)
+    assert np.all(low < 0.0271)
+    assert np.all(high > 0.0271)
+    assert np.all(low >= -0.02 - 1e-12)
+    assert np.all(high <= 0.08 + 1e-12)
+    again = gain_intervals(frame.sample(fraction=1.0, shuffle=True, seed=3), budget=3, seed=1)
+    np.testing.assert_allclose(again, np.stack([low, high]))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda p: (p / "studies" / "fusion" / "results.parquet").unlink(), "cannot read"),
+        (lambda p: (p / "README.md").write_text("no markers\n"), "no '<!-- results:NAME -->'"),
+        (
+            lambda p: (p / "README.md").write_text("<!-- results:transfer -->\n"),
+            "'<!-- results:transfer -->' is not closed",
+        ),
+    ],
+)
+def test_a_missing_marker_or_results_file_is_refused_in_one_line(
+    project: Path, capsys: pytest.CaptureFixture[str], change: object, message: str
+) -> None:
+    change(project)  # type: ignore[operator]
+    before = (project / "README.md").read_text()
+    assert main(_args(project)) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert message in err
+    assert (project / "README.md").read_text() == before
+
+
+def test_rewrite_of_one_block(project: Path) -> None:
+    text = "<!-- results:fusion -->\nold\n<!-- /results:fusion -->\n"
+    assert rewrite(text, project / "studies", 0).startswith("<!-- results:fusion -->\n| action |")

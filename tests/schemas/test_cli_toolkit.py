@@ -1,0 +1,115 @@
+"""The command-line toolkit both CLIs share: registry, one-line errors, safe publishing."""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING
+
+import pytest
+
+from schemas import ContractError, cli
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def _program(run: object) -> argparse.ArgumentParser:
+    registry = cli.Registry()
+    registry.command("go", "do it", cli.arg("--workers", type=cli.workers))(run)  # type: ignore[arg-type]
+    return cli.build_parser("prog", "a program", registry, "1.2.3")
+
+
+def test_a_project_error_is_one_line_and_a_bug_keeps_its_traceback(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    def refuse(_args: argparse.Namespace) -> int:
+        msg = "value: refused;\n  fix it"
+        raise ContractError(msg)
+
+    assert cli.run(_program(refuse), ["go"], (ContractError,)) == 1
+    assert capsys.readouterr().err == "prog: error: value: refused; fix it\n"
+
+    def bug(_args: argparse.Namespace) -> int:
+        return 1 // 0
+
+    with pytest.raises(ZeroDivisionError):
+        cli.run(_program(bug), ["go"], (ContractError,))
+
+
+@pytest.mark.parametrize(
+    ("argv", "status", "fragment"),
+    [
+        (["go", "--workers", "0"], 2, "prog go: error: argument --workers: 0: give 1 or more"),
+        (["go", "--workers", "x"], 2, "'x' is not a whole number"),
+        (["nosuch"], 2, "prog: error: argument COMMAND: invalid choice"),
+        (["--version"], 0, "prog 1.2.3"),
+    ],
+)
+def test_usage_errors_are_one_line(
+    argv: list[str], status: int, fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.run(_program(lambda _args: 0), argv, ()) == status
+    captured = capsys.readouterr()
+    text = captured.err or captured.out
+    assert text.count("\n") == 1
+    assert fragment in text
+
+
+def test_seed_type_bounds() -> None:
+    assert cli.seed("0") == 0
+    assert cli.seed(str(2**32 - 1)) == 2**32 - 1
+    for bad in ("-1", str(2**32), "one"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            cli.seed(bad)
+
+
+def test_numbered_directory_takes_the_first_free_name(tmp_path: Path) -> None:
+    base = tmp_path / "learn-0"
+    assert cli.numbered_directory(base) == base
+    (base / "x").mkdir(parents=True)
+    (tmp_path / "learn-0-2").mkdir()  # empty: free
+    assert cli.numbered_directory(base) == tmp_path / "learn-0-2"
+    (tmp_path / "learn-0-2" / "y").touch()
+    assert cli.numbered_directory(base) == tmp_path / "learn-0-3"
+
+
+def test_publish_directory_refuses_then_replaces_with_force(tmp_path: Path) -> None:
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    with pytest.raises(cli.CliError, match=r"--out .*out: exists.*add --force"):
+        cli.refuse_existing(target, force=False)
+    with cli.publish_directory(target, force=True) as temporary:
+        (temporary / "new.txt").write_text("new")
+        assert (target / "old.txt").exists()  # the old output stays until the new one is done
+    assert [p.name for p in target.iterdir()] == ["new.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_failed_publish_keeps_the_old_output_and_removes_its_temporary(
+    tmp_path: Path,
+) -> None:
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+
+    def half_written() -> None:
+        with cli.publish_directory(target, force=True) as temporary:
+            (temporary / "half.txt").write_text("half")
+            raise RuntimeError
+
+    with pytest.raises(RuntimeError):
+        half_written()
+    assert [p.name for p in target.iterdir()] == ["old.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_publish_file_refuses_an_existing_file_unless_forced(tmp_path: Path) -> None:
+    target = tmp_path / "view.rrd"
+    target.write_text("old")
+    with pytest.raises(cli.CliError, match=r"--save .*view\.rrd: exists"):
+        cli.check_new_file(target, force=False, option="--save")
+    with cli.publish_file(target, force=True, option="--save") as temporary:
+        temporary.write_text("new")
+    assert target.read_text() == "new"
+    assert [p.name for p in tmp_path.iterdir()] == ["view.rrd"]
