@@ -638,15 +638,19 @@ def run_study(
         raise ReplayError(msg)
     study = STUDIES[name]
     out = config.out
-    out.mkdir(parents=True, exist_ok=True)
     results = _run(study.tasks(frame, config), study.run, config, on_progress)
     results = _columns_first(results, study.labels).sort(list(study.labels))
-    path = out / "results.parquet"
-    results.write_parquet(path)
-    text = study.report(results, config, study.title)
-    if quarantined is not None and quarantined.height:
-        listing = "\n".join(f"- `{p}`: {r}" for p, r in quarantined.iter_rows())
-        text += f"\n## Quarantined recordings ({quarantined.height})\n\n{listing}\n"
-    summary = out / "summary.md"
-    summary.write_text(text, encoding="utf-8")
+    path, summary = out / "results.parquet", out / "summary.md"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        results.write_parquet(path)
+        text = study.report(results, config, study.title)
+        if quarantined is not None and quarantined.height:
+            listing = "\n".join(f"- `{p}`: {r}" for p, r in quarantined.iter_rows())
+            text += f"\n## Quarantined recordings ({quarantined.height})\n\n{listing}\n"
+        summary.write_text(text, encoding="utf-8")
+    except (OSError, pl.exceptions.PolarsError) as err:  # polars: ComputeError on a full disk
+        reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
+        msg = f"{out}: cannot write the study's results ({reason}); check free space and --out"
+        raise ReplayError(msg) from err
     return StudyOutput(name, path, out / "learning_curves.png", summary, text)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from conftest import FakeRig
 
-from recorder import _dataset
+from recorder import _rigconfig as rigconfig
 from recorder._cli import main
 
 _ACTION = "action --object wood --action P1 --rig fake --out {data}"
@@ -38,7 +38,7 @@ def places(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     base = tmp_path_factory.mktemp("errors")
     (base / "tmp").mkdir()
     with pytest.MonkeyPatch.context() as patch:
-        patch.setitem(_dataset._RIGS, "fake", FakeRig)
+        patch.setitem(rigconfig._BUILDERS, "fake", lambda seed, _options: FakeRig(seed))
         assert main(_ACTION.format(data=base / "data").split()) == 0
     return {"data": str(base / "data"), "tmp": str(base / "tmp")}
 
@@ -51,7 +51,7 @@ def test_every_error_is_one_line_and_a_non_zero_exit(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    monkeypatch.setitem(_dataset._RIGS, "fake", FakeRig)
+    monkeypatch.setitem(rigconfig._BUILDERS, "fake", lambda seed, _options: FakeRig(seed))
     capsys.readouterr()
     assert main(argv.format(**places).split()) != 0
     err = capsys.readouterr().err

@@ -5,7 +5,7 @@ import polars as pl
 import pytest
 from conftest import NEW, FakeRig
 
-from recorder import _dataset as recorder_datasets
+from recorder import _rigconfig as rigconfig
 from recorder.errors import RigError
 from replay.cli._main import main
 from replay.learning._run_history import SETTINGS_NAME, load_run
@@ -174,7 +174,7 @@ def test_a_failing_rig_in_a_live_run_is_one_line(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setitem(recorder_datasets._RIGS, "unplugged", _Unplugged)
+    monkeypatch.setitem(rigconfig._BUILDERS, "unplugged", lambda seed, _options: _Unplugged(seed))
     argv = _learn(small_dataset, "--rig", "unplugged", "--out", str(tmp_path / "live"))
     assert main([*argv, "--actions", "P1", "--test-trials", "1"]) == 1
     err = capsys.readouterr().err
