@@ -32,10 +32,9 @@ from recorder._dataset import (
     incomplete_files,
     plan_dataset,
     recording_path,
-    rig_factory,
-    rig_names,
     write_index,
 )
+from recorder._rigconfig import RigFactory, load_rig_config, rig_factory, rig_names
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
 from schemas import ContractError, cli, software_version
@@ -70,8 +69,29 @@ _CATALOGS = (
 )
 
 
-def _rig_argument() -> cli.Argument:
-    return arg("--rig", default=DEFAULT_RIG, help=f"rig to use, one of {', '.join(rig_names())}")
+def _rig_arguments() -> tuple[cli.Argument, ...]:
+    return (
+        arg(
+            "--rig",
+            default=None,
+            help=f"rig to use, one of {', '.join(rig_names())} (default: "
+            f"the --rig-config file's, else {DEFAULT_RIG})",
+        ),
+        arg("--rig-config", type=Path, default=None, help="TOML file: rig = NAME, [options]"),
+        arg(
+            "--rig-option",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="a rig setting, over the file's (repeatable; e.g. room_c=21.0)",
+        ),
+    )
+
+
+def _rig(args: argparse.Namespace) -> RigFactory:
+    """Return the factory of the rig the options configure."""
+    config = load_rig_config(args.rig_config, args.rig, args.rig_option)
+    return rig_factory(config)
 
 
 @command(
@@ -82,7 +102,7 @@ def _rig_argument() -> cli.Argument:
     arg("--trial", type=int, default=1, help="trial number, from 1 (default: 1)"),
     arg("--out", type=Path, required=True, help="dataset directory"),
     arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
-    _rig_argument(),
+    *_rig_arguments(),
     *_CATALOGS,
 )
 def _action(args: argparse.Namespace) -> int:
@@ -95,7 +115,7 @@ def _action(args: argparse.Namespace) -> int:
         objects, actions, object_ids=[args.object], action_ids=[args.action], trials=1
     )
     path = recording_path(args.out, task.obj.id, task.action.id, args.trial)
-    with rig_factory(args.rig)(args.seed) as rig:
+    with _rig(args)(args.seed) as rig:
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
     Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")
@@ -139,7 +159,7 @@ def _report(console: Console, report: DatasetReport) -> None:
     arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
     arg("--seed", type=int, default=0, help="dataset seed (default: 0)"),
     arg("--workers", type=cli.workers, help="worker processes (default: all cores)"),
-    _rig_argument(),
+    *_rig_arguments(),
     *_CATALOGS,
 )
 def _dataset(args: argparse.Namespace) -> int:
@@ -150,7 +170,7 @@ def _dataset(args: argparse.Namespace) -> int:
         action_ids=args.actions,
         trials=args.trials,
     )
-    factory = rig_factory(args.rig)
+    factory = _rig(args)
     console = Console(stderr=True)
     with _progress(console) as progress:
         bar = progress.add_task("recording", total=len(tasks))

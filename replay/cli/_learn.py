@@ -114,6 +114,16 @@ _FORCE = arg(
 )
 
 
+def _configured_rig(args: argparse.Namespace) -> Any:  # noqa: ANN401 (recorder.RigConfig)
+    """Return the live rig's configuration (``--rig``, ``--rig-config``, ``--rig-option``)."""
+    from recorder import RecorderError, load_rig_config  # noqa: PLC0415 (live execution only)
+
+    try:
+        return load_rig_config(args.rig_config, args.rig, args.rig_option)
+    except RecorderError as err:
+        raise ReplayError(cli.one_line(str(err))) from err
+
+
 def _check_rig(name: str) -> None:
     """Refuse an unknown ``--rig`` before any work, listing the registered rigs."""
     from recorder import rig_names  # noqa: PLC0415 (live execution only)
@@ -171,6 +181,14 @@ def _step_line(row: dict[str, Any]) -> str:
         "(default: the simulated dataset, recorded on first use)",
     ),
     arg("--rig", default=None, help="run live on this rig (e.g. sim) instead of recordings"),
+    arg("--rig-config", type=Path, default=None, help="live: rig TOML (rig = NAME, [options])"),
+    arg(
+        "--rig-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="live: a rig setting over the file's (repeatable)",
+    ),
     arg(
         "--new",
         default=None,
@@ -200,6 +218,8 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
+    if args.rig is None and args.rig_config is not None:
+        args.rig = _configured_rig(args).name
     if args.rig is not None:
         _check_rig(args.rig)
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
@@ -317,7 +337,7 @@ def _record_and_learn(
             f"on it; choose from {', '.join(objects)}"
         )
         raise ReplayError(msg)
-    rig = rig_factory(args.rig)(args.seed)
+    rig = rig_factory(_configured_rig(args))(args.seed)
     executor = LiveExecutor(
         rig, [objects[o] for o in spec.new_objects], load_actions(), out / "session", seed=args.seed
     )

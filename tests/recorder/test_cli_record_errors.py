@@ -69,5 +69,5 @@ def test_help_shows_every_default_and_version_is_printed(
     assert capsys.readouterr().out.startswith("atikt-record ")
     assert main(["dataset", "--help"]) == 0
     text = " ".join(capsys.readouterr().out.split())
-    for option in ("--seed SEED dataset seed (default: 0)", "--rig RIG", "(default: sim)"):
+    for option in ("--seed SEED dataset seed (default: 0)", "--rig RIG", "else sim)"):
         assert option in text

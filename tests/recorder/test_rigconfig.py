@@ -43,3 +43,16 @@ def test_rig_factories_pickle_into_worker_processes() -> None:
 
     factory = rig_factory(load_rig_config(options=["room_c=21"]))
     assert pickle.loads(pickle.dumps(factory))(1).config.room_c == 21.0  # noqa: S301
+
+
+def test_the_recorder_cli_records_with_a_configured_rig(tmp_path: Path) -> None:
+    from recorder._cli import main  # noqa: PLC0415
+    from replay import read_recording  # noqa: PLC0415
+
+    config = tmp_path / "rig.toml"
+    config.write_text('rig = "sim"\n[options]\nroom_c = 19.0\n')
+    argv = ["action", "--object", "wood", "--action", "S1", "--out", str(tmp_path / "d")]
+    assert main([*argv, "--rig-config", str(config), "--rig-option", "room_spread_c=0"]) == 0
+    rig = read_recording(tmp_path / "d" / "wood" / "S1" / "001.mcap").metadata.rig
+    assert (rig["room_c"], rig["room_spread_c"]) == ("19.0", "0.0")
+    assert main([*argv, "--trial", "2", "--rig-option", "room=1"]) != 0
