@@ -312,6 +312,7 @@ class ActiveLearner:
         eps_neg1: Threshold of the model prediction approach, in (0.5, 1].
         eps_neg2: Threshold of the model optimisation approach, in (0, 1].
         eps_density: Threshold of the open-set score, in (0, 1].
+        density_rho_scale: ``rho = min(1, density_rho_scale * score)`` of the open-set score.
         max_sources: Most old objects transferred to one new object's classifier at once (the
             most related ones passing the threshold, one ``rho`` each, through the
             multi-source kernel); 1 is the thesis's single source. Prediction and density
@@ -347,6 +348,7 @@ class ActiveLearner:
         eps_neg1: float = 0.6,
         eps_neg2: float = 0.6,
         eps_density: float = 0.1,
+        density_rho_scale: float = 2.0,
         max_sources: int = 1,
         patience: int | None = None,
         min_improvement: float = 1e-3,
@@ -369,6 +371,7 @@ class ActiveLearner:
         self.eps_neg1 = eps_neg1
         self.eps_neg2 = eps_neg2
         self.eps_density = eps_density
+        self.density_rho_scale = density_rho_scale
         self.max_sources = max_sources
         self.patience = patience
         self.min_improvement = min_improvement
@@ -395,6 +398,8 @@ class ActiveLearner:
             problems.append(f"transfer={self.transfer!r} must be one of {TRANSFER_MODES}")
         if not 0.0 <= self.eps_explore <= 1.0:
             problems.append(f"eps_explore={self.eps_explore} must lie in [0, 1]")
+        if not self.density_rho_scale > 0:
+            problems.append(f"density_rho_scale={self.density_rho_scale} must be > 0")
         if self.max_sources < 1:
             problems.append(f"max_sources={self.max_sources} must be >= 1")
         if self.budget < 0:
@@ -708,7 +713,9 @@ class ActiveLearner:
             scores = related.mean(axis=0)
             if self.transfer == "density" and prior.densities is not None:
                 classes = prior.densities.classes
-                choice = choose_by_density(scores, classes, self.eps_density, self.max_sources)
+                choice = choose_by_density(
+                    scores, classes, self.eps_density, self.max_sources, self.density_rho_scale
+                )
             elif prior.model is not None:
                 classes = prior.model.classes_
                 choice = choose_by_relatedness(scores, classes, self.eps_neg1, self.max_sources)

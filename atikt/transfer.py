@@ -540,7 +540,11 @@ class ObjectDensities:
 
 
 def choose_by_density(
-    scores: npt.ArrayLike, classes: npt.ArrayLike, eps_density: float = 0.1, max_sources: int = 1
+    scores: npt.ArrayLike,
+    classes: npt.ArrayLike,
+    eps_density: float = 0.1,
+    max_sources: int = 1,
+    rho_scale: float = 2.0,
 ) -> PriorChoice:
     """Choose the source old object(s) by the open-set score (mean tail probability).
 
@@ -550,11 +554,18 @@ def choose_by_density(
         classes: The old objects' labels, in the order of ``scores``.
         eps_density: Minimum score for a transfer, in (0, 1].
         max_sources: Most old objects transferred at once.
+        rho_scale: ``rho = min(1, rho_scale * score)``; 2 gives ``rho = 1`` for typical draws
+            of the old object's distribution (mean tail probability 1/2).
 
     Returns:
-        The old object(s) of the largest scores with ``rho = min(1, 2 score)`` (1 for typical
-        draws of its distribution, whose mean tail probability is 1/2), or no source when the
+        The old object(s) of the largest scores with their ``rho``, or no source when the
         largest score is below ``eps_density``.
+
+    Raises:
+        AtiktError: A threshold out of range or ``rho_scale <= 0``.
     """
     check_threshold("eps_density", eps_density, low=0.0)
-    return _choose(scores, classes, eps_density, max_sources, lambda v: min(1.0, 2.0 * v))
+    if not rho_scale > 0:
+        msg = f"rho_scale={rho_scale}; it must be > 0"
+        raise AtiktError(msg)
+    return _choose(scores, classes, eps_density, max_sources, lambda v: min(1.0, rho_scale * v))

@@ -193,8 +193,13 @@ def test_choose_by_density_threshold_rho_and_several_sources() -> None:
     several = choose_by_density([0.02, 0.3, 0.2, 0.4], [5, 6, 7, 8], max_sources=3)
     assert several.sources == (8, 6, 7)
     assert several.rhos == pytest.approx((0.8, 0.6, 0.4))
+    halved = choose_by_density([0.02, 0.3], [5, 6], rho_scale=1.0)
+    assert halved.rho == pytest.approx(0.3)
+    assert choose_by_density([0.9], [5]).rho == 1.0  # capped
     with pytest.raises(AtiktError, match="eps_density"):
         choose_by_density([0.3], [1], eps_density=0.0)
+    with pytest.raises(AtiktError, match="rho_scale"):
+        choose_by_density([0.3], [1], rho_scale=0.0)
 
 
 # ---------------------------------------------------------------- fusion: shared, evidence
@@ -328,6 +333,8 @@ def test_density_learner_refusing_every_prior_is_the_baseline(
     ]
 
 
-def test_max_sources_must_be_positive() -> None:
+def test_max_sources_and_rho_scale_must_be_positive() -> None:
     with pytest.raises(AtiktError, match="max_sources"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), max_sources=0)
+    with pytest.raises(AtiktError, match="density_rho_scale"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)

@@ -224,6 +224,17 @@ def report(frame: pl.DataFrame, names: list[str]) -> None:
             "worst size, candidate - best single (points): "
             + ", ".join(f"{n} {v:+.1f}" for n, v in worst.items())
         )
+    study = (
+        frame.group_by("action", "modalities")
+        .agg(pl.col("accuracy").mean())
+        .pivot(on="modalities", index="action", values="accuracy")
+        .sort("action")
+    )
+    print("\nmean over training sizes (the study table), %:")
+    print("| action | " + " | ".join(names + singles) + " |")
+    for row in study.iter_rows(named=True):
+        cells = [f"{100 * row[c]:.1f}" if row.get(c) is not None else "-" for c in names + singles]
+        print(f"| {row['action']} | " + " | ".join(cells) + " |")
     seconds = frame.group_by("modalities").agg(pl.col("seconds").sum()).sort("modalities")
     print(
         "\nfit time, s (all fits): " + ", ".join(f"{r[0]} {r[1]:.1f}" for r in seconds.iter_rows())
@@ -241,8 +252,12 @@ def main() -> None:
     parser.add_argument("--actions", nargs="*", default=None)
     parser.add_argument("--candidates", nargs="*", default=list(CANDIDATES))
     parser.add_argument("--out", type=Path, default=None, help="write the rows as parquet")
+    parser.add_argument("--rows", type=Path, default=None, help="report rows written before")
     args = parser.parse_args()
     names = list(args.candidates)
+    if args.rows is not None:
+        report(pl.read_parquet(args.rows), names)
+        return
     if args.data == "real":
         tasks: list[Any] = [(g, args.repetitions, names) for g in range(args.groups)]
         frames = run_tasks(real_task, tasks, workers=args.workers)

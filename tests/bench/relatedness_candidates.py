@@ -14,7 +14,8 @@ choice for the explored object is its counterpart (when the counterpart is among
 any other old object, or nothing.
 
 Run: ``python tests/bench/relatedness_candidates.py --modes prediction density density+3
-[--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once).
+[--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once;
+``@name=value``: a learner option, e.g. ``density@eps_density=0.05``).
 """
 
 from __future__ import annotations
@@ -54,18 +55,28 @@ def counterparts() -> dict[str, str]:
     }
 
 
-def run(args: tuple[Any, int]) -> pl.DataFrame:
+def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     """One study task, with the learner's transfer modes registered in the session check.
 
-    The studies pass only the transfer mode to the learner; ``max_sources`` is set as the
-    learner's default in this worker process.
+    The studies pass only the transfer mode to the learner; other options (``max_sources``,
+    ``eps_density``, ...) are set as the learner's defaults in this worker process.
     """
-    task, max_sources = args
+    task, options = args
     replay._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
     defaults = ActiveLearner.__init__.__kwdefaults__
     assert defaults is not None  # keyword-only parameters
-    defaults["max_sources"] = max_sources
+    for key, value in options.items():
+        defaults[key] = int(value) if key == "max_sources" else value
     return run_transfer_task(task)
+
+
+def parse(name: str) -> tuple[str, dict[str, float]]:
+    """``"density+3@eps_density=0.05"`` -> ("density", {"max_sources": 3, "eps_density": 0.05})."""
+    head, *settings = name.split("@")
+    mode, _, sources = head.partition("+")
+    options = {"max_sources": float(sources or 1)}
+    options |= {k: float(v) for k, v in (s.split("=") for s in settings)}
+    return mode, options
 
 
 def bootstrap(values: np.ndarray, rng: np.random.Generator, n: int = 4000) -> tuple[float, float]:
@@ -146,21 +157,20 @@ def main() -> None:
     args = parser.parse_args()
     frame = pl.read_parquet(args.features)
     related = counterparts()
-    for name in args.modes:  # "density" or "density+3" (at most 3 sources at once)
-        mode, _, sources = name.partition("+")
-        max_sources = int(sources or 1)
+    for name in args.modes:  # "density", "density+3" (at most 3 sources), "density@key=value"
+        mode, options = parse(name)
         config = StudyConfig(
             out=Path(), groups=args.groups, trials=args.trials, budget=args.budget, transfer=mode
         )
         rng = np.random.default_rng(0)
-        print(f"\n## transfer={mode}, max_sources={max_sources}")
+        print(f"\n## transfer={mode}, {options}")
         for study in args.studies:
             tasks = (
                 priors_tasks(frame, config) if study == "priors" else negative_tasks(frame, config)
             )
             if study == "negative":  # one group: runs are the resampling unit
                 tasks = [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
-            jobs = [(t, max_sources) for t in tasks]
+            jobs = [(t, options) for t in tasks]
             rows = pl.concat(run_tasks(run, jobs, workers=args.workers), how="diagonal_relaxed")
             if args.out is not None:
                 args.out.mkdir(parents=True, exist_ok=True)
