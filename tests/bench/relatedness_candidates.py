@@ -43,6 +43,7 @@ from replay._parallel import run_tasks
 from replay._studies import StudyConfig, negative_tasks, priors_tasks, run_transfer_task
 
 ROOT = Path(__file__).resolve().parents[2]
+DEFAULTS = dict(ActiveLearner.__init__.__kwdefaults__ or {})
 SIM = Path.home() / ".cache/atikt/sim-seed0-schema1-v0.1.0/features.parquet"
 
 
@@ -65,6 +66,7 @@ def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     replay._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
     defaults = ActiveLearner.__init__.__kwdefaults__
     assert defaults is not None  # keyword-only parameters
+    defaults.update(DEFAULTS)  # worker processes are reused: undo an earlier task's options
     for key, value in options.items():
         defaults[key] = int(value) if key == "max_sources" else value
     return run_transfer_task(task)
