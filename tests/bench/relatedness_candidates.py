@@ -145,6 +145,26 @@ def report(name: str, frame: pl.DataFrame, by: list[str], budget: int, rng: Any)
         print(f"  {name} {label}({part.height} groups): " + ", ".join(cells))
 
 
+def compare(directory: Path, first: str, second: str, budget: int) -> None:
+    """Print ``second`` minus ``first`` (ATIKT runs, same splits and seeds), paired by run."""
+    rng = np.random.default_rng(0)
+    for study in ("priors", "negative"):
+        a, b = (directory / f"{study}-{m}.parquet" for m in (first, second))
+        if not (a.exists() and b.exists()):
+            continue
+        both = pl.concat(
+            [
+                pl.read_parquet(path)
+                .filter(pl.col("method") == "ATIKT")
+                .with_columns(pl.lit(name).alias("method"))
+                for path, name in ((a, "baseline"), (b, "ATIKT"))
+            ],
+            how="diagonal_relaxed",
+        )
+        print(f"{study}: {second} minus {first}, points [95 % bootstrap over groups]")
+        report(study, both, ["n_priors"] if study == "priors" else [], budget, rng)
+
+
 def main() -> None:
     """Run the studies' tasks for every mode and print the tables."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -156,7 +176,13 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--studies", nargs="+", default=["priors", "negative"])
     parser.add_argument("--out", type=Path, default=None, help="directory for the rows")
+    parser.add_argument(
+        "--compare", nargs=2, metavar=("FIRST", "SECOND"), help="modes whose rows --out holds"
+    )
     args = parser.parse_args()
+    if args.compare:
+        compare(args.out, *args.compare, args.budget)
+        return
     frame = pl.read_parquet(args.features)
     related = counterparts()
     for name in args.modes:  # "density", "density+3" (at most 3 sources), "density@key=value"
