@@ -181,7 +181,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.compare:
-        compare(args.out, *args.compare, args.budget)
+        first, second = args.compare
+        compare(args.out, first, second, args.budget)
         return
     frame = pl.read_parquet(args.features)
     related = counterparts()
