@@ -252,11 +252,17 @@ def main() -> None:
     parser.add_argument("--actions", nargs="*", default=None)
     parser.add_argument("--candidates", nargs="*", default=list(CANDIDATES))
     parser.add_argument("--out", type=Path, default=None, help="write the rows as parquet")
-    parser.add_argument("--rows", type=Path, default=None, help="report rows written before")
+    parser.add_argument(
+        "--rows", type=Path, default=None, help="report rows written before, or a study's results"
+    )
     args = parser.parse_args()
     names = list(args.candidates)
     if args.rows is not None:
-        report(pl.read_parquet(args.rows), names)
+        rows = pl.read_parquet(args.rows)
+        if "seconds" not in rows.columns:  # a fusion study's results.parquet
+            rows = rows.with_columns(pl.lit(0.0).alias("seconds"))
+            names = ["multi-modal"]
+        report(rows, names)
         return
     if args.data == "real":
         tasks: list[Any] = [(g, args.repetitions, names) for g in range(args.groups)]
