@@ -24,10 +24,19 @@ from atikt.features import (
     thermal_sequence,
 )
 from atikt.gpc import BinaryGPC, LaplaceMode, MultiModalGPC, OneVsAllGPC, laplace_mode
-from atikt.kernels import DependentKernel, Kernel, ModalityKernel, SliceRBF, modality_kernel
+from atikt.kernels import (
+    DependentKernel,
+    Kernel,
+    ModalityKernel,
+    MultiSourceKernel,
+    SliceRBF,
+    modality_kernel,
+)
 from atikt.transfer import (
+    ObjectDensities,
     PriorChoice,
     TransferGPC,
+    choose_by_density,
     choose_by_optimization,
     choose_by_prediction,
     relatedness,
@@ -44,8 +53,10 @@ __all__ = [
     "LaplaceMode",
     "ModalityKernel",
     "MultiModalGPC",
+    "MultiSourceKernel",
     "NotFittedError",
     "NumericalError",
+    "ObjectDensities",
     "OneVsAllGPC",
     "PriorChoice",
     "PriorModel",
@@ -53,6 +64,7 @@ __all__ = [
     "SliceRBF",
     "StepRecord",
     "TransferGPC",
+    "choose_by_density",
     "choose_by_optimization",
     "choose_by_prediction",
     "entropy",

@@ -40,9 +40,11 @@ from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, sta
 from atikt.gpc import OneVsAllGPC, RandomState, normalise, predictive_probability, spawn_seeds
 from atikt.kernels import ModalityKernel, modality_kernel
 from atikt.transfer import (
+    ObjectDensities,
     PriorChoice,
     TransferGPC,
     check_threshold,
+    choose_by_density,
     choose_by_optimization,
     choose_by_relatedness,
 )
@@ -52,13 +54,15 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-TransferMode = Literal["prediction", "optimization", "none"]
+TransferMode = Literal["prediction", "optimization", "density", "none"]
 Observe = Callable[[int, str], RawFeatures]
 """``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
 Available = Callable[[int, str], bool]
 """``available(new_object_index, action) -> bool``: can another observation be served?"""
 
-TRANSFER_MODES: Final = ("prediction", "optimization", "none")
+TRANSFER_MODES: Final = ("prediction", "optimization", "density", "none")
+_SCORED: Final = ("prediction", "density")
+"""Modes whose relatedness is a per-observation score of the fixed prior models (cached)."""
 _NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
 
 
@@ -78,12 +82,15 @@ class PriorModel:
         transformer: Feature transformer fitted on ``observations``.
         model: One-vs-all GPC over the old objects in the transformer's space (None with a
             single old object: the model prediction approach then cannot be used).
+        densities: Each old object's feature distribution in the transformer's space (the
+            open-set relatedness of ``transfer="density"``).
     """
 
     observations: tuple[RawFeatures, ...]
     labels: IntArray
     transformer: FeatureTransformer
     model: OneVsAllGPC | None
+    densities: ObjectDensities | None = None
 
     @property
     def old_objects(self) -> tuple[int, ...]:
@@ -136,7 +143,8 @@ def fit_prior_model(
         model = OneVsAllGPC(
             kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
         ).fit(X, labels)
-    return PriorModel(tuple(observations), labels, transformer, model)
+    densities = ObjectDensities.fit(X, labels)
+    return PriorModel(tuple(observations), labels, transformer, model, densities)
 
 
 def fit_prior_models(
@@ -298,9 +306,17 @@ class ActiveLearner:
         budget: Number of steps (observations after the initial one per object and action).
         eps_explore: Probability of a uniformly random (object, action).
         transfer: ``"prediction"`` (model prediction approach), ``"optimization"`` (rho by
-            marginal likelihood) or ``"none"`` (baseline).
+            marginal likelihood), ``"density"`` (open-set score of each old object's own
+            feature distribution, :func:`~atikt.transfer.choose_by_density`) or ``"none"``
+            (baseline).
         eps_neg1: Threshold of the model prediction approach, in (0.5, 1].
         eps_neg2: Threshold of the model optimisation approach, in (0, 1].
+        eps_density: Threshold of the open-set score, in (0, 1].
+        density_rho_scale: ``rho = min(1, density_rho_scale * score)`` of the open-set score.
+        max_sources: Most old objects transferred to one new object's classifier at once (the
+            most related ones passing the threshold, one ``rho`` each, through the
+            multi-source kernel); 1 is the thesis's single source. Prediction and density
+            approaches only.
         patience: Stop early after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None runs the whole budget.
         min_improvement: See ``patience`` (nats).
@@ -331,6 +347,9 @@ class ActiveLearner:
         transfer: TransferMode = "prediction",
         eps_neg1: float = 0.6,
         eps_neg2: float = 0.6,
+        eps_density: float = 0.1,
+        density_rho_scale: float = 2.0,
+        max_sources: int = 1,
         patience: int | None = None,
         min_improvement: float = 1e-3,
         amplitude: bool = True,
@@ -351,6 +370,9 @@ class ActiveLearner:
         self.transfer = transfer
         self.eps_neg1 = eps_neg1
         self.eps_neg2 = eps_neg2
+        self.eps_density = eps_density
+        self.density_rho_scale = density_rho_scale
+        self.max_sources = max_sources
         self.patience = patience
         self.min_improvement = min_improvement
         self.amplitude = amplitude
@@ -376,12 +398,17 @@ class ActiveLearner:
             problems.append(f"transfer={self.transfer!r} must be one of {TRANSFER_MODES}")
         if not 0.0 <= self.eps_explore <= 1.0:
             problems.append(f"eps_explore={self.eps_explore} must lie in [0, 1]")
+        if not self.density_rho_scale > 0:
+            problems.append(f"density_rho_scale={self.density_rho_scale} must be > 0")
+        if self.max_sources < 1:
+            problems.append(f"max_sources={self.max_sources} must be >= 1")
         if self.budget < 0:
             problems.append(f"budget={self.budget} must be >= 0")
         if problems:
             raise AtiktError("; ".join(problems))
         check_threshold("eps_neg1", self.eps_neg1)
         check_threshold("eps_neg2", self.eps_neg2, low=0.0)
+        check_threshold("eps_density", self.eps_density, low=0.0)
 
     # ----------------------------------------------------------------------------- state
 
@@ -589,7 +616,7 @@ class ActiveLearner:
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            keep = changed is not None and obj != changed and self.transfer == "prediction"
+            keep = changed is not None and obj != changed and self.transfer in _SCORED
             choice, model = self._fit_object(
                 kernel,
                 X,
@@ -611,17 +638,26 @@ class ActiveLearner:
         state.uncertainty = self._uncertainty(state)
 
     def _prior_probabilities(self, state: ActionState) -> FloatArray | None:
-        """The old models' probabilities of every observation (model prediction approach).
+        """The old models' score of every observation (model prediction or density approach).
 
-        Only the observations not scored before are predicted.
+        The old objects' one-vs-all probabilities (prediction) or the tail probabilities under
+        their feature distributions (density); only the observations not scored before are
+        scored.
         """
         prior = state.prior
-        if prior is None or prior.model is None or self.transfer != "prediction":
+        if prior is None or self.transfer not in _SCORED:
+            return None
+        scorer = prior.model if self.transfer == "prediction" else prior.densities
+        if scorer is None:
             return None
         done = 0 if state.prior_probabilities is None else state.prior_probabilities.shape[0]
         if done < len(state.observations):
             features = prior.transformer.transform(state.observations[done:])
-            new = prior.model.predict_binary(features)
+            new = (
+                scorer.predict_binary(features)
+                if isinstance(scorer, OneVsAllGPC)
+                else scorer.tail_probabilities(features)
+            )
             old = state.prior_probabilities
             state.prior_probabilities = new if old is None else np.vstack([old, new])
         assert state.prior_probabilities is not None  # noqa: S101 - set just above
@@ -671,15 +707,27 @@ class ActiveLearner:
             return choice, model
         choice = _NO_CHOICE if known is None else known
         scored = related is not None and related.shape[0] > 0
-        if known is None and prior is not None and prior.model is not None and scored:
+        if known is None and prior is not None and scored:
             assert related is not None  # noqa: S101 - scored
-            # relatedness: the mean of the old models' probabilities of this object's observations
+            # relatedness: the mean of the old models' scores of this object's observations
             scores = related.mean(axis=0)
-            choice = choose_by_relatedness(scores, prior.model.classes_, self.eps_neg1)
-        aux = None if choice.source is None else auxiliary[choice.source]
+            if self.transfer == "density" and prior.densities is not None:
+                classes = prior.densities.classes
+                choice = choose_by_density(
+                    scores, classes, self.eps_density, self.max_sources, self.density_rho_scale
+                )
+            elif prior.model is not None:
+                classes = prior.model.classes_
+                choice = choose_by_relatedness(scores, classes, self.eps_neg1, self.max_sources)
+        aux: FloatArray | list[FloatArray] | None = None
+        rho: float | tuple[float, ...] = choice.rho
+        if len(choice.sources) > 1:
+            aux, rho = [auxiliary[s] for s in choice.sources], choice.rhos
+        elif choice.source is not None:
+            aux = auxiliary[choice.source]
         model = TransferGPC(
             kernel,
-            rho=choice.rho,
+            rho=rho,
             n_restarts=n_restarts,
             max_iter=max_iter,
             previous=previous,

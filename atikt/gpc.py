@@ -17,9 +17,10 @@ Barber (1998, appendix A), the same as scikit-learn, so that both implementation
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Final, Self
+from typing import TYPE_CHECKING, Final, Literal, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -32,11 +33,14 @@ from atikt.kernels import Kernel, modality_kernel
 from atikt.optimize import minimize_box
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 RandomState = int | np.random.Generator | None
+Selection = Literal["fused", "evidence", "evidence-all"]
+SELECTIONS: Final = ("fused", "evidence", "evidence-all")
+"""Ways :class:`MultiModalGPC` combines modalities (see its docstring)."""
 
 # Williams & Barber (1998), appendix A: sigmoid(x) ~ sum_i c_i (1 + erf(lambda_i x)) / 2.
 LAMBDAS: Final = np.array([0.41, 0.4, 0.37, 0.44, 0.39])
@@ -377,6 +381,11 @@ class BinaryGPC:
         newton_max_iter: Newton iteration limit of the mode search.
         newton_tol: Newton stopping tolerance on the Laplace objective.
         jitter: Added to the diagonal of ``K``; it keeps predictive variances non-negative.
+        prior_sd: Standard deviation of an independent Gaussian prior on every log
+            hyperparameter (the search then maximises the log marginal likelihood plus the log
+            prior: maximum a posteriori); None: no prior (maximum likelihood).
+        prior_mean: Centre of that prior, shape (n_params,), log space; None: the kernel's
+            own ``theta``.
         random_state: Seed or generator of the restarts.
 
     Attributes:
@@ -403,6 +412,8 @@ class BinaryGPC:
         newton_max_iter: int = 100,
         newton_tol: float = 1e-10,
         jitter: float = 1e-10,
+        prior_sd: float | None = None,
+        prior_mean: FloatArray | None = None,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
@@ -410,6 +421,8 @@ class BinaryGPC:
         self.optimize = optimize
         self.n_restarts = n_restarts
         self.max_iter = max_iter
+        self.prior_sd = prior_sd
+        self.prior_mean = prior_mean
         self.tol = tol
         self.inverse_hessian = inverse_hessian
         self.mode_start = mode_start
@@ -498,10 +511,11 @@ class BinaryGPC:
                 (rng.uniform(bounds[:, 0], bounds[:, 1]), None) for _ in range(self.n_restarts)
             ]
         best, failure = None, None
+        function = with_prior(objective, self.kernel, self.prior_sd, self.prior_mean)
         for start, inverse_hessian in starts:
             try:
                 result = minimize_box(
-                    objective,
+                    function,
                     start,
                     bounds,
                     inverse_hessian=inverse_hessian,
@@ -612,6 +626,45 @@ class BinaryGPC:
         return (self.predict_positive(X) > 0.5).astype(np.int64)  # noqa: PLR2004
 
 
+def with_prior(
+    objective: Callable[[FloatArray], tuple[float, FloatArray]],
+    kernel: Kernel,
+    sd: float | None,
+    mean: FloatArray | None = None,
+) -> Callable[[FloatArray], tuple[float, FloatArray]]:
+    """Add the negative log density of a Gaussian prior on log hyperparameters to an objective.
+
+    Args:
+        objective: ``theta -> (value, gradient)`` to minimise (negative log evidence).
+        kernel: The kernel (its ``theta`` is the prior's centre when ``mean`` is None).
+        sd: Prior standard deviation of every log hyperparameter; None: no prior.
+        mean: Prior centre, shape (n_params,).
+
+    Returns:
+        ``theta -> (value + |theta - mean|^2 / (2 sd^2), gradient + (theta - mean) / sd^2)``
+        (constants dropped), or ``objective`` itself without a prior.
+
+    Raises:
+        AtiktError: ``sd`` is not positive or ``mean`` has the wrong shape.
+    """
+    if sd is None:
+        return objective
+    centre = kernel.theta if mean is None else np.asarray(mean, dtype=np.float64)
+    if not sd > 0 or centre.shape != kernel.theta.shape:
+        msg = (
+            f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {kernel.theta.shape}"
+        )
+        raise AtiktError(msg)
+    precision = 1.0 / sd**2
+
+    def penalised(theta: FloatArray) -> tuple[float, FloatArray]:
+        value, gradient = objective(theta)
+        offset = theta - centre
+        return value + 0.5 * precision * float(offset @ offset), gradient + precision * offset
+
+    return penalised
+
+
 class _NegativeLml:
     """``theta -> (-log q, -d log q / d theta)`` with a warm-started Newton search.
 
@@ -699,7 +752,13 @@ class OneVsAllGPC:
         n_restarts: Additional random starts per binary classifier.
         max_iter: Iteration limit of the hyperparameter search per start.
         jitter: Diagonal jitter.
-        random_state: Seed or generator; each binary classifier gets its own derived seed.
+        shared: One set of hyperparameters for all classes, maximising the sum of the binary
+            classifiers' log marginal likelihoods (the evidence of all classes decides, e.g.,
+            the modality weights); False fits each class's own.
+        random_state: Seed or generator; each binary classifier gets its own derived seed
+            (with ``shared``, the one search uses the first).
+        prior_sd: Gaussian prior on the log hyperparameters, centred at the kernel's
+            ``theta`` (see :class:`BinaryGPC`); None: maximum likelihood.
 
     Attributes:
         classes_: Sorted class labels, shape (k,).
@@ -714,6 +773,8 @@ class OneVsAllGPC:
         n_restarts: int = 0,
         max_iter: int = 50,
         jitter: float = 1e-10,
+        shared: bool = False,
+        prior_sd: float | None = None,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
@@ -722,6 +783,8 @@ class OneVsAllGPC:
         self.n_restarts = n_restarts
         self.max_iter = max_iter
         self.jitter = jitter
+        self.shared = shared
+        self.prior_sd = prior_sd
         self.random_state = random_state
 
     def fit(self, X: npt.ArrayLike, y: npt.ArrayLike) -> Self:
@@ -738,18 +801,58 @@ class OneVsAllGPC:
         labels = _check_labels(y, Xa.shape[0] if Xa.ndim == 2 else -1)  # noqa: PLR2004
         self.classes_ = np.unique(labels)
         seeds = spawn_seeds(self.random_state, self.classes_.shape[0])
+        kernel, optimize = self.kernel, self.optimize
+        if self.shared and self.optimize and kernel.n_params > 0:
+            kernel, optimize = self._shared_search(Xa, labels, seeds[0]), False
         self.estimators_ = [
             BinaryGPC(
-                self.kernel,
-                optimize=self.optimize,
+                kernel,
+                optimize=optimize,
                 n_restarts=self.n_restarts,
                 max_iter=self.max_iter,
                 jitter=self.jitter,
+                prior_sd=self.prior_sd,
                 random_state=seed,
             ).fit(Xa, labels == c)
             for c, seed in zip(self.classes_, seeds, strict=True)
         ]
         return self
+
+    def _shared_search(self, X: FloatArray, labels: IntArray, seed: int) -> Kernel:
+        """Return the kernel maximising the sum over classes of the binary evidences.
+
+        Raises:
+            NumericalError: The search failed from every start.
+        """
+        binary = BinaryGPC(self.kernel, jitter=self.jitter)
+        parts = [
+            binary._objective(X, (labels == c).astype(np.float64))  # noqa: SLF001
+            for c in self.classes_
+        ]
+
+        def evidence(theta: FloatArray) -> tuple[float, FloatArray]:
+            values = [part(theta) for part in parts]
+            return sum(v for v, _ in values), np.sum([g for _, g in values], axis=0)
+
+        total = with_prior(evidence, self.kernel, self.prior_sd)
+
+        bounds = self.kernel.bounds
+        starts = [np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1])]
+        rng = _rng(seed)
+        starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(self.n_restarts)]
+        best, failure = None, None
+        for start in starts:
+            try:
+                result = minimize_box(total, start, bounds, max_iter=self.max_iter, tol=COLD_TOL)
+            except NumericalError as err:
+                failure = err
+                continue
+            if best is None or result.fun < best.fun:
+                best = result
+        if best is None:
+            msg = "the shared hyperparameter search failed from every start; check the data"
+            raise NumericalError(msg) from failure
+        return self.kernel.with_theta(best.x)
 
     def _check_fitted(self) -> None:
         """Raise NotFittedError before ``fit``."""
@@ -799,19 +902,38 @@ class MultiModalGPC:
     Fits a :class:`FeatureTransformer` and a :class:`OneVsAllGPC` with the multi-modal kernel
     on the training observations; test observations go through the same fitted transformer.
 
+    ``selection`` decides how the modalities are combined:
+
+    - ``"fused"``: the weighted-sum kernel of all modalities (the thesis's multi-modal kernel;
+      weights learned by the marginal likelihood);
+    - ``"evidence"``: the fused model and one model per single modality are fitted, and each
+      class's binary classifier is the one with the largest approximate log marginal
+      likelihood among them (Bayesian model selection between the fused and the
+      single-modality models, per one-vs-all classifier);
+    - ``"evidence-all"``: the same, one choice for all classes (the sum of their log marginal
+      likelihoods).
+
     Args:
         modalities: Modalities to use (e.g. ``["force"]``, ``["thermal"]``); None = all of
             the action kind.
         n_thermal_components: Thermal PCA dimensions.
         amplitude: Learn a signal variance (False: the thesis kernel).
+        selection: ``"fused"``, ``"evidence"`` or ``"evidence-all"`` (see above); without a
+            second modality every choice is the fused model.
+        shared: One set of hyperparameters for all classes (see :class:`OneVsAllGPC`); False
+            fits each class's own (the earlier behaviour).
+        prior_sd: Gaussian prior on the log hyperparameters around the initial kernel (see
+            :class:`BinaryGPC`); None: maximum likelihood.
         n_restarts: Random restarts per binary classifier.
         max_iter: Iteration limit of the hyperparameter search per start.
         random_state: Seed of the restarts.
 
     Attributes:
         transformer_: The fitted feature transformer.
-        model_: The fitted one-vs-all classifier.
+        model_: The fitted one-vs-all classifier (its binary classifiers may use different
+            kernels with ``selection="evidence"``).
         classes_: Class labels.
+        selected_: Per class, the modalities of the chosen kernel (all of them: fused).
     """
 
     def __init__(
@@ -820,6 +942,9 @@ class MultiModalGPC:
         *,
         n_thermal_components: int = 10,
         amplitude: bool = True,
+        selection: Selection = "fused",
+        shared: bool = True,
+        prior_sd: float | None = None,
         n_restarts: int = 1,
         max_iter: int = 50,
         random_state: RandomState = None,
@@ -828,6 +953,9 @@ class MultiModalGPC:
         self.modalities = modalities
         self.n_thermal_components = n_thermal_components
         self.amplitude = amplitude
+        self.selection = selection
+        self.shared = shared
+        self.prior_sd = prior_sd
         self.n_restarts = n_restarts
         self.max_iter = max_iter
         self.random_state = random_state
@@ -837,16 +965,36 @@ class MultiModalGPC:
 
         Returns:
             self.
+
+        Raises:
+            AtiktError: Unknown ``selection``, or malformed observations or labels.
         """
+        if self.selection not in SELECTIONS:
+            msg = f"selection={self.selection!r}; use one of {SELECTIONS}"
+            raise AtiktError(msg)
         self.transformer_ = FeatureTransformer(self.modalities, self.n_thermal_components)
         X = self.transformer_.fit_transform(observations)
-        kernel = modality_kernel(self.transformer_.slices_, amplitude=self.amplitude)
-        self.model_ = OneVsAllGPC(
-            kernel,
-            n_restarts=self.n_restarts,
-            max_iter=self.max_iter,
-            random_state=self.random_state,
-        ).fit(X, labels)
+        slices = self.transformer_.slices_
+        candidates = {tuple(slices): modality_kernel(slices, amplitude=self.amplitude)}
+        if self.selection != "fused" and len(slices) > 1:
+            candidates |= {
+                (name,): modality_kernel({name: cols}, amplitude=self.amplitude)
+                for name, cols in slices.items()
+            }
+        fitted = {
+            names: OneVsAllGPC(
+                kernel,
+                n_restarts=self.n_restarts,
+                max_iter=self.max_iter,
+                shared=self.shared,
+                prior_sd=self.prior_sd,
+                random_state=self.random_state,
+            ).fit(X, labels)
+            for names, kernel in candidates.items()
+        }
+        self.model_, self.selected_ = _select_by_evidence(
+            fitted, per_class=self.selection != "evidence-all"
+        )
         self.classes_ = self.model_.classes_
         return self
 
@@ -871,3 +1019,30 @@ class MultiModalGPC:
         """Accuracy on test observations."""
         X = self._features(observations)
         return self.model_.score(X, labels)
+
+
+def _select_by_evidence(
+    fitted: Mapping[tuple[str, ...], OneVsAllGPC], *, per_class: bool
+) -> tuple[OneVsAllGPC, tuple[tuple[str, ...], ...]]:
+    """Return the one-vs-all model of the largest log marginal likelihood, and its kernels.
+
+    Args:
+        fitted: Modalities of a kernel -> the one-vs-all model fitted with it (same data).
+        per_class: Choose each class's binary classifier separately (else one choice for all,
+            by the sum over classes).
+
+    Returns:
+        The chosen model and, per class, the modalities of its kernel.
+    """
+    names = list(fitted)
+    lml = np.array(
+        [[e.log_marginal_likelihood_value_ for e in fitted[n].estimators_] for n in names]
+    )  # (n_candidates, n_classes)
+    if per_class:
+        best = np.argmax(lml, axis=0)
+    else:
+        best = np.full(lml.shape[1], int(np.argmax(lml.sum(axis=1))))
+    first = fitted[names[0]]
+    model = copy.copy(first)
+    model.estimators_ = [fitted[names[b]].estimators_[c] for c, b in enumerate(best)]
+    return model, tuple(names[b] for b in best)

@@ -13,6 +13,13 @@ free ones, ``bounds`` their (log) box, ``with_theta`` returns a new kernel, and
   domain (0 = old object, 1 = new object) is the last column of ``X``. It is the Hadamard
   product of the base kernel with the PSD matrix ``[[1, rho], [rho, 1]]`` expanded over the
   domains, hence PSD for every ``rho`` in [0, 1] (Schur product theorem).
+- :class:`MultiSourceKernel`: several old objects at once, one ``rho_j`` each: the base kernel
+  times the coregionalisation matrix ``C = v v' + diag(1 - v^2)`` with ``v = (1, rho_1, ..,
+  rho_S)`` over the domains (new object, source 1..S): ``rho_j`` between the new object and
+  source ``j``, ``rho_j rho_k`` between two sources, 1 within a domain. That is the covariance
+  of ``f_new = g``, ``f_j = rho_j g + sqrt(1 - rho_j^2) h_j`` with independent GPs ``g``,
+  ``h_j`` of the base kernel, so PSD by construction; with one source it is the
+  :class:`DependentKernel`.
 """
 
 from __future__ import annotations
@@ -562,6 +569,128 @@ class DependentKernel(Kernel):
             return K, dK
 
         return evaluate
+
+
+class MultiSourceKernel(Kernel):
+    """Dependent-GP kernel over a new object's and several source objects' observations.
+
+    ``K_ab = k(x_a, x_b) * C[d_a, d_b]`` with ``C[d, d] = 1``, ``C[new, j] = rho_j`` and
+    ``C[i, j] = rho_i rho_j`` (see the module docstring). The domain flag in ``flag_column``
+    is 1 for the new object's observations and ``-j`` for source ``j`` (0, -1, -2, ...), so
+    that source 0 carries the :class:`DependentKernel`'s old-object flag 0.
+
+    Args:
+        base: The multi-modal kernel shared by all domains (it must ignore the flag column).
+        rhos: One transfer coefficient per source, each in [0, 1].
+        rho_bounds: Box of every learned ``rho_j`` or ``"fixed"``.
+        flag_column: Column of ``X`` holding the domain flag.
+    """
+
+    def __init__(
+        self,
+        base: Kernel,
+        rhos: npt.ArrayLike,
+        rho_bounds: Bounds = "fixed",
+        flag_column: int = -1,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        values = np.asarray(rhos, dtype=np.float64).reshape(-1)
+        low = 0.0 if rho_bounds == "fixed" else np.nextafter(0.0, 1.0)
+        if values.shape[0] == 0 or not np.all((values >= low) & (values <= 1.0)):
+            msg = f"rhos={list(values)}: need at least one, each in [0, 1] (> 0 when learned)"
+            raise AtiktError(msg)
+        self.base = base
+        self.rhos = values
+        self.rho_bounds = rho_bounds
+        self.flag_column = flag_column
+        self._bounds = np.vstack(
+            [base.bounds, *([_log_bounds(rho_bounds)] * values.shape[0])]
+            if rho_bounds != "fixed"
+            else [base.bounds]
+        )
+
+    @property
+    def learn_rho(self) -> bool:
+        """Whether the ``rho_j`` are free hyperparameters."""
+        return self.rho_bounds != "fixed"
+
+    @property
+    def theta(self) -> FloatArray:
+        """``[base theta..., log rho_1..log rho_S]`` (the tail only when learned)."""
+        tail = np.log(self.rhos) if self.learn_rho else np.zeros(0)
+        return np.concatenate([self.base.theta, tail])
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Log-space box of ``theta``."""
+        return self._bounds
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the ``theta`` entries."""
+        tail = [f"rho_{j}" for j in range(self.rhos.shape[0])] if self.learn_rho else []
+        return (*self.base.names, *tail)
+
+    def _with_values(self, values: FloatArray) -> Self:
+        """Return a copy with the free hyperparameters set from ``values``."""
+        n_base = self.base.n_params
+        new = self._copy()
+        new.base = self.base._with_values(values[:n_base])  # noqa: SLF001
+        if self.learn_rho:
+            new.rhos = np.minimum(np.exp(values[n_base:]), 1.0)
+        return new
+
+    def _loadings(self, X: FloatArray) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+        """Per row: ``v`` of its domain (1 for the new object) and its source index (-1: new)."""
+        flags = X[:, self.flag_column]
+        source = np.where(flags == 1.0, -1, np.rint(-flags)).astype(np.int64)
+        if np.any(source >= self.rhos.shape[0]) or np.any(source < -1):
+            msg = (
+                f"domain flags {sorted(set(flags.tolist()))}: need 1 (new object) or 0, -1, .. "
+                f"for the {self.rhos.shape[0]} sources"
+            )
+            raise AtiktError(msg)
+        return np.where(source < 0, 1.0, self.rhos[np.maximum(source, 0)]), source
+
+    def mask(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``C[d_a, d_b]`` for the rows of ``X`` and ``Y``, shape (n_X, n_Y)."""
+        vx, sx = self._loadings(X)
+        vy, sy = (vx, sx) if Y is None else self._loadings(Y)
+        return np.where(sx[:, None] == sy[None, :], 1.0, vx[:, None] * vy[None, :])
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``k(X, Y) * C``."""
+        return self.mask(X, Y) * self.base(X, Y)
+
+    def _rho_gradients(self, X: FloatArray, K: FloatArray) -> FloatArray:
+        """``dK/dlog rho_j = K`` where exactly one of the two rows is of source ``j``."""
+        _, source = self._loadings(X)
+        dK = np.empty((self.rhos.shape[0], *K.shape))
+        for j in range(self.rhos.shape[0]):
+            member = source == j
+            dK[j] = np.where(member[:, None] != member[None, :], K, 0.0)
+        return dK
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dtheta``."""
+        mask = self.mask(X)
+        K_base, dK_base = self.base.gradient(X)
+        K = K_base * mask
+        dK = dK_base * mask
+        if self.learn_rho:
+            dK = np.concatenate([dK, self._rho_gradients(X, K)], axis=0)
+        return K, dK
+
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return the base kernel's diagonal (``C`` has a unit diagonal)."""
+        return self.base.diag(X)
+
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
+        """Return ``theta -> (K, dK)``; fixed ``rho``s fold their mask into the base's."""
+        if not self.learn_rho:
+            mask = self.mask(X)
+            return self.base.evaluator(X, mask if scale is None else mask * scale)
+        return super().evaluator(X, scale)
 
 
 def modality_kernel(

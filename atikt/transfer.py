@@ -15,22 +15,38 @@ new object, the observations of the most related old object join the new object'
   with the other hyperparameters by maximising the log marginal likelihood; the largest ``rho``
   wins if it is ``>= eps_neg2``.
 
+A third, open-set estimate does not depend on how many old objects there are
+(:class:`ObjectDensities`, :func:`choose_by_density`): each old object's own feature
+distribution (a diagonal Gaussian, its variances shrunk towards the pooled within-object
+variance) asks whether the new object's observations are typical draws of it, by the tail
+probability of their squared Mahalanobis distance (chi-square); the score of an old object is
+the mean tail probability (0.5 for draws of its own distribution, ~0 for a different object),
+unaffected by the other old objects.
+
 Without a source (or with ``rho = 0``) the classifier is exactly the plain :class:`BinaryGPC` on
 the new objects' observations.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final, Self
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import chi2
 
 from atikt.errors import AtiktError, NotFittedError
 from atikt.gpc import BinaryGPC, OneVsAllGPC, RandomState, predictive_probability
-from atikt.kernels import DEFAULT_RHO_BOUNDS, DependentKernel, Kernel, ModalityKernel
+from atikt.kernels import (
+    DEFAULT_RHO_BOUNDS,
+    Bounds,
+    DependentKernel,
+    Kernel,
+    ModalityKernel,
+    MultiSourceKernel,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -55,6 +71,12 @@ def _stack_domains(X_old: FloatArray, X_new: FloatArray) -> FloatArray:
     return out
 
 
+def _stack_sources(sources: Sequence[FloatArray], X_new: FloatArray) -> FloatArray:
+    """Stack sources and new observations with flags ``-j`` (source j) and 1 (new object)."""
+    parts = [with_domain(S, -float(j)) for j, S in enumerate(sources)]
+    return np.vstack([*parts, with_domain(X_new, NEW_DOMAIN)])
+
+
 def _added_start(known: FloatArray, y: FloatArray) -> FloatArray:
     """Starting latent values of the observations after the ``len(known)`` earlier ones.
 
@@ -73,10 +95,14 @@ def _added_start(known: FloatArray, y: FloatArray) -> FloatArray:
 class TransferGPC:
     """Binary classifier of one new object with optional auxiliary positives from an old one.
 
+    With several sources (``X_aux`` a sequence of arrays, ``rho`` one value per source), the
+    kernel is the :class:`~atikt.kernels.MultiSourceKernel`: one ``rho_j`` per old object, PSD
+    by construction; with one source it is the thesis's dependent kernel.
+
     Args:
         kernel: The base (multi-modal) kernel; its ``theta`` is the first starting point.
         rho: Transfer coefficient in [0, 1] when it is fixed (model prediction approach);
-            the starting value when ``learn_rho``.
+            the starting value when ``learn_rho``. A sequence: one per source.
         learn_rho: Learn ``rho`` by the marginal likelihood (model optimisation approach).
         rho_bounds: Box of a learned ``rho``.
         optimize: False keeps all hyperparameters.
@@ -94,7 +120,9 @@ class TransferGPC:
         estimator_: The fitted :class:`BinaryGPC` (on ``[X_aux; X]`` with the domain column when
             transferring, on ``X`` alone otherwise).
         transferred_: Whether auxiliary data were used.
-        rho_: The transfer coefficient used (0 when not transferring).
+        rho_: The transfer coefficient used (0 when not transferring; the first source's with
+            several).
+        rhos_: The transfer coefficient of every source used, shape (n_sources,).
         base_kernel_: The fitted base kernel (for weights and warm starts).
         n_auxiliary_: Auxiliary observations used (0 when not transferring).
     """
@@ -103,7 +131,7 @@ class TransferGPC:
         self,
         kernel: ModalityKernel,
         *,
-        rho: float = 0.0,
+        rho: float | Sequence[float] = 0.0,
         learn_rho: bool = False,
         rho_bounds: tuple[float, float] = DEFAULT_RHO_BOUNDS,
         optimize: bool = True,
@@ -156,54 +184,87 @@ class TransferGPC:
             random_state=self.random_state,
         )
 
-    def fit(self, X: npt.ArrayLike, y: npt.ArrayLike, X_aux: npt.ArrayLike | None = None) -> Self:
+    def fit(
+        self,
+        X: npt.ArrayLike,
+        y: npt.ArrayLike,
+        X_aux: npt.ArrayLike | Sequence[npt.ArrayLike] | None = None,
+    ) -> Self:
         """Fit on the new objects' observations and optional auxiliary positives.
 
         Args:
             X: New objects' observations of one action, shape (n, d).
             y: 1 for the new object this classifier recognises, 0 for the others, shape (n,).
             X_aux: The source old object's observations, shape (n_aux, d), all positives;
-                None or empty for no transfer.
+                or a sequence of such arrays, one per source (with one ``rho`` each); None
+                or empty for no transfer.
 
         Returns:
             self.
 
         Raises:
-            AtiktError: ``rho`` outside [0, 1] or mismatched widths.
+            AtiktError: ``rho`` outside [0, 1], one ``rho`` per source missing, or mismatched
+                widths.
         """
-        if not 0.0 <= self.rho <= 1.0:
-            msg = f"rho={self.rho}; the transfer coefficient must lie in [0, 1]"
-            raise AtiktError(msg)
         Xn = np.asarray(X, dtype=np.float64)
         yn = np.asarray(y, dtype=np.float64).reshape(-1)
-        aux = None if X_aux is None else np.asarray(X_aux, dtype=np.float64)
-        self.transferred_ = aux is not None and aux.shape[0] > 0
-        self.transferred_ &= self.learn_rho or self.rho > 0.0
-        if not self.transferred_ or aux is None:
+        sources, rhos = self._sources(X_aux, Xn.shape[1])
+        self.transferred_ = bool(sources) and (self.learn_rho or bool(np.any(rhos > 0.0)))
+        if not self.transferred_:
             self.estimator_ = self._estimator(self.kernel, 0, yn).fit(Xn, yn)
-            self.rho_, self.n_auxiliary_ = 0.0, 0
+            self.rho_, self.rhos_, self.n_auxiliary_ = 0.0, np.zeros(0), 0
             self.base_kernel_ = self.estimator_.kernel_
             return self
-        if aux.ndim != 2 or aux.shape[1] != Xn.shape[1]:  # noqa: PLR2004
-            msg = f"X_aux has shape {aux.shape}; it needs the {Xn.shape[1]} columns of X"
-            raise AtiktError(msg)
-        rho0 = (
-            min(max(self.rho, self.rho_bounds[0]), self.rho_bounds[1])
-            if self.learn_rho
-            else self.rho
-        )
-        dependent = DependentKernel(
-            self.kernel, rho0, self.rho_bounds if self.learn_rho else "fixed"
-        )
-        X_all = _stack_domains(aux, Xn)
-        y_all = np.concatenate([np.ones(aux.shape[0]), yn])
-        self.estimator_ = self._estimator(dependent, aux.shape[0], yn).fit(X_all, y_all)
-        self.n_auxiliary_ = aux.shape[0]
+        if self.learn_rho:
+            rhos = np.clip(rhos, self.rho_bounds[0], self.rho_bounds[1])
+        bounds: Bounds = self.rho_bounds if self.learn_rho else "fixed"
+        kernel: DependentKernel | MultiSourceKernel
+        if len(sources) == 1:
+            kernel = DependentKernel(self.kernel, float(rhos[0]), bounds)
+            X_all = _stack_domains(sources[0], Xn)
+        else:
+            kernel = MultiSourceKernel(self.kernel, rhos, bounds)
+            X_all = _stack_sources(sources, Xn)
+        n_aux = sum(S.shape[0] for S in sources)
+        y_all = np.concatenate([np.ones(n_aux), yn])
+        self.estimator_ = self._estimator(kernel, n_aux, yn).fit(X_all, y_all)
+        self.n_auxiliary_ = n_aux
         fitted = self.estimator_.kernel_
-        assert isinstance(fitted, DependentKernel)  # noqa: S101 - built just above
-        self.rho_ = fitted.rho
+        assert isinstance(fitted, DependentKernel | MultiSourceKernel)  # noqa: S101 - built above
+        self.rhos_ = (
+            np.array([fitted.rho]) if isinstance(fitted, DependentKernel) else fitted.rhos.copy()
+        )
+        self.rho_ = float(self.rhos_[0])
         self.base_kernel_ = fitted.base
         return self
+
+    def _sources(
+        self, X_aux: npt.ArrayLike | Sequence[npt.ArrayLike] | None, width: int
+    ) -> tuple[list[FloatArray], FloatArray]:
+        """The non-empty source arrays and their ``rho`` values (checked).
+
+        Raises:
+            AtiktError: ``rho`` outside [0, 1], a count mismatch, or a wrong width.
+        """
+        rhos = np.asarray(self.rho, dtype=np.float64).reshape(-1)
+        if not np.all((rhos >= 0.0) & (rhos <= 1.0)):
+            msg = f"rho={self.rho}; the transfer coefficient must lie in [0, 1]"
+            raise AtiktError(msg)
+        if X_aux is None:
+            return [], np.zeros(0)
+        several = isinstance(X_aux, list | tuple) and all(np.ndim(a) == 2 for a in X_aux)  # noqa: PLR2004
+        arrays = [np.asarray(a, dtype=np.float64) for a in (X_aux if several else [X_aux])]  # type: ignore[union-attr]
+        if not arrays:
+            return [], np.zeros(0)
+        if len(arrays) != rhos.shape[0] and not (rhos.shape[0] == 1 and len(arrays) == 1):
+            msg = f"{len(arrays)} sources and rho={self.rho}: give one rho per source"
+            raise AtiktError(msg)
+        for a in arrays:
+            if a.size and (a.ndim != 2 or a.shape[1] != width):  # noqa: PLR2004
+                msg = f"X_aux has shape {a.shape}; it needs the {width} columns of X"
+                raise AtiktError(msg)
+        keep = [i for i, a in enumerate(arrays) if a.shape[0] > 0]
+        return [arrays[i] for i in keep], rhos[keep]
 
     def predict_positive(self, X: npt.ArrayLike) -> FloatArray:
         """Probability that new-domain observations ``X`` (m, d) show this object, shape (m,)."""
@@ -245,14 +306,19 @@ class PriorChoice:
         source: The chosen old object's label, None when nothing is transferred.
         rho: Transfer coefficient (0 when nothing is transferred).
         candidates: Old-object labels, in the order of ``scores``.
-        scores: Relatedness of each candidate: mean predicted probability (model prediction)
-            or learned rho (model optimisation).
+        scores: Relatedness of each candidate: mean predicted probability (model prediction),
+            learned rho (model optimisation) or open-set score (density).
+        sources: Every chosen old object, the most related first (``source`` alone, or
+            several for multi-source transfer; empty when nothing is transferred).
+        rhos: Their transfer coefficients, in the order of ``sources``.
     """
 
     source: int | None
     rho: float
     candidates: tuple[int, ...]
     scores: tuple[float, ...]
+    sources: tuple[int, ...] = ()
+    rhos: tuple[float, ...] = ()
 
 
 def relatedness(old_model: OneVsAllGPC, X: npt.ArrayLike) -> FloatArray:
@@ -299,7 +365,7 @@ def choose_by_prediction(
 
 
 def choose_by_relatedness(
-    scores: npt.ArrayLike, classes: npt.ArrayLike, eps_neg1: float = 0.6
+    scores: npt.ArrayLike, classes: npt.ArrayLike, eps_neg1: float = 0.6, max_sources: int = 1
 ) -> PriorChoice:
     """:func:`choose_by_prediction` from the :func:`relatedness` scores already computed.
 
@@ -307,21 +373,44 @@ def choose_by_relatedness(
         scores: Mean probability of each old object, shape (n_old,).
         classes: The old objects' labels, in the order of ``scores``.
         eps_neg1: Minimum mean probability for a transfer, in (0.5, 1].
+        max_sources: Most old objects transferred at once (the most related ones that pass
+            the threshold, each with ``rho`` = its score).
 
     Returns:
         The choice (see :func:`choose_by_prediction`).
     """
     check_threshold("eps_neg1", eps_neg1)
-    scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+    return _choose(scores, classes, eps_neg1, max_sources, lambda v: v)
+
+
+def _choose(
+    scores: npt.ArrayLike,
+    classes: npt.ArrayLike,
+    eps: float,
+    max_sources: int,
+    to_rho: Callable[[float], float],
+) -> PriorChoice:
+    """The candidates of the largest scores that reach ``eps`` (at most ``max_sources``).
+
+    Raises:
+        AtiktError: Scores and classes disagree, or ``max_sources < 1``.
+    """
+    values = np.asarray(scores, dtype=np.float64).reshape(-1)
     candidates = tuple(int(c) for c in np.asarray(classes).reshape(-1))
-    if len(candidates) != scores.shape[0] or not candidates:
-        msg = f"{scores.shape[0]} relatedness scores for old objects {candidates}"
+    if len(candidates) != values.shape[0] or not candidates or max_sources < 1:
+        msg = (
+            f"{values.shape[0]} relatedness scores for old objects {candidates}, "
+            f"max_sources={max_sources}: need one score per old object and max_sources >= 1"
+        )
         raise AtiktError(msg)
-    best = int(np.argmax(scores))
-    rho = float(scores[best])
-    if rho < eps_neg1:
-        return PriorChoice(None, 0.0, candidates, tuple(float(s) for s in scores))
-    return PriorChoice(candidates[best], rho, candidates, tuple(float(s) for s in scores))
+    listed = tuple(float(v) for v in values)
+    order = np.argsort(-values, kind="stable")[:max_sources]
+    chosen = [int(i) for i in order if values[i] >= eps]
+    if not chosen:
+        return PriorChoice(None, 0.0, candidates, listed)
+    sources = tuple(candidates[i] for i in chosen)
+    rhos = tuple(to_rho(float(values[i])) for i in chosen)
+    return PriorChoice(sources[0], rhos[0], candidates, listed, sources, rhos)
 
 
 def choose_by_optimization(
@@ -378,3 +467,105 @@ def choose_by_optimization(
         kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
     ).fit(X, y)
     return PriorChoice(None, 0.0, candidates, scores), plain
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ObjectDensities:
+    """Each old object's feature distribution (diagonal Gaussian) in one feature space.
+
+    Attributes:
+        classes: Old-object labels, shape (k,).
+        means: Per-object mean, shape (k, d).
+        variances: Per-object variance, shrunk towards the pooled within-object variance,
+            shape (k, d).
+        counts: Observations per object, shape (k,).
+    """
+
+    classes: npt.NDArray[np.int64]
+    means: FloatArray
+    variances: FloatArray
+    counts: FloatArray
+
+    @classmethod
+    def fit(
+        cls, X: npt.ArrayLike, labels: npt.ArrayLike, *, shrinkage: float = 2.0
+    ) -> ObjectDensities:
+        """Estimate every object's mean and (shrunk) variance.
+
+        ``var_o = (n_o s_o^2 + c s_pooled^2) / (n_o + c)`` with ``c = shrinkage``: with few
+        observations of an object its variances lean on the pooled within-object ones. A floor
+        of 1e-6 keeps constant columns (e.g. unused PCA components) usable.
+
+        Args:
+            X: Old objects' observations, shape (n, d).
+            labels: Old-object label of each row, shape (n,).
+            shrinkage: Pseudo-count ``c`` of the pooled variance.
+
+        Raises:
+            AtiktError: Shapes disagree or no observations.
+        """
+        Xa = np.asarray(X, dtype=np.float64)
+        la = np.asarray(labels).reshape(-1)
+        if Xa.ndim != 2 or Xa.shape[0] != la.shape[0] or Xa.shape[0] == 0:  # noqa: PLR2004
+            msg = f"X {Xa.shape} and labels {la.shape}: need X (n, d) and n labels, n >= 1"
+            raise AtiktError(msg)
+        classes = np.unique(la).astype(np.int64)
+        groups = [Xa[la == c] for c in classes]
+        means = np.array([g.mean(axis=0) for g in groups])
+        counts = np.array([g.shape[0] for g in groups], dtype=np.float64)
+        scatter = np.array([((g - m) ** 2).sum(axis=0) for g, m in zip(groups, means, strict=True)])
+        dof = max(Xa.shape[0] - classes.shape[0], 1)
+        pooled = scatter.sum(axis=0) / dof
+        own = scatter / np.maximum(counts - 1.0, 1.0)[:, None]
+        weight = np.where(counts > 1.0, counts, 0.0)[:, None]
+        variances = (weight * own + shrinkage * pooled) / (weight + shrinkage) + 1e-6
+        return cls(classes, means, variances, counts)
+
+    def tail_probabilities(self, X: npt.ArrayLike) -> FloatArray:
+        """Tail probability of each observation under each object's distribution.
+
+        ``p = P(chi2_d >= m^2 / (1 + 1/n_o))`` with ``m^2`` the squared Mahalanobis distance
+        to the object's mean (the factor accounts for the estimated mean).
+
+        Args:
+            X: Observations, shape (m, d).
+
+        Returns:
+            Shape (m, k), in [0, 1].
+        """
+        Xa = np.asarray(X, dtype=np.float64)
+        d2 = (((Xa[:, None, :] - self.means[None]) ** 2) / self.variances[None]).sum(axis=2)
+        d2 /= 1.0 + 1.0 / self.counts[None]
+        return np.asarray(chi2.sf(d2, self.means.shape[1]), dtype=np.float64)
+
+
+def choose_by_density(
+    scores: npt.ArrayLike,
+    classes: npt.ArrayLike,
+    eps_density: float = 0.1,
+    max_sources: int = 1,
+    rho_scale: float = 2.0,
+) -> PriorChoice:
+    """Choose the source old object(s) by the open-set score (mean tail probability).
+
+    Args:
+        scores: Mean tail probability of the new object's observations under each old object's
+            distribution (:meth:`ObjectDensities.tail_probabilities`, averaged), shape (n_old,).
+        classes: The old objects' labels, in the order of ``scores``.
+        eps_density: Minimum score for a transfer, in (0, 1].
+        max_sources: Most old objects transferred at once.
+        rho_scale: ``rho = min(1, rho_scale * score)``; 2 gives ``rho = 1`` for typical draws
+            of the old object's distribution (mean tail probability 1/2).
+
+    Returns:
+        The old object(s) of the largest scores with their ``rho``, or no source when the
+        largest score is below ``eps_density``.
+
+    Raises:
+        AtiktError: A threshold out of range or ``rho_scale <= 0``.
+    """
+    check_threshold("eps_density", eps_density, low=0.0)
+    if not rho_scale > 0:
+        msg = f"rho_scale={rho_scale}; it must be > 0"
+        raise AtiktError(msg)
+    return _choose(scores, classes, eps_density, max_sources, lambda v: min(1.0, rho_scale * v))

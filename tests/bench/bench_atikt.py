@@ -21,7 +21,8 @@ action) and then 40 steps. Printed:
   the largest difference of the resulting UNC values;
 - objective evaluations along one search path, side by side;
 - how often the warm-started step searches stop at the iteration cap;
-- the step latency of the baseline and of the model optimisation approach;
+- the step latency of the baseline, of the model optimisation approach, of the open-set
+  (density) approach and of multi-source density transfer (at most 3 sources);
 - with ``--accuracy``: final test accuracy of the amplitude kernel against the thesis kernel
   (no signal variance), baseline and transfer, over a few seeds.
 
@@ -358,17 +359,20 @@ def search_iterations(steps: int) -> None:
 
 
 def other_modes(steps: int) -> None:
-    """Median step latency of the baseline and of the model optimisation approach (atikt)."""
+    """Median step latency of the baseline, the model optimisation approach, the open-set
+    (density) approach and multi-source density transfer (at most 3 sources; atikt)."""
     actions = list(ACTIONS)
     train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
     priors = fit_prior_models(pool(OLD_OBJECTS, actions, n_trials=20, seed=2), random_state=0)
-    for transfer in ("none", "optimization"):
+    modes: list[tuple[Any, int]] = [("none", 1), ("optimization", 1), ("density", 1)]
+    for transfer, max_sources in [*modes, ("density", 3)]:
         learner = ActiveLearner(
             actions,
             N_NEW,
             observe=PoolObserver(train),
             priors=priors,
             transfer=transfer,
+            max_sources=max_sources,
             budget=steps,
             random_state=0,
         )
@@ -378,7 +382,10 @@ def other_modes(steps: int) -> None:
             start = time.perf_counter()
             learner.step()
             times.append(time.perf_counter() - start)
-        print(f"step latency, transfer={transfer!r}: median {np.median(times) * 1e3:.1f} ms")
+        print(
+            f"step latency, transfer={transfer!r}, max_sources={max_sources}: "
+            f"median {np.median(times) * 1e3:.1f} ms"
+        )
 
 
 def accuracy(seeds: int, steps: int) -> None:

@@ -1,0 +1,340 @@
+"""Shared hyperparameters, evidence selection, open-set relatedness and multi-source transfer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from atikt_synthetic import NEW_OBJECTS, OLD_OBJECTS, PoolObserver, pool
+
+from atikt import (
+    ActiveLearner,
+    AtiktError,
+    BinaryGPC,
+    DependentKernel,
+    MultiModalGPC,
+    MultiSourceKernel,
+    ObjectDensities,
+    OneVsAllGPC,
+    RawFeatures,
+    TransferGPC,
+    choose_by_density,
+    modality_kernel,
+)
+from atikt.gpc import with_prior
+from atikt.transfer import with_domain
+
+SLICES = {"force": slice(0, 1), "thermal": slice(1, 3)}
+ACTIONS = ["P1", "S1"]
+FAST = {"n_restarts": 0, "max_iter_initial": 15, "max_iter_step": 5}
+
+
+def three_domains(seed: int) -> np.ndarray:
+    """Rows of source 0 (flag 0), source 1 (flag -1) and the new object (flag 1)."""
+    rng = np.random.default_rng(seed)
+    return np.vstack(
+        [
+            with_domain(rng.standard_normal((n, 3)), flag)
+            for n, flag in ((4, 0.0), (3, -1.0), (5, 1.0))
+        ]
+    )
+
+
+def finite_difference(kernel: MultiSourceKernel, X: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    theta = kernel.theta
+    out = np.empty((theta.shape[0], X.shape[0], X.shape[0]))
+    for i in range(theta.shape[0]):
+        step = np.zeros_like(theta)
+        step[i] = h
+        out[i] = (kernel.with_theta(theta + step)(X) - kernel.with_theta(theta - step)(X)) / (2 * h)
+    return out
+
+
+# ------------------------------------------------------------------ multi-source kernel
+
+
+@pytest.mark.parametrize("bounds", ["fixed", (1e-3, 1.0)])
+def test_multi_source_gradient_matches_finite_differences(bounds: object) -> None:
+    base = modality_kernel(SLICES).with_theta([0.2, -0.3, 0.4, 0.1])
+    kernel = MultiSourceKernel(base, [0.7, 0.3], bounds)  # type: ignore[arg-type]
+    X = three_domains(0)
+    K, dK = kernel.gradient(X)
+    np.testing.assert_allclose(K, kernel(X), rtol=1e-12)
+    np.testing.assert_allclose(dK, finite_difference(kernel, X), atol=1e-6)
+    K_eval, dK_eval = kernel.evaluator(X)(kernel.theta)
+    np.testing.assert_allclose(K_eval, K, rtol=1e-12)
+    np.testing.assert_allclose(dK_eval, dK, rtol=1e-12, atol=1e-15)
+
+
+def test_multi_source_kernel_is_psd_and_has_the_designed_blocks() -> None:
+    base = modality_kernel(SLICES)
+    X = three_domains(1)
+    rng = np.random.default_rng(2)
+    for rhos in [[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], *rng.uniform(0, 1, (20, 2)).tolist()]:
+        kernel = MultiSourceKernel(base, rhos)
+        K = kernel(X)
+        assert np.linalg.eigvalsh(K).min() > -1e-10
+        mask = kernel.mask(X)
+        assert mask[0, 4] == pytest.approx(rhos[0] * rhos[1])  # source 0 - source 1
+        assert mask[0, 7] == pytest.approx(rhos[0])  # source 0 - new
+        assert mask[4, 7] == pytest.approx(rhos[1])  # source 1 - new
+        assert mask[0, 1] == mask[7, 8] == 1.0
+
+
+def test_one_source_is_the_dependent_kernel() -> None:
+    base = modality_kernel(SLICES).with_theta([0.2, -0.3, 0.4, 0.1])
+    X = three_domains(3)
+    X = X[X[:, -1] != -1.0]
+    for bounds in ("fixed", (1e-3, 1.0)):
+        multi = MultiSourceKernel(base, [0.6], bounds)
+        single = DependentKernel(base, 0.6, bounds)
+        np.testing.assert_allclose(multi.gradient(X)[0], single.gradient(X)[0], rtol=1e-14)
+        np.testing.assert_allclose(multi.gradient(X)[1], single.gradient(X)[1], rtol=1e-14)
+
+
+def test_multi_source_kernel_rejects_bad_values() -> None:
+    base = modality_kernel(SLICES)
+    with pytest.raises(AtiktError, match="rhos"):
+        MultiSourceKernel(base, [1.2])
+    with pytest.raises(AtiktError, match="rhos"):
+        MultiSourceKernel(base, [])
+    with pytest.raises(AtiktError, match="domain flags"):
+        MultiSourceKernel(base, [0.5])(with_domain(np.zeros((2, 3)), -1.0))
+
+
+# --------------------------------------------------------------- multi-source classifier
+
+
+def data(seed: int) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    X = np.vstack([rng.normal(0.0, 0.5, (4, 3)), rng.normal(3.0, 0.5, (4, 3))])
+    sources = [rng.normal(0.2, 0.5, (6, 3)), rng.normal(-0.2, 0.5, (5, 3))]
+    return X, np.repeat([1.0, 0.0], 4), sources
+
+
+def test_multi_source_with_zero_rhos_is_the_plain_gpc() -> None:
+    X, y, sources = data(0)
+    kernel = modality_kernel(SLICES).with_theta([0.2, -0.1, 0.3, 0.5])
+    Xt = np.random.default_rng(1).standard_normal((10, 3))
+    plain = BinaryGPC(kernel, optimize=False).fit(X, y).predict_positive(Xt)
+    shortcut = TransferGPC(kernel, rho=[0.0, 0.0], optimize=False).fit(X, y, sources)
+    assert not shortcut.transferred_
+    np.testing.assert_array_equal(shortcut.predict_positive(Xt), plain)
+    # the full multi-source kernel with zero rhos: the sources do not inform the new object
+    explicit = TransferGPC(kernel, rho=[1e-300, 1e-300], optimize=False).fit(X, y, sources)
+    assert explicit.transferred_
+    np.testing.assert_allclose(explicit.predict_positive(Xt), plain, atol=1e-8)
+
+
+def test_a_list_of_one_source_is_the_single_source_classifier() -> None:
+    X, y, sources = data(2)
+    kernel = modality_kernel(SLICES)
+    single = TransferGPC(kernel, rho=0.7, random_state=0).fit(X, y, sources[0])
+    listed = TransferGPC(kernel, rho=[0.7], random_state=0).fit(X, y, [sources[0]])
+    np.testing.assert_array_equal(single.predict_positive(X), listed.predict_positive(X))
+    assert listed.rhos_.tolist() == [0.7]
+
+
+def test_multi_source_fit_is_deterministic_and_uses_every_source() -> None:
+    X, y, sources = data(3)
+    kernel = modality_kernel(SLICES)
+    first = TransferGPC(kernel, rho=[0.8, 0.5], random_state=0).fit(X, y, sources)
+    again = TransferGPC(kernel, rho=[0.8, 0.5], random_state=0).fit(X, y, sources)
+    assert first.n_auxiliary_ == 11
+    assert first.rhos_.tolist() == [0.8, 0.5]
+    np.testing.assert_array_equal(first.predict_positive(X), again.predict_positive(X))
+    with pytest.raises(AtiktError, match="one rho per source"):
+        TransferGPC(kernel, rho=[0.8, 0.5, 0.1]).fit(X, y, sources)
+
+
+def test_learned_rhos_stay_in_their_box() -> None:
+    X, y, sources = data(4)
+    model = TransferGPC(modality_kernel(SLICES), rho=[0.5, 0.5], learn_rho=True, random_state=0)
+    model.fit(X, y, sources)
+    assert np.all((model.rhos_ >= 1e-3) & (model.rhos_ <= 1.0))
+
+
+# ------------------------------------------------------------------ open-set relatedness
+
+
+def test_tail_probabilities_separate_own_draws_from_other_objects() -> None:
+    rng = np.random.default_rng(5)
+    X = np.vstack([rng.normal(0.0, 1.0, (40, 4)), rng.normal(6.0, 1.0, (40, 4))])
+    densities = ObjectDensities.fit(X, np.repeat([3, 4], 40))
+    own = densities.tail_probabilities(rng.normal(0.0, 1.0, (400, 4)))
+    assert own.shape == (400, 2)
+    assert np.all((own >= 0.0) & (own <= 1.0))
+    assert own[:, 0].mean() == pytest.approx(0.5, abs=0.06)
+    assert own[:, 1].mean() < 1e-3
+    assert densities.classes.tolist() == [3, 4]
+
+
+def test_an_objects_score_does_not_depend_on_the_other_old_objects() -> None:
+    rng = np.random.default_rng(6)
+    groups = [rng.normal(c, 1.0, (20, 3)) for c in (0.0, 5.0, -5.0, 10.0)]
+    query = rng.normal(0.3, 1.0, (5, 3))
+    scores = []
+    for k in (2, 3, 4):
+        X = np.vstack(groups[:k])
+        densities = ObjectDensities.fit(X, np.repeat(np.arange(k), 20), shrinkage=0.0)
+        scores.append(densities.tail_probabilities(query)[:, 0])
+    np.testing.assert_allclose(scores[0], scores[1], rtol=1e-12)
+    np.testing.assert_allclose(scores[0], scores[2], rtol=1e-12)
+
+
+def test_choose_by_density_threshold_rho_and_several_sources() -> None:
+    choice = choose_by_density([0.02, 0.3, 0.2], [5, 6, 7], eps_density=0.1)
+    assert choice.source == 6
+    assert choice.rho == pytest.approx(0.6)
+    assert choice.sources == (6,)
+    refused = choose_by_density([0.02, 0.05], [5, 6], eps_density=0.1)
+    assert refused.source is None
+    assert refused.rho == 0.0
+    assert refused.sources == ()
+    several = choose_by_density([0.02, 0.3, 0.2, 0.4], [5, 6, 7, 8], max_sources=3)
+    assert several.sources == (8, 6, 7)
+    assert several.rhos == pytest.approx((0.8, 0.6, 0.4))
+    halved = choose_by_density([0.02, 0.3], [5, 6], rho_scale=1.0)
+    assert halved.rho == pytest.approx(0.3)
+    assert choose_by_density([0.9], [5]).rho == 1.0  # capped
+    with pytest.raises(AtiktError, match="eps_density"):
+        choose_by_density([0.3], [1], eps_density=0.0)
+    with pytest.raises(AtiktError, match="rho_scale"):
+        choose_by_density([0.3], [1], rho_scale=0.0)
+
+
+# ---------------------------------------------------------------- fusion: shared, evidence
+
+
+def three_classes(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    centres = np.array([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 3.0]])  # thermal only
+    X = np.vstack([c + 0.5 * rng.standard_normal((4, 3)) for c in centres])
+    return X, np.repeat([0, 1, 2], 4)
+
+
+def test_shared_hyperparameters_are_one_set_and_raise_the_summed_evidence() -> None:
+    X, y = three_classes(7)
+    kernel = modality_kernel(SLICES)
+    shared = OneVsAllGPC(kernel, shared=True, random_state=0).fit(X, y)
+    thetas = [e.kernel_.theta for e in shared.estimators_]
+    for theta in thetas[1:]:
+        np.testing.assert_array_equal(theta, thetas[0])
+    start = OneVsAllGPC(kernel, optimize=False).fit(X, y)
+    total = sum(e.log_marginal_likelihood_value_ for e in shared.estimators_)
+    assert total >= sum(e.log_marginal_likelihood_value_ for e in start.estimators_)
+    again = OneVsAllGPC(kernel, shared=True, random_state=0).fit(X, y)
+    np.testing.assert_array_equal(shared.predict_proba(X), again.predict_proba(X))
+
+
+def test_hyperprior_gradient_matches_finite_differences() -> None:
+    kernel = modality_kernel(SLICES)
+    X, y = three_classes(8)[0], np.repeat([1.0, 0.0], 6)
+
+    def penalised(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        objective = BinaryGPC(kernel)._objective(X, y)  # fresh: no warm start
+        return with_prior(objective, kernel, 0.7)(theta)
+
+    theta = np.array([0.3, -0.2, 0.5, 0.1])
+    value, gradient = penalised(theta)
+    h = 1e-6
+    numeric = [
+        (penalised(theta + h * e)[0] - penalised(theta - h * e)[0]) / (2 * h)
+        for e in np.eye(theta.shape[0])
+    ]
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-4, atol=1e-6)
+    plain = BinaryGPC(kernel)._objective(X, y)
+    assert value > plain(theta)[0]
+    assert with_prior(plain, kernel, None) is plain
+
+
+def observations(seed: int) -> tuple[list[RawFeatures], list[int]]:
+    rng = np.random.default_rng(seed)
+    out, labels = [], []
+    for label, level in enumerate((0.0, 1.0, 2.0)):
+        for _ in range(3):
+            force = np.array([4.5 + 0.3 * rng.standard_normal()])  # uninformative
+            thermal = level + 0.1 * rng.standard_normal(40)
+            out.append(RawFeatures("static", force, None, thermal))
+            labels.append(label)
+    return out, labels
+
+
+@pytest.mark.parametrize("selection", ["fused", "evidence", "evidence-all"])
+def test_multi_modal_selection(selection: str) -> None:
+    train, labels = observations(9)
+    model = MultiModalGPC(selection=selection, random_state=0).fit(train, labels)  # type: ignore[arg-type]
+    assert len(model.selected_) == 3
+    assert all(s in {("force", "thermal"), ("force",), ("thermal",)} for s in model.selected_)
+    if selection == "fused":
+        assert set(model.selected_) == {("force", "thermal")}
+    if selection == "evidence-all":
+        assert len(set(model.selected_)) == 1
+    assert model.score(train, labels) > 0.9
+    with pytest.raises(AtiktError, match="selection"):
+        MultiModalGPC(selection="vote").fit(train, labels)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------- the learner
+
+
+@pytest.fixture(scope="module")
+def train() -> dict[str, dict[int, list[RawFeatures]]]:
+    return pool(NEW_OBJECTS, ACTIONS, n_trials=6, seed=1)
+
+
+@pytest.fixture(scope="module")
+def priors() -> dict[str, dict[int, list[RawFeatures]]]:
+    return pool(OLD_OBJECTS, ACTIONS, n_trials=6, seed=2)
+
+
+def run(train: dict[str, dict[int, list[RawFeatures]]], **kwargs: object) -> ActiveLearner:
+    settings: dict[str, object] = {**FAST, "random_state": 0, **kwargs}
+    learner = ActiveLearner(
+        ACTIONS,
+        len(NEW_OBJECTS),
+        observe=PoolObserver(train),
+        budget=6,
+        **settings,  # type: ignore[arg-type]
+    )
+    learner.initialise()
+    while not learner.done:
+        learner.step()
+    return learner
+
+
+@pytest.mark.parametrize(
+    ("transfer", "max_sources"), [("density", 1), ("density", 3), ("prediction", 3)]
+)
+def test_density_and_multi_source_learners_are_deterministic(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+    transfer: str,
+    max_sources: int,
+) -> None:
+    first = run(train, priors=priors, transfer=transfer, max_sources=max_sources)
+    again = run(train, priors=priors, transfer=transfer, max_sources=max_sources)
+    assert [r.as_row() for r in first.history_] == [r.as_row() for r in again.history_]
+    for state in first.states_.values():
+        for choice, model in zip(state.choices, state.models, strict=True):
+            assert len(choice.sources) <= max_sources
+            assert model.rhos_.shape[0] == len(choice.sources)
+
+
+def test_density_learner_refusing_every_prior_is_the_baseline(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    refusing = run(train, priors=priors, transfer="density", eps_density=1.0)
+    baseline = run(train, transfer="none")
+    assert all(r.prior is None for r in refusing.history_)
+    assert [r.object for r in refusing.history_] == [r.object for r in baseline.history_]
+    assert [r.mean_entropy for r in refusing.history_] == [
+        r.mean_entropy for r in baseline.history_
+    ]
+
+
+def test_max_sources_and_rho_scale_must_be_positive() -> None:
+    with pytest.raises(AtiktError, match="max_sources"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), max_sources=0)
+    with pytest.raises(AtiktError, match="density_rho_scale"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)

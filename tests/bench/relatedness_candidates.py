@@ -1,0 +1,215 @@
+"""Transfer estimates on the simulated dataset: counterpart choice and gains, 95 % intervals.
+
+Every new object of the catalog names its designed counterpart among the old objects
+(``related_to`` in recorder/data/objects.toml). For each transfer mode this runs, with the
+protocol and seeds of the studies in replay/_studies.py (ATIKT and the no-transfer baseline on
+the same splits):
+
+- the ``priors`` study's runs (random groups of 3, 5, 7, 10 prior objects);
+- the ``negative`` study's runs (the 3 old objects least like the new ones);
+
+and prints the mean gain (ATIKT minus baseline, points; at step 0 and over steps 1..budget)
+with a paired 95 % bootstrap interval over prior groups, and how often a step's transfer
+choice for the explored object is its counterpart (when the counterpart is among the priors),
+any other old object, or nothing.
+
+Run: ``python tests/bench/relatedness_candidates.py --modes prediction density density+3
+[--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once;
+``@name=value``: a learner option, e.g. ``density@eps_density=0.05``).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import sys
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
+
+import replay._session
+from atikt.active import TRANSFER_MODES, ActiveLearner
+from replay._parallel import run_tasks
+from replay._studies import StudyConfig, negative_tasks, priors_tasks, run_transfer_task
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULTS = dict(ActiveLearner.__init__.__kwdefaults__ or {})
+SIM = Path.home() / ".cache/atikt/sim-seed0-schema1-v0.1.0/features.parquet"
+
+
+def counterparts() -> dict[str, str]:
+    """New object id -> its designed counterpart among the old objects."""
+    with (ROOT / "recorder/data/objects.toml").open("rb") as handle:
+        catalog = tomllib.load(handle)
+    return {
+        k: v["related_to"] for k, v in catalog.items() if isinstance(v, dict) and "related_to" in v
+    }
+
+
+def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
+    """One study task, with the learner's transfer modes registered in the session check.
+
+    The studies pass only the transfer mode to the learner; other options (``max_sources``,
+    ``eps_density``, ...) are set as the learner's defaults in this worker process.
+    """
+    task, options = args
+    replay._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
+    defaults = ActiveLearner.__init__.__kwdefaults__
+    assert defaults is not None  # keyword-only parameters
+    defaults.update(DEFAULTS)  # worker processes are reused: undo an earlier task's options
+    for key, value in options.items():
+        defaults[key] = int(value) if key == "max_sources" else value
+    return run_transfer_task(task)
+
+
+def parse(name: str) -> tuple[str, dict[str, float]]:
+    """``"density+3@eps_density=0.05"`` -> ("density", {"max_sources": 3, "eps_density": 0.05})."""
+    head, *settings = name.split("@")
+    mode, _, sources = head.partition("+")
+    options = {"max_sources": float(sources or 1)}
+    options |= {k: float(v) for k, v in (s.split("=") for s in settings)}
+    return mode, options
+
+
+def bootstrap(values: np.ndarray, rng: np.random.Generator, n: int = 4000) -> tuple[float, float]:
+    """95 % percentile interval of the mean of ``values``."""
+    means = rng.choice(values, size=(n, values.shape[0])).mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def gains(frame: pl.DataFrame, by: list[str], budget: int) -> pl.DataFrame:
+    """Per prior group (and ``by``): initial and mean-over-steps gain in points."""
+    runs = frame.group_by([*by, "group", "trial", "method"]).agg(
+        pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
+        pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
+    )
+    wide = runs.pivot(on="method", index=[*by, "group", "trial"], values=["initial", "mean"])
+    paired = wide.with_columns(
+        ((pl.col(f"{c}_ATIKT") - pl.col(f"{c}_baseline")) * 100).alias(c)
+        for c in ("initial", "mean")
+    )
+    return paired.group_by([*by, "group"]).agg(pl.col("initial").mean(), pl.col("mean").mean())
+
+
+def choices(frame: pl.DataFrame, related: dict[str, str]) -> dict[str, float]:
+    """Rates of the explored object's transfer choice after each step (ATIKT runs).
+
+    A step row names the explored new object (``object``), the old object transferred to its
+    classifier (``prior``, empty for none) and the run's prior objects (``priors``).
+    """
+    steps = frame.filter((pl.col("method") == "ATIKT") & (pl.col("step") >= 1))
+    counts = {"counterpart": 0, "other": 0, "none": 0, "absent_other": 0, "absent_none": 0}
+    for row in steps.select("object", "prior", "priors").iter_rows(named=True):
+        priors = row["priors"].split(",")
+        target = related[row["object"]]
+        chosen = row["prior"] or None
+        if target in priors:
+            key = "none" if chosen is None else ("counterpart" if chosen == target else "other")
+        else:
+            key = "absent_none" if chosen is None else "absent_other"
+        counts[key] += 1
+    present = counts["counterpart"] + counts["other"] + counts["none"]
+    absent = counts["absent_other"] + counts["absent_none"]
+    return {
+        "counterpart chosen": counts["counterpart"] / max(present, 1),
+        "other chosen (counterpart present)": counts["other"] / max(present, 1),
+        "nothing (counterpart present)": counts["none"] / max(present, 1),
+        "something chosen (counterpart absent)": counts["absent_other"] / max(absent, 1),
+        "steps with counterpart present": present,
+        "steps with counterpart absent": absent,
+    }
+
+
+def report(name: str, frame: pl.DataFrame, by: list[str], budget: int, rng: Any) -> None:
+    """Print the gains with intervals per ``by``."""
+    table = gains(frame, by, budget)
+    keys = sorted(set(table[by[0]])) if by else [None]
+    for key in keys:
+        part = table if key is None else table.filter(pl.col(by[0]) == key)
+        cells = []
+        for column in ("initial", "mean"):
+            values = part[column].to_numpy()
+            low, high = bootstrap(values, rng)
+            cells.append(f"{column} {values.mean():+.1f} [{low:+.1f}, {high:+.1f}]")
+        label = "" if key is None else f"{by[0]}={key} "
+        print(f"  {name} {label}({part.height} groups): " + ", ".join(cells))
+
+
+def compare(directory: Path, first: str, second: str, budget: int) -> None:
+    """Print ``second`` minus ``first`` (ATIKT runs, same splits and seeds), paired by run."""
+    rng = np.random.default_rng(0)
+    for study in ("priors", "negative"):
+        a, b = (directory / f"{study}-{m}.parquet" for m in (first, second))
+        if not (a.exists() and b.exists()):
+            continue
+        both = pl.concat(
+            [
+                pl.read_parquet(path)
+                .filter(pl.col("method") == "ATIKT")
+                .with_columns(pl.lit(name).alias("method"))
+                for path, name in ((a, "baseline"), (b, "ATIKT"))
+            ],
+            how="diagonal_relaxed",
+        )
+        print(f"{study}: {second} minus {first}, points [95 % bootstrap over groups]")
+        report(study, both, ["n_priors"] if study == "priors" else [], budget, rng)
+
+
+def main() -> None:
+    """Run the studies' tasks for every mode and print the tables."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--modes", nargs="+", default=["prediction", "density"])
+    parser.add_argument("--features", type=Path, default=SIM)
+    parser.add_argument("--groups", type=int, default=10)
+    parser.add_argument("--trials", type=int, default=5)
+    parser.add_argument("--budget", type=int, default=40)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--studies", nargs="+", default=["priors", "negative"])
+    parser.add_argument("--out", type=Path, default=None, help="directory for the rows")
+    parser.add_argument(
+        "--compare", nargs=2, metavar=("FIRST", "SECOND"), help="modes whose rows --out holds"
+    )
+    args = parser.parse_args()
+    if args.compare:
+        first, second = args.compare
+        compare(args.out, first, second, args.budget)
+        return
+    frame = pl.read_parquet(args.features)
+    related = counterparts()
+    for name in args.modes:  # "density", "density+3" (at most 3 sources), "density@key=value"
+        mode, options = parse(name)
+        config = StudyConfig(
+            out=Path(), groups=args.groups, trials=args.trials, budget=args.budget, transfer=mode
+        )
+        rng = np.random.default_rng(0)
+        print(f"\n## transfer={mode}, {options}")
+        for study in args.studies:
+            tasks = (
+                priors_tasks(frame, config) if study == "priors" else negative_tasks(frame, config)
+            )
+            if study == "negative":  # one group: runs are the resampling unit
+                tasks = [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
+            jobs = [(t, options) for t in tasks]
+            rows = pl.concat(run_tasks(run, jobs, workers=args.workers), how="diagonal_relaxed")
+            if args.out is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                rows.write_parquet(args.out / f"{study}-{name}.parquet")
+            by = ["n_priors"] if study == "priors" else []
+            print(f"{study}: gain, points [95 % bootstrap over groups]")
+            report(study, rows, by, args.budget, rng)
+            for key, value in choices(rows, related).items():
+                print(f"  {key}: {value:.3f}" if isinstance(value, float) else f"  {key}: {value}")
+
+
+if __name__ == "__main__":
+    main()
