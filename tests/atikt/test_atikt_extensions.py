@@ -254,7 +254,7 @@ def observations(seed: int) -> tuple[list[RawFeatures], list[int]]:
         for _ in range(3):
             force = np.array([4.5 + 0.3 * rng.standard_normal()])  # uninformative
             thermal = level + 0.1 * rng.standard_normal(40)
-            out.append(RawFeatures("static", force, None, thermal))
+            out.append(RawFeatures("static", {"force": force, "thermal": thermal}))
             labels.append(label)
     return out, labels
 

@@ -41,9 +41,9 @@ import polars as pl
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
 from atikt import MultiModalGPC, RawFeatures, extract_features
-from replay._executors import FeatureLookup, PoolExecutor, Split
-from replay._parallel import run_tasks
-from replay._studies import FUSION_SIZES, StudyConfig, _seed, fusion_tasks
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
+from replay.learning._parallel import run_tasks
+from replay.studies._studies import FUSION_SIZES, StudyConfig, _seed, fusion_tasks
 
 CANDIDATES: dict[str, dict[str, Any]] = {
     "fused": {"selection": "fused"},
@@ -73,10 +73,10 @@ def real_features(path: Path, seconds: float = 6.0) -> tuple[list[RawFeatures], 
         observations.append(
             extract_features(
                 "static",
-                force[trial, window, None, None].astype(np.float64),
-                None,
-                heated[trial, window, None].astype(np.float64),
-                temperature_rate_hz=rate,
+                {
+                    "force": (force[trial, window, None, None].astype(np.float64), rate),
+                    "thermal": (heated[trial, window, None].astype(np.float64), rate),
+                },
             )
         )
     classes = sorted(set(material))

@@ -37,10 +37,10 @@ import polars as pl
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
-import replay._session
+import replay.learning._session
 from atikt.active import TRANSFER_MODES, ActiveLearner
-from replay._parallel import run_tasks
-from replay._studies import StudyConfig, negative_tasks, priors_tasks, run_transfer_task
+from replay.learning._parallel import run_tasks
+from replay.studies._studies import StudyConfig, negative_tasks, priors_tasks, run_transfer_task
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULTS = dict(ActiveLearner.__init__.__kwdefaults__ or {})
@@ -63,7 +63,7 @@ def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     ``eps_density``, ...) are set as the learner's defaults in this worker process.
     """
     task, options = args
-    replay._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
+    replay.learning._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
     defaults = ActiveLearner.__init__.__kwdefaults__
     assert defaults is not None  # keyword-only parameters
     defaults.update(DEFAULTS)  # worker processes are reused: undo an earlier task's options
