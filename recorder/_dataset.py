@@ -32,7 +32,6 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
-from recorder._sim import SimulatedRig
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
@@ -55,7 +54,16 @@ RigFactory: TypeAlias = "Callable[[int], Rig]"
 #: File name of a dataset's index, beside the object directories.
 INDEX_NAME = "index.parquet"
 
-_RIGS: dict[str, RigFactory] = {"sim": SimulatedRig}
+
+
+def _simulated_rig(seed: int) -> Rig:
+    """Return the simulated rig (imported on first use: bag imports never load the simulator)."""
+    from recorder._sim import SimulatedRig  # noqa: PLC0415
+
+    return SimulatedRig(seed)
+
+
+_RIGS: dict[str, RigFactory] = {"sim": _simulated_rig}
 
 
 def register_rig(name: str, factory: RigFactory) -> None:
