@@ -55,8 +55,8 @@ def _print_report(console: Console, report: ImportReport) -> None:
         title=f"{len(report.written)} recordings from {names} -> {report.out}",
     )
     for modality, dropped in report.dropped_rows.items():
-        offset = report.max_cell_offset_ns[modality] / _NS_PER_MS
-        jitter = report.max_jitter_ns[modality] / _NS_PER_MS
+        offset = report.max_cell_offset_ns.get(modality, 0) / _NS_PER_MS
+        jitter = report.max_jitter_ns.get(modality, 0) / _NS_PER_MS
         table.add_row(modality, str(dropped), f"{offset:.3f}", f"{jitter:.6f}")
     for channel, dropped in report.dropped_samples.items():
         table.add_row(channel, str(dropped), "-", "-")

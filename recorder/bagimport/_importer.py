@@ -219,11 +219,12 @@ def _series(chunks: Sequence[Samples], scale: float = 1.0, offset: float = 0.0) 
     return Series(stamps, receives, values)
 
 
-def _robot_items(plan: _Plan, collected: _Collected, report: ImportReport) -> list[StreamItem]:
+def _robot_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport) -> list[StreamItem]:
     """Return the joint samples and poses stamped inside the window (finite values only)."""
     start, stop = plan.window.start_ns, plan.window.stop_ns
     items: list[StreamItem] = []
-    for key in (("joints",), ("pose",)):
+    mapped = {("joints",): topic_map.joints, ("pose",): topic_map.pose}
+    for key in (k for k, topic in mapped.items() if topic is not None):
         series = _series(collected.series.get(key, []))
         inside = (series.stamps >= start) & (series.stamps < stop)
         finite = np.isfinite(series.values).all(axis=1)
@@ -255,7 +256,7 @@ def _window_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, repor
             return [], f"no {modality} samples of {spec.topic} with every cell inside it"
         report.note(modality, rows, jitter, dropped)
         items.extend(blocks)
-    robot = _robot_items(plan, collected, report)
+    robot = _robot_items(plan, collected, topic_map, report)
     for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
         if mapped is not None and not any(isinstance(item, kind) for item in robot):
             return [], f"no message of {mapped.topic} inside it"
@@ -434,12 +435,14 @@ def _run(bags: Sequence[Path], topic_map: TopicMap, report: ImportReport, out: P
         plans = _plans(windows, topic_map, out, objects, actions)
         session = _Session(plans, topic_map, found, report.bags, report, on_written)
         _stream(reader, connections, session, on_progress)
-    report.dropped_samples["joint_states"] = report.dropped_samples.get("joint_states", 0) + sum(
-        e.repeated for e in found.values() if isinstance(e, JointTopic)
-    )
-    report.dropped_samples["tcp_pose"] = report.dropped_samples.get("tcp_pose", 0) + sum(
-        e.repeated for e in found.values() if isinstance(e, PoseTopic)
-    )
+    for name, kind in (("joint_states", JointTopic), ("tcp_pose", PoseTopic)):
+        if repeated := [e.repeated for e in found.values() if isinstance(e, kind)]:
+            report.dropped_samples[name] = report.dropped_samples.get(name, 0) + sum(repeated)
+    for extractor in found.values():
+        if isinstance(extractor, SkinTopic):
+            for spec in extractor.fields:
+                report.dropped_rows[spec.modality] = report.dropped_rows.get(spec.modality, 0)
+            report.repeated_stamps += extractor.repeated
     return plans
 
 

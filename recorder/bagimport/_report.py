@@ -100,6 +100,7 @@ class ImportReport:
         index: The rebuilt dataset index.
         json_path: Where the report was written as JSON.
         already_imported: Bags skipped because ``out`` holds them already.
+        repeated_stamps: Skin messages dropped because they repeat the previous stamp.
     """
 
     bags: Sequence[BagIdentity]
@@ -115,6 +116,7 @@ class ImportReport:
     index: Path | None = None
     json_path: Path | None = None
     already_imported: dict[str, str] = field(default_factory=dict)
+    repeated_stamps: int = 0
 
     @property
     def bag(self) -> Path:
@@ -143,6 +145,7 @@ class ImportReport:
             "dropped_samples": self.dropped_samples,
             "max_cell_offset_ns": self.max_cell_offset_ns,
             "max_jitter_ns": self.max_jitter_ns,
+            "repeated_skin_stamps": self.repeated_stamps,
         }
 
     def save(self) -> Path:
