@@ -54,6 +54,7 @@ def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
     msg = f"module 'recorder' has no attribute {name!r}"
     raise AttributeError(msg)
 
+
 __all__ = [
     "ActionKind",
     "ActionSpec",

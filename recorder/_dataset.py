@@ -55,7 +55,6 @@ RigFactory: TypeAlias = "Callable[[int], Rig]"
 INDEX_NAME = "index.parquet"
 
 
-
 def _simulated_rig(seed: int) -> Rig:
     """Return the simulated rig (imported on first use: bag imports never load the simulator)."""
     from recorder._sim import SimulatedRig  # noqa: PLC0415

@@ -115,7 +115,9 @@ def _import_bag(args: argparse.Namespace) -> int:
             args.out,
             objects=objects,
             actions=actions,
-            on_written=lambda path: progress.console.print(str(path), highlight=False, soft_wrap=True),
+            on_written=lambda path: progress.console.print(
+                str(path), highlight=False, soft_wrap=True
+            ),
             on_progress=lambda bag, done: progress.update(tasks[bag], completed=done),
         )
     if report.already_imported:

@@ -111,7 +111,9 @@ def _lab_object(spec: ObjectSpec) -> LabObject:
     return LabObject(spec.id, spec.name, spec.description, spec.novel)
 
 
-def _entry(kind: str, wanted: str, declared: Mapping[str, Any], catalog: Mapping[str, Any], where: str) -> Any:  # noqa: ANN401
+def _entry(
+    kind: str, wanted: str, declared: Mapping[str, Any], catalog: Mapping[str, Any], where: str
+) -> Any:  # noqa: ANN401
     """Return an object or action from the map's declarations, else from the catalog.
 
     Raises:
@@ -153,7 +155,13 @@ def _check_action(window: Window, action: LabAction, topic_map: TopicMap) -> Non
         raise BagImportError(msg)
 
 
-def _plans(windows: Sequence[Window], topic_map: TopicMap, out: Path, objects: Mapping[str, ObjectSpec], actions: Mapping[str, ActionSpec]) -> list[_Plan]:
+def _plans(
+    windows: Sequence[Window],
+    topic_map: TopicMap,
+    out: Path,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+) -> list[_Plan]:
     """Resolve every window's object and action, check it, and give it a path."""
     catalog_objects = {k: _lab_object(v) for k, v in objects.items()}
     catalog_actions = {k: _lab_action(v) for k, v in actions.items()}
@@ -170,7 +178,9 @@ def _plans(windows: Sequence[Window], topic_map: TopicMap, out: Path, objects: M
 # -------------------------------------------------------------------------------- windows
 
 
-def _first_stamp(reader: AnyReader, connection: Connection, topic_map: TopicMap, extractor: Extractor) -> int | None:
+def _first_stamp(
+    reader: AnyReader, connection: Connection, topic_map: TopicMap, extractor: Extractor
+) -> int | None:
     """Return the stamp of a topic's first message (its earliest: stamps increase)."""
     for _, receive_ns, raw in reader.messages(connections=[connection]):
         message = reader.deserialize(raw, connection.msgtype)
@@ -181,7 +191,12 @@ def _first_stamp(reader: AnyReader, connection: Connection, topic_map: TopicMap,
     return None
 
 
-def _windows(reader: AnyReader, connections: Sequence[Connection], topic_map: TopicMap, found: Mapping[str, Extractor]) -> list[Window]:
+def _windows(
+    reader: AnyReader,
+    connections: Sequence[Connection],
+    topic_map: TopicMap,
+    found: Mapping[str, Extractor],
+) -> list[Window]:
     """Return the action windows named by the map (annotation topic or CSV)."""
     source = topic_map.windows
     if source.source == "topic":
@@ -197,7 +212,9 @@ def _windows(reader: AnyReader, connections: Sequence[Connection], topic_map: To
     origin = 0
     if source.relative:
         firsts = [
-            _first_stamp(reader, c, topic_map, found[c.topic]) for c in connections if c.topic in found
+            _first_stamp(reader, c, topic_map, found[c.topic])
+            for c in connections
+            if c.topic in found
         ]
         origin = min((f for f in firsts if f is not None), default=0)
     return windows_from_csv(source.csv, source.time_unit, origin)
@@ -212,14 +229,18 @@ def _series(chunks: Sequence[Samples], scale: float = 1.0, offset: float = 0.0) 
         empty = np.zeros(0, dtype=np.int64)
         return Series(empty, empty, np.zeros((0, 1)))
     stamps = np.concatenate([c.stamps for c in chunks])
-    receives = np.concatenate([np.full(c.stamps.size, c.receive_ns, dtype=np.int64) for c in chunks])
+    receives = np.concatenate(
+        [np.full(c.stamps.size, c.receive_ns, dtype=np.int64) for c in chunks]
+    )
     values = np.concatenate([c.values for c in chunks])
     if scale != 1.0 or offset != 0.0:
         values = values * scale + offset
     return Series(stamps, receives, values)
 
 
-def _robot_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport) -> list[StreamItem]:
+def _robot_items(
+    plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport
+) -> list[StreamItem]:
     """Return the joint samples and poses stamped inside the window (finite values only)."""
     start, stop = plan.window.start_ns, plan.window.stop_ns
     items: list[StreamItem] = []
@@ -229,7 +250,9 @@ def _robot_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, report
         inside = (series.stamps >= start) & (series.stamps < stop)
         finite = np.isfinite(series.values).all(axis=1)
         name = "joint_states" if key == ("joints",) else "tcp_pose"
-        report.dropped_samples[name] = report.dropped_samples.get(name, 0) + int((inside & ~finite).sum())
+        report.dropped_samples[name] = report.dropped_samples.get(name, 0) + int(
+            (inside & ~finite).sum()
+        )
         for i in np.flatnonzero(inside & finite):
             stamp, receive, v = int(series.stamps[i]), int(series.receives[i]), series.values[i]
             if key == ("joints",):
@@ -240,13 +263,18 @@ def _robot_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, report
     return items
 
 
-def _window_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport) -> tuple[list[StreamItem], str]:
+def _window_items(
+    plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport
+) -> tuple[list[StreamItem], str]:
     """Return every stream item of one window ordered by receive time, or why it is skipped."""
     window = plan.window
     items: list[StreamItem] = [PhaseEvent(s, s, Phase(p)) for p, s in window.events]
     cells = range(len(topic_map.cells))
     for modality, spec in topic_map.skin.items():
-        series = [_series(collected.series.get(("skin", modality, c), []), spec.scale, spec.offset) for c in cells]
+        series = [
+            _series(collected.series.get(("skin", modality, c), []), spec.scale, spec.offset)
+            for c in cells
+        ]
         period = block_period(spec.period_ns, series[0].stamps)
         if period <= 0 or any(s.stamps.size == 0 for s in series):
             return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it"
@@ -265,7 +293,12 @@ def _window_items(plan: _Plan, collected: _Collected, topic_map: TopicMap, repor
     return items, ""
 
 
-def _rig(bags: Sequence[BagIdentity], topic_map: TopicMap, joints: JointTopic | None, widths: Mapping[str, int]) -> dict[str, str]:
+def _rig(
+    bags: Sequence[BagIdentity],
+    topic_map: TopicMap,
+    joints: JointTopic | None,
+    widths: Mapping[str, int],
+) -> dict[str, str]:
     """Return the rig metadata of imported recordings (with the bags' identities)."""
     return {
         "kind": "imported",
@@ -319,9 +352,10 @@ class _Session:
         for i in range(bisect.bisect_right(self.his, first), bisect.bisect_right(self.los, last)):
             if i < self.done:
                 msg = (
-                    f"topic {topic}: a sample stamped {first} ns arrived at {samples.receive_ns} ns, "
-                    f"after {self.plans[i].window.describe()} was written; raise [time] "
-                    f"max_delay_s (now {self.topic_map.max_delay_ns / _NS_PER_S:g} s) in the topic map"
+                    f"topic {topic}: a sample stamped {first} ns arrived at "
+                    f"{samples.receive_ns} ns, after {self.plans[i].window.describe()} was "
+                    "written; raise [time] max_delay_s (now "
+                    f"{self.topic_map.max_delay_ns / _NS_PER_S:g} s) in the topic map"
                 )
                 raise BagImportError(msg)
             collected = self.collected.setdefault(i, _Collected())
@@ -336,7 +370,10 @@ class _Session:
 
     def advance(self, receive_ns: int) -> None:
         """Write every window the bag has passed by more than ``max_delay_s``."""
-        while self.done < len(self.plans) and receive_ns >= self.his[self.done] + self.topic_map.max_delay_ns:
+        while (
+            self.done < len(self.plans)
+            and receive_ns >= self.his[self.done] + self.topic_map.max_delay_ns
+        ):
             self.finish_one()
 
     def finish_one(self) -> None:
@@ -353,7 +390,10 @@ class _Session:
     def _write(self, plan: _Plan, items: Sequence[StreamItem]) -> None:
         joints = next((e for e in self.found.values() if isinstance(e, JointTopic)), None)
         widths = {
-            m: w for e in self.found.values() if isinstance(e, SkinTopic) for m, w in e.widths.items()
+            m: w
+            for e in self.found.values()
+            if isinstance(e, SkinTopic)
+            for m, w in e.widths.items()
         }
         metadata = RecordingMetadata(
             object_id=plan.obj.id,
@@ -378,7 +418,12 @@ class _Session:
             self.on_written(plan.path)
 
 
-def _stream(reader: AnyReader, connections: Sequence[Connection], session: _Session, on_progress: Callable[[str, int], Any] | None) -> None:
+def _stream(
+    reader: AnyReader,
+    connections: Sequence[Connection],
+    session: _Session,
+    on_progress: Callable[[str, int], Any] | None,
+) -> None:
     """Read every mapped data message once, feeding and closing windows as the bag passes."""
     found, clock = session.found, session.topic_map.stamps
     owners = {id(c.owner): Path(str(getattr(c.owner, "path", "bag"))).name for c in connections}
@@ -423,7 +468,17 @@ def _already(identities: Sequence[BagIdentity], out: Path) -> dict[str, str]:
     return seen
 
 
-def _run(bags: Sequence[Path], topic_map: TopicMap, report: ImportReport, out: Path, objects: Mapping[str, ObjectSpec], actions: Mapping[str, ActionSpec], on_written: Callable[[Path], Any] | None, on_progress: Callable[[str, int], Any] | None) -> list[_Plan]:
+def _run(
+    bags: Sequence[Path],
+    topic_map: TopicMap,
+    report: ImportReport,
+    out: Path,
+    *,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    on_written: Callable[[Path], Any] | None,
+    on_progress: Callable[[str, int], Any] | None,
+) -> list[_Plan]:
     """Read the windows, then stream the bags into recordings."""
     found = extractors(topic_map)
     with open_reader(bags, topic_map) as reader:
@@ -483,7 +538,16 @@ def import_bag(
         return report
     plans: list[_Plan] = []
     try:
-        plans = _run(bags, topic_map, report, out, objects, actions, on_written, on_progress)
+        plans = _run(
+            bags,
+            topic_map,
+            report,
+            out,
+            objects=objects,
+            actions=actions,
+            on_written=on_written,
+            on_progress=on_progress,
+        )
     except READ_ERRORS as err:
         _remove(report.written)
         msg = f"{bags[0]}: cannot read the bag ({err!r}); check the path and the [types] of the map"

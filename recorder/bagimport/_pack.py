@@ -19,7 +19,6 @@ Nothing is resampled.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from fractions import Fraction
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -28,6 +27,7 @@ from recorder.writing._stream import SkinBlock
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+    from fractions import Fraction
 
     from numpy.typing import NDArray
 
@@ -121,7 +121,9 @@ def align_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: 
     return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset)
 
 
-def _block_end(stamps: NDArray[np.int64], start: int, size: int, tolerance: int, period: int) -> int:
+def _block_end(
+    stamps: NDArray[np.int64], start: int, size: int, tolerance: int, period: int
+) -> int:
     """Return the end of the block starting at row ``start`` (rows on the stamp grid)."""
     count = min(size, stamps.size - start)
     grid = int(stamps[start]) + np.arange(count, dtype=np.int64) * period

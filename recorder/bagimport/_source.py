@@ -198,7 +198,9 @@ class SkinTopic:
                 f"[skin.{spec.modality}] (now {spec.samples_per_message} per message); otherwise "
                 'fix the driver\'s stamps or use [time] stamps = "log"'
             )
-            if not self.order[spec.modality].check(int(stamps[0]), int(stamps[-1]), self.topic, fix):
+            if not self.order[spec.modality].check(
+                int(stamps[0]), int(stamps[-1]), self.topic, fix
+            ):
                 self.repeated += 1
                 continue
             key = ("skin", spec.modality, self.cell)
@@ -321,7 +323,7 @@ def extractors(topic_map: TopicMap) -> dict[str, Extractor]:
 
 def required_types(topic_map: TopicMap) -> dict[str, str | None]:
     """Return topic -> required message type (None: any type with the mapped fields)."""
-    wanted: dict[str, str | None] = {t: None for t in extractors(topic_map)}
+    wanted: dict[str, str | None] = dict.fromkeys(extractors(topic_map))
     if topic_map.joints is not None:
         wanted[topic_map.joints.topic] = JOINT_TYPE
     if topic_map.pose is not None:

@@ -335,7 +335,9 @@ def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[str, SkinField]]:
         if table.has(modality)
     }
     if not fields:
-        table.fail(f"[skin] maps no modality; add [skin.<m>] for some of {list(VOCABULARY.modalities)}")
+        table.fail(
+            f"[skin] maps no modality; add [skin.<m>] for some of {list(VOCABULARY.modalities)}"
+        )
     table.done()
     return tuple(cells), jitter, fields
 
@@ -424,13 +426,17 @@ def _action(table: _Table, action_id: str) -> LabAction:
     except ContractError as err:
         table.fail(f"[{table.name}] {err}")
     table.done()
-    return LabAction(_check_id(table, "action", action_id), kind, MappingProxyType(parameters), description)
+    return LabAction(
+        _check_id(table, "action", action_id), kind, MappingProxyType(parameters), description
+    )
 
 
 def _actions(root: _Table) -> dict[str, LabAction]:
     declared = root.get("actions", dict, {})
     return {
-        action_id: _action(_Table(root.path, f"actions.{action_id}", declared[action_id]), action_id)
+        action_id: _action(
+            _Table(root.path, f"actions.{action_id}", declared[action_id]), action_id
+        )
         for action_id in list(declared)
     }
 

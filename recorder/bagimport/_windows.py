@@ -114,7 +114,7 @@ def _trial(value: object, where: str) -> int | None:
         return None
     text = str(value).strip()
     if isinstance(value, bool) or not text.isdigit() or not 1 <= int(text) <= MAX_TRIAL:
-        msg = f"{where}: trial = {value!r} is not a trial number 1..{MAX_TRIAL}; fix it or leave it empty"
+        msg = f"{where}: trial = {value!r} is not a trial number 1..{MAX_TRIAL}; fix or empty it"
         raise BagImportError(msg)
     return int(text)
 
@@ -153,11 +153,13 @@ def parse_annotation(text: str, receive_ns: int, topic: str) -> tuple[_Key, str,
     try:
         data = json.loads(text, parse_float=Decimal)
         if not isinstance(data, dict):
-            raise TypeError("not a JSON object")  # noqa: TRY301 (one translation below)
+            msg = "not a JSON object"
+            raise TypeError(msg)  # noqa: TRY301 (one translation below)
         phase = str(data["phase"])
         stamp = data.get("stamp_ns", receive_ns)
         if phase not in _PHASES or isinstance(stamp, bool) or not isinstance(stamp, int):
-            raise ValueError("phase or stamp_ns")  # noqa: TRY301
+            msg = "phase or stamp_ns"
+            raise ValueError(msg)  # noqa: TRY301
         key = (str(data["object"]), str(data["action"]), _trial(data.get("trial"), where))
     except (ValueError, KeyError, TypeError, RecursionError) as err:
         msg = f"{where}: annotation {text[:80]!r} ({err!r}); annotations are JSON like {example}"
@@ -219,10 +221,16 @@ def _csv_window(row: dict[str, str | None], scale: int, origin: int, where: str)
         return origin + parse_time(row.get(column) or "", scale, f"{where} column {column}")
 
     events = [("execute", at("start")), (_PHASES[-1], at("stop"))]
-    events.extend((p, at(p)) for p in _PHASES if p not in ("execute", _PHASES[-1]) and (row.get(p) or "").strip())
+    events.extend(
+        (p, at(p))
+        for p in _PHASES
+        if p not in ("execute", _PHASES[-1]) and (row.get(p) or "").strip()
+    )
     events.sort(key=lambda event: _PHASES.index(event[0]))
     trial = _trial((row.get("trial") or "").strip(), where)
-    window = Window((row["object"] or "").strip(), (row["action"] or "").strip(), trial, tuple(events), where)
+    window = Window(
+        (row["object"] or "").strip(), (row["action"] or "").strip(), trial, tuple(events), where
+    )
     return check_window(window)
 
 

@@ -124,7 +124,9 @@ def main() -> int:
     """Parse the command line and convert."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--all", action="store_true", help="all 270 trials (else 10 per material)")
-    parser.add_argument("--out", type=Path, default=None, help=f"dataset directory (default {DATA})")
+    parser.add_argument(
+        "--out", type=Path, default=None, help=f"dataset directory (default {DATA})"
+    )
     parser.add_argument("--source", type=Path, default=SOURCE, help="the study's directory")
     args = parser.parse_args()
     out = args.out or DATA

@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 NS = 1_000_000_000
 START = 1_700_000_000 * NS
@@ -28,7 +30,7 @@ TYPES = {
 Message = tuple[int, str, str, Any]
 
 
-def typestore(*, ros1: bool) -> Any:  # noqa: ANN401
+def typestore(*, ros1: bool) -> Any:
     """Return a typestore with the labs' types."""
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     for name, text in TYPES.items():
@@ -36,14 +38,14 @@ def typestore(*, ros1: bool) -> Any:  # noqa: ANN401
     return store
 
 
-def header(store: Any, stamp: int, *, ros1: bool) -> Any:  # noqa: ANN401
+def header(store: Any, stamp: int, *, ros1: bool) -> Any:
     """Return a std_msgs/Header."""
     time = store.types["builtin_interfaces/msg/Time"](sec=stamp // NS, nanosec=stamp % NS)
     extra = {"seq": 0} if ros1 else {}
     return store.types["std_msgs/msg/Header"](stamp=time, frame_id="lab", **extra)
 
 
-def write_bag(path: Path, storage: str, messages: list[Message], store: Any) -> Path:  # noqa: ANN401
+def write_bag(path: Path, storage: str, messages: list[Message], store: Any) -> Path:
     """Write (receive, topic, type, message) tuples: ``ros1``, ``sqlite3`` or ``mcap``."""
     ros1 = storage == "ros1"
     if ros1:
@@ -129,13 +131,17 @@ def fingertip_messages(*, ros1: bool, seed: int = 3) -> tuple[list[Message], Any
         touch = current(stamp)
         freq, amp = _texture(*touch) if touch else (0.0, 0.0)
         samples = (amp * np.sin(2 * np.pi * freq * t) + rng.normal(0, 0.02, 22)).astype(np.float32)
-        msg = types["tip_msgs/msg/Vibration"](header=header(store, stamp, ros1=ros1), samples=samples)
+        msg = types["tip_msgs/msg/Vibration"](
+            header=header(store, stamp, ros1=ros1), samples=samples
+        )
         out.append((stamp + 10_500_000, "/tip/vibration", "tip_msgs/msg/Vibration", msg))
     temperature = "sensor_msgs/msg/Temperature"
     for stamp in range(START, stop, 100_000_000):
         touch = current(stamp)
         value = 31.0 - (0.3 * TIP_OBJECTS.index(touch[0]) if touch else 0.0) + rng.normal(0, 0.01)
-        msg = types[temperature](header=header(store, stamp, ros1=ros1), temperature=value, variance=0.0)
+        msg = types[temperature](
+            header=header(store, stamp, ros1=ros1), temperature=value, variance=0.0
+        )
         out.append((stamp + 1_000_000, "/tip/temperature", temperature, msg))
     joint_state = "sensor_msgs/msg/JointState"
     for stamp in range(START, stop, 10_000_000):
@@ -237,14 +243,24 @@ def probe_messages(*, ros1: bool, seed: int = 5) -> tuple[list[Message], Any]:
         elapsed = (stamp - windows[i][3]) / NS if inside else 0.0
         drop = _DROP[windows[i][0]] * (1 - np.exp(-elapsed / 1.5)) if inside else 0.0
         force = (4.5 if inside else 0.0) + rng.normal(0, 0.02)
-        temps = np.array([29.5 - drop, 22.0 - 0.1 * drop], dtype=np.float32) + rng.normal(0, 0.01, 2)
+        temps = np.array([29.5 - drop, 22.0 - 0.1 * drop], dtype=np.float32) + rng.normal(
+            0, 0.01, 2
+        )
         msg = types["probe_msgs/msg/Probe"](
-            header=header(store, stamp, ros1=ros1), force=force, temperatures=temps.astype(np.float32)
+            header=header(store, stamp, ros1=ros1),
+            force=force,
+            temperatures=temps.astype(np.float32),
         )
         out.append((stamp + 2_000_000, "/probe", "probe_msgs/msg/Probe", msg))
     for obj, action, trial, start, end in windows:
         for phase, stamp in (("execute", start), ("end", end)):
-            text = {"object": obj, "action": action, "trial": trial, "phase": phase, "stamp_ns": stamp}
+            text = {
+                "object": obj,
+                "action": action,
+                "trial": trial,
+                "phase": phase,
+                "stamp_ns": stamp,
+            }
             msg = types["std_msgs/msg/String"](data=json.dumps(text))
             out.append((stamp + 5_000_000, "/annotations", "std_msgs/msg/String", msg))
     return out, store
