@@ -39,6 +39,7 @@ from recorder.bagimport._source import (
     Samples,
     SkinTopic,
     check_connections,
+    check_fields,
     extractors,
     message_stamp,
     open_reader,
@@ -418,6 +419,23 @@ class _Session:
             self.on_written(plan.path)
 
 
+def _decode(reader: AnyReader, connection: Connection, receive_ns: int, raw: bytes) -> Any:  # noqa: ANN401
+    """Return a decoded message.
+
+    Raises:
+        BagImportError: The bytes do not decode as the connection's type.
+    """
+    try:
+        return reader.deserialize(raw, connection.msgtype)
+    except READ_ERRORS as err:
+        msg = (
+            f"topic {connection.topic}: the message at {receive_ns} ns does not decode as "
+            f"{connection.msgtype} ({err}); the bag is damaged or its definitions differ "
+            "(give the right ones under [types])"
+        )
+        raise BagImportError(msg) from err
+
+
 def _stream(
     reader: AnyReader,
     connections: Sequence[Connection],
@@ -438,7 +456,7 @@ def _stream(
         if not session.wanted(receive_ns):
             continue
         topic = connection.topic
-        message = reader.deserialize(raw, connection.msgtype)
+        message = _decode(reader, connection, receive_ns, raw)
         stamp = message_stamp(message, topic, clock, receive_ns)
         for samples in found[topic].extract(message, stamp, receive_ns):
             session.add(samples, topic)
@@ -483,6 +501,7 @@ def _run(
     found = extractors(topic_map)
     with open_reader(bags, topic_map) as reader:
         connections = check_connections(reader, required_types(topic_map))
+        check_fields(reader, connections, topic_map)
         windows = _windows(reader, connections, topic_map, found)
         if not windows:
             msg = f"{bags[0]}: no action windows found; check the [windows] of {topic_map.path}"

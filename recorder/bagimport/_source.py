@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Nodetype
 from rosbags.rosbag1 import ReaderError as Ros1ReaderError
 from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
@@ -321,15 +322,15 @@ def extractors(topic_map: TopicMap) -> dict[str, Extractor]:
     return out
 
 
-def required_types(topic_map: TopicMap) -> dict[str, str | None]:
-    """Return topic -> required message type (None: any type with the mapped fields)."""
-    wanted: dict[str, str | None] = dict.fromkeys(extractors(topic_map))
+def required_types(topic_map: TopicMap) -> list[tuple[str, str | None]]:
+    """Return (topic, required message type or None for any type with the fields) per role."""
+    wanted: list[tuple[str, str | None]] = [(t, None) for t in extractors(topic_map)]
     if topic_map.joints is not None:
-        wanted[topic_map.joints.topic] = JOINT_TYPE
+        wanted.append((topic_map.joints.topic, JOINT_TYPE))
     if topic_map.pose is not None:
-        wanted[topic_map.pose.topic] = POSE_TYPE
+        wanted.append((topic_map.pose.topic, POSE_TYPE))
     if topic_map.windows.source == "topic":
-        wanted[topic_map.windows.topic] = ANNOTATION_TYPE
+        wanted.append((topic_map.windows.topic, ANNOTATION_TYPE))
     return wanted
 
 
@@ -349,28 +350,99 @@ def typestore(topic_map: TopicMap) -> Typestore:
     return store
 
 
-def check_connections(reader: AnyReader, wanted: dict[str, str | None]) -> list[Connection]:
+def check_connections(
+    reader: AnyReader, wanted: Sequence[tuple[str, str | None]]
+) -> list[Connection]:
     """Return the connections of the mapped topics, each checked for its type.
 
     Raises:
         BagImportError: A topic is missing or has another type; the message names it.
     """
     types = {c.topic: c.msgtype for c in reader.connections}
-    if missing := [topic for topic in wanted if topic not in types]:
+    if missing := [topic for topic, _ in wanted if topic not in types]:
         known = ", ".join(sorted(types)) or "none"
         msg = (
             f"topic {missing[0]} of the topic map is not in the bag (its topics: {known}); "
             "fix the topic map"
         )
         raise BagImportError(msg)
-    for topic, required in wanted.items():
+    for topic, required in wanted:
         if required is not None and types[topic] != required:
             msg = (
                 f"topic {topic} carries {types[topic]}, but the topic map uses it as "
                 f"{required}; map the topic that carries {required}"
             )
             raise BagImportError(msg)
-    return [c for c in reader.connections if c.topic in wanted]
+    topics = {topic for topic, _ in wanted}
+    return [c for c in reader.connections if c.topic in topics]
+
+
+_NUMERIC = frozenset(
+    [
+        "bool",
+        "byte",
+        "char",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "float32",
+        "float64",
+    ]
+)
+
+
+def _field_type(store: Typestore, msgtype: str, path: str) -> tuple[Any, ...] | None:
+    """Return the type node of a dotted field of ``msgtype``, or None if there is none."""
+    node: tuple[Any, ...] = (Nodetype.NAME, msgtype)
+    for part in path.split("."):
+        if node[0] != Nodetype.NAME:
+            return None
+        fields = dict(store.fielddefs[node[1]][1])
+        if part not in fields:
+            return None
+        node = fields[part]
+    return node
+
+
+def _numeric(node: tuple[Any, ...]) -> bool:
+    """Return whether a type node is a number or an array/sequence of numbers."""
+    if node[0] in {Nodetype.ARRAY, Nodetype.SEQUENCE}:
+        node = node[1][0]
+    return bool(node[0] == Nodetype.BASE and node[1][0] in _NUMERIC)
+
+
+def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map: TopicMap) -> None:
+    """Check, before reading, that every skin field exists, is numeric, and has a header.
+
+    Raises:
+        BagImportError: A field is missing or not numeric, or a header clock lacks a header.
+    """
+    store = reader.typestore
+    types = {c.topic: c.msgtype for c in connections}
+    for topic, extractor in extractors(topic_map).items():
+        msgtype = types[topic]
+        names = [name for name, _ in store.fielddefs[msgtype][1]]
+        for spec in getattr(extractor, "fields", ()):
+            node = _field_type(store, msgtype, spec.field)
+            if node is None or not _numeric(node):
+                problem = "no field" if node is None else "a field that is not numeric:"
+                msg = (
+                    f"topic {topic} carries {msgtype}: {problem} {spec.field!r} "
+                    f"(fields: {', '.join(names)}); fix 'field' of [skin.{spec.modality}] in "
+                    "the topic map or map the topic that carries the values"
+                )
+                raise BagImportError(msg)
+        if topic_map.stamps == "header" and _field_type(store, msgtype, "header.stamp") is None:
+            msg = (
+                f'topic {topic} ({msgtype}) has no header.stamp; set [time] stamps = "log" '
+                "in the topic map to use the receive time"
+            )
+            raise BagImportError(msg)
 
 
 def open_reader(bags: Sequence[Path], topic_map: TopicMap) -> AnyReader:

@@ -228,16 +228,18 @@ PROBE_SESSION = Session(PROBE_OBJECTS, ("hold5",), trials=3, execute_s=5.0, gap_
 _DROP = {"wood": 0.5, "aluminium": 2.4, "cold_wood": 2.6, "foam": 0.2}
 
 
-def probe_messages(*, ros1: bool, seed: int = 5) -> tuple[list[Message], Any]:
+def probe_messages(
+    *, ros1: bool, seed: int = 5, session: Session = PROBE_SESSION
+) -> tuple[list[Message], Any]:
     """Return a fixed probe session at 100 Hz: one scalar force, two temperatures, JSON
     annotations on /annotations (execute, end), no arm, no pose."""
     rng = np.random.default_rng(seed)
     store = typestore(ros1=ros1)
     types = store.types
-    windows = PROBE_SESSION.windows()
+    windows = session.windows()
     starts = np.array([w[3] for w in windows])
     out: list[Message] = []
-    for stamp in range(START, PROBE_SESSION.stop_ns, 10_000_000):
+    for stamp in range(START, session.stop_ns, 10_000_000):
         i = int(np.searchsorted(starts, stamp, side="right")) - 1
         inside = i >= 0 and stamp < windows[i][4]
         elapsed = (stamp - windows[i][3]) / NS if inside else 0.0

@@ -380,6 +380,11 @@ def test_a_type_mismatch_names_the_topic(ros1_bag: Path, tmp_path: Path) -> None
         BagImportError, match=r"topic /joint_states carries sensor_msgs/msg/JointState.*PoseStamped"
     ):
         _import(ros1_bag, topic_map, tmp_path / "out")
+    topic_map = _broken_map(tmp_path, '"/joint_states"', '"/tool_pose"')
+    with pytest.raises(
+        BagImportError, match=r"topic /tool_pose carries geometry_msgs/msg/PoseStamped.*JointState"
+    ):
+        _import(ros1_bag, topic_map, tmp_path / "out")
     topic_map = _broken_map(tmp_path, 'field = "force"', 'field = "prox"\nwidth = 3')
     with pytest.raises(BagImportError, match=r"topic /skin/cell_10 .*'prox' has 1 values.*force"):
         _import(ros1_bag, topic_map, tmp_path / "out")
