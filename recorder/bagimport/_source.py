@@ -379,19 +379,8 @@ def check_connections(
 
 _NUMERIC = frozenset(
     [
-        "bool",
-        "byte",
-        "char",
-        "int8",
-        "uint8",
-        "int16",
-        "uint16",
-        "int32",
-        "uint32",
-        "int64",
-        "uint64",
-        "float32",
-        "float64",
+        *("bool", "byte", "char", "int8", "uint8", "int16", "uint16"),
+        *("int32", "uint32", "int64", "uint64", "float32", "float64"),
     ]
 )
 
