@@ -36,7 +36,6 @@ from recorder.bagimport._source import (
     READ_ERRORS,
     JointTopic,
     PoseTopic,
-    Samples,
     SkinTopic,
     check_connections,
     check_fields,
@@ -72,8 +71,8 @@ if TYPE_CHECKING:
 
 #: Samples kept around a window: the skin's last sample before it, and alignment neighbours.
 MARGIN_NS = 1_000_000_000
-#: Most values one window may hold (a hostile bag cannot exhaust memory).
-MAX_WINDOW_VALUES = 16_000_000
+#: Most message bytes held between two written windows (a hostile bag cannot exhaust memory).
+MAX_PENDING_BYTES = 160 * 1024 * 1024
 #: How much shorter than the action's duration an execute phase may be (the reader's rule).
 DURATION_TOLERANCE = 0.01
 _NS_PER_S = 1_000_000_000
@@ -89,14 +88,6 @@ class _Plan:
     path: Path
     obj: LabObject
     action: LabAction
-
-
-@dataclass(slots=True)
-class _Collected:
-    """The samples gathered for one window, per series."""
-
-    series: dict[tuple[Any, ...], list[Samples]] = field(default_factory=dict)
-    values: int = 0
 
 
 # ------------------------------------------------------------------------- catalog entries
@@ -224,39 +215,33 @@ def _windows(
 # -------------------------------------------------------------------------------- packing
 
 
-def _series(chunks: Sequence[Samples], scale: float = 1.0, offset: float = 0.0) -> Series:
-    """Return one series from its messages' samples (values converted to SI)."""
-    if not chunks:
-        empty = np.zeros(0, dtype=np.int64)
-        return Series(empty, empty, np.zeros((0, 1)))
-    stamps = np.concatenate([c.stamps for c in chunks])
-    receives = np.concatenate(
-        [np.full(c.stamps.size, c.receive_ns, dtype=np.int64) for c in chunks]
-    )
-    values = np.concatenate([c.values for c in chunks])
-    if scale != 1.0 or offset != 0.0:
-        values = values * scale + offset
-    return Series(stamps, receives, values)
+def _cells(
+    found: Mapping[str, Extractor], topic_map: TopicMap, lo: int, hi: int
+) -> dict[str, list[Series]]:
+    """Return, per mapped modality, every cell's samples reaching ``[lo, hi)``."""
+    cells: dict[str, list[Series]] = {m: [] for m in topic_map.skin}
+    for extractor in found.values():
+        if isinstance(extractor, SkinTopic):
+            for modality, series in extractor.take(lo, hi).items():
+                cells[modality].append(series)
+    return cells
 
 
 def _robot_items(
-    plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport
+    window: Window, found: Mapping[str, Extractor], report: ImportReport
 ) -> list[StreamItem]:
     """Return the joint samples and poses stamped inside the window (finite values only)."""
-    start, stop = plan.window.start_ns, plan.window.stop_ns
     items: list[StreamItem] = []
-    mapped = {("joints",): topic_map.joints, ("pose",): topic_map.pose}
-    for key in (k for k, topic in mapped.items() if topic is not None):
-        series = _series(collected.series.get(key, []))
-        inside = (series.stamps >= start) & (series.stamps < stop)
+    for extractor in found.values():
+        if isinstance(extractor, SkinTopic):
+            continue
+        series = extractor.take(window.start_ns, window.stop_ns)
         finite = np.isfinite(series.values).all(axis=1)
-        name = "joint_states" if key == ("joints",) else "tcp_pose"
-        report.dropped_samples[name] = report.dropped_samples.get(name, 0) + int(
-            (inside & ~finite).sum()
-        )
-        for i in np.flatnonzero(inside & finite):
+        name = "joint_states" if isinstance(extractor, JointTopic) else "tcp_pose"
+        report.dropped_samples[name] = report.dropped_samples.get(name, 0) + int((~finite).sum())
+        for i in np.flatnonzero(finite):
             stamp, receive, v = int(series.stamps[i]), int(series.receives[i]), series.values[i]
-            if key == ("joints",):
+            if isinstance(extractor, JointTopic):
                 n = v.size // 3
                 items.append(JointSample(stamp, receive, v[:n], v[n : 2 * n], v[2 * n :]))
             else:
@@ -265,17 +250,17 @@ def _robot_items(
 
 
 def _window_items(
-    plan: _Plan, collected: _Collected, topic_map: TopicMap, report: ImportReport
+    plan: _Plan,
+    cells: Mapping[str, list[Series]],
+    found: Mapping[str, Extractor],
+    topic_map: TopicMap,
+    report: ImportReport,
 ) -> tuple[list[StreamItem], str]:
     """Return every stream item of one window ordered by receive time, or why it is skipped."""
     window = plan.window
     items: list[StreamItem] = [PhaseEvent(s, s, Phase(p)) for p, s in window.events]
-    cells = range(len(topic_map.cells))
     for modality, spec in topic_map.skin.items():
-        series = [
-            _series(collected.series.get(("skin", modality, c), []), spec.scale, spec.offset)
-            for c in cells
-        ]
+        series = cells[modality]
         period = block_period(spec.period_ns, series[0].stamps)
         if period <= 0 or any(s.stamps.size == 0 for s in series):
             return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it"
@@ -285,7 +270,7 @@ def _window_items(
             return [], f"no {modality} samples of {spec.topic} with every cell inside it"
         report.note(modality, rows, jitter, dropped)
         items.extend(blocks)
-    robot = _robot_items(plan, collected, topic_map, report)
+    robot = _robot_items(window, found, report)
     for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
         if mapped is not None and not any(isinstance(item, kind) for item in robot):
             return [], f"no message of {mapped.topic} inside it"
@@ -318,7 +303,7 @@ def _rig(
 
 @dataclass(slots=True)
 class _Session:
-    """The streaming state of one import: open windows, what was written."""
+    """The streaming state of one import: which windows are written, what is held."""
 
     plans: list[_Plan]
     topic_map: TopicMap
@@ -326,10 +311,11 @@ class _Session:
     bags: Sequence[BagIdentity]
     report: ImportReport
     on_written: Callable[[Path], Any] | None
-    collected: dict[int, _Collected] = field(default_factory=dict)
     done: int = 0
+    pending_bytes: int = 0
     los: list[int] = field(default_factory=list)
     his: list[int] = field(default_factory=list)
+    closed_ns: int = -(2**63)
 
     def __post_init__(self) -> None:
         """Index the windows' reach ``[start - margin, stop + margin)``."""
@@ -342,47 +328,56 @@ class _Session:
         i = bisect.bisect_right(self.his, receive_ns - delay)
         return i < len(self.plans) and self.los[i] <= receive_ns + delay
 
-    def add(self, samples: Samples, topic: str) -> None:
-        """Give a message's samples to the windows that reach their stamps.
+    def push(
+        self, extractor: Extractor, message: object, stamp: int, receive_ns: int, size: int
+    ) -> None:
+        """Keep a message for the windows to come.
 
         Raises:
-            BagImportError: A window was written already (the sample came too late), or a
-                window holds too many values.
+            BagImportError: It belongs to a window written already (it came too late), or
+                more than :data:`MAX_PENDING_BYTES` wait for the next window.
         """
-        first, last = int(samples.stamps[0]), int(samples.stamps[-1])
-        for i in range(bisect.bisect_right(self.his, first), bisect.bisect_right(self.los, last)):
-            if i < self.done:
-                msg = (
-                    f"topic {topic}: a sample stamped {first} ns arrived at "
-                    f"{samples.receive_ns} ns, after {self.plans[i].window.describe()} was "
-                    "written; raise [time] max_delay_s (now "
-                    f"{self.topic_map.max_delay_ns / _NS_PER_S:g} s) in the topic map"
-                )
-                raise BagImportError(msg)
-            collected = self.collected.setdefault(i, _Collected())
-            collected.series.setdefault(samples.key, []).append(samples)
-            collected.values += samples.values.size
-            if collected.values > MAX_WINDOW_VALUES:
-                msg = (
-                    f"{self.plans[i].window.describe()} holds more than {MAX_WINDOW_VALUES} "
-                    "values; split the window or check the bag's stamps"
-                )
-                raise BagImportError(msg)
+        if stamp < self.closed_ns:
+            self._check_late(extractor, stamp, receive_ns)
+        extractor.push(message, stamp, receive_ns)
+        self.pending_bytes += size
+        if self.pending_bytes > MAX_PENDING_BYTES and self.done < len(self.plans):
+            msg = (
+                f"{self.plans[self.done].window.describe()}: more than "
+                f"{MAX_PENDING_BYTES >> 20} MB of messages reach it; split the window or check "
+                "the bag's stamps"
+            )
+            raise BagImportError(msg)
+
+    def _check_late(self, extractor: Extractor, stamp: int, receive_ns: int) -> None:
+        reach = extractor.reach if isinstance(extractor, SkinTopic) else (0, 0)
+        first, last = stamp + reach[0], stamp + reach[1]
+        j = bisect.bisect_right(self.his, first)
+        if j < self.done and self.los[j] <= last:
+            msg = (
+                f"topic {extractor.buffer.topic}: a sample stamped {stamp} ns arrived at "
+                f"{receive_ns} ns, after {self.plans[j].window.describe()} was written; raise "
+                f"[time] max_delay_s (now {self.topic_map.max_delay_ns / _NS_PER_S:g} s) in the "
+                "topic map"
+            )
+            raise BagImportError(msg)
 
     def advance(self, receive_ns: int) -> None:
         """Write every window the bag has passed by more than ``max_delay_s``."""
-        while (
-            self.done < len(self.plans)
-            and receive_ns >= self.his[self.done] + self.topic_map.max_delay_ns
-        ):
+        delay = self.topic_map.max_delay_ns
+        while self.done < len(self.plans) and receive_ns >= self.his[self.done] + delay:
             self.finish_one()
 
     def finish_one(self) -> None:
-        """Pack and write the next window (or note why it is skipped)."""
-        plan = self.plans[self.done]
-        collected = self.collected.pop(self.done, _Collected())
-        self.done += 1
-        items, reason = _window_items(plan, collected, self.topic_map, self.report)
+        """Pack and write the next window (or note why it is skipped), then forget its data."""
+        i = self.done
+        plan = self.plans[i]
+        cells = _cells(self.found, self.topic_map, self.los[i], self.his[i])
+        self.done, self.closed_ns, self.pending_bytes = i + 1, self.his[i], 0
+        forget = self.los[i + 1] if i + 1 < len(self.plans) else self.his[i]
+        items, reason = _window_items(plan, cells, self.found, self.topic_map, self.report)
+        for extractor in self.found.values():
+            extractor.forget(forget)
         if reason:
             self.report.skipped.append((plan.window.describe(), reason))
             return
@@ -458,8 +453,7 @@ def _stream(
         topic = connection.topic
         message = _decode(reader, connection, receive_ns, raw)
         stamp = message_stamp(message, topic, clock, receive_ns)
-        for samples in found[topic].extract(message, stamp, receive_ns):
-            session.add(samples, topic)
+        session.push(found[topic], message, stamp, receive_ns, len(raw))
     session.report.messages = counts
     if on_progress is not None:
         for bag, count in counts.items():

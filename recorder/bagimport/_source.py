@@ -10,8 +10,9 @@ that goes back is refused with the topic, the time and the fix, never re-sorted.
 
 from __future__ import annotations
 
-import dataclasses
+import bisect
 from dataclasses import dataclass, field
+from operator import attrgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,6 +24,7 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
+from recorder.bagimport._pack import Series
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
@@ -57,23 +59,6 @@ READ_ERRORS = (
 )
 
 
-@dataclass(frozen=True, slots=True)
-class Samples:
-    """Samples of one series from one message.
-
-    Attributes:
-        key: The series: ``("skin", modality, cell index)``, ``("joints",)`` or ``("pose",)``.
-        stamps: Stamps of the samples, int64 ns.
-        receive_ns: Receive time of the message.
-        values: Values, shape (samples, width), float64, raw units.
-    """
-
-    key: tuple[Any, ...]
-    stamps: NDArray[np.int64]
-    receive_ns: int
-    values: NDArray[np.float64]
-
-
 def message_stamp(message: Any, topic: str, clock: str, receive_ns: int) -> int:  # noqa: ANN401
     """Return a message's stamp on the map's clock.
 
@@ -92,138 +77,199 @@ def message_stamp(message: Any, topic: str, clock: str, receive_ns: int) -> int:
     return int(header.stamp.sec) * _NS_PER_S + int(header.stamp.nanosec)
 
 
-def _field_names(message: Any) -> list[str]:  # noqa: ANN401
-    """Return the field names of a message, for error messages."""
-    return [f.name for f in dataclasses.fields(message) if not f.name.startswith("_")]
+@dataclass(slots=True)
+class _Buffer:
+    """Messages of one topic kept until the windows that reach them are written.
 
-
-def field_values(message: Any, path: str, topic: str) -> NDArray[np.float64]:  # noqa: ANN401
-    """Return a (dotted) field of a message as a float64 vector.
-
-    Raises:
-        BagImportError: The field does not exist or is not numeric.
+    Stamps of a topic must increase: a repeated stamp is dropped (counted), a stamp that goes
+    back is refused. Values are kept as decoded and converted in bulk when a window is cut.
     """
-    value = message
-    for part in path.split("."):
-        if not dataclasses.is_dataclass(value) or not hasattr(value, part):
+
+    topic: str
+    fix: str
+    stamps: list[int] = field(default_factory=list)
+    receives: list[int] = field(default_factory=list)
+    last: int | None = None
+    repeated: int = 0
+
+    def accept(self, stamp: int, receive_ns: int) -> bool:
+        """Record a message's stamp; return False for a repeated stamp (dropped).
+
+        Raises:
+            BagImportError: The stamp precedes the previous one.
+        """
+        last = self.last
+        if last is not None and stamp <= last:
+            if stamp == last:
+                self.repeated += 1
+                return False
             msg = (
-                f"topic {topic} carries {message.__msgtype__}: no field {path!r} "
-                f"(fields: {', '.join(_field_names(message))}); fix its 'field' in the topic map "
-                "or map the topic that carries the values"
+                f"topic {self.topic}: stamp {stamp} ns precedes the previous message's {last} ns; "
+                f"stamps are never re-sorted: {self.fix}"
             )
             raise BagImportError(msg)
-        value = getattr(value, part)
-    if isinstance(value, str | bytes) or dataclasses.is_dataclass(value):
-        msg = (
-            f"topic {topic} carries {message.__msgtype__}: field {path!r} is not numeric; "
-            "map a number or an array of numbers"
+        self.last = stamp
+        self.stamps.append(stamp)
+        self.receives.append(receive_ns)
+        return True
+
+    def span(self, lo: int, hi: int, before: int, after: int) -> tuple[int, int]:
+        """Return the indices of the messages with samples in ``[lo, hi)``.
+
+        A message's samples lie in ``[stamp + before, stamp + after]``.
+        """
+        return bisect.bisect_left(self.stamps, lo - after), bisect.bisect_left(
+            self.stamps, hi - before
         )
-        raise BagImportError(msg)
+
+    def cut(self, index: int) -> None:
+        """Forget the messages before ``index``."""
+        del self.stamps[:index]
+        del self.receives[:index]
+
+
+def _stack(values: list[Any], count: int, topic: str, path: str) -> NDArray[np.float64]:
+    """Return decoded field values of ``count`` messages as a (messages, size) float64 array.
+
+    Raises:
+        BagImportError: The messages carry different numbers of values.
+    """
     try:
-        return np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as err:
-        msg = f"topic {topic} carries {message.__msgtype__}: field {path!r} is not numeric"
+        return np.asarray(values, dtype=np.float64).reshape(count, -1)
+    except ValueError as err:
+        msg = (
+            f"topic {topic}: field {path!r} has different lengths in different messages; "
+            "map a fixed-length field"
+        )
         raise BagImportError(msg) from err
 
 
 @dataclass(slots=True)
-class _Order:
-    """The last stamp of a series: stamps must increase."""
-
-    last: int | None = None
-
-    def check(self, first: int, last: int, topic: str, fix: str) -> bool:
-        """Return False for a repeated stamp (dropped); refuse a stamp that goes back.
-
-        Raises:
-            BagImportError: ``first`` precedes the previous stamp.
-        """
-        if self.last is not None and first <= self.last:
-            if first == self.last:
-                return False
-            msg = (
-                f"topic {topic}: stamp {first} ns precedes the previous sample's {self.last} ns; "
-                f"stamps are never re-sorted: {fix}"
-            )
-            raise BagImportError(msg)
-        self.last = last
-        return True
-
-
-@dataclass(slots=True)
 class SkinTopic:
-    """One skin cell topic: the modalities it carries for one cell."""
+    """One skin cell topic: the modalities it carries for one cell, buffered."""
 
     topic: str
     cell: int
     fields: tuple[SkinField, ...]
     widths: dict[str, int] = field(default_factory=dict)
-    order: dict[str, _Order] = field(default_factory=dict)
+    buffer: _Buffer = field(init=False)
+    values: list[list[Any]] = field(init=False)
+    getters: list[Any] = field(init=False)
     offsets: dict[str, NDArray[np.int64]] = field(default_factory=dict)
-    repeated: int = 0
+    reach: tuple[int, int] = (0, 0)
 
     def __post_init__(self) -> None:
-        """Precompute each modality's sample offsets."""
+        """Precompute field getters and each modality's sample offsets."""
+        batched = ", ".join(f"[skin.{s.modality}]" for s in self.fields)
+        fix = (
+            f"if the driver batches samples, set samples_per_message and rate_hz of {batched}; "
+            'otherwise fix the driver\'s stamps or use [time] stamps = "log"'
+        )
+        self.buffer = _Buffer(self.topic, fix)
+        self.values = [[] for _ in self.fields]
+        self.getters = [attrgetter(spec.field) for spec in self.fields]
         for spec in self.fields:
             self.offsets[spec.modality] = np.asarray(spec.offsets_ns(), dtype=np.int64)
-            self.order[spec.modality] = _Order()
+        every = np.concatenate(list(self.offsets.values()))
+        self.reach = (int(every.min()), int(every.max()))
 
-    def _width(self, spec: SkinField, size: int, msgtype: str) -> int:
-        """Return the values per sample, checked against the map and the first message."""
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one message's values.
+
+        Raises:
+            BagImportError: Its stamp precedes the previous one.
+        """
+        if self.buffer.accept(stamp, receive_ns):
+            for getter, values in zip(self.getters, self.values, strict=True):
+                values.append(getter(message))
+
+    def _width(self, spec: SkinField, size: int) -> int:
+        """Return the values per sample, checked against the map and earlier messages."""
         count = spec.samples_per_message
         width = size // count if size % count == 0 else 0
         expected = spec.width or self.widths.get(spec.modality, width)
         if width == 0 or width != expected:
             msg = (
-                f"topic {self.topic} carries {msgtype}: field {spec.field!r} has {size} values, "
-                f"not {count} samples x {expected or 'n'} values; fix width or "
-                f"samples_per_message of [skin.{spec.modality}] in the topic map"
+                f"topic {self.topic}: field {spec.field!r} has {size} values, not {count} samples "
+                f"x {expected or 'n'} values; fix width or samples_per_message of "
+                f"[skin.{spec.modality}] in the topic map"
             )
             raise BagImportError(msg)
         self.widths[spec.modality] = width
         return width
 
-    def extract(self, message: Any, stamp: int, receive_ns: int) -> list[Samples]:  # noqa: ANN401
-        """Return the samples of one message, per modality.
+    def take(self, lo: int, hi: int) -> dict[str, Series]:
+        """Return each modality's samples of the messages reaching ``[lo, hi)``.
 
         Raises:
-            BagImportError: A field is missing, has the wrong width, or stamps go back.
+            BagImportError: A field's width is wrong or sample stamps do not increase.
         """
-        out = []
-        for spec in self.fields:
-            values = field_values(message, spec.field, self.topic)
-            width = self._width(spec, values.size, message.__msgtype__)
-            stamps = stamp + self.offsets[spec.modality]
-            fix = (
-                f"if the driver batches samples, set samples_per_message and rate_hz of "
-                f"[skin.{spec.modality}] (now {spec.samples_per_message} per message); otherwise "
-                'fix the driver\'s stamps or use [time] stamps = "log"'
-            )
-            if not self.order[spec.modality].check(
-                int(stamps[0]), int(stamps[-1]), self.topic, fix
-            ):
-                self.repeated += 1
-                continue
-            key = ("skin", spec.modality, self.cell)
-            out.append(Samples(key, stamps, receive_ns, values.reshape(-1, width)))
+        first, last = self.buffer.span(lo, hi, *self.reach)
+        count = last - first
+        stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
+        receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
+        out = {}
+        for spec, values in zip(self.fields, self.values, strict=True):
+            offsets = self.offsets[spec.modality]
+            raw = _stack(values[first:last], count, self.topic, spec.field)
+            width = self._width(spec, raw.shape[1]) if count else max(spec.width, 1)
+            samples = (stamps[:, None] + offsets[None, :]).reshape(-1)
+            if samples.size > 1 and not bool((np.diff(samples) > 0).all()):
+                at = int(samples[int(np.argmin(np.diff(samples) > 0)) + 1])
+                msg = (
+                    f"topic {self.topic}: sample stamps of [skin.{spec.modality}] go back at "
+                    f"{at} ns: its {spec.samples_per_message} samples per message at the rate "
+                    f"given overlap the next message; fix samples_per_message or rate_hz"
+                )
+                raise BagImportError(msg)
+            data = raw.reshape(samples.size, width) * spec.scale + spec.offset
+            out[spec.modality] = Series(samples, np.repeat(receives, offsets.size), data)
         return out
+
+    def forget(self, before: int) -> None:
+        """Drop the messages whose samples all precede ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before - self.reach[1])
+        self.buffer.cut(index)
+        for values in self.values:
+            del values[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
 
 
 @dataclass(slots=True)
 class JointTopic:
-    """The joint-state topic: positions, velocities and efforts picked by name."""
+    """The joint-state topic: positions, velocities and efforts picked by name, buffered."""
 
     topic: str
     wanted: tuple[str, ...]
     scale: float
     names: tuple[str, ...] = ()
     missing: set[str] = field(default_factory=set)
-    order: _Order = field(default_factory=_Order)
+    buffer: _Buffer = field(init=False)
+    rows: list[list[Any]] = field(default_factory=lambda: [[], [], []])
     skipped: int = 0
-    repeated: int = 0
-    _index: dict[tuple[str, ...], list[int] | None] = field(default_factory=dict)
+    _index: dict[tuple[str, ...], NDArray[np.intp] | None] = field(default_factory=dict)
+    _last: list[str] = field(default_factory=list)
+    _last_index: NDArray[np.intp] | None = None
+    _zeros: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
-    def _pick(self, names: tuple[str, ...]) -> list[int] | None:
+    def __post_init__(self) -> None:
+        """Create the buffer."""
+        self.buffer = _Buffer(self.topic, "fix the robot driver's stamps")
+
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def _pick(self, names: tuple[str, ...]) -> NDArray[np.intp] | None:
         """Return the columns of the output joints in a message naming ``names``."""
         if names not in self._index:
             if not self.names:
@@ -235,59 +281,111 @@ class JointTopic:
                     f"not in a message naming {list(names)}; fix [joint_states] names"
                 )
                 raise BagImportError(msg)
-            self._index[names] = [names.index(n) for n in self.names] if present else None
+            index = np.array([names.index(n) for n in self.names]) if present else None
+            self._index[names] = index
         return self._index[names]
 
-    def extract(self, message: Any, stamp: int, receive_ns: int) -> list[Samples]:  # noqa: ANN401
-        """Return one joint sample (positions scaled; empty velocities or efforts: zeros).
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one joint sample (empty velocities or efforts: zeros, noted).
 
         Raises:
-            BagImportError: A message lacks positions or stamps go back.
+            BagImportError: A message lacks positions or its stamp goes back.
         """
-        names = tuple(message.name)
-        index = self._pick(names)
+        names = message.name
+        if names != self._last:
+            self._last_index = self._pick(tuple(names))
+            self._last, self._zeros = list(names), np.zeros(len(names))
+        index = self._last_index
         if index is None:  # another part of the robot on the same topic (a gripper)
             self.skipped += 1
-            return []
-        rows = []
-        for quantity in ("position", "velocity", "effort"):
-            array = np.asarray(getattr(message, quantity), dtype=np.float64)
-            if array.size != len(names):
-                if quantity == "position":
-                    msg = f"topic {self.topic}: a message at {stamp} ns has no joint positions"
-                    raise BagImportError(msg)
+            return
+        count = len(names)
+        values = [message.position, message.velocity, message.effort]
+        if len(values[0]) != count:
+            msg = f"topic {self.topic}: a message at {stamp} ns has no joint positions"
+            raise BagImportError(msg)
+        for k, quantity in ((1, "velocity"), (2, "effort")):
+            if len(values[k]) != count:
                 self.missing.add(quantity)
-                array = np.zeros(len(names))
-            rows.append(array[index] * (self.scale if quantity == "position" else 1.0))
-        if not self.order.check(stamp, stamp, self.topic, "fix the robot driver's stamps"):
-            self.repeated += 1
-            return []
-        stamps = np.array([stamp], dtype=np.int64)
-        return [Samples(("joints",), stamps, receive_ns, np.concatenate(rows)[None, :])]
+                values[k] = self._zeros
+        if self.buffer.accept(stamp, receive_ns):
+            for rows, array in zip(self.rows, values, strict=True):
+                rows.append(array[index])
+
+    def take(self, lo: int, hi: int) -> Series:
+        """Return the samples stamped in ``[lo, hi)`` (positions scaled)."""
+        first, last = self.buffer.span(lo, hi, 0, 0)
+        columns = [
+            np.asarray(rows[first:last], dtype=np.float64).reshape(last - first, len(self.names))
+            for rows in self.rows
+        ]
+        columns[0] = columns[0] * self.scale
+        stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
+        receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
+        return Series(stamps, receives, np.concatenate(columns, axis=1))
+
+    def forget(self, before: int) -> None:
+        """Drop the samples before ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before)
+        self.buffer.cut(index)
+        for rows in self.rows:
+            del rows[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
+
+
+def _robot_series(buffer: _Buffer, rows: list[Any], first: int, last: int, width: int) -> Series:
+    """Return buffered robot samples ``first:last`` as a series."""
+    values = np.asarray(rows[first:last], dtype=np.float64).reshape(last - first, width)
+    stamps = np.asarray(buffer.stamps[first:last], dtype=np.int64)
+    return Series(stamps, np.asarray(buffer.receives[first:last], dtype=np.int64), values)
 
 
 @dataclass(slots=True)
 class PoseTopic:
-    """The tool-pose topic: position (scaled to m) and quaternion (x, y, z, w)."""
+    """The tool-pose topic: position (scaled to m) and quaternion (x, y, z, w), buffered."""
 
     topic: str
     scale: float
-    order: _Order = field(default_factory=_Order)
-    repeated: int = 0
+    buffer: _Buffer = field(init=False)
+    rows: list[tuple[float, ...]] = field(default_factory=list)
 
-    def extract(self, message: Any, stamp: int, receive_ns: int) -> list[Samples]:  # noqa: ANN401
-        """Return one pose sample.
+    def __post_init__(self) -> None:
+        """Create the buffer."""
+        self.buffer = _Buffer(self.topic, "fix the robot driver's stamps")
+
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one pose.
 
         Raises:
-            BagImportError: Stamps go back.
+            BagImportError: Its stamp goes back.
         """
-        if not self.order.check(stamp, stamp, self.topic, "fix the robot driver's stamps"):
-            self.repeated += 1
-            return []
-        p, q = message.pose.position, message.pose.orientation
-        scale = self.scale
-        values = np.array([[p.x * scale, p.y * scale, p.z * scale, q.x, q.y, q.z, q.w]])
-        return [Samples(("pose",), np.array([stamp], dtype=np.int64), receive_ns, values)]
+        if self.buffer.accept(stamp, receive_ns):
+            p, q = message.pose.position, message.pose.orientation
+            scale = self.scale
+            self.rows.append((p.x * scale, p.y * scale, p.z * scale, q.x, q.y, q.z, q.w))
+
+    def take(self, lo: int, hi: int) -> Series:
+        """Return the samples stamped in ``[lo, hi)``."""
+        first, last = self.buffer.span(lo, hi, 0, 0)
+        return _robot_series(self.buffer, self.rows, first, last, 7)
+
+    def forget(self, before: int) -> None:
+        """Drop the samples before ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before)
+        self.buffer.cut(index)
+        del self.rows[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
 
 
 Extractor = SkinTopic | JointTopic | PoseTopic
