@@ -13,7 +13,7 @@ from rich.text import Text
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import _CATALOGS, arg, command
 from recorder.bagimport._importer import import_bag
-from recorder.bagimport._source import bag_topics, extractors
+from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
 
@@ -67,14 +67,6 @@ def _print_report(console: Console, report: ImportReport) -> None:
     console.print(f"report -> {report.json_path}", highlight=False, soft_wrap=True)
 
 
-def _counts(bags: list[Path], topics: set[str]) -> dict[str, int]:
-    """Return messages of the mapped topics per bag name (the progress bars' totals)."""
-    return {
-        bag.name: sum(count for topic, _, count in bag_topics([bag]) if topic in topics)
-        for bag in bags
-    }
-
-
 @command(
     "import-bag",
     "import a lab's ROS 1 / ROS 2 bags as per-action recordings <out>/<object>/<action>/<trial>",
@@ -105,10 +97,7 @@ def _import_bag(args: argparse.Namespace) -> int:
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), _Rate())
     with Progress(*columns, console=console, transient=False) as progress:
-        tasks: dict[str, TaskID] = {
-            name: progress.add_task(name, total=total)
-            for name, total in _counts(bags, set(extractors(topic_map))).items()
-        }
+        tasks: dict[str, TaskID] = {}
         report = import_bag(
             bags,
             topic_map,
@@ -119,6 +108,7 @@ def _import_bag(args: argparse.Namespace) -> int:
                 str(path), highlight=False, soft_wrap=True
             ),
             on_progress=lambda bag, done: progress.update(tasks[bag], completed=done),
+            on_start=lambda bag, total: tasks.setdefault(bag, progress.add_task(bag, total=total)),
         )
     if report.already_imported:
         bag, file = next(iter(report.already_imported.items()))

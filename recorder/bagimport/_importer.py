@@ -436,12 +436,16 @@ def _stream(
     connections: Sequence[Connection],
     session: _Session,
     on_progress: Callable[[str, int], Any] | None,
+    on_start: Callable[[str, int], Any] | None = None,
 ) -> None:
     """Read every mapped data message once, feeding and closing windows as the bag passes."""
     found, clock = session.found, session.topic_map.stamps
     owners = {id(c.owner): Path(str(getattr(c.owner, "path", "bag"))).name for c in connections}
     counts = dict.fromkeys(owners.values(), 0)
     data = [c for c in connections if c.topic in found]
+    if on_start is not None:
+        for bag in counts:
+            on_start(bag, sum(c.msgcount for c in data if owners[id(c.owner)] == bag))
     for count, (connection, receive_ns, raw) in enumerate(raw_messages(reader, data), start=1):
         bag = owners[id(connection.owner)]
         counts[bag] += 1
@@ -490,6 +494,7 @@ def _run(
     actions: Mapping[str, ActionSpec],
     on_written: Callable[[Path], Any] | None,
     on_progress: Callable[[str, int], Any] | None,
+    on_start: Callable[[str, int], Any] | None,
 ) -> list[_Plan]:
     """Read the windows, then stream the bags into recordings."""
     found = extractors(topic_map)
@@ -502,7 +507,7 @@ def _run(
             raise BagImportError(msg)
         plans = _plans(windows, topic_map, out, objects, actions)
         session = _Session(plans, topic_map, found, report.bags, report, on_written)
-        _stream(reader, connections, session, on_progress)
+        _stream(reader, connections, session, on_progress, on_start)
     for name, kind in (("joint_states", JointTopic), ("tcp_pose", PoseTopic)):
         if repeated := [e.repeated for e in found.values() if isinstance(e, kind)]:
             report.dropped_samples[name] = report.dropped_samples.get(name, 0) + sum(repeated)
@@ -523,6 +528,7 @@ def import_bag(
     actions: Mapping[str, ActionSpec],
     on_written: Callable[[Path], Any] | None = None,
     on_progress: Callable[[str, int], Any] | None = None,
+    on_start: Callable[[str, int], Any] | None = None,
 ) -> ImportReport:
     """Import a session's bags: one recording per action window, then objects and index.
 
@@ -534,6 +540,7 @@ def import_bag(
         actions: Action catalog (the map's declarations take precedence).
         on_written: Called with every recording written.
         on_progress: Called with (bag name, messages read so far) now and then.
+        on_start: Called with (bag name, messages of the mapped topics) before reading.
 
     Returns:
         What was written and skipped, and the alignment figures. Bags imported into ``out``
@@ -560,6 +567,7 @@ def import_bag(
             actions=actions,
             on_written=on_written,
             on_progress=on_progress,
+            on_start=on_start,
         )
     except READ_ERRORS as err:
         _remove(report.written)
