@@ -126,7 +126,9 @@ def generate(path: Path, seconds: int) -> tuple[int, list[str]]:
             writer.add_connection(f"/skin/cell_{c}", CELL_TYPE, typestore=store)
             for c in range(CELLS)
         ]
-        joints = writer.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=store)
+        joints = writer.add_connection(
+            "/joint_states", "sensor_msgs/msg/JointState", typestore=store
+        )
         robot_next = START
         for k in range(seconds * 100):
             stamp = START + k * 10_000_000

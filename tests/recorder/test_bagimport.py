@@ -386,7 +386,9 @@ def test_a_type_mismatch_names_the_topic(ros1_bag: Path, tmp_path: Path) -> None
     ):
         _import(ros1_bag, topic_map, tmp_path / "out")
     topic_map = _broken_map(tmp_path, 'field = "force"', 'field = "prox"\nwidth = 3')
-    with pytest.raises(BagImportError, match=r"topic /skin/cell_10: field 'prox' has 1 values.*force"):
+    with pytest.raises(
+        BagImportError, match=r"topic /skin/cell_10: field 'prox' has 1 values.*force"
+    ):
         _import(ros1_bag, topic_map, tmp_path / "out")
     topic_map = _broken_map(tmp_path, 'field = "acc"', 'field = "accel"')
     with pytest.raises(BagImportError, match=r"topic /skin/cell_10 .*no field 'accel'.*acc"):
