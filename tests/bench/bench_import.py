@@ -14,7 +14,7 @@ their throughputs, and the import process's peak resident memory
 (``resource.getrusage(RUSAGE_SELF).ru_maxrss``, printed by that process).
 """
 
-# ruff: noqa: INP001, T201 (a benchmark script)
+
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ sys.exit(status)
 
 def _patcher(raw: bytes, sentinel: bytes) -> int:
     """Return the offset of a unique sentinel in a serialised message."""
-    assert raw.count(sentinel) == 1  # noqa: S101
+    assert raw.count(sentinel) == 1
     return raw.index(sentinel)
 
 
@@ -215,7 +215,8 @@ def main() -> None:
     for r in results:
         print(
             f"{r['bag_mb']:>7} MB {r['rosbags_read_deserialize_s']:>8}s {r['import_s']:>8}s "
-            f"{r['throughput_ratio']:>6} {r['import_msgs_per_s']:>8} {r['import_peak_rss_mb']:>6} MB"
+            f"{r['throughput_ratio']:>6} {r['import_msgs_per_s']:>8} "
+            f"{r['import_peak_rss_mb']:>6} MB"
         )
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import itertools
 from decimal import Decimal
 from fractions import Fraction
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -17,9 +16,6 @@ from recorder.bagimport._topicmap import load_topic_map
 from recorder.bagimport._windows import check_no_overlap, windows_from_csv
 from recorder.errors import BagImportError
 from schemas import VOCABULARY
-
-if TYPE_CHECKING:
-    from pathlib import Path
 
 NS = 10**9
 MODALITIES = tuple(VOCABULARY.modalities)
