@@ -14,8 +14,6 @@ their throughputs, and the import process's peak resident memory
 (``resource.getrusage(RUSAGE_SELF).ru_maxrss``, printed by that process).
 """
 
-
-
 from __future__ import annotations
 
 import argparse
