@@ -25,6 +25,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from recorder.bagimport._pack import Series
+from recorder.bagimport._ros1 import StreamingReader
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
@@ -533,8 +534,15 @@ def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map
 
 
 def open_reader(bags: Sequence[Path], topic_map: TopicMap) -> AnyReader:
-    """Return an (unopened) reader of the bags with the map's fallback definitions."""
-    return AnyReader([Path(b) for b in bags], default_typestore=typestore(topic_map))
+    """Return an (unopened) reader of the bags with the map's fallback definitions.
+
+    ROS 1 bags are read by :class:`~recorder.bagimport._ros1.StreamingReader` (no per-message
+    index in memory).
+    """
+    reader = AnyReader([Path(b) for b in bags], default_typestore=typestore(topic_map))
+    if not reader.is2:
+        reader.readers = [StreamingReader(Path(b)) for b in bags]
+    return reader
 
 
 def raw_messages(
