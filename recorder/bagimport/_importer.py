@@ -322,11 +322,24 @@ class _Session:
         self.los = [p.window.start_ns - MARGIN_NS for p in self.plans]
         self.his = [p.window.stop_ns + MARGIN_NS for p in self.plans]
 
-    def wanted(self, receive_ns: int) -> bool:
-        """Return whether a message received at ``receive_ns`` may hold a sample of a window."""
-        delay = self.topic_map.max_delay_ns
+    def wanted(self, receive_ns: int) -> tuple[int, int, bool]:
+        """Return whether a message received at ``receive_ns`` may hold a window's sample.
+
+        Returns:
+            ``(start, stop, wanted)``: receive times in ``[start, stop)`` share the answer.
+        """
+        delay, count = self.topic_map.max_delay_ns, len(self.plans)
         i = bisect.bisect_right(self.his, receive_ns - delay)
-        return i < len(self.plans) and self.los[i] <= receive_ns + delay
+        if i < count and self.los[i] <= receive_ns + delay:
+            return self.los[i] - delay, self.his[i] + delay, True
+        start = self.his[i - 1] + delay if i else -(2**63)
+        return start, self.los[i] - delay if i < count else 2**63, False
+
+    def close_at(self) -> int:
+        """Return the receive time at which the next window is written."""
+        if self.done < len(self.plans):
+            return self.his[self.done] + self.topic_map.max_delay_ns
+        return 2**63
 
     def push(
         self, extractor: Extractor, message: object, stamp: int, receive_ns: int, size: int
@@ -431,6 +444,43 @@ def _decode(reader: AnyReader, connection: Connection, receive_ns: int, raw: byt
         raise BagImportError(msg) from err
 
 
+def stamp_of(message: Any, topic: str, clock: str, receive_ns: int) -> int:  # noqa: ANN401
+    """Return a message's stamp: ``header.stamp`` (fast path) or as :func:`message_stamp`."""
+    if clock == "header":
+        try:
+            stamp = message.header.stamp
+        except AttributeError:
+            return message_stamp(message, topic, clock, receive_ns)
+        return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    return receive_ns
+
+
+@dataclass(slots=True)
+class _Counts:
+    """Messages read per bag, reported now and then."""
+
+    owners: dict[int, str]
+    on_progress: Callable[[str, int], Any] | None
+    counts: dict[str, int] = field(default_factory=dict)
+    total: int = 0
+
+    def tick(self, owner: int) -> None:
+        """Count a message of the bag read by ``owner``."""
+        bag = self.owners[owner]
+        self.counts[bag] = self.counts.get(bag, 0) + 1
+        self.total += 1
+        if self.on_progress is not None and self.total % _PROGRESS_EVERY == 0:
+            self.on_progress(bag, self.counts[bag])
+
+    def finish(self) -> dict[str, int]:
+        """Report the final counts and return them (every bag, read or not)."""
+        counts = {bag: self.counts.get(bag, 0) for bag in self.owners.values()}
+        if self.on_progress is not None:
+            for bag, count in counts.items():
+                self.on_progress(bag, count)
+        return counts
+
+
 def _stream(
     reader: AnyReader,
     connections: Sequence[Connection],
@@ -441,27 +491,24 @@ def _stream(
     """Read every mapped data message once, feeding and closing windows as the bag passes."""
     found, clock = session.found, session.topic_map.stamps
     owners = {id(c.owner): Path(str(getattr(c.owner, "path", "bag"))).name for c in connections}
-    counts = dict.fromkeys(owners.values(), 0)
     data = [c for c in connections if c.topic in found]
     if on_start is not None:
-        for bag in counts:
+        for bag in dict.fromkeys(owners.values()):
             on_start(bag, sum(c.msgcount for c in data if owners[id(c.owner)] == bag))
-    for count, (connection, receive_ns, raw) in enumerate(raw_messages(reader, data), start=1):
-        bag = owners[id(connection.owner)]
-        counts[bag] += 1
-        if on_progress is not None and count % _PROGRESS_EVERY == 0:
-            on_progress(bag, counts[bag])
-        session.advance(receive_ns)
-        if not session.wanted(receive_ns):
-            continue
-        topic = connection.topic
-        message = _decode(reader, connection, receive_ns, raw)
-        stamp = message_stamp(message, topic, clock, receive_ns)
-        session.push(found[topic], message, stamp, receive_ns, len(raw))
-    session.report.messages = counts
-    if on_progress is not None:
-        for bag, count in counts.items():
-            on_progress(bag, count)
+    counts = _Counts(owners, on_progress)
+    close_at, (lo, hi, wanted) = session.close_at(), session.wanted(0)
+    for connection, receive_ns, raw in raw_messages(reader, data):
+        counts.tick(id(connection.owner))
+        if receive_ns >= close_at:
+            session.advance(receive_ns)
+            close_at = session.close_at()
+        if not lo <= receive_ns < hi:
+            lo, hi, wanted = session.wanted(receive_ns)
+        if wanted:
+            message = _decode(reader, connection, receive_ns, raw)
+            stamp = stamp_of(message, connection.topic, clock, receive_ns)
+            session.push(found[connection.topic], message, stamp, receive_ns, len(raw))
+    session.report.messages = counts.finish()
     while session.done < len(session.plans):
         session.finish_one()
 
