@@ -1,5 +1,7 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
+from typing import TYPE_CHECKING, Any
+
 from recorder._catalog import (
     ActionKind,
     ActionSpec,
@@ -24,8 +26,8 @@ from recorder._rigconfig import (
     rig_factory,
     rig_names,
 )
-from recorder._sim import SimConfig, SimulatedRig
-from recorder.bagimport._importer import ImportReport, import_bag
+from recorder.bagimport._importer import import_bag
+from recorder.bagimport._report import ImportReport
 from recorder.bagimport._topicmap import TopicMap, load_topic_map
 from recorder.errors import (
     BagImportError,
@@ -50,6 +52,20 @@ from recorder.writing._writer import (
     record_action,
 )
 from schemas import software_version
+
+if TYPE_CHECKING:
+    from recorder._sim import SimConfig, SimulatedRig
+
+
+def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
+    """Import the simulator on first use (it loads scipy; bag imports never need it)."""
+    if name in {"SimConfig", "SimulatedRig"}:
+        from recorder import _sim  # noqa: PLC0415
+
+        return getattr(_sim, name)
+    msg = f"module 'recorder' has no attribute {name!r}"
+    raise AttributeError(msg)
+
 
 __all__ = [
     "ActionKind",

@@ -24,7 +24,6 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, TypeAlias
 
-from recorder._sim import SimConfig, SimulatedRig
 from recorder.errors import RecorderError
 from schemas import ContractError, RigValue, check_rig
 
@@ -32,6 +31,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
     from recorder._rig import Rig
+    from recorder._sim import SimulatedRig
 
 #: Builds a rig (not yet connected) from a seed and its options.
 RigBuilder: TypeAlias = "Callable[[int, Mapping[str, RigValue]], Rig]"
@@ -58,6 +58,8 @@ def sim_rig(seed: int, options: Mapping[str, RigValue]) -> SimulatedRig:
     Raises:
         RecorderError: An unknown option or a value of the wrong type.
     """
+    from recorder._sim import SimConfig, SimulatedRig  # noqa: PLC0415 (imports never load it)
+
     known = {f.name: f for f in dataclasses.fields(SimConfig)}
     values: dict[str, float] = {}
     for key, value in options.items():

@@ -2,49 +2,51 @@
 
 The format is documented by the commented example ``recorder/data/topic_map.example.toml``;
 :func:`load_topic_map` parses it strictly (unknown keys, wrong types and missing keys are
-errors naming the file, the table and the fix).
+errors naming the file, the table and the fix). TOML floats are read as decimals, so rates
+and times reach the importer as exact fractions, never as binary floats.
+
+Maps written for atikt 0.1 (a UR10, a pose topic and all four HEX-o-SKIN modalities) keep
+their meaning: every key they use is still valid. What is new is optional: the robot tables,
+the per-modality ``width``, ``samples_per_message``, ``rate_hz`` and ``batch_stamp``, and free
+action parameters.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import tomllib
 from dataclasses import dataclass
+from decimal import Decimal
+from fractions import Fraction
 from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NoReturn
 
-from recorder._catalog import ActionKind, ActionSpec, ObjectSpec
 from recorder.errors import BagImportError
-from recorder.writing._stream import Modality
+from schemas import VOCABULARY, ContractError, check_id, check_parameters
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-#: Values per cell of each skin modality.
-CHANNELS_PER_CELL = {
-    Modality.FORCE: 3,
-    Modality.TEMPERATURE: 1,
-    Modality.ACCELERATION: 3,
-    Modality.PROXIMITY: 1,
-}
 #: Clocks a map can cut windows on.
 STAMP_CLOCKS = ("header", "log")
 #: Sources of action windows.
 WINDOW_SOURCES = ("topic", "csv")
-#: Units of CSV window times.
-TIME_UNITS = {"s": 1_000_000_000, "ns": 1}
+#: Units of CSV window times, in ns.
+TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+#: Which sample of a batched message its header stamp belongs to.
+BATCH_STAMPS = ("first", "last")
 #: The packaged, commented example map.
 EXAMPLE = "topic_map.example.toml"
-#: Joint names of a UR arm (ROS ur_robot_driver): the default of [joint_states] names.
-UR10_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
+#: Keys of an action table that are not parameters.
+_ACTION_KEYS = ("kind", "description", "trials")
+_NS_PER_S = 1_000_000_000
+#: Keys that changed meaning or name, with the new syntax (one line each).
+_RENAMED: Mapping[str, str] = MappingProxyType(
+    {
+        "robot": "the robot is mapped by [joint_states] and [tool_pose] tables (both optional)",
+        "channels": "[skin.<modality>] with topic and field; the width comes from the data",
+    }
 )
 
 
@@ -53,20 +55,60 @@ class SkinField:
     """Where one skin modality is found, per cell.
 
     Attributes:
+        modality: The contract's modality name.
         topic: Topic pattern; ``{cell}`` is replaced by each cell id.
         field: Field of the message, dotted for nested fields.
         scale: SI value = raw * scale + offset.
         offset: See ``scale``.
+        width: Values per cell and sample the map insists on (0: taken from the data).
+        samples_per_message: Samples per message (a driver that batches, e.g. 22).
+        period_ns: Exact sample period (from ``rate_hz``), or None to measure it.
+        batch_stamp: ``first`` or ``last``: the sample the header stamp belongs to.
     """
 
+    modality: str
     topic: str
     field: str
     scale: float = 1.0
     offset: float = 0.0
+    width: int = 0
+    samples_per_message: int = 1
+    period_ns: Fraction | None = None
+    batch_stamp: str = "first"
 
     def topic_of(self, cell: int) -> str:
         """Return the topic of one cell."""
         return self.topic.replace("{cell}", str(cell))
+
+    def offsets_ns(self) -> tuple[int, ...]:
+        """Return each sample's time after the message stamp, in integer ns (exact floor).
+
+        Sample ``i`` of a batched message lies ``i * period`` after the first sample; with a
+        period that is not a whole number of ns the offset is rounded down, so every stamp is
+        within 1 ns of the true instant and errors never accumulate (each message re-anchors).
+        """
+        count = self.samples_per_message
+        if count == 1 or self.period_ns is None:
+            return (0,)
+        num, den = self.period_ns.numerator, self.period_ns.denominator
+        if self.batch_stamp == "first":
+            return tuple((i * num) // den for i in range(count))
+        return tuple(-(((count - 1 - i) * num) // den) for i in range(count))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotTopic:
+    """A robot topic: joint states or the tool pose.
+
+    Attributes:
+        topic: The topic.
+        names: Joint names to keep, in output order (empty: all, as the messages list them).
+        position_scale: Positions to SI (rad or m).
+    """
+
+    topic: str
+    names: tuple[str, ...] = ()
+    position_scale: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,7 +119,7 @@ class WindowSource:
         source: ``topic`` (JSON annotations on a std_msgs/String topic) or ``csv``.
         topic: The annotation topic (source ``topic``).
         csv: The CSV of windows (source ``csv``).
-        time_unit: Unit of the CSV times: ``s`` or ``ns``.
+        time_unit: Unit of the CSV times (see :data:`TIME_UNITS`).
         relative: CSV times count from the earliest stamp of the mapped topics.
     """
 
@@ -89,20 +131,57 @@ class WindowSource:
 
 
 @dataclass(frozen=True, slots=True)
+class LabObject:
+    """An object declared in a map.
+
+    Attributes:
+        id: Object id (a directory name).
+        name: Human-readable name.
+        description: One line.
+        novel: Whether it is new by default (runs choose roles with --new/--priors).
+    """
+
+    id: str
+    name: str
+    description: str = ""
+    novel: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class LabAction:
+    """An action: a lab's own (declared in a map) or one of the catalog's.
+
+    Attributes:
+        id: Action id.
+        kind: One of the contract's kinds.
+        parameters: Parameters in SI units; ``duration_s`` always.
+        description: One line.
+    """
+
+    id: str
+    kind: str
+    parameters: Mapping[str, float]
+    description: str = ""
+
+    @property
+    def duration_s(self) -> float:
+        """Return the execute phase's length, s."""
+        return self.parameters["duration_s"]
+
+
+@dataclass(frozen=True, slots=True)
 class TopicMap:
     """A parsed topic map (see ``recorder/data/topic_map.example.toml``).
 
     Attributes:
         path: The map file.
         stamps: ``header`` or ``log``: the clock of samples and windows.
-        joint_topic: sensor_msgs/JointState topic.
-        joint_names: The bag's joint names, in the contract's joint order.
-        joint_position_scale: Joint positions to rad.
-        pose_topic: geometry_msgs/PoseStamped topic of the TCP.
-        pose_position_scale: TCP positions to m.
+        max_delay_ns: Longest time between a sample's stamp and its arrival in the bag.
+        joints: Joint-state topic, or None (no arm).
+        pose: Tool-pose topic, or None.
         cells: Lab cell ids, in output column order.
         max_jitter: Largest stamp deviation inside a block, in sample periods.
-        skin: Where each modality is.
+        skin: Where each mapped modality is (a subset of the contract's).
         windows: Where the action windows are.
         types: Message definitions by type name, for bags that lack them.
         objects: Objects declared in the map.
@@ -111,18 +190,16 @@ class TopicMap:
 
     path: Path
     stamps: str
-    joint_topic: str
-    joint_names: tuple[str, ...]
-    joint_position_scale: float
-    pose_topic: str
-    pose_position_scale: float
+    max_delay_ns: int
+    joints: RobotTopic | None
+    pose: RobotTopic | None
     cells: tuple[int, ...]
     max_jitter: float
-    skin: Mapping[Modality, SkinField]
+    skin: Mapping[str, SkinField]
     windows: WindowSource
     types: Mapping[str, str]
-    objects: Mapping[str, ObjectSpec]
-    actions: Mapping[str, ActionSpec]
+    objects: Mapping[str, LabObject]
+    actions: Mapping[str, LabAction]
 
     def with_csv(self, csv: Path) -> TopicMap:
         """Return the map with its windows taken from ``csv`` (the ``--windows`` option)."""
@@ -156,6 +233,10 @@ class _Table:
         """
         raise self.error(problem)
 
+    def has(self, key: str) -> bool:
+        """Return whether the table has ``key``."""
+        return key in self.data
+
     def get(self, key: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:  # noqa: ANN401
         """Return the value of ``key`` checked against ``kind`` (required without default)."""
         self._taken.add(key)
@@ -164,30 +245,81 @@ class _Table:
                 self.fail(f"[{self.name}] needs the key {key!r}")
             return default
         value = self.data[key]
-        if isinstance(value, bool) and kind in (int, float, (int, float)):
-            self.fail(f"[{self.name}] {key} = {value!r} must be a number")
+        if isinstance(value, bool) and kind is not bool:
+            self.fail(f"[{self.name}] {key} = {value!r} must not be a boolean")
         if not isinstance(value, kind):
             self.fail(f"[{self.name}] {key} = {value!r} has the wrong type")
         return value
 
-    def number(self, key: str, default: float) -> float:
-        """Return a finite number."""
-        value = float(self.get(key, (int, float), default))
-        if not math.isfinite(value):
+    def exact(self, key: str, default: Fraction) -> Fraction:
+        """Return a finite number exactly (TOML floats are read as decimals)."""
+        value = self.get(key, (int, Decimal), default)
+        if isinstance(value, Decimal) and not value.is_finite():
             self.fail(f"[{self.name}] {key} = {value} must be finite")
+        return Fraction(value)
+
+    def number(self, key: str, default: float) -> float:
+        """Return a finite number as a float (for unit conversions of float data)."""
+        return float(self.exact(key, Fraction(default)))
+
+    def integer(self, key: str, default: int, low: int) -> int:
+        """Return an integer of at least ``low``."""
+        value = int(self.get(key, int, default))
+        if value < low:
+            self.fail(f"[{self.name}] {key} = {value} must be at least {low}")
         return value
 
     def table(self, key: str) -> _Table:
         """Return a required sub-table."""
         return _Table(self.path, f"{self.name}.{key}" if self.name else key, self.get(key, dict))
 
+    def optional(self, key: str) -> _Table | None:
+        """Return a sub-table, or None if absent."""
+        return self.table(key) if self.has(key) else None
+
     def done(self) -> None:
-        """Refuse keys that were not taken."""
-        if unknown := sorted(set(self.data) - self._taken):
+        """Refuse keys that were not taken (a renamed key gets its new syntax)."""
+        unknown = sorted(set(self.data) - self._taken)
+        for key in unknown:
+            if key in _RENAMED:
+                self.fail(f"[{self.name or 'top level'}] {key} changed: {_RENAMED[key]}")
+        if unknown:
             self.fail(f"[{self.name or 'top level'}] has unknown keys {unknown}")
 
 
-def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[Modality, SkinField]]:
+def _period(table: _Table, samples: int) -> Fraction | None:
+    """Return the exact sample period from ``rate_hz`` (required for batched messages)."""
+    if not table.has("rate_hz"):
+        if samples > 1:
+            table.fail(f"[{table.name}] samples_per_message = {samples} needs rate_hz")
+        return None
+    rate = table.exact("rate_hz", Fraction(0))
+    if rate <= 0:
+        table.fail(f"[{table.name}] rate_hz = {rate} must be > 0")
+    return Fraction(_NS_PER_S) / rate
+
+
+def _skin_field(table: _Table, modality: str) -> SkinField:
+    samples = table.integer("samples_per_message", 1, 1)
+    batch_stamp = table.get("batch_stamp", str, "first")
+    if batch_stamp not in BATCH_STAMPS:
+        table.fail(f"[{table.name}] batch_stamp = {batch_stamp!r} must be one of {BATCH_STAMPS}")
+    field = SkinField(
+        modality=modality,
+        topic=table.get("topic", str),
+        field=table.get("field", str),
+        scale=table.number("scale", 1.0),
+        offset=table.number("offset", 0.0),
+        width=table.integer("width", 0, 0),
+        samples_per_message=samples,
+        period_ns=_period(table, samples),
+        batch_stamp=batch_stamp,
+    )
+    table.done()
+    return field
+
+
+def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[str, SkinField]]:
     table = root.table("skin")
     cells = table.get("cells", list)
     if not cells or not all(isinstance(c, int) and not isinstance(c, bool) for c in cells):
@@ -197,18 +329,33 @@ def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[Modality, SkinFiel
     jitter = table.number("max_jitter", 0.1)
     if not 0 <= jitter < 0.5:  # noqa: PLR2004 (beyond half a period a block could skip one)
         table.fail(f"[skin] max_jitter = {jitter} must lie in [0, 0.5)")
-    fields = {}
-    for modality in Modality:
-        sub = table.table(str(modality))
-        fields[modality] = SkinField(
-            topic=sub.get("topic", str),
-            field=sub.get("field", str),
-            scale=sub.number("scale", 1.0),
-            offset=sub.number("offset", 0.0),
+    fields = {
+        modality: _skin_field(table.table(modality), modality)
+        for modality in VOCABULARY.modalities
+        if table.has(modality)
+    }
+    if not fields:
+        table.fail(
+            f"[skin] maps no modality; add [skin.<m>] for some of {list(VOCABULARY.modalities)}"
         )
-        sub.done()
     table.done()
     return tuple(cells), jitter, fields
+
+
+def _robot(root: _Table, key: str, *, names: bool) -> RobotTopic | None:
+    table = root.optional(key)
+    if table is None:
+        return None
+    joint_names: tuple[str, ...] = ()
+    if names:
+        joint_names = tuple(table.get("names", list, []))
+        if not all(isinstance(n, str) and n for n in joint_names):
+            table.fail(f"[{key}] names must be a list of joint names")
+        if len(set(joint_names)) != len(joint_names):
+            table.fail(f"[{key}] names {list(joint_names)} repeats a joint")
+    robot = RobotTopic(table.get("topic", str), joint_names, table.number("position_scale", 1.0))
+    table.done()
+    return robot
 
 
 def _windows(root: _Table) -> WindowSource:
@@ -236,61 +383,89 @@ def _types(root: _Table) -> dict[str, str]:
         file = table.path.parent / table.get(name, str)
         try:
             texts[name] = file.read_text("utf-8")
-        except OSError as err:
-            msg = f"[types] {name!r}: cannot read {file} ({err.strerror}); fix the path"
+        except (OSError, UnicodeDecodeError) as err:
+            msg = f"[types] {name!r}: cannot read {file} ({err}); fix the path"
             raise table.error(msg) from err
     table.done()
     return texts
 
 
-def _objects(root: _Table) -> dict[str, ObjectSpec]:
+def _check_id(table: _Table, what: str, value: str) -> str:
+    try:
+        return check_id(what, value)
+    except ContractError as err:
+        table.fail(f"[{table.name}] {err}")
+
+
+def _objects(root: _Table) -> dict[str, LabObject]:
     objects = {}
     declared = root.get("objects", dict, {})
     for object_id in list(declared):
         table = _Table(root.path, f"objects.{object_id}", declared[object_id])
-        objects[object_id] = ObjectSpec(
-            id=object_id,
+        objects[object_id] = LabObject(
+            id=_check_id(table, "object", object_id),
             name=table.get("name", str),
             description=table.get("description", str, ""),
-            novel=table.get("novel", bool),
+            novel=table.get("novel", bool, False),
         )
         table.done()
     return objects
 
 
-def _actions(root: _Table) -> dict[str, ActionSpec]:
-    actions = {}
+def _action(table: _Table, action_id: str) -> LabAction:
+    kind = table.get("kind", str)
+    if kind not in VOCABULARY.kinds:
+        table.fail(f"[{table.name}] kind = {kind!r} must be one of {list(VOCABULARY.kinds)}")
+    table.get("trials", int, 0)  # a catalog key: how many to record; meaningless for imports
+    description = table.get("description", str, "")
+    parameters: dict[str, float] = {}
+    for key in sorted(set(table.data) - set(_ACTION_KEYS)):
+        parameters[key] = table.number(key, 0.0)
+    try:
+        check_parameters(kind, parameters, ("duration_s", *VOCABULARY.kind(kind).parameters))
+    except ContractError as err:
+        table.fail(f"[{table.name}] {err}")
+    table.done()
+    return LabAction(
+        _check_id(table, "action", action_id), kind, MappingProxyType(parameters), description
+    )
+
+
+def _actions(root: _Table) -> dict[str, LabAction]:
     declared = root.get("actions", dict, {})
-    for action_id in list(declared):
-        table = _Table(root.path, f"actions.{action_id}", declared[action_id])
-        kind = table.get("kind", str)
-        if kind not in set(ActionKind):
-            table.fail(f"[actions.{action_id}] kind = {kind!r}: press, slide or static")
-        if "duration_s" not in table.data:
-            table.fail(f"[actions.{action_id}] needs duration_s (s)")
-        actions[action_id] = ActionSpec(
-            id=action_id,
-            kind=ActionKind(kind),
-            duration_s=table.number("duration_s", 0.0),
-            depth_m=table.number("depth_m", 0.0),
-            force_n=table.number("force_n", 0.0),
-            speed_m_s=table.number("speed_m_s", 0.0),
-            trials=int(table.get("trials", int, 1)),
-            description=table.get("description", str, ""),
+    return {
+        action_id: _action(
+            _Table(root.path, f"actions.{action_id}", declared[action_id]), action_id
         )
-        table.done()
-    return actions
+        for action_id in list(declared)
+    }
 
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        return tomllib.loads(Path(path).read_text("utf-8"))
+        text = Path(path).read_bytes().decode("utf-8")
+        return tomllib.loads(text, parse_float=Decimal)
     except OSError as err:
         msg = f"{path}: cannot read the topic map ({err.strerror}); check --topic-map"
+        raise BagImportError(msg) from err
+    except UnicodeDecodeError as err:
+        msg = f"{path}: the topic map is not UTF-8 (byte {err.start}); save it as UTF-8"
         raise BagImportError(msg) from err
     except tomllib.TOMLDecodeError as err:
         msg = f"{path}: not valid TOML ({err}); fix the topic map's syntax"
         raise BagImportError(msg) from err
+
+
+def _time(root: _Table) -> tuple[str, int]:
+    time = root.table("time") if root.has("time") else _Table(root.path, "time", {})
+    stamps = time.get("stamps", str, "header")
+    if stamps not in STAMP_CLOCKS:
+        time.fail(f"[time] stamps = {stamps!r} must be one of {STAMP_CLOCKS}")
+    delay = time.exact("max_delay_s", Fraction(2))
+    if delay < 0:
+        time.fail(f"[time] max_delay_s = {delay} must be >= 0")
+    time.done()
+    return stamps, int(delay * _NS_PER_S)
 
 
 def load_topic_map(path: Path) -> TopicMap:
@@ -303,30 +478,19 @@ def load_topic_map(path: Path) -> TopicMap:
         The parsed map.
 
     Raises:
-        BagImportError: The file is unreadable, not TOML, or a table is malformed; the message
-            names the file, the table and the key.
+        BagImportError: The file is unreadable, not UTF-8 or TOML, or a table is malformed;
+            the message names the file, the table and the key.
     """
     path = Path(path)
     root = _Table(path, "", _read(path))
-    time = root.table("time")
-    stamps = time.get("stamps", str, "header")
-    if stamps not in STAMP_CLOCKS:
-        time.fail(f"[time] stamps = {stamps!r} must be one of {STAMP_CLOCKS}")
-    time.done()
-    joints = root.table("joint_states")
-    names = tuple(joints.get("names", list, list(UR10_JOINTS)))
-    if len(names) != len(UR10_JOINTS) or not all(isinstance(n, str) for n in names):
-        joints.fail(f"[joint_states] names must list {len(UR10_JOINTS)} joint names")
-    pose = root.table("tool_pose")
+    stamps, delay = _time(root)
     cells, jitter, skin = _skin(root)
     topic_map = TopicMap(
         path=path,
         stamps=stamps,
-        joint_topic=joints.get("topic", str),
-        joint_names=names,
-        joint_position_scale=joints.number("position_scale", 1.0),
-        pose_topic=pose.get("topic", str),
-        pose_position_scale=pose.number("position_scale", 1.0),
+        max_delay_ns=delay,
+        joints=_robot(root, "joint_states", names=True),
+        pose=_robot(root, "tool_pose", names=False),
         cells=cells,
         max_jitter=jitter,
         skin=MappingProxyType(skin),
@@ -335,6 +499,5 @@ def load_topic_map(path: Path) -> TopicMap:
         objects=MappingProxyType(_objects(root)),
         actions=MappingProxyType(_actions(root)),
     )
-    for table in (joints, pose, root):
-        table.done()
+    root.done()
     return topic_map

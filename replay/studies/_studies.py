@@ -185,7 +185,7 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
 def _rows(frame: pl.DataFrame, labels: dict[str, Any]) -> pl.DataFrame:
     """Return the columns of a run kept in study results, with the run's labels."""
     keep = [c for c in frame.columns if c.startswith("accuracy")]
-    keep += ["step", "object", "action", "explored", "prior", "rho"]
+    keep += [c for c in ("step", "object", "action", "explored", "prior", "rho") if c in frame]
     return frame.select(keep).with_columns(
         *(pl.lit(value).alias(name) for name, value in labels.items())
     )

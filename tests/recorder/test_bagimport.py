@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -315,22 +316,32 @@ def test_ros1_bag_with_annotations_imports_every_value(
 def test_ros2_bags_with_a_csv_of_windows(storage: str, data: LabData, tmp_path: Path) -> None:
     bag = write_lab_bag(tmp_path / "session", storage, data)
     csv = tmp_path / "windows.csv"
-    csv.write_text("start,stop,object,action,trial\n0.8,3.9,wood,P1,\n3.2,6.3,wood,P1,\n")
+    csv.write_text("start,stop,object,action,trial\n0.8,3.9,wood,P1,\n3.9,6.3,wood,P1,\n")
     windows = 'source = "csv"\ncsv = "windows.csv"\ntime_unit = "s"\nrelative = true'
     out = tmp_path / "out"
+    csv.write_text("start,stop,object,action,trial\n0.8,3.9,wood,P1,\n3.2,6.3,wood,P1,\n")
+    with pytest.raises(BagImportError, match=r"row 3: window wood/P1 .*overlaps .*row 2"):
+        _import(bag, load_topic_map(write_map(tmp_path, windows)), out)
+    csv.write_text("start,stop,object,action,trial\n0.8,3.9,wood,P1,\n3.9,6.3,lab_mug,S2,\n")
     report = _import(bag, load_topic_map(write_map(tmp_path, windows)), out)
-    assert [p.name for p in report.written] == ["001.mcap", "002.mcap"]
+    assert [p.relative_to(out).as_posix() for p in report.written] == [
+        "wood/P1/001.mcap",
+        "lab_mug/S2/001.mcap",
+    ]
     recording = read_recording(report.written[1])
     # relative to the earliest stamp of the mapped topics: the first skin sample, START
     assert list(recording.phases) == [
-        ("execute", START + 3_200_000_000),
+        ("execute", START + 3_900_000_000),
         ("end", START + 6_300_000_000),
     ]
     index = pl.read_parquet(out / "index.parquet")
-    assert index["path"].to_list() == ["wood/P1/001.mcap", "wood/P1/002.mcap"]
-    # a second import numbers on and never overwrites
-    again = _import(bag, load_topic_map(write_map(tmp_path, windows)), out)
-    assert [p.name for p in again.written] == ["003.mcap", "004.mcap"]
+    assert index["path"].to_list() == ["lab_mug/S2/001.mcap", "wood/P1/001.mcap"]
+    # the same bag again, under another name: identified by content, adds nothing
+    copy = tmp_path / "renamed"
+    shutil.copytree(bag, copy)
+    again = _import(copy, load_topic_map(write_map(tmp_path, windows)), out)
+    assert again.written == []
+    assert list(again.already_imported) == ["renamed"]
 
 
 def test_imported_recordings_go_through_feature_extraction(ros1_bag: Path, tmp_path: Path) -> None:
@@ -344,6 +355,7 @@ def test_imported_recordings_go_through_feature_extraction(ros1_bag: Path, tmp_p
 def test_an_explicit_trial_that_exists_is_refused(ros1_bag: Path, tmp_path: Path) -> None:
     topic_map = load_topic_map(write_map(tmp_path))
     _import(ros1_bag, topic_map, tmp_path / "out")
+    shutil.rmtree(tmp_path / "out" / "imports")  # forget the import: the files stay
     with pytest.raises(BagImportError, match=r"lab_mug/S2/005.mcap.*never overwritten"):
         _import(ros1_bag, topic_map, tmp_path / "out")
 
@@ -368,8 +380,15 @@ def test_a_type_mismatch_names_the_topic(ros1_bag: Path, tmp_path: Path) -> None
         BagImportError, match=r"topic /joint_states carries sensor_msgs/msg/JointState.*PoseStamped"
     ):
         _import(ros1_bag, topic_map, tmp_path / "out")
-    topic_map = _broken_map(tmp_path, 'field = "force"', 'field = "prox"')
-    with pytest.raises(BagImportError, match=r"topic /skin/cell_10 .*'prox' has 1 values.*force"):
+    topic_map = _broken_map(tmp_path, '"/joint_states"', '"/tool_pose"')
+    with pytest.raises(
+        BagImportError, match=r"topic /tool_pose carries geometry_msgs/msg/PoseStamped.*JointState"
+    ):
+        _import(ros1_bag, topic_map, tmp_path / "out")
+    topic_map = _broken_map(tmp_path, 'field = "force"', 'field = "prox"\nwidth = 3')
+    with pytest.raises(
+        BagImportError, match=r"topic /skin/cell_10: field 'prox' has 1 values.*force"
+    ):
         _import(ros1_bag, topic_map, tmp_path / "out")
     topic_map = _broken_map(tmp_path, 'field = "acc"', 'field = "accel"')
     with pytest.raises(BagImportError, match=r"topic /skin/cell_10 .*no field 'accel'.*acc"):
@@ -414,7 +433,10 @@ def test_cli_imports_and_reports_errors_in_one_line(
     printed = capsys.readouterr().out
     assert "wood/P1/001.mcap" in printed
     assert "index.parquet" in printed
-    assert main(argv) == 1
+    assert main(argv) == 0
+    assert "nothing added" in capsys.readouterr().out
+    argv[3] = str(_broken_map(tmp_path, '"/tool_pose"', '"/tcp_pose"').path)
+    assert main([*argv[:-1], str(tmp_path / "out2")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("atikt-record: error: ")
     assert err.count("\n") == 1

@@ -1,0 +1,577 @@
+"""Reading a lab's bags as one stream of typed samples (rosbags' ``AnyReader``).
+
+Messages are read in bag order, one at a time (memory does not grow with the bag), and each
+mapped topic's messages become samples: a stamp in integer ns on the map's clock, the receive
+time, and values. A skin message may carry several samples (a driver that batches, e.g. 22
+vibration samples per 100 Hz message): their stamps are the message stamp plus the exact
+integer offsets of :meth:`SkinField.offsets_ns`. Stamps of one topic must increase: a stamp
+that goes back is refused with the topic, the time and the fix, never re-sorted.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+from operator import attrgetter
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Nodetype
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+
+from recorder.bagimport._pack import Series
+from recorder.bagimport._ros1 import StreamingReader
+from recorder.errors import BagImportError
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Sequence
+
+    from numpy.typing import NDArray
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+    from recorder.bagimport._topicmap import SkinField, TopicMap
+
+_NS_PER_S = 1_000_000_000
+JOINT_TYPE = "sensor_msgs/msg/JointState"
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+ANNOTATION_TYPE = "std_msgs/msg/String"
+#: Largest message the import accepts (a skin block of a second at 10 kHz is ~1 MB).
+MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+READ_ERRORS = (
+    AnyReaderError,
+    Ros1ReaderError,
+    Ros2ReaderError,
+    SerdeError,
+    TypesysError,
+    OSError,
+    AssertionError,  # rosbags asserts on some malformed records
+    KeyError,
+    IndexError,
+    ValueError,
+    EOFError,
+    UnicodeDecodeError,
+    MemoryError,
+)
+
+
+def message_stamp(message: Any, topic: str, clock: str, receive_ns: int) -> int:  # noqa: ANN401
+    """Return a message's stamp on the map's clock.
+
+    Raises:
+        BagImportError: The clock is ``header`` and the message has none.
+    """
+    if clock == "log":
+        return receive_ns
+    header = getattr(message, "header", None)
+    if header is None:
+        msg = (
+            f"topic {topic} ({message.__msgtype__}) has no header.stamp; "
+            'set [time] stamps = "log" in the topic map to use the receive time'
+        )
+        raise BagImportError(msg)
+    return int(header.stamp.sec) * _NS_PER_S + int(header.stamp.nanosec)
+
+
+@dataclass(slots=True)
+class _Buffer:
+    """Messages of one topic kept until the windows that reach them are written.
+
+    Stamps of a topic must increase: a repeated stamp is dropped (counted), a stamp that goes
+    back is refused. Values are kept as decoded and converted in bulk when a window is cut.
+    """
+
+    topic: str
+    fix: str
+    stamps: list[int] = field(default_factory=list)
+    receives: list[int] = field(default_factory=list)
+    last: int | None = None
+    repeated: int = 0
+
+    def accept(self, stamp: int, receive_ns: int) -> bool:
+        """Record a message's stamp; return False for a repeated stamp (dropped).
+
+        Raises:
+            BagImportError: The stamp precedes the previous one.
+        """
+        last = self.last
+        if last is not None and stamp <= last:
+            if stamp == last:
+                self.repeated += 1
+                return False
+            msg = (
+                f"topic {self.topic}: stamp {stamp} ns precedes the previous message's {last} ns; "
+                f"stamps are never re-sorted: {self.fix}"
+            )
+            raise BagImportError(msg)
+        self.last = stamp
+        self.stamps.append(stamp)
+        self.receives.append(receive_ns)
+        return True
+
+    def span(self, lo: int, hi: int, before: int, after: int) -> tuple[int, int]:
+        """Return the indices of the messages with samples in ``[lo, hi)``.
+
+        A message's samples lie in ``[stamp + before, stamp + after]``.
+        """
+        return bisect.bisect_left(self.stamps, lo - after), bisect.bisect_left(
+            self.stamps, hi - before
+        )
+
+    def cut(self, index: int) -> None:
+        """Forget the messages before ``index``."""
+        del self.stamps[:index]
+        del self.receives[:index]
+
+
+def _stack(values: list[Any], count: int, topic: str, path: str) -> NDArray[np.float64]:
+    """Return decoded field values of ``count`` messages as a (messages, size) float64 array.
+
+    Raises:
+        BagImportError: The messages carry different numbers of values.
+    """
+    try:
+        return np.asarray(values, dtype=np.float64).reshape(count, -1)
+    except ValueError as err:
+        msg = (
+            f"topic {topic}: field {path!r} has different lengths in different messages; "
+            "map a fixed-length field"
+        )
+        raise BagImportError(msg) from err
+
+
+@dataclass(slots=True)
+class SkinTopic:
+    """One skin cell topic: the modalities it carries for one cell, buffered."""
+
+    topic: str
+    cell: int
+    fields: tuple[SkinField, ...]
+    widths: dict[str, int] = field(default_factory=dict)
+    buffer: _Buffer = field(init=False)
+    values: list[list[Any]] = field(init=False)
+    getters: list[Any] = field(init=False)
+    offsets: dict[str, NDArray[np.int64]] = field(default_factory=dict)
+    reach: tuple[int, int] = (0, 0)
+
+    def __post_init__(self) -> None:
+        """Precompute field getters and each modality's sample offsets."""
+        batched = ", ".join(f"[skin.{s.modality}]" for s in self.fields)
+        fix = (
+            f"if the driver batches samples, set samples_per_message and rate_hz of {batched}; "
+            'otherwise fix the driver\'s stamps or use [time] stamps = "log"'
+        )
+        self.buffer = _Buffer(self.topic, fix)
+        self.values = [[] for _ in self.fields]
+        self.getters = [attrgetter(spec.field) for spec in self.fields]
+        for spec in self.fields:
+            self.offsets[spec.modality] = np.asarray(spec.offsets_ns(), dtype=np.int64)
+        every = np.concatenate(list(self.offsets.values()))
+        self.reach = (int(every.min()), int(every.max()))
+
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one message's values.
+
+        Raises:
+            BagImportError: Its stamp precedes the previous one.
+        """
+        if self.buffer.accept(stamp, receive_ns):
+            for getter, values in zip(self.getters, self.values, strict=True):
+                values.append(getter(message))
+
+    def _width(self, spec: SkinField, size: int) -> int:
+        """Return the values per sample, checked against the map and earlier messages."""
+        count = spec.samples_per_message
+        width = size // count if size % count == 0 else 0
+        expected = spec.width or self.widths.get(spec.modality, width)
+        if width == 0 or width != expected:
+            msg = (
+                f"topic {self.topic}: field {spec.field!r} has {size} values, not {count} samples "
+                f"x {expected or 'n'} values; fix width or samples_per_message of "
+                f"[skin.{spec.modality}] in the topic map"
+            )
+            raise BagImportError(msg)
+        self.widths[spec.modality] = width
+        return width
+
+    def take(self, lo: int, hi: int) -> dict[str, Series]:
+        """Return each modality's samples of the messages reaching ``[lo, hi)``.
+
+        Raises:
+            BagImportError: A field's width is wrong or sample stamps do not increase.
+        """
+        first, last = self.buffer.span(lo, hi, *self.reach)
+        count = last - first
+        stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
+        receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
+        out = {}
+        for spec, values in zip(self.fields, self.values, strict=True):
+            offsets = self.offsets[spec.modality]
+            raw = _stack(values[first:last], count, self.topic, spec.field)
+            width = self._width(spec, raw.shape[1]) if count else max(spec.width, 1)
+            samples = (stamps[:, None] + offsets[None, :]).reshape(-1)
+            if samples.size > 1 and not bool((np.diff(samples) > 0).all()):
+                at = int(samples[int(np.argmin(np.diff(samples) > 0)) + 1])
+                msg = (
+                    f"topic {self.topic}: sample stamps of [skin.{spec.modality}] go back at "
+                    f"{at} ns: its {spec.samples_per_message} samples per message at the rate "
+                    f"given overlap the next message; fix samples_per_message or rate_hz"
+                )
+                raise BagImportError(msg)
+            data = raw.reshape(samples.size, width) * spec.scale + spec.offset
+            out[spec.modality] = Series(samples, np.repeat(receives, offsets.size), data)
+        return out
+
+    def forget(self, before: int) -> None:
+        """Drop the messages whose samples all precede ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before - self.reach[1])
+        self.buffer.cut(index)
+        for values in self.values:
+            del values[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
+
+
+@dataclass(slots=True)
+class JointTopic:
+    """The joint-state topic: positions, velocities and efforts picked by name, buffered."""
+
+    topic: str
+    wanted: tuple[str, ...]
+    scale: float
+    names: tuple[str, ...] = ()
+    missing: set[str] = field(default_factory=set)
+    buffer: _Buffer = field(init=False)
+    rows: list[list[Any]] = field(default_factory=lambda: [[], [], []])
+    skipped: int = 0
+    _index: dict[tuple[str, ...], NDArray[np.intp] | None] = field(default_factory=dict)
+    _last: list[str] = field(default_factory=list)
+    _last_index: NDArray[np.intp] | None = None
+    _zeros: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        """Create the buffer."""
+        self.buffer = _Buffer(self.topic, "fix the robot driver's stamps")
+
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def _pick(self, names: tuple[str, ...]) -> NDArray[np.intp] | None:
+        """Return the columns of the output joints in a message naming ``names``."""
+        if names not in self._index:
+            if not self.names:
+                self.names = self.wanted or names
+            present = [n for n in self.names if n in names]
+            if present and len(present) != len(self.names):
+                msg = (
+                    f"topic {self.topic}: joints {[n for n in self.names if n not in names]} are "
+                    f"not in a message naming {list(names)}; fix [joint_states] names"
+                )
+                raise BagImportError(msg)
+            index = np.array([names.index(n) for n in self.names]) if present else None
+            self._index[names] = index
+        return self._index[names]
+
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one joint sample (empty velocities or efforts: zeros, noted).
+
+        Raises:
+            BagImportError: A message lacks positions or its stamp goes back.
+        """
+        names = message.name
+        if names != self._last:
+            self._last_index = self._pick(tuple(names))
+            self._last, self._zeros = list(names), np.zeros(len(names))
+        index = self._last_index
+        if index is None:  # another part of the robot on the same topic (a gripper)
+            self.skipped += 1
+            return
+        count = len(names)
+        values = [message.position, message.velocity, message.effort]
+        if len(values[0]) != count:
+            msg = f"topic {self.topic}: a message at {stamp} ns has no joint positions"
+            raise BagImportError(msg)
+        for k, quantity in ((1, "velocity"), (2, "effort")):
+            if len(values[k]) != count:
+                self.missing.add(quantity)
+                values[k] = self._zeros
+        if self.buffer.accept(stamp, receive_ns):
+            for rows, array in zip(self.rows, values, strict=True):
+                rows.append(array[index])
+
+    def take(self, lo: int, hi: int) -> Series:
+        """Return the samples stamped in ``[lo, hi)`` (positions scaled)."""
+        first, last = self.buffer.span(lo, hi, 0, 0)
+        columns = [
+            np.asarray(rows[first:last], dtype=np.float64).reshape(last - first, len(self.names))
+            for rows in self.rows
+        ]
+        columns[0] = columns[0] * self.scale
+        stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
+        receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
+        return Series(stamps, receives, np.concatenate(columns, axis=1))
+
+    def forget(self, before: int) -> None:
+        """Drop the samples before ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before)
+        self.buffer.cut(index)
+        for rows in self.rows:
+            del rows[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
+
+
+def _robot_series(buffer: _Buffer, rows: list[Any], first: int, last: int, width: int) -> Series:
+    """Return buffered robot samples ``first:last`` as a series."""
+    values = np.asarray(rows[first:last], dtype=np.float64).reshape(last - first, width)
+    stamps = np.asarray(buffer.stamps[first:last], dtype=np.int64)
+    return Series(stamps, np.asarray(buffer.receives[first:last], dtype=np.int64), values)
+
+
+@dataclass(slots=True)
+class PoseTopic:
+    """The tool-pose topic: position (scaled to m) and quaternion (x, y, z, w), buffered."""
+
+    topic: str
+    scale: float
+    buffer: _Buffer = field(init=False)
+    rows: list[tuple[float, ...]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        """Create the buffer."""
+        self.buffer = _Buffer(self.topic, "fix the robot driver's stamps")
+
+    @property
+    def repeated(self) -> int:
+        """Return the messages dropped for a repeated stamp."""
+        return self.buffer.repeated
+
+    def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Keep one pose.
+
+        Raises:
+            BagImportError: Its stamp goes back.
+        """
+        if self.buffer.accept(stamp, receive_ns):
+            p, q = message.pose.position, message.pose.orientation
+            scale = self.scale
+            self.rows.append((p.x * scale, p.y * scale, p.z * scale, q.x, q.y, q.z, q.w))
+
+    def take(self, lo: int, hi: int) -> Series:
+        """Return the samples stamped in ``[lo, hi)``."""
+        first, last = self.buffer.span(lo, hi, 0, 0)
+        return _robot_series(self.buffer, self.rows, first, last, 7)
+
+    def forget(self, before: int) -> None:
+        """Drop the samples before ``before``."""
+        index = bisect.bisect_left(self.buffer.stamps, before)
+        self.buffer.cut(index)
+        del self.rows[:index]
+
+    def size(self) -> int:
+        """Return the number of buffered messages."""
+        return len(self.buffer.stamps)
+
+
+Extractor = SkinTopic | JointTopic | PoseTopic
+
+
+def extractors(topic_map: TopicMap) -> dict[str, Extractor]:
+    """Return topic -> extractor for every mapped data topic."""
+    fields: dict[tuple[str, int], list[SkinField]] = {}
+    for spec in topic_map.skin.values():
+        for index, cell in enumerate(topic_map.cells):
+            fields.setdefault((spec.topic_of(cell), index), []).append(spec)
+    out: dict[str, Extractor] = {}
+    for (topic, index), specs in fields.items():
+        if topic in out:
+            msg = (
+                f"{topic_map.path}: topic {topic} is mapped to two cells; give [skin] topics a "
+                "{cell} placeholder or map one cell"
+            )
+            raise BagImportError(msg)
+        out[topic] = SkinTopic(topic, index, tuple(specs))
+    for robot, make in ((topic_map.joints, "joints"), (topic_map.pose, "pose")):
+        if robot is None:
+            continue
+        if isinstance(out.get(robot.topic), SkinTopic):
+            msg = f"{topic_map.path}: topic {robot.topic} is mapped as skin and robot; map it once"
+            raise BagImportError(msg)
+        out[robot.topic] = (
+            JointTopic(robot.topic, robot.names, robot.position_scale)
+            if make == "joints"
+            else PoseTopic(robot.topic, robot.position_scale)
+        )
+    return out
+
+
+def required_types(topic_map: TopicMap) -> list[tuple[str, str | None]]:
+    """Return (topic, required message type or None for any type with the fields) per role."""
+    wanted: list[tuple[str, str | None]] = [(t, None) for t in extractors(topic_map)]
+    if topic_map.joints is not None:
+        wanted.append((topic_map.joints.topic, JOINT_TYPE))
+    if topic_map.pose is not None:
+        wanted.append((topic_map.pose.topic, POSE_TYPE))
+    if topic_map.windows.source == "topic":
+        wanted.append((topic_map.windows.topic, ANNOTATION_TYPE))
+    return wanted
+
+
+def typestore(topic_map: TopicMap) -> Typestore:
+    """Return the typestore for bags without definitions: ROS 2 Humble + the map's types.
+
+    Raises:
+        BagImportError: A definition of the map does not parse.
+    """
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    for name, text in topic_map.types.items():
+        try:
+            store.register(get_types_from_msg(text, name))
+        except TypesysError as err:
+            msg = f"{topic_map.path}: [types] {name!r}: the definition does not parse ({err})"
+            raise BagImportError(msg) from err
+    return store
+
+
+def check_connections(
+    reader: AnyReader, wanted: Sequence[tuple[str, str | None]]
+) -> list[Connection]:
+    """Return the connections of the mapped topics, each checked for its type.
+
+    Raises:
+        BagImportError: A topic is missing or has another type; the message names it.
+    """
+    types = {c.topic: c.msgtype for c in reader.connections}
+    if missing := [topic for topic, _ in wanted if topic not in types]:
+        known = ", ".join(sorted(types)) or "none"
+        msg = (
+            f"topic {missing[0]} of the topic map is not in the bag (its topics: {known}); "
+            "fix the topic map"
+        )
+        raise BagImportError(msg)
+    for topic, required in wanted:
+        if required is not None and types[topic] != required:
+            msg = (
+                f"topic {topic} carries {types[topic]}, but the topic map uses it as "
+                f"{required}; map the topic that carries {required}"
+            )
+            raise BagImportError(msg)
+    topics = {topic for topic, _ in wanted}
+    return [c for c in reader.connections if c.topic in topics]
+
+
+_NUMERIC = frozenset(
+    [
+        *("bool", "byte", "char", "int8", "uint8", "int16", "uint16"),
+        *("int32", "uint32", "int64", "uint64", "float32", "float64"),
+    ]
+)
+
+
+def _field_type(store: Typestore, msgtype: str, path: str) -> tuple[Any, ...] | None:
+    """Return the type node of a dotted field of ``msgtype``, or None if there is none."""
+    node: tuple[Any, ...] = (Nodetype.NAME, msgtype)
+    for part in path.split("."):
+        if node[0] != Nodetype.NAME:
+            return None
+        fields = dict(store.fielddefs[node[1]][1])
+        if part not in fields:
+            return None
+        node = fields[part]
+    return node
+
+
+def _numeric(node: tuple[Any, ...]) -> bool:
+    """Return whether a type node is a number or an array/sequence of numbers."""
+    if node[0] in {Nodetype.ARRAY, Nodetype.SEQUENCE}:
+        node = node[1][0]
+    return bool(node[0] == Nodetype.BASE and node[1][0] in _NUMERIC)
+
+
+def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map: TopicMap) -> None:
+    """Check, before reading, that every skin field exists, is numeric, and has a header.
+
+    Raises:
+        BagImportError: A field is missing or not numeric, or a header clock lacks a header.
+    """
+    store = reader.typestore
+    types = {c.topic: c.msgtype for c in connections}
+    for topic, extractor in extractors(topic_map).items():
+        msgtype = types[topic]
+        names = [name for name, _ in store.fielddefs[msgtype][1]]
+        for spec in getattr(extractor, "fields", ()):
+            node = _field_type(store, msgtype, spec.field)
+            if node is None or not _numeric(node):
+                problem = "no field" if node is None else "a field that is not numeric:"
+                msg = (
+                    f"topic {topic} carries {msgtype}: {problem} {spec.field!r} "
+                    f"(fields: {', '.join(names)}); fix 'field' of [skin.{spec.modality}] in "
+                    "the topic map or map the topic that carries the values"
+                )
+                raise BagImportError(msg)
+        if topic_map.stamps == "header" and _field_type(store, msgtype, "header.stamp") is None:
+            msg = (
+                f'topic {topic} ({msgtype}) has no header.stamp; set [time] stamps = "log" '
+                "in the topic map to use the receive time"
+            )
+            raise BagImportError(msg)
+
+
+def open_reader(bags: Sequence[Path], topic_map: TopicMap) -> AnyReader:
+    """Return an (unopened) reader of the bags with the map's fallback definitions.
+
+    ROS 1 bags are read by :class:`~recorder.bagimport._ros1.StreamingReader` (no per-message
+    index in memory).
+    """
+    reader = AnyReader([Path(b) for b in bags], default_typestore=typestore(topic_map))
+    if not reader.is2:
+        reader.readers = [StreamingReader(Path(b)) for b in bags]
+    return reader
+
+
+def raw_messages(
+    reader: AnyReader, connections: Sequence[Connection]
+) -> Iterator[tuple[Connection, int, bytes]]:
+    """Yield (connection, receive ns, raw bytes) in bag order, refusing oversized messages.
+
+    Raises:
+        BagImportError: A message is larger than :data:`MAX_MESSAGE_BYTES`.
+    """
+    for connection, receive_ns, raw in reader.messages(connections=connections):
+        if len(raw) > MAX_MESSAGE_BYTES:
+            msg = (
+                f"topic {connection.topic}: a message of {len(raw)} bytes at {receive_ns} ns "
+                f"exceeds {MAX_MESSAGE_BYTES >> 20} MB; the bag is damaged or not a sensor log"
+            )
+            raise BagImportError(msg)
+        yield connection, receive_ns, raw
+
+
+def bag_topics(bags: Sequence[Path]) -> list[tuple[str, str, int]]:
+    """Return (topic, type, message count) of every connection of the bags, for help messages.
+
+    Raises:
+        BagImportError: A bag cannot be read.
+    """
+    try:
+        with AnyReader([Path(b) for b in bags]) as reader:
+            return [(c.topic, c.msgtype, c.msgcount) for c in reader.connections]
+    except READ_ERRORS as err:
+        msg = f"{', '.join(map(str, bags))}: cannot read the bag ({err!r})"
+        raise BagImportError(msg) from err
