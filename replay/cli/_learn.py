@@ -95,6 +95,12 @@ _DATASET = arg(
     help="dataset directory (default: the simulated dataset, recorded on first use)",
 )
 _SEED = arg("--seed", type=cli.seed, default=0, help="seed of every random choice (default: 0)")
+_SOURCES = arg(
+    "--max-sources",
+    type=int,
+    default=1,
+    help="old objects transferred at once per new object and action (1: the thesis)",
+)
 _FEATURES = arg(
     "--features",
     default="thesis",
@@ -203,6 +209,7 @@ def _step_line(row: dict[str, Any]) -> str:
     _FEATURES,
     arg("--budget", type=int, default=40, help="actively collected observations"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
+    _SOURCES,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -247,6 +254,7 @@ def _learn_command(args: argparse.Namespace) -> int:
         transfer=args.transfer,
         seed=args.seed,
         features=args.features,
+        max_sources=args.max_sources,
     )
     with cli.publish_directory(target, force=args.force) as out:
         _learn_into(args, table, spec, prior_root, out)
@@ -361,7 +369,13 @@ def _record_and_learn(
     _FORCE,
     arg("--quick", action="store_true", help="a reduced version for a first look"),
     arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
-    arg("--transfer", default="prediction", choices=TRANSFER_MODES[:2], help="ATIKT mode"),
+    arg(
+        "--transfer",
+        default="prediction",
+        choices=[m for m in TRANSFER_MODES if m != "none"],
+        help="ATIKT mode (density: open-set relatedness)",
+    ),
+    _SOURCES,
     *_ROLES,
     _FEATURES,
     _SEED,
@@ -391,6 +405,7 @@ def _study_command(args: argparse.Namespace) -> int:
                 old=roles.old,
                 actions=tuple(actions),
                 features=args.features,
+                max_sources=args.max_sources,
             )
             config = config.quick() if args.quick else config
             bar, update = _progress(f"study {name}")

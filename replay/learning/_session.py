@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import polars as pl
 
 from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
+from atikt.active import TRANSFER_MODES as ATIKT_TRANSFER_MODES
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
     from replay.learning._executors import Executor, TestSet
 
 #: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
-TRANSFER_MODES = ("prediction", "optimization", "none")
+TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, none
 
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
 
@@ -38,6 +39,8 @@ class RunSpec:
         seed: Seed of every random choice of the run.
         test_fraction: Share of each (object, action)'s recordings held out for testing.
         features: Feature policy (``thesis`` or ``all``; see ``select_blocks``).
+        max_sources: Old objects transferred at once (1: the thesis; more: multi-source).
+        eps_density: Smallest open-set relatedness score of a source (``density`` mode).
     """
 
     new_objects: tuple[str, ...]
@@ -50,6 +53,8 @@ class RunSpec:
     seed: int = 0
     test_fraction: float = 0.5
     features: str = "thesis"
+    max_sources: int = 1
+    eps_density: float = 0.1
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
@@ -61,6 +66,9 @@ class RunSpec:
                 f"--new {','.join(self.new_objects) or '(none)'}: a run needs at least two new "
                 "objects; name them with --new or declare them new in the dataset's objects.toml"
             )
+            raise ReplayError(msg)
+        if self.max_sources < 1:
+            msg = f"--max-sources {self.max_sources}: give 1 (the thesis) or more"
             raise ReplayError(msg)
         if self.budget < 0:
             msg = f"--budget {self.budget}: give 0 or more observations"
@@ -161,6 +169,8 @@ def run_learning(
         eps_explore=spec.eps_explore,
         eps_neg1=spec.eps_neg1,
         transfer=spec.transfer,  # type: ignore[arg-type]
+        max_sources=spec.max_sources,
+        eps_density=spec.eps_density,
         random_state=spec.seed,
     )
     result = RunResult(spec)

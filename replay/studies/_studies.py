@@ -59,6 +59,7 @@ class StudyConfig:
         features: Feature policy (``thesis`` or ``all``).
         group_size: Prior objects per group in the transfer and single-action studies.
         reduced: A reduced run (``--quick``); its summary says so.
+        max_sources: Old objects transferred at once (1: the thesis).
     """
 
     out: Path
@@ -79,6 +80,7 @@ class StudyConfig:
     features: str = "thesis"
     group_size: int = 3
     reduced: bool = False
+    max_sources: int = 1
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -149,6 +151,7 @@ class TransferTask:
         transfer: Transfer mode of the ATIKT runs.
         labels: Extra columns written into every row (group, prior count, ...).
         features: Feature policy.
+        max_sources: Old objects transferred at once.
     """
 
     frame: pl.DataFrame
@@ -161,6 +164,7 @@ class TransferTask:
     transfer: str = "prediction"
     labels: dict[str, Any] = field(default_factory=dict)
     features: str = "thesis"
+    max_sources: int = 1
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
@@ -173,7 +177,16 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
         run_seed = _seed(task.seed, trial, *actions)
         split = Split.random(task.frame, task.new, actions, seed=run_seed)
         for method, mode in ((ATIKT, task.transfer), (BASELINE, "none")):
-            spec = RunSpec(task.new, task.priors, actions, task.budget, mode, seed=run_seed)
+            spec = RunSpec(
+                task.new,
+                task.priors,
+                actions,
+                task.budget,
+                mode,
+                seed=run_seed,
+                features=task.features,
+                max_sources=task.max_sources,
+            )
             executor = PoolExecutor(lookup, task.new, split)
             result = run_learning(spec, executor, executor.test_set(actions), models)
             labels = task.labels | {"method": method, "trial": trial}
@@ -241,6 +254,7 @@ def transfer_tasks(
             config.transfer,
             {"group": number},
             config.features,
+            config.max_sources,
         )
         for number, group in enumerate(prior_groups(config.old, size, config.groups, config.seed))
     ]
@@ -272,6 +286,7 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
                     config.transfer,
                     labels,
                     config.features,
+                    config.max_sources,
                 )
             )
     return tasks
@@ -313,6 +328,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
             config.transfer,
             {"group": 0, "repetition": number},
             config.features,
+            config.max_sources,
         )
         for number in range(runs)
     ]

@@ -63,7 +63,7 @@ def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     ``eps_density``, ...) are set as the learner's defaults in this worker process.
     """
     task, options = args
-    replay.learning._session.TRANSFER_MODES = TRANSFER_MODES  # type: ignore[assignment]
+    replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
     defaults = ActiveLearner.__init__.__kwdefaults__
     assert defaults is not None  # keyword-only parameters
     defaults.update(DEFAULTS)  # worker processes are reused: undo an earlier task's options

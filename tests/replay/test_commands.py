@@ -181,3 +181,12 @@ def test_a_failing_rig_in_a_live_run_is_one_line(
     assert err.count("\n") == 1
     assert "--rig unplugged: the fake rig does not answer; check its cable" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_learn_takes_the_open_set_and_multi_source_modes(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = _learn(small_dataset, "--transfer", "density", "--max-sources", "2")
+    assert main([*argv, "--actions", "P1", "--budget", "3", "--out", str(tmp_path / "d")]) == 0
+    assert main([*argv, "--max-sources", "0", "--out", str(tmp_path / "z")]) == 1
+    assert "--max-sources 0" in capsys.readouterr().err
