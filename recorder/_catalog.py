@@ -2,23 +2,18 @@
 
 from __future__ import annotations
 
-import enum
 import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 from recorder.errors import CatalogError
+from schemas import VOCABULARY
 
-
-class ActionKind(enum.StrEnum):
-    """What an action does once in light contact."""
-
-    PRESS = "press"
-    SLIDE = "slide"
-    STATIC = "static"
+ActionKind: TypeAlias = str
+"""An action kind's name, one of ``schemas.VOCABULARY.kinds`` (the contract's list)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +48,13 @@ class ActionSpec:
             "speed_m_s": self.speed_m_s,
             "duration_s": self.duration_s,
         }
+
+
+def _kind(value: object) -> ActionKind:
+    if value not in VOCABULARY.kinds:
+        msg = f"unknown kind {value!r}"
+        raise ValueError(msg)
+    return str(value)
 
 
 def read_toml(path: Path | None, default_name: str) -> tuple[str, dict[str, Any]]:
@@ -92,7 +94,7 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
         try:
             actions[action_id] = ActionSpec(
                 id=action_id,
-                kind=ActionKind(entry["kind"]),
+                kind=_kind(entry["kind"]),
                 duration_s=float(entry["duration_s"]),
                 depth_m=float(entry.get("depth_m", 0.0)),
                 force_n=float(entry.get("force_n", 0.0)),
@@ -103,14 +105,14 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
         except (KeyError, ValueError, TypeError) as err:
             msg = (
                 f"{name}: action [{action_id}] is malformed ({err!r}); it needs kind "
-                "(press|slide|static), duration_s and the kind's parameters in SI units"
+                f"({'|'.join(VOCABULARY.kinds)}), duration_s and the kind's parameters in SI units"
             )
             raise CatalogError(msg) from err
     return actions
 
 
-PROPERTIES = ("stiffness", "texture", "thermal")
-"""Properties an object can share with a related one (the feature modalities)."""
+PROPERTIES = VOCABULARY.properties
+"""Properties an object can share with a related one (those the modalities measure)."""
 
 
 @dataclass(frozen=True, slots=True)

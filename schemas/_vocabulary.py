@@ -37,6 +37,8 @@ class ModalitySpec:
         rate_hz: Default sample rate (the simulated skin's).
         block_samples: Samples per message written by the simulated rig.
         feature: Name of the atikt feature block computed from it ("" for none).
+        property: The object property it measures, as objects name what they share with a
+            related object ("" for none).
         description: One line for people.
     """
 
@@ -49,6 +51,7 @@ class ModalitySpec:
     rate_hz: float
     block_samples: int
     feature: str
+    property: str
     description: str
 
     def value_names(self, width: int) -> tuple[str, ...]:
@@ -146,6 +149,11 @@ class Vocabulary:
     legacy: Mapping[int, LegacySpec]
 
     @property
+    def properties(self) -> tuple[str, ...]:
+        """Return the object properties the modalities measure, in modality order."""
+        return tuple(m.property for m in self.modalities.values() if m.property)
+
+    @property
     def features(self) -> tuple[str, ...]:
         """Return the feature blocks of all modalities, in modality order."""
         return tuple(m.feature for m in self.modalities.values() if m.feature)
@@ -194,6 +202,7 @@ def _modality(name: str, row: Mapping[str, Any], package: str) -> ModalitySpec:
         rate_hz=float(row["rate_hz"]),
         block_samples=int(row["block_samples"]),
         feature=str(row["feature"]),
+        property=str(row.get("property", "")),
         description=str(row["description"]),
     )
 

@@ -39,16 +39,16 @@ if TYPE_CHECKING:
 
 NS = 1_000_000_000
 _CHANNELS_PER_CELL = {
-    Modality.FORCE: 3,
-    Modality.TEMPERATURE: 1,
-    Modality.ACCELERATION: 3,
-    Modality.PROXIMITY: 1,
+    "force": 3,
+    "temperature": 1,
+    "acceleration": 3,
+    "proximity": 1,
 }
 _TOPICS = {
-    Modality.FORCE: "/skin/force",
-    Modality.TEMPERATURE: "/skin/temperature",
-    Modality.ACCELERATION: "/skin/acceleration",
-    Modality.PROXIMITY: "/skin/proximity",
+    "force": "/skin/force",
+    "temperature": "/skin/temperature",
+    "acceleration": "/skin/acceleration",
+    "proximity": "/skin/proximity",
 }
 CELLS = 7
 
@@ -91,11 +91,11 @@ class FakeRig:
         durations = [0.5, 0.2, action.duration_s * self.time_scale, 0.3]
         starts, t = [], 2 * NS
         for phase, duration in zip(
-            (Phase.APPROACH, Phase.CONTACT, Phase.EXECUTE, Phase.RETRACT), durations, strict=True
+            ("approach", "contact", "execute", "retract"), durations, strict=True
         ):
             starts.append((phase, t))
             t += round(duration * NS)
-        starts.append((Phase.END, t))
+        starts.append(("end", t))
         return starts
 
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
@@ -104,7 +104,7 @@ class FakeRig:
         phases = self.phases(action)
         start, stop = phases[0][1], phases[-1][1]
         items: list[StreamItem] = [PhaseEvent(t, t, phase) for phase, t in phases]
-        for modality in Modality:
+        for modality in VOCABULARY.modalities:
             items += self._skin(rng, modality, start, stop)
         items += self._robot(rng, start, stop)
         items.sort(key=lambda item: item.receive_ns)

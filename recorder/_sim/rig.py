@@ -27,8 +27,8 @@ from recorder._sim import contact, motion, skin, thermal, ur10
 from recorder._sim.config import SimConfig
 from recorder._sim.texture import SlideConditions, ridge_relief, sliding_vibration
 from recorder.errors import RigError
-from recorder.writing._stream import JointSample, Modality, Phase, PhaseEvent, PoseSample, SkinBlock
-from schemas import channel_for_topic
+from recorder.writing._stream import JointSample, Modality, PhaseEvent, PoseSample, SkinBlock
+from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
@@ -40,9 +40,9 @@ if TYPE_CHECKING:
 F64 = NDArray[np.float64]
 
 SIMULATOR_VERSION: Final = "2"
-#: Action kinds the simulator has a model of (its motion and contact for each).
-SIMULATED_KINDS: Final = ("press", "slide", "static")
 """Version of the physical model; recordings from different versions differ."""
+SIMULATED_KINDS: Final = ("press", "slide", "static")
+"""Action kinds the simulator has a model of (its motion and contact for each)."""
 ROBOT_DECIMATION: Final = 8
 """RTDE publishes every 8 ms (125 Hz)."""
 FORCE_DT_S: Final = motion.DT_S * motion.FORCE_DECIMATION
@@ -92,12 +92,6 @@ TOOL: Final = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0.045], [0, 
 """Skin patch surface centre (the TCP) in the flange frame: mount plus skin, 45 mm."""
 TCP_ROTATION: Final = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 """TCP axes in the base frame: x (sliding) along base y, z pointing down into the object."""
-_TOPICS: Final = {
-    Modality.FORCE: "/skin/force",
-    Modality.TEMPERATURE: "/skin/temperature",
-    Modality.ACCELERATION: "/skin/acceleration",
-    Modality.PROXIMITY: "/skin/proximity",
-}
 
 
 def stable_hash(text: str) -> int:
@@ -327,7 +321,7 @@ class SimulatedRig:
         ]
         items.sort(key=_receive_ns)  # stable: at equal times, events come first
         last = max(item.receive_ns for item in items)
-        items.append(PhaseEvent(signals.plan.n * 1_000_000, last, Phase.END))
+        items.append(PhaseEvent(signals.plan.n * 1_000_000, last, "end"))
         return iter(items)
 
     def _check(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> ObjectPhysics:
@@ -446,10 +440,10 @@ class SimulatedRig:
         acceleration = skin.measure_acceleration(signals.specific_force, hw, rngs[2])
         proximity = skin.measure_proximity(signals.distance[::20], obj.reflectance, hw, rngs[3])
         readings: dict[Modality, NDArray[np.floating[Any]]] = {
-            Modality.FORCE: force,
-            Modality.TEMPERATURE: temperature[..., None],
-            Modality.ACCELERATION: acceleration,
-            Modality.PROXIMITY: proximity[..., None],
+            "force": force,
+            "temperature": temperature[..., None],
+            "acceleration": acceleration,
+            "proximity": proximity[..., None],
         }
         jitter = rngs[3].uniform(0.0, 1.0, 4 * (n // motion.BLOCK_SAMPLES))
         blocks: list[SkinBlock] = []
@@ -543,10 +537,10 @@ def _receive_ns(item: StreamItem) -> int:
 def _phase_events(plan: motion.Plan) -> list[PhaseEvent]:
     """Return the phase events up to the retract (the end is added last)."""
     starts = [
-        (0, Phase.APPROACH),
-        (plan.contact, Phase.CONTACT),
-        (plan.execute, Phase.EXECUTE),
-        (plan.retract, Phase.RETRACT),
+        (0, "approach"),
+        (plan.contact, "contact"),
+        (plan.execute, "execute"),
+        (plan.retract, "retract"),
     ]
     return [PhaseEvent(i * 1_000_000, i * 1_000_000, phase) for i, phase in starts]
 
@@ -575,10 +569,7 @@ def _cut_blocks(
     modality: Modality, data: NDArray[np.floating[Any]], jitter: F64
 ) -> list[SkinBlock]:
     """Cut one modality's readings (samples, 7, channels) into the contract's blocks."""
-    channel = channel_for_topic(_TOPICS[modality])
-    if channel is None:  # pragma: no cover - the contract names every skin topic
-        msg = f"no channel for {modality}"
-        raise RigError(msg)
+    channel = VOCABULARY.modalities[modality]
     per_block = channel.block_samples
     period_ns = round(1e9 / channel.rate_hz)
     values = data.astype(np.float32)

@@ -54,7 +54,7 @@ from recorder.bagimport._windows import (
     windows_from_csv,
 )
 from recorder.errors import BagImportError, RecorderError
-from recorder.writing._stream import JointSample, Phase, PhaseEvent, PoseSample
+from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 from schemas import SCHEMA_VERSION, VOCABULARY, RecordingMetadata, check_rig, software_version
 
@@ -258,7 +258,7 @@ def _window_items(
 ) -> tuple[list[StreamItem], str]:
     """Return every stream item of one window ordered by receive time, or why it is skipped."""
     window = plan.window
-    items: list[StreamItem] = [PhaseEvent(s, s, Phase(p)) for p, s in window.events]
+    items: list[StreamItem] = [PhaseEvent(s, s, p) for p, s in window.events]
     for modality, spec in topic_map.skin.items():
         series = cells[modality]
         period = block_period(spec.period_ns, series[0].stamps)

@@ -6,7 +6,6 @@ writer turns them into ROS 2 messages. Time is integer nanoseconds.
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 from typing import TypeAlias
 
@@ -17,23 +16,11 @@ F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 
 
-class Modality(enum.StrEnum):
-    """Skin modalities, each on its own channel."""
+Modality: TypeAlias = str
+"""A skin modality's name, one of ``schemas.VOCABULARY.modalities`` (the contract's list)."""
 
-    FORCE = "force"
-    TEMPERATURE = "temperature"
-    ACCELERATION = "acceleration"
-    PROXIMITY = "proximity"
-
-
-class Phase(enum.StrEnum):
-    """Phases of one action execution, in the order they happen."""
-
-    APPROACH = "approach"
-    CONTACT = "contact"
-    EXECUTE = "execute"
-    RETRACT = "retract"
-    END = "end"
+Phase: TypeAlias = str
+"""An action phase's name, one of ``schemas.VOCABULARY.phases``, in the order they happen."""
 
 
 @dataclass(frozen=True, slots=True)

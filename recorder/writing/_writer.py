@@ -295,6 +295,10 @@ class _Encoder:
         return _POSES.topic, self._poses.fill(sample.stamp_ns, [run])
 
     def _event(self, event: PhaseEvent) -> tuple[str, bytes]:
+        if event.phase not in VOCABULARY.phases:
+            known = ", ".join(VOCABULARY.phases)
+            msg = f"rig yielded a phase event {event.phase!r}; known phases: {known}"
+            raise RecorderError(msg)
         events = VOCABULARY.events
         meta = self.info.metadata
         parameters = meta.action_parameters
@@ -305,7 +309,7 @@ class _Encoder:
             action_id=meta.action_id,
             action_kind=meta.action_kind,
             trial=meta.trial,
-            phase=str(event.phase),
+            phase=event.phase,
             depth_m=parameters.get("depth_m", 0.0),
             force_n=parameters.get("force_n", 0.0),
             speed_m_s=parameters.get("speed_m_s", 0.0),

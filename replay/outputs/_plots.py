@@ -22,6 +22,7 @@ from matplotlib.ticker import MaxNLocator
 from scipy import stats
 
 from replay.errors import ReplayError
+from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -35,14 +36,12 @@ _METADATA = {"Software": None}  # no version strings: the same results give the 
 #: Resolution of every PNG figure (dots per inch).
 DPI = 150
 #: Colour of each method and modality, the same in every figure (Okabe-Ito palette).
+#: The feature blocks take the palette's colours in the contract's order.
 COLOURS: dict[str, str] = {
     "ATIKT": "#0072B2",
     "baseline": "#D55E00",
     "multi-modal": "#000000",
-    "force": "#E69F00",
-    "texture": "#009E73",
-    "thermal": "#CC79A7",
-}
+} | dict(zip(VOCABULARY.features, ("#E69F00", "#CC79A7", "#009E73", "#F0E442"), strict=False))
 #: Colours of other labels (actions, further modalities), in the order of their labels.
 SPARE_COLOURS = ("#56B4E9", "#882255", "#999933", "#44AA99", "#332288", "#AA4499", "#888888")
 #: Coverage of the shaded band: a confidence interval of the mean over runs.

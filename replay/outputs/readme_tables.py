@@ -29,7 +29,7 @@ import polars as pl
 
 from replay.errors import ReplayError
 from replay.studies._studies import ATIKT, BASELINE, headline
-from schemas import cli
+from schemas import VOCABULARY, cli
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -44,7 +44,7 @@ _HEADLINES = ("initial", "mean", "final")
 _MARKER = re.compile(r"<!-- results:(?P<name>[a-z0-9_-]+) -->")
 #: The column a study compares within (one table row group each); None: the whole study.
 _BY = {"transfer": None, "negative": None, "single-action": "actions", "priors": "n_priors"}
-_MODALITY_ORDER = ("multi-modal", "force", "thermal", "texture")
+_MODALITY_ORDER = ("multi-modal", *VOCABULARY.features)
 
 
 def _units(frame: pl.DataFrame) -> list[str]:

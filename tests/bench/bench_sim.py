@@ -38,7 +38,6 @@ from atikt_synthetic import thesis_features
 
 from recorder import (
     Modality,
-    Phase,
     PhaseEvent,
     SimConfig,
     SimulatedRig,
@@ -90,7 +89,7 @@ def _window(items: list[StreamItem], modality: Modality) -> np.ndarray:
     blocks = [item for item in items if isinstance(item, SkinBlock) and item.modality is modality]
     data = np.concatenate([block.data for block in blocks])
     times = np.concatenate([b.stamp_ns + b.period_ns * np.arange(b.data.shape[0]) for b in blocks])
-    keep = (times >= events[Phase.EXECUTE]) & (times < events[Phase.RETRACT])
+    keep = (times >= events["execute"]) & (times < events["retract"])
     result: np.ndarray = data[keep]
     return result
 
@@ -111,10 +110,10 @@ def bench_separability(trials: int = 20) -> None:
                     items = list(rig.perform(obj, action, trial))
                     features[action.id].append(
                         thesis_features(
-                            action.kind.value,
-                            _window(items, Modality.FORCE),
-                            _window(items, Modality.ACCELERATION),
-                            _window(items, Modality.TEMPERATURE)[..., 0],
+                            action.kind,
+                            _window(items, "force"),
+                            _window(items, "acceleration"),
+                            _window(items, "temperature")[..., 0],
                         )
                     )
     labels = np.repeat(np.arange(len(objects)), trials)
@@ -167,10 +166,10 @@ def _series(items: list[StreamItem], modality: Modality) -> tuple[np.ndarray, np
 
 def _static_contact(items: list[StreamItem]) -> tuple[float, float, float]:
     """Return the 5 s drop from the 1 N onset, the temperature then and the force 5 s later."""
-    t_force, force = _series(items, Modality.FORCE)
+    t_force, force = _series(items, "force")
     total = force.sum(axis=(1, 2))
     onset = t_force[np.argmax(total > 1.0)]
-    t_temp, temperature = _series(items, Modality.TEMPERATURE)
+    t_temp, temperature = _series(items, "temperature")
     mean = temperature[..., 0].mean(axis=1)
     start, later = np.searchsorted(t_temp, [onset, onset + 5e9])
     held = total[np.searchsorted(t_force, onset + 5e9)]

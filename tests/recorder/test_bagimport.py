@@ -16,7 +16,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from recorder import Modality, load_actions, load_objects
+from recorder import load_actions, load_objects
 from recorder._cli import main
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._topicmap import EXAMPLE, TopicMap, load_topic_map
@@ -418,7 +418,7 @@ def test_topic_maps_are_checked_strictly(tmp_path: Path) -> None:
 def test_the_packaged_example_map_is_valid() -> None:
     example = Path(__file__).parents[2] / "recorder" / "data" / EXAMPLE
     topic_map = load_topic_map(example)
-    assert topic_map.skin[Modality.ACCELERATION].scale == pytest.approx(G)
+    assert topic_map.skin["acceleration"].scale == pytest.approx(G)
     assert topic_map.windows.topic == "/annotations"
     assert topic_map.cells == (0, 1, 2, 3, 4, 5, 6)
 

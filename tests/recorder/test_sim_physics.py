@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from recorder import (
-    ActionKind,
     ActionSpec,
     Modality,
     ObjectSpec,
@@ -42,8 +41,8 @@ def _run(obj: ObjectSpec, action: ActionSpec, trial: int) -> list[StreamItem]:
 
 def _hold_force(object_id: str, action_id: str, trial: int) -> np.ndarray:
     """Total force over the hold (after the press-in), 250 Hz."""
-    t, force, events = _series(_run(OBJECTS[object_id], ACTIONS[action_id], trial), Modality.FORCE)
-    hold = (t >= events[Phase.EXECUTE] + 400_000_000) & (t < events[Phase.RETRACT])
+    t, force, events = _series(_run(OBJECTS[object_id], ACTIONS[action_id], trial), "force")
+    hold = (t >= events["execute"] + 400_000_000) & (t < events["retract"])
     total: np.ndarray = force[hold].sum(axis=(1, 2))
     return total
 
@@ -111,12 +110,12 @@ def _drop_after(object_id: str, seconds: float, trials: int) -> tuple[float, flo
     drops, forces = [], []
     for trial in range(trials):
         items = _run(OBJECTS[object_id], ACTIONS["C1"], trial)
-        t, temp, events = _series(items, Modality.TEMPERATURE)
+        t, temp, events = _series(items, "temperature")
         mean = temp[..., 0].mean(axis=1)
-        contact_ns = events[Phase.CONTACT]
+        contact_ns = events["contact"]
         before = mean[(t <= contact_ns) & (t > contact_ns - 500_000_000)].mean()
         drops.append(before - mean[np.searchsorted(t, contact_ns + seconds * 1e9)])
-        tf, force, _ = _series(items, Modality.FORCE)
+        tf, force, _ = _series(items, "force")
         forces.append(force[(tf > contact_ns + 1e9) & (tf < contact_ns + 5e9)].sum(axis=(1, 2)))
     return float(np.mean(drops)), float(np.mean(np.concatenate(forces)))
 
@@ -175,8 +174,8 @@ def _grating(period_m: float) -> ObjectSpec:
 
 
 def _steady_slide(items: list[StreamItem]) -> np.ndarray:
-    t, acc, events = _series(items, Modality.ACCELERATION)
-    steady = (t >= events[Phase.EXECUTE] + 300_000_000) & (t < events[Phase.RETRACT] - 100_000_000)
+    t, acc, events = _series(items, "acceleration")
+    steady = (t >= events["execute"] + 300_000_000) & (t < events["retract"] - 100_000_000)
     return acc[steady]
 
 
@@ -195,7 +194,7 @@ def test_vibration_frequency_is_speed_over_texture_period(
 
 
 def test_sliding_on_hard_materials_has_a_realistic_spectral_centroid() -> None:
-    probe = ActionSpec("probe", ActionKind.SLIDE, 1.0, force_n=0.5, speed_m_s=0.02)
+    probe = ActionSpec("probe", "slide", 1.0, force_n=0.5, speed_m_s=0.02)
     for name in ("wood", "hard_box", "glass_plate", "rubber_mat", "book"):
         acc = _steady_slide(_run(OBJECTS[name], probe, trial=0))
         power = np.abs(np.fft.rfft(acc - acc.mean(axis=0), axis=0)) ** 2

@@ -25,22 +25,22 @@ from recorder import (
 )
 from recorder._sim import skin, ur10
 from recorder._sim.rig import TOOL
-from schemas import CHANNELS
+from schemas import CHANNELS, VOCABULARY
 
 OBJECTS = load_objects()
 ACTIONS = load_actions()
 TOPIC = {
-    Modality.FORCE: "/skin/force",
-    Modality.TEMPERATURE: "/skin/temperature",
-    Modality.ACCELERATION: "/skin/acceleration",
-    Modality.PROXIMITY: "/skin/proximity",
+    "force": "/skin/force",
+    "temperature": "/skin/temperature",
+    "acceleration": "/skin/acceleration",
+    "proximity": "/skin/proximity",
 }
 CHANNEL = {channel.topic: channel for channel in CHANNELS}
 WIDTH = {
-    Modality.FORCE: 3,
-    Modality.TEMPERATURE: 1,
-    Modality.ACCELERATION: 3,
-    Modality.PROXIMITY: 1,
+    "force": 3,
+    "temperature": 1,
+    "acceleration": 3,
+    "proximity": 1,
 }
 
 
@@ -65,7 +65,7 @@ class Stream:
 
 
 def collect(items: list[StreamItem]) -> Stream:
-    stream = Stream(items, {m: [] for m in Modality}, [], [], {})
+    stream = Stream(items, {m: [] for m in VOCABULARY.modalities}, [], [], {})
     for item in items:
         if isinstance(item, SkinBlock):
             stream.blocks[item.modality].append(item)
@@ -109,22 +109,22 @@ def test_items_are_ordered_by_receive_time_and_end_last(press: Stream, slide: St
         assert receive == sorted(receive)
         last = stream.items[-1]
         assert isinstance(last, PhaseEvent)
-        assert last.phase is Phase.END
+        assert last.phase == "end"
 
 
 def test_phases_start_in_order_at_zero(press: Stream) -> None:
-    assert list(press.events) == list(Phase)
-    stamps = [press.phase_ns(phase) for phase in Phase]
+    assert list(press.events) == list(VOCABULARY.phases)
+    stamps = [press.phase_ns(phase) for phase in VOCABULARY.phases]
     assert stamps[0] == 0
     assert stamps == sorted(stamps)
-    assert press.phase_ns(Phase.END) % 100_000_000 == 0  # ends on a 0.1 s boundary
+    assert press.phase_ns("end") % 100_000_000 == 0  # ends on a 0.1 s boundary
 
 
-@pytest.mark.parametrize("modality", list(Modality))
+@pytest.mark.parametrize("modality", list(VOCABULARY.modalities))
 def test_blocks_follow_the_channel_contract(press: Stream, modality: Modality) -> None:
     channel = CHANNEL[TOPIC[modality]]
     period = round(1e9 / channel.rate_hz)
-    end = press.phase_ns(Phase.END)
+    end = press.phase_ns("end")
     blocks = press.blocks[modality]
     assert len(blocks) == end // 100_000_000  # one block per 0.1 s
     for index, block in enumerate(blocks):
@@ -142,7 +142,7 @@ def test_robot_streams_at_125_hz_until_the_end(press: Stream) -> None:
     assert stamps == [sample.stamp_ns for sample in press.poses]
     assert np.all(np.diff(stamps) == 8_000_000)
     assert stamps[0] == 0
-    assert stamps[-1] < press.phase_ns(Phase.END) <= stamps[-1] + 8_000_000
+    assert stamps[-1] < press.phase_ns("end") <= stamps[-1] + 8_000_000
     for sample in press.joints[:5]:
         assert sample.position.shape == sample.velocity.shape == sample.effort.shape == (6,)
         assert 1_000_000 <= sample.receive_ns - sample.stamp_ns <= 1_500_000
@@ -169,14 +169,14 @@ def test_joint_velocities_are_the_derivative_of_positions(slide: Stream) -> None
 def test_press_goes_its_depth_beyond_light_contact(press: Stream) -> None:
     z = np.array([pose.position[2] for pose in press.poses])
     t = np.array([pose.stamp_ns for pose in press.poses])
-    at_contact = z[np.searchsorted(t, press.phase_ns(Phase.EXECUTE)) - 1]
-    holding = z[np.searchsorted(t, press.phase_ns(Phase.RETRACT)) - 1]
+    at_contact = z[np.searchsorted(t, press.phase_ns("execute")) - 1]
+    holding = z[np.searchsorted(t, press.phase_ns("retract")) - 1]
     assert at_contact - holding == pytest.approx(ACTIONS["P2"].depth_m, abs=1e-6)
     assert z[0] - at_contact > 0.015  # approached from about 2 cm
 
 
 def test_hold_lasts_the_action_duration(press: Stream) -> None:
-    execute = press.phase_ns(Phase.RETRACT) - press.phase_ns(Phase.EXECUTE)
+    execute = press.phase_ns("retract") - press.phase_ns("execute")
     duration_ns = ACTIONS["P2"].duration_s * 1e9
     assert duration_ns < execute < duration_ns + 0.5e9  # press-in, then the hold
 
@@ -188,9 +188,9 @@ def test_slide_moves_speed_times_duration(slide: Stream) -> None:
 
 
 def test_light_contact_is_reported_when_the_force_passes_the_threshold(press: Stream) -> None:
-    total = press.data(Modality.FORCE).sum(axis=(1, 2))
-    t = press.times(Modality.FORCE)
-    contact = press.phase_ns(Phase.CONTACT)
+    total = press.data("force").sum(axis=(1, 2))
+    t = press.times("force")
+    contact = press.phase_ns("contact")
     before = total[(t > contact - 300_000_000) & (t < contact - 40_000_000)]
     after = total[(t >= contact) & (t < contact + 40_000_000)]
     assert before.mean() < 0.03
@@ -199,9 +199,9 @@ def test_light_contact_is_reported_when_the_force_passes_the_threshold(press: St
 
 
 def test_approach_slows_as_proximity_falls(press: Stream) -> None:
-    distance = press.data(Modality.PROXIMITY)[..., 0].mean(axis=1)
-    t = press.times(Modality.PROXIMITY)
-    approach = distance[t < press.phase_ns(Phase.CONTACT)]
+    distance = press.data("proximity")[..., 0].mean(axis=1)
+    t = press.times("proximity")
+    approach = distance[t < press.phase_ns("contact")]
     assert approach[0] > 0.015
     assert approach[-1] < 0.004
     assert np.all(np.diff(approach) < 1e-3)  # falling, up to noise
@@ -209,19 +209,19 @@ def test_approach_slows_as_proximity_falls(press: Stream) -> None:
     speed = -np.diff(z) / 0.008
     t_pose = np.array([pose.stamp_ns for pose in press.poses])[1:]
     early = speed[(t_pose > 150_000_000) & (t_pose < 300_000_000)].mean()
-    late = speed[(t_pose > press.phase_ns(Phase.CONTACT) - 100_000_000)]
+    late = speed[(t_pose > press.phase_ns("contact") - 100_000_000)]
     assert early > 0.025
     assert late[:10].mean() < 0.3 * early
 
 
 def test_readings_are_quantised_like_the_sensors(press: Stream) -> None:
-    acc = press.data(Modality.ACCELERATION).astype(np.float64) / skin.ACC_LSB_M_S2
+    acc = press.data("acceleration").astype(np.float64) / skin.ACC_LSB_M_S2
     np.testing.assert_allclose(acc, np.round(acc), atol=1e-3)
     assert acc.min() >= skin.ACC_MIN_LSB
     assert acc.max() <= skin.ACC_MAX_LSB
-    temp = press.data(Modality.TEMPERATURE).astype(np.float64) / skin.TEMP_LSB_C
+    temp = press.data("temperature").astype(np.float64) / skin.TEMP_LSB_C
     np.testing.assert_allclose(temp, np.round(temp), atol=1e-3)
-    z = press.data(Modality.ACCELERATION)[..., 2]
+    z = press.data("acceleration")[..., 2]
     assert z.mean() == pytest.approx(-9.81, abs=0.3)  # skin faces down; biases +-0.2
 
 
@@ -314,30 +314,26 @@ def test_cells_off_a_small_object_feel_nothing_and_see_the_table() -> None:
     with SimulatedRig(0) as rig:
         for trial in range(5):
             stream = collect(list(rig.perform(small, ACTIONS["P2"], trial)))
-            t = stream.times(Modality.FORCE)
-            hold = (t > stream.phase_ns(Phase.EXECUTE) + 500_000_000) & (
-                t < stream.phase_ns(Phase.RETRACT)
-            )
-            cell_force = stream.data(Modality.FORCE)[hold].sum(axis=2).mean(axis=0)
+            t = stream.times("force")
+            hold = (t > stream.phase_ns("execute") + 500_000_000) & (t < stream.phase_ns("retract"))
+            cell_force = stream.data("force")[hold].sum(axis=2).mean(axis=0)
             on = cell_force > 0.05
             if on.any() and not on.all():
                 break
         else:
             pytest.fail("no execution with partial contact")
     assert cell_force[~on].max() < 0.03
-    tp = stream.times(Modality.PROXIMITY)
-    hold_p = (tp > stream.phase_ns(Phase.EXECUTE) + 500_000_000) & (
-        tp < stream.phase_ns(Phase.RETRACT)
-    )
-    distance = stream.data(Modality.PROXIMITY)[hold_p][..., 0].mean(axis=0)
+    tp = stream.times("proximity")
+    hold_p = (tp > stream.phase_ns("execute") + 500_000_000) & (tp < stream.phase_ns("retract"))
+    distance = stream.data("proximity")[hold_p][..., 0].mean(axis=0)
     assert distance[on].max() < 0.01
     assert distance[~on].min() > 0.025  # the table, about 4 cm below the top face
 
 
 def test_approach_accelerates_gently(press: Stream) -> None:
-    acc = press.data(Modality.ACCELERATION)[..., 2].astype(np.float64).mean(axis=1)
-    t = press.times(Modality.ACCELERATION)
-    approach = acc[t < press.phase_ns(Phase.CONTACT)]
+    acc = press.data("acceleration")[..., 2].astype(np.float64).mean(axis=1)
+    t = press.times("acceleration")
+    approach = acc[t < press.phase_ns("contact")]
     motion = approach - np.median(approach)
     assert np.abs(motion).max() < 0.5  # about 0.3 m/s^2 plus noise; no velocity steps
 
@@ -346,8 +342,8 @@ def test_efforts_hold_the_arm_against_gravity_and_the_contact_force(press: Strea
     q = np.array([sample.position for sample in press.joints])
     effort = np.array([sample.effort for sample in press.joints])
     stamps = np.array([sample.stamp_ns for sample in press.joints])
-    force_t = press.times(Modality.FORCE)
-    total = press.data(Modality.FORCE).astype(np.float64).sum(axis=(1, 2))
+    force_t = press.times("force")
+    total = press.data("force").astype(np.float64).sum(axis=(1, 2))
     wrench = np.zeros((q.shape[0], 3))
     wrench[:, 2] = total[np.searchsorted(force_t, stamps)]
     exact = ur10.static_torques(ur10.link_frames(q), TOOL, wrench)

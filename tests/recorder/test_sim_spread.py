@@ -15,7 +15,6 @@ import pytest
 
 from recorder import (
     Modality,
-    Phase,
     PhaseEvent,
     SimConfig,
     SimulatedRig,
@@ -54,17 +53,17 @@ def _static_contacts(object_id: str) -> np.ndarray:
     with SimulatedRig(0) as rig:
         for trial in range(TRIALS):
             items = list(rig.perform(OBJECTS[object_id], ACTIONS["C1"], trial))
-            t_force, force = _series(items, Modality.FORCE)
+            t_force, force = _series(items, "force")
             total = force.sum(axis=(1, 2))
             onset = t_force[np.argmax(total > 1.0)]
-            t_temp, temperature = _series(items, Modality.TEMPERATURE)
+            t_temp, temperature = _series(items, "temperature")
             mean = temperature[..., 0].mean(axis=1)
             start = np.searchsorted(t_temp, onset)
             later = np.searchsorted(t_temp, onset + 5e9)
             contact = next(
                 item.stamp_ns
                 for item in items
-                if isinstance(item, PhaseEvent) and item.phase is Phase.CONTACT
+                if isinstance(item, PhaseEvent) and item.phase == "contact"
             )
             before = (t_temp > contact - 1e9) & (t_temp <= contact)
             slope = np.polyfit(t_temp[before] / 1e9, mean[before], 1)[0]

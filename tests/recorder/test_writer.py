@@ -16,7 +16,6 @@ from mcap.writer import CompressionType
 from recorder import (
     ActionSpec,
     JointSample,
-    Modality,
     OutputExistsError,
     PoseSample,
     RecorderError,
@@ -33,7 +32,14 @@ from recorder.writing._writer import (
     record_action,
 )
 from replay.recording._reader import read_recording
-from schemas import CHANNELS, PART_SUFFIX, SCHEMA_VERSION, build_typestore, software_version
+from schemas import (
+    CHANNELS,
+    PART_SUFFIX,
+    SCHEMA_VERSION,
+    VOCABULARY,
+    build_typestore,
+    software_version,
+)
 
 Objects = dict[str, ObjectSpec]
 Actions = dict[str, ActionSpec]
@@ -78,7 +84,7 @@ def test_round_trip_gives_back_every_sample(
     assert result is not None
     assert result.path == path
     assert result.size_bytes == path.stat().st_size
-    for modality in Modality:
+    for modality in VOCABULARY.modalities:
         blocks = [i for i in items if isinstance(i, SkinBlock) and i.modality == modality]
         series = recording.skin(str(modality))
         np.testing.assert_array_equal(series.data, np.concatenate([b.data for b in blocks]))
