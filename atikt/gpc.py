@@ -924,11 +924,17 @@ class MultiModalGPC:
             fits each class's own (the earlier behaviour).
         prior_sd: Gaussian prior on the log hyperparameters around the initial kernel (see
             :class:`BinaryGPC`); None: maximum likelihood.
+        initial_theta: Log hyperparameters of the fused kernel to start from (and, with
+            ``prior_sd``, the prior's centre), e.g. ``theta_`` of a model fitted on other
+            objects of the same action: an empirical-Bayes prior over the modality weights
+            and length scales. None: the default kernel (equal weights, unit length scales).
         n_restarts: Random restarts per binary classifier.
         max_iter: Iteration limit of the hyperparameter search per start.
         random_state: Seed of the restarts.
 
     Attributes:
+        theta_: Fitted log hyperparameters of the fused kernel (shared over classes; with
+            ``shared=False`` those of the first class).
         transformer_: The fitted feature transformer.
         model_: The fitted one-vs-all classifier (its binary classifiers may use different
             kernels with ``selection="evidence"``).
@@ -945,6 +951,7 @@ class MultiModalGPC:
         selection: Selection = "fused",
         shared: bool = True,
         prior_sd: float | None = None,
+        initial_theta: npt.ArrayLike | None = None,
         n_restarts: int = 1,
         max_iter: int = 50,
         random_state: RandomState = None,
@@ -956,6 +963,7 @@ class MultiModalGPC:
         self.selection = selection
         self.shared = shared
         self.prior_sd = prior_sd
+        self.initial_theta = initial_theta
         self.n_restarts = n_restarts
         self.max_iter = max_iter
         self.random_state = random_state
@@ -975,7 +983,17 @@ class MultiModalGPC:
         self.transformer_ = FeatureTransformer(self.modalities, self.n_thermal_components)
         X = self.transformer_.fit_transform(observations)
         slices = self.transformer_.slices_
-        candidates = {tuple(slices): modality_kernel(slices, amplitude=self.amplitude)}
+        fused = modality_kernel(slices, amplitude=self.amplitude)
+        if self.initial_theta is not None:
+            theta = np.asarray(self.initial_theta, dtype=np.float64)
+            if theta.shape != fused.theta.shape or not np.all(np.isfinite(theta)):
+                msg = (
+                    f"initial_theta of shape {theta.shape}: the kernel of {list(slices)} has "
+                    f"{fused.theta.shape[0]} finite log hyperparameters"
+                )
+                raise AtiktError(msg)
+            fused = fused.with_theta(np.clip(theta, fused.bounds[:, 0], fused.bounds[:, 1]))
+        candidates = {tuple(slices): fused}
         if self.selection != "fused" and len(slices) > 1:
             candidates |= {
                 (name,): modality_kernel({name: cols}, amplitude=self.amplitude)
@@ -992,6 +1010,7 @@ class MultiModalGPC:
             ).fit(X, labels)
             for names, kernel in candidates.items()
         }
+        self.theta_ = fitted[tuple(slices)].estimators_[0].kernel_.theta.copy()
         self.model_, self.selected_ = _select_by_evidence(
             fitted, per_class=self.selection != "evidence-all"
         )

@@ -31,6 +31,7 @@ from replay.learning._session import (
 )
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._studies import (
+    FUSION_PRIORS,
     STUDIES,
     StudyConfig,
     dataset_actions,
@@ -107,6 +108,14 @@ _FEATURES = arg(
     choices=FEATURE_POLICIES,
     help="feature blocks per action: the thesis's per kind, or all the recording's sensors "
     "give (default: thesis)",
+)
+_FUSION_PRIOR = arg(
+    "--fusion-prior",
+    default="others",
+    choices=FUSION_PRIORS,
+    help="fusion study: centre the multi-modal kernel's hyperparameters on those fitted on the "
+    "objects outside each group (others), or maximum likelihood on the group alone, as the "
+    "thesis (none) (default: others)",
 )
 _ROLES = (
     arg("--new", default=None, help="new objects (default: those the dataset declares new)"),
@@ -378,6 +387,7 @@ def _record_and_learn(
     _SOURCES,
     *_ROLES,
     _FEATURES,
+    _FUSION_PRIOR,
     _SEED,
     WORKERS,
 )
@@ -406,6 +416,7 @@ def _study_command(args: argparse.Namespace) -> int:
                 actions=tuple(actions),
                 features=args.features,
                 max_sources=args.max_sources,
+                fusion_prior=args.fusion_prior,
             )
             config = config.quick() if args.quick else config
             bar, update = _progress(f"study {name}")

@@ -173,6 +173,10 @@ class FeatureLookup:
         """Return the sorted trials of (obj, action)."""
         return sorted(t for (o, a, t) in self._rows if (o, a) == (obj, action))
 
+    def objects(self, action: str) -> list[str]:
+        """Return the sorted objects with at least one recording of ``action``."""
+        return sorted({o for (o, a, _) in self._rows if a == action})
+
 
 @dataclass(slots=True)
 class PoolExecutor:

@@ -99,3 +99,41 @@ def gain_cells(row: dict[str, object], head: str) -> str:
     if np.isnan(low):
         return f"{100 * gain:+.1f} pts"
     return f"{100 * gain:+.1f} pts [{100 * low:+.1f}, {100 * high:+.1f}]"
+
+
+def fusion_margins(frame: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
+    """Return per action and training size the multi-modal kernel minus the best single modality.
+
+    The best single modality is the one of the highest mean accuracy at that action and size;
+    the margin is paired per group (repetitions of a group averaged first), its interval the
+    bootstrap over groups.
+
+    Args:
+        frame: Fusion study results: ``action``, ``group``, ``repetition``, ``modalities``
+            (``multi-modal`` or one modality), ``samples``, ``accuracy``.
+        seed: Seed of the resampling.
+
+    Returns:
+        Columns ``action``, ``samples``, ``best`` (the modality), ``margin``, ``low``,
+        ``high`` (fractions).
+    """
+    per_group = frame.group_by("action", "samples", "group", "modalities").agg(
+        pl.col("accuracy").mean()
+    )
+    rng = np.random.default_rng(seed)
+    rows = []
+    for (action, samples), part in sorted(
+        per_group.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
+    ):
+        wide = part.pivot(on="modalities", index="group", values="accuracy").sort("group")
+        singles = [c for c in wide.columns if c not in {"group", "multi-modal"}]
+        if "multi-modal" not in wide.columns or not singles:
+            continue
+        best = max(singles, key=lambda c: float(wide[c].mean()))  # type: ignore[arg-type]
+        diff = (wide["multi-modal"] - wide[best]).to_numpy()
+        low, high = _interval(diff, rng)
+        rows.append(
+            {"action": action, "samples": samples, "best": best}
+            | {"margin": float(diff.mean()), "low": low, "high": high}
+        )
+    return pl.DataFrame(rows)

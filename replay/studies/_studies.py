@@ -23,7 +23,7 @@ from replay.learning._parallel import run_tasks
 from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._relatedness import least_similar, similarity_to_new
-from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, paired_gains
+from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
 from schemas import VOCABULARY
 
 if TYPE_CHECKING:
@@ -60,6 +60,9 @@ class StudyConfig:
         group_size: Prior objects per group in the transfer and single-action studies.
         reduced: A reduced run (``--quick``); its summary says so.
         max_sources: Old objects transferred at once (1: the thesis).
+        fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
+            centred on those of the other objects of the dataset (``reference_theta``);
+            ``none``: maximum likelihood on the group's samples alone (the thesis).
     """
 
     out: Path
@@ -81,6 +84,7 @@ class StudyConfig:
     group_size: int = 3
     reduced: bool = False
     max_sources: int = 1
+    fusion_prior: str = "others"
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -115,15 +119,21 @@ def _too_small(study: str, has: str, needs: str) -> ReplayError:
     return ReplayError(msg)
 
 
-def _roles(config: StudyConfig, study: str, *, min_old: int = 1) -> tuple[str, ...]:
+def _roles(config: StudyConfig, study: str) -> tuple[str, ...]:
     """Return the study's actions after checking its roles fit the design.
 
+    The model prediction approach compares old objects' one-vs-all models, so it needs two
+    old objects in every group; the other approaches work with one.
+
     Raises:
-        ReplayError: Fewer than 2 new or ``min_old`` old objects, or no action.
+        ReplayError: Fewer than 2 new or too few old objects, or no action.
     """
+    min_old = 2 if config.transfer == "prediction" else 1
     if len(config.new) < 2 or len(config.old) < min_old or not config.actions:  # noqa: PLR2004
         has = f"{len(config.new)} new, {len(config.old)} old objects, {len(config.actions)} actions"
         needs = f">= 2 new, >= {min_old} old objects and >= 1 action"
+        if min_old > 1:
+            needs += " (--transfer optimization or density needs 1 old object)"
         raise _too_small(study, has, needs)
     return config.actions
 
@@ -352,6 +362,7 @@ class FusionTask:
         seed: Seed of the splits and fits.
         group: Group number (a result column).
         features: Feature policy.
+        fusion_prior: ``others`` or ``none`` (see :class:`StudyConfig`).
     """
 
     frame: pl.DataFrame
@@ -361,6 +372,38 @@ class FusionTask:
     seed: int
     group: int
     features: str = "thesis"
+    fusion_prior: str = "others"
+
+
+#: Training samples per object of the other objects' model (``reference_theta``).
+REFERENCE_SAMPLES = 10
+#: Prior standard deviation of the log hyperparameters around the other objects' ones
+#: (measured against 1.0 in tests/bench/fusion_candidates.py: smaller worst-case loss).
+REFERENCE_PRIOR_SD = 0.5
+#: Choices of ``StudyConfig.fusion_prior``.
+FUSION_PRIORS = ("others", "none")
+
+
+def reference_theta(
+    lookup: FeatureLookup, action: str, objects: Sequence[str], seed: int
+) -> np.ndarray[Any, np.dtype[np.float64]] | None:
+    """Return the fused kernel's hyperparameters fitted on the other objects of the dataset.
+
+    The objects outside the group (up to ``REFERENCE_SAMPLES`` trials each, the first by trial
+    number) are what a lab already knows about this action: which modality separates objects
+    and on what scale. None when fewer than two other objects have the action.
+    """
+    others = [
+        o for o in lookup.objects(action) if o not in set(objects) and lookup.trials(o, action)
+    ]
+    if len(others) < 2:  # noqa: PLR2004 - a classifier needs two classes
+        return None
+    train, labels = [], []
+    for label, obj in enumerate(others):
+        for trial in lookup.trials(obj, action)[:REFERENCE_SAMPLES]:
+            train.append(lookup.get(obj, action, trial))
+            labels.append(label)
+    return MultiModalGPC(random_state=seed).fit(train, labels).theta_
 
 
 def run_fusion_task(task: FusionTask) -> pl.DataFrame:
@@ -368,6 +411,12 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     lookup = FeatureLookup(task.frame, task.features)
     modalities = lookup.blocks[task.action]
     subsets = {"multi-modal": None} | {m: (m,) for m in modalities}
+    reference = None
+    if task.fusion_prior == "others":
+        reference = reference_theta(lookup, task.action, task.objects, task.seed)
+    fused: dict[str, Any] = {}
+    if reference is not None:
+        fused = {"initial_theta": reference, "prior_sd": REFERENCE_PRIOR_SD}
     rows = []
     for repetition in range(task.repetitions):
         seed = _seed(task.seed, repetition)
@@ -384,7 +433,8 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
             ]
             labels = [i for i, p in enumerate(pools) for _ in p[:size]]
             for name, subset in subsets.items():
-                model = MultiModalGPC(subset, random_state=seed)
+                options = fused if subset is None else {}
+                model = MultiModalGPC(subset, random_state=seed, **options)
                 try:
                     predicted = model.fit(train, labels).predict(test_obs)
                 except AtiktError as err:
@@ -394,6 +444,7 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
                 rows.append(
                     {"action": task.action, "group": task.group, "repetition": repetition}
                     | {"modalities": name, "samples": size, "accuracy": accuracy}
+                    | {"fusion_prior": "none" if reference is None else "others"}
                 )
     return pl.DataFrame(rows)
 
@@ -420,6 +471,7 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
             _seed(config.seed, action, number),
             number,
             config.features,
+            config.fusion_prior,
         )
         for action in actions
         for number, group in enumerate(groups)
@@ -556,11 +608,49 @@ def report_fusion(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
         .pivot(on="modalities", index=["action", "samples"], values="accuracy")
         .sort("action", "samples")
     )
+    margins = fusion_margins(frame, seed=config.seed)
+    margin_table = (
+        "| action | samples | best single | multi-modal - best (points) |\n|---|---|---|---|\n"
+    )
+    margin_table += "".join(
+        f"| {r['action']} | {r['samples']} | {r['best']} | "
+        f"{_signed_points(r['margin'], r['low'], r['high'])} |\n"
+        for r in margins.iter_rows(named=True)
+    )
     return (
         f"# {title}\n{_reduced(config)}\nMean test accuracy over training sizes, groups of "
-        f"{config.fusion_objects} objects, multi-modal kernel vs single modalities.\n\n"
+        f"{config.fusion_objects} objects, multi-modal kernel vs single modalities. "
+        f"{_fusion_prior_note(frame)}\n\n"
         f"{_markdown(table)}\n\nPer training size (samples per object):\n\n"
-        f"{_markdown(sizes)}\n"
+        f"{_markdown(sizes)}\n\nMulti-modal minus the best single modality at each size, "
+        "paired per group, with its 95 % bootstrap interval over groups:\n\n"
+        f"{margin_table}"
+    )
+
+
+def _signed_points(value: float, low: float, high: float) -> str:
+    """Format a fraction as signed points with its interval (none with one unit)."""
+    text = f"{100 * value:+.1f}"
+    if np.isfinite(low):
+        text += f" [{100 * low:+.1f}, {100 * high:+.1f}]"
+    return text
+
+
+def _fusion_prior_note(frame: pl.DataFrame) -> str:
+    """Say how the multi-modal kernel's hyperparameters were found, per action."""
+    if "fusion_prior" not in frame.columns:
+        return ""
+    used = frame.filter(pl.col("fusion_prior") == "others")["action"].unique().sort().to_list()
+    if not used:
+        return (
+            "Multi-modal hyperparameters by maximum likelihood on the group's samples (no prior "
+            "from other objects: fewer than two objects outside the group, or --fusion-prior "
+            "none)."
+        )
+    return (
+        "Multi-modal hyperparameters: a prior centred on those fitted on the objects outside "
+        f"the group (sd {REFERENCE_PRIOR_SD} in log space) for {', '.join(used)}; maximum "
+        "likelihood elsewhere."
     )
 
 

@@ -274,6 +274,24 @@ def test_multi_modal_selection(selection: str) -> None:
         MultiModalGPC(selection="vote").fit(train, labels)  # type: ignore[arg-type]
 
 
+def test_initial_theta_with_a_tight_prior_keeps_the_reference_weights() -> None:
+    """A reference fitted on many samples decides the weights of a fit on one per class."""
+    many, many_labels = observations(20)
+    reference = MultiModalGPC(random_state=0).fit(many, many_labels)
+    logit = 2  # theta: [log l_force, log l_thermal, thermal logit, log s^2]
+    weights = reference.theta_[logit]
+    first, first_labels = observations(1)
+    few, few_labels = first[::3], first_labels[::3]  # one observation per class
+    free = MultiModalGPC(random_state=0).fit(few, few_labels)
+    tied = MultiModalGPC(initial_theta=reference.theta_, prior_sd=0.05, random_state=0).fit(
+        few, few_labels
+    )
+    assert abs(tied.theta_[logit] - weights) < abs(free.theta_[logit] - weights)
+    assert abs(tied.theta_[logit] - weights) < 0.2
+    with pytest.raises(AtiktError, match="initial_theta"):
+        MultiModalGPC(initial_theta=[0.0]).fit(few, few_labels)
+
+
 # --------------------------------------------------------------------- the learner
 
 

@@ -8,7 +8,7 @@ candidate and every single modality is fitted on the same splits with the same s
 Data:
 
 - ``--data sim``: the simulated dataset's feature cache (the study's own groups and seeds,
-  ``fusion_tasks``), default ``~/.cache/atikt/sim-seed0-schema1-v0.1.0/features.parquet``;
+  ``fusion_tasks``), default ``~/.cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet``;
 - ``--data real``: the heated-probe study of Bhattacharjee et al. (shared/data/
   thermal-ambiguity-toh, 3 materials x 90 trials, static contact); features from the heated
   thermistor and the force over 6 s from force onset (> 1 N). A "group" is a seed of the
@@ -43,7 +43,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 from atikt import MultiModalGPC, RawFeatures, extract_features
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
-from replay.studies._studies import FUSION_SIZES, StudyConfig, _seed, fusion_tasks
+from replay.studies._studies import (
+    FUSION_SIZES,
+    StudyConfig,
+    _seed,
+    dataset_actions,
+    fusion_tasks,
+    reference_theta,
+)
 
 CANDIDATES: dict[str, dict[str, Any]] = {
     "fused": {"selection": "fused"},
@@ -55,8 +62,13 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "prior1": {"selection": "fused", "prior_sd": 1.0},
     "shared-prior1": {"selection": "fused", "shared": True, "prior_sd": 1.0},
     "shared-prior2": {"selection": "fused", "shared": True, "prior_sd": 2.0},
+    # Hyperparameters of a model of the other objects (outside the group) of the action: the
+    # starting point (ref-start), the prior's centre with sd 1 or 0.5 (ref-prior1, ref-prior05).
+    "ref-start": {"selection": "fused", "initial_theta": "reference"},
+    "ref-prior1": {"selection": "fused", "initial_theta": "reference", "prior_sd": 1.0},
+    "ref-prior05": {"selection": "fused", "initial_theta": "reference", "prior_sd": 0.5},
 }
-SIM = Path.home() / ".cache/atikt/sim-seed0-schema1-v0.1.0/features.parquet"
+SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 REAL = Path("/work/shared/data/thermal-ambiguity-toh/robot_study.npz")
 
 
@@ -91,10 +103,22 @@ def fit_rows(  # noqa: PLR0917 - one training set and its test set
     modalities: tuple[str, ...],
     seed: int,
     names: list[str],
+    reference: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
-    """Accuracy and fit time of every candidate and single modality on one training set."""
+    """Accuracy and fit time of every candidate and single modality on one training set.
+
+    ``reference``: the other objects' fused hyperparameters, for the ``ref-*`` candidates
+    (skipped without it).
+    """
     rows = []
-    subsets: dict[str, dict[str, Any]] = {n: CANDIDATES[n] for n in names}
+    subsets: dict[str, dict[str, Any]] = {}
+    for n in names:
+        options = dict(CANDIDATES[n])
+        if options.get("initial_theta") == "reference":
+            if reference is None:
+                continue
+            options["initial_theta"] = reference
+        subsets[n] = options
     subsets |= {m: {"modalities": (m,), "selection": "fused", "shared": False} for m in modalities}
     subsets |= {
         f"{m}/shared": {"modalities": (m,), "selection": "fused", "shared": True}
@@ -113,8 +137,8 @@ def sim_task(args: tuple[Any, list[str]]) -> pl.DataFrame:
     """One fusion task of the simulated dataset (the study's protocol), all candidates."""
     task, names = args
     lookup = FeatureLookup(task.frame)
-    kind = task.frame.filter(pl.col("action_id") == task.action)["action_kind"][0]
-    modalities = ("force", "thermal") if kind in {"press", "static"} else ("texture", "thermal")
+    modalities = lookup.blocks[task.action]
+    reference = reference_theta(lookup, task.action, task.objects, task.seed)
     rows = []
     for repetition in range(task.repetitions):
         seed = _seed(task.seed, repetition)
@@ -134,7 +158,14 @@ def sim_task(args: tuple[Any, list[str]]) -> pl.DataFrame:
             rows += [
                 label | r
                 for r in fit_rows(
-                    train, labels, test_obs, np.asarray(test_labels), modalities, seed, names
+                    train,
+                    labels,
+                    test_obs,
+                    np.asarray(test_labels),
+                    modalities,
+                    seed,
+                    names,
+                    reference,
                 )
             ]
     return pl.DataFrame(rows)
@@ -269,8 +300,13 @@ def main() -> None:
         frames = run_tasks(real_task, tasks, workers=args.workers)
     else:
         frame = pl.read_parquet(args.features)
+        objects = tuple(sorted(set(frame["object_id"])))
         config = StudyConfig(
-            out=Path(), fusion_groups=args.groups, fusion_repetitions=args.repetitions
+            out=Path(),
+            fusion_groups=args.groups,
+            fusion_repetitions=args.repetitions,
+            new=objects,
+            actions=dataset_actions(frame),
         )
         study = fusion_tasks(frame, config)
         if args.actions:

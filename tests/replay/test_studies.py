@@ -8,7 +8,13 @@ from conftest import ACTIONS, NEW, OLD
 
 from replay.errors import ReplayError
 from replay.learning._features import build_features
-from replay.studies._studies import STUDIES, StudyConfig, prior_groups, run_study
+from replay.studies._studies import (
+    STUDIES,
+    StudyConfig,
+    prior_groups,
+    run_study,
+    transfer_tasks,
+)
 
 
 @pytest.fixture(scope="module")
@@ -117,3 +123,33 @@ def test_prior_groups_are_distinct_and_seeded() -> None:
 def test_unknown_study_is_a_clear_error(features: pl.DataFrame, tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="unknown study"):
         run_study("nope", features, _config(tmp_path))
+
+
+def test_prediction_transfer_needs_two_old_objects_the_others_one(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    one_old = _config(tmp_path, old=OLD[:1])
+    with pytest.raises(ReplayError, match=r">= 2 old objects .*--transfer optimization"):
+        transfer_tasks(features, one_old)
+    for mode in ("optimization", "density"):
+        tasks = transfer_tasks(features, replace(one_old, transfer=mode))
+        assert [task.priors for task in tasks] == [OLD[:1]]
+
+
+def test_fusion_prior_from_the_other_objects_and_the_margin_table(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    objects = len({*NEW, *OLD})
+    config = _config(tmp_path / "others", fusion_objects=objects - 2)
+    output = run_study("fusion", features, config)
+    results = pl.read_parquet(output.results)
+    assert set(results["fusion_prior"]) == {"others"}
+    assert "centred on those fitted on the objects outside the group" in output.text
+    assert "Multi-modal minus the best single modality" in output.text
+    alone = run_study(
+        "fusion", features, replace(config, out=tmp_path / "none", fusion_prior="none")
+    )
+    assert set(pl.read_parquet(alone.results)["fusion_prior"]) == {"none"}
+    assert "maximum likelihood on the group's samples" in alone.text
+    whole = run_study("fusion", features, _config(tmp_path / "all", fusion_objects=objects))
+    assert set(pl.read_parquet(whole.results)["fusion_prior"]) == {"none"}  # no other objects
