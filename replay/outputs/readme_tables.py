@@ -3,17 +3,18 @@
 ``python -m replay.outputs.readme_tables`` reads ``studies/<name>/results.parquet`` for every
 block of README.md between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` and
 rewrites the block (running it twice changes nothing); ``--check`` only compares and exits 1
-when README.md differs (for CI).
+when README.md differs (for CI). ``NAME`` is a study, or ``fusion-margins`` (the fusion
+study's multi-modal minus best single modality); ``real-NAME`` reads ``studies-real/``
+(``--real-studies``), the studies on the real probe data.
 
-The headline numbers are the studies' own (``replay.studies._studies.headline``): "initial"
-is step 0 (one observation per new object and action), "mean" the mean over steps
-1..budget, "final" the last step, accuracies averaged over runs per step first. The gain is
-ATIKT minus the baseline on the same splits, in percentage points, with a paired 95 %
-bootstrap interval: the prior groups (the ``group`` and ``repetition`` of a run) are
-resampled with replacement, :data:`RESAMPLES` times with numpy's generator seeded by
-``--seed``, and the gain recomputed on each resample from the same groups of both methods.
-The fusion block is the mean test accuracy per action and modality set over the training
-sizes, as in the study's summary.
+The numbers are the studies' own, computed by the same functions as their summaries
+(``replay.studies._studies.headline``, ``replay.studies._stats.paired_gains`` and
+``fusion_margins``, same seed): "initial" is step 0 (one observation per new object and
+action), "mean" the mean over steps 1..budget, "final" the last step, accuracies averaged over
+runs per step first; the gain is ATIKT minus the baseline on the same splits, in percentage
+points, with a paired 95 % percentile bootstrap interval over the independent units (prior
+groups; repetitions where the priors are fixed). The fusion block is the mean test accuracy
+per action and modality set over the training sizes, as in the study's summary.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
-from replay.studies._studies import ATIKT, BASELINE, headline
+from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
+from replay.studies._studies import ATIKT, BASELINE, fusion_means, headline
 from schemas import VOCABULARY, cli
 
 if TYPE_CHECKING:
@@ -36,73 +38,31 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-#: Bootstrap resamples of the prior groups behind every gain interval.
-RESAMPLES = 10_000
-#: Coverage of the gain intervals.
-CONFIDENCE = 0.95
-_HEADLINES = ("initial", "mean", "final")
 _MARKER = re.compile(r"<!-- results:(?P<name>[a-z0-9_-]+) -->")
 #: The column a study compares within (one table row group each); None: the whole study.
 _BY = {"transfer": None, "negative": None, "single-action": "actions", "priors": "n_priors"}
 _MODALITY_ORDER = ("multi-modal", *VOCABULARY.features)
+#: Marker prefix of studies on the real data (read from ``--real-studies``).
+REAL = "real-"
 
 
-def _units(frame: pl.DataFrame) -> list[str]:
-    """Return the columns naming a run's prior group (resampled by the bootstrap)."""
-    return [column for column in ("group", "repetition") if column in frame.columns]
+def _unit(frame: pl.DataFrame) -> str:
+    """Return the independent unit a study's summary resamples (as ``report_transfer``)."""
+    return "repetition" if "repetition" in frame.columns else "group"
 
 
-def _per_unit_gain(frame: pl.DataFrame, budget: int) -> NDArray[np.float64]:
-    """Return the gain of every prior group, one row per group, columns initial/mean/final."""
-    units = _units(frame)
-    table = headline(frame, [*units, "method"], budget)
-    wide = table.pivot(on="method", index=units, values=list(_HEADLINES)).sort(units)
-    gains = [wide[f"{c}_{ATIKT}"] - wide[f"{c}_{BASELINE}"] for c in _HEADLINES]
-    return np.column_stack([g.to_numpy().astype(np.float64) for g in gains])
-
-
-def gain_intervals(
-    frame: pl.DataFrame, budget: int, seed: int, resamples: int = RESAMPLES
-) -> NDArray[np.float64]:
+def gain_intervals(frame: pl.DataFrame, budget: int, seed: int) -> NDArray[np.float64]:
     """Return the paired bootstrap interval of each gain: rows low/high, columns as headlines.
 
-    Args:
-        frame: Transfer-type results (ATIKT and baseline runs of the same prior groups).
-        budget: The last step counted in "mean".
-        seed: Seed of numpy's generator drawing the resamples.
-        resamples: How many resamples of the prior groups.
+    The same computation (``replay.studies._stats.paired_gains``) and seed as the study's
+    summary, so README and summary print the same intervals.
     """
-    gains = _per_unit_gain(frame, budget)
-    rng = np.random.default_rng(seed)
-    draws = rng.integers(0, len(gains), size=(resamples, len(gains)))
-    means = gains[draws].mean(axis=1)  # resamples x headlines
-    tail = 100 * (1 - CONFIDENCE) / 2
-    bounds: NDArray[np.float64] = np.percentile(means, [tail, 100 - tail], axis=0)
-    return bounds
+    gains = paired_gains(frame, [], _unit(frame), budget, seed=seed).row(0, named=True)
+    return np.array([[gains[f"{k}_{h}"] for h in HEADLINES] for k in ("low", "high")])
 
 
 def _percent(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f} %"
-
-
-def _points(value: float) -> str:
-    return f"{100 * value:+.1f}"
-
-
-def _transfer_rows(frame: pl.DataFrame, budget: int, seed: int) -> list[list[str]]:
-    """Return the rows ATIKT, baseline and gain (with its interval) of one comparison."""
-    table = headline(frame, ["method"], budget)
-    rows = {row["method"]: row for row in table.iter_rows(named=True)}
-    low, high = gain_intervals(frame, budget, seed)
-    gain = [
-        f"{_points(rows[ATIKT][c] - rows[BASELINE][c])} [{_points(lo)}, {_points(hi)}]"
-        for c, lo, hi in zip(_HEADLINES, low, high, strict=True)
-    ]
-    return [
-        [ATIKT, *(_percent(rows[ATIKT][c]) for c in _HEADLINES)],
-        [BASELINE, *(_percent(rows[BASELINE][c]) for c in _HEADLINES)],
-        ["gain, points [95 % interval]", *gain],
-    ]
 
 
 def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -112,25 +72,36 @@ def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def transfer_block(name: str, frame: pl.DataFrame, seed: int) -> str:
     """Return the markdown of a transfer-type study (transfer, negative, single-action, priors)."""
-    if not {"method", "step", "accuracy"} <= set(frame.columns) or not _units(frame):
+    if not {"method", "step", "accuracy"} <= set(frame.columns) or "group" not in frame.columns:
         msg = f"{name}: results lack method, step, accuracy or group columns; run the study again"
         raise ReplayError(msg)
     budget = int(frame["step"].max())  # type: ignore[arg-type]
-    by = _BY.get(name)
-    header = ["method", "initial", f"mean 1..{budget}", "final"]
+    column = _BY.get(name.removeprefix(REAL))
+    by = [column] if column else []
+    unit = _unit(frame)
+    accuracies = {
+        tuple(row[k] for k in [*by, "method"]): row
+        for row in headline(frame, [*by, "method"], budget).iter_rows(named=True)
+    }
+    header = [*by, "method", "initial", f"mean 1..{budget}", "final"]
     rows: list[list[str]] = []
-    if by is None:
-        rows = _transfer_rows(frame, budget, seed)
-    else:
-        header = [by, *header]
-        for (value,), part in frame.sort(by).group_by([by], maintain_order=True):
-            rows += [[str(value), *row] for row in _transfer_rows(part, budget, seed)]
-    groups = frame.select(_units(frame)).unique().height
+    for gain in paired_gains(frame, by, unit, budget, seed=seed).iter_rows(named=True):
+        key = [gain[k] for k in by]
+        for method in (ATIKT, BASELINE):
+            row = accuracies[(*key, method)]
+            rows.append([*map(str, key), method, *(_percent(row[h]) for h in HEADLINES)])
+        cells = [gain_cells(gain, h).replace(" pts", "") for h in HEADLINES]
+        rows.append([*map(str, key), "gain, points [95 % interval]", *cells])
     runs = frame.filter(pl.col("step") == 0).height // 2
+    units = frame.select(unit).unique().height
     note = (
         f"{runs} paired runs; gain = ATIKT - baseline in percentage points on the same splits; "
-        f"interval: {RESAMPLES} paired bootstrap resamples of the {groups} prior groups "
-        f"(numpy default_rng, seed {seed})."
+        + (
+            f"interval: {RESAMPLES} paired bootstrap resamples of the {units} {unit}s "
+            f"(numpy default_rng, seed {seed}), as in the study's summary."
+            if units > 1
+            else f"one {unit}: no interval."
+        )
     )
     return f"{_markdown(header, rows)}\n\n{note}"
 
@@ -140,7 +111,7 @@ def fusion_block(frame: pl.DataFrame) -> str:
     if not {"action", "modalities", "accuracy"} <= set(frame.columns):
         msg = "fusion: results lack action, modalities or accuracy columns; run the study again"
         raise ReplayError(msg)
-    means = frame.group_by("action", "modalities").agg(pl.col("accuracy").mean())
+    means = fusion_means(frame)
     found = set(means["modalities"].to_list())
     columns = [m for m in _MODALITY_ORDER if m in found] + sorted(found - set(_MODALITY_ORDER))
     cells = {(a, m): v for a, m, v in means.iter_rows()}
@@ -153,23 +124,64 @@ def fusion_block(frame: pl.DataFrame) -> str:
     return f"{_markdown(['action', *columns], rows)}\n\n{note}"
 
 
-def study_block(name: str, studies: Path, seed: int) -> str:
-    """Return the markdown block of study ``name`` from ``studies/<name>/results.parquet``.
+def margins_block(frame: pl.DataFrame, seed: int) -> str:
+    """Return multi-modal minus the best single modality per action and size, with intervals."""
+    if not {"action", "modalities", "accuracy", "samples", "group"} <= set(frame.columns):
+        msg = "fusion: results lack action, modalities, samples or group; run the study again"
+        raise ReplayError(msg)
+    margins = fusion_margins(frame, seed=seed)
+    sizes = sorted(set(margins["samples"].to_list()))
+    cells = {(r["action"], r["samples"]): r for r in margins.iter_rows(named=True)}
+    rows = []
+    for action in sorted(set(margins["action"].to_list())):
+        row = [action]
+        for size in sizes:
+            cell = cells.get((action, size))
+            row.append(
+                "-"
+                if cell is None
+                else f"{100 * cell['margin']:+.1f} [{100 * cell['low']:+.1f}, "
+                f"{100 * cell['high']:+.1f}]"
+            )
+        rows.append(row)
+    groups = frame.select("group").unique().height
+    note = (
+        "Multi-modal minus the best single modality at that size, in points, paired per group; "
+        f"[95 % interval]: bootstrap over the {groups} groups ({RESAMPLES} resamples)."
+    )
+    return f"{_markdown(['action', *(f'{s} / object' for s in sizes)], rows)}\n\n{note}"
+
+
+def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-real")) -> str:
+    """Return the markdown block ``name`` from ``<studies>/<study>/results.parquet``.
+
+    ``NAME`` is a study (``transfer``, ``fusion``, ...) or ``fusion-margins``; with the prefix
+    ``real-`` it is read from ``real`` (the studies on the real probe data) instead.
 
     Raises:
         ReplayError: The results file is missing or unreadable.
     """
-    path = studies / name / "results.parquet"
+    base = name.removeprefix(REAL)
+    study = base.removesuffix("-margins")
+    path = (real if name.startswith(REAL) else studies) / study / "results.parquet"
     try:
         frame = pl.read_parquet(path)
     except (OSError, pl.exceptions.PolarsError) as err:
         reason = cli.one_line(str(err))
-        msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {name}'"
+        msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {study}'"
         raise ReplayError(msg) from err
-    return fusion_block(frame) if name == "fusion" else transfer_block(name, frame, seed)
+    if base == "fusion-margins":
+        return margins_block(frame, seed)
+    return fusion_block(frame) if base == "fusion" else transfer_block(name, frame, seed)
 
 
-def rewrite(text: str, studies: Path, seed: int, readme: Path = Path("README.md")) -> str:
+def rewrite(
+    text: str,
+    studies: Path,
+    seed: int,
+    readme: Path = Path("README.md"),
+    real: Path = Path("studies-real"),
+) -> str:
     """Return ``text`` with every results block rewritten from the studies' results.
 
     Raises:
@@ -186,7 +198,7 @@ def rewrite(text: str, studies: Path, seed: int, readme: Path = Path("README.md"
             msg = f"{readme}: '{start}' is not closed; add '{end}' after its table"
             raise ReplayError(msg)
         _, _, tail = rest.partition(end)
-        text = f"{head}{start}\n{study_block(name, studies, seed)}\n{end}{tail}"
+        text = f"{head}{start}\n{study_block(name, studies, seed, real)}\n{end}{tail}"
     return text
 
 
@@ -197,12 +209,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--readme", type=Path, default=Path("README.md"), help="the README")
     parser.add_argument("--studies", type=Path, default=Path("studies"), help="study outputs")
+    parser.add_argument(
+        "--real-studies",
+        type=Path,
+        default=Path("studies-real"),
+        help="study outputs on the real data (blocks named real-NAME)",
+    )
     parser.add_argument("--seed", type=cli.seed, default=0, help="seed of the bootstrap")
     parser.add_argument("--check", action="store_true", help="exit 1 if the README differs")
     args = parser.parse_args(argv)
     try:
         text = args.readme.read_text("utf-8")
-        new = rewrite(text, args.studies, args.seed, args.readme)
+        new = rewrite(text, args.studies, args.seed, args.readme, args.real_studies)
         if new != text and not args.check:
             args.readme.write_text(new, "utf-8")
     except OSError as err:

@@ -26,6 +26,12 @@ Prose between.
 <!-- results:fusion -->
 <!-- /results:fusion -->
 
+<!-- results:fusion-margins -->
+<!-- /results:fusion-margins -->
+
+<!-- results:real-fusion -->
+<!-- /results:real-fusion -->
+
 Prose after.
 """
 
@@ -46,10 +52,10 @@ def _transfer(gain_per_group: list[float], seed: int = 0) -> pl.DataFrame:
     return pl.DataFrame(rows)
 
 
-def _fusion() -> pl.DataFrame:
+def _fusion(scale: float = 1.0) -> pl.DataFrame:
     rows = [
-        {"action": action, "group": 0, "repetition": 0, "modalities": modality}
-        | {"samples": samples, "accuracy": accuracy}
+        {"action": action, "group": group, "repetition": 0, "modalities": modality}
+        | {"samples": samples, "accuracy": scale * accuracy}
         for action, modality, accuracy in (
             ("P1", "multi-modal", 0.9),
             ("P1", "force", 0.6),
@@ -57,24 +63,29 @@ def _fusion() -> pl.DataFrame:
             ("S2", "texture", 0.7),
         )
         for samples in (1, 2)
+        for group in (0, 1)
     ]
     return pl.DataFrame(rows)
 
 
 @pytest.fixture
 def project(tmp_path: Path) -> Path:
-    for name, frame in (
-        ("transfer", _transfer([0.05, 0.02, 0.08, 0.01, 0.04])),
-        ("fusion", _fusion()),
+    for root, name, frame in (
+        ("studies", "transfer", _transfer([0.05, 0.02, 0.08, 0.01, 0.04])),
+        ("studies", "fusion", _fusion()),
+        ("studies-real", "fusion", _fusion(0.5)),
     ):
-        (tmp_path / "studies" / name).mkdir(parents=True)
-        frame.write_parquet(tmp_path / "studies" / name / "results.parquet")
+        (tmp_path / root / name).mkdir(parents=True)
+        frame.write_parquet(tmp_path / root / name / "results.parquet")
     (tmp_path / "README.md").write_text(README)
     return tmp_path
 
 
 def _args(project: Path, *extra: str) -> list[str]:
-    return ["--readme", str(project / "README.md"), "--studies", str(project / "studies"), *extra]
+    return [
+        *("--readme", str(project / "README.md"), "--studies", str(project / "studies")),
+        *("--real-studies", str(project / "studies-real"), *extra),
+    ]
 
 
 def test_tables_are_rewritten_between_the_markers_and_twice_changes_nothing(
@@ -92,9 +103,12 @@ def test_tables_are_rewritten_between_the_markers_and_twice_changes_nothing(
     assert "an old table" not in once
     assert "| ATIKT |" in once
     assert "| gain, points [95 % interval] | +" in once
-    assert "10000 paired bootstrap resamples of the 5 prior groups" in once
+    assert "4000 paired bootstrap resamples of the 5 groups" in once
     assert "| action | multi-modal | force | texture |" in once
     assert "| P1 | 90.0 % | 60.0 % | - |" in once
+    assert "| P1 | 45.0 % | 30.0 % | - |" in once  # the real study's block
+    assert "| action | 1 / object | 2 / object |" in once
+    assert "| P1 | +30.0 [+30.0, +30.0] | +30.0 [+30.0, +30.0] |" in once
 
 
 def test_a_constant_gain_has_a_degenerate_interval() -> None:
