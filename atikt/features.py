@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Final, Self
+from typing import TYPE_CHECKING, Any, Final, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -253,6 +253,15 @@ class RawFeatures:
             msg = f"a {self.kind!r} observation has no {name!r} features; it has {self.modalities}"
             raise AtiktError(msg)
         return value
+
+    def __reduce__(self) -> tuple[Any, tuple[str, dict[str, FloatArray]]]:
+        """Pickle (and deep-copy) through a plain dict: a mapping proxy cannot be pickled."""
+        return _raw_features, (self.kind, dict(self.blocks))
+
+
+def _raw_features(kind: str, blocks: dict[str, FloatArray]) -> RawFeatures:
+    """Rebuild a pickled :class:`RawFeatures` with read-only blocks."""
+    return RawFeatures(kind, MappingProxyType({k: _frozen(v) for k, v in blocks.items()}))
 
 
 def _frozen(array: FloatArray) -> FloatArray:

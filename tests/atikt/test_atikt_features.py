@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import copy
+import pickle
+from types import MappingProxyType
+
 import numpy as np
 import pytest
 from atikt_synthetic import thesis_features
@@ -312,3 +316,15 @@ def test_stacked_observations_transform_like_the_observations() -> None:
     other_kind = features_module.StackedFeatures("slide", {"texture": np.zeros((1, 4))})
     with pytest.raises(AtiktError, match="fitted on"):
         transformer.transform(other_kind)
+
+
+def test_raw_features_pickle_and_deep_copy_with_read_only_blocks() -> None:
+    raw = RawFeatures("press", MappingProxyType({"force": np.array([4.5]), "thermal": np.ones(4)}))
+    for twin in (pickle.loads(pickle.dumps(raw)), copy.deepcopy(raw)):  # noqa: S301
+        assert twin.kind == "press"
+        assert twin.modalities == raw.modalities
+        for name in raw.blocks:
+            np.testing.assert_array_equal(twin.blocks[name], raw.blocks[name])
+            assert not twin.blocks[name].flags.writeable
+        with pytest.raises(TypeError):
+            twin.blocks["texture"] = np.zeros(1)  # type: ignore[index]
