@@ -39,12 +39,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 
 import replay.learning._session
 from atikt.active import TRANSFER_MODES, ActiveLearner
+from replay.learning._datasets import dataset_roles
 from replay.learning._parallel import run_tasks
-from replay.studies._studies import StudyConfig, negative_tasks, priors_tasks, run_transfer_task
+from replay.studies._studies import (
+    StudyConfig,
+    dataset_actions,
+    negative_tasks,
+    priors_tasks,
+    run_transfer_task,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULTS = dict(ActiveLearner.__init__.__kwdefaults__ or {})
-SIM = Path.home() / ".cache/atikt/sim-seed0-schema1-v0.1.0/features.parquet"
+SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 
 
 def counterparts() -> dict[str, str]:
@@ -185,11 +192,19 @@ def main() -> None:
         compare(args.out, first, second, args.budget)
         return
     frame = pl.read_parquet(args.features)
+    roles = dataset_roles(args.features.parent, sorted(set(frame["object_id"])))
     related = counterparts()
     for name in args.modes:  # "density", "density+3" (at most 3 sources), "density@key=value"
         mode, options = parse(name)
         config = StudyConfig(
-            out=Path(), groups=args.groups, trials=args.trials, budget=args.budget, transfer=mode
+            out=Path(),
+            groups=args.groups,
+            trials=args.trials,
+            budget=args.budget,
+            transfer=mode,
+            new=roles.new,
+            old=roles.old,
+            actions=dataset_actions(frame),
         )
         rng = np.random.default_rng(0)
         print(f"\n## transfer={mode}, {options}")
