@@ -24,12 +24,13 @@ import bisect
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from recorder._catalog import ObjectSpec
 from recorder._dataset import declare_objects, write_index
+from recorder.bagimport._fastdecode import compile_cdr, compile_ros1
 from recorder.bagimport._pack import Series, align_rows, block_period, skin_blocks
 from recorder.bagimport._report import BagIdentity, ImportReport, bag_identity, imported_bags
 from recorder.bagimport._source import (
@@ -316,9 +317,11 @@ class _Session:
     los: list[int] = field(default_factory=list)
     his: list[int] = field(default_factory=list)
     closed_ns: int = -(2**63)
+    version: str = ""
 
     def __post_init__(self) -> None:
-        """Index the windows' reach ``[start - margin, stop + margin)``."""
+        """Index the windows' reach ``[start - margin, stop + margin)``; read the version."""
+        self.version = software_version()
         self.los = [p.window.start_ns - MARGIN_NS for p in self.plans]
         self.his = [p.window.stop_ns + MARGIN_NS for p in self.plans]
 
@@ -351,8 +354,16 @@ class _Session:
                 more than :data:`MAX_PENDING_BYTES` wait for the next window.
         """
         if stamp < self.closed_ns:
-            self._check_late(extractor, stamp, receive_ns)
+            self.check_late(extractor, stamp, receive_ns)
         extractor.push(message, stamp, receive_ns)
+        self.grow(size)
+
+    def grow(self, size: int) -> None:
+        """Count a kept message's bytes.
+
+        Raises:
+            BagImportError: More than :data:`MAX_PENDING_BYTES` wait for the next window.
+        """
         self.pending_bytes += size
         if self.pending_bytes > MAX_PENDING_BYTES and self.done < len(self.plans):
             msg = (
@@ -362,7 +373,12 @@ class _Session:
             )
             raise BagImportError(msg)
 
-    def _check_late(self, extractor: Extractor, stamp: int, receive_ns: int) -> None:
+    def check_late(self, extractor: Extractor, stamp: int, receive_ns: int) -> None:
+        """Refuse a sample of a window written already.
+
+        Raises:
+            BagImportError: The sample came too late.
+        """
         reach = extractor.reach if isinstance(extractor, SkinTopic) else (0, 0)
         first, last = stamp + reach[0], stamp + reach[1]
         j = bisect.bisect_right(self.his, first)
@@ -415,7 +431,7 @@ class _Session:
             rig=check_rig(_rig(self.bags, self.topic_map, joints, widths)),
             seed=0,
             source="import",
-            software_version=software_version(),
+            software_version=self.version,
             schema_version=SCHEMA_VERSION,
         )
         names = joints.names if joints is not None else ()
@@ -481,6 +497,38 @@ class _Counts:
         return counts
 
 
+def _decoders(
+    reader: AnyReader, data: Sequence[Connection], found: Mapping[str, Extractor], clock: str
+) -> dict[int, Callable[[bytes], tuple[Any, ...] | None]]:
+    """Return id(connection) -> generated decoder for the skin and joint topics.
+
+    A topic gets decoders only if every connection carrying it has the same layout; its
+    extractor then takes the decoded fields (``push_fields``).
+    """
+    make = compile_cdr if reader.is2 else compile_ros1
+    out: dict[int, Callable[[bytes], tuple[Any, ...] | None]] = {}
+    for topic, extractor in found.items():
+        if isinstance(extractor, SkinTopic):
+            fields = [spec.field for spec in extractor.fields]
+        elif isinstance(extractor, JointTopic):
+            fields = ["name", "position", "velocity", "effort"]
+        else:
+            continue
+        mine = [c for c in data if c.topic == topic]
+        decoders = [
+            make(reader.typestore, c.msgtype, fields, stamped=clock == "header") for c in mine
+        ]
+        first = decoders[0] if decoders else None
+        if first is None or any(d is None or d.key != first.key for d in decoders):
+            continue
+        if isinstance(extractor, SkinTopic):
+            extractor.dtypes = cast("tuple[np.dtype[Any], ...]", first.dtypes)
+        else:
+            extractor.dtypes = first.dtypes
+        out.update({id(c): d.decode for c, d in zip(mine, decoders, strict=True) if d})
+    return out
+
+
 def _stream(
     reader: AnyReader,
     connections: Sequence[Connection],
@@ -488,7 +536,12 @@ def _stream(
     on_progress: Callable[[str, int], Any] | None,
     on_start: Callable[[str, int], Any] | None = None,
 ) -> None:
-    """Read every mapped data message once, feeding and closing windows as the bag passes."""
+    """Read every mapped data message once, feeding and closing windows as the bag passes.
+
+    Skin and joint-state messages of a layout :mod:`~recorder.bagimport._fastdecode` reads are
+    not decoded by rosbags: their stamp and fields come from the bytes (a message it cannot
+    vouch for is decoded by rosbags, as every other message).
+    """
     found, clock = session.found, session.topic_map.stamps
     owners = {id(c.owner): Path(str(getattr(c.owner, "path", "bag"))).name for c in connections}
     data = [c for c in connections if c.topic in found]
@@ -496,18 +549,34 @@ def _stream(
         for bag in dict.fromkeys(owners.values()):
             on_start(bag, sum(c.msgcount for c in data if owners[id(c.owner)] == bag))
     counts = _Counts(owners, on_progress)
+    decoders = _decoders(reader, data, found, clock)
+    by_connection = {id(c): found[c.topic] for c in data}
+    header = clock == "header"
     close_at, (lo, hi, wanted) = session.close_at(), session.wanted(0)
+    closed_ns = session.closed_ns
     for connection, receive_ns, raw in raw_messages(reader, data):
         counts.tick(id(connection.owner))
         if receive_ns >= close_at:
             session.advance(receive_ns)
-            close_at = session.close_at()
+            close_at, closed_ns = session.close_at(), session.closed_ns
         if not lo <= receive_ns < hi:
             lo, hi, wanted = session.wanted(receive_ns)
-        if wanted:
+        if not wanted:
+            continue
+        key = id(connection)
+        decode = decoders.get(key)
+        fields = decode(raw) if decode is not None else None
+        if fields is None:
             message = _decode(reader, connection, receive_ns, raw)
             stamp = stamp_of(message, connection.topic, clock, receive_ns)
-            session.push(found[connection.topic], message, stamp, receive_ns, len(raw))
+            session.push(by_connection[key], message, stamp, receive_ns, len(raw))
+            continue
+        extractor = by_connection[key]
+        stamp = fields[0] * _NS_PER_S + fields[1] if header else receive_ns
+        if stamp < closed_ns:
+            session.check_late(extractor, stamp, receive_ns)
+        extractor.push_fields(fields, stamp, receive_ns)  # type: ignore[union-attr]
+        session.grow(len(raw))
     session.report.messages = counts.finish()
     while session.done < len(session.plans):
         session.finish_one()

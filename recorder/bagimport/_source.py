@@ -145,6 +145,26 @@ def _stack(values: list[Any], count: int, topic: str, path: str) -> NDArray[np.f
         raise BagImportError(msg) from err
 
 
+def _stack_bytes(
+    values: list[bytes], dtype: np.dtype[Any], count: int, topic: str, path: str
+) -> NDArray[np.float64]:
+    """Return fields kept as bytes (:meth:`SkinTopic.push_fields`) as :func:`_stack` does.
+
+    Raises:
+        BagImportError: The messages carry different numbers of values.
+    """
+    if len(set(map(len, values))) > 1:
+        return _stack([np.frombuffer(v, dtype) for v in values], count, topic, path)
+    try:
+        return np.frombuffer(b"".join(values), dtype).astype(np.float64).reshape(count, -1)
+    except ValueError as err:
+        msg = (
+            f"topic {topic}: field {path!r} has different lengths in different messages; "
+            "map a fixed-length field"
+        )
+        raise BagImportError(msg) from err
+
+
 @dataclass(slots=True)
 class SkinTopic:
     """One skin cell topic: the modalities it carries for one cell, buffered."""
@@ -158,6 +178,8 @@ class SkinTopic:
     getters: list[Any] = field(init=False)
     offsets: dict[str, NDArray[np.int64]] = field(default_factory=dict)
     reach: tuple[int, int] = (0, 0)
+    #: The fields' dtypes when their bytes are kept (:meth:`push_fields`), else None.
+    dtypes: tuple[np.dtype[Any], ...] | None = None
 
     def __post_init__(self) -> None:
         """Precompute field getters and each modality's sample offsets."""
@@ -186,8 +208,24 @@ class SkinTopic:
             BagImportError: Its stamp precedes the previous one.
         """
         if self.buffer.accept(stamp, receive_ns):
-            for getter, values in zip(self.getters, self.values, strict=True):
-                values.append(getter(message))
+            if self.dtypes is None:
+                for getter, values in zip(self.getters, self.values, strict=True):
+                    values.append(getter(message))
+                return
+            for getter, values, dtype in zip(self.getters, self.values, self.dtypes, strict=True):
+                values.append(np.asarray(getter(message), dtype=dtype).tobytes())
+
+    def push_fields(self, fields: Sequence[Any], stamp: int, receive_ns: int) -> None:
+        """Keep one message's fields as read from its bytes (:attr:`dtypes` is set).
+
+        ``fields``: a decoder's ``(sec, nanosec, field bytes...)``.
+
+        Raises:
+            BagImportError: Its stamp precedes the previous one.
+        """
+        if self.buffer.accept(stamp, receive_ns):
+            for values, data in zip(self.values, fields[2:], strict=True):
+                values.append(data)
 
     def _width(self, spec: SkinField, size: int) -> int:
         """Return the values per sample, checked against the map and earlier messages."""
@@ -215,9 +253,14 @@ class SkinTopic:
         stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
         receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
         out = {}
-        for spec, values in zip(self.fields, self.values, strict=True):
+        dtypes = self.dtypes or (np.dtype(np.float64),) * len(self.fields)
+        for spec, values, dtype in zip(self.fields, self.values, dtypes, strict=True):
             offsets = self.offsets[spec.modality]
-            raw = _stack(values[first:last], count, self.topic, spec.field)
+            raw = (
+                _stack(values[first:last], count, self.topic, spec.field)
+                if self.dtypes is None
+                else _stack_bytes(values[first:last], dtype, count, self.topic, spec.field)
+            )
             width = self._width(spec, raw.shape[1]) if count else max(spec.width, 1)
             samples = (stamps[:, None] + offsets[None, :]).reshape(-1)
             if samples.size > 1 and not bool((np.diff(samples) > 0).all()):
@@ -260,6 +303,8 @@ class JointTopic:
     _last: list[str] = field(default_factory=list)
     _last_index: NDArray[np.intp] | None = None
     _zeros: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    #: Dtypes of a decoder's (names, position, velocity, effort), for :meth:`push_fields`.
+    dtypes: tuple[Any, ...] = ()
 
     def __post_init__(self) -> None:
         """Create the buffer."""
@@ -292,7 +337,47 @@ class JointTopic:
         Raises:
             BagImportError: A message lacks positions or its stamp goes back.
         """
-        names = message.name
+        self.push_values(
+            message.name,
+            message.position,
+            message.velocity,
+            message.effort,
+            stamp=stamp,
+            receive_ns=receive_ns,
+        )
+
+    def push_fields(self, fields: Sequence[Any], stamp: int, receive_ns: int) -> None:
+        """Keep one joint sample from a decoder's ``(sec, nanosec, names, bytes x 3)``.
+
+        Raises:
+            BagImportError: A message lacks positions or its stamp goes back.
+        """
+        _, _, names, position, velocity, effort = fields
+        _, dposition, dvelocity, deffort = self.dtypes
+        self.push_values(
+            names,
+            np.frombuffer(position, dposition),
+            np.frombuffer(velocity, dvelocity),
+            np.frombuffer(effort, deffort),
+            stamp=stamp,
+            receive_ns=receive_ns,
+        )
+
+    def push_values(
+        self,
+        names: list[str],
+        position: NDArray[Any],
+        velocity: NDArray[Any],
+        effort: NDArray[Any],
+        *,
+        stamp: int,
+        receive_ns: int,
+    ) -> None:
+        """Keep one joint sample from its fields (as :meth:`push`).
+
+        Raises:
+            BagImportError: A message lacks positions or its stamp goes back.
+        """
         if names != self._last:
             self._last_index = self._pick(tuple(names))
             self._last, self._zeros = list(names), np.zeros(len(names))
@@ -301,7 +386,7 @@ class JointTopic:
             self.skipped += 1
             return
         count = len(names)
-        values = [message.position, message.velocity, message.effort]
+        values = [position, velocity, effort]
         if len(values[0]) != count:
             msg = f"topic {self.topic}: a message at {stamp} ns has no joint positions"
             raise BagImportError(msg)

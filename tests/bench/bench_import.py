@@ -4,6 +4,7 @@ Run from the repository root::
 
     python tests/bench/bench_import.py                  # 16 MB, 64 MB, 256 MB bags
     python tests/bench/bench_import.py --base-mb 256    # 256 MB, 1 GB, 4 GB bags
+    python tests/bench/bench_import.py --ros2 sqlite3 --factors 1,4   # ROS 2 bags (or mcap)
 
 A generator writes a ROS 1 session bag of a UR10 with a 7-cell skin whose driver batches 22
 acceleration samples per 100 Hz message (with the cell's 3 forces and temperature), joint
@@ -12,7 +13,8 @@ side in one run: rosbags' own read + deserialize of every message of the bag (``
 the import of the same bag (``atikt-record import-bag`` in a fresh process), the ratio of
 their throughputs, and the import process's peak resident memory: ``ru_maxrss`` of
 ``resource.getrusage(RUSAGE_CHILDREN)`` in a small launcher process, and the ``VmHWM`` the
-import process reports itself.
+import process reports itself. With ``--ros2 sqlite3`` or ``--ros2 mcap`` the generator writes
+the same session as a ROS 2 bag (rosbags' ``rosbag2.Writer``, CDR messages, that storage).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from pathlib import Path
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 ROOT = Path(__file__).parents[2]
@@ -100,14 +104,21 @@ def _patcher(raw: bytes, sentinel: bytes) -> int:
     return raw.index(sentinel)
 
 
-def generate(path: Path, seconds: int) -> tuple[int, list[str]]:
-    """Write a session bag of ``seconds``; return its message count and CSV rows of windows."""
-    store = get_typestore(Stores.ROS1_NOETIC)
+def generate(path: Path, seconds: int, ros2: str | None = None) -> tuple[int, list[str]]:
+    """Write a session bag of ``seconds``; return its message count and CSV rows of windows.
+
+    ``ros2``: None for a ROS 1 bag, else the ROS 2 storage (``sqlite3`` or ``mcap``).
+    """
+    store = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
     store.register(get_types_from_msg(CELL_MSG, CELL_TYPE))
     types = store.types
     rng = np.random.default_rng(0)
-    header = types["std_msgs/msg/Header"](
-        seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=1, nanosec=2), frame_id="skin"
+    serialize = store.serialize_cdr if ros2 else store.serialize_ros1
+    sentinel = types["builtin_interfaces/msg/Time"](sec=1, nanosec=2)
+    header = (
+        types["std_msgs/msg/Header"](stamp=sentinel, frame_id="skin")
+        if ros2
+        else types["std_msgs/msg/Header"](seq=0, stamp=sentinel, frame_id="skin")
     )
     stamp_field = struct.Struct("<II")
     cell = types[CELL_TYPE](
@@ -116,7 +127,7 @@ def generate(path: Path, seconds: int) -> tuple[int, list[str]]:
         force=np.zeros(3, np.float32),
         temp=np.float32(30.0),
     )
-    cell_raw = bytearray(store.serialize_ros1(cell, CELL_TYPE))
+    cell_raw = bytearray(serialize(cell, CELL_TYPE))
     stamp_at = _patcher(bytes(cell_raw), stamp_field.pack(1, 2))
     acc_at = _patcher(bytes(cell_raw), np.full(66, 7.25, np.float32).tobytes())
     joint = types["sensor_msgs/msg/JointState"](
@@ -126,11 +137,13 @@ def generate(path: Path, seconds: int) -> tuple[int, list[str]]:
         velocity=np.zeros(6),
         effort=np.zeros(6),
     )
-    joint_raw = bytearray(store.serialize_ros1(joint, "sensor_msgs/msg/JointState"))
+    joint_raw = bytearray(serialize(joint, "sensor_msgs/msg/JointState"))
     joint_stamp = _patcher(bytes(joint_raw), stamp_field.pack(1, 2))
     noise = rng.normal(0, 0.1, (997, 66)).astype(np.float32).tobytes()
     count = 0
-    with Writer(path) as writer:
+    plugin = StoragePlugin.MCAP if ros2 == "mcap" else StoragePlugin.SQLITE3
+    bag = Writer(path) if ros2 is None else Writer2(path, version=9, storage_plugin=plugin)
+    with bag as writer:
         cells = [
             writer.add_connection(f"/skin/cell_{c}", CELL_TYPE, typestore=store)
             for c in range(CELLS)
@@ -157,6 +170,13 @@ def generate(path: Path, seconds: int) -> tuple[int, list[str]]:
         for t in range(0, seconds - 6, 6)
     ]
     return count, rows
+
+
+def _size(bag: Path) -> int:
+    """Return the bytes of a bag file or a ROS 2 bag directory."""
+    if bag.is_dir():
+        return sum(f.stat().st_size for f in bag.rglob("*") if f.is_file())
+    return bag.stat().st_size
 
 
 def rosbags_read(path: Path) -> float:
@@ -192,6 +212,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--base-mb", type=float, default=16.0, help="size of the 1x bag, MB")
     parser.add_argument("--factors", default="1,4,16", help="sizes as multiples of the base")
+    parser.add_argument(
+        "--ros2", choices=("sqlite3", "mcap"), help="write ROS 2 bags with this storage"
+    )
     args = parser.parse_args()
     per_second = 100 * CELLS * 380 + 125 * 300  # bytes of one second of session, roughly
     results = []
@@ -199,14 +222,15 @@ def main() -> None:
         seconds = max(12, round(args.base_mb * factor * 1e6 / per_second))
         with tempfile.TemporaryDirectory() as directory:
             work = Path(directory)
-            bag = work / "session.bag"
+            bag = work / ("session" if args.ros2 else "session.bag")
             start = time.perf_counter()
-            messages, rows = generate(bag, seconds)
+            messages, rows = generate(bag, seconds, args.ros2)
             generated = time.perf_counter() - start
-            size = bag.stat().st_size
+            size = _size(bag)
             t_rosbags = rosbags_read(bag)
             t_import, rss, hwm = run_import(bag, work, rows)
         row = {
+            "bag": f"ROS 2 ({args.ros2})" if args.ros2 else "ROS 1",
             "factor": factor,
             "bag_mb": round(size / 1e6, 1),
             "messages": messages,
