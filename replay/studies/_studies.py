@@ -27,8 +27,10 @@ from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cel
 from schemas import VOCABULARY
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
+
+    from atikt import RawFeatures
 
 #: Label of the ATIKT runs and of the no-transfer baseline in results.
 ATIKT, BASELINE = "ATIKT", "baseline"
@@ -418,6 +420,49 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     if reference is not None:
         fused = {"initial_theta": reference, "prior_sd": REFERENCE_PRIOR_SD}
     rows = []
+    for split in fusion_splits(task, lookup):
+        for name, subset in subsets.items():
+            options = fused if subset is None else {}
+            model = MultiModalGPC(subset, random_state=split.seed, **options)
+            try:
+                predicted = model.fit(split.train, split.labels).predict(split.test)
+            except AtiktError as err:
+                msg = f"fusion study, action {task.action}, {name}: {err}"
+                raise ReplayError(msg) from err
+            accuracy = float(np.mean(np.asarray(predicted) == np.asarray(split.test_labels)))
+            rows.append(
+                {"action": task.action, "group": task.group, "repetition": split.repetition}
+                | {"modalities": name, "samples": split.size, "accuracy": accuracy}
+                | {"fusion_prior": "none" if reference is None else "others"}
+            )
+    return pl.DataFrame(rows)
+
+
+@dataclass(frozen=True, slots=True)
+class FusionSplit:
+    """One training set of the fusion study and its test set.
+
+    Attributes:
+        repetition: The random split's number.
+        seed: Seed of the split and of the fits on it.
+        size: Training samples per object.
+        train: Training observations, object by object.
+        labels: Their object indices.
+        test: Held-out observations.
+        test_labels: Their object indices.
+    """
+
+    repetition: int
+    seed: int
+    size: int
+    train: list[RawFeatures]
+    labels: list[int]
+    test: list[RawFeatures]
+    test_labels: list[int]
+
+
+def fusion_splits(task: FusionTask, lookup: FeatureLookup) -> Iterator[FusionSplit]:
+    """Yield the task's training sets: per repetition a random split, then each size."""
     for repetition in range(task.repetitions):
         seed = _seed(task.seed, repetition)
         split = Split.random(task.frame, task.objects, (task.action,), seed=seed)
@@ -432,21 +477,9 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
                 for t in p[:size]
             ]
             labels = [i for i, p in enumerate(pools) for _ in p[:size]]
-            for name, subset in subsets.items():
-                options = fused if subset is None else {}
-                model = MultiModalGPC(subset, random_state=seed, **options)
-                try:
-                    predicted = model.fit(train, labels).predict(test_obs)
-                except AtiktError as err:
-                    msg = f"fusion study, action {task.action}, {name}: {err}"
-                    raise ReplayError(msg) from err
-                accuracy = float(np.mean(np.asarray(predicted) == np.asarray(test_labels)))
-                rows.append(
-                    {"action": task.action, "group": task.group, "repetition": repetition}
-                    | {"modalities": name, "samples": size, "accuracy": accuracy}
-                    | {"fusion_prior": "none" if reference is None else "others"}
-                )
-    return pl.DataFrame(rows)
+            yield FusionSplit(
+                repetition, seed, size, train, labels, list(test_obs), list(test_labels)
+            )
 
 
 def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:

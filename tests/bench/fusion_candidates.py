@@ -41,13 +41,14 @@ import polars as pl
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
 from atikt import MultiModalGPC, RawFeatures, extract_features
-from replay.learning._executors import FeatureLookup, PoolExecutor, Split
+from replay.learning._executors import FeatureLookup
 from replay.learning._parallel import run_tasks
 from replay.studies._studies import (
     FUSION_SIZES,
     StudyConfig,
     _seed,
     dataset_actions,
+    fusion_splits,
     fusion_tasks,
     reference_theta,
 )
@@ -140,34 +141,21 @@ def sim_task(args: tuple[Any, list[str]]) -> pl.DataFrame:
     modalities = lookup.blocks[task.action]
     reference = reference_theta(lookup, task.action, task.objects, task.seed)
     rows = []
-    for repetition in range(task.repetitions):
-        seed = _seed(task.seed, repetition)
-        split = Split.random(task.frame, task.objects, (task.action,), seed=seed)
-        executor = PoolExecutor(lookup, task.objects, split)
-        test_obs, test_labels = executor.test_set((task.action,))[task.action]
-        pools = [split.pool[o, task.action] for o in task.objects]
-        largest = min(len(p) for p in pools)
-        for size in [n for n in FUSION_SIZES if n <= largest]:
-            train = [
-                lookup.get(o, task.action, t)
-                for o, p in zip(task.objects, pools, strict=True)
-                for t in p[:size]
-            ]
-            labels = [i for i, p in enumerate(pools) for _ in p[:size]]
-            label = {"action": task.action, "group": task.group, "samples": size}
-            rows += [
-                label | r
-                for r in fit_rows(
-                    train,
-                    labels,
-                    test_obs,
-                    np.asarray(test_labels),
-                    modalities,
-                    seed,
-                    names,
-                    reference,
-                )
-            ]
+    for split in fusion_splits(task, lookup):
+        label = {"action": task.action, "group": task.group, "samples": split.size}
+        rows += [
+            label | r
+            for r in fit_rows(
+                split.train,
+                split.labels,
+                split.test,
+                np.asarray(split.test_labels),
+                modalities,
+                split.seed,
+                names,
+                reference,
+            )
+        ]
     return pl.DataFrame(rows)
 
 
