@@ -100,9 +100,33 @@ class _Gen:
         self.lines: list[str] = []
         self.dtypes: dict[int, str | None] = {}
         self.found: set[str] = set()
+        self.caches: list[int] = []
+        self._inside = False  # emitting the body of a cached list of strings
 
     def emit(self, line: str, depth: int) -> None:
         self.lines.append("    " * depth + line)
+
+    def cached(self, k: int, depth: int, body: Callable[[int], object]) -> None:
+        """Emit ``body`` (a mapped list of strings into ``f<k>``) behind a cache of its bytes.
+
+        A joint state repeats the same names in every message: when the bytes at ``pos``
+        (at the same alignment) equal those the last full decode read, its list is reused and
+        ``pos`` moves past them, which is what decoding the same bytes again would give. The
+        list is shared between messages; its consumer never changes it.
+        """
+        self.caches.append(k)
+        cache = f"c{k}"
+        self.emit(
+            f"if {cache}[0] is not None and pos % 8 == {cache}[1] "
+            f"and raw[pos:pos + {cache}[2]] == {cache}[0]:",
+            depth,
+        )
+        self.emit(f"    f{k} = {cache}[3]", depth)
+        self.emit(f"    pos += {cache}[2]", depth)
+        self.emit("else:", depth)
+        self.emit("    start = pos", depth)
+        body(depth + 1)
+        self.emit(f"    {cache}[:] = [bytes(raw[start:pos]), start % 8, pos - start, f{k}]", depth)
 
     def string(self, depth: int, into: str = "") -> None:
         # rosbags: uint32 length, the bytes must fit and decode as UTF-8.
@@ -180,6 +204,11 @@ class _Gen:
         # A uint32 count, checked as rosbags checks it, then the elements.
         if sub[0] != Nodetype.BASE or (sub[1][0] not in _BASE and sub[1][0] != "string"):
             raise _UnsupportedError
+        if sub[1][0] == "string" and path in self.wanted and not self._inside:
+            self._inside = True
+            self.cached(self.wanted[path], depth, lambda d: self.sequence(sub, path, d))
+            self._inside = False
+            return
         width = _BASE[sub[1][0]][0] if sub[1][0] in _BASE else 4
         self.emit("count = u32(raw, pos)[0]", depth)
         self.emit("pos += 4", depth)
@@ -267,6 +296,11 @@ class _CdrGen(_Gen):
         """Emit a sequence; return the alignment known after it (as rosbags computes it)."""
         if sub[0] != Nodetype.BASE or (sub[1][0] not in _BASE and sub[1][0] != "string"):
             raise _UnsupportedError
+        if sub[1][0] == "string" and path in self.wanted and not self._inside:
+            self._inside = True
+            self.cached(self.wanted[path], depth, lambda d: self.cdr_sequence(sub, path, d))
+            self._inside = False
+            return 1
         string = sub[1][0] == "string"
         width = 5 if string else _BASE[sub[1][0]][0]
         self.emit("count = u32(raw, pos)[0]", depth)
@@ -352,6 +386,7 @@ def _compile(
     ]
     source = "\n".join(body) + "\n"
     namespace: dict[str, Any] = {**_GLOBALS, "struct": struct}
+    namespace |= {f"c{k}": [None, 0, 0, None] for k in gen.caches}
     exec(compile(source, f"<decoder of {msgtype}>", "exec"), namespace)  # noqa: S102 (our code)
     dtypes = tuple(
         None if gen.dtypes[k] is None else np.dtype(gen.dtypes[k]) for k in range(len(fields))

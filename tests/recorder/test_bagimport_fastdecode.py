@@ -137,6 +137,38 @@ def test_decoders_read_what_rosbags_reads_and_refuse_what_it_refuses(
                 _agrees(decoded, expected, fields, decoder.dtypes)
 
 
+@pytest.mark.parametrize("ros1", [True, False])
+def test_repeated_names_reuse_their_decode_only_for_the_same_bytes_and_alignment(
+    *, ros1: bool
+) -> None:
+    msgtype = "fd_msgs/msg/Mixed"
+    store = _store(ros1=ros1)
+    fields = FIELDS[msgtype]
+    decoder = (compile_ros1 if ros1 else compile_cdr)(store, msgtype, fields, stamped=True)
+    assert decoder is not None
+    serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
+    deserialize = store.deserialize_ros1 if ros1 else store.deserialize_cdr
+    rng = np.random.default_rng(11)
+    previous = None
+    hits = 0
+    for number in range(80):
+        message = _message(store, msgtype, rng, ros1=ros1)
+        message.names = ["shoulder", "elbow"] if number % 7 else ["shoulder", "elbow", "w"]
+        raw = bytes(serialize(message, msgtype))  # the frame and values shift the names
+        decoded = decoder.decode(raw)
+        _agrees(decoded, deserialize(raw, msgtype), fields, decoder.dtypes)
+        assert decoded is not None
+        names = decoded[2 + fields.index("names")]
+        hits += names is previous
+        previous = names
+        for cut in range(len(raw) - 12, len(raw)):  # cut after the names: still refused
+            try:
+                deserialize(raw[:cut], msgtype)
+            except SerdeError:
+                assert decoder.decode(raw[:cut]) is None
+    assert hits > 0  # the cache is used
+
+
 def test_layouts_the_decoders_do_not_read_are_left_to_rosbags() -> None:
     store = get_typestore(Stores.ROS2_HUMBLE)
     store.register(get_types_from_msg("std_msgs/Header header\nbool[4] on\n", "fd_msgs/msg/B"))
