@@ -30,7 +30,7 @@ from scipy.special import erf, expit
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import FeatureTransformer, RawFeatures
 from atikt.kernels import Kernel, modality_kernel
-from atikt.optimize import minimize_box
+from atikt.optimize import SearchResult, minimize_box
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -510,26 +510,15 @@ class BinaryGPC:
             starts += [
                 (rng.uniform(bounds[:, 0], bounds[:, 1]), None) for _ in range(self.n_restarts)
             ]
-        best, failure = None, None
         function = with_prior(objective, self.kernel, self.prior_sd, self.prior_mean)
-        for start, inverse_hessian in starts:
-            try:
-                result = minimize_box(
-                    function,
-                    start,
-                    bounds,
-                    inverse_hessian=inverse_hessian,
-                    max_iter=self.max_iter,
-                    tol=self.tol if inverse_hessian is not None else min(self.tol, COLD_TOL),
-                )
-            except NumericalError as err:
-                failure = err
-                continue
-            if best is None or result.fun < best.fun:
-                best = result
-        if best is None:
-            msg = "the hyperparameter search failed from every start; check the training data"
-            raise NumericalError(msg) from failure
+        best = best_search(
+            function,
+            starts,
+            bounds,
+            max_iter=self.max_iter,
+            tol=self.tol,
+            failure="the hyperparameter search failed from every start; check the training data",
+        )
         self.n_iter_, self.inverse_hessian_ = best.n_iter, best.inverse_hessian
         return best.x
 
@@ -624,6 +613,50 @@ class BinaryGPC:
     def predict(self, X: npt.ArrayLike) -> IntArray:
         """Most probable label (0 or 1) at ``X``, shape (m,)."""
         return (self.predict_positive(X) > 0.5).astype(np.int64)  # noqa: PLR2004
+
+
+def best_search(
+    function: Callable[[FloatArray], tuple[float, FloatArray]],
+    starts: Sequence[tuple[FloatArray, FloatArray | None]],
+    bounds: FloatArray,
+    *,
+    max_iter: int,
+    tol: float,
+    failure: str,
+) -> SearchResult:
+    """Minimise ``function`` from every start; return the lowest result.
+
+    Args:
+        function: ``theta -> (value, gradient)`` to minimise.
+        starts: ``(theta, inverse Hessian or None)`` per start; a start without a carried
+            curvature is a cold search and runs to ``min(tol, COLD_TOL)``.
+        bounds: The box, shape (n_params, 2).
+        max_iter: Iteration limit per start.
+        tol: Stopping tolerance of a warm search.
+        failure: The message when every start fails.
+
+    Raises:
+        NumericalError: No start produced a finite optimum.
+    """
+    best, error = None, None
+    for start, inverse_hessian in starts:
+        try:
+            result = minimize_box(
+                function,
+                start,
+                bounds,
+                inverse_hessian=inverse_hessian,
+                max_iter=max_iter,
+                tol=tol if inverse_hessian is not None else min(tol, COLD_TOL),
+            )
+        except NumericalError as err:
+            error = err
+            continue
+        if best is None or result.fun < best.fun:
+            best = result
+    if best is None:
+        raise NumericalError(failure) from error
+    return best
 
 
 def with_prior(
@@ -840,18 +873,14 @@ class OneVsAllGPC:
         starts = [np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1])]
         rng = _rng(seed)
         starts += [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(self.n_restarts)]
-        best, failure = None, None
-        for start in starts:
-            try:
-                result = minimize_box(total, start, bounds, max_iter=self.max_iter, tol=COLD_TOL)
-            except NumericalError as err:
-                failure = err
-                continue
-            if best is None or result.fun < best.fun:
-                best = result
-        if best is None:
-            msg = "the shared hyperparameter search failed from every start; check the data"
-            raise NumericalError(msg) from failure
+        best = best_search(
+            total,
+            [(start, None) for start in starts],
+            bounds,
+            max_iter=self.max_iter,
+            tol=COLD_TOL,
+            failure="the shared hyperparameter search failed from every start; check the data",
+        )
         return self.kernel.with_theta(best.x)
 
     def _check_fitted(self) -> None:
