@@ -255,6 +255,13 @@ def _learn_command(args: argparse.Namespace) -> int:
             )
             raise ReplayError(msg)
         priors = prior_groups(roles.old, min(3, len(roles.old)), 1, args.seed)[0]
+    if args.transfer == "prediction" and len(priors) == 1:
+        msg = (
+            f"--transfer prediction compares old objects' models and needs >= 2 old objects; "
+            f"the run has 1 ({priors[0]}); use --transfer optimization or density, or give "
+            "more --priors"
+        )
+        raise ReplayError(msg)
     spec = RunSpec(
         new_objects=roles.new,
         prior_objects=tuple(priors),

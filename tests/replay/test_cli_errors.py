@@ -40,6 +40,10 @@ CASES: list[tuple[str, str]] = [
     ("learn --recordings {data} --new woood,wood", "--new woood: not in the dataset; it has"),
     ("learn --recordings {data} --actions S9", "--actions S9: not in the dataset; it has P1, S2"),
     ("learn --recordings {data} --transfer bad", "argument --transfer: invalid choice"),
+    (
+        "learn --recordings {data} --priors wood",
+        "--transfer prediction compares old objects' models and needs >= 2 old objects",
+    ),
     ("learn --recordings {data} --out {taken}", "exists, and outputs are never overwritten"),
     ("learn --recordings {data} --workers 0", "give 1 or more worker processes"),
     ("study nosuch", "argument name: invalid choice"),
