@@ -4,6 +4,11 @@ Run from the repository root::
 
     PYTHONPATH=. python recordings/thermal_probe/convert.py                  # committed subset
     PYTHONPATH=. python recordings/thermal_probe/convert.py --all --out DIR  # all 270 trials
+    PYTHONPATH=. python recordings/thermal_probe/convert.py --all --runs 1-10 --out DIR
+
+``--runs A-B`` keeps the robot study's runs A..B (1..30; each run touches every material 3
+times): two sessions of one rig, e.g. runs 1-10 to save a fusion study's hyperparameters and
+runs 11-30 to study with them as a prior.
 
 The study's ``robot_study.npz`` (see ``/work/shared/data/thermal-ambiguity-toh/README.md``) is
 written as a ROS 2 bag (MCAP storage) as a lab's driver would have logged it: one probe
@@ -58,11 +63,21 @@ def _load(source: Path) -> dict[str, Any]:
         return {key: npz[key] for key in npz.files}
 
 
-def _select(material: NDArray[np.str_], per_material: int | None) -> list[int]:
-    """Return trial indices: all, or the first ``per_material`` of each material (file order)."""
+def _select(
+    material: NDArray[np.str_],
+    per_material: int | None,
+    run: NDArray[np.integer[Any]] | None = None,
+    runs: range | None = None,
+) -> list[int]:
+    """Return trial indices: all, or the first ``per_material`` of each material (file order).
+
+    With ``runs``, only the trials of those robot-study runs.
+    """
     chosen = []
     counts = dict.fromkeys(OBJECTS, 0)
     for index, code in enumerate(material.tolist()):
+        if runs is not None and run is not None and int(run[index]) not in runs:
+            continue
         if per_material is None or counts[code] < per_material:
             chosen.append(index)
             counts[code] += 1
@@ -108,16 +123,40 @@ def write_bag(data: dict[str, Any], trials: list[int], bag: Path) -> list[str]:
     return rows
 
 
-def convert(source: Path, out: Path, per_material: int | None, work: Path) -> int:
+def convert(
+    source: Path, out: Path, per_material: int | None, work: Path, runs: range | None = None
+) -> int:
     """Convert the selected trials into a dataset at ``out``; return the import's status."""
     data = _load(source)
-    trials = _select(data["material"], per_material)
+    trials = _select(data["material"], per_material, data["run"], runs)
+    if not trials:
+        found = sorted({int(run) for run in data["run"].tolist()})
+        msg = (
+            f"{source / 'robot_study.npz'}: no trial in runs {runs.start}-{runs.stop - 1}"
+            f" (the study has runs {found[0]}-{found[-1]}); give --runs within them"
+            if runs is not None and found
+            else f"{source / 'robot_study.npz'}: no trials to convert"
+        )
+        raise SystemExit(msg)
     bag = work / "thermal_probe"
     rows = write_bag(data, trials, bag)
     windows = work / "windows.csv"
     windows.write_text("start,stop,object,action,trial\n" + "\n".join(rows) + "\n", "utf-8")
     argv = ["import-bag", str(bag), "--topic-map", str(HERE / "topic_map.toml")]
     return record([*argv, "--windows", str(windows), "--out", str(out)])
+
+
+def _runs(text: str) -> range:
+    """Parse ``A-B`` (or ``A``) into the runs A..B."""
+    first, _, last = text.partition("-")
+    try:
+        runs = range(int(first), int(last or first) + 1)
+    except ValueError:
+        runs = range(0)
+    if not runs:
+        msg = f"--runs {text!r}: give the first and last run, e.g. 1-10"
+        raise argparse.ArgumentTypeError(msg)
+    return runs
 
 
 def main() -> int:
@@ -128,12 +167,16 @@ def main() -> int:
         "--out", type=Path, default=None, help=f"dataset directory (default {DATA})"
     )
     parser.add_argument("--source", type=Path, default=SOURCE, help="the study's directory")
+    parser.add_argument(
+        "--runs", type=_runs, default=None, help="only the study's runs A-B (1..30), e.g. 1-10"
+    )
     args = parser.parse_args()
     out = args.out or DATA
     if args.out is None and out.exists():
         shutil.rmtree(out)  # the committed subset is regenerated whole
     with tempfile.TemporaryDirectory() as work:
-        status = convert(args.source, out, None if args.all else SUBSET, Path(work))
+        per_material = None if args.all else SUBSET
+        status = convert(args.source, out, per_material, Path(work), args.runs)
     if status == 0 and args.out is None:
         shutil.copy(args.source / "LICENSE", out / "LICENSE")
     return status

@@ -32,9 +32,11 @@ from replay.learning._session import (
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._studies import (
     FUSION_PRIORS,
+    HYPERPARAMETERS,
     STUDIES,
     StudyConfig,
     dataset_actions,
+    load_hyperparameters,
     prior_groups,
     run_study,
 )
@@ -112,10 +114,11 @@ _FEATURES = arg(
 _FUSION_PRIOR = arg(
     "--fusion-prior",
     default="others",
-    choices=FUSION_PRIORS,
+    metavar="{" + ",".join(FUSION_PRIORS) + ",FILE}",
     help="fusion study: centre the multi-modal kernel's hyperparameters on those fitted on the "
-    "objects outside each group (others), or maximum likelihood on the group alone, as the "
-    "thesis (none) (default: others)",
+    "objects outside each group (others), on those an earlier fusion study saved in FILE "
+    f"(its {HYPERPARAMETERS}, e.g. of another session of the same rig), or maximum likelihood "
+    "on the group alone, as the thesis (none) (default: others)",
 )
 _ROLES = (
     arg("--new", default=None, help="new objects (default: those the dataset declares new)"),
@@ -400,6 +403,8 @@ def _record_and_learn(
 )
 def _study_command(args: argparse.Namespace) -> int:
     names = list(STUDIES) if args.name == "all" else [args.name]
+    if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
+        load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
     workers = cli.worker_count(args.workers)
     root = _dataset(args.recordings, workers)

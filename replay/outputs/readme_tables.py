@@ -3,9 +3,9 @@
 ``python -m replay.outputs.readme_tables`` reads ``studies/<name>/results.parquet`` for every
 block of README.md between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` and
 rewrites the block (running it twice changes nothing); ``--check`` only compares and exits 1
-when README.md differs (for CI). ``NAME`` is a study, or ``fusion-margins`` (the fusion
-study's multi-modal minus best single modality); ``real-NAME`` reads ``studies-real/``
-(``--real-studies``), the studies on the real probe data.
+when README.md differs (for CI). ``NAME`` is a study's output directory, or a fusion study's
+plus ``-margins`` (multi-modal minus best single modality); ``real-NAME`` reads
+``studies-real/`` (``--real-studies``), the studies on the real probe data.
 
 The numbers are the studies' own, computed by the same functions as their summaries
 (``replay.studies._studies.headline``, ``replay.studies._stats.paired_gains`` and
@@ -155,8 +155,9 @@ def margins_block(frame: pl.DataFrame, seed: int) -> str:
 def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-real")) -> str:
     """Return the markdown block ``name`` from ``<studies>/<study>/results.parquet``.
 
-    ``NAME`` is a study (``transfer``, ``fusion``, ...) or ``fusion-margins``; with the prefix
-    ``real-`` it is read from ``real`` (the studies on the real probe data) instead.
+    ``NAME`` is a study's output directory (``transfer``, ``fusion``, ...; a fusion study is
+    told by its ``modalities`` column), or that of a fusion study plus ``-margins``; with the
+    prefix ``real-`` it is read from ``real`` (the studies on the real probe data) instead.
 
     Raises:
         ReplayError: The results file is missing or unreadable.
@@ -170,9 +171,11 @@ def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-
         reason = cli.one_line(str(err))
         msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {study}'"
         raise ReplayError(msg) from err
-    if base == "fusion-margins":
+    if base.endswith("-margins"):
         return margins_block(frame, seed)
-    return fusion_block(frame) if base == "fusion" else transfer_block(name, frame, seed)
+    if "modalities" in frame.columns:
+        return fusion_block(frame)
+    return transfer_block(name, frame, seed)
 
 
 def rewrite(

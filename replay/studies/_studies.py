@@ -9,14 +9,17 @@ repetition and training size), PNG figures, and ``summary.md``.
 from __future__ import annotations
 
 import itertools
+import json
+import math
 import zlib
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import polars as pl
 
-from atikt import AtiktError, MultiModalGPC
+from atikt import MODALITIES, AtiktError, MultiModalGPC, modality_kernel
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
@@ -28,7 +31,6 @@ from schemas import VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
-    from pathlib import Path
 
     from atikt import RawFeatures
 
@@ -64,7 +66,10 @@ class StudyConfig:
         max_sources: Old objects transferred at once (1: the thesis).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
             centred on those of the other objects of the dataset (``reference_theta``);
-            ``none``: maximum likelihood on the group's samples alone (the thesis).
+            ``none``: maximum likelihood on the group's samples alone (the thesis); any other
+            value is the path of a ``hyperparameters.json`` an earlier fusion study wrote
+            (another session or dataset of the same rig), whose hyperparameters centre the
+            prior instead (``load_hyperparameters``).
     """
 
     out: Path
@@ -364,7 +369,8 @@ class FusionTask:
         seed: Seed of the splits and fits.
         group: Group number (a result column).
         features: Feature policy.
-        fusion_prior: ``others`` or ``none`` (see :class:`StudyConfig`).
+        fusion_prior: ``others``, ``none`` or ``saved`` (see :class:`StudyConfig`).
+        saved_theta: With ``saved``: the log hyperparameters that centre the prior.
     """
 
     frame: pl.DataFrame
@@ -375,6 +381,7 @@ class FusionTask:
     group: int
     features: str = "thesis"
     fusion_prior: str = "others"
+    saved_theta: tuple[float, ...] | None = None
 
 
 #: Training samples per object of the other objects' model (``reference_theta``).
@@ -382,8 +389,29 @@ REFERENCE_SAMPLES = 10
 #: Prior standard deviation of the log hyperparameters around the other objects' ones
 #: (measured against 1.0 in tests/bench/fusion_candidates.py: smaller worst-case loss).
 REFERENCE_PRIOR_SD = 0.5
-#: Choices of ``StudyConfig.fusion_prior``.
+#: Choices of ``StudyConfig.fusion_prior`` besides the path of a saved hyperparameters file.
 FUSION_PRIORS = ("others", "none")
+#: The fusion study's file of the multi-modal kernel's hyperparameters, fitted per action on
+#: every object of the dataset: what another study takes as ``--fusion-prior FILE``.
+HYPERPARAMETERS = "hyperparameters.json"
+_HYPERPARAMETERS_FORMAT = "atikt fusion hyperparameters"
+
+
+def _fit_theta(
+    lookup: FeatureLookup, action: str, objects: Sequence[str], seed: int
+) -> tuple[tuple[str, ...], np.ndarray[Any, np.dtype[np.float64]]]:
+    """Fit the fused kernel on up to ``REFERENCE_SAMPLES`` trials of each object (the first).
+
+    Returns:
+        The kernel's hyperparameter names and its fitted log hyperparameters.
+    """
+    train, labels = [], []
+    for label, obj in enumerate(objects):
+        for trial in lookup.trials(obj, action)[:REFERENCE_SAMPLES]:
+            train.append(lookup.get(obj, action, trial))
+            labels.append(label)
+    model = MultiModalGPC(random_state=seed).fit(train, labels)
+    return modality_kernel(model.transformer_.slices_).names, model.theta_
 
 
 def reference_theta(
@@ -400,12 +428,93 @@ def reference_theta(
     ]
     if len(others) < 2:  # noqa: PLR2004 - a classifier needs two classes
         return None
-    train, labels = [], []
-    for label, obj in enumerate(others):
-        for trial in lookup.trials(obj, action)[:REFERENCE_SAMPLES]:
-            train.append(lookup.get(obj, action, trial))
-            labels.append(label)
-    return MultiModalGPC(random_state=seed).fit(train, labels).theta_
+    return _fit_theta(lookup, action, others, seed)[1]
+
+
+def kernel_names(lookup: FeatureLookup, action: str) -> tuple[str, ...]:
+    """Return the hyperparameter names of the fused kernel of ``action`` (its modalities).
+
+    In the order ``atikt.FeatureTransformer`` stacks the modalities (``atikt.MODALITIES``).
+    """
+    held = [m for m in MODALITIES if m in lookup.blocks[action]]
+    return modality_kernel({m: slice(i, i + 1) for i, m in enumerate(held)}).names
+
+
+def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
+    """Write the fused kernel's hyperparameters of every action, fitted on all its objects.
+
+    The file is what this dataset teaches about its rig: which modality separates objects in
+    each action and on what scale. A later fusion study of another session or dataset of the
+    same rig takes it as ``--fusion-prior FILE`` (``load_hyperparameters``); floats are written
+    in their shortest exact form, so the file is the same bytes for the same inputs and seed.
+
+    Returns:
+        The file's path.
+    """
+    lookup = FeatureLookup(features, config.features)
+    actions = {}
+    for action in config.actions:
+        objects = [o for o in lookup.objects(action) if o in {*config.new, *config.old}]
+        if len(objects) < 2:  # noqa: PLR2004 - a classifier needs two classes
+            continue
+        names, theta = _fit_theta(lookup, action, objects, _seed(config.seed, action, "saved"))
+        actions[action] = {
+            "objects": objects,
+            "samples_per_object": REFERENCE_SAMPLES,
+            "names": list(names),
+            "theta": [float(v) for v in theta],
+        }
+    document = {
+        "format": _HYPERPARAMETERS_FORMAT,
+        "version": 1,
+        "features": config.features,
+        "seed": config.seed,
+        "use": "atikt-replay study fusion --fusion-prior THIS_FILE (log hyperparameters of the "
+        "multi-modal kernel, the prior's centre)",
+        "actions": actions,
+    }
+    path = config.out / HYPERPARAMETERS
+    path.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    return path
+
+
+def load_hyperparameters(path: Path) -> dict[str, tuple[tuple[str, ...], tuple[float, ...]]]:
+    """Read a fusion study's ``hyperparameters.json``: per action, names and log values.
+
+    Raises:
+        ReplayError: The file is unreadable or not such a file, in one line naming the fix.
+    """
+    fix = f"pass the {HYPERPARAMETERS} a fusion study wrote (atikt-replay study fusion)"
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        if isinstance(err, UnicodeDecodeError):
+            reason = "not UTF-8 JSON text"
+        else:
+            reason = (err.strerror if isinstance(err, OSError) else None) or str(err).split("\n")[0]
+        msg = f"--fusion-prior {path}: cannot read it ({reason}); {fix}"
+        raise ReplayError(msg) from err
+    if not isinstance(document, dict) or document.get("format") != _HYPERPARAMETERS_FORMAT:
+        msg = f"--fusion-prior {path}: not a fusion study's hyperparameters file; {fix}"
+        raise ReplayError(msg)
+    saved = {}
+    for action, entry in (document.get("actions") or {}).items():
+        names, theta = entry.get("names"), entry.get("theta")
+        valid = isinstance(names, list) and isinstance(theta, list) and len(names) == len(theta)
+        if not valid or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in theta
+        ):
+            msg = (
+                f"--fusion-prior {path}: action {action!r} needs equally long 'names' and "
+                f"finite 'theta' lists; {fix}"
+            )
+            raise ReplayError(msg)
+        saved[str(action)] = (tuple(map(str, names)), tuple(float(v) for v in theta))
+    if not saved:
+        msg = f"--fusion-prior {path}: it holds no action's hyperparameters; {fix}"
+        raise ReplayError(msg)
+    return saved
 
 
 def run_fusion_task(task: FusionTask) -> pl.DataFrame:
@@ -416,6 +525,8 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     reference = None
     if task.fusion_prior == "others":
         reference = reference_theta(lookup, task.action, task.objects, task.seed)
+    elif task.saved_theta is not None:
+        reference = np.asarray(task.saved_theta, dtype=np.float64)
     fused: dict[str, Any] = {}
     if reference is not None:
         fused = {"initial_theta": reference, "prior_sd": REFERENCE_PRIOR_SD}
@@ -433,7 +544,7 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
             rows.append(
                 {"action": task.action, "group": task.group, "repetition": split.repetition}
                 | {"modalities": name, "samples": split.size, "accuracy": accuracy}
-                | {"fusion_prior": "none" if reference is None else "others"}
+                | {"fusion_prior": "none" if reference is None else task.fusion_prior}
             )
     return pl.DataFrame(rows)
 
@@ -490,6 +601,9 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
         has = f"{len(objects)} objects and {len(actions)} actions"
         study = "fusion"
         raise _too_small(study, has, ">= 2 objects and >= 1 action")
+    mode, saved = config.fusion_prior, {}
+    if mode not in FUSION_PRIORS:
+        mode, saved = "saved", _saved_thetas(frame, config, Path(config.fusion_prior))
     rng = np.random.default_rng(_seed(config.seed, "fusion"))
     size = min(config.fusion_objects, len(objects))
     groups = [
@@ -504,11 +618,44 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
             _seed(config.seed, action, number),
             number,
             config.features,
-            config.fusion_prior,
+            mode,
+            saved.get(action),
         )
         for action in actions
         for number, group in enumerate(groups)
     ]
+
+
+def _saved_thetas(
+    frame: pl.DataFrame, config: StudyConfig, path: Path
+) -> dict[str, tuple[float, ...]]:
+    """Return the saved hyperparameters of each of the study's actions, checked against it.
+
+    Raises:
+        ReplayError: The file lacks an action, or its kernel has other modalities.
+    """
+    saved = load_hyperparameters(path)
+    lookup = FeatureLookup(frame.filter(pl.col("action_id").is_in(config.actions)), config.features)
+    thetas = {}
+    for action in config.actions:
+        if action not in saved:
+            msg = (
+                f"--fusion-prior {path}: no hyperparameters for action {action!r} (it has "
+                f"{', '.join(sorted(saved))}); choose --actions, or save them from a dataset "
+                "with that action"
+            )
+            raise ReplayError(msg)
+        names, theta = saved[action]
+        wanted = kernel_names(lookup, action)
+        if names != wanted:
+            msg = (
+                f"--fusion-prior {path}: action {action!r} was saved for the kernel "
+                f"{', '.join(names)}, this dataset's is {', '.join(wanted)}; save it with the same "
+                "modalities and --features"
+            )
+            raise ReplayError(msg)
+        thetas[action] = theta
+    return thetas
 
 
 # ------------------------------------------------------------------------------ reports
@@ -681,6 +828,12 @@ def _fusion_prior_note(frame: pl.DataFrame) -> str:
     """Say how the multi-modal kernel's hyperparameters were found, per action."""
     if "fusion_prior" not in frame.columns:
         return ""
+    saved = frame.filter(pl.col("fusion_prior") == "saved")["action"].unique().sort().to_list()
+    if saved:
+        return (
+            "Multi-modal hyperparameters: a prior centred on the saved hyperparameters of "
+            f"{', '.join(saved)} (--fusion-prior FILE, sd {REFERENCE_PRIOR_SD} in log space)."
+        )
     used = frame.filter(pl.col("fusion_prior") == "others")["action"].unique().sort().to_list()
     if not used:
         return (
@@ -704,6 +857,8 @@ class Study:
     run: Callable[[Any], pl.DataFrame]
     report: Callable[[pl.DataFrame, StudyConfig, str], str]
     labels: tuple[str, ...]
+    #: Writes a further file from the feature table into the output (and returns its path).
+    save: Callable[[pl.DataFrame, StudyConfig], Path] | None = None
 
 
 def _single_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
@@ -717,6 +872,7 @@ STUDIES: dict[str, Study] = {
         run_fusion_task,
         report_fusion,
         ("action", "group", "repetition", "modalities", "samples"),
+        write_hyperparameters,
     ),
     "transfer": Study(
         "ATIKT vs no transfer, all actions",
@@ -792,6 +948,13 @@ def run_study(
         out.mkdir(parents=True, exist_ok=True)
         results.write_parquet(path)
         text = study.report(results, config, study.title)
+        if study.save is not None:
+            saved = study.save(frame, config)
+            text += (
+                f"\nThe multi-modal kernel's hyperparameters fitted on every object of each "
+                f"action: `{saved.name}` (`--fusion-prior {saved.name}` centres a later "
+                "study's prior on them, e.g. of another session of the same rig).\n"
+            )
         if quarantined is not None and quarantined.height:
             listing = "\n".join(f"- `{p}`: {r}" for p, r in quarantined.iter_rows())
             text += f"\n## Quarantined recordings ({quarantined.height})\n\n{listing}\n"

@@ -3,15 +3,22 @@ through the reader, the features and a short fusion study."""
 
 from __future__ import annotations
 
+import argparse
+import importlib.util
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import polars as pl
+import pytest
 
 from replay import read_recording
 from replay.learning._features import build_features
 from replay.studies._studies import StudyConfig, run_study
+
+if TYPE_CHECKING:
+    from types import ModuleType
 
 DATA = Path(__file__).parents[2] / "recordings" / "thermal_probe" / "data"
 OBJECTS = ("aluminium", "cold_wood", "wood")
@@ -57,3 +64,27 @@ def test_features_and_a_fusion_study_run_on_real_data(tmp_path: Path) -> None:
     assert results.height > 0
     assert np.isfinite(results.select(pl.col(pl.Float64)).to_numpy()).any()
     assert output is not None
+
+
+def _converter() -> ModuleType:
+    path = DATA.parent / "convert.py"
+    spec = importlib.util.spec_from_file_location("thermal_probe_convert", path)
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_converter_selects_runs_and_refuses_bad_ones() -> None:
+    convert = _converter()
+    material = np.array(["W", "M", "CW"] * 4)
+    run = np.repeat(np.arange(1, 5), 3)
+    assert convert._select(material, None, run, range(2, 4)) == list(range(3, 9))
+    assert convert._select(material, 1, run, range(3, 5)) == [6, 7, 8]
+    assert convert._select(material, 2, run, None) == list(range(6))
+    assert convert._runs("11-30") == range(11, 31)
+    assert convert._runs("7") == range(7, 8)
+    for text in ("10-1", "a-b", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match=r"e\.g\. 1-10"):
+            convert._runs(text)

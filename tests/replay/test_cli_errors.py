@@ -52,6 +52,11 @@ CASES: list[tuple[str, str]] = [
     ("study transfer --recordings {data} --actions S9", "--actions S9: not in the dataset"),
     ("study transfer --recordings {data} --new woood", "--new woood: not in the dataset"),
     ("study fusion --recordings {data} --workers 0", "give 1 or more worker processes"),
+    (
+        "study fusion --recordings {tmp}/missing --fusion-prior {tmp}/none.json",
+        "--fusion-prior {tmp}/none.json: cannot read it",  # before the dataset is looked at
+    ),
+    ("study all --fusion-prior {file}", "cannot read it (not UTF-8 JSON text)"),
     ("view {tmp}/missing.mcap", "no such file or directory"),
     ("view {tmp}", "no recordings (*.mcap) or learn runs found"),
     ("view {file} --save {tmp}/v.rrd --serve", "--save and --serve: choose one"),

@@ -32,6 +32,9 @@ Prose between.
 <!-- results:real-fusion -->
 <!-- /results:real-fusion -->
 
+<!-- results:real-fusion-session-margins -->
+<!-- /results:real-fusion-session-margins -->
+
 Prose after.
 """
 
@@ -74,6 +77,7 @@ def project(tmp_path: Path) -> Path:
         ("studies", "transfer", _transfer([0.05, 0.02, 0.08, 0.01, 0.04])),
         ("studies", "fusion", _fusion()),
         ("studies-real", "fusion", _fusion(0.5)),
+        ("studies-real", "fusion-session", _fusion(0.25)),
     ):
         (tmp_path / root / name).mkdir(parents=True)
         frame.write_parquet(tmp_path / root / name / "results.parquet")
@@ -109,6 +113,8 @@ def test_tables_are_rewritten_between_the_markers_and_twice_changes_nothing(
     assert "| P1 | 45.0 % | 30.0 % | - |" in once  # the real study's block
     assert "| action | 1 / object | 2 / object |" in once
     assert "| P1 | +30.0 [+30.0, +30.0] | +30.0 [+30.0, +30.0] |" in once
+    # Any fusion study's directory makes a margins block (here a second real one).
+    assert "| P1 | +7.5 [+7.5, +7.5] | +7.5 [+7.5, +7.5] |" in once
 
 
 def test_a_constant_gain_has_a_degenerate_interval() -> None:

@@ -1,3 +1,4 @@
+import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -9,8 +10,10 @@ from conftest import ACTIONS, NEW, OLD
 from replay.errors import ReplayError
 from replay.learning._features import build_features
 from replay.studies._studies import (
+    HYPERPARAMETERS,
     STUDIES,
     StudyConfig,
+    fusion_tasks,
     prior_groups,
     run_study,
     transfer_tasks,
@@ -153,3 +156,68 @@ def test_fusion_prior_from_the_other_objects_and_the_margin_table(
     assert "maximum likelihood on the group's samples" in alone.text
     whole = run_study("fusion", features, _config(tmp_path / "all", fusion_objects=objects))
     assert set(pl.read_parquet(whole.results)["fusion_prior"]) == {"none"}  # no other objects
+
+
+def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    objects = len({*NEW, *OLD})
+    whole = _config(tmp_path / "first", fusion_objects=objects)
+    first = run_study("fusion", features, whole)
+    saved = first.summary.parent / HYPERPARAMETERS
+    document = json.loads(saved.read_text())
+    assert set(document["actions"]) == set(ACTIONS)
+    for entry in document["actions"].values():
+        assert len(entry["names"]) == len(entry["theta"]) > 0
+        assert sorted(entry["objects"]) == sorted({*NEW, *OLD})
+    again = run_study("fusion", features, replace(whole, out=tmp_path / "again"))
+    assert (again.summary.parent / HYPERPARAMETERS).read_bytes() == saved.read_bytes()
+    assert HYPERPARAMETERS in first.text
+    # With no object outside the group there is no "others" prior; the saved file gives one.
+    later = run_study(
+        "fusion", features, replace(whole, out=tmp_path / "later", fusion_prior=str(saved))
+    )
+    results = pl.read_parquet(later.results)
+    assert set(results["fusion_prior"]) == {"saved"}
+    assert "a prior centred on the saved hyperparameters" in later.text
+    plain = pl.read_parquet(first.results)
+    assert set(plain["fusion_prior"]) == {"none"}
+    assert not results["accuracy"].equals(plain["accuracy"])  # the prior changed the fits
+
+
+_HEAD = '{"format": "atikt fusion hyperparameters", "actions": '
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (None, r"cannot read it \(No such file"),
+        ("{not json", r"cannot read it \(Expecting"),
+        ('{"format": "other"}', "not a fusion study's hyperparameters file"),
+        (
+            _HEAD + '{"X": {"names": ["a"], "theta": [NaN]}}}',
+            "action 'X' needs equally long 'names' and finite 'theta'",
+        ),
+        ('{"format": "atikt fusion hyperparameters", "actions": {}}', "holds no action"),
+        (
+            _HEAD + '{"X": {"names": ["a"], "theta": [1.0]}}}',
+            r"no hyperparameters for action '\w+' \(it has X\); choose --actions",
+        ),
+        (
+            '{"format": "atikt fusion hyperparameters", "actions": {ACTIONS}}',
+            "was saved for the kernel a, this dataset's is",
+        ),
+    ],
+)
+def test_a_bad_saved_prior_is_refused_in_one_line_naming_the_file(
+    content: str | None, message: str, features: pl.DataFrame, tmp_path: Path
+) -> None:
+    path = tmp_path / "hyperparameters.json"
+    if content is not None:
+        entries = ", ".join(f'"{a}": {{"names": ["a"], "theta": [1.0]}}' for a in ACTIONS)
+        path.write_text(content.replace("{ACTIONS}", "{" + entries + "}"))
+    config = _config(tmp_path / "out", fusion_prior=str(path))
+    with pytest.raises(ReplayError, match=message) as caught:
+        fusion_tasks(features, config)
+    assert str(caught.value).startswith(f"--fusion-prior {path}: ")
+    assert "\n" not in str(caught.value)
