@@ -37,8 +37,10 @@ from atikt.transfer import (
     PriorChoice,
     TransferGPC,
     choose_by_density,
+    choose_by_evidence,
     choose_by_optimization,
     choose_by_prediction,
+    evidence_gains,
     relatedness,
 )
 
@@ -65,9 +67,11 @@ __all__ = [
     "StepRecord",
     "TransferGPC",
     "choose_by_density",
+    "choose_by_evidence",
     "choose_by_optimization",
     "choose_by_prediction",
     "entropy",
+    "evidence_gains",
     "extract_features",
     "fit_prior_model",
     "fit_prior_models",

@@ -45,8 +45,10 @@ from atikt.transfer import (
     TransferGPC,
     check_threshold,
     choose_by_density,
+    choose_by_evidence,
     choose_by_optimization,
     choose_by_relatedness,
+    evidence_gains,
 )
 
 if TYPE_CHECKING:
@@ -54,14 +56,16 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-TransferMode = Literal["prediction", "optimization", "density", "none"]
+TransferMode = Literal["prediction", "optimization", "density", "evidence", "none"]
 Observe = Callable[[int, str], RawFeatures]
 """``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
 Available = Callable[[int, str], bool]
 """``available(new_object_index, action) -> bool``: can another observation be served?"""
 
-TRANSFER_MODES: Final = ("prediction", "optimization", "density", "none")
+TRANSFER_MODES: Final = ("prediction", "optimization", "density", "evidence", "none")
 _SCORED: Final = ("prediction", "density")
+_KEPT: Final = (*_SCORED, "evidence")
+"""Modes whose choice for a new object is kept while only other objects' observations change."""
 """Modes whose relatedness is a per-observation score of the fixed prior models (cached)."""
 _NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
 
@@ -307,16 +311,19 @@ class ActiveLearner:
         eps_explore: Probability of a uniformly random (object, action).
         transfer: ``"prediction"`` (model prediction approach), ``"optimization"`` (rho by
             marginal likelihood), ``"density"`` (open-set score of each old object's own
-            feature distribution, :func:`~atikt.transfer.choose_by_density`) or ``"none"``
-            (baseline).
+            feature distribution, :func:`~atikt.transfer.choose_by_density`), ``"evidence"``
+            (the dependent GP's evidence gain of each old object,
+            :func:`~atikt.transfer.choose_by_evidence`) or ``"none"`` (baseline).
         eps_neg1: Threshold of the model prediction approach, in (0.5, 1].
         eps_neg2: Threshold of the model optimisation approach, in (0, 1].
         eps_density: Threshold of the open-set score, in (0, 1].
         density_rho_scale: ``rho = min(1, density_rho_scale * score)`` of the open-set score.
+        eps_evidence: Smallest evidence gain (nats) for a transfer (``transfer="evidence"``).
+        evidence_rho: ``rho`` at which the evidence gain is evaluated and transferred, (0, 1].
         max_sources: Most old objects transferred to one new object's classifier at once (the
             most related ones passing the threshold, one ``rho`` each, through the
-            multi-source kernel); 1 is the thesis's single source. Prediction and density
-            approaches only.
+            multi-source kernel); 1 is the thesis's single source. Prediction, density and
+            evidence approaches only.
         patience: Stop early after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None runs the whole budget.
         min_improvement: See ``patience`` (nats).
@@ -349,6 +356,8 @@ class ActiveLearner:
         eps_neg2: float = 0.6,
         eps_density: float = 0.1,
         density_rho_scale: float = 2.0,
+        eps_evidence: float = 0.0,
+        evidence_rho: float = 0.9,
         max_sources: int = 1,
         patience: int | None = None,
         min_improvement: float = 1e-3,
@@ -372,6 +381,8 @@ class ActiveLearner:
         self.eps_neg2 = eps_neg2
         self.eps_density = eps_density
         self.density_rho_scale = density_rho_scale
+        self.eps_evidence = eps_evidence
+        self.evidence_rho = evidence_rho
         self.max_sources = max_sources
         self.patience = patience
         self.min_improvement = min_improvement
@@ -400,8 +411,18 @@ class ActiveLearner:
             problems.append(f"eps_explore={self.eps_explore} must lie in [0, 1]")
         if not self.density_rho_scale > 0:
             problems.append(f"density_rho_scale={self.density_rho_scale} must be > 0")
-        if self.max_sources < 1:
-            problems.append(f"max_sources={self.max_sources} must be >= 1")
+        ranges = (
+            (
+                0.0 < self.evidence_rho <= 1.0,
+                f"evidence_rho={self.evidence_rho} must lie in (0, 1]",
+            ),
+            (
+                bool(np.isfinite(self.eps_evidence)),
+                f"eps_evidence={self.eps_evidence} must be finite",
+            ),
+            (self.max_sources >= 1, f"max_sources={self.max_sources} must be >= 1"),
+        )
+        problems += [problem for ok, problem in ranges if not ok]
         if self.budget < 0:
             problems.append(f"budget={self.budget} must be >= 0")
         if problems:
@@ -616,7 +637,7 @@ class ActiveLearner:
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            keep = changed is not None and obj != changed and self.transfer in _SCORED
+            keep = changed is not None and obj != changed and self.transfer in _KEPT
             choice, model = self._fit_object(
                 kernel,
                 X,
@@ -706,6 +727,24 @@ class ActiveLearner:
             rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
             return choice, model
         choice = _NO_CHOICE if known is None else known
+        if known is None and prior is not None and self.transfer == "evidence" and auxiliary:
+            # the gains are evaluated at the hyperparameters the labels give without transfer
+            plain = TransferGPC(
+                kernel,
+                n_restarts=n_restarts,
+                max_iter=max_iter,
+                previous=previous,
+                random_state=seed,
+            ).fit(X, y)
+            gains = evidence_gains(plain.base_kernel_, X, y, auxiliary, self.evidence_rho)
+            choice = choose_by_evidence(
+                gains, tuple(auxiliary), self.eps_evidence, self.max_sources, self.evidence_rho
+            )
+            if choice.source is None:
+                return choice, plain
+            fitted = plain.base_kernel_
+            assert isinstance(fitted, ModalityKernel)  # noqa: S101 - the plain fit of kernel
+            kernel, previous = fitted, plain
         scored = related is not None and related.shape[0] > 0
         if known is None and prior is not None and scored:
             assert related is not None  # noqa: S101 - scored

@@ -569,3 +569,79 @@ def choose_by_density(
         msg = f"rho_scale={rho_scale}; it must be > 0"
         raise AtiktError(msg)
     return _choose(scores, classes, eps_density, max_sources, lambda v: min(1.0, rho_scale * v))
+
+
+def evidence_gains(
+    kernel: Kernel,
+    X: npt.ArrayLike,
+    y: npt.ArrayLike,
+    auxiliary: Mapping[int, npt.ArrayLike],
+    rho: float = 0.9,
+) -> FloatArray:
+    """The dependent GP's evidence gain of each old object for one new object's labels.
+
+    ``log p(y | y_o; rho) - log p(y)``: how much more probable the new object-vs-rest labels
+    ``y`` become when the old object's observations are added as positives with transfer
+    coefficient ``rho``, under the Laplace approximation at the kernel's hyperparameters.
+    ``log p(y | y_o) = log p(y_o, y) - log p(y_o)``, so an old object's own number of
+    observations does not enter; the score of one old object does not depend on the others.
+
+    Args:
+        kernel: Base kernel with the hyperparameters to evaluate at (not optimised).
+        X: New objects' observations, shape (n, d).
+        y: 1 for the new object of interest, 0 otherwise, shape (n,).
+        auxiliary: Old-object label -> its observations (n_o, d) in the same feature space.
+        rho: Transfer coefficient of the evaluation, in (0, 1].
+
+    Returns:
+        Shape (n_old,), nats, in the order of ``auxiliary``.
+
+    Raises:
+        AtiktError: ``rho`` outside (0, 1].
+    """
+    if not 0.0 < rho <= 1.0:
+        msg = f"rho={rho}; the evidence gain's transfer coefficient must lie in (0, 1]"
+        raise AtiktError(msg)
+    Xn = np.asarray(X, dtype=np.float64)
+    yn = np.asarray(y, dtype=np.float64).reshape(-1)
+    alone = _lml(kernel, Xn, yn)
+    dependent = DependentKernel(kernel, rho)
+    gains = []
+    for obs in auxiliary.values():
+        Xo = np.asarray(obs, dtype=np.float64)
+        positives = np.ones(Xo.shape[0])
+        joint = _lml(dependent, _stack_domains(Xo, Xn), np.concatenate([positives, yn]))
+        gains.append(joint - _lml(kernel, Xo, positives) - alone)
+    return np.asarray(gains, dtype=np.float64)
+
+
+def _lml(kernel: Kernel, X: FloatArray, y: FloatArray) -> float:
+    """Laplace log marginal likelihood at the kernel's own hyperparameters."""
+    return float(BinaryGPC(kernel, optimize=False).fit(X, y).log_marginal_likelihood())  # type: ignore[arg-type]
+
+
+def choose_by_evidence(
+    gains: npt.ArrayLike,
+    classes: npt.ArrayLike,
+    eps_evidence: float = 0.0,
+    max_sources: int = 1,
+    rho: float = 0.9,
+) -> PriorChoice:
+    """Choose the source old object(s) by the evidence gain (:func:`evidence_gains`).
+
+    Args:
+        gains: Evidence gain of each old object, nats, shape (n_old,).
+        classes: The old objects' labels, in the order of ``gains``.
+        eps_evidence: Smallest gain (nats) for a transfer; 0: whenever the labels become
+            more probable.
+        max_sources: Most old objects transferred at once.
+        rho: The transfer coefficient of every chosen source (the one the gains were
+            evaluated at).
+
+    Returns:
+        The old object(s) of the largest gains above ``eps_evidence`` with ``rho``, or no
+        source.
+    """
+    values = np.asarray(gains, dtype=np.float64)
+    # _choose keeps the scores >= eps; a gain of exactly eps is no evidence either way
+    return _choose(values, classes, np.nextafter(eps_evidence, np.inf), max_sources, lambda _: rho)

@@ -261,8 +261,8 @@ def _learn_command(args: argparse.Namespace) -> int:
     if args.transfer == "prediction" and len(priors) == 1:
         msg = (
             f"--transfer prediction compares old objects' models and needs >= 2 old objects; "
-            f"the run has 1 ({priors[0]}); use --transfer optimization or density, or give "
-            "more --priors"
+            f"the run has 1 ({priors[0]}); use --transfer optimization, density or evidence, "
+            "or give more --priors"
         )
         raise ReplayError(msg)
     spec = RunSpec(
@@ -392,7 +392,7 @@ def _record_and_learn(
         "--transfer",
         default="prediction",
         choices=[m for m in TRANSFER_MODES if m != "none"],
-        help="ATIKT mode (density: open-set relatedness)",
+        help="ATIKT mode (density: open-set relatedness; evidence: dependent GP evidence gain)",
     ),
     _SOURCES,
     *_ROLES,

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from replay.learning._executors import Executor, TestSet
 
 #: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
-TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, none
+TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, evidence, none
 
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
 

@@ -18,6 +18,8 @@ from atikt import (
     RawFeatures,
     TransferGPC,
     choose_by_density,
+    choose_by_evidence,
+    evidence_gains,
     modality_kernel,
 )
 from atikt.gpc import with_prior
@@ -202,6 +204,37 @@ def test_choose_by_density_threshold_rho_and_several_sources() -> None:
         choose_by_density([0.3], [1], rho_scale=0.0)
 
 
+# ---------------------------------------------------------------- evidence relatedness
+
+
+def test_evidence_gain_tells_related_from_confusing_and_unrelated_old_objects() -> None:
+    rng = np.random.default_rng(7)
+    X = np.vstack([rng.normal(0.0, 0.5, (4, 3)), rng.normal(3.0, 0.5, (8, 3))])
+    y = np.r_[np.ones(4), np.zeros(8)]
+    auxiliary = {
+        1: rng.normal(0.0, 0.5, (6, 3)),  # like the new object
+        2: rng.normal(3.0, 0.5, (6, 3)),  # like the other new objects: misleading
+        3: rng.normal(-8.0, 0.5, (6, 3)),  # far from everything: no evidence either way
+    }
+    kernel = modality_kernel(SLICES)
+    gains = evidence_gains(kernel, X, y, auxiliary)
+    assert gains[0] > 0.5
+    assert gains[1] < -1.0
+    assert abs(gains[2]) < 1e-6
+    # an old object's gain does not depend on which other old objects there are
+    alone = evidence_gains(kernel, X, y, {1: auxiliary[1]})
+    assert alone[0] == pytest.approx(gains[0], rel=1e-9)
+    choice = choose_by_evidence(gains, [1, 2, 3], rho=0.8)
+    assert choice.sources == (1,)
+    assert choice.rho == 0.8
+    assert choose_by_evidence(gains, [1, 2, 3], eps_evidence=5.0).source is None
+    assert choose_by_evidence([0.0, 0.0], [1, 2]).source is None  # no evidence, no transfer
+    several = choose_by_evidence([0.3, 2.0, -1.0, 0.1], [5, 6, 7, 8], max_sources=3)
+    assert several.sources == (6, 5, 8)
+    with pytest.raises(AtiktError, match=r"rho=0\.0"):
+        evidence_gains(kernel, X, y, auxiliary, rho=0.0)
+
+
 # ---------------------------------------------------------------- fusion: shared, evidence
 
 
@@ -321,7 +354,8 @@ def run(train: dict[str, dict[int, list[RawFeatures]]], **kwargs: object) -> Act
 
 
 @pytest.mark.parametrize(
-    ("transfer", "max_sources"), [("density", 1), ("density", 3), ("prediction", 3)]
+    ("transfer", "max_sources"),
+    [("density", 1), ("density", 3), ("prediction", 3), ("evidence", 1), ("evidence", 3)],
 )
 def test_density_and_multi_source_learners_are_deterministic(
     train: dict[str, dict[int, list[RawFeatures]]],
@@ -338,11 +372,16 @@ def test_density_and_multi_source_learners_are_deterministic(
             assert model.rhos_.shape[0] == len(choice.sources)
 
 
-def test_density_learner_refusing_every_prior_is_the_baseline(
+@pytest.mark.parametrize(
+    "refuse",
+    [{"transfer": "density", "eps_density": 1.0}, {"transfer": "evidence", "eps_evidence": 1e9}],
+)
+def test_a_learner_refusing_every_prior_is_the_baseline(
     train: dict[str, dict[int, list[RawFeatures]]],
     priors: dict[str, dict[int, list[RawFeatures]]],
+    refuse: dict[str, object],
 ) -> None:
-    refusing = run(train, priors=priors, transfer="density", eps_density=1.0)
+    refusing = run(train, priors=priors, **refuse)
     baseline = run(train, transfer="none")
     assert all(r.prior is None for r in refusing.history_)
     assert [r.object for r in refusing.history_] == [r.object for r in baseline.history_]
@@ -356,3 +395,7 @@ def test_max_sources_and_rho_scale_must_be_positive() -> None:
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), max_sources=0)
     with pytest.raises(AtiktError, match="density_rho_scale"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)
+    with pytest.raises(AtiktError, match=r"evidence_rho=1\.5"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), evidence_rho=1.5)
+    with pytest.raises(AtiktError, match="eps_evidence=nan"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), eps_evidence=float("nan"))

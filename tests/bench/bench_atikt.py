@@ -22,7 +22,8 @@ action) and then 40 steps. Printed:
 - objective evaluations along one search path, side by side;
 - how often the warm-started step searches stop at the iteration cap;
 - the step latency of the baseline, of the model optimisation approach, of the open-set
-  (density) approach and of multi-source density transfer (at most 3 sources);
+  (density) approach, of the evidence-gain approach and of multi-source density transfer (at
+  most 3 sources);
 - with ``--accuracy``: final test accuracy of the amplitude kernel against the thesis kernel
   (no signal variance), baseline and transfer, over a few seeds.
 
@@ -360,11 +361,17 @@ def search_iterations(steps: int) -> None:
 
 def other_modes(steps: int) -> None:
     """Median step latency of the baseline, the model optimisation approach, the open-set
-    (density) approach and multi-source density transfer (at most 3 sources; atikt)."""
+    (density) approach, the evidence-gain approach and multi-source density transfer (at most
+    3 sources; atikt)."""
     actions = list(ACTIONS)
     train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
     priors = fit_prior_models(pool(OLD_OBJECTS, actions, n_trials=20, seed=2), random_state=0)
-    modes: list[tuple[Any, int]] = [("none", 1), ("optimization", 1), ("density", 1)]
+    modes: list[tuple[Any, int]] = [
+        ("none", 1),
+        ("optimization", 1),
+        ("density", 1),
+        ("evidence", 1),
+    ]
     for transfer, max_sources in [*modes, ("density", 3)]:
         learner = ActiveLearner(
             actions,
