@@ -4,7 +4,6 @@ through the reader, the features and a short fusion study."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -12,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import polars as pl
 import pytest
+from scripts import load_script
 
 from replay import read_recording
 from replay.learning._features import build_features
@@ -67,13 +67,7 @@ def test_features_and_a_fusion_study_run_on_real_data(tmp_path: Path) -> None:
 
 
 def _converter() -> ModuleType:
-    path = DATA.parent / "convert.py"
-    spec = importlib.util.spec_from_file_location("thermal_probe_convert", path)
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(DATA.parent / "convert.py", "thermal_probe_convert")
 
 
 def test_the_converter_selects_runs_and_refuses_bad_ones() -> None:

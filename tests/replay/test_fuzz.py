@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from scripts import load_script
 
 if TYPE_CHECKING:
     from types import ModuleType
@@ -19,13 +18,7 @@ ROOT = SCRIPT.parents[2]
 
 @pytest.fixture(scope="module")
 def fuzzer() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("fuzz_reader", SCRIPT)
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["fuzz_reader"] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT, "fuzz_reader")
 
 
 def test_mutated_recordings_are_read_or_refused_with_our_error(fuzzer: ModuleType) -> None:

@@ -3,22 +3,18 @@
 Regenerate the golden (with the recordings) by ``python recordings/regenerate.py``.
 """
 
-import importlib.util
 import json
 import math
 from pathlib import Path
 from types import ModuleType
 
+from scripts import load_script
+
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
 
 
 def _regenerate_module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("regenerate", RECORDINGS / "regenerate.py")
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(RECORDINGS / "regenerate.py", "regenerate")
 
 
 def test_learning_run_matches_its_golden() -> None:
