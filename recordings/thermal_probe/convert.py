@@ -58,9 +58,32 @@ SUBSET = 10  # trials per material in the committed subset
 
 
 def _load(source: Path) -> dict[str, Any]:
-    """Return the study's arrays."""
-    with np.load(source / "robot_study.npz", allow_pickle=False) as npz:
-        return {key: npz[key] for key in npz.files}
+    """Return the study's arrays.
+
+    Raises:
+        SystemExit: The file is missing, unreadable or lacks an array, in one line.
+    """
+    path = source / "robot_study.npz"
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {key: npz[key] for key in npz.files}
+    except (OSError, ValueError) as err:
+        reason = getattr(err, "strerror", None) or " ".join(str(err).split())
+        msg = f"{path}: cannot read the study ({reason}); give --source the study's directory"
+        raise SystemExit(msg) from err
+    wanted = {"material", "run", "t_s", "force_n", "heated_c", "passive_c", "source_file"}
+    missing = sorted(wanted - data.keys())
+    if missing:
+        msg = f"{path}: no array {', '.join(missing)}; give --source the study's directory"
+        raise SystemExit(msg)
+    unknown = sorted({str(code) for code in data["material"].tolist()} - OBJECTS.keys())
+    if unknown:
+        msg = (
+            f"{path}: material codes {', '.join(unknown)} are not the study's "
+            f"({', '.join(OBJECTS)}); give --source the study's directory"
+        )
+        raise SystemExit(msg)
+    return data
 
 
 def _select(

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import polars as pl
@@ -82,3 +82,18 @@ def test_the_converter_selects_runs_and_refuses_bad_ones() -> None:
     for text in ("10-1", "a-b", ""):
         with pytest.raises(argparse.ArgumentTypeError, match=r"e\.g\. 1-10"):
             convert._runs(text)
+
+
+def test_the_converter_refuses_a_bad_study_file_in_one_line(tmp_path: Path) -> None:
+    convert = _converter()
+    with pytest.raises(SystemExit, match=r"robot_study\.npz: cannot read the study \(No such"):
+        convert._load(tmp_path)
+    arrays: dict[str, Any] = {k: np.zeros(2) for k in ("run", "t_s", "force_n", "heated_c")}
+    arrays |= {"passive_c": np.zeros(2), "material": np.array(["W", "X"])}
+    save = cast("Any", np.savez)  # numpy's stub types **arrays as its own keyword options
+    save(tmp_path / "robot_study.npz", **arrays)
+    with pytest.raises(SystemExit, match="no array source_file"):
+        convert._load(tmp_path)
+    save(tmp_path / "robot_study.npz", source_file=np.array(["a", "b"]), **arrays)
+    with pytest.raises(SystemExit, match="material codes X are not the study's"):
+        convert._load(tmp_path)
