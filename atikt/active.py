@@ -324,6 +324,10 @@ class ActiveLearner:
             most related ones passing the threshold, one ``rho`` each, through the
             multi-source kernel); 1 is the thesis's single source. Prediction, density and
             evidence approaches only.
+        hyper_sd: Standard deviation of a Gaussian prior on every new-object classifier's log
+            hyperparameters, centred on the initial kernel (unit length scales, equal weights,
+            unit variance): maximum a posteriori instead of the thesis's maximum likelihood,
+            for baseline and transfer alike; None: maximum likelihood.
         patience: Stop early after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None runs the whole budget.
         min_improvement: See ``patience`` (nats).
@@ -359,6 +363,7 @@ class ActiveLearner:
         eps_evidence: float = 0.0,
         evidence_rho: float = 0.9,
         max_sources: int = 1,
+        hyper_sd: float | None = None,
         patience: int | None = None,
         min_improvement: float = 1e-3,
         amplitude: bool = True,
@@ -384,6 +389,7 @@ class ActiveLearner:
         self.eps_evidence = eps_evidence
         self.evidence_rho = evidence_rho
         self.max_sources = max_sources
+        self.hyper_sd = hyper_sd
         self.patience = patience
         self.min_improvement = min_improvement
         self.amplitude = amplitude
@@ -421,6 +427,10 @@ class ActiveLearner:
                 f"eps_evidence={self.eps_evidence} must be finite",
             ),
             (self.max_sources >= 1, f"max_sources={self.max_sources} must be >= 1"),
+            (
+                self.hyper_sd is None or 0.0 < self.hyper_sd < np.inf,
+                f"hyper_sd={self.hyper_sd} must be None or > 0",
+            ),
         )
         problems += [problem for ok, problem in ranges if not ok]
         if self.budget < 0:
@@ -648,6 +658,7 @@ class ActiveLearner:
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
                 previous=state.models[obj] if state.models else None,
+                centre=initial.theta,
                 n_restarts=n_restarts,
                 max_iter=max_iter,
                 seed=seed,
@@ -707,6 +718,7 @@ class ActiveLearner:
         auxiliary: Mapping[int, FloatArray],
         rho_starts: dict[int, float],
         previous: TransferGPC | None,
+        centre: FloatArray,
         n_restarts: int,
         max_iter: int,
         seed: int,
@@ -722,6 +734,8 @@ class ActiveLearner:
                 rho0=rho_starts,
                 n_restarts=n_restarts,
                 max_iter=max_iter,
+                prior_sd=self.hyper_sd,
+                prior_mean=centre,
                 random_state=seed,
             )
             rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
@@ -734,6 +748,8 @@ class ActiveLearner:
                 n_restarts=n_restarts,
                 max_iter=max_iter,
                 previous=previous,
+                prior_sd=self.hyper_sd,
+                prior_mean=centre,
                 random_state=seed,
             ).fit(X, y)
             gains = evidence_gains(plain.base_kernel_, X, y, auxiliary, self.evidence_rho)
@@ -770,6 +786,8 @@ class ActiveLearner:
             n_restarts=n_restarts,
             max_iter=max_iter,
             previous=previous,
+            prior_sd=self.hyper_sd,
+            prior_mean=centre,
             random_state=seed,
         ).fit(X, y, aux)
         return choice, model

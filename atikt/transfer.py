@@ -114,6 +114,11 @@ class TransferGPC:
             ``inverse_hessian`` and ``mode_start``); only the cost depends on it. Released
             by :meth:`fit`.
         jitter: Diagonal jitter.
+        prior_sd: Standard deviation of a Gaussian prior on every log hyperparameter (maximum
+            a posteriori); None: maximum likelihood (the thesis). A learned ``rho`` gets the
+            same prior around its start.
+        prior_mean: The prior's centre for the base kernel's log hyperparameters; None:
+            ``kernel.theta``.
         random_state: Seed of the restarts.
 
     Attributes:
@@ -139,10 +144,14 @@ class TransferGPC:
         max_iter: int = 50,
         previous: TransferGPC | None = None,
         jitter: float = 1e-10,
+        prior_sd: float | None = None,
+        prior_mean: FloatArray | None = None,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
         self.kernel = kernel
+        self.prior_sd = prior_sd
+        self.prior_mean = prior_mean
         self.previous = previous
         self.rho = rho
         self.learn_rho = learn_rho
@@ -173,6 +182,10 @@ class TransferGPC:
             if known.shape[0] <= yn.shape[0]:
                 known = np.concatenate([known, _added_start(known, yn)])
             mode_start = np.concatenate([aux_start, known])
+        prior_mean = None
+        if self.prior_sd is not None:  # the base kernel's centre, then a learned rho's start
+            centre = self.kernel.theta if self.prior_mean is None else self.prior_mean
+            prior_mean = np.concatenate([centre, kernel.theta[centre.shape[0] :]])
         return BinaryGPC(
             kernel,
             optimize=self.optimize,
@@ -181,6 +194,8 @@ class TransferGPC:
             inverse_hessian=inverse_hessian,
             mode_start=mode_start,
             jitter=self.jitter,
+            prior_sd=self.prior_sd,
+            prior_mean=prior_mean,
             random_state=self.random_state,
         )
 
@@ -423,6 +438,8 @@ def choose_by_optimization(
     rho0: float | Mapping[int, float] = 0.5,
     n_restarts: int = 0,
     max_iter: int = 50,
+    prior_sd: float | None = None,
+    prior_mean: FloatArray | None = None,
     random_state: RandomState = None,
 ) -> tuple[PriorChoice, TransferGPC]:
     """Choose the source old object by learned ``rho`` (model optimisation approach).
@@ -440,6 +457,8 @@ def choose_by_optimization(
             old objects it does not name).
         n_restarts: Additional random starts per search.
         max_iter: Iteration limit of each hyperparameter search per start.
+        prior_sd: See :class:`TransferGPC` (None: maximum likelihood).
+        prior_mean: See :class:`TransferGPC`.
         random_state: Seed of the restarts.
 
     Returns:
@@ -454,6 +473,8 @@ def choose_by_optimization(
             learn_rho=True,
             n_restarts=n_restarts,
             max_iter=max_iter,
+            prior_sd=prior_sd,
+            prior_mean=prior_mean,
             random_state=random_state,
         ).fit(X, y, aux)
         for label, aux in auxiliary.items()
@@ -464,7 +485,12 @@ def choose_by_optimization(
         best = candidates[int(np.argmax(scores))]
         return PriorChoice(best, fitted[best].rho_, candidates, scores), fitted[best]
     plain = TransferGPC(
-        kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
+        kernel,
+        n_restarts=n_restarts,
+        max_iter=max_iter,
+        prior_sd=prior_sd,
+        prior_mean=prior_mean,
+        random_state=random_state,
     ).fit(X, y)
     return PriorChoice(None, 0.0, candidates, scores), plain
 

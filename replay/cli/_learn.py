@@ -104,6 +104,14 @@ _SOURCES = arg(
     default=1,
     help="old objects transferred at once per new object and action (1: the thesis)",
 )
+_HYPER = arg(
+    "--hyper-sd",
+    type=float,
+    default=None,
+    metavar="SD",
+    help="a Gaussian prior of this sd on the classifiers' log hyperparameters around the "
+    "initial kernel (default: none, maximum likelihood as in the thesis)",
+)
 _FEATURES = arg(
     "--features",
     default="thesis",
@@ -222,6 +230,7 @@ def _step_line(row: dict[str, Any]) -> str:
     arg("--budget", type=int, default=40, help="actively collected observations"),
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
     _SOURCES,
+    _HYPER,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -274,6 +283,7 @@ def _learn_command(args: argparse.Namespace) -> int:
         seed=args.seed,
         features=args.features,
         max_sources=args.max_sources,
+        hyper_sd=args.hyper_sd,
     )
     with cli.publish_directory(target, force=args.force) as out:
         _learn_into(args, table, spec, prior_root, out)
@@ -395,6 +405,7 @@ def _record_and_learn(
         help="ATIKT mode (density: open-set relatedness; evidence: dependent GP evidence gain)",
     ),
     _SOURCES,
+    _HYPER,
     *_ROLES,
     _FEATURES,
     _FUSION_PRIOR,
@@ -428,6 +439,7 @@ def _study_command(args: argparse.Namespace) -> int:
                 actions=tuple(actions),
                 features=args.features,
                 max_sources=args.max_sources,
+                hyper_sd=args.hyper_sd,
                 fusion_prior=args.fusion_prior,
             )
             config = config.quick() if args.quick else config

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -41,6 +42,8 @@ class RunSpec:
         features: Feature policy (``thesis`` or ``all``; see ``select_blocks``).
         max_sources: Old objects transferred at once (1: the thesis; more: multi-source).
         eps_density: Smallest open-set relatedness score of a source (``density`` mode).
+        hyper_sd: Prior sd of the classifiers' log hyperparameters around the initial kernel
+            (None: maximum likelihood, the thesis).
     """
 
     new_objects: tuple[str, ...]
@@ -55,6 +58,7 @@ class RunSpec:
     features: str = "thesis"
     max_sources: int = 1
     eps_density: float = 0.1
+    hyper_sd: float | None = None
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
@@ -69,6 +73,9 @@ class RunSpec:
             raise ReplayError(msg)
         if self.max_sources < 1:
             msg = f"--max-sources {self.max_sources}: give 1 (the thesis) or more"
+            raise ReplayError(msg)
+        if self.hyper_sd is not None and not 0 < self.hyper_sd < math.inf:
+            msg = f"--hyper-sd {self.hyper_sd}: give a positive standard deviation, e.g. 3"
             raise ReplayError(msg)
         if self.budget < 0:
             msg = f"--budget {self.budget}: give 0 or more observations"
@@ -171,6 +178,7 @@ def run_learning(
         transfer=spec.transfer,  # type: ignore[arg-type]
         max_sources=spec.max_sources,
         eps_density=spec.eps_density,
+        hyper_sd=spec.hyper_sd,
         random_state=spec.seed,
     )
     result = RunResult(spec)

@@ -64,6 +64,8 @@ class StudyConfig:
         group_size: Prior objects per group in the transfer and single-action studies.
         reduced: A reduced run (``--quick``); its summary says so.
         max_sources: Old objects transferred at once (1: the thesis).
+        hyper_sd: Standard deviation of a Gaussian prior on the active learners' log
+            hyperparameters around the initial kernel (None: maximum likelihood, the thesis).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
             centred on those of the other objects of the dataset (``reference_theta``);
             ``none``: maximum likelihood on the group's samples alone (the thesis); any other
@@ -91,6 +93,7 @@ class StudyConfig:
     group_size: int = 3
     reduced: bool = False
     max_sources: int = 1
+    hyper_sd: float | None = None
     fusion_prior: str = "others"
 
     def quick(self) -> StudyConfig:
@@ -169,6 +172,7 @@ class TransferTask:
         labels: Extra columns written into every row (group, prior count, ...).
         features: Feature policy.
         max_sources: Old objects transferred at once.
+        hyper_sd: Prior sd of the learners' log hyperparameters (None: maximum likelihood).
     """
 
     frame: pl.DataFrame
@@ -182,6 +186,7 @@ class TransferTask:
     labels: dict[str, Any] = field(default_factory=dict)
     features: str = "thesis"
     max_sources: int = 1
+    hyper_sd: float | None = None
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
@@ -203,6 +208,7 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
                 seed=run_seed,
                 features=task.features,
                 max_sources=task.max_sources,
+                hyper_sd=task.hyper_sd,
             )
             executor = PoolExecutor(lookup, task.new, split)
             result = run_learning(spec, executor, executor.test_set(actions), models)
@@ -272,6 +278,7 @@ def transfer_tasks(
             {"group": number},
             config.features,
             config.max_sources,
+            config.hyper_sd,
         )
         for number, group in enumerate(prior_groups(config.old, size, config.groups, config.seed))
     ]
@@ -304,6 +311,7 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
                     labels,
                     config.features,
                     config.max_sources,
+                    config.hyper_sd,
                 )
             )
     return tasks
@@ -346,6 +354,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
             {"group": 0, "repetition": number},
             config.features,
             config.max_sources,
+            config.hyper_sd,
         )
         for number in range(runs)
     ]
@@ -716,14 +725,20 @@ def _gain_table(frame: pl.DataFrame, by: Sequence[str], unit: str, config: Study
     return "\n".join(lines) + "\n\n" + note
 
 
-def _reduced(config: StudyConfig) -> str:
-    """Return the summary's note on a reduced (``--quick``) run, or nothing."""
-    if not config.reduced:
-        return ""
-    return (
-        "\n> Reduced run (`--quick`): fewer groups, trials, steps and repetitions than the full "
-        "study; its numbers vary widely and are for a first look only.\n"
-    )
+def _reduced(config: StudyConfig, *, learners: bool = True) -> str:
+    """Return the summary's notes on a reduced (``--quick``) run and on the learners' prior."""
+    text = ""
+    if learners and config.hyper_sd is not None:
+        text += (
+            f"\nLearners: maximum a posteriori hyperparameters, a Gaussian prior of sd "
+            f"{config.hyper_sd:g} (log space) around the initial kernel (`--hyper-sd`).\n"
+        )
+    if config.reduced:
+        text += (
+            "\n> Reduced run (`--quick`): fewer groups, trials, steps and repetitions than the "
+            "full study; its numbers vary widely and are for a first look only.\n"
+        )
+    return text
 
 
 def report_transfer(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
@@ -806,7 +821,8 @@ def report_fusion(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
         for r in margins.iter_rows(named=True)
     )
     return (
-        f"# {title}\n{_reduced(config)}\nMean test accuracy over training sizes, groups of "
+        f"# {title}\n{_reduced(config, learners=False)}\nMean test accuracy over training sizes, "
+        "groups of "
         f"{config.fusion_objects} objects, multi-modal kernel vs single modalities. "
         f"{_fusion_prior_note(frame)}\n\n"
         f"{_markdown(table)}\n\nPer training size (samples per object):\n\n"

@@ -372,6 +372,36 @@ def test_density_and_multi_source_learners_are_deterministic(
             assert model.rhos_.shape[0] == len(choice.sources)
 
 
+def test_a_hyperprior_keeps_the_hyperparameters_near_its_centre() -> None:
+    rng = np.random.default_rng(3)
+    X = np.vstack([rng.normal(0.0, 0.3, (3, 3)), rng.normal(2.0, 0.3, (6, 3))])
+    y = np.r_[np.ones(3), np.zeros(6)]
+    kernel = modality_kernel(SLICES)
+    centre = kernel.theta
+    distances = []
+    for sd in (None, 3.0, 0.3):
+        model = TransferGPC(kernel, prior_sd=sd, prior_mean=centre, random_state=0).fit(X, y)
+        distances.append(float(np.linalg.norm(model.base_kernel_.theta - centre)))
+    assert distances[0] > distances[1] > distances[2]
+    # with a learned rho the prior covers rho too (one more entry), and the fit runs
+    aux = rng.normal(0.0, 0.3, (4, 3))
+    learned = TransferGPC(kernel, rho=0.5, learn_rho=True, prior_sd=1.0, random_state=0)
+    assert 0.0 < learned.fit(X, y, aux).rho_ <= 1.0
+
+
+def test_a_learner_with_a_hyperprior_is_deterministic_and_not_the_ml_learner(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    first = run(train, priors=priors, hyper_sd=3.0)
+    again = run(train, priors=priors, hyper_sd=3.0)
+    assert [r.as_row() for r in first.history_] == [r.as_row() for r in again.history_]
+    ml = run(train, priors=priors)
+    theta = [m.base_kernel_.theta for s in first.states_.values() for m in s.models]
+    ml_theta = [m.base_kernel_.theta for s in ml.states_.values() for m in s.models]
+    assert any(not np.allclose(a, b) for a, b in zip(theta, ml_theta, strict=True))
+
+
 @pytest.mark.parametrize(
     "refuse",
     [{"transfer": "density", "eps_density": 1.0}, {"transfer": "evidence", "eps_evidence": 1e9}],
@@ -395,6 +425,8 @@ def test_max_sources_and_rho_scale_must_be_positive() -> None:
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), max_sources=0)
     with pytest.raises(AtiktError, match="density_rho_scale"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)
+    with pytest.raises(AtiktError, match=r"hyper_sd=0\.0 must be None or > 0"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), hyper_sd=0.0)
     with pytest.raises(AtiktError, match=r"evidence_rho=1\.5"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), evidence_rho=1.5)
     with pytest.raises(AtiktError, match="eps_evidence=nan"):

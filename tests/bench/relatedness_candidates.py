@@ -50,7 +50,6 @@ from replay.studies._studies import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-DEFAULTS = dict(ActiveLearner.__init__.__kwdefaults__ or {})
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 
 
@@ -66,16 +65,19 @@ def counterparts() -> dict[str, str]:
 def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     """One study task, with the learner's transfer modes registered in the session check.
 
-    The studies pass only the transfer mode to the learner; other options (``max_sources``,
-    ``eps_density``, ...) are set as the learner's defaults in this worker process.
+    The studies pass their own settings to the learner; the mode's options (``max_sources``,
+    ``eps_density``, ``hyper_sd``, ...) override them, for the ATIKT and the baseline runs
+    alike, through the learner class the session builds.
     """
     task, options = args
+    settings = {k: int(v) if k == "max_sources" else v for k, v in options.items()}
+
+    class Configured(ActiveLearner):
+        def __init__(self, *positional: Any, **keywords: Any) -> None:
+            super().__init__(*positional, **(keywords | settings))
+
     replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
-    defaults = ActiveLearner.__init__.__kwdefaults__
-    assert defaults is not None  # keyword-only parameters
-    defaults.update(DEFAULTS)  # worker processes are reused: undo an earlier task's options
-    for key, value in options.items():
-        defaults[key] = int(value) if key == "max_sources" else value
+    replay.learning._session.ActiveLearner = Configured  # type: ignore[misc]
     return run_transfer_task(task)
 
 

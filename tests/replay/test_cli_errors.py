@@ -31,6 +31,8 @@ CASES: list[tuple[str, str]] = [
     ("features {data} --workers 0", "give 1 or more worker processes"),
     ("learn --recordings {tmp}/missing", "not a directory"),
     ("learn --recordings {data} --budget -3", "--budget -3: give 0 or more observations"),
+    ("learn --recordings {data} --hyper-sd 0", "--hyper-sd 0.0: give a positive standard"),
+    ("learn --recordings {data} --hyper-sd nan", "--hyper-sd nan: give a positive standard"),
     (
         "learn --recordings {data} --seed -1",
         "argument --seed: -1: give a whole number in 0..4294967295",
