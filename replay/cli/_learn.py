@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 from pathlib import Path
@@ -22,6 +23,7 @@ from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
+    DEFAULT_HYPER_SD,
     TRANSFER_MODES,
     RunSpec,
     fit_priors,
@@ -43,7 +45,6 @@ from replay.studies._studies import (
 from schemas import cli
 
 if TYPE_CHECKING:
-    import argparse
     from collections.abc import Callable
 
     from rich.progress import Progress
@@ -104,13 +105,26 @@ _SOURCES = arg(
     default=1,
     help="old objects transferred at once per new object and action (1: the thesis)",
 )
+
+
+def _hyper_sd(text: str) -> float | None:
+    """``none`` (maximum likelihood, the thesis) or a number."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        msg = f"{text!r}: give a positive standard deviation (e.g. 5) or none"
+        raise argparse.ArgumentTypeError(msg) from None
+
+
 _HYPER = arg(
     "--hyper-sd",
-    type=float,
-    default=None,
-    metavar="SD",
-    help="a Gaussian prior of this sd on the classifiers' log hyperparameters around the "
-    "initial kernel (default: none, maximum likelihood as in the thesis)",
+    type=_hyper_sd,
+    default=DEFAULT_HYPER_SD,
+    metavar="SD|none",
+    help="sd of a Gaussian prior on the classifiers' log hyperparameters around the initial "
+    "kernel; none: maximum likelihood as in the thesis",
 )
 _FEATURES = arg(
     "--features",

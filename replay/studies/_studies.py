@@ -23,7 +23,13 @@ from atikt import MODALITIES, AtiktError, MultiModalGPC, modality_kernel
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
-from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.learning._session import (
+    DEFAULT_HYPER_SD,
+    RunSpec,
+    fit_priors,
+    prior_data,
+    run_learning,
+)
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._relatedness import least_similar, similarity_to_new
 from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
@@ -65,7 +71,8 @@ class StudyConfig:
         reduced: A reduced run (``--quick``); its summary says so.
         max_sources: Old objects transferred at once (1: the thesis).
         hyper_sd: Standard deviation of a Gaussian prior on the active learners' log
-            hyperparameters around the initial kernel (None: maximum likelihood, the thesis).
+            hyperparameters around the initial kernel (``DEFAULT_HYPER_SD``; None: maximum
+            likelihood, the thesis).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
             centred on those of the other objects of the dataset (``reference_theta``);
             ``none``: maximum likelihood on the group's samples alone (the thesis); any other
@@ -93,7 +100,7 @@ class StudyConfig:
     group_size: int = 3
     reduced: bool = False
     max_sources: int = 1
-    hyper_sd: float | None = None
+    hyper_sd: float | None = DEFAULT_HYPER_SD
     fusion_prior: str = "others"
 
     def quick(self) -> StudyConfig:
@@ -186,7 +193,7 @@ class TransferTask:
     labels: dict[str, Any] = field(default_factory=dict)
     features: str = "thesis"
     max_sources: int = 1
-    hyper_sd: float | None = None
+    hyper_sd: float | None = DEFAULT_HYPER_SD
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
@@ -728,9 +735,12 @@ def _gain_table(frame: pl.DataFrame, by: Sequence[str], unit: str, config: Study
 def _reduced(config: StudyConfig, *, learners: bool = True) -> str:
     """Return the summary's notes on a reduced (``--quick``) run and on the learners' prior."""
     text = ""
-    if learners and config.hyper_sd is not None:
+    if learners:
         text += (
-            f"\nLearners: maximum a posteriori hyperparameters, a Gaussian prior of sd "
+            "\nLearners: maximum likelihood hyperparameters, as in the thesis "
+            "(`--hyper-sd none`).\n"
+            if config.hyper_sd is None
+            else f"\nLearners: maximum a posteriori hyperparameters, a Gaussian prior of sd "
             f"{config.hyper_sd:g} (log space) around the initial kernel (`--hyper-sd`).\n"
         )
     if config.reduced:

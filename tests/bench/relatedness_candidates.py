@@ -15,7 +15,8 @@ any other old object, or nothing.
 
 Run: ``python tests/bench/relatedness_candidates.py --modes prediction density density+3
 [--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once;
-``@name=value``: a learner option, e.g. ``density@eps_density=0.05``).
+``@name=value``: a learner option, e.g. ``density@eps_density=0.05``; ``@hyper_sd=none``:
+maximum likelihood learners, as in the thesis, instead of the tool's default hyperprior).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ def counterparts() -> dict[str, str]:
     }
 
 
-def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
+def run(args: tuple[Any, dict[str, float | None]]) -> pl.DataFrame:
     """One study task, with the learner's transfer modes registered in the session check.
 
     The studies pass their own settings to the learner; the mode's options (``max_sources``,
@@ -70,23 +71,25 @@ def run(args: tuple[Any, dict[str, float]]) -> pl.DataFrame:
     alike, through the learner class the session builds.
     """
     task, options = args
-    settings = {k: int(v) if k == "max_sources" else v for k, v in options.items()}
+    settings = {
+        k: int(v) if k == "max_sources" and v is not None else v for k, v in options.items()
+    }
 
     class Configured(ActiveLearner):
         def __init__(self, *positional: Any, **keywords: Any) -> None:
             super().__init__(*positional, **(keywords | settings))
 
     replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
-    replay.learning._session.ActiveLearner = Configured  # type: ignore[misc]
+    replay.learning._session.ActiveLearner = Configured  # type: ignore[attr-defined]
     return run_transfer_task(task)
 
 
-def parse(name: str) -> tuple[str, dict[str, float]]:
+def parse(name: str) -> tuple[str, dict[str, float | None]]:
     """``"density+3@eps_density=0.05"`` -> ("density", {"max_sources": 3, "eps_density": 0.05})."""
     head, *settings = name.split("@")
     mode, _, sources = head.partition("+")
-    options = {"max_sources": float(sources or 1)}
-    options |= {k: float(v) for k, v in (s.split("=") for s in settings)}
+    options: dict[str, float | None] = {"max_sources": float(sources or 1)}
+    options |= {k: None if v == "none" else float(v) for k, v in (s.split("=") for s in settings)}
     return mode, options
 
 

@@ -33,6 +33,7 @@ CASES: list[tuple[str, str]] = [
     ("learn --recordings {data} --budget -3", "--budget -3: give 0 or more observations"),
     ("learn --recordings {data} --hyper-sd 0", "--hyper-sd 0.0: give a positive standard"),
     ("learn --recordings {data} --hyper-sd nan", "--hyper-sd nan: give a positive standard"),
+    ("learn --recordings {data} --hyper-sd abc", "'abc': give a positive standard deviation"),
     (
         "learn --recordings {data} --seed -1",
         "argument --seed: -1: give a whole number in 0..4294967295",

@@ -1,3 +1,4 @@
+import json
 from pathlib import Path
 from typing import Any, Self
 
@@ -9,6 +10,7 @@ from recorder import _rigconfig as rigconfig
 from recorder.errors import RigError
 from replay.cli._main import main
 from replay.learning._run_history import SETTINGS_NAME, load_run
+from replay.learning._session import DEFAULT_HYPER_SD
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
@@ -190,3 +192,18 @@ def test_learn_takes_the_open_set_and_multi_source_modes(
     assert main([*argv, "--actions", "P1", "--budget", "3", "--out", str(tmp_path / "d")]) == 0
     assert main([*argv, "--max-sources", "0", "--out", str(tmp_path / "z")]) == 1
     assert "--max-sources 0" in capsys.readouterr().err
+
+
+def test_learn_records_its_hyperprior_and_none_is_the_thesis(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = _learn(small_dataset, "--actions", "P1", "--budget", "2")
+    assert main([*argv, "--out", str(tmp_path / "map")]) == 0
+    assert main([*argv, "--hyper-sd", "none", "--out", str(tmp_path / "ml")]) == 0
+    capsys.readouterr()
+    settings = {
+        name: json.loads((tmp_path / name / SETTINGS_NAME).read_text("utf-8"))
+        for name in ("map", "ml")
+    }
+    assert settings["map"]["hyper_sd"] == DEFAULT_HYPER_SD
+    assert settings["ml"]["hyper_sd"] is None
