@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -724,34 +724,24 @@ class ActiveLearner:
         seed: int,
     ) -> tuple[PriorChoice, TransferGPC]:
         """Choose where from / how much to transfer and fit one new object's classifier."""
+        # every classifier fitted here searches its hyperparameters the same way
+        search: dict[str, Any] = {
+            "n_restarts": n_restarts,
+            "max_iter": max_iter,
+            "prior_sd": self.hyper_sd,
+            "prior_mean": centre,
+            "random_state": seed,
+        }
         if prior is not None and self.transfer == "optimization":
             choice, model = choose_by_optimization(
-                kernel,
-                X,
-                y,
-                auxiliary,
-                eps_neg2=self.eps_neg2,
-                rho0=rho_starts,
-                n_restarts=n_restarts,
-                max_iter=max_iter,
-                prior_sd=self.hyper_sd,
-                prior_mean=centre,
-                random_state=seed,
+                kernel, X, y, auxiliary, eps_neg2=self.eps_neg2, rho0=rho_starts, **search
             )
             rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
             return choice, model
         choice = _NO_CHOICE if known is None else known
         if known is None and prior is not None and self.transfer == "evidence" and auxiliary:
             # the gains are evaluated at the hyperparameters the labels give without transfer
-            plain = TransferGPC(
-                kernel,
-                n_restarts=n_restarts,
-                max_iter=max_iter,
-                previous=previous,
-                prior_sd=self.hyper_sd,
-                prior_mean=centre,
-                random_state=seed,
-            ).fit(X, y)
+            plain = TransferGPC(kernel, previous=previous, **search).fit(X, y)
             gains = evidence_gains(plain.base_kernel_, X, y, auxiliary, self.evidence_rho)
             choice = choose_by_evidence(
                 gains, tuple(auxiliary), self.eps_evidence, self.max_sources, self.evidence_rho
@@ -780,16 +770,7 @@ class ActiveLearner:
             aux, rho = [auxiliary[s] for s in choice.sources], choice.rhos
         elif choice.source is not None:
             aux = auxiliary[choice.source]
-        model = TransferGPC(
-            kernel,
-            rho=rho,
-            n_restarts=n_restarts,
-            max_iter=max_iter,
-            previous=previous,
-            prior_sd=self.hyper_sd,
-            prior_mean=centre,
-            random_state=seed,
-        ).fit(X, y, aux)
+        model = TransferGPC(kernel, rho=rho, previous=previous, **search).fit(X, y, aux)
         return choice, model
 
     def _uncertainty(self, state: ActionState) -> FloatArray:
