@@ -22,8 +22,9 @@ action) and then 40 steps. Printed:
 - objective evaluations along one search path, side by side;
 - how often the warm-started step searches stop at the iteration cap;
 - the step latency of the baseline, of the model optimisation approach, of the open-set
-  (density) approach, of the evidence-gain approach and of multi-source density transfer (at
-  most 3 sources);
+  (density) approach, of the evidence-gain approach, of multi-source density transfer (at
+  most 3 sources), and of the prediction approach and the baseline with the replay tool's
+  default hyperprior (``hyper_sd=5``);
 - with ``--accuracy``: final test accuracy of the amplitude kernel against the thesis kernel
   (no signal variance), baseline and transfer, over a few seeds.
 
@@ -361,18 +362,22 @@ def search_iterations(steps: int) -> None:
 
 def other_modes(steps: int) -> None:
     """Median step latency of the baseline, the model optimisation approach, the open-set
-    (density) approach, the evidence-gain approach and multi-source density transfer (at most
-    3 sources; atikt)."""
+    (density) approach, the evidence-gain approach, multi-source density transfer (at most
+    3 sources; atikt), and of the prediction approach and the baseline with the replay tool's
+    default hyperprior."""
     actions = list(ACTIONS)
     train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
     priors = fit_prior_models(pool(OLD_OBJECTS, actions, n_trials=20, seed=2), random_state=0)
-    modes: list[tuple[Any, int]] = [
-        ("none", 1),
-        ("optimization", 1),
-        ("density", 1),
-        ("evidence", 1),
+    modes: list[tuple[Any, int, float | None]] = [
+        ("none", 1, None),
+        ("optimization", 1, None),
+        ("density", 1, None),
+        ("evidence", 1, None),
+        ("density", 3, None),
+        ("prediction", 1, 5.0),  # the replay tool's default hyperprior (DEFAULT_HYPER_SD)
+        ("none", 1, 5.0),
     ]
-    for transfer, max_sources in [*modes, ("density", 3)]:
+    for transfer, max_sources, hyper_sd in modes:
         learner = ActiveLearner(
             actions,
             N_NEW,
@@ -380,6 +385,7 @@ def other_modes(steps: int) -> None:
             priors=priors,
             transfer=transfer,
             max_sources=max_sources,
+            hyper_sd=hyper_sd,
             budget=steps,
             random_state=0,
         )
@@ -390,7 +396,8 @@ def other_modes(steps: int) -> None:
             learner.step()
             times.append(time.perf_counter() - start)
         print(
-            f"step latency, transfer={transfer!r}, max_sources={max_sources}: "
+            f"step latency, transfer={transfer!r}, max_sources={max_sources}, "
+            f"hyper_sd={hyper_sd}: "
             f"median {np.median(times) * 1e3:.1f} ms"
         )
 
