@@ -31,7 +31,7 @@ from replay.learning._session import (
     run_learning,
 )
 from replay.outputs._plots import plot_learning_curves
-from replay.studies._relatedness import least_similar, similarity_to_new
+from replay.studies._relatedness import least_similar, most_similar, similarity_to_new
 from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
 from schemas import VOCABULARY
 
@@ -327,10 +327,25 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
 def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
     """Return the tasks of the negative-transfer study: the priors least like the new objects.
 
-    Similarity is the confusion of per-action Gaussian mixtures (see ``_relatedness``); the
-    least similar old objects (three, or all if fewer) are the priors of every run.
+    Similarity is each old object's per-action rank by nearness in likelihood to the new
+    objects (see ``_relatedness``); the least similar old objects (three, or all if fewer) are
+    the priors of every run.
     """
-    actions = _roles(config, "negative")
+    return similarity_tasks(frame, config, "negative", nearest=False)
+
+
+def similarity_tasks(
+    frame: pl.DataFrame, config: StudyConfig, study: str, *, nearest: bool
+) -> list[TransferTask]:
+    """Return runs of one prior group chosen by similarity to the new objects.
+
+    Args:
+        frame: The dataset's feature table.
+        config: Study options; ``group_size`` priors, ``groups * trials`` runs.
+        study: Name of the study (roles check and seeds).
+        nearest: The most similar old objects if true, else the least similar.
+    """
+    actions = _roles(config, study)
     new, old = config.new, config.old
     objects = [*new, *old]
     frame = frame.filter(pl.col("object_id").is_in(objects))
@@ -340,12 +355,9 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
         matrix = np.vstack([_flat(row) for row in part.iter_rows(named=True)])
         labels = np.array([objects.index(o) for o in part["object_id"]], dtype=np.int64)
         per_action[action] = (matrix, labels)
-    similarity = similarity_to_new(
-        per_action, len(objects), range(len(new)), _seed(config.seed, "gmm")
-    )
-    chosen = least_similar(
-        similarity, range(len(new), len(objects)), min(config.group_size, len(old))
-    )
+    similarity = similarity_to_new(per_action, len(objects), range(len(new)))
+    pick = most_similar if nearest else least_similar
+    chosen = pick(similarity, range(len(new), len(objects)), min(config.group_size, len(old)))
     priors = tuple(objects[i] for i in chosen)
     runs = config.groups * config.trials
     return [
@@ -356,7 +368,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
             (actions,),
             1,
             config.budget,
-            _seed(config.seed, "negative", number),
+            _seed(config.seed, study, number),
             config.transfer,
             {"group": 0, "repetition": number},
             config.features,
@@ -368,7 +380,7 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
 
 
 def _flat(row: dict[str, Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
-    """Return the raw features of a cache row as one vector (for the mixture)."""
+    """Return the raw features of a cache row as one vector (for the similarity)."""
     parts = [row[m] for m in VOCABULARY.features if row[m] is not None]
     return np.concatenate([np.asarray(p, dtype=np.float64) for p in parts])
 

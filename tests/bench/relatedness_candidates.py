@@ -7,6 +7,8 @@ the same splits):
 
 - the ``priors`` study's runs (random groups of 3, 5, 7, 10 prior objects);
 - the ``negative`` study's runs (the 3 old objects least like the new ones);
+- ``related``: the same runs with the 3 old objects most like the new ones (the same
+  similarity, ``replay/studies/_relatedness.py``);
 
 and prints the mean gain (ATIKT minus baseline, points; at step 0 and over steps 1..budget)
 with a paired 95 % bootstrap interval over prior groups, and how often a step's transfer
@@ -45,12 +47,13 @@ from replay.learning._parallel import run_tasks
 from replay.studies._studies import (
     StudyConfig,
     dataset_actions,
-    negative_tasks,
     priors_tasks,
     run_transfer_task,
+    similarity_tasks,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
+STUDY_NAMES = ("priors", "negative", "related")
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 
 
@@ -160,7 +163,7 @@ def report(name: str, frame: pl.DataFrame, by: list[str], budget: int, rng: Any)
 def compare(directory: Path, first: str, second: str, budget: int) -> None:
     """Print ``second`` minus ``first`` (ATIKT runs, same splits and seeds), paired by run."""
     rng = np.random.default_rng(0)
-    for study in ("priors", "negative"):
+    for study in STUDY_NAMES:
         a, b = (directory / f"{study}-{m}.parquet" for m in (first, second))
         if not (a.exists() and b.exists()):
             continue
@@ -186,7 +189,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=5)
     parser.add_argument("--budget", type=int, default=40)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--studies", nargs="+", default=["priors", "negative"])
+    parser.add_argument("--studies", nargs="+", choices=STUDY_NAMES, default=["priors", "negative"])
     parser.add_argument("--out", type=Path, default=None, help="directory for the rows")
     parser.add_argument(
         "--compare", nargs=2, metavar=("FIRST", "SECOND"), help="modes whose rows --out holds"
@@ -214,10 +217,10 @@ def main() -> None:
         rng = np.random.default_rng(0)
         print(f"\n## transfer={mode}, {options}")
         for study in args.studies:
-            tasks = (
-                priors_tasks(frame, config) if study == "priors" else negative_tasks(frame, config)
-            )
-            if study == "negative":  # one group: runs are the resampling unit
+            if study == "priors":
+                tasks = priors_tasks(frame, config)
+            else:  # one group: runs are the resampling unit
+                tasks = similarity_tasks(frame, config, study, nearest=study == "related")
                 tasks = [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
             jobs = [(t, options) for t in tasks]
             rows = pl.concat(run_tasks(run, jobs, workers=args.workers), how="diagonal_relaxed")
@@ -225,6 +228,8 @@ def main() -> None:
                 args.out.mkdir(parents=True, exist_ok=True)
                 rows.write_parquet(args.out / f"{study}-{name}.parquet")
             by = ["n_priors"] if study == "priors" else []
+            if study != "priors":
+                print(f"{study}: priors {', '.join(tasks[0].priors)}")
             print(f"{study}: gain, points [95 % bootstrap over groups]")
             report(study, rows, by, args.budget, rng)
             for key, value in choices(rows, related).items():
