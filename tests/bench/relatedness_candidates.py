@@ -232,6 +232,11 @@ def main() -> None:
                 print(f"{study}: priors {', '.join(tasks[0].priors)}")
             print(f"{study}: gain, points [95 % bootstrap over groups]")
             report(study, rows, by, args.budget, rng)
+            base = rows.filter(pl.col("method") == "baseline")
+            first = float(base.filter(pl.col("step") == 0)["accuracy"].mean())  # type: ignore[arg-type]
+            steps = pl.col("step").is_between(1, args.budget)
+            later = float(base.filter(steps)["accuracy"].mean())  # type: ignore[arg-type]
+            print(f"  baseline accuracy: step 0 {first:.1%}, mean 1..{args.budget} {later:.1%}")
             for key, value in choices(rows, related).items():
                 print(f"  {key}: {value:.3f}" if isinstance(value, float) else f"  {key}: {value}")
 

@@ -1,0 +1,111 @@
+"""What transfer does to the new objects' classifiers, whatever the source: signal variances.
+
+Runs the ``negative`` (3 least similar priors) and ``related`` (3 most similar) run sets of
+``relatedness_candidates.py`` for a few runs, the baseline and ATIKT that always transfers
+from the old object of the largest evidence gain (``transfer="evidence"``,
+``eps_evidence=-1e9``, ``evidence_rho`` as given), and prints, after the initial round (one
+observation per new object and action), the signal variance every new object's classifier
+fitted (median, min, max over objects, actions and runs) and the accuracy at step 0.
+
+Run: ``python tests/bench/transfer_mechanism.py [--runs 3] [--rho 0.9]`` (about 20 s).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
+
+import replay.learning._session
+from atikt.active import TRANSFER_MODES, ActiveLearner
+from replay.learning._datasets import dataset_roles
+from replay.studies._studies import (
+    StudyConfig,
+    dataset_actions,
+    run_transfer_task,
+    similarity_tasks,
+)
+
+SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
+FITS: list[dict[str, Any]] = []
+
+
+class Logged(ActiveLearner):
+    """The session's learner, recording every classifier's signal variance after an update."""
+
+    settings: dict[str, Any] = {}  # noqa: RUF012 - set per mode before the runs
+
+    def __init__(self, *positional: Any, **keywords: Any) -> None:
+        super().__init__(*positional, **(keywords | self.settings))
+
+    def _update(self, action: str, **keywords: Any) -> None:
+        super()._update(action, **keywords)
+        state = self.states_[action]
+        method = "baseline" if self.transfer == "none" else "ATIKT"
+        n = len(state.observations)
+        FITS.extend(
+            {"method": method, "action": action, "n": n, "signal_variance": variance}
+            for variance in (float(m.base_kernel_.signal_variance) for m in state.models)  # type: ignore[attr-defined]
+        )
+
+
+def main() -> None:
+    """Run and print the table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--features", type=Path, default=SIM)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--rho", type=float, default=0.9)
+    args = parser.parse_args()
+    frame = pl.read_parquet(args.features)
+    roles = dataset_roles(args.features.parent, sorted(set(frame["object_id"])))
+    config = StudyConfig(
+        out=Path(),
+        groups=1,
+        trials=args.runs,
+        budget=1,
+        transfer="evidence",
+        new=roles.new,
+        old=roles.old,
+        actions=dataset_actions(frame),
+    )
+    Logged.settings = {"eps_evidence": -1e9, "evidence_rho": args.rho}
+    replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
+    replay.learning._session.ActiveLearner = Logged  # type: ignore[attr-defined]
+    n_new = len(roles.new)
+    rows = []
+    for study in ("negative", "related"):
+        for task in similarity_tasks(frame, config, study, nearest=study == "related"):
+            FITS.clear()
+            result = run_transfer_task(replace(task, labels=task.labels | {"study": study}))
+            initial = pl.DataFrame(FITS).filter(pl.col("n") == n_new)  # the initial round
+            accuracy = result.filter(pl.col("step") == 0).select("method", "accuracy")
+            joined = initial.join(accuracy, on="method")
+            rows.append(joined.with_columns(pl.lit(study).alias("study")))
+    table = pl.concat(rows)
+    pl.Config.set_tbl_hide_dataframe_shape(True)
+    print(f"signal variance after the initial round (rho {args.rho}), {args.runs} runs each:")
+    print(
+        table.group_by("study", "method")
+        .agg(
+            pl.col("signal_variance").median().round(2).alias("median"),
+            pl.col("signal_variance").min().round(2).alias("min"),
+            pl.col("signal_variance").max().round(2).alias("max"),
+            (pl.col("accuracy").mean() * 100).round(1).alias("accuracy step 0, %"),
+        )
+        .sort("study", "method")
+    )
+
+
+if __name__ == "__main__":
+    main()
