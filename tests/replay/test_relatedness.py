@@ -48,7 +48,7 @@ def test_ranks_not_log_densities_are_averaged_over_actions() -> None:
     per_action = {"A": (a_features, labels), "B": (b_features, labels)}
     similarity = similarity_to_new(per_action, 4, [3])
     np.testing.assert_allclose(similarity[:3], 0.5)
-    density = sum(closeness(f, lab, [0, 1, 2], [3])[:, 0] for f, lab in per_action.values())
+    density = np.sum([closeness(f, lab, [0, 1, 2], [3])[:, 0] for f, lab in per_action.values()], 0)
     assert density[0] - density[1] > 10.0
 
 
