@@ -15,7 +15,9 @@ from replay.studies._studies import (
     StudyConfig,
     fusion_tasks,
     prior_groups,
+    negative_tasks,
     run_study,
+    similarity_tasks,
     transfer_tasks,
 )
 
@@ -111,6 +113,20 @@ def test_study_over_bad_files_equals_the_study_without_them(
     assert out_bad.results.read_bytes() == out_clean.results.read_bytes()
     assert "Quarantined recordings (2)" in out_bad.text
     assert all(name in out_bad.text for name in bad)
+
+
+def test_negative_and_related_runs_take_the_least_and_most_similar_priors(
+    features: pl.DataFrame,
+) -> None:
+    config = _config(Path(), group_size=1, trials=2, transfer="optimization")
+    least = similarity_tasks(features, config, "negative", nearest=False)
+    most = similarity_tasks(features, config, "related", nearest=True)
+    assert [t.priors for t in negative_tasks(features, config)] == [t.priors for t in least]
+    assert len(least) == len(most) == 2  # groups * trials runs of one group
+    assert least[0].priors == least[1].priors
+    assert least[0].priors != most[0].priors
+    assert {*least[0].priors, *most[0].priors} <= set(OLD)
+    assert least[0].seed != least[1].seed
 
 
 def test_prior_groups_are_distinct_and_seeded() -> None:
