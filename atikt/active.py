@@ -37,7 +37,14 @@ import numpy.typing as npt
 
 from atikt.errors import AtiktError, NotFittedError
 from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, stack_features
-from atikt.gpc import OneVsAllGPC, RandomState, normalise, predictive_probability, spawn_seeds
+from atikt.gpc import (
+    BinaryGPC,
+    OneVsAllGPC,
+    RandomState,
+    normalise,
+    predictive_probability,
+    spawn_seeds,
+)
 from atikt.kernels import ModalityKernel, modality_kernel
 from atikt.transfer import (
     ObjectDensities,
@@ -328,6 +335,15 @@ class ActiveLearner:
             hyperparameters, centred on the initial kernel (unit length scales, equal weights,
             unit variance): maximum a posteriori instead of the thesis's maximum likelihood,
             for baseline and transfer alike; None: maximum likelihood.
+        metric_sd: Metric transfer: with prior models of two or more old objects, every
+            new-object classifier starts from the old objects' kernel hyperparameters (their
+            median) and its hyperprior, of this sd, is centred there instead of on the
+            initial kernel (``hyper_sd``). None: no metric transfer (the thesis). Ignored
+            without priors (the baseline).
+        metric_check: Use the old objects' kernel only when the new objects' summed
+            one-vs-all log evidence is at least as large there as at the initial kernel
+            (checked at every update); False: whenever there is one.
+        bias: Add a learned constant ``b^2`` to the kernel (a bias of the latent function).
         patience: Stop early after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None runs the whole budget.
         min_improvement: See ``patience`` (nats).
@@ -364,6 +380,9 @@ class ActiveLearner:
         evidence_rho: float = 0.9,
         max_sources: int = 1,
         hyper_sd: float | None = None,
+        metric_sd: float | None = 1.0,
+        bias: bool = False,
+        metric_check: bool = True,
         patience: int | None = None,
         min_improvement: float = 1e-3,
         amplitude: bool = True,
@@ -390,6 +409,9 @@ class ActiveLearner:
         self.evidence_rho = evidence_rho
         self.max_sources = max_sources
         self.hyper_sd = hyper_sd
+        self.metric_sd = metric_sd
+        self.bias = bool(bias)
+        self.metric_check = bool(metric_check)
         self.patience = patience
         self.min_improvement = min_improvement
         self.amplitude = amplitude
@@ -430,6 +452,10 @@ class ActiveLearner:
             (
                 self.hyper_sd is None or 0.0 < self.hyper_sd < np.inf,
                 f"hyper_sd={self.hyper_sd} must be None or > 0",
+            ),
+            (
+                self.metric_sd is None or 0.0 < self.metric_sd < np.inf,
+                f"metric_sd={self.metric_sd} must be None or > 0",
             ),
         )
         problems += [problem for ok, problem in ranges if not ok]
@@ -640,7 +666,10 @@ class ActiveLearner:
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         probabilities = self._prior_probabilities(state)
         models = []
-        initial = modality_kernel(transformer.slices_, amplitude=self.amplitude)
+        initial = modality_kernel(
+            transformer.slices_, amplitude=self.amplitude, bias=1.0 if self.bias else None
+        )
+        initial, prior_sd = self._metric(prior, initial, X, labels)
         for obj, seed in enumerate(seeds):
             kernel = initial  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
@@ -659,6 +688,7 @@ class ActiveLearner:
                 rho_starts=state.rhos[obj],
                 previous=state.models[obj] if state.models else None,
                 centre=initial.theta,
+                prior_sd=prior_sd,
                 n_restarts=n_restarts,
                 max_iter=max_iter,
                 seed=seed,
@@ -668,6 +698,37 @@ class ActiveLearner:
             models.append(model)
         state.transformer, state.X, state.models = transformer, X, models
         state.uncertainty = self._uncertainty(state)
+
+    def _metric(
+        self, prior: PriorModel | None, initial: ModalityKernel, X: FloatArray, labels: IntArray
+    ) -> tuple[ModalityKernel, float | None]:
+        """The new objects' starting kernel and hyperprior sd: the old objects' metric if known.
+
+        Metric transfer: the old objects' classifiers, fitted on many observations per object,
+        know which modalities and length scales separate objects of this action; one
+        observation per new object does not. Their hyperparameters (the median over the old
+        objects' one-vs-all classifiers, log space) start every new object's search and centre
+        its hyperprior, of sd ``metric_sd``. Without priors, with a single old object (no
+        one-vs-all model) or with ``metric_sd=None``: the initial kernel and ``hyper_sd``.
+        """
+        if self.metric_sd is None or prior is None or prior.model is None:
+            return initial, self.hyper_sd
+        thetas = [e.kernel_.theta for e in prior.model.estimators_]
+        if any(t.shape != initial.theta.shape for t in thetas):  # e.g. bias in one only
+            return initial, self.hyper_sd
+        metric = initial.with_theta(np.median(thetas, axis=0))
+        if self.metric_check and self._evidence(metric, X, labels) < self._evidence(
+            initial, X, labels
+        ):
+            return initial, self.hyper_sd
+        return metric, self.metric_sd
+
+    def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
+        """Sum over the new objects of their one-vs-all log evidence at ``kernel``."""
+        return sum(
+            BinaryGPC(kernel, optimize=False).fit(X, labels == obj).log_marginal_likelihood_value_
+            for obj in range(self.n_new_objects)
+        )
 
     def _prior_probabilities(self, state: ActionState) -> FloatArray | None:
         """The old models' score of every observation (model prediction or density approach).
@@ -719,6 +780,7 @@ class ActiveLearner:
         rho_starts: dict[int, float],
         previous: TransferGPC | None,
         centre: FloatArray,
+        prior_sd: float | None,
         n_restarts: int,
         max_iter: int,
         seed: int,
@@ -728,7 +790,7 @@ class ActiveLearner:
         search: dict[str, Any] = {
             "n_restarts": n_restarts,
             "max_iter": max_iter,
-            "prior_sd": self.hyper_sd,
+            "prior_sd": prior_sd,
             "prior_mean": centre,
             "random_state": seed,
         }

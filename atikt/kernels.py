@@ -49,6 +49,7 @@ DEFAULT_LOGIT_BOUNDS: Final = (-6.0, 6.0)
 DEFAULT_VARIANCE_BOUNDS: Final = (0.1, 100.0)
 """Signal-variance box of the amplitude variant."""
 DEFAULT_RHO_BOUNDS: Final = (1e-3, 1.0)
+DEFAULT_BIAS_BOUNDS: Final = (1e-3, 100.0)
 """Box of a learned transfer coefficient rho (log space, so 0 itself is excluded)."""
 
 _EMPTY_BOUNDS: Final = np.zeros((0, 2))
@@ -251,8 +252,9 @@ class ModalityKernel(Kernel):
 
     ``k(x, y) = s^2 * sum_m w_m k_m(x, y)`` with ``w = softmax([0, *logits])``: the first
     modality is the reference, so ``M`` modalities have ``M - 1`` free logits and the weights
-    are non-negative with L1 norm 1. ``theta`` is ``[log l_1..log l_M, logits, log s^2]``
-    (the last only when ``variance`` is not None).
+    are non-negative with L1 norm 1. ``theta`` is
+    ``[log l_1..log l_M, logits, log s^2, log b^2]`` (``s^2`` only when ``variance`` is not
+    None, ``b^2`` only with a ``bias``).
 
     Args:
         parts: One :class:`SliceRBF` per modality.
@@ -260,6 +262,9 @@ class ModalityKernel(Kernel):
         variance: Signal variance ``s^2``; None is the thesis variant (no amplitude, ``s^2=1``).
         logit_bounds: Box of each logit (not logged: logits are already log ratios).
         variance_bounds: Box of ``s^2`` or ``"fixed"``.
+        bias: Variance ``b^2`` of a constant part of the latent function, added to every
+            entry (``k + b^2``, learned in log space after ``s^2``); None: none (the thesis).
+        bias_bounds: Box of ``b^2`` or ``"fixed"``.
     """
 
     def __init__(
@@ -269,6 +274,9 @@ class ModalityKernel(Kernel):
         variance: float | None = None,
         logit_bounds: tuple[float, float] = DEFAULT_LOGIT_BOUNDS,
         variance_bounds: Bounds = DEFAULT_VARIANCE_BOUNDS,
+        *,
+        bias: float | None = None,
+        bias_bounds: Bounds = DEFAULT_BIAS_BOUNDS,
     ) -> None:
         """Store the parameters; see the class docstring."""
         if not parts:
@@ -288,11 +296,18 @@ class ModalityKernel(Kernel):
         self.logit_bounds = logit_bounds
         self.variance_bounds = variance_bounds
         self._learn_variance = variance is not None and variance_bounds != "fixed"
+        if bias is not None and not bias > 0:
+            msg = f"bias={bias}; it must be > 0 (or None for no constant term)"
+            raise AtiktError(msg)
+        self.bias = bias
+        self.bias_bounds = bias_bounds
+        self._learn_bias = bias is not None and bias_bounds != "fixed"
         self._bounds = np.vstack(
             [
                 *(p.bounds for p in self.parts),
                 np.tile(np.asarray(logit_bounds, float), (len(parts) - 1, 1)),
                 _log_bounds(variance_bounds) if self._learn_variance else _EMPTY_BOUNDS,
+                _log_bounds(bias_bounds) if self._learn_bias else _EMPTY_BOUNDS,
             ]
         )
 
@@ -319,9 +334,15 @@ class ModalityKernel(Kernel):
         return 1.0 if self.variance is None else self.variance
 
     @property
+    def constant(self) -> float:
+        """``b^2``, the variance of the latent function's constant part (0 without)."""
+        return 0.0 if self.bias is None else self.bias
+
+    @property
     def theta(self) -> FloatArray:
-        """``[log l_m..., logits..., log s^2]``."""
+        """``[log l_m..., logits..., log s^2, log b^2]``."""
         tail = [np.log(self.signal_variance)] if self._learn_variance else []
+        tail += [np.log(self.constant)] if self._learn_bias else []
         return np.concatenate([*(p.theta for p in self.parts), self.logits, tail])
 
     @property
@@ -334,7 +355,8 @@ class ModalityKernel(Kernel):
         """Names of the ``theta`` entries."""
         part_names = [n for p in self.parts for n in p.names]
         logit_names = [f"{p.name}.weight_logit" for p in self.parts[1:]]
-        return (*part_names, *logit_names, *(["signal_variance"] if self._learn_variance else []))
+        tail = ["signal_variance"] if self._learn_variance else []
+        return (*part_names, *logit_names, *tail, *(["bias"] if self._learn_bias else []))
 
     def _with_values(self, values: FloatArray) -> Self:
         """Return a copy with the free hyperparameters set from ``values``."""
@@ -347,8 +369,12 @@ class ModalityKernel(Kernel):
         new.parts = tuple(parts)
         new.logits = values[start : start + len(self.parts) - 1].copy()
         new._weights = self._softmax(new.logits)  # noqa: SLF001 - a copy of this class
+        start += len(self.parts) - 1
         if self._learn_variance:
-            new.variance = math.exp(values[-1])
+            new.variance = math.exp(values[start])
+            start += 1
+        if self._learn_bias:
+            new.bias = math.exp(values[start])
         return new
 
     def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
@@ -357,6 +383,8 @@ class ModalityKernel(Kernel):
         K: FloatArray = weights[0] * self.parts[0](X, Y)
         for w, part in zip(weights[1:], self.parts[1:], strict=True):
             K += w * part(X, Y)
+        if self.bias is not None:
+            K += self.bias
         return K
 
     def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -371,11 +399,13 @@ class ModalityKernel(Kernel):
         blocks += [(s2 * w[j] * (parts[j][0] - mixture))[None] for j in range(1, len(parts))]
         if self._learn_variance:
             blocks.append((s2 * mixture)[None])
-        return s2 * mixture, np.concatenate(blocks, axis=0)
+        if self._learn_bias:
+            blocks.append(np.full((1, *mixture.shape), self.constant))
+        return s2 * mixture + self.constant, np.concatenate(blocks, axis=0)
 
     def diag(self, X: FloatArray) -> FloatArray:
-        """Return ``s^2`` for every row (each RBF has unit variance and ``|w|_1 = 1``)."""
-        return np.full(X.shape[0], self.signal_variance)
+        """Return ``s^2 + b^2`` for every row (each RBF has unit variance, ``|w|_1 = 1``)."""
+        return np.full(X.shape[0], self.signal_variance + self.constant)
 
     def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
         """Return ``theta -> (K, dK)`` built on the parts' evaluators (same maths as gradient).
@@ -389,13 +419,15 @@ class ModalityKernel(Kernel):
         n_logits = len(self.parts) - 1
         n, n_params = X.shape[0], self.n_params
         learn_variance, fixed_variance = self._learn_variance, self.signal_variance
+        at_variance = n_part + n_logits
+        constant = self._constant_term(scale)
 
         def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
             z = np.zeros(n_logits + 1)
             z[1:] = theta[n_part : n_part + n_logits]
             w = np.exp(z - z.max())
             w /= w.sum()
-            s2 = math.exp(theta[-1]) if learn_variance else fixed_variance
+            s2 = math.exp(theta[at_variance]) if learn_variance else fixed_variance
             dK = np.empty((n_params, n, n))
             kernels, start = [], 0
             for (evaluate_part, k), wm in zip(parts, w, strict=True):
@@ -411,8 +443,8 @@ class ModalityKernel(Kernel):
                 dK[n_part + j - 1] *= s2 * w[j]
             K = s2 * mixture
             if learn_variance:
-                dK[-1] = K
-            return K, dK
+                dK[at_variance] = K
+            return constant(theta, K, dK), dK
 
         return evaluate
 
@@ -425,6 +457,8 @@ class ModalityKernel(Kernel):
         half_d2 = [-0.5 * part.sq_dist(X) for part in self.parts]  # -d^2 / 2 per modality
         n_parts, n, n_params = len(self.parts), X.shape[0], self.n_params
         learn_variance, fixed_variance = self._learn_variance, self.signal_variance
+        at_variance = 2 * n_parts - 1
+        constant = self._constant_term(scale)
 
         def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
             if n_parts == 2:  # noqa: PLR2004 - softmax([0, z]) of two modalities
@@ -435,7 +469,7 @@ class ModalityKernel(Kernel):
                 z[1:] = theta[n_parts : 2 * n_parts - 1]
                 e = np.exp(z - z.max())
                 w = tuple(e / e.sum())
-            s2 = math.exp(theta[-1]) if learn_variance else fixed_variance
+            s2 = math.exp(theta[at_variance]) if learn_variance else fixed_variance
             dK = np.empty((n_params, n, n))
             kernels = []
             for m, H in enumerate(half_d2):
@@ -456,10 +490,28 @@ class ModalityKernel(Kernel):
                 slot *= s2 * w[m]
             mixture *= s2
             if learn_variance:
-                dK[-1] = mixture
-            return mixture, dK
+                dK[at_variance] = mixture
+            return constant(theta, mixture, dK), dK
 
         return evaluate
+
+    def _constant_term(
+        self, scale: FloatArray | None
+    ) -> Callable[[FloatArray, FloatArray, FloatArray], FloatArray]:
+        """``(theta, K, dK) -> K + b^2 scale``, writing ``dK/d log b^2`` into the last slot."""
+        if self.bias is None:
+            return lambda _theta, K, _dK: K
+        learn, fixed = self._learn_bias, self.constant
+        ones = np.ones(1) if scale is None else scale
+
+        def add(theta: FloatArray, K: FloatArray, dK: FloatArray) -> FloatArray:
+            b2 = math.exp(theta[-1]) if learn else fixed
+            K += b2 * ones
+            if learn:
+                dK[-1] = b2 * ones
+            return K
+
+        return add
 
 
 class DependentKernel(Kernel):
@@ -699,6 +751,7 @@ def modality_kernel(
     amplitude: bool = True,
     length_scale: float = 1.0,
     variance: float = 1.0,
+    bias: float | None = None,
 ) -> ModalityKernel:
     """Build the multi-modal kernel for a feature matrix with the given modality slices.
 
@@ -707,9 +760,11 @@ def modality_kernel(
         amplitude: True learns a signal variance ``s^2``; False is the thesis variant.
         length_scale: Initial length scale of every modality.
         variance: Initial signal variance (with ``amplitude``).
+        bias: Initial variance ``b^2`` of a learned constant part of the latent function
+            (a bias); None: none (the thesis).
 
     Returns:
         The kernel with equal initial weights.
     """
     parts = [SliceRBF(cols, length_scale, name=name) for name, cols in slices.items()]
-    return ModalityKernel(parts, variance=variance if amplitude else None)
+    return ModalityKernel(parts, variance=variance if amplitude else None, bias=bias)

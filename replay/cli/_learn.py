@@ -24,6 +24,7 @@ from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_feat
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
+    DEFAULT_METRIC_SD,
     TRANSFER_MODES,
     RunSpec,
     fit_priors,
@@ -125,6 +126,14 @@ _HYPER = arg(
     metavar="SD|none",
     help="sd of a Gaussian prior on the classifiers' log hyperparameters around the initial "
     "kernel; none: maximum likelihood as in the thesis",
+)
+_METRIC = arg(
+    "--metric-sd",
+    type=_hyper_sd,
+    default=DEFAULT_METRIC_SD,
+    metavar="SD|none",
+    help="metric transfer: the new objects' classifiers start from the old objects' kernel, "
+    "with a Gaussian prior of this sd around it; none: as in the thesis",
 )
 _FEATURES = arg(
     "--features",
@@ -245,6 +254,7 @@ def _step_line(row: dict[str, Any]) -> str:
     arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
     _SOURCES,
     _HYPER,
+    _METRIC,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -298,6 +308,7 @@ def _learn_command(args: argparse.Namespace) -> int:
         features=args.features,
         max_sources=args.max_sources,
         hyper_sd=args.hyper_sd,
+        metric_sd=args.metric_sd,
     )
     with cli.publish_directory(target, force=args.force) as out:
         _learn_into(args, table, spec, prior_root, out)
@@ -420,6 +431,7 @@ def _record_and_learn(
     ),
     _SOURCES,
     _HYPER,
+    _METRIC,
     *_ROLES,
     _FEATURES,
     _FUSION_PRIOR,
@@ -454,6 +466,7 @@ def _study_command(args: argparse.Namespace) -> int:
                 features=args.features,
                 max_sources=args.max_sources,
                 hyper_sd=args.hyper_sd,
+                metric_sd=args.metric_sd,
                 fusion_prior=args.fusion_prior,
             )
             config = config.quick() if args.quick else config

@@ -29,6 +29,13 @@ TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, evid
 #: the baseline gain the most; ``--hyper-sd none`` is the thesis.
 DEFAULT_HYPER_SD = 5.0
 
+#: Metric transfer (``ActiveLearner(metric_sd=...)``): the new objects' classifiers start from
+#: the old objects' kernel hyperparameters, with a Gaussian prior of this sd around them.
+#: Chosen from sd 1 and 5 on the negative and related runs of
+#: ``tests/bench/relatedness_candidates.py`` (atikt/README, *Metric transfer*);
+#: ``--metric-sd none`` is the thesis.
+DEFAULT_METRIC_SD = 1.0
+
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
 
 
@@ -51,6 +58,9 @@ class RunSpec:
         eps_density: Smallest open-set relatedness score of a source (``density`` mode).
         hyper_sd: Prior sd of the classifiers' log hyperparameters around the initial kernel
             (``DEFAULT_HYPER_SD``; None: maximum likelihood, the thesis).
+        metric_sd: Prior sd of the classifiers' log hyperparameters around the old objects'
+            kernel with two or more prior objects (``DEFAULT_METRIC_SD``; None: no metric
+            transfer, the thesis).
     """
 
     new_objects: tuple[str, ...]
@@ -66,6 +76,7 @@ class RunSpec:
     max_sources: int = 1
     eps_density: float = 0.1
     hyper_sd: float | None = DEFAULT_HYPER_SD
+    metric_sd: float | None = DEFAULT_METRIC_SD
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
@@ -83,6 +94,9 @@ class RunSpec:
             raise ReplayError(msg)
         if self.hyper_sd is not None and not 0 < self.hyper_sd < math.inf:
             msg = f"--hyper-sd {self.hyper_sd}: give a positive standard deviation, e.g. 5, or none"
+            raise ReplayError(msg)
+        if self.metric_sd is not None and not 0 < self.metric_sd < math.inf:
+            msg = f"--metric-sd {self.metric_sd}: give a positive standard deviation or none"
             raise ReplayError(msg)
         if self.budget < 0:
             msg = f"--budget {self.budget}: give 0 or more observations"
@@ -186,6 +200,7 @@ def run_learning(
         max_sources=spec.max_sources,
         eps_density=spec.eps_density,
         hyper_sd=spec.hyper_sd,
+        metric_sd=spec.metric_sd,
         random_state=spec.seed,
     )
     result = RunResult(spec)

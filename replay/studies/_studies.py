@@ -25,6 +25,7 @@ from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
+    DEFAULT_METRIC_SD,
     RunSpec,
     fit_priors,
     prior_data,
@@ -73,6 +74,8 @@ class StudyConfig:
         hyper_sd: Standard deviation of a Gaussian prior on the active learners' log
             hyperparameters around the initial kernel (``DEFAULT_HYPER_SD``; None: maximum
             likelihood, the thesis).
+        metric_sd: Prior sd of the ATIKT learners' log hyperparameters around the old
+            objects' kernel (``DEFAULT_METRIC_SD``; None: no metric transfer, the thesis).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
             centred on those of the other objects of the dataset (``reference_theta``);
             ``none``: maximum likelihood on the group's samples alone (the thesis); any other
@@ -101,6 +104,7 @@ class StudyConfig:
     reduced: bool = False
     max_sources: int = 1
     hyper_sd: float | None = DEFAULT_HYPER_SD
+    metric_sd: float | None = DEFAULT_METRIC_SD
     fusion_prior: str = "others"
 
     def quick(self) -> StudyConfig:
@@ -180,6 +184,7 @@ class TransferTask:
         features: Feature policy.
         max_sources: Old objects transferred at once.
         hyper_sd: Prior sd of the learners' log hyperparameters (None: maximum likelihood).
+        metric_sd: Prior sd around the old objects' kernel (None: no metric transfer).
     """
 
     frame: pl.DataFrame
@@ -194,6 +199,7 @@ class TransferTask:
     features: str = "thesis"
     max_sources: int = 1
     hyper_sd: float | None = DEFAULT_HYPER_SD
+    metric_sd: float | None = DEFAULT_METRIC_SD
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
@@ -216,6 +222,7 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
                 features=task.features,
                 max_sources=task.max_sources,
                 hyper_sd=task.hyper_sd,
+                metric_sd=task.metric_sd,
             )
             executor = PoolExecutor(lookup, task.new, split)
             result = run_learning(spec, executor, executor.test_set(actions), models)
@@ -286,6 +293,7 @@ def transfer_tasks(
             config.features,
             config.max_sources,
             config.hyper_sd,
+            config.metric_sd,
         )
         for number, group in enumerate(prior_groups(config.old, size, config.groups, config.seed))
     ]
@@ -319,6 +327,7 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
                     config.features,
                     config.max_sources,
                     config.hyper_sd,
+                    config.metric_sd,
                 )
             )
     return tasks
@@ -374,6 +383,7 @@ def similarity_tasks(
             config.features,
             config.max_sources,
             config.hyper_sd,
+            config.metric_sd,
         )
         for number in range(runs)
     ]
@@ -754,6 +764,13 @@ def _reduced(config: StudyConfig, *, learners: bool = True) -> str:
             if config.hyper_sd is None
             else f"\nLearners: maximum a posteriori hyperparameters, a Gaussian prior of sd "
             f"{config.hyper_sd:g} (log space) around the initial kernel (`--hyper-sd`).\n"
+        )
+        text += (
+            "ATIKT learners: no metric transfer (`--metric-sd none`).\n"
+            if config.metric_sd is None
+            else "ATIKT learners: metric transfer, the new objects' classifiers start from the "
+            f"old objects' kernel with a prior of sd {config.metric_sd:g} around it whenever "
+            "the new objects' evidence is at least as large there (`--metric-sd`).\n"
         )
     if config.reduced:
         text += (

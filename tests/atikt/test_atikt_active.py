@@ -256,7 +256,7 @@ def test_refusing_every_prior_is_the_baseline(
 ) -> None:
     baseline, calls = run(train, budget=4, transfer="none")
     refused, refused_calls = run(
-        train, budget=4, transfer="prediction", priors=priors, eps_neg1=1.0
+        train, budget=4, transfer="prediction", priors=priors, eps_neg1=1.0, metric_sd=None
     )
     assert refused_calls.calls == calls.calls
     assert all(r.candidates == (0, 1, 2) and r.prior is None for r in refused.history_)

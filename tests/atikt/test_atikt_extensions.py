@@ -339,12 +339,11 @@ def priors() -> dict[str, dict[int, list[RawFeatures]]]:
 
 
 def run(train: dict[str, dict[int, list[RawFeatures]]], **kwargs: object) -> ActiveLearner:
-    settings: dict[str, object] = {**FAST, "random_state": 0, **kwargs}
+    settings: dict[str, object] = {**FAST, "budget": 6, "random_state": 0, **kwargs}
     learner = ActiveLearner(
         ACTIONS,
         len(NEW_OBJECTS),
         observe=PoolObserver(train),
-        budget=6,
         **settings,  # type: ignore[arg-type]
     )
     learner.initialise()
@@ -393,10 +392,10 @@ def test_a_learner_with_a_hyperprior_is_deterministic_and_not_the_ml_learner(
     train: dict[str, dict[int, list[RawFeatures]]],
     priors: dict[str, dict[int, list[RawFeatures]]],
 ) -> None:
-    first = run(train, priors=priors, hyper_sd=3.0)
-    again = run(train, priors=priors, hyper_sd=3.0)
+    first = run(train, priors=priors, hyper_sd=3.0, metric_sd=None)
+    again = run(train, priors=priors, hyper_sd=3.0, metric_sd=None)
     assert [r.as_row() for r in first.history_] == [r.as_row() for r in again.history_]
-    ml = run(train, priors=priors)
+    ml = run(train, priors=priors, metric_sd=None)
     theta = [m.base_kernel_.theta for s in first.states_.values() for m in s.models]
     ml_theta = [m.base_kernel_.theta for s in ml.states_.values() for m in s.models]
     assert any(not np.allclose(a, b) for a, b in zip(theta, ml_theta, strict=True))
@@ -411,13 +410,78 @@ def test_a_learner_refusing_every_prior_is_the_baseline(
     priors: dict[str, dict[int, list[RawFeatures]]],
     refuse: dict[str, object],
 ) -> None:
-    refusing = run(train, priors=priors, **refuse)
+    refusing = run(train, priors=priors, metric_sd=None, **refuse)
     baseline = run(train, transfer="none")
     assert all(r.prior is None for r in refusing.history_)
     assert [r.object for r in refusing.history_] == [r.object for r in baseline.history_]
     assert [r.mean_entropy for r in refusing.history_] == [
         r.mean_entropy for r in baseline.history_
     ]
+
+
+def test_metric_transfer_starts_the_new_classifiers_at_the_old_objects_kernel(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    # instance transfer refused: what differs from the baseline is the metric alone
+    refuse = {"transfer": "evidence", "eps_evidence": 1e9, "budget": 0}
+    metric = run(train, priors=priors, metric_sd=0.01, metric_check=False, **refuse)
+    plain = run(train, transfer="none", budget=0)
+    for action in ACTIONS:
+        prior = metric.states_[action].prior
+        assert prior is not None
+        assert prior.model is not None
+        centre = np.median([e.kernel_.theta for e in prior.model.estimators_], axis=0)
+        start = modality_kernel(metric.states_[action].transformer.slices_).theta  # type: ignore[union-attr]
+        assert not np.allclose(centre, start)
+        for model, baseline in zip(
+            metric.states_[action].models, plain.states_[action].models, strict=True
+        ):
+            # a tight prior keeps each fit at the old objects' kernel, far from the baseline's
+            fitted = model.base_kernel_.theta
+            assert np.abs(fitted - centre).max() < 0.1
+            assert np.abs(baseline.base_kernel_.theta - centre).max() > 0.1
+    again = run(train, priors=priors, metric_sd=0.01, metric_check=False, **refuse)
+    assert [m.base_kernel_.theta.tolist() for s in again.states_.values() for m in s.models] == [
+        m.base_kernel_.theta.tolist() for s in metric.states_.values() for m in s.models
+    ]
+
+
+def test_the_metric_check_keeps_the_kernel_of_the_larger_evidence(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    refuse = {"transfer": "evidence", "eps_evidence": 1e9, "budget": 0, "metric_sd": 0.01}
+    checked = run(train, priors=priors, **refuse)
+    plain = run(train, transfer="none", budget=0)
+    for action in ACTIONS:
+        state = checked.states_[action]
+        assert state.prior is not None
+        assert state.prior.model is not None
+        initial = modality_kernel(state.transformer.slices_)  # type: ignore[union-attr]
+        centre = np.median([e.kernel_.theta for e in state.prior.model.estimators_], axis=0)
+        kept = checked._evidence(initial.with_theta(centre), state.X, np.asarray(state.labels))
+        refused = kept < checked._evidence(initial, state.X, np.asarray(state.labels))
+        thetas = [m.base_kernel_.theta for m in state.models]
+        baseline = [m.base_kernel_.theta for m in plain.states_[action].models]
+        if refused:  # the baseline's fits exactly
+            assert all(np.array_equal(a, b) for a, b in zip(thetas, baseline, strict=True))
+        else:
+            assert all(np.abs(t - centre).max() < 0.1 for t in thetas)
+
+
+def test_metric_transfer_needs_two_old_objects_and_leaves_the_baseline_alone(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    baseline = run(train, transfer="none")
+    with_metric = run(train, transfer="none", priors=priors, metric_sd=0.01)
+    assert [r.as_row() for r in with_metric.history_] == [r.as_row() for r in baseline.history_]
+    # a single old object has no one-vs-all model: the optimisation approach runs without
+    one = {a: {k: v for k, v in groups.items() if k == min(groups)} for a, groups in priors.items()}
+    single = run(train, priors=one, transfer="optimization", metric_sd=0.01, budget=1)
+    plain = run(train, priors=one, transfer="optimization", metric_sd=None, budget=1)
+    assert [r.as_row() for r in single.history_] == [r.as_row() for r in plain.history_]
 
 
 def test_max_sources_and_rho_scale_must_be_positive() -> None:
@@ -427,6 +491,8 @@ def test_max_sources_and_rho_scale_must_be_positive() -> None:
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)
     with pytest.raises(AtiktError, match=r"hyper_sd=0\.0 must be None or > 0"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), hyper_sd=0.0)
+    with pytest.raises(AtiktError, match=r"metric_sd=-1\.0 must be None or > 0"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_sd=-1.0)
     with pytest.raises(AtiktError, match=r"evidence_rho=1\.5"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), evidence_rho=1.5)
     with pytest.raises(AtiktError, match="eps_evidence=nan"):

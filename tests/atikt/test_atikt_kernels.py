@@ -42,9 +42,17 @@ def kernels() -> list[object]:
     amp = modality_kernel(SLICES, amplitude=True)
     thesis = thesis.with_theta(rng.uniform(-1, 1, thesis.n_params))
     amp = amp.with_theta(rng.uniform(-1, 1, amp.n_params))
+    biased = modality_kernel(SLICES, bias=0.5)
+    biased = biased.with_theta(rng.uniform(-1, 1, biased.n_params))
+    fixed_parts = [SliceRBF(c, 0.8, "fixed", name=n) for n, c in SLICES.items()]
+    generic = ModalityKernel(fixed_parts, [0.3, -0.2], variance=1.5, bias=0.7)
     X = features(12, 1)
     Xf = flagged(5, 7, 2)
     return [
+        pytest.param(biased, X, id="bias"),
+        pytest.param(modality_kernel(SLICES, amplitude=False, bias=2.0), X, id="bias-thesis"),
+        pytest.param(generic, X, id="bias-fixed-length-scales"),
+        pytest.param(DependentKernel(biased, 0.4, (1e-3, 1.0)), Xf, id="dependent-bias"),
         pytest.param(SliceRBF(slice(1, 4), 0.7), X, id="rbf"),
         pytest.param(thesis, X, id="thesis"),
         pytest.param(amp, X, id="amplitude"),
@@ -150,6 +158,21 @@ def test_fixed_hyperparameters_are_not_free() -> None:
 def test_bad_parameters_are_refused(build: Callable[[], object], match: str) -> None:
     with pytest.raises(AtiktError, match=match):
         build()
+
+
+def test_bias_adds_a_learned_constant() -> None:
+    X = features(6, 3)
+    plain = modality_kernel(SLICES)
+    biased = modality_kernel(SLICES, bias=0.25)
+    assert biased.names[-1] == "bias"
+    assert biased.n_params == plain.n_params + 1
+    np.testing.assert_allclose(biased(X), plain(X) + 0.25, rtol=1e-12)
+    np.testing.assert_allclose(biased.diag(X), plain.diag(X) + 0.25)
+    moved = biased.with_theta([*biased.theta[:-1], np.log(4.0)])
+    assert moved.constant == pytest.approx(4.0)
+    assert moved.signal_variance == pytest.approx(biased.signal_variance)
+    with pytest.raises(AtiktError, match="bias=0"):
+        modality_kernel(SLICES, bias=0.0)
 
 
 def assert_same_kernel(actual: np.ndarray, expected: np.ndarray) -> None:
