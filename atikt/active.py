@@ -71,10 +71,56 @@ Available = Callable[[int, str], bool]
 
 TRANSFER_MODES: Final = ("prediction", "optimization", "density", "evidence", "none")
 _SCORED: Final = ("prediction", "density")
+"""Modes whose relatedness is a per-observation score of the fixed prior models (cached)."""
 _KEPT: Final = (*_SCORED, "evidence")
 """Modes whose choice for a new object is kept while only other objects' observations change."""
-"""Modes whose relatedness is a per-observation score of the fixed prior models (cached)."""
+MetricCheck = Literal["evidence", "separation", "either", "none"]
+METRIC_CHECKS: Final = ("evidence", "separation", "either", "none")
 _NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
+
+
+def _metric_check(value: object) -> MetricCheck:
+    """``metric_check`` as one of :data:`METRIC_CHECKS` (True: evidence; False, None: none).
+
+    Raises:
+        AtiktError: Any other value.
+    """
+    if value is None:
+        return "none"
+    if isinstance(value, bool | int | float) and value in {0, 1}:
+        return "evidence" if value else "none"
+    if value not in METRIC_CHECKS:
+        msg = f"metric_check={value!r} must be one of {METRIC_CHECKS} (or True / False)"
+        raise AtiktError(msg)
+    return value
+
+
+def separation(
+    kernel: ModalityKernel, X: FloatArray, labels: IntArray, aux: Mapping[int, FloatArray]
+) -> float:
+    """How well ``kernel`` separates the new objects: repeat similarity minus pair similarity.
+
+    The kernel's correlation (``k(x, y) / k(x, x)``) of repeat observations of one object is
+    taken from the old objects' observations (``aux``: old object -> its observations in the
+    new objects' feature space; the median over objects of their mean off-diagonal
+    correlation), because after one observation per new object there are none of theirs;
+    from it is subtracted the mean correlation of observations of two different new objects
+    (``X``, ``labels``). A kernel under which the new objects look as alike as repeated
+    touches of one object cannot tell them apart, whatever it did for the old objects. The
+    evidence cannot see this with one observation per object: it always prefers the kernel
+    that makes the few observations independent.
+    """
+    scale = float(kernel.diag(X[:1])[0])
+    within = [
+        (kernel(obs).sum() - scale * len(obs)) / (scale * len(obs) * (len(obs) - 1))
+        for obs in aux.values()
+        if len(obs) > 1
+    ]
+    if not within:
+        return -np.inf
+    K = kernel(X) / scale
+    different = labels[:, None] != labels[None, :]
+    return float(np.median(within) - K[different].mean())
 
 
 def entropy(p: FloatArray) -> FloatArray:
@@ -340,9 +386,19 @@ class ActiveLearner:
             median) and its hyperprior, of this sd, is centred there instead of on the
             initial kernel (``hyper_sd``). None: no metric transfer (the thesis). Ignored
             without priors (the baseline).
-        metric_check: Use the old objects' kernel only when the new objects' summed
-            one-vs-all log evidence is at least as large there as at the initial kernel
-            (checked at every update); False: whenever there is one.
+        metric_check: When to use the old objects' kernel, checked at every update:
+            ``"evidence"`` (or True) when the new objects' summed one-vs-all log evidence is
+            at least as large there as at the initial kernel; ``"separation"`` when it
+            separates the new objects at least as well (:func:`separation`: the old objects'
+            repeat observations against the new objects' pairs); ``"either"`` when one of
+            the two holds (the default: separation decides after one observation per
+            object, where the evidence always prefers the kernel that makes the few
+            observations independent); ``"none"`` (or False): whenever there is one.
+        metric_until: The old objects' kernel centres a new object's hyperprior only while the
+            object has at most this many observations of the action; with more, its own
+            observations decide (the initial kernel's centre and ``hyper_sd``). None: always
+            (the old kernel's pull then costs up to 10 points once an action has many
+            observations, atikt/README *Metric transfer*).
         bias: Add a learned constant ``b^2`` to the kernel (a bias of the latent function).
         patience: Stop early after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None runs the whole budget.
@@ -382,7 +438,8 @@ class ActiveLearner:
         hyper_sd: float | None = None,
         metric_sd: float | None = 1.0,
         bias: bool = False,
-        metric_check: bool = True,
+        metric_check: MetricCheck | bool = "either",
+        metric_until: int | None = 2,
         patience: int | None = None,
         min_improvement: float = 1e-3,
         amplitude: bool = True,
@@ -411,7 +468,8 @@ class ActiveLearner:
         self.hyper_sd = hyper_sd
         self.metric_sd = metric_sd
         self.bias = bool(bias)
-        self.metric_check = bool(metric_check)
+        self.metric_check = _metric_check(metric_check)
+        self.metric_until = None if metric_until is None else int(metric_until)
         self.patience = patience
         self.min_improvement = min_improvement
         self.amplitude = amplitude
@@ -449,6 +507,10 @@ class ActiveLearner:
                 f"eps_evidence={self.eps_evidence} must be finite",
             ),
             (self.max_sources >= 1, f"max_sources={self.max_sources} must be >= 1"),
+            (
+                self.metric_until is None or self.metric_until >= 1,
+                f"metric_until={self.metric_until} must be None or >= 1",
+            ),
             (
                 self.hyper_sd is None or 0.0 < self.hyper_sd < np.inf,
                 f"hyper_sd={self.hyper_sd} must be None or > 0",
@@ -669,9 +731,14 @@ class ActiveLearner:
         initial = modality_kernel(
             transformer.slices_, amplitude=self.amplitude, bias=1.0 if self.bias else None
         )
-        initial, prior_sd = self._metric(prior, initial, X, labels)
+        base, base_sd = initial, self.hyper_sd
+        initial, prior_sd = self._metric(prior, initial, X, labels, auxiliary)
+        counts = np.bincount(labels, minlength=self.n_new_objects)
         for obj, seed in enumerate(seeds):
-            kernel = initial  # kernels are immutable: with_theta returns a new one
+            centre, sd = initial, prior_sd
+            if self.metric_until is not None and counts[obj] > self.metric_until:
+                centre, sd = base, base_sd  # enough own observations: the data decide
+            kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
@@ -687,8 +754,8 @@ class ActiveLearner:
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
                 previous=state.models[obj] if state.models else None,
-                centre=initial.theta,
-                prior_sd=prior_sd,
+                centre=centre.theta,
+                prior_sd=sd,
                 n_restarts=n_restarts,
                 max_iter=max_iter,
                 seed=seed,
@@ -700,7 +767,12 @@ class ActiveLearner:
         state.uncertainty = self._uncertainty(state)
 
     def _metric(
-        self, prior: PriorModel | None, initial: ModalityKernel, X: FloatArray, labels: IntArray
+        self,
+        prior: PriorModel | None,
+        initial: ModalityKernel,
+        X: FloatArray,
+        labels: IntArray,
+        aux: Mapping[int, FloatArray],
     ) -> tuple[ModalityKernel, float | None]:
         """The new objects' starting kernel and hyperprior sd: the old objects' metric if known.
 
@@ -717,11 +789,13 @@ class ActiveLearner:
         if any(t.shape != initial.theta.shape for t in thetas):  # e.g. bias in one only
             return initial, self.hyper_sd
         metric = initial.with_theta(np.median(thetas, axis=0))
-        if self.metric_check and self._evidence(metric, X, labels) < self._evidence(
-            initial, X, labels
-        ):
-            return initial, self.hyper_sd
-        return metric, self.metric_sd
+        check = self.metric_check
+        passed = check == "none"
+        if not passed and check in {"separation", "either"}:
+            passed = separation(metric, X, labels, aux) >= separation(initial, X, labels, aux)
+        if not passed and check in {"evidence", "either"}:
+            passed = self._evidence(metric, X, labels) >= self._evidence(initial, X, labels)
+        return (metric, self.metric_sd) if passed else (initial, self.hyper_sd)
 
     def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
         """Sum over the new objects of their one-vs-all log evidence at ``kernel``."""

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import polars as pl
 from rich.console import Console
 
+from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
 from replay.learning._datasets import (
@@ -24,7 +25,9 @@ from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_feat
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
+    DEFAULT_METRIC_CHECK,
     DEFAULT_METRIC_SD,
+    DEFAULT_METRIC_UNTIL,
     TRANSFER_MODES,
     RunSpec,
     fit_priors,
@@ -134,6 +137,34 @@ _METRIC = arg(
     metavar="SD|none",
     help="metric transfer: the new objects' classifiers start from the old objects' kernel, "
     "with a Gaussian prior of this sd around it; none: as in the thesis",
+)
+_METRIC_CHECK = arg(
+    "--metric-check",
+    default=DEFAULT_METRIC_CHECK,
+    choices=METRIC_CHECKS,
+    help="when the old objects' kernel is used: the new objects' evidence is at least as "
+    "large there (evidence), it separates them at least as well (separation), either, or "
+    f"always (none) (default: {DEFAULT_METRIC_CHECK})",
+)
+
+
+def _count(text: str) -> int | None:
+    """``none`` or a positive integer."""
+    if text.strip().lower() == "none":
+        return None
+    if not text.strip().isdigit() or int(text) < 1:
+        msg = f"{text!r}: give a number of observations (1 or more) or none"
+        raise argparse.ArgumentTypeError(msg)
+    return int(text)
+
+
+_METRIC_UNTIL = arg(
+    "--metric-until",
+    type=_count,
+    default=DEFAULT_METRIC_UNTIL,
+    metavar="N|none",
+    help="the old objects' kernel centres a new object's hyperprior while it has at most N "
+    f"observations of the action; none: always (default: {DEFAULT_METRIC_UNTIL})",
 )
 _FEATURES = arg(
     "--features",
@@ -255,6 +286,8 @@ def _step_line(row: dict[str, Any]) -> str:
     _SOURCES,
     _HYPER,
     _METRIC,
+    _METRIC_CHECK,
+    _METRIC_UNTIL,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -309,6 +342,8 @@ def _learn_command(args: argparse.Namespace) -> int:
         max_sources=args.max_sources,
         hyper_sd=args.hyper_sd,
         metric_sd=args.metric_sd,
+        metric_check=args.metric_check,
+        metric_until=args.metric_until,
     )
     with cli.publish_directory(target, force=args.force) as out:
         _learn_into(args, table, spec, prior_root, out)
@@ -432,6 +467,8 @@ def _record_and_learn(
     _SOURCES,
     _HYPER,
     _METRIC,
+    _METRIC_CHECK,
+    _METRIC_UNTIL,
     *_ROLES,
     _FEATURES,
     _FUSION_PRIOR,
@@ -467,6 +504,8 @@ def _study_command(args: argparse.Namespace) -> int:
                 max_sources=args.max_sources,
                 hyper_sd=args.hyper_sd,
                 metric_sd=args.metric_sd,
+                metric_check=args.metric_check,
+                metric_until=args.metric_until,
                 fusion_prior=args.fusion_prior,
             )
             config = config.quick() if args.quick else config

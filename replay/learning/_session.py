@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import polars as pl
 
 from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
+from atikt.active import METRIC_CHECKS
 from atikt.active import TRANSFER_MODES as ATIKT_TRANSFER_MODES
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
@@ -36,6 +37,13 @@ DEFAULT_HYPER_SD = 5.0
 #: ``--metric-sd none`` is the thesis.
 DEFAULT_METRIC_SD = 1.0
 
+#: When the old objects' kernel is used (``ActiveLearner(metric_check=...)``) and until how
+#: many observations of a new object (``metric_until``): chosen on the priors, negative,
+#: related and single-action runs of ``tests/bench/relatedness_candidates.py``
+#: (atikt/README, *Metric transfer*).
+DEFAULT_METRIC_CHECK = "either"
+DEFAULT_METRIC_UNTIL: int | None = 2
+
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
 
 
@@ -61,6 +69,10 @@ class RunSpec:
         metric_sd: Prior sd of the classifiers' log hyperparameters around the old objects'
             kernel with two or more prior objects (``DEFAULT_METRIC_SD``; None: no metric
             transfer, the thesis).
+        metric_check: When the old objects' kernel is used: ``evidence``, ``separation``,
+            ``either`` or ``none`` (always; see ``ActiveLearner``).
+        metric_until: Most observations of a new object for which the old objects' kernel
+            centres its hyperprior (None: always).
     """
 
     new_objects: tuple[str, ...]
@@ -77,6 +89,32 @@ class RunSpec:
     eps_density: float = 0.1
     hyper_sd: float | None = DEFAULT_HYPER_SD
     metric_sd: float | None = DEFAULT_METRIC_SD
+    metric_check: str = DEFAULT_METRIC_CHECK
+    metric_until: int | None = DEFAULT_METRIC_UNTIL
+
+    def _check_hyperpriors(self) -> None:
+        """Check the hyperprior and metric transfer options; errors name the option."""
+        checks = (
+            (
+                self.hyper_sd is None or 0 < self.hyper_sd < math.inf,
+                f"--hyper-sd {self.hyper_sd}: give a positive standard deviation, e.g. 5, or none",
+            ),
+            (
+                self.metric_sd is None or 0 < self.metric_sd < math.inf,
+                f"--metric-sd {self.metric_sd}: give a positive standard deviation or none",
+            ),
+            (
+                self.metric_check in METRIC_CHECKS,
+                f"--metric-check {self.metric_check}: use one of {', '.join(METRIC_CHECKS)}",
+            ),
+            (
+                self.metric_until is None or self.metric_until >= 1,
+                f"--metric-until {self.metric_until}: give 1 or more observations, or none",
+            ),
+        )
+        for ok, msg in checks:
+            if not ok:
+                raise ReplayError(msg)
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
@@ -92,12 +130,7 @@ class RunSpec:
         if self.max_sources < 1:
             msg = f"--max-sources {self.max_sources}: give 1 (the thesis) or more"
             raise ReplayError(msg)
-        if self.hyper_sd is not None and not 0 < self.hyper_sd < math.inf:
-            msg = f"--hyper-sd {self.hyper_sd}: give a positive standard deviation, e.g. 5, or none"
-            raise ReplayError(msg)
-        if self.metric_sd is not None and not 0 < self.metric_sd < math.inf:
-            msg = f"--metric-sd {self.metric_sd}: give a positive standard deviation or none"
-            raise ReplayError(msg)
+        self._check_hyperpriors()
         if self.budget < 0:
             msg = f"--budget {self.budget}: give 0 or more observations"
             raise ReplayError(msg)
@@ -201,6 +234,8 @@ def run_learning(
         eps_density=spec.eps_density,
         hyper_sd=spec.hyper_sd,
         metric_sd=spec.metric_sd,
+        metric_check=spec.metric_check,  # type: ignore[arg-type]
+        metric_until=spec.metric_until,
         random_state=spec.seed,
     )
     result = RunResult(spec)

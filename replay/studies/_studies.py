@@ -25,7 +25,9 @@ from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
+    DEFAULT_METRIC_CHECK,
     DEFAULT_METRIC_SD,
+    DEFAULT_METRIC_UNTIL,
     RunSpec,
     fit_priors,
     prior_data,
@@ -76,6 +78,9 @@ class StudyConfig:
             likelihood, the thesis).
         metric_sd: Prior sd of the ATIKT learners' log hyperparameters around the old
             objects' kernel (``DEFAULT_METRIC_SD``; None: no metric transfer, the thesis).
+        metric_check: When the old objects' kernel is used (``DEFAULT_METRIC_CHECK``).
+        metric_until: Most observations of a new object for which it is used
+            (``DEFAULT_METRIC_UNTIL``; None: always).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
             centred on those of the other objects of the dataset (``reference_theta``);
             ``none``: maximum likelihood on the group's samples alone (the thesis); any other
@@ -105,6 +110,8 @@ class StudyConfig:
     max_sources: int = 1
     hyper_sd: float | None = DEFAULT_HYPER_SD
     metric_sd: float | None = DEFAULT_METRIC_SD
+    metric_check: str = DEFAULT_METRIC_CHECK
+    metric_until: int | None = DEFAULT_METRIC_UNTIL
     fusion_prior: str = "others"
 
     def quick(self) -> StudyConfig:
@@ -185,6 +192,8 @@ class TransferTask:
         max_sources: Old objects transferred at once.
         hyper_sd: Prior sd of the learners' log hyperparameters (None: maximum likelihood).
         metric_sd: Prior sd around the old objects' kernel (None: no metric transfer).
+        metric_check: When the old objects' kernel is used.
+        metric_until: Most observations of a new object for which it is used.
     """
 
     frame: pl.DataFrame
@@ -200,6 +209,8 @@ class TransferTask:
     max_sources: int = 1
     hyper_sd: float | None = DEFAULT_HYPER_SD
     metric_sd: float | None = DEFAULT_METRIC_SD
+    metric_check: str = DEFAULT_METRIC_CHECK
+    metric_until: int | None = DEFAULT_METRIC_UNTIL
 
 
 def run_transfer_task(task: TransferTask) -> pl.DataFrame:
@@ -223,6 +234,8 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
                 max_sources=task.max_sources,
                 hyper_sd=task.hyper_sd,
                 metric_sd=task.metric_sd,
+                metric_check=task.metric_check,
+                metric_until=task.metric_until,
             )
             executor = PoolExecutor(lookup, task.new, split)
             result = run_learning(spec, executor, executor.test_set(actions), models)
@@ -294,6 +307,8 @@ def transfer_tasks(
             config.max_sources,
             config.hyper_sd,
             config.metric_sd,
+            config.metric_check,
+            config.metric_until,
         )
         for number, group in enumerate(prior_groups(config.old, size, config.groups, config.seed))
     ]
@@ -328,6 +343,8 @@ def priors_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]
                     config.max_sources,
                     config.hyper_sd,
                     config.metric_sd,
+                    config.metric_check,
+                    config.metric_until,
                 )
             )
     return tasks
@@ -384,6 +401,8 @@ def similarity_tasks(
             config.max_sources,
             config.hyper_sd,
             config.metric_sd,
+            config.metric_check,
+            config.metric_until,
         )
         for number in range(runs)
     ]
@@ -754,6 +773,16 @@ def _gain_table(frame: pl.DataFrame, by: Sequence[str], unit: str, config: Study
     return "\n".join(lines) + "\n\n" + note
 
 
+_METRIC_WHEN = {
+    "evidence": "when the new objects' evidence is at least as large there",
+    "separation": "when it separates the new objects at least as well",
+    "either": "when the new objects' evidence is at least as large there or it separates "
+    "them at least as well",
+    "none": "always",
+}
+"""The summary's words for each ``--metric-check``."""
+
+
 def _reduced(config: StudyConfig, *, learners: bool = True) -> str:
     """Return the summary's notes on a reduced (``--quick``) run and on the learners' prior."""
     text = ""
@@ -769,8 +798,15 @@ def _reduced(config: StudyConfig, *, learners: bool = True) -> str:
             "ATIKT learners: no metric transfer (`--metric-sd none`).\n"
             if config.metric_sd is None
             else "ATIKT learners: metric transfer, the new objects' classifiers start from the "
-            f"old objects' kernel with a prior of sd {config.metric_sd:g} around it whenever "
-            "the new objects' evidence is at least as large there (`--metric-sd`).\n"
+            f"old objects' kernel with a prior of sd {config.metric_sd:g} around it "
+            f"({_METRIC_WHEN[config.metric_check]}"
+            + (
+                ""
+                if config.metric_until is None
+                else f", while a new object has at most {config.metric_until} observations "
+                "of the action"
+            )
+            + "; `--metric-sd`, `--metric-check`, `--metric-until`).\n"
         )
     if config.reduced:
         text += (

@@ -22,6 +22,7 @@ from atikt import (
     evidence_gains,
     modality_kernel,
 )
+from atikt.active import separation
 from atikt.gpc import with_prior
 from atikt.transfer import with_domain
 
@@ -447,12 +448,14 @@ def test_metric_transfer_starts_the_new_classifiers_at_the_old_objects_kernel(
     ]
 
 
-def test_the_metric_check_keeps_the_kernel_of_the_larger_evidence(
+@pytest.mark.parametrize("check", ["evidence", "separation", "either"])
+def test_the_metric_check_keeps_the_old_kernel_only_when_it_passes(
     train: dict[str, dict[int, list[RawFeatures]]],
     priors: dict[str, dict[int, list[RawFeatures]]],
+    check: str,
 ) -> None:
     refuse = {"transfer": "evidence", "eps_evidence": 1e9, "budget": 0, "metric_sd": 0.01}
-    checked = run(train, priors=priors, **refuse)
+    checked = run(train, priors=priors, metric_check=check, **refuse)
     plain = run(train, transfer="none", budget=0)
     for action in ACTIONS:
         state = checked.states_[action]
@@ -460,14 +463,99 @@ def test_the_metric_check_keeps_the_kernel_of_the_larger_evidence(
         assert state.prior.model is not None
         initial = modality_kernel(state.transformer.slices_)  # type: ignore[union-attr]
         centre = np.median([e.kernel_.theta for e in state.prior.model.estimators_], axis=0)
-        kept = checked._evidence(initial.with_theta(centre), state.X, np.asarray(state.labels))
-        refused = kept < checked._evidence(initial, state.X, np.asarray(state.labels))
+        metric, labels = initial.with_theta(centre), np.asarray(state.labels)
+        aux = checked._auxiliary(state, state.transformer)  # type: ignore[arg-type]
+        by_evidence = checked._evidence(metric, state.X, labels) >= checked._evidence(
+            initial, state.X, labels
+        )
+        by_separation = separation(metric, state.X, labels, aux) >= separation(
+            initial, state.X, labels, aux
+        )
+        passed = {
+            "evidence": by_evidence,
+            "separation": by_separation,
+            "either": by_evidence or by_separation,
+        }[check]
         thetas = [m.base_kernel_.theta for m in state.models]
         baseline = [m.base_kernel_.theta for m in plain.states_[action].models]
-        if refused:  # the baseline's fits exactly
-            assert all(np.array_equal(a, b) for a, b in zip(thetas, baseline, strict=True))
-        else:
+        if passed:
             assert all(np.abs(t - centre).max() < 0.1 for t in thetas)
+        else:  # the baseline's fits exactly
+            assert all(np.array_equal(a, b) for a, b in zip(thetas, baseline, strict=True))
+
+
+def test_metric_until_hands_a_well_observed_object_back_to_its_own_data(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    # metric only, unchecked: an object past metric_until loses the old kernel's hyperprior
+    settings = {
+        "transfer": "evidence",
+        "eps_evidence": 1e9,
+        "metric_sd": 0.5,
+        "metric_check": "none",
+        "hyper_sd": 3.0,
+        "budget": 8,
+        "eps_explore": 0.0,
+    }
+    held = run(train, priors=priors, metric_until=1, **settings)
+    always = run(train, priors=priors, metric_until=None, **settings)
+    seen = set()
+    for action in ACTIONS:
+        state = held.states_[action]
+        assert state.prior is not None
+        assert state.prior.model is not None
+        centre = np.median([e.kernel_.theta for e in state.prior.model.estimators_], axis=0)
+        counts = np.bincount(state.labels, minlength=len(NEW_OBJECTS))
+        for obj, (model, pulled) in enumerate(
+            zip(state.models, always.states_[action].models, strict=True)
+        ):
+            assert pulled.prior_mean is not None
+            assert model.prior_mean is not None
+            assert (pulled.prior_sd, pulled.prior_mean.tolist()) == (0.5, centre.tolist())
+            own = counts[obj] > 1
+            seen.add(own)
+            expected = 3.0 if own else 0.5
+            assert model.prior_sd == expected
+            assert np.allclose(model.prior_mean, centre) != own
+    assert seen == {True, False}
+    with pytest.raises(AtiktError, match="metric_until=0 must be None or >= 1"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_until=0)
+
+
+def test_separation_prefers_the_kernel_whose_modality_tells_the_new_objects_apart() -> None:
+    rng = np.random.default_rng(0)
+    # modality a (columns 0-1) tells objects apart, modality b (columns 2-3) is noise
+    centres = rng.normal(0.0, 3.0, (8, 2))
+
+    def observations(obj: int, n: int) -> np.ndarray:
+        tight = centres[obj] + rng.normal(0.0, 0.1, (n, 2))
+        return np.hstack([tight, rng.normal(0.0, 1.0, (n, 2))])
+
+    aux = {old: observations(old, 6) for old in range(4)}
+    X = np.vstack([observations(new, 1) for new in range(4, 8)])
+    labels = np.arange(4)
+    slices = {"a": slice(0, 2), "b": slice(2, 4)}
+    kernel = modality_kernel(slices, length_scale=2.0)
+    on_a = kernel.with_theta([np.log(2.0), np.log(2.0), -5.0, 0.0])
+    on_b = kernel.with_theta([np.log(2.0), np.log(2.0), 5.0, 0.0])
+    assert separation(on_a, X, labels, aux) > 0.5 > separation(on_b, X, labels, aux)
+    # one-observation old objects give no repeat similarity: never better than anything
+    assert separation(on_a, X, labels, {0: aux[0][:1]}) == -np.inf
+    # new objects observed twice as alike as repeats: no separation
+    same = np.vstack([X[:1], X[:1] + 1e-3])
+    assert separation(on_a, same, np.array([0, 1]), aux) < 0.05
+
+
+def test_metric_check_must_be_a_known_check() -> None:
+    with pytest.raises(AtiktError, match="metric_check='loose' must be one of"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check="loose")  # type: ignore[arg-type]
+    assert ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=True).metric_check == (
+        "evidence"
+    )
+    assert ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=False).metric_check == (
+        "none"
+    )
 
 
 def test_metric_transfer_needs_two_old_objects_and_leaves_the_baseline_alone(

@@ -9,6 +9,7 @@ the same splits):
 - the ``negative`` study's runs (the 3 old objects least like the new ones);
 - ``related``: the same runs with the 3 old objects most like the new ones (the same
   similarity, ``replay/studies/_relatedness.py``);
+- ``single-action``: the ``single-action`` study's runs (groups of 3, one action at a time);
 
 and prints the mean gain (ATIKT minus baseline, points; at step 0 and over steps 1..budget)
 with a paired 95 % bootstrap interval over prior groups, and how often a step's transfer
@@ -50,10 +51,13 @@ from replay.studies._studies import (
     priors_tasks,
     run_transfer_task,
     similarity_tasks,
+    transfer_tasks,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-STUDY_NAMES = ("priors", "negative", "related")
+STUDY_NAMES = ("priors", "negative", "related", "single-action")
+BY = {"priors": ["n_priors"], "single-action": ["actions"]}
+"""The columns a study's gains are reported by (besides the prior group)."""
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 
 
@@ -66,7 +70,7 @@ def counterparts() -> dict[str, str]:
     }
 
 
-def run(args: tuple[Any, dict[str, float | None]]) -> pl.DataFrame:
+def run(args: tuple[Any, dict[str, float | str | None]]) -> pl.DataFrame:
     """One study task, with the learner's transfer modes registered in the session check.
 
     The studies pass their own settings to the learner; the mode's options (``max_sources``,
@@ -75,7 +79,7 @@ def run(args: tuple[Any, dict[str, float | None]]) -> pl.DataFrame:
     """
     task, options = args
     settings = {
-        k: int(v) if k == "max_sources" and v is not None else v for k, v in options.items()
+        k: int(v) if k == "max_sources" and isinstance(v, float) else v for k, v in options.items()
     }
 
     class Configured(ActiveLearner):
@@ -87,12 +91,22 @@ def run(args: tuple[Any, dict[str, float | None]]) -> pl.DataFrame:
     return run_transfer_task(task)
 
 
-def parse(name: str) -> tuple[str, dict[str, float | None]]:
+def value(text: str) -> float | str | None:
+    """An option's value: ``none`` -> None, a number, else the text (``metric_check=either``)."""
+    if text == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def parse(name: str) -> tuple[str, dict[str, float | str | None]]:
     """``"density+3@eps_density=0.05"`` -> ("density", {"max_sources": 3, "eps_density": 0.05})."""
     head, *settings = name.split("@")
     mode, _, sources = head.partition("+")
-    options: dict[str, float | None] = {"max_sources": float(sources or 1)}
-    options |= {k: None if v == "none" else float(v) for k, v in (s.split("=") for s in settings)}
+    options: dict[str, float | str | None] = {"max_sources": float(sources or 1)}
+    options |= {k: value(v) for k, v in (s.split("=") for s in settings)}
     return mode, options
 
 
@@ -177,7 +191,7 @@ def compare(directory: Path, first: str, second: str, budget: int) -> None:
             how="diagonal_relaxed",
         )
         print(f"{study}: {second} minus {first}, points [95 % bootstrap over groups]")
-        report(study, both, ["n_priors"] if study == "priors" else [], budget, rng)
+        report(study, both, BY.get(study, []), budget, rng)
 
 
 def main() -> None:
@@ -219,6 +233,8 @@ def main() -> None:
         for study in args.studies:
             if study == "priors":
                 tasks = priors_tasks(frame, config)
+            elif study == "single-action":  # the study's groups, one action at a time
+                tasks = transfer_tasks(frame, config, single_action=True)
             else:  # one group: runs are the resampling unit
                 tasks = similarity_tasks(frame, config, study, nearest=study == "related")
                 tasks = [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
@@ -227,8 +243,8 @@ def main() -> None:
             if args.out is not None:
                 args.out.mkdir(parents=True, exist_ok=True)
                 rows.write_parquet(args.out / f"{study}-{name}.parquet")
-            by = ["n_priors"] if study == "priors" else []
-            if study != "priors":
+            by = BY.get(study, [])
+            if study not in {"priors", "single-action"}:
                 print(f"{study}: priors {', '.join(tasks[0].priors)}")
             print(f"{study}: gain, points [95 % bootstrap over groups]")
             report(study, rows, by, args.budget, rng)

@@ -34,6 +34,9 @@ CASES: list[tuple[str, str]] = [
     ("learn --recordings {data} --hyper-sd 0", "--hyper-sd 0.0: give a positive standard"),
     ("learn --recordings {data} --hyper-sd nan", "--hyper-sd nan: give a positive standard"),
     ("learn --recordings {data} --hyper-sd abc", "'abc': give a positive standard deviation"),
+    ("learn --recordings {data} --metric-check loose", "argument --metric-check: invalid choice"),
+    ("learn --recordings {data} --metric-until 0", "'0': give a number of observations"),
+    ("learn --recordings {data} --metric-until two", "'two': give a number of observations"),
     (
         "learn --recordings {data} --seed -1",
         "argument --seed: -1: give a whole number in 0..4294967295",

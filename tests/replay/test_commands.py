@@ -10,7 +10,7 @@ from recorder import _rigconfig as rigconfig
 from recorder.errors import RigError
 from replay.cli._main import main
 from replay.learning._run_history import SETTINGS_NAME, load_run
-from replay.learning._session import DEFAULT_HYPER_SD
+from replay.learning._session import DEFAULT_HYPER_SD, DEFAULT_METRIC_CHECK, DEFAULT_METRIC_UNTIL
 
 
 def test_learn_prints_a_line_per_step_and_writes_history_and_plot(
@@ -207,3 +207,23 @@ def test_learn_records_its_hyperprior_and_none_is_the_thesis(
     }
     assert settings["map"]["hyper_sd"] == DEFAULT_HYPER_SD
     assert settings["ml"]["hyper_sd"] is None
+
+
+def test_learn_records_its_metric_transfer_settings(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = _learn(small_dataset, "--actions", "P1", "--budget", "2")
+    assert main([*argv, "--out", str(tmp_path / "default")]) == 0
+    chosen = ["--metric-check", "separation", "--metric-until", "none"]
+    assert main([*argv, *chosen, "--out", str(tmp_path / "chosen")]) == 0
+    capsys.readouterr()
+    settings = {
+        name: json.loads((tmp_path / name / SETTINGS_NAME).read_text("utf-8"))
+        for name in ("default", "chosen")
+    }
+    assert settings["default"]["metric_check"] == DEFAULT_METRIC_CHECK
+    assert settings["default"]["metric_until"] == DEFAULT_METRIC_UNTIL
+    assert (settings["chosen"]["metric_check"], settings["chosen"]["metric_until"]) == (
+        "separation",
+        None,
+    )
