@@ -539,9 +539,14 @@ def test_separation_prefers_the_kernel_whose_modality_tells_the_new_objects_apar
     kernel = modality_kernel(slices, length_scale=2.0)
     on_a = kernel.with_theta([np.log(2.0), np.log(2.0), -5.0, 0.0])
     on_b = kernel.with_theta([np.log(2.0), np.log(2.0), 5.0, 0.0])
-    assert separation(on_a, X, labels, aux) > 0.5 > separation(on_b, X, labels, aux)
-    # one-observation old objects give no repeat similarity: never better than anything
+    # every pair of new objects less alike than any repeat on a; not so on b
+    assert separation(on_a, X, labels, aux) == 1.0 > separation(on_b, X, labels, aux)
+    # a rank statistic: scaling the kernel's amplitude changes nothing
+    louder = on_b.with_theta([np.log(2.0), np.log(2.0), 5.0, np.log(50.0)])
+    assert separation(louder, X, labels, aux) == separation(on_b, X, labels, aux)
+    # one-observation old objects give no repeat pair, one new object no different pair
     assert separation(on_a, X, labels, {0: aux[0][:1]}) == -np.inf
+    assert separation(on_a, X[:2], np.array([0, 0]), aux) == -np.inf
     # new objects observed twice as alike as repeats: no separation
     same = np.vstack([X[:1], X[:1] + 1e-3])
     assert separation(on_a, same, np.array([0, 1]), aux) < 0.05
