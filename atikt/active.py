@@ -738,8 +738,10 @@ class ActiveLearner:
             transformer.slices_, amplitude=self.amplitude, bias=1.0 if self.bias else None
         )
         base, base_sd = initial, self.hyper_sd
-        initial, prior_sd = self._metric(prior, initial, X, labels, auxiliary)
         counts = np.bincount(labels, minlength=self.n_new_objects)
+        prior_sd = base_sd
+        if self.metric_until is None or counts.min() <= self.metric_until:  # someone uses it
+            initial, prior_sd = self._metric(prior, initial, X, labels, auxiliary)
         for obj, seed in enumerate(seeds):
             centre, sd = initial, prior_sd
             if self.metric_until is not None and counts[obj] > self.metric_until:
@@ -787,7 +789,8 @@ class ActiveLearner:
         observation per new object does not. Their hyperparameters (the median over the old
         objects' one-vs-all classifiers, log space) start every new object's search and centre
         its hyperprior, of sd ``metric_sd``. Without priors, with a single old object (no
-        one-vs-all model) or with ``metric_sd=None``: the initial kernel and ``hyper_sd``.
+        one-vs-all model), with ``metric_sd=None`` or when ``metric_check`` refuses it: the
+        initial kernel and ``hyper_sd``.
         """
         if self.metric_sd is None or prior is None or prior.model is None:
             return initial, self.hyper_sd
