@@ -22,7 +22,7 @@ from atikt import (
     evidence_gains,
     modality_kernel,
 )
-from atikt.active import separation
+from atikt.active import SEPARATION_REPEATS, separation
 from atikt.gpc import with_prior
 from atikt.transfer import with_domain
 
@@ -544,6 +544,11 @@ def test_separation_prefers_the_kernel_whose_modality_tells_the_new_objects_apar
     # a rank statistic: scaling the kernel's amplitude changes nothing
     louder = on_b.with_theta([np.log(2.0), np.log(2.0), 5.0, np.log(50.0)])
     assert separation(louder, X, labels, aux) == separation(on_b, X, labels, aux)
+    # a long old recording counts with SEPARATION_REPEATS evenly spaced observations
+    long = {0: np.vstack([observations(0, 1) for _ in range(100)])}
+    spaced = {0: long[0][np.linspace(0, 99, SEPARATION_REPEATS).astype(int)]}
+    assert separation(on_b, X, labels, long) == separation(on_b, X, labels, spaced)
+    assert separation(on_b, X, labels, long) != separation(on_b, X, labels, {0: long[0][:50]})
     # one-observation old objects give no repeat pair, one new object no different pair
     assert separation(on_a, X, labels, {0: aux[0][:1]}) == -np.inf
     assert separation(on_a, X[:2], np.array([0, 0]), aux) == -np.inf
