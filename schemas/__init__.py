@@ -6,10 +6,13 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 
 from schemas import _cli as cli
 from schemas._layout import (
+    INCOMPLETE_RECORD,
+    INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
     dataset_recordings,
+    is_incomplete,
     is_recording,
 )
 from schemas._metadata import (
@@ -48,6 +51,8 @@ from schemas.errors import ContractError
 __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
+    "INCOMPLETE_RECORD",
+    "INCOMPLETE_SUFFIX",
     "MAX_SEED",
     "MAX_TRIAL",
     "MESSAGE_VERSION",
@@ -75,6 +80,7 @@ __all__ = [
     "cli",
     "dataset_recordings",
     "full_type_name",
+    "is_incomplete",
     "is_recording",
     "msg_definition",
     "parse_metadata",
