@@ -16,15 +16,19 @@ from recorder.live._accounting import (
 from recorder.live._clock import RecorderClock
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceLostError, SourceReader
+from recorder.live._skin import SKIN_TRANSPORTS, LiveSkin, open_skin
 
 __all__ = [
+    "SKIN_TRANSPORTS",
     "SOURCES_RECORD",
     "BlockPacker",
+    "LiveSkin",
     "Received",
     "RecorderClock",
     "SourceCounter",
     "SourceLostError",
     "SourceReader",
     "SourceStats",
+    "open_skin",
     "parse_source_stats",
 ]
