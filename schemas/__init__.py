@@ -26,6 +26,12 @@ from schemas._metadata import (
     parse_metadata,
     software_version,
 )
+from schemas._sources import (
+    SOURCES_RECORD,
+    SourceStats,
+    encode_source_stats,
+    parse_source_stats,
+)
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
     CUSTOM_TYPES,
@@ -61,6 +67,7 @@ __all__ = [
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "SOURCES_RECORD",
     "VOCABULARY",
     "Channel",
     "ChannelSpec",
@@ -71,6 +78,7 @@ __all__ = [
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
+    "SourceStats",
     "Vocabulary",
     "build_typestore",
     "channel_for_topic",
@@ -79,11 +87,13 @@ __all__ = [
     "check_rig",
     "cli",
     "dataset_recordings",
+    "encode_source_stats",
     "full_type_name",
     "is_incomplete",
     "is_recording",
     "msg_definition",
     "parse_metadata",
+    "parse_source_stats",
     "parse_vocabulary",
     "software_version",
 ]
