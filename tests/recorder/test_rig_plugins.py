@@ -73,10 +73,11 @@ def test_an_exclusive_rig_records_in_the_main_process_whatever_workers_say(
     assert [pid for pid, _ in traces(log_dir)] == [os.getpid()] * 4
     err = capsys.readouterr().err.splitlines()
     notes = [line for line in err if "exclusive" in line]
-    assert notes == [
+    expected = (
         "atikt-record: rig fake-exclusive is exclusive hardware: one action at a time in this "
         "process (--workers 2 not used)"
-    ]
+    )
+    assert notes == [expected]
 
 
 def test_a_rig_registered_at_run_time_records_in_workers(
@@ -91,7 +92,10 @@ def test_a_rig_registered_at_run_time_records_in_workers(
 
 
 def test_a_builder_that_cannot_reach_the_workers_is_one_line_before_they_start(
-    tmp_path: Path, log_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+    tmp_path: Path,
+    log_dir: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     lock = threading.Lock()
 
@@ -126,10 +130,13 @@ def test_a_bare_builder_entry_point_is_wrapped_and_reads_no_tables(tmp_path: Pat
     [
         (
             "broken",
-            "rig 'broken' could not be loaded (ModuleNotFoundError: No module named "
-            "'no_such_module_for_atikt_tests'; entry point broken = "
-            "'no_such_module_for_atikt_tests:PLUGIN' of atikt-test-rigs in group atikt.rigs); "
-            "reinstall or fix the package that provides it, or choose another --rig",
+            (
+                "rig 'broken' could not be loaded (ModuleNotFoundError: No module named "
+                "'no_such_module_for_atikt_tests'; entry point broken = "
+                "'no_such_module_for_atikt_tests:PLUGIN' of atikt-test-rigs in group "
+                "atikt.rigs); reinstall or fix the package that provides it, or choose "
+                "another --rig"
+            ),
         ),
         ("not-a-plugin", "rig 'not-a-plugin' could not be loaded (entry point not-a-plugin"),
         ("ur", "rig 'ur' could not be loaded (ModuleNotFoundError: "),
@@ -164,7 +171,7 @@ def test_a_rig_configuration_keeps_its_tables_frozen_and_pickles(tmp_path: Path)
     assert isinstance(config.sections["objects"], FrozenTable)
     assert config.source == str(path)
     with pytest.raises(TypeError):
-        config.sections["limits"]["speed_m_s"] = 1.0  # type: ignore[index]
+        config.sections["limits"]["speed_m_s"] = 1.0
     assert pickle.loads(pickle.dumps(config)) == config  # noqa: S301
     assert RigConfig("fake", {"a": 1}) == RigConfig("fake", FrozenTable({"a": 1}))
 
@@ -177,9 +184,9 @@ def test_top_level_values_other_than_rig_are_refused(tmp_path: Path) -> None:
 
 
 def test_register_rig_refuses_a_name_found_first_and_a_non_builder() -> None:
-    with pytest.raises(RecorderError, match="'sim'.*taken"):
+    with pytest.raises(RecorderError, match=r"'sim'.*taken"):
         register_rig("sim", rig_plugins.bare_builder)
-    with pytest.raises(RecorderError, match="'fake'.*taken"):
+    with pytest.raises(RecorderError, match=r"'fake'.*taken"):
         register_rig("fake", rig_plugins.bare_builder)
-    with pytest.raises(RecorderError, match="give a recorder.RigPlugin"):
+    with pytest.raises(RecorderError, match=r"give a recorder\.RigPlugin"):
         register_rig("lab", 3)  # type: ignore[arg-type]

@@ -91,7 +91,7 @@ def test_yes_runs_unattended_when_every_object_has_a_pose(
 
 
 class _Interrupting(io.StringIO):
-    def readline(self, size: int | None = -1) -> str:  # noqa: ARG002
+    def readline(self, size: int | None = -1, /) -> str:  # type: ignore[override]  # noqa: ARG002
         raise KeyboardInterrupt
 
 
