@@ -271,7 +271,7 @@ def generate_dataset(
             rig cannot be sent to worker processes, or a task failed: no new task starts,
             those running finish, and every recording finished is kept.
     """
-    root = Path(root)
+    root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
     n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
     notify = on_result or (lambda _result: None)
