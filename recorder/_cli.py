@@ -34,7 +34,13 @@ from recorder._dataset import (
     recording_path,
     write_index,
 )
-from recorder._rigconfig import RigFactory, load_rig_config, rig_factory, rig_names
+from recorder._rigconfig import (
+    RigFactory,
+    is_exclusive,
+    load_rig_config,
+    rig_factory,
+    rig_names,
+)
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
 from schemas import ContractError, cli, software_version
@@ -48,7 +54,7 @@ if TYPE_CHECKING:
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
-COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command",)
+COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command", "recorder._session")
 
 
 REGISTRY = cli.Registry()
@@ -172,6 +178,9 @@ def _dataset(args: argparse.Namespace) -> int:
     )
     factory = _rig(args)
     console = Console(stderr=True)
+    if is_exclusive(factory) and (args.workers or 1) > 1:
+        note = f"{PROG}: rig {factory.config.name} is exclusive hardware: one action at a time"
+        print(f"{note} in this process (--workers {args.workers} not used)", file=sys.stderr)  # noqa: T201
     with _progress(console) as progress:
         bar = progress.add_task("recording", total=len(tasks))
 

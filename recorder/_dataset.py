@@ -27,13 +27,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cloudpickle
 import joblib
 import polars as pl
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
-from recorder._rigconfig import register_rig, rig_factory, rig_names
+from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
@@ -200,6 +201,26 @@ def run_task(
     return TaskResult(task, TaskStatus.WRITTEN, written.size_bytes)
 
 
+def check_sendable(factory: RigFactory) -> None:
+    """Refuse, before any worker starts, a rig factory that cannot be sent to workers.
+
+    joblib's process pool (loky) sends tasks with cloudpickle, so the check uses it too.
+
+    Raises:
+        RecorderError: The factory does not pickle; the message names it and the fix.
+    """
+    try:
+        cloudpickle.dumps(factory)
+    except Exception as err:  # pickling a user's object may raise anything
+        name = factory.config.name if isinstance(factory, ConfiguredRig) else repr(factory)
+        msg = (
+            f"rig {name}: its builder cannot be sent to worker processes "
+            f"({type(err).__name__}: {err}); define the rig's builder at the top level of an "
+            "importable module, or record with --workers 1"
+        )
+        raise RecorderError(msg) from err
+
+
 @dataclass(frozen=True, slots=True)
 class DatasetReport:
     """Summary of a dataset run.
@@ -237,19 +258,22 @@ def generate_dataset(
         root: Dataset directory (created if needed).
         factory: Makes a rig from the seed; called once per task, in the worker.
         seed: Dataset seed, given to every rig and written to every file.
-        workers: Worker processes; all cores when None.
+        workers: Worker processes; all cores when None. An exclusive rig (see
+            :func:`recorder.is_exclusive`) records one action at a time in this process,
+            whatever ``workers`` says.
         on_result: Called in the parent for every finished task (progress display).
 
     Returns:
         What was written and skipped, and the index.
 
     Raises:
-        RecorderError: ``root`` holds recordings of another seed or rig configuration, or a
-            task failed: no new task starts, those running finish, and every recording
-            finished is kept.
+        RecorderError: ``root`` holds recordings of another seed or rig configuration, the
+            rig cannot be sent to worker processes, or a task failed: no new task starts,
+            those running finish, and every recording finished is kept.
     """
-    root = Path(root)
+    root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
+    n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
     notify = on_result or (lambda _result: None)
     pending = []
     for task in tasks:
@@ -261,9 +285,10 @@ def generate_dataset(
     skipped = len(tasks) - len(pending)
     failed: list[TaskResult] = []
     parent = os.getpid()
-    results = joblib.Parallel(
-        n_jobs=workers or os.cpu_count() or 1, return_as="generator_unordered"
-    )(  # tasks are handed out lazily: after a failure, none starts
+    if n_jobs > 1 and pending:
+        check_sendable(factory)
+    # tasks are handed out lazily: after a failure, none starts
+    results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
         joblib.delayed(run_task)(task, root, factory, seed, parent)
         for task in pending
         if not failed

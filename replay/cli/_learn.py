@@ -14,13 +14,8 @@ from rich.console import Console
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
-from replay.learning._datasets import (
-    check_names,
-    dataset_roles,
-    default_dataset_ready,
-    ensure_default_dataset,
-)
-from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay.learning._datasets import check_names, dataset_roles
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
@@ -34,6 +29,14 @@ from replay.learning._session import (
     prior_data,
     run_learning,
     run_offline,
+)
+from replay.live import (
+    LiveView,
+    check_rig,
+    configured_rig,
+    default_dataset_ready,
+    ensure_default_dataset,
+    learn_live,
 )
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._studies import (
@@ -194,25 +197,6 @@ _FORCE = arg(
 )
 
 
-def _configured_rig(args: argparse.Namespace) -> Any:  # noqa: ANN401 (recorder.RigConfig)
-    """Return the live rig's configuration (``--rig``, ``--rig-config``, ``--rig-option``)."""
-    from recorder import RecorderError, load_rig_config  # noqa: PLC0415 (live execution only)
-
-    try:
-        return load_rig_config(args.rig_config, args.rig, args.rig_option)
-    except RecorderError as err:
-        raise ReplayError(cli.one_line(str(err))) from err
-
-
-def _check_rig(name: str) -> None:
-    """Refuse an unknown ``--rig`` before any work, listing the registered rigs."""
-    from recorder import rig_names  # noqa: PLC0415 (live execution only)
-
-    if name not in rig_names():
-        msg = f"--rig {name}: unknown rig; registered rigs: {', '.join(rig_names()) or 'none'}"
-        raise ReplayError(msg)
-
-
 def _output(out: Path | None, default: Path, *, force: bool) -> Path:
     """Return ``--out`` (refused if it exists, unless ``--force``), else a free ``default``."""
     if out is None:
@@ -291,6 +275,15 @@ def _step_line(row: dict[str, Any]) -> str:
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
+        "--view",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE.rrd",
+        help="live: show each recording in rerun as it is made (a viewer; with FILE.rrd, "
+        "write a file instead)",
+    ),
+    arg(
         "--out",
         type=Path,
         default=None,
@@ -304,9 +297,14 @@ def _step_line(row: dict[str, Any]) -> str:
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
     if args.rig is None and args.rig_config is not None:
-        args.rig = _configured_rig(args).name
+        args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
-        _check_rig(args.rig)
+        check_rig(args.rig)
+    if args.view is not None and args.rig is None:
+        msg = "--view shows a live run's recordings as they are made; give --rig too"
+        raise ReplayError(msg)
+    if args.view:
+        cli.check_new_file(Path(args.view), force=args.force, option="--view")
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
@@ -407,40 +405,17 @@ def _learn_live(
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
-    from recorder import RecorderError  # noqa: PLC0415 (live only)
-
-    try:
-        return _record_and_learn(args, spec, models, out, on_step)
-    except RecorderError as err:  # the recorder's error, at the edge of the replay
-        msg = f"--rig {args.rig}: {cli.one_line(str(err))}"
-        raise ReplayError(msg) from err
-
-
-def _record_and_learn(
-    args: argparse.Namespace,
-    spec: RunSpec,
-    models: Any,  # noqa: ANN401
-    out: Path,
-    on_step: Callable[[dict[str, Any]], Any],
-) -> pl.DataFrame:
-    """Record the test trials, then every observation the learner asks for."""
-    from recorder import load_actions, load_objects, rig_factory  # noqa: PLC0415 (live only)
-
-    objects = load_objects()
-    unknown = [o for o in spec.new_objects if o not in objects]
-    if unknown:
-        msg = (
-            f"--new {','.join(unknown)}: not in the object catalog, so the rig cannot perform "
-            f"on it; choose from {', '.join(objects)}"
+    config = configured_rig(args.rig_config, args.rig, args.rig_option)
+    session = out / "session"
+    if args.view is None:
+        return learn_live(
+            config, spec, models, session, test_trials=args.test_trials, on_step=on_step
         )
-        raise ReplayError(msg)
-    rig = rig_factory(_configured_rig(args))(args.seed)
-    executor = LiveExecutor(
-        rig, [objects[o] for o in spec.new_objects], load_actions(), out / "session", seed=args.seed
-    )
-    with executor:
-        test = executor.record_test_set(spec.actions, args.test_trials)
-        return run_learning(spec, executor, test, models, on_step=on_step).frame()
+    save = Path(args.view) if args.view else None
+    with LiveView(f"live run on {config.name}", save) as view:
+        return learn_live(
+            config, spec, models, session, test_trials=args.test_trials, on_step=on_step, view=view
+        )
 
 
 @command(
