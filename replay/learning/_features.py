@@ -259,7 +259,8 @@ def build_features(
     keep = cached.join(current, on=["path", "sha256"], how="semi")
     known = set(keep["path"].to_list())
     todo = [(p, d) for p, d in digests.items() if p not in known]
-    jobs = [_Job(root, tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
+    # worker processes may have another working directory (a reused pool): absolute paths
+    jobs = [_Job(root.absolute(), tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
     sizes = [len(job.files) for job in jobs]
 
     def progress(done: int) -> None:
