@@ -5,12 +5,15 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
+from schemas._atomic import atomic_file, atomic_path, atomic_write, atomic_write_text
 from schemas._layout import (
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
+    check_inside,
     dataset_recordings,
     is_recording,
+    recording_path,
 )
 from schemas._metadata import (
     MAX_SEED,
@@ -67,9 +70,14 @@ __all__ = [
     "RigValue",
     "SourceSpec",
     "Vocabulary",
+    "atomic_file",
+    "atomic_path",
+    "atomic_write",
+    "atomic_write_text",
     "build_typestore",
     "channel_for_topic",
     "check_id",
+    "check_inside",
     "check_parameters",
     "check_rig",
     "cli",
@@ -79,5 +87,6 @@ __all__ = [
     "msg_definition",
     "parse_metadata",
     "parse_vocabulary",
+    "recording_path",
     "software_version",
 ]

@@ -14,9 +14,11 @@ from rich.console import Console
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
+from replay.learning._cachedir import feature_cache_path
 from replay.learning._datasets import (
     check_names,
     dataset_roles,
+    default_dataset_dir,
     default_dataset_ready,
     ensure_default_dataset,
 )
@@ -213,6 +215,13 @@ def _check_rig(name: str) -> None:
         raise ReplayError(msg)
 
 
+def _dataset_input(path: Path | None) -> tuple[str, Path]:
+    """Return the dataset a command reads, for :func:`schemas.cli.refuse_overlap`."""
+    if path is not None:
+        return ("dataset", path)
+    return ("default dataset", default_dataset_dir())
+
+
 def _output(out: Path | None, default: Path, *, force: bool) -> Path:
     """Return ``--out`` (refused if it exists, unless ``--force``), else a free ``default``."""
     if out is None:
@@ -233,7 +242,7 @@ def _features_command(args: argparse.Namespace) -> int:
     )
     print(  # noqa: T201 (the command's output)
         f"{table.frame.height} recordings ({table.extracted} extracted, "
-        f"{table.quarantined.height} quarantined) -> {table.root / 'features.parquet'}"
+        f"{table.quarantined.height} quarantined) -> {feature_cache_path(table.root)}"
     )
     return 0 if table.quarantined.height == 0 else 1
 
@@ -308,6 +317,8 @@ def _learn_command(args: argparse.Namespace) -> int:
     if args.rig is not None:
         _check_rig(args.rig)
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
+    inputs = [_dataset_input(args.recordings), ("--session", args.session)]
+    cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
     roles = dataset_roles(
@@ -480,6 +491,9 @@ def _study_command(args: argparse.Namespace) -> int:
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
+    prior = None if args.fusion_prior in FUSION_PRIORS else Path(args.fusion_prior)
+    for target in targets.values():
+        cli.refuse_overlap(target, [_dataset_input(args.recordings), ("--fusion-prior", prior)])
     workers = cli.worker_count(args.workers)
     root = _dataset(args.recordings, workers)
     table = _features(root, workers)

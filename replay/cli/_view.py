@@ -78,6 +78,11 @@ def collect_inputs(paths: Sequence[Path], *, allow_runs: bool = True) -> Inputs:
     return Inputs(tuple(recordings), tuple(runs), root)
 
 
+def _named(paths: Sequence[Path]) -> list[tuple[str, Path | None]]:
+    """Return the inputs named on the command line, for :func:`schemas.cli.refuse_overlap`."""
+    return [("input", path) for path in paths]
+
+
 def _view_name(inputs: Inputs) -> str:
     """Return the name of the rerun recording of a view."""
     items = [*inputs.recordings, *inputs.runs]
@@ -151,6 +156,8 @@ def _view_command(args: argparse.Namespace) -> int:
         msg = "--save and --serve: choose one (a file, or a web viewer)"
         raise ReplayError(msg)
     inputs = collect_inputs(args.paths)
+    if args.save is not None:
+        cli.refuse_overlap(args.save, _named(args.paths), option="--save")
     runs = [load_run(path) for path in inputs.runs]
     if args.save is None:
         address = _log(args, inputs, runs, None)
@@ -196,6 +203,7 @@ def _log(
 )
 def _export_command(args: argparse.Namespace) -> int:
     inputs = collect_inputs(args.paths, allow_runs=False)
+    cli.refuse_overlap(args.out, _named(args.paths))
     progress = Progress(
         "[progress.description]{task.description}",
         BarColumn(),
