@@ -5,7 +5,15 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
-from schemas._atomic import atomic_file, atomic_path, atomic_write, atomic_write_text
+from schemas._atomic import (
+    atomic_file,
+    atomic_path,
+    atomic_write,
+    atomic_write_text,
+    create_exclusive,
+    publish_temporary,
+    temporary_name,
+)
 from schemas._layout import (
     PART_SUFFIX,
     RECORDING_SUFFIX,
@@ -81,12 +89,15 @@ __all__ = [
     "check_parameters",
     "check_rig",
     "cli",
+    "create_exclusive",
     "dataset_recordings",
     "full_type_name",
     "is_recording",
     "msg_definition",
     "parse_metadata",
     "parse_vocabulary",
+    "publish_temporary",
     "recording_path",
     "software_version",
+    "temporary_name",
 ]

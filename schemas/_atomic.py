@@ -72,7 +72,7 @@ def _sync_directory(directory: Path) -> None:
             os.close(descriptor)
 
 
-def publish(temporary: Path, target: Path, *, replace: bool = True) -> None:
+def publish_temporary(temporary: Path, target: Path, *, replace: bool = True) -> None:
     """Give the finished ``temporary`` file the name ``target``.
 
     Args:
@@ -115,7 +115,7 @@ def atomic_path(target: Path, *, replace: bool = True, what: str = "tmp") -> Ite
         yield temporary
         with temporary.open("rb+") as stream:
             os.fsync(stream.fileno())
-        publish(temporary, target, replace=replace)
+        publish_temporary(temporary, target, replace=replace)
     finally:
         temporary.unlink(missing_ok=True)
 
@@ -134,7 +134,7 @@ def atomic_file(target: Path, *, replace: bool = True) -> Iterator[IO[bytes]]:
             yield stream
             stream.flush()
             os.fsync(stream.fileno())
-        publish(temporary, target, replace=replace)
+        publish_temporary(temporary, target, replace=replace)
     finally:
         temporary.unlink(missing_ok=True)
 

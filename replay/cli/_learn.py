@@ -24,6 +24,7 @@ from replay.learning._datasets import (
 )
 from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
+from replay.learning._parallel import scheduler_warning
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
@@ -48,7 +49,7 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
-from schemas import cli
+from schemas import atomic_write, atomic_write_text, cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -376,13 +377,13 @@ def _learn_into(
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
     try:
-        frame.write_parquet(out / HISTORY_NAME)
+        atomic_write(out / HISTORY_NAME, frame.write_parquet)
     except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
         msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
         raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
-    (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")
+    atomic_write_text(out / SETTINGS_NAME, json.dumps(settings, indent=1) + "\n")
     method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
     plot_learning_curves(
         frame.with_columns(pl.lit(method).alias("method")),
@@ -468,7 +469,16 @@ def _record_and_learn(
     ),
     _FORCE,
     arg("--quick", action="store_true", help="a reduced version for a first look"),
-    arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
+    arg(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a Dask cluster (tls://host:8786 or tcp://...). Connect only to a scheduler "
+        "you control: results come back pickled, so whoever runs the scheduler or a worker can "
+        "run code in this process. tls:// uses Dask's TLS settings (distributed.comm.tls.ca-file, "
+        ".client.cert, .client.key in ~/.config/dask/*.yaml or DASK_DISTRIBUTED__COMM__TLS__* "
+        "variables); tcp:// is unencrypted and unauthenticated",
+    ),
     arg(
         "--transfer",
         default="prediction",
@@ -495,6 +505,8 @@ def _study_command(args: argparse.Namespace) -> int:
     for target in targets.values():
         cli.refuse_overlap(target, [_dataset_input(args.recordings), ("--fusion-prior", prior)])
     workers = cli.worker_count(args.workers)
+    if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
+        _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)
     root = _dataset(args.recordings, workers)
     table = _features(root, workers)
     roles = dataset_roles(

@@ -18,6 +18,7 @@ import polars as pl
 
 from replay.errors import ReplayError
 from replay.learning._features import as_raw, file_features, row_blocks, select_blocks
+from schemas import atomic_write
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -331,4 +332,5 @@ class LiveExecutor:
             "role": pl.String,
             "path": pl.String,
         }
-        pl.DataFrame(self.made, schema=schema).write_parquet(self.session / SESSION_NAME)
+        manifest = pl.DataFrame(self.made, schema=schema)
+        atomic_write(self.session / SESSION_NAME, manifest.write_parquet)
