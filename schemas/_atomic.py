@@ -45,7 +45,8 @@ def create_exclusive(path: Path) -> IO[bytes]:
         FileExistsError: Something exists at ``path`` (a link is not followed).
         OSError: The file cannot be created.
     """
-    return os.fdopen(os.open(path, _FLAGS, 0o666), "wb")
+    # builtin open: Path.open takes no opener, and the flags must be ours (O_EXCL, O_NOFOLLOW)
+    return open(path, "wb", opener=lambda name, _flags: os.open(name, _FLAGS, 0o666))
 
 
 def reserve_temporary(target: Path, what: str = "tmp") -> Path:

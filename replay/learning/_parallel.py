@@ -40,8 +40,8 @@ def scheduler_warning(scheduler: str) -> str | None:
     code in this process. ``tls://`` (with Dask's TLS settings) authenticates the cluster and
     encrypts the traffic; ``tcp://`` does neither.
     """
-    scheme, _, rest = scheduler.partition("://")
-    host = rest.rsplit(":", 1)[0] if rest else scheme
+    scheme, _, rest = scheduler.rpartition("://")
+    host = rest.rsplit(":", 1)[0] if ":" in rest.lstrip("[").split("]")[-1] else rest
     if scheme == "tls" or host in LOOPBACK_HOSTS:
         return None
     return (
