@@ -30,6 +30,7 @@ from recorder.bagimport._importer import import_bag
 from recorder.bagimport._report import ImportReport
 from recorder.bagimport._topicmap import TopicMap, load_topic_map
 from recorder.errors import (
+    ActionStoppedError,
     BagImportError,
     CatalogError,
     OutputExistsError,
@@ -70,6 +71,7 @@ def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
 __all__ = [
     "ActionKind",
     "ActionSpec",
+    "ActionStoppedError",
     "BagImportError",
     "CatalogError",
     "ImportReport",

@@ -15,11 +15,14 @@ from schemas._atomic import (
     temporary_name,
 )
 from schemas._layout import (
+    INCOMPLETE_RECORD,
+    INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
     check_inside,
     dataset_recordings,
+    is_incomplete,
     is_recording,
     recording_path,
 )
@@ -33,6 +36,12 @@ from schemas._metadata import (
     check_rig,
     parse_metadata,
     software_version,
+)
+from schemas._sources import (
+    SOURCES_RECORD,
+    SourceStats,
+    encode_source_stats,
+    parse_source_stats,
 )
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
@@ -59,6 +68,8 @@ from schemas.errors import ContractError
 __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
+    "INCOMPLETE_RECORD",
+    "INCOMPLETE_SUFFIX",
     "MAX_SEED",
     "MAX_TRIAL",
     "MESSAGE_VERSION",
@@ -67,6 +78,7 @@ __all__ = [
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "SOURCES_RECORD",
     "VOCABULARY",
     "Channel",
     "ChannelSpec",
@@ -77,6 +89,7 @@ __all__ = [
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
+    "SourceStats",
     "Vocabulary",
     "atomic_file",
     "atomic_path",
@@ -91,10 +104,13 @@ __all__ = [
     "cli",
     "create_exclusive",
     "dataset_recordings",
+    "encode_source_stats",
     "full_type_name",
+    "is_incomplete",
     "is_recording",
     "msg_definition",
     "parse_metadata",
+    "parse_source_stats",
     "parse_vocabulary",
     "publish_temporary",
     "recording_path",
