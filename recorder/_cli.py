@@ -94,6 +94,20 @@ def _rig_arguments() -> tuple[cli.Argument, ...]:
     )
 
 
+def refuse_overlap(args: argparse.Namespace, *more: tuple[str, Path | None]) -> None:
+    """Refuse an ``--out`` that equals, contains or lies inside an input (catalogs, rig file).
+
+    Raises:
+        schemas.cli.CliError: It does; the message names the input.
+    """
+    named = [
+        ("--objects-catalog", args.objects_catalog),
+        ("--actions-catalog", args.actions_catalog),
+        ("--rig-config", getattr(args, "rig_config", None)),
+    ]
+    cli.refuse_overlap(args.out, [*named, *more])
+
+
 def _rig(args: argparse.Namespace) -> RigFactory:
     """Return the factory of the rig the options configure."""
     config = load_rig_config(args.rig_config, args.rig, args.rig_option)
@@ -115,6 +129,7 @@ def _action(args: argparse.Namespace) -> int:
     if args.trial < 1:
         msg = f"--trial {args.trial}: trials are numbered from 1"
         raise RecorderError(msg)
+    refuse_overlap(args)
     objects = load_objects(args.objects_catalog)
     actions = load_actions(args.actions_catalog)
     (task,) = plan_dataset(
@@ -169,6 +184,7 @@ def _report(console: Console, report: DatasetReport) -> None:
     *_CATALOGS,
 )
 def _dataset(args: argparse.Namespace) -> int:
+    refuse_overlap(args)
     tasks = plan_dataset(
         load_objects(args.objects_catalog),
         load_actions(args.actions_catalog),

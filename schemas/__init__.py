@@ -5,15 +5,26 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
+from schemas._atomic import (
+    atomic_file,
+    atomic_path,
+    atomic_write,
+    atomic_write_text,
+    create_exclusive,
+    publish_temporary,
+    temporary_name,
+)
 from schemas._layout import (
     INCOMPLETE_RECORD,
     INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
+    check_inside,
     dataset_recordings,
     is_incomplete,
     is_recording,
+    recording_path,
 )
 from schemas._metadata import (
     MAX_SEED,
@@ -80,12 +91,18 @@ __all__ = [
     "SourceSpec",
     "SourceStats",
     "Vocabulary",
+    "atomic_file",
+    "atomic_path",
+    "atomic_write",
+    "atomic_write_text",
     "build_typestore",
     "channel_for_topic",
     "check_id",
+    "check_inside",
     "check_parameters",
     "check_rig",
     "cli",
+    "create_exclusive",
     "dataset_recordings",
     "encode_source_stats",
     "full_type_name",
@@ -95,5 +112,8 @@ __all__ = [
     "parse_metadata",
     "parse_source_stats",
     "parse_vocabulary",
+    "publish_temporary",
+    "recording_path",
     "software_version",
+    "temporary_name",
 ]

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from recorder.errors import BagImportError
+from schemas import atomic_write_text
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -156,13 +156,10 @@ class ImportReport:
         """
         combined = hashlib.sha256("".join(b.sha256 for b in self.bags).encode()).hexdigest()
         path = self.out / IMPORTS_DIR / f"{combined[:16]}.json"
+        text = json.dumps(self.to_json(), indent=2, sort_keys=True) + "\n"
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            with path.open("x", encoding="utf-8") as handle:
-                json.dump(self.to_json(), handle, indent=2, sort_keys=True)
-                handle.write("\n")
-                handle.flush()
-                os.fsync(handle.fileno())
+            atomic_write_text(path, text, replace=False)
         except OSError as err:
             msg = f"{path}: cannot write the import report ({err.strerror}); check --out"
             raise BagImportError(msg) from err

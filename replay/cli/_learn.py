@@ -14,9 +14,11 @@ from rich.console import Console
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
+from replay.learning._cachedir import feature_cache_path
 from replay.learning._datasets import check_names, dataset_roles
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
+from replay.learning._parallel import scheduler_warning
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
@@ -34,6 +36,7 @@ from replay.live import (
     LiveView,
     check_rig,
     configured_rig,
+    default_dataset_dir,
     default_dataset_ready,
     ensure_default_dataset,
     learn_live,
@@ -49,7 +52,7 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
-from schemas import cli
+from schemas import atomic_write, atomic_write_text, cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -197,6 +200,13 @@ _FORCE = arg(
 )
 
 
+def _dataset_input(path: Path | None) -> tuple[str, Path]:
+    """Return the dataset a command reads, for :func:`schemas.cli.refuse_overlap`."""
+    if path is not None:
+        return ("dataset", path)
+    return ("default dataset", default_dataset_dir())
+
+
 def _output(out: Path | None, default: Path, *, force: bool) -> Path:
     """Return ``--out`` (refused if it exists, unless ``--force``), else a free ``default``."""
     if out is None:
@@ -217,7 +227,7 @@ def _features_command(args: argparse.Namespace) -> int:
     )
     print(  # noqa: T201 (the command's output)
         f"{table.frame.height} recordings ({table.extracted} extracted, "
-        f"{table.quarantined.height} quarantined) -> {table.root / 'features.parquet'}"
+        f"{table.quarantined.height} quarantined) -> {feature_cache_path(table.root)}"
     )
     return 0 if table.quarantined.height == 0 else 1
 
@@ -306,6 +316,8 @@ def _learn_command(args: argparse.Namespace) -> int:
     if args.view:
         cli.check_new_file(Path(args.view), force=args.force, option="--view")
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
+    inputs = [_dataset_input(args.recordings), ("--session", args.session)]
+    cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     table = _features(prior_root, workers)
     roles = dataset_roles(
@@ -363,13 +375,13 @@ def _learn_into(
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
     try:
-        frame.write_parquet(out / HISTORY_NAME)
+        atomic_write(out / HISTORY_NAME, frame.write_parquet)
     except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
         msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
         raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
-    (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")
+    atomic_write_text(out / SETTINGS_NAME, json.dumps(settings, indent=1) + "\n")
     method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
     plot_learning_curves(
         frame.with_columns(pl.lit(method).alias("method")),
@@ -432,7 +444,16 @@ def _learn_live(
     ),
     _FORCE,
     arg("--quick", action="store_true", help="a reduced version for a first look"),
-    arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
+    arg(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a Dask cluster (tls://host:8786 or tcp://...). Connect only to a scheduler "
+        "you control: results come back pickled, so whoever runs the scheduler or a worker can "
+        "run code in this process. tls:// uses Dask's TLS settings (distributed.comm.tls.ca-file, "
+        ".client.cert, .client.key in ~/.config/dask/*.yaml or DASK_DISTRIBUTED__COMM__TLS__* "
+        "variables); tcp:// is unencrypted and unauthenticated",
+    ),
     arg(
         "--transfer",
         default="prediction",
@@ -455,7 +476,12 @@ def _study_command(args: argparse.Namespace) -> int:
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
+    prior = None if args.fusion_prior in FUSION_PRIORS else Path(args.fusion_prior)
+    for target in targets.values():
+        cli.refuse_overlap(target, [_dataset_input(args.recordings), ("--fusion-prior", prior)])
     workers = cli.worker_count(args.workers)
+    if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
+        _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)
     root = _dataset(args.recordings, workers)
     table = _features(root, workers)
     roles = dataset_roles(

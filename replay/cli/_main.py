@@ -203,6 +203,9 @@ def _print_dataset(console: Console, root: Path) -> None:
     )
     if leftovers := sorted(root.rglob("*.mcap.part")):
         console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)")
+    from replay.learning._cachedir import feature_cache_path  # noqa: PLC0415 (info on datasets)
+
+    console.print(f"feature cache: {feature_cache_path(root)}", highlight=False, soft_wrap=True)
 
 
 @command(
@@ -276,6 +279,8 @@ def _recover(path: Path, out: Path | None) -> int:
     if path.is_dir():
         msg = f"{path}: --recover salvages one file; give the *.mcap.part or damaged *.mcap file"
         raise ReplayError(msg)
+    if out is not None:
+        cli.refuse_overlap(out, [("recording", path)])
     _print_salvage(salvage(path, out))
     return 0
 

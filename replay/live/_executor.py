@@ -11,6 +11,7 @@ from recorder import record_action, recording_path
 from replay.errors import ReplayError
 from replay.learning._executors import SESSION_NAME, Pair, TestSet
 from replay.learning._features import file_features
+from schemas import atomic_write
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -124,4 +125,5 @@ class LiveExecutor:
             "role": pl.String,
             "path": pl.String,
         }
-        pl.DataFrame(self.made, schema=schema).write_parquet(self.session / SESSION_NAME)
+        manifest = pl.DataFrame(self.made, schema=schema)
+        atomic_write(self.session / SESSION_NAME, manifest.write_parquet)
