@@ -52,6 +52,8 @@ class SourceStats:
             the first second (sensor stamp + offset = recorder time of the measurement).
         clock_drift_ns: How much that offset changed by the last second of the recording.
         latency_max_ns: Largest receive delay beyond the offset, ns.
+        malformed: Frames or packets that could not be parsed (wrong sync bytes, length or
+            type; a serial stream's sync losses); their samples are counted in ``missing``.
     """
 
     name: str
@@ -70,6 +72,7 @@ class SourceStats:
     clock_offset_ns: int = 0
     clock_drift_ns: int = 0
     latency_max_ns: int = 0
+    malformed: int = 0
 
     @property
     def complete(self) -> bool:
@@ -87,6 +90,8 @@ class SourceStats:
             parts.append(f"{self.out_of_order} out of order")
         if self.overflowed:
             parts.append(f"{self.overflowed} dropped by a full queue")
+        if self.malformed:
+            parts.append(f"{self.malformed} malformed")
         return ", ".join(parts)
 
 
@@ -94,6 +99,8 @@ _INT_FIELDS = tuple(
     f.name for f in dataclasses.fields(SourceStats) if f.name not in {"name", "basis"}
 )
 _BASES = ("counter", "clock")
+#: Fields added after the first files were written: absent in a record means 0.
+_LATER_FIELDS = frozenset({"malformed"})
 
 
 def encode_source_stats(stats: Sequence[SourceStats]) -> dict[str, str]:
@@ -128,10 +135,11 @@ def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
         fields.setdefault(name, {})[field] = value
     out = []
     for name, values in sorted(fields.items()):
-        if values.get("basis") not in _BASES or set(values) != {*_INT_FIELDS, "basis"}:
+        required = {*_INT_FIELDS, "basis"} - _LATER_FIELDS
+        if values.get("basis") not in _BASES or not required <= set(values):
             msg = f"source {name!r} in {SOURCES_RECORD!r} lacks fields or has an unknown basis"
             raise ValueError(msg)
-        numbers = {key: int(values[key]) for key in _INT_FIELDS}
+        numbers = {key: int(values[key]) for key in _INT_FIELDS if key in values}
         out.append(SourceStats(name, values["basis"], **numbers))
     return tuple(out)
 
