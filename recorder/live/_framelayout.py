@@ -229,6 +229,16 @@ class SkinLayout:
         return None
 
 
+class _Shown(str):
+    """A value shown as written (no quotes) in a message."""
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        """Return the text itself."""
+        return str(self)
+
+
 class _Table:
     """A TOML table being checked: typed getters and a refusal of unknown keys."""
 
@@ -348,25 +358,28 @@ def _extent(frame: FrameType, cells: int) -> list[tuple[int, int, str]]:
     spans: list[tuple[int, int, str]] = []
     for key, found in (("sequence", frame.sequence), ("cell", frame.cell)):
         if found is not None:
-            spans.append((found.at, found.at + found.size, key))
+            spans.append((found.at, found.at + found.size, f"{key}.at"))
     if frame.stamp is not None:
-        spans.append((frame.stamp.field.at, frame.stamp.field.at + frame.stamp.field.size, "stamp"))
+        spans.append(
+            (frame.stamp.field.at, frame.stamp.field.at + frame.stamp.field.size, "stamp.at")
+        )
     per_frame = 1 if frame.cell is not None else cells
     for item in frame.modalities:
         for cell in range(per_frame):
             start = item.at + cell * item.cell_stride
-            spans.append((start, start + item.size, f"{item.modality}.at (cell {cell})"))
+            key = f"{item.modality}.at" + (f" + {cell} x cell_stride" if cell else "")
+            spans.append((start, start + item.size, key))
     return spans
 
 
 def _check_overlaps(table: _Table, spans: list[tuple[int, int, str]], header: int) -> None:
     ordered = sorted(spans)
-    for (start, stop, key), (other, _, key2) in itertools.pairwise(ordered):
-        if other < stop:
-            table.fail(key2, other, f"overlaps {key} (bytes {start}..{stop - 1}); move one")
     for start, _, key in ordered:
         if start < header:
             table.fail(key, start, f"overlaps the header (bytes 0..{header - 1}); move it")
+    for (start, stop, key), (other, _, key2) in itertools.pairwise(ordered):
+        if other < stop:
+            table.fail(key2, other, f"overlaps {key} (bytes {start}..{stop - 1}); move one")
 
 
 def _counting(table: _Table) -> tuple[Field | None, Stamp | None, Field | None]:
@@ -523,7 +536,7 @@ def _frames(table: _Table, cells: int, header: int, *, typed: bool) -> tuple[Fra
             if item.modality in seen:
                 table.fail(
                     f"{frame.name}.{item.modality}",
-                    "{...}",
+                    _Shown("{...}"),
                     f"already sent in frames.{seen[item.modality]}: keep one",
                 )
             seen[item.modality] = frame.name

@@ -186,10 +186,11 @@ class _Stream:
 class ByteFramer:
     """Cuts a serial byte stream into frames at the sync bytes; re-syncs after a loss.
 
-    A candidate frame is taken when the sync bytes start it, its type is known and, when the
-    following bytes have arrived, the next frame's sync bytes follow it (so a sync pattern
-    inside the values is not taken for a frame). Every run of bytes thrown away to find the
-    next frame counts as one sync loss (:attr:`malformed`).
+    A candidate frame is taken when the sync bytes start it, its type is known and the next
+    frame's sync bytes follow it (so a sync pattern inside the values, or a frame cut short
+    by a reset, is not taken for a frame); the last frame before the line goes idle is taken
+    by :meth:`flush`. Every rejected candidate and every run of noise before a frame counts
+    as one sync loss (:attr:`malformed`).
     """
 
     def __init__(self, layout: SkinLayout) -> None:
@@ -213,7 +214,8 @@ class ByteFramer:
         value = int.from_bytes(self._buffer[self.id_field.at : stop], self.order, signed=signed)
         return self.sizes.get(value, -1)
 
-    def _discard(self, count: int) -> None:
+    def _skip(self, count: int) -> None:
+        """Throw away noise before the next sync bytes (one loss per run)."""
         if count <= 0:
             return
         if not self._lost:
@@ -221,31 +223,43 @@ class ByteFramer:
             self._lost = True
         del self._buffer[:count]
 
-    def _followed(self, size: int) -> bool:
-        """Whether what follows a candidate frame can start the next one."""
-        tail = bytes(self._buffer[size : size + len(self.magic)])
-        return self.magic.startswith(tail)
+    def _reject(self) -> None:
+        """Throw away a false candidate's sync bytes (one loss each)."""
+        self.malformed += 1
+        self._lost = True
+        del self._buffer[:1]
+
+    def _take(self, size: int) -> bytes:
+        frame = bytes(self._buffer[:size])
+        del self._buffer[:size]
+        self._lost = False
+        return frame
 
     def feed(self, data: bytes) -> list[bytes]:
-        """Add received bytes; return the whole frames they complete."""
+        """Add received bytes; return the whole frames they confirm."""
         self._buffer.extend(data)
         frames: list[bytes] = []
         keep = len(self.magic) - 1
         while True:
             start = self._buffer.find(self.magic)
             if start < 0:
-                self._discard(len(self._buffer) - keep)
+                self._skip(len(self._buffer) - keep)
                 return frames
-            self._discard(start)
+            self._skip(start)
             size = self._size()
-            if size is None or size > len(self._buffer):
+            if size is None or len(self._buffer) < size + len(self.magic):
                 return frames
-            if size < 0 or not self._followed(size):
-                self._discard(1)
+            if size < 0 or self._buffer[size : size + len(self.magic)] != self.magic:
+                self._reject()
                 continue
-            frames.append(bytes(self._buffer[:size]))
-            del self._buffer[:size]
-            self._lost = False
+            frames.append(self._take(size))
+
+    def flush(self) -> list[bytes]:
+        """Return the frame the buffer holds exactly when the line went idle (if any)."""
+        size = self._size()
+        if size is not None and size == len(self._buffer) and self._buffer.startswith(self.magic):
+            return [self._take(size)]
+        return []
 
 
 class FrameSkin:
@@ -482,10 +496,9 @@ class SerialSkin(FrameSkin):
         def receive() -> Received | None:
             if not ready:
                 data = port.read(max(1, port.in_waiting))
-                if not data:
-                    return None
                 now = clock.now_ns()
-                ready.extend(Received(now, frame) for frame in framer.feed(data))
+                frames = framer.feed(data) if data else framer.flush()
+                ready.extend(Received(now, frame) for frame in frames)
             return ready.popleft() if ready else None
 
         return SourceReader(self.layout.name, receive)
