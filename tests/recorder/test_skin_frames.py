@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from skinframes import example, serial_example
 
 from recorder.errors import RigError
-from recorder.live import RecorderClock, open_skin
+from recorder.live import RecorderClock, SourceStats, open_skin, parse_source_stats
+from recorder.live._accounting import encode_source_stats
 from recorder.live._framelayout import FIELD_TYPES, parse_layout
 from recorder.live._frames import ByteFramer, SerialSkin, UdpSkin, Unwrap
 from recorder.virtuallab._skin_server import _Encoder
@@ -221,3 +222,12 @@ def test_framer_skips_leading_noise_and_unknown_types() -> None:
     got += framer.flush()
     assert got == [frames[0], frames[1], frames[2]]
     assert framer.malformed == 2
+
+
+def test_sources_record_without_malformed_still_reads() -> None:
+    stats = SourceStats("skin", expected=10, received=9, missing=1, malformed=2)
+    record = encode_source_stats([stats])
+    assert parse_source_stats(record) == (stats,)
+    assert "2 malformed" in stats.problems()
+    del record["skin.malformed"]
+    assert parse_source_stats(record)[0].malformed == 0
