@@ -44,6 +44,8 @@ class SourceStats:
             the first second (sensor stamp + offset = recorder time of the measurement).
         clock_drift_ns: How much that offset changed by the last second of the recording.
         latency_max_ns: Largest receive delay beyond the offset, ns.
+        malformed: Frames or packets that could not be parsed (wrong sync bytes, length or
+            type; a serial stream's sync losses); their samples are counted in ``missing``.
     """
 
     name: str
@@ -62,11 +64,18 @@ class SourceStats:
     clock_offset_ns: int = 0
     clock_drift_ns: int = 0
     latency_max_ns: int = 0
+    malformed: int = 0
 
     @property
     def complete(self) -> bool:
         """Whether every expected sample arrived exactly once and in order."""
-        return not (self.missing or self.duplicated or self.out_of_order or self.overflowed)
+        return not (
+            self.missing
+            or self.duplicated
+            or self.out_of_order
+            or self.overflowed
+            or self.malformed
+        )
 
     def problems(self) -> str:
         """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
@@ -79,6 +88,8 @@ class SourceStats:
             parts.append(f"{self.out_of_order} out of order")
         if self.overflowed:
             parts.append(f"{self.overflowed} dropped by a full queue")
+        if self.malformed:
+            parts.append(f"{self.malformed} malformed")
         return ", ".join(parts)
 
 
