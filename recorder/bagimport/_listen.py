@@ -18,7 +18,6 @@ written; the one being annotated is dropped with a line saying so; nothing writt
 from __future__ import annotations
 
 import hashlib
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +63,7 @@ from recorder.live._clock import RecorderClock
 
 if TYPE_CHECKING:
     import argparse
+    import threading
     from collections.abc import Callable, Mapping, Sequence
 
     from rosbags.typesys.store import Typestore
@@ -424,7 +424,7 @@ def _period(extractor: Any) -> int:  # noqa: ANN401
     return 0
 
 
-def listen(  # noqa: PLR0913 (the command's options)
+def listen(
     topic_map: TopicMap,
     out: Path,
     *,

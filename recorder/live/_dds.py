@@ -18,6 +18,7 @@ The live skin of a rig configuration (``[skin] transport = "ros2"``) is :func:`r
 
 from __future__ import annotations
 
+import importlib
 import threading
 import time
 from collections import deque
@@ -43,7 +44,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from rosbags.interfaces import Nodetype
-from rosbags.typesys import TypesysError, get_types_from_msg
+from rosbags.typesys import get_types_from_msg
 
 from recorder.errors import RecorderError, RigError
 from recorder.live._reader import Received, SourceReader
@@ -51,7 +52,9 @@ from recorder.live._reader import Received, SourceReader
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
 # bytes (its compiled decoders read them), so samples are taken and written as bytes with the
 # binding's own C layer, which DataReader.take and DataWriter.write call themselves.
-from cyclonedds._clayer import ddspy_take, ddspy_write  # noqa: PLC2701 (see above)
+_CLAYER: Any = importlib.import_module("cyclonedds._clayer")
+ddspy_take = _CLAYER.ddspy_take
+ddspy_write = _CLAYER.ddspy_write
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -70,6 +73,8 @@ ATIKT_TYPES = {
 READER_DEPTH = 4096
 #: Samples a writer keeps for late retransmission (reliable writers).
 WRITER_DEPTH = 1000
+#: cyclonedds.idl.types, untyped: its generic annotations are built at run time here.
+_IDL: Any = idl
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 _POLL_NS = 20_000_000
 _BASE: dict[str, Any] = {
@@ -152,13 +157,15 @@ class IdlTypes:
         kind, rest = desc
         if kind == Nodetype.BASE:
             name, bound = rest
-            return idl.bounded_str[bound] if name == "string" and bound else _BASE[name]
+            if name == "string" and bound:
+                return _IDL.bounded_str[bound]
+            return _BASE[name]
         if kind == Nodetype.NAME:
             return self.get(rest)
         sub = self._node(rest[0])
         if kind == Nodetype.ARRAY:
-            return idl.array[sub, rest[1]]
-        return idl.sequence[sub, rest[1]] if rest[1] else idl.sequence[sub]
+            return _IDL.array[sub, rest[1]]
+        return _IDL.sequence[sub, rest[1]] if rest[1] else _IDL.sequence[sub]
 
 
 def ros_qos(*, reliable: bool, depth: int) -> Qos:
@@ -209,7 +216,8 @@ class DdsDomain:
             )
             raise DdsError(msg) from err
         self.domain_id = domain_id
-        self.types = IdlTypes(register_atikt_types(store))
+        self.store = register_atikt_types(store)
+        self.types = IdlTypes(self.store)
         self._topics: dict[str, Topic[Any]] = {}
         self._discovery = BuiltinDataReader(self.participant, BuiltinTopicDcpsPublication)
         self.seen: dict[str, list[Publication]] = {}
@@ -282,7 +290,8 @@ class RawWriter:
 
     def matched(self) -> int:
         """Return the number of readers matched."""
-        return int(self.writer.get_publication_matched_status().current_count)
+        status: Any = self.writer.get_publication_matched_status()  # type: ignore[no-untyped-call]
+        return int(status.current_count)
 
 
 class RawReader:
@@ -466,13 +475,12 @@ class Ros2Skin:
         """Return the blocks of every modality that all cells have samples for."""
         from recorder.bagimport._pack import align_rows, block_period, skin_blocks  # noqa: PLC0415
 
-        out = []
+        out: list[Any] = []
         for modality, state in self._modalities.items():
-            series = [
-                e.take(-(2**62), 2**62)[modality]
-                for e in self._found.values()
-                if modality in e.offsets
-            ]
+            mine = [e for e in self._found.values() if modality in e.offsets]
+            if any(e.size() < 2 for e in mine):  # noqa: PLR2004 (a period needs two)
+                continue
+            series = [e.take(-(2**62), 2**62)[modality] for e in mine]
             if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
                 continue
             period = block_period(state.spec.period_ns, series[0].stamps)
@@ -535,9 +543,9 @@ class Ros2Skin:
         """Return each topic's accounting since :meth:`begin` (overflow included)."""
         out = []
         for topic, counter in self._counters.items():
-            counter.overflow(
-                self._readers[topic].overflowed - self._overflow0[topic] - counter._overflowed
-            )  # noqa: SLF001
+            overflowed = self._readers[topic].overflowed
+            counter.overflow(overflowed - self._overflow0[topic])
+            self._overflow0[topic] = overflowed
             out.append(counter.stats())
         return out
 

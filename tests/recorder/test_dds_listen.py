@@ -15,18 +15,18 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from mcap.reader import make_reader  # noqa: E402
-from rosbags.highlevel import AnyReader  # noqa: E402
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
 
-from recorder import load_actions, load_objects  # noqa: E402
-from recorder.bagimport._importer import import_bag  # noqa: E402
-from recorder.bagimport._listen import listen  # noqa: E402
-from recorder.bagimport._source import typestore  # noqa: E402
-from recorder.bagimport._topicmap import load_topic_map  # noqa: E402
-from recorder.live import SOURCES_RECORD, parse_source_stats  # noqa: E402
-from recorder.live._dds import DdsDomain  # noqa: E402
-from replay.cli._main import main as replay_main  # noqa: E402
-from tests.recorder import ddsdata  # noqa: E402
+from recorder import load_actions, load_objects
+from recorder.bagimport._importer import import_bag
+from recorder.bagimport._listen import listen
+from recorder.bagimport._source import typestore
+from recorder.bagimport._topicmap import load_topic_map
+from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.live._dds import DdsDomain
+from replay.cli._main import main as replay_main
+from tests.recorder import ddsdata
 
 if TYPE_CHECKING:
     from pathlib import Path
