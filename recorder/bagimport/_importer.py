@@ -361,13 +361,18 @@ class _Session:
         self.los.append(plan.window.start_ns - MARGIN_NS)
         self.his.append(plan.window.stop_ns + MARGIN_NS)
 
-    def trim(self, before_ns: int) -> None:
-        """Forget messages stamped before ``before_ns`` that no window still to write needs."""
+    def trim(self, before_ns: int) -> int:
+        """Forget messages stamped before ``before_ns`` that no window still to write needs.
+
+        Returns:
+            The stamp before which messages were forgotten.
+        """
         if self.done < len(self.plans):
             before_ns = min(before_ns, self.los[self.done])
         for extractor in self.found.values():
             extractor.forget(before_ns)
         self.pending_bytes = 0
+        return before_ns
 
     def wanted(self, receive_ns: int) -> tuple[int, int, bool]:
         """Return whether a message received at ``receive_ns`` may hold a window's sample.

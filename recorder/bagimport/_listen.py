@@ -365,7 +365,7 @@ class Listener:
         bound = now_ns - self.topic_map.max_delay_ns - MARGIN_NS
         if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
             bound = min(bound, start - MARGIN_NS)
-        self.session.trim(bound)
+        bound = self.session.trim(bound)
         for arrivals in self._arrivals.values():
             arrivals.forget(bound)
 
@@ -504,6 +504,7 @@ def _listen(args: argparse.Namespace) -> int:
         actions=actions,
         domain_id=args.domain_id,
         duration_s=args.duration,
+        discovery_s=10.0 if args.duration is None else min(10.0, args.duration),
         on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
         on_note=lambda line: print(line, flush=True),  # noqa: T201
     )

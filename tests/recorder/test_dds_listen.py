@@ -19,6 +19,7 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
 from recorder import load_actions, load_objects
+from recorder._cli import main as record_main
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._listen import listen
 from recorder.bagimport._source import typestore
@@ -141,3 +142,18 @@ def test_live_files_pass_check_and_open_in_rosbags(
     assert live.index.exists()
     assert live.json_path is not None
     assert live.json_path.exists()
+
+
+def test_cli_without_publishers_says_so_in_one_line(
+    dds_domain: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(ddsdata.TOPIC_MAP, encoding="utf-8")
+    argv = ["listen", "--topic-map", str(map_path), "--out", str(tmp_path / "out")]
+    argv += ["--duration", "0.3", "--domain-id", str(dds_domain + 1)]
+    assert record_main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "/skin/cell_0" in err
+    assert "no publisher" in err
+    assert not (tmp_path / "out").exists()
