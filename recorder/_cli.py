@@ -54,7 +54,11 @@ if TYPE_CHECKING:
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
-COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command", "recorder._session")
+COMMAND_MODULES: tuple[str, ...] = (
+    "recorder.bagimport._command",
+    "recorder.bagimport._listen",
+    "recorder._session",
+)
 
 
 REGISTRY = cli.Registry()

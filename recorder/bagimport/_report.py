@@ -101,6 +101,7 @@ class ImportReport:
         json_path: Where the report was written as JSON.
         already_imported: Bags skipped because ``out`` holds them already.
         repeated_stamps: Skin messages dropped because they repeat the previous stamp.
+        late_samples: Live: samples per topic that arrived after their window was written.
     """
 
     bags: Sequence[BagIdentity]
@@ -117,6 +118,7 @@ class ImportReport:
     json_path: Path | None = None
     already_imported: dict[str, str] = field(default_factory=dict)
     repeated_stamps: int = 0
+    late_samples: dict[str, int] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -146,6 +148,7 @@ class ImportReport:
             "max_cell_offset_ns": self.max_cell_offset_ns,
             "max_jitter_ns": self.max_jitter_ns,
             "repeated_skin_stamps": self.repeated_stamps,
+            **({"late_samples": self.late_samples} if self.late_samples else {}),
         }
 
     def save(self) -> Path:
