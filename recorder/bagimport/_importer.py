@@ -245,12 +245,12 @@ def _cells(
     found: Mapping[str, Extractor], topic_map: TopicMap, lo: int, hi: int
 ) -> dict[str, list[Series]]:
     """Return, per mapped modality, every cell's samples reaching ``[lo, hi)``."""
-    cells: dict[str, list[Series]] = {m: [] for m in topic_map.skin}
+    columns: dict[str, list[tuple[int, Series]]] = {m: [] for m in topic_map.skin}
     for extractor in found.values():
         if isinstance(extractor, SkinTopic):
-            for modality, series in extractor.take(lo, hi).items():
-                cells[modality].append(series)
-    return cells
+            for modality, series in extractor.take_cells(lo, hi).items():
+                columns[modality].extend(series)
+    return {m: [s for _, s in sorted(c, key=lambda cell: cell[0])] for m, c in columns.items()}
 
 
 def _robot_items(
@@ -287,7 +287,9 @@ def _window_items(
     items: list[StreamItem] = [PhaseEvent(s, s, p) for p, s in window.events]
     for modality, spec in topic_map.skin.items():
         series = cells[modality]
-        period = block_period(spec.period_ns, series[0].stamps)
+        # stamped by rate: the period on the stamps' clock is the fitted one (the drift)
+        exact = spec.period_ns if spec.timing == "message" else None
+        period = block_period(exact, series[0].stamps)
         if period <= 0 or any(s.stamps.size == 0 for s in series):
             return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it"
         rows = align_rows(series, window.start_ns, window.stop_ns, period)
@@ -594,7 +596,7 @@ def routes(
     for topic, extractor in found.items():
         mine = [(key, msgtype) for key, name, msgtype in channels if name == topic]
         if isinstance(extractor, SkinTopic):
-            fields = [spec.field for spec in extractor.fields]
+            fields = list(extractor.paths)
         elif isinstance(extractor, JointTopic):
             fields = ["name", "position", "velocity", "effort"]
         else:
@@ -746,6 +748,9 @@ def tally(found: Mapping[str, Extractor], report: ImportReport) -> None:
             for spec in extractor.fields:
                 report.dropped_rows[spec.modality] = report.dropped_rows.get(spec.modality, 0)
             report.repeated_stamps += extractor.repeated
+            for index, timeline in extractor.timelines.items():
+                modality = extractor.fields[index].modality
+                report.timing.setdefault(extractor.topic, {})[modality] = timeline.summary()
 
 
 def import_bag(

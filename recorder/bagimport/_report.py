@@ -102,6 +102,9 @@ class ImportReport:
         already_imported: Bags skipped because ``out`` holds them already.
         repeated_stamps: Skin messages dropped because they repeat the previous stamp.
         late_samples: Live: samples per topic that arrived after their window was written.
+        timing: Per topic and modality stamped by rate (``timing = "rate"``): runs, gaps,
+            lost frames, the jitter of the message stamps around the fitted timeline (ms) and
+            the drift of the sensor's rate against the stamps' clock (ppm).
     """
 
     bags: Sequence[BagIdentity]
@@ -119,6 +122,7 @@ class ImportReport:
     already_imported: dict[str, str] = field(default_factory=dict)
     repeated_stamps: int = 0
     late_samples: dict[str, int] = field(default_factory=dict)
+    timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -149,6 +153,7 @@ class ImportReport:
             "max_jitter_ns": self.max_jitter_ns,
             "repeated_skin_stamps": self.repeated_stamps,
             **({"late_samples": self.late_samples} if self.late_samples else {}),
+            **({"timing": self.timing} if self.timing else {}),
         }
 
     def save(self) -> Path:

@@ -26,6 +26,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 
 from recorder.bagimport._pack import Series
 from recorder.bagimport._ros1 import StreamingReader
+from recorder.bagimport._timing import Timeline
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
@@ -35,7 +36,7 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    from recorder.bagimport._topicmap import SkinField, TopicMap
+    from recorder.bagimport._topicmap import FieldPart, SkinField, TopicMap
 
 _NS_PER_S = 1_000_000_000
 JOINT_TYPE = "sensor_msgs/msg/JointState"
@@ -167,7 +168,11 @@ def _stack_bytes(
 
 @dataclass(slots=True)
 class SkinTopic:
-    """One skin cell topic: the modalities it carries for one cell, buffered."""
+    """One skin topic: the modalities it carries for one cell, or for several, buffered.
+
+    A message carries one cell (a topic per cell) or every cell (a field indexed by
+    ``{cell}``). Each distinct message field is kept once, whatever reads it.
+    """
 
     topic: str
     cell: int
@@ -180,21 +185,38 @@ class SkinTopic:
     reach: tuple[int, int] = (0, 0)
     #: The fields' dtypes when their bytes are kept (:meth:`push_fields`), else None.
     dtypes: tuple[np.dtype[Any], ...] | None = None
+    #: Per spec of :attr:`fields`: the cells it reads here, as (output column, lab cell id).
+    cells: tuple[tuple[tuple[int, int], ...], ...] = ()
+    #: The distinct message fields read (a decoder returns their bytes in this order).
+    paths: tuple[str, ...] = field(init=False)
+    #: Modalities stamped from their rate (``timing = "rate"``), by spec index.
+    timelines: dict[int, Timeline] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        """Precompute field getters and each modality's sample offsets."""
+        """Precompute field getters, each modality's sample offsets and timelines."""
         batched = ", ".join(f"[skin.{s.modality}]" for s in self.fields)
         fix = (
             f"if the driver batches samples, set samples_per_message and rate_hz of {batched}; "
             'otherwise fix the driver\'s stamps or use [time] stamps = "log"'
         )
         self.buffer = _Buffer(self.topic, fix)
-        self.values = [[] for _ in self.fields]
-        self.getters = [attrgetter(spec.field) for spec in self.fields]
-        for spec in self.fields:
+        if not self.cells:
+            self.cells = tuple(((self.cell, self.cell),) for _ in self.fields)
+        self.paths = tuple(dict.fromkeys(p.path for s in self.fields for p in s.fields))
+        self.values = [[] for _ in self.paths]
+        self.getters = [attrgetter(path) for path in self.paths]
+        slack = 0
+        for i, spec in enumerate(self.fields):
             self.offsets[spec.modality] = np.asarray(spec.offsets_ns(), dtype=np.int64)
+            if spec.timing == "rate" and spec.period_ns is not None:
+                count = spec.samples_per_message
+                stamped = count - 1 if spec.batch_stamp == "last" else 0
+                where = f"topic {self.topic} [skin.{spec.modality}]"
+                self.timelines[i] = Timeline(where, spec.period_ns, count, stamped)
+                # fitted stamps lie below the message stamps by the latency (< a frame or two)
+                slack = max(slack, 2 * round(spec.period_ns * count))
         every = np.concatenate(list(self.offsets.values()))
-        self.reach = (int(every.min()), int(every.max()))
+        self.reach = (int(every.min()) - slack, int(every.max()) + slack)
 
     @property
     def repeated(self) -> int:
@@ -208,6 +230,7 @@ class SkinTopic:
             BagImportError: Its stamp precedes the previous one.
         """
         if self.buffer.accept(stamp, receive_ns):
+            self._place(stamp)
             if self.dtypes is None:
                 for getter, values in zip(self.getters, self.values, strict=True):
                     values.append(getter(message))
@@ -218,14 +241,20 @@ class SkinTopic:
     def push_fields(self, fields: Sequence[Any], stamp: int, receive_ns: int) -> None:
         """Keep one message's fields as read from its bytes (:attr:`dtypes` is set).
 
-        ``fields``: a decoder's ``(sec, nanosec, field bytes...)``.
+        ``fields``: a decoder's ``(sec, nanosec, field bytes...)`` of :attr:`paths`.
 
         Raises:
             BagImportError: Its stamp precedes the previous one.
         """
         if self.buffer.accept(stamp, receive_ns):
+            self._place(stamp)
             for values, data in zip(self.values, fields[2:], strict=True):
                 values.append(data)
+
+    def _place(self, stamp: int) -> None:
+        """Place an accepted message on the timelines of the modalities stamped by rate."""
+        for timeline in self.timelines.values():
+            timeline.push(stamp)
 
     def _width(self, spec: SkinField, size: int) -> int:
         """Return the values per sample, checked against the map and earlier messages."""
@@ -242,38 +271,121 @@ class SkinTopic:
         self.widths[spec.modality] = width
         return width
 
-    def take(self, lo: int, hi: int) -> dict[str, Series]:
-        """Return each modality's samples of the messages reaching ``[lo, hi)``.
+    def _raw(self, path: int, first: int, last: int) -> NDArray[np.float64]:
+        """Return a field of messages ``first:last`` as a (messages, size) float64 array."""
+        count, values = last - first, self.values[path][first:last]
+        if self.dtypes is None:
+            return _stack(values, count, self.topic, self.paths[path])
+        return _stack_bytes(values, self.dtypes[path], count, self.topic, self.paths[path])
+
+    def _cell_values(
+        self, spec: SkinField, lab_cell: int, raws: dict[int, NDArray[np.float64]]
+    ) -> NDArray[np.float64]:
+        """Return one cell's values of a modality, (messages, values), its fields side by side.
+
+        Raises:
+            BagImportError: An indexed element is beyond the field, or a field's values do
+                not split into the message's samples.
+        """
+        parts = spec.fields
+        stride = max(spec.width // len(parts), 1)
+        pieces = []
+        for part in parts:
+            raw = raws[self.paths.index(part.path)]
+            element = part.element(lab_cell)
+            if element is not None:
+                if (element + 1) * stride > raw.shape[1]:
+                    key = "cells of [skin]" if part.per_cell else f"field of [skin.{spec.modality}]"
+                    msg = (
+                        f"topic {self.topic}: field {part.path!r} has {raw.shape[1]} values, no "
+                        f"element {element} (x {stride}); fix the {key} in the topic map"
+                    )
+                    raise BagImportError(msg)
+                raw = raw[:, element * stride : (element + 1) * stride]
+            pieces.append(raw)
+        if len(pieces) == 1:
+            return pieces[0]
+        count, samples = pieces[0].shape[0], spec.samples_per_message
+        if any(p.shape[1] % samples for p in pieces):
+            self._width(spec, sum(p.shape[1] for p in pieces) + 1)  # raises, naming the fix
+        split = [p.reshape(count, samples, -1) for p in pieces]
+        return np.concatenate(split, axis=2).reshape(count, -1)
+
+    def _sample_stamps(
+        self, index: int, spec: SkinField, stamps: NDArray[np.int64], first: int, last: int
+    ) -> NDArray[np.int64]:
+        """Return a modality's sample stamps of messages ``first:last``.
+
+        Raises:
+            BagImportError: Sample stamps do not increase.
+        """
+        timeline = self.timelines.get(index)
+        if timeline is not None:
+            samples = timeline.stamps(first, last)
+            fix = (
+                "frames arrive later than half a frame period after the fitted timeline and "
+                "earlier frames are stamped after them; check rate_hz and samples_per_message"
+            )
+        else:
+            samples = (stamps[:, None] + self.offsets[spec.modality][None, :]).reshape(-1)
+            fix = (
+                f"its {spec.samples_per_message} samples per message at the rate given overlap "
+                "the next message; fix samples_per_message or rate_hz, or, if the driver stamps "
+                'messages when they arrive, set timing = "rate"'
+            )
+        if samples.size > 1 and not bool((np.diff(samples) > 0).all()):
+            at = int(samples[int(np.argmin(np.diff(samples) > 0)) + 1])
+            msg = (
+                f"topic {self.topic}: sample stamps of [skin.{spec.modality}] go back at "
+                f"{at} ns: {fix}"
+            )
+            raise BagImportError(msg)
+        return samples
+
+    def take_cells(self, lo: int, hi: int) -> dict[str, list[tuple[int, Series]]]:
+        """Return each modality's samples of the messages reaching ``[lo, hi)``, per cell.
+
+        Returns:
+            modality -> (output column, samples) of every cell this topic carries.
 
         Raises:
             BagImportError: A field's width is wrong or sample stamps do not increase.
         """
         first, last = self.buffer.span(lo, hi, *self.reach)
-        count = last - first
+        if first == last:
+            return self._empty()
         stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
         receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
-        out = {}
-        dtypes = self.dtypes or (np.dtype(np.float64),) * len(self.fields)
-        for spec, values, dtype in zip(self.fields, self.values, dtypes, strict=True):
-            offsets = self.offsets[spec.modality]
-            raw = (
-                _stack(values[first:last], count, self.topic, spec.field)
-                if self.dtypes is None
-                else _stack_bytes(values[first:last], dtype, count, self.topic, spec.field)
-            )
-            width = self._width(spec, raw.shape[1]) if count else max(spec.width, 1)
-            samples = (stamps[:, None] + offsets[None, :]).reshape(-1)
-            if samples.size > 1 and not bool((np.diff(samples) > 0).all()):
-                at = int(samples[int(np.argmin(np.diff(samples) > 0)) + 1])
-                msg = (
-                    f"topic {self.topic}: sample stamps of [skin.{spec.modality}] go back at "
-                    f"{at} ns: its {spec.samples_per_message} samples per message at the rate "
-                    f"given overlap the next message; fix samples_per_message or rate_hz"
-                )
-                raise BagImportError(msg)
-            data = raw.reshape(samples.size, width) * spec.scale + spec.offset
-            out[spec.modality] = Series(samples, np.repeat(receives, offsets.size), data)
+        raws = {i: self._raw(i, first, last) for i in range(len(self.paths))}
+        out: dict[str, list[tuple[int, Series]]] = {}
+        for index, (spec, cells) in enumerate(zip(self.fields, self.cells, strict=True)):
+            samples = self._sample_stamps(index, spec, stamps, first, last)
+            repeated = np.repeat(receives, spec.samples_per_message)
+            series = out.setdefault(spec.modality, [])
+            for column, lab_cell in cells:
+                raw = self._cell_values(spec, lab_cell, raws)
+                width = self._width(spec, raw.shape[1])
+                data = raw.reshape(samples.size, width) * spec.scale + spec.offset
+                series.append((column, Series(samples, repeated, data)))
         return out
+
+    def _empty(self) -> dict[str, list[tuple[int, Series]]]:
+        """Return no samples of every modality and cell (no message reaches the range)."""
+        out: dict[str, list[tuple[int, Series]]] = {}
+        none = np.zeros(0, dtype=np.int64)
+        for spec, cells in zip(self.fields, self.cells, strict=True):
+            width = self.widths.get(spec.modality, max(spec.width, 1))
+            empty = Series(none, none, np.zeros((0, width)))
+            out.setdefault(spec.modality, []).extend((column, empty) for column, _ in cells)
+        return out
+
+    def take(self, lo: int, hi: int) -> dict[str, Series]:
+        """Return each modality's samples of the messages reaching ``[lo, hi)`` (first cell).
+
+        Raises:
+            BagImportError: A field's width is wrong or sample stamps do not increase.
+        """
+        return {m: cells[0][1] for m, cells in self.take_cells(lo, hi).items()}
 
     def forget(self, before: int) -> None:
         """Drop the messages whose samples all precede ``before``."""
@@ -281,6 +393,8 @@ class SkinTopic:
         self.buffer.cut(index)
         for values in self.values:
             del values[:index]
+        for timeline in self.timelines.values():
+            timeline.cut(index)
 
     def size(self) -> int:
         """Return the number of buffered messages."""
@@ -479,19 +593,28 @@ Extractor = SkinTopic | JointTopic | PoseTopic
 
 def extractors(topic_map: TopicMap) -> dict[str, Extractor]:
     """Return topic -> extractor for every mapped data topic."""
-    fields: dict[tuple[str, int], list[SkinField]] = {}
+    cells = list(enumerate(topic_map.cells))
+    fields: dict[str, list[tuple[SkinField, tuple[tuple[int, int], ...]]]] = {}
     for spec in topic_map.skin.values():
-        for index, cell in enumerate(topic_map.cells):
-            fields.setdefault((spec.topic_of(cell), index), []).append(spec)
+        if spec.per_cell:  # one message carries every cell: a field indexed by {cell}
+            fields.setdefault(spec.topic, []).append((spec, tuple(cells)))
+            continue
+        for column, cell in cells:
+            mapped = fields.setdefault(spec.topic_of(cell), [])
+            if any(s is spec for s, _ in mapped):
+                msg = (
+                    f"{topic_map.path}: topic {spec.topic} of [skin.{spec.modality}] is mapped "
+                    f"to {len(cells)} cells; give its topic a {{cell}} placeholder, index its "
+                    'field by cell (field = "values[{cell}]"), or map one cell'
+                )
+                raise BagImportError(msg)
+            mapped.append((spec, ((column, cell),)))
     out: dict[str, Extractor] = {}
-    for (topic, index), specs in fields.items():
-        if topic in out:
-            msg = (
-                f"{topic_map.path}: topic {topic} is mapped to two cells; give [skin] topics a "
-                "{cell} placeholder or map one cell"
-            )
-            raise BagImportError(msg)
-        out[topic] = SkinTopic(topic, index, tuple(specs))
+    for topic, specs in fields.items():
+        first = min(column for _, mine in specs for column, _ in mine)
+        out[topic] = SkinTopic(
+            topic, first, tuple(s for s, _ in specs), cells=tuple(c for _, c in specs)
+        )
     for robot, make in ((topic_map.joints, "joints"), (topic_map.pose, "pose")):
         if robot is None:
             continue
@@ -589,6 +712,33 @@ def _numeric(node: tuple[Any, ...]) -> bool:
     return bool(node[0] == Nodetype.BASE and node[1][0] in _NUMERIC)
 
 
+def _check_part(
+    store: Typestore, topic: str, msgtype: str, spec: SkinField, part: FieldPart
+) -> None:
+    """Check that one field of a modality exists, is numeric, and is an array if indexed.
+
+    Raises:
+        BagImportError: The field is missing, not numeric, or indexed but not an array.
+    """
+    node = _field_type(store, msgtype, part.path)
+    if node is None or not _numeric(node):
+        names = [name for name, _ in store.fielddefs[msgtype][1]]
+        problem = "no field" if node is None else "a field that is not numeric:"
+        msg = (
+            f"topic {topic} carries {msgtype}: {problem} {part.path!r} "
+            f"(fields: {', '.join(names)}); fix 'field' of [skin.{spec.modality}] in "
+            "the topic map or map the topic that carries the values"
+        )
+        raise BagImportError(msg)
+    indexed = part.per_cell or part.index is not None
+    if indexed and node[0] not in {Nodetype.ARRAY, Nodetype.SEQUENCE}:
+        msg = (
+            f"topic {topic} carries {msgtype}: field {part.path!r} is a number, not an array; "
+            f"remove the [..] from 'field' of [skin.{spec.modality}] in the topic map"
+        )
+        raise BagImportError(msg)
+
+
 def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map: TopicMap) -> None:
     """Check, before reading, that every skin field exists, is numeric, and has a header.
 
@@ -599,17 +749,9 @@ def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map
     types = {c.topic: c.msgtype for c in connections}
     for topic, extractor in extractors(topic_map).items():
         msgtype = types[topic]
-        names = [name for name, _ in store.fielddefs[msgtype][1]]
         for spec in getattr(extractor, "fields", ()):
-            node = _field_type(store, msgtype, spec.field)
-            if node is None or not _numeric(node):
-                problem = "no field" if node is None else "a field that is not numeric:"
-                msg = (
-                    f"topic {topic} carries {msgtype}: {problem} {spec.field!r} "
-                    f"(fields: {', '.join(names)}); fix 'field' of [skin.{spec.modality}] in "
-                    "the topic map or map the topic that carries the values"
-                )
-                raise BagImportError(msg)
+            for part in spec.fields:
+                _check_part(store, topic, msgtype, spec, part)
         if topic_map.stamps == "header" and _field_type(store, msgtype, "header.stamp") is None:
             msg = (
                 f'topic {topic} ({msgtype}) has no header.stamp; set [time] stamps = "log" '

@@ -14,6 +14,7 @@ action parameters.
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass
 from decimal import Decimal
@@ -36,6 +37,10 @@ WINDOW_SOURCES = ("topic", "csv")
 TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 #: Which sample of a batched message its header stamp belongs to.
 BATCH_STAMPS = ("first", "last")
+#: How a modality's sample stamps are made: from each message's stamp, or from the rate.
+TIMINGS = ("message", "rate")
+#: A mapped field: a dotted path, optionally indexed by the cell id or a fixed element.
+_FIELD = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)(?:\[(?P<index>\{cell\}|\d+)\])?$")
 #: The packaged, commented example map.
 EXAMPLE = "topic_map.example.toml"
 #: Keys of an action table that are not parameters.
@@ -51,19 +56,42 @@ _RENAMED: Mapping[str, str] = MappingProxyType(
 
 
 @dataclass(frozen=True, slots=True)
+class FieldPart:
+    """One field a modality's values are read from (``field`` of a ``[skin.<m>]`` table).
+
+    Attributes:
+        path: Dotted path of the message field.
+        index: A fixed element of an array field (``"temperatures[1]"``), or None.
+        per_cell: The element is the cell id (``"electrodes[{cell}]"``): one message, many cells.
+    """
+
+    path: str
+    index: int | None = None
+    per_cell: bool = False
+
+    def element(self, cell: int) -> int | None:
+        """Return the element of the field read for ``cell`` (None: the whole field)."""
+        return cell if self.per_cell else self.index
+
+
+@dataclass(frozen=True, slots=True)
 class SkinField:
     """Where one skin modality is found, per cell.
 
     Attributes:
         modality: The contract's modality name.
         topic: Topic pattern; ``{cell}`` is replaced by each cell id.
-        field: Field of the message, dotted for nested fields.
+        field: The field as the map names it (one path, or several joined by ", ").
         scale: SI value = raw * scale + offset.
         offset: See ``scale``.
         width: Values per cell and sample the map insists on (0: taken from the data).
         samples_per_message: Samples per message (a driver that batches, e.g. 22).
         period_ns: Exact sample period (from ``rate_hz``), or None to measure it.
         batch_stamp: ``first`` or ``last``: the sample the header stamp belongs to.
+        parts: The fields whose values, side by side, are the modality's values per sample
+            (empty: ``field`` itself).
+        timing: ``message`` (sample stamps from each message's stamp) or ``rate`` (from the
+            sensor's rate within runs of messages; the message stamps anchor the runs).
     """
 
     modality: str
@@ -75,6 +103,18 @@ class SkinField:
     samples_per_message: int = 1
     period_ns: Fraction | None = None
     batch_stamp: str = "first"
+    parts: tuple[FieldPart, ...] = ()
+    timing: str = "message"
+
+    @property
+    def fields(self) -> tuple[FieldPart, ...]:
+        """Return the fields read, in the order their values are placed."""
+        return self.parts or (FieldPart(self.field),)
+
+    @property
+    def per_cell(self) -> bool:
+        """Return whether one message carries every cell (a field indexed by ``{cell}``)."""
+        return any(part.per_cell for part in self.fields)
 
     def topic_of(self, cell: int) -> str:
         """Return the topic of one cell."""
@@ -299,21 +339,65 @@ def _period(table: _Table, samples: int) -> Fraction | None:
     return Fraction(_NS_PER_S) / rate
 
 
+def _field_parts(table: _Table, topic: str, samples: int) -> tuple[str, tuple[FieldPart, ...]]:
+    """Return the ``field`` key as text and as parts (one field, or a list side by side)."""
+    value = table.get("field", (str, list))
+    names = [value] if isinstance(value, str) else value
+    if not names or not all(isinstance(n, str) for n in names):
+        table.fail(f'[{table.name}] field = {value!r} must be a field or a list ["a", "b"]')
+    parts = []
+    for name in names:
+        match = _FIELD.match(name)
+        if match is None:
+            table.fail(
+                f'[{table.name}] field = {name!r} is not a field path ("force", "data.force", '
+                '"electrodes[{cell}]" or "temperatures[1]")'
+            )
+        index = match["index"]
+        parts.append(
+            FieldPart(
+                match["path"],
+                int(index) if index is not None and index.isdigit() else None,
+                per_cell=index == "{cell}",
+            )
+        )
+    if any(p.per_cell for p in parts) and "{cell}" in topic:
+        table.fail(
+            f"[{table.name}] topic = {topic!r} and field = {value!r} both name {{cell}}; a cell is "
+            "either a topic or an element of a field: keep one placeholder"
+        )
+    if samples > 1 and any(p.per_cell or p.index is not None for p in parts):
+        table.fail(
+            f"[{table.name}] field = {value!r} picks elements, which a batched message "
+            f"(samples_per_message = {samples}) does not allow; map the whole field"
+        )
+    return ", ".join(names), tuple(parts)
+
+
 def _skin_field(table: _Table, modality: str) -> SkinField:
     samples = table.integer("samples_per_message", 1, 1)
     batch_stamp = table.get("batch_stamp", str, "first")
     if batch_stamp not in BATCH_STAMPS:
         table.fail(f"[{table.name}] batch_stamp = {batch_stamp!r} must be one of {BATCH_STAMPS}")
+    timing = table.get("timing", str, "message")
+    if timing not in TIMINGS:
+        table.fail(f"[{table.name}] timing = {timing!r} must be one of {TIMINGS}")
+    if timing == "rate" and not table.has("rate_hz"):
+        table.fail(f'[{table.name}] timing = "rate" needs rate_hz (the sensor\'s sample rate)')
+    topic = table.get("topic", str)
+    text, parts = _field_parts(table, topic, samples)
     field = SkinField(
         modality=modality,
-        topic=table.get("topic", str),
-        field=table.get("field", str),
+        topic=topic,
+        field=text,
         scale=table.number("scale", 1.0),
         offset=table.number("offset", 0.0),
         width=table.integer("width", 0, 0),
         samples_per_message=samples,
         period_ns=_period(table, samples),
         batch_stamp=batch_stamp,
+        parts=parts if len(parts) > 1 or parts[0] != FieldPart(text) else (),
+        timing=timing,
     )
     table.done()
     return field

@@ -394,7 +394,7 @@ class Ros2Skin:
             publications = seen[topic]
             msgtype = publications[0].msgtype
             reliable = all(p.reliable for p in publications)
-            fields = [spec.field for spec in extractor.fields]
+            fields = list(extractor.paths)
             decoder = compile_cdr(store, msgtype, fields, stamped=True)
             if decoder is None:
                 msg = f"topic {topic} ({msgtype}): its layout cannot be read live; map plain fields"
