@@ -657,8 +657,23 @@ def _ticked(
     counts: _Counts,
     by_connection: Mapping[Hashable, Route],
 ) -> Iterator[tuple[Route, int, bytes]]:
-    """Yield a bag's messages with their routes, counting them per bag."""
+    """Yield a bag's messages with their routes, counting them per bag.
+
+    Raises:
+        BagImportError: A message's receive time precedes the previous message's (a reader
+            that cannot put the bag in time order): the cause and the place, in one line.
+    """
+    previous = -(2**63)
     for connection, receive_ns, raw in messages:
+        if receive_ns < previous:
+            msg = (
+                f"{counts.owners[id(connection.owner)]}: messages on {connection.topic} go back "
+                f"in time at t={receive_ns} ns (after {previous} ns): the bag was merged from "
+                "several recorders; re-sort it (ROS 1: `rosbag filter in.bag sorted.bag True`; "
+                "ROS 2: `ros2 bag convert` or rosbags-convert) and import the sorted copy"
+            )
+            raise BagImportError(msg)
+        previous = receive_ns
         counts.tick(id(connection.owner))
         yield by_connection[id(connection)], receive_ns, raw
 

@@ -3,28 +3,35 @@
 rosbags' ``rosbag1.Reader`` loads an index entry for every message when it opens a bag (about
 130 bytes each: 0.4 GB for a 1 GB bag of small messages). An import reads every message once,
 in order, so this reader keeps only the connections and the chunk list of the bag's index and
-walks each chunk's records in the order they were written (the order ``rosbag record`` received
-them). Memory: one decompressed chunk at a time.
+walks each chunk's records, merging chunks that overlap in time so that messages come in
+receive-time order whatever the file order (a bag merged from several recorders). Memory: the
+decompressed chunks that overlap the current time (one, for a bag from one recorder).
 """
 
 from __future__ import annotations
 
+import heapq
 import os
 import struct
 from io import BytesIO
+from operator import itemgetter
 from typing import TYPE_CHECKING
 
 from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.rosbag1.reader import Header, RecordType, read_bytes, read_uint32
 
+from recorder.errors import BagImportError
+
 if TYPE_CHECKING:
-    from collections.abc import Collection, Generator
+    from collections.abc import Collection, Generator, Iterable, Iterator, Sequence
 
     from rosbags.interfaces import Connection
     from rosbags.rosbag1.reader import IndexData
 
 #: Largest uncompressed chunk accepted (rosbag record writes 768 kB chunks).
 MAX_CHUNK_BYTES = 256 * 1024 * 1024
+#: Most message bytes of chunks overlapping in time held at once (a merged bag's k-way merge).
+MAX_OPEN_BYTES = 512 * 1024 * 1024
 
 
 class StreamingReader(Reader):
@@ -65,14 +72,74 @@ class StreamingReader(Reader):
         start: int | None = None,
         stop: int | None = None,
     ) -> Generator[tuple[Connection, int, bytes], None, None]:
-        """Yield (connection, receive time ns, raw bytes) chunk by chunk, in file order."""
+        """Yield (connection, receive time ns, raw bytes) in receive-time order.
+
+        A bag recorded by one ``rosbag record`` has chunks one after the other in time; a bag
+        merged from several recorders (or written by a tool in another order) has chunks that
+        overlap in time and messages out of order inside a chunk. Chunks are opened in the
+        order of their first message's time, each chunk's messages sorted by time, and the
+        open chunks merged (a k-way merge), so memory holds only the chunks that overlap the
+        current time, at most :data:`MAX_OPEN_BYTES` of messages.
+        """
         self._check_open()
         wanted = {c.id: c for c in (connections or self.connections)}
-        infos = sorted(self.chunk_infos, key=lambda info: (info.start_time, info.pos))
-        for info in infos:
-            if not wanted.keys() & info.connection_counts.keys():
-                continue
-            yield from _records(self._chunk(info.pos), wanted, start, stop)
+        infos = sorted(
+            (info for info in self.chunk_infos if wanted.keys() & info.connection_counts.keys()),
+            key=lambda info: (info.start_time, info.pos),
+        )
+        starts = [info.start_time for info in infos]
+        chunks = (_in_time_order(_records(self._chunk(i.pos), wanted, start, stop)) for i in infos)
+        yield from _merged(starts, chunks, str(self.path))
+
+
+_Message = tuple["Connection", int, bytes]
+
+
+def _in_time_order(messages: Iterable[_Message]) -> list[_Message]:
+    """Return a chunk's messages sorted by receive time (stable; usually already sorted)."""
+    out = list(messages)
+    if any(out[i][1] > out[i + 1][1] for i in range(len(out) - 1)):
+        out.sort(key=itemgetter(1))
+    return out
+
+
+def _merged(
+    starts: Sequence[int], chunks: Iterator[list[_Message]], path: str
+) -> Generator[_Message, None, None]:
+    """Merge time-sorted chunks opened in the order of their ``starts`` (their first times).
+
+    A chunk is opened once the merge reaches its first time; :mod:`heapq` merges what is open.
+    ``heapq.merge`` would open every chunk at once (it reads the head of each): hence by hand.
+
+    Raises:
+        BagImportError: Chunks overlapping in time hold more than :data:`MAX_OPEN_BYTES`.
+    """
+    heap: list[tuple[int, int, int, list[_Message]]] = []
+    held, opened = 0, 0
+    while opened < len(starts) or heap:
+        while opened < len(starts) and (not heap or starts[opened] <= heap[0][0]):
+            messages = next(chunks)
+            if messages:
+                heapq.heappush(heap, (messages[0][1], opened, 0, messages))
+                held += sum(len(m[2]) for m in messages)
+            opened += 1
+            if held > MAX_OPEN_BYTES:
+                msg = (
+                    f"{path}: more than {MAX_OPEN_BYTES >> 20} MB of chunks overlap in time at "
+                    f"t={heap[0][0]} ns: the bag was merged from several recorders; re-sort it "
+                    "with `rosbag filter in.bag sorted.bag True` (or convert it with "
+                    "rosbags-convert) and import the sorted bag"
+                )
+                raise BagImportError(msg)
+        if not heap:
+            continue
+        _, order, index, messages = heap[0]
+        yield messages[index]
+        if index + 1 < len(messages):
+            heapq.heapreplace(heap, (messages[index + 1][1], order, index + 1, messages))
+        else:
+            heapq.heappop(heap)
+            held -= sum(len(m[2]) for m in messages)
 
 
 _U32 = struct.Struct("<I").unpack_from

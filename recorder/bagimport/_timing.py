@@ -15,11 +15,11 @@ between the sensor's crystal and the receive clock is measured (ppm), not assume
 
 A frame that arrives more than half a frame period after the fitted line predicts means lost
 frames (a frame that is merely late arrives within the jitter): a new run starts there, so a
-lost frame stays a gap in the stamps, never a compressed time axis. Memory is bounded: a run's
-line is fitted to its latest :data:`FIT_POINTS` messages (the fit follows a slowly wandering
-clock), refitted every :data:`REFIT_EVERY` messages and when a window is cut. Runs shorter than
-:data:`SLOPE_SPAN_NS` borrow the slope of the last longer run (or the nominal rate): a few
-frames cannot measure a period to ppm.
+lost frame stays a gap in the stamps, never a compressed time axis. Memory is bounded: the
+lines are fitted to the latest :data:`FIT_POINTS` messages (the fit follows a slowly wandering
+clock), refitted every :data:`REFIT_EVERY` messages and when a window is cut. Until those
+messages span :data:`SLOPE_SPAN_NS` the period is the last one fitted (or the nominal rate):
+a few frames cannot measure a period to ppm.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import numpy as np
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from fractions import Fraction
 
     from numpy.typing import NDArray
@@ -49,41 +50,33 @@ REFUSE_SPAN_NS = 10_000_000_000
 MAX_DRIFT = 1e-3
 #: Frame periods beyond the fitted line from which a frame counts as lost frames.
 GAP_FRAMES = 0.5
-_BISECTIONS = 60
+_SEARCH_STEPS = 80
+_GOLDEN = (5**0.5 - 1) / 2
 _PPM = 1e6
 _NS_PER_MS = 1e6
 
 
-def envelope_slope(n: NDArray[np.float64], r: NDArray[np.float64], lo: float, hi: float) -> float:
-    """Return the slope in ``[lo, hi]`` of the lower-envelope line of points ``(n, r)``.
+def envelope_slope(
+    runs: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], lo: float, hi: float
+) -> float:
+    """Return the common slope in ``[lo, hi]`` of the lower-envelope lines of runs of points.
 
-    The line ``r = a + b n`` below every point that is highest at the mean ``n`` (Moon et al.
-    1999): ``f(b) = min_i(r_i - b n_i) + b mean(n)`` is concave in ``b`` with subgradient
-    ``mean(n) - n_i`` (``i`` the lowest point under slope ``b``), so bisection finds its
+    Each run ``(n, r)`` gets the line ``r = a_k + b n`` below its points; the slope ``b``
+    maximises ``f(b) = sum_k size_k (min_i(r_i - b n_i) + b mean_k(n))`` (Moon et al. 1999,
+    one anchor per run), a concave function of ``b``: a golden-section search finds its
     maximum. Written by hand: a 1-D concave maximisation of a few lines, no solver needed.
     """
-    mean = float(n.mean())
-    for _ in range(_BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        i = int(np.argmin(r - mid * n))
-        if n[i] < mean:
-            lo = mid
+
+    def f(b: float) -> float:
+        return sum(r.size * (float((r - b * n).min()) + b * float(n.mean())) for n, r in runs)
+
+    for _ in range(_SEARCH_STEPS):
+        left, right = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+        if f(left) < f(right):
+            lo = left
         else:
-            hi = mid
+            hi = right
     return 0.5 * (lo + hi)
-
-
-@dataclass(slots=True)
-class _Run:
-    """Messages without a lost frame between them: stamp - base = a + b * sample index."""
-
-    base: int
-    b: float
-    a: float = 0.0
-    ns: deque[int] = field(default_factory=lambda: deque(maxlen=FIT_POINTS))
-    rs: deque[int] = field(default_factory=lambda: deque(maxlen=FIT_POINTS))
-    next_first: int = 0
-    fresh: int = 0
 
 
 @dataclass(slots=True)
@@ -101,60 +94,60 @@ class Timeline:
     period: Fraction
     count: int
     stamped: int
+    #: Per buffered message: its run and the index of its first sample in the run.
     run_of: list[int] = field(default_factory=list)
     first_of: list[int] = field(default_factory=list)
+    #: The latest messages: (run, stamped sample index, stamp - the run's base).
+    points: deque[tuple[int, int, int]] = field(default_factory=lambda: deque(maxlen=FIT_POINTS))
+    #: Per run: (base stamp, a, b): sample k at base + a + b * k.
+    lines: dict[int, tuple[int, float, float]] = field(default_factory=dict)
     runs: int = 0
+    next_first: int = 0
     lost_frames: int = 0
-    current: _Run | None = None
-    closed: dict[int, tuple[int, float, float]] = field(default_factory=dict)
+    fresh: int = 0
     slope: float | None = None
     best: tuple[float, float] = (0.0, 0.0)
-    residuals: list[float] = field(default_factory=lambda: [0, 0.0, 0.0, 0.0])
+    residuals: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
 
     def push(self, stamp: int) -> None:
         """Place a message (its stamp) on a run: the current one, or a new one after a gap."""
-        run = self.current
-        if run is not None:
-            n = run.next_first + self.stamped
-            excess = (stamp - run.base) - (run.a + run.b * n)
-            frame = self.count * run.b
-            if excess > GAP_FRAMES * frame:
-                self.lost_frames += max(1, round(excess / frame))
-                self._close(run)
-                run = None
-        if run is None:
+        run = self.runs - 1
+        if run >= 0:
+            base, a, b = self.lines[run]
+            excess = (stamp - base) - (a + b * (self.next_first + self.stamped))
+            if excess > GAP_FRAMES * self.count * b:
+                self.lost_frames += max(1, round(excess / (self.count * b)))
+                run = -1
+        if run < 0:
             b = self.slope if self.slope is not None else float(self.period)
-            run = _Run(stamp, b, a=-b * self.stamped)
-            self.current = run
+            run, self.next_first = self.runs, 0
+            self.lines[run] = (stamp, -b * self.stamped, b)
             self.runs += 1
-        n, r = run.next_first + self.stamped, stamp - run.base
-        run.ns.append(n)
-        run.rs.append(r)
-        run.a = min(run.a, r - run.b * n)  # the envelope only moves down between fits
-        self.run_of.append(self.runs - 1)
-        self.first_of.append(run.next_first)
-        run.next_first += self.count
-        run.fresh += 1
-        if run.fresh >= REFIT_EVERY:
-            self._fit(run)
+        base, a, b = self.lines[run]
+        n, r = self.next_first + self.stamped, stamp - base
+        self.points.append((run, n, r))
+        self.lines[run] = (base, min(a, r - b * n), b)  # the envelope only moves down
+        self.run_of.append(run)
+        self.first_of.append(self.next_first)
+        self.next_first += self.count
+        self.fresh += 1
+        if self.fresh >= REFIT_EVERY:
+            self._fit()
 
-    def _close(self, run: _Run) -> None:
-        """Fit a run a last time and keep its line for its messages still buffered."""
-        self._fit(run)
-        self.closed[self.runs - 1] = (run.base, run.a, run.b)
-
-    def _fit(self, run: _Run) -> None:
-        """Fit the run's line to its latest messages; count the new messages' residuals.
+    def _fit(self) -> None:
+        """Fit the lines to the latest messages; count the new messages' residuals.
 
         Raises:
-            BagImportError: A long run's stamps advance at a rate far from ``rate_hz``.
+            BagImportError: The stamps advance at a rate far from ``rate_hz``.
         """
-        n = np.fromiter(run.ns, dtype=np.float64, count=len(run.ns))
-        r = np.fromiter(run.rs, dtype=np.float64, count=len(run.rs))
+        table = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+        bounds = np.flatnonzero(np.diff(table[:, 0])) + 1
+        runs = [(c[:, 1], c[:, 2]) for c in np.split(table, bounds)]
         nominal = float(self.period)
-        span = (n[-1] - n[0]) * nominal
+        span = sum(float(n[-1] - n[0]) for n, _ in runs) * nominal
+        b = self.slope if self.slope is not None else nominal
         if span >= SLOPE_SPAN_NS:
-            b = envelope_slope(n, r, 0.9 * nominal, 1.1 * nominal)
+            b = envelope_slope(runs, 0.9 * nominal, 1.1 * nominal)
             drift = b / nominal - 1
             if abs(drift) > MAX_DRIFT:
                 if span >= REFUSE_SPAN_NS:
@@ -164,60 +157,61 @@ class Timeline:
                         "or samples_per_message"
                     )
                     raise BagImportError(msg)
-                b = nominal * (1 + np.clip(drift, -MAX_DRIFT, MAX_DRIFT))
+                b = nominal * (1 + float(np.clip(drift, -MAX_DRIFT, MAX_DRIFT)))
             self.slope = b
             if span >= self.best[0]:
-                self.best = (span, drift)
-        else:
-            b = self.slope if self.slope is not None else nominal
-        run.b = b
-        run.a = float((r - b * n).min())
-        if run.fresh:
-            fresh = r[-run.fresh :] - (run.a + b * n[-run.fresh :])
+                self.best = (span, b / nominal - 1)
+        anchors = np.empty(table.shape[0])
+        for (n, r), run, at in zip(runs, table[np.r_[0, bounds], 0], np.r_[0, bounds], strict=True):
+            a = float((r - b * n).min())
+            self.lines[int(run)] = (self.lines[int(run)][0], a, b)
+            anchors[at : at + n.size] = a
+        if self.fresh:
+            tail = table[-self.fresh :]
+            fresh = tail[:, 2] - (anchors[-self.fresh :] + b * tail[:, 1])
             stats = self.residuals
             stats[0] += fresh.size
             stats[1] += float(fresh.sum())
             stats[2] += float((fresh * fresh).sum())
             stats[3] = max(stats[3], float(fresh.max()))
-            run.fresh = 0
+            self.fresh = 0
 
     def stamps(self, first: int, last: int) -> NDArray[np.int64]:
         """Return the sample stamps of buffered messages ``first:last``, message-major."""
-        if self.current is not None and self.current.fresh:
-            self._fit(self.current)
+        if self.fresh:
+            self._fit()
         runs = np.asarray(self.run_of[first:last], dtype=np.int64)
         firsts = np.asarray(self.first_of[first:last], dtype=np.int64)
         index = firsts[:, None] + np.arange(self.count, dtype=np.int64)[None, :]
         out = np.empty(index.shape, dtype=np.int64)
         for run in np.unique(runs).tolist():
-            base, a, b = self._line(int(run))
+            base, a, b = self.lines[int(run)]
             mine = runs == run
             out[mine] = base + np.floor(a + b * index[mine]).astype(np.int64)
         return out.reshape(-1)
 
-    def _line(self, run: int) -> tuple[int, float, float]:
-        """Return ``(base, a, b)`` of a run."""
-        if run == self.runs - 1 and self.current is not None:
-            return self.current.base, self.current.a, self.current.b
-        return self.closed[run]
-
     def cut(self, index: int) -> None:
-        """Forget the first ``index`` messages (and the lines of runs none of them is on)."""
+        """Forget the first ``index`` messages (and the lines of runs nothing refers to)."""
         del self.run_of[:index]
         del self.first_of[:index]
-        oldest = self.run_of[0] if self.run_of else self.runs - 1
-        for run in [r for r in self.closed if r < oldest]:
-            del self.closed[run]
+        oldest = min(
+            self.run_of[0] if self.run_of else self.runs - 1,
+            self.points[0][0] if self.points else self.runs - 1,
+            self.runs - 1,
+        )
+        for run in [r for r in self.lines if r < oldest]:
+            del self.lines[run]
 
     def summary(self) -> dict[str, Any]:
         """Return runs, gaps, lost frames, jitter (ms) and drift (ppm) for the import report.
 
-        The jitter is how far message stamps lie above the fitted line (their latency beyond
+        The jitter is how far message stamps lie above the fitted lines (their latency beyond
         the fastest frame's): the largest and the standard deviation. The drift is of the
-        longest fit: the sensor's period on the receive clock relative to ``rate_hz``.
+        fit over the longest span: the sensor's period on the receive clock against
+        ``rate_hz`` (positive: its samples are further apart than ``rate_hz`` says).
         """
-        if self.current is not None and self.current.fresh:
-            self._fit(self.current)
+        if self.fresh:
+            self._fit()
         count, total, squares, largest = self.residuals
         mean = total / count if count else 0.0
         sd = float(np.sqrt(max(squares / count - mean * mean, 0.0))) if count else 0.0
