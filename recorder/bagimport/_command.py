@@ -61,10 +61,32 @@ def _print_report(console: Console, report: ImportReport) -> None:
     for channel, dropped in report.dropped_samples.items():
         table.add_row(channel, str(dropped), "-", "-")
     console.print(table)
+    _print_timing(console, report)
     for window, reason in report.skipped:
         console.print(f"skipped {window}: {reason}", highlight=False, soft_wrap=True)
     console.print(f"index -> {report.index}", highlight=False, soft_wrap=True)
     console.print(f"report -> {report.json_path}", highlight=False, soft_wrap=True)
+
+
+def _print_timing(console: Console, report: ImportReport) -> None:
+    """Print, per topic stamped by rate, its runs, lost frames, stamp jitter and drift."""
+    if not report.timing:
+        return
+    table = Table(
+        "topic",
+        "modality",
+        "runs",
+        "lost frames",
+        "stamp jitter max / sd (ms)",
+        "drift (ppm)",
+        title='stamped from the sensor\'s rate (timing = "rate")',
+    )
+    for topic, modalities in report.timing.items():
+        for modality, t in modalities.items():
+            drift = "-" if t["drift_ppm"] is None else f"{t['drift_ppm']:+.1f}"
+            jitter = f"{t['jitter_max_ms']:.3f} / {t['jitter_sd_ms']:.3f}"
+            table.add_row(topic, modality, str(t["runs"]), str(t["lost_frames"]), jitter, drift)
+    console.print(table)
 
 
 @command(

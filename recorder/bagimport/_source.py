@@ -30,7 +30,7 @@ from recorder.bagimport._timing import Timeline
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Sequence
+    from collections.abc import Callable, Iterator, Sequence
 
     from numpy.typing import NDArray
     from rosbags.interfaces import Connection
@@ -191,6 +191,8 @@ class SkinTopic:
     paths: tuple[str, ...] = field(init=False)
     #: Modalities stamped from their rate (``timing = "rate"``), by spec index.
     timelines: dict[int, Timeline] = field(default_factory=dict)
+    #: The frame counter's index in :attr:`paths`, by spec index (``counter`` of the map).
+    counters: dict[int, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Precompute field getters, each modality's sample offsets and timelines."""
@@ -202,7 +204,9 @@ class SkinTopic:
         self.buffer = _Buffer(self.topic, fix)
         if not self.cells:
             self.cells = tuple(((self.cell, self.cell),) for _ in self.fields)
-        self.paths = tuple(dict.fromkeys(p.path for s in self.fields for p in s.fields))
+        counters = [s.counter for s in self.fields if s.timing == "rate" and s.counter]
+        read = [p.path for s in self.fields for p in s.fields]
+        self.paths = tuple(dict.fromkeys([*read, *counters]))
         self.values = [[] for _ in self.paths]
         self.getters = [attrgetter(path) for path in self.paths]
         slack = 0
@@ -212,7 +216,10 @@ class SkinTopic:
                 count = spec.samples_per_message
                 stamped = count - 1 if spec.batch_stamp == "last" else 0
                 where = f"topic {self.topic} [skin.{spec.modality}]"
-                self.timelines[i] = Timeline(where, spec.period_ns, count, stamped)
+                timeline = Timeline(where, spec.period_ns, count, stamped, spec.counter_modulo)
+                self.timelines[i] = timeline
+                if spec.counter:
+                    self.counters[i] = self.paths.index(spec.counter)
                 # fitted stamps lie below the message stamps by the latency (< a frame or two)
                 slack = max(slack, 2 * round(spec.period_ns * count))
         every = np.concatenate(list(self.offsets.values()))
@@ -230,7 +237,7 @@ class SkinTopic:
             BagImportError: Its stamp precedes the previous one.
         """
         if self.buffer.accept(stamp, receive_ns):
-            self._place(stamp)
+            self._place(stamp, lambda path: int(self.getters[path](message)))
             if self.dtypes is None:
                 for getter, values in zip(self.getters, self.values, strict=True):
                     values.append(getter(message))
@@ -247,14 +254,19 @@ class SkinTopic:
             BagImportError: Its stamp precedes the previous one.
         """
         if self.buffer.accept(stamp, receive_ns):
-            self._place(stamp)
+            dtypes = self.dtypes or ()
+            self._place(stamp, lambda path: int(np.frombuffer(fields[2 + path], dtypes[path])[0]))
             for values, data in zip(self.values, fields[2:], strict=True):
                 values.append(data)
 
-    def _place(self, stamp: int) -> None:
-        """Place an accepted message on the timelines of the modalities stamped by rate."""
-        for timeline in self.timelines.values():
-            timeline.push(stamp)
+    def _place(self, stamp: int, counter: Callable[[int], int]) -> None:
+        """Place an accepted message on the timelines of the modalities stamped by rate.
+
+        ``counter``: reads the message's field ``paths[i]`` as an integer (a frame counter).
+        """
+        for index, timeline in self.timelines.items():
+            path = self.counters.get(index)
+            timeline.push(stamp, None if path is None else counter(path))
 
     def _width(self, spec: SkinField, size: int) -> int:
         """Return the values per sample, checked against the map and earlier messages."""
@@ -739,6 +751,25 @@ def _check_part(
         raise BagImportError(msg)
 
 
+_INTEGERS = frozenset(["int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64"])
+
+
+def _check_counter(store: Typestore, topic: str, msgtype: str, spec: SkinField) -> None:
+    """Check that a frame counter is an integer field.
+
+    Raises:
+        BagImportError: It is missing or not an integer.
+    """
+    node = _field_type(store, msgtype, spec.counter)
+    if node is None or node[0] != Nodetype.BASE or node[1][0] not in _INTEGERS:
+        names = [name for name, _ in store.fielddefs[msgtype][1]]
+        msg = (
+            f"topic {topic} carries {msgtype}: counter {spec.counter!r} is not an integer field "
+            f"(fields: {', '.join(names)}); fix counter of [skin.{spec.modality}] in the topic map"
+        )
+        raise BagImportError(msg)
+
+
 def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map: TopicMap) -> None:
     """Check, before reading, that every skin field exists, is numeric, and has a header.
 
@@ -752,6 +783,8 @@ def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map
         for spec in getattr(extractor, "fields", ()):
             for part in spec.fields:
                 _check_part(store, topic, msgtype, spec, part)
+            if spec.timing == "rate" and spec.counter:
+                _check_counter(store, topic, msgtype, spec)
         if topic_map.stamps == "header" and _field_type(store, msgtype, "header.stamp") is None:
             msg = (
                 f'topic {topic} ({msgtype}) has no header.stamp; set [time] stamps = "log" '

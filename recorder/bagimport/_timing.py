@@ -15,7 +15,10 @@ between the sensor's crystal and the receive clock is measured (ppm), not assume
 
 A frame that arrives more than half a frame period after the fitted line predicts means lost
 frames (a frame that is merely late arrives within the jitter): a new run starts there, so a
-lost frame stays a gap in the stamps, never a compressed time axis. Memory is bounded: the
+lost frame stays a gap in the stamps, never a compressed time axis. With a frame counter
+(``counter``) the run goes on across lost frames, their samples skipped exactly, and a late
+frame is only late; a counter that goes back (or that the stamps contradict by more than half
+its ``counter_modulo``) starts a new run. Memory is bounded: the
 lines are fitted to the latest :data:`FIT_POINTS` messages (the fit follows a slowly wandering
 clock), refitted every :data:`REFIT_EVERY` messages and when a window is cut. Until those
 messages span :data:`SLOPE_SPAN_NS` the period is the last one fitted (or the nominal rate):
@@ -94,6 +97,9 @@ class Timeline:
     period: Fraction
     count: int
     stamped: int
+    #: The frame counter's modulo (0: it does not wrap).
+    modulo: int = 0
+    counter: int | None = None
     #: Per buffered message: its run and the index of its first sample in the run.
     run_of: list[int] = field(default_factory=list)
     first_of: list[int] = field(default_factory=list)
@@ -109,15 +115,37 @@ class Timeline:
     best: tuple[float, float] = (0.0, 0.0)
     residuals: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
 
-    def push(self, stamp: int) -> None:
-        """Place a message (its stamp) on a run: the current one, or a new one after a gap."""
+    def push(self, stamp: int, counter: int | None = None) -> None:
+        """Place a message on a run: the current one, or a new one after a gap.
+
+        Args:
+            stamp: The message's stamp.
+            counter: Its frame counter (a field the map names), or None: lost frames are
+                then seen in the stamps only.
+        """
         run = self.runs - 1
         if run >= 0:
+            skipped = self._skipped(counter)
             base, a, b = self.lines[run]
-            excess = (stamp - base) - (a + b * (self.next_first + self.stamped))
-            if excess > GAP_FRAMES * self.count * b:
-                self.lost_frames += max(1, round(excess / (self.count * b)))
+            frame = self.count * b
+            n = self.next_first + skipped * self.count + self.stamped
+            excess = (stamp - base) - (a + b * n)
+            # without a counter a frame more than half a frame late means lost frames; with
+            # one, a late frame is only late unless it is so late that the counter may have
+            # wrapped, and a counter the stamps contradict (a reset) starts a new run
+            if counter is None:
+                late = excess > GAP_FRAMES * frame
+            else:
+                late = bool(self.modulo) and excess > self.modulo / 2 * frame
+            early = counter is not None and excess < -GAP_FRAMES * frame
+            if skipped < 0 or late or early:
+                lost = max(skipped, 0) if counter is not None else max(1, round(excess / frame))
+                self.lost_frames += lost
                 run = -1
+            else:
+                self.next_first += skipped * self.count
+                self.lost_frames += skipped
+        self.counter = counter
         if run < 0:
             b = self.slope if self.slope is not None else float(self.period)
             run, self.next_first = self.runs, 0
@@ -133,6 +161,15 @@ class Timeline:
         self.fresh += 1
         if self.fresh >= REFIT_EVERY:
             self._fit()
+
+    def _skipped(self, counter: int | None) -> int:
+        """Return the frames lost before a message by its counter (-1: the counter went back)."""
+        if counter is None or self.counter is None:
+            return 0
+        step = counter - self.counter
+        if self.modulo:
+            step %= self.modulo
+        return step - 1 if step > 0 else -1
 
     def _fit(self) -> None:
         """Fit the lines to the latest messages; count the new messages' residuals.

@@ -92,6 +92,9 @@ class SkinField:
             (empty: ``field`` itself).
         timing: ``message`` (sample stamps from each message's stamp) or ``rate`` (from the
             sensor's rate within runs of messages; the message stamps anchor the runs).
+        counter: With ``timing = "rate"``: a field counting the frames (lost frames are its
+            jumps), or "" (lost frames are seen in the stamps).
+        counter_modulo: The counter wraps at this value (0: it does not wrap).
     """
 
     modality: str
@@ -105,6 +108,8 @@ class SkinField:
     batch_stamp: str = "first"
     parts: tuple[FieldPart, ...] = ()
     timing: str = "message"
+    counter: str = ""
+    counter_modulo: int = 0
 
     @property
     def fields(self) -> tuple[FieldPart, ...]:
@@ -384,6 +389,14 @@ def _skin_field(table: _Table, modality: str) -> SkinField:
         table.fail(f"[{table.name}] timing = {timing!r} must be one of {TIMINGS}")
     if timing == "rate" and not table.has("rate_hz"):
         table.fail(f'[{table.name}] timing = "rate" needs rate_hz (the sensor\'s sample rate)')
+    counter = table.get("counter", str, "")
+    modulo = table.integer("counter_modulo", 0, 0)
+    if (counter or modulo) and timing != "rate":
+        table.fail(f'[{table.name}] counter and counter_modulo need timing = "rate"')
+    if (counter and _FIELD.match(counter) is None) or "[" in counter:
+        table.fail(f'[{table.name}] counter = {counter!r} must be a field path ("seq", "frame.id")')
+    if modulo and not counter:
+        table.fail(f"[{table.name}] counter_modulo = {modulo} needs counter = '<field>'")
     topic = table.get("topic", str)
     text, parts = _field_parts(table, topic, samples)
     field = SkinField(
@@ -398,6 +411,8 @@ def _skin_field(table: _Table, modality: str) -> SkinField:
         batch_stamp=batch_stamp,
         parts=parts if len(parts) > 1 or parts[0] != FieldPart(text) else (),
         timing=timing,
+        counter=counter,
+        counter_modulo=modulo,
     )
     table.done()
     return field
