@@ -1,10 +1,12 @@
 """Import a lab's ROS 1 / ROS 2 bags as per-action recordings (``atikt-record import-bag``).
 
 rosbags' ``AnyReader`` reads ROS 1 ``.bag`` files and ROS 2 bags (sqlite3 or MCAP storage); the
-bags of one call are one session (a recording split over files) read as one stream in bag
-order. A topic map (:mod:`recorder.bagimport._topicmap`) says which topics carry the skin
-(any cells, any subset of the contract's modalities, any widths and rates, batched or not),
-the robot (any joints, or none) and the tool pose (optional), and where the actions are.
+bags of one call are one session (a recording split over files) read as one stream in
+log-time order (a bag merged from several recorders too; a reader that cannot order its
+messages is refused, naming the topic and the time). A topic map
+(:mod:`recorder.bagimport._topicmap`) says which topics carry the skin (any cells, any subset
+of the contract's modalities, any widths and rates, batched or not), the robot (any joints, or
+none) and the tool pose (optional), and where the actions are.
 
 The import streams: the action windows are known first (annotation topic or CSV), then every
 message is read once and its samples go to the window whose ``[start - 1 s, stop + 1 s)``

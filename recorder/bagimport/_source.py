@@ -1,11 +1,14 @@
 """Reading a lab's bags as one stream of typed samples (rosbags' ``AnyReader``).
 
-Messages are read in bag order, one at a time (memory does not grow with the bag), and each
-mapped topic's messages become samples: a stamp in integer ns on the map's clock, the receive
-time, and values. A skin message may carry several samples (a driver that batches, e.g. 22
-vibration samples per 100 Hz message): their stamps are the message stamp plus the exact
-integer offsets of :meth:`SkinField.offsets_ns`. Stamps of one topic must increase: a stamp
-that goes back is refused with the topic, the time and the fix, never re-sorted.
+Messages are read in log-time order, one at a time (memory does not grow with the bag), and
+each mapped topic's messages become samples: a stamp in integer ns on the map's clock, the
+receive time, and values. A skin message may carry several samples (a driver that batches,
+e.g. 22 vibration samples per 100 Hz message): their stamps are the message stamp plus the
+exact integer offsets of :meth:`SkinField.offsets_ns`, or, for a driver that stamps messages
+when they arrive (``timing = "rate"``), from the sensor's rate (:mod:`._timing`). A message
+may carry one cell or, through a field indexed by ``{cell}``, several; a modality's values may
+come from several fields side by side. Stamps of one topic must increase: a stamp that goes
+back is refused with the topic, the time and the fix, never re-sorted.
 """
 
 from __future__ import annotations

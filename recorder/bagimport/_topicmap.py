@@ -7,8 +7,9 @@ and times reach the importer as exact fractions, never as binary floats.
 
 Maps written for atikt 0.1 (a UR10, a pose topic and all four HEX-o-SKIN modalities) keep
 their meaning: every key they use is still valid. What is new is optional: the robot tables,
-the per-modality ``width``, ``samples_per_message``, ``rate_hz`` and ``batch_stamp``, and free
-action parameters.
+the per-modality ``width``, ``samples_per_message``, ``rate_hz``, ``batch_stamp``, ``timing``,
+``counter`` and ``counter_modulo``, ``field`` as a list or indexed (``"electrodes[{cell}]"``),
+and free action parameters.
 """
 
 from __future__ import annotations

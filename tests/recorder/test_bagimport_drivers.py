@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,8 +25,6 @@ from recorder.errors import BagImportError
 from replay import read_recording
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     from recorder.bagimport._report import ImportReport
 
 TYPES = {
@@ -462,3 +461,26 @@ def test_cli_prints_runs_jitter_and_drift(
     assert cells[:4] == ["/tip/frames", "acceleration", "4", "4"]
     assert cells[4].startswith("1.939")
     assert cells[5] == "+40.2"
+
+
+def test_the_documented_examples_parse(tmp_path: Path) -> None:
+    example = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.toml"
+    text = example.read_text("utf-8")
+    block = text[text.index("#   The same fingertip") : text.index("#   A fixed probe")]
+    lines = [line[6:] for line in block.splitlines() if line.startswith("#     ")]
+    path = tmp_path / "map.toml"
+    path.write_text("\n".join([*lines, '[windows]\nsource = "csv"\n']), encoding="utf-8")
+    skin = load_topic_map(path).skin
+    assert skin["force"].per_cell
+    assert skin["acceleration"].timing == "rate"
+    assert skin["acceleration"].counter_modulo == 256
+    probe = text[text.index("#   A fixed probe") : text.index("[time]")]
+    lines = [line[6:] for line in probe.splitlines() if line.startswith("#     ")]
+    lines = [line[2:] if line.startswith("# field") else line for line in lines]
+    assert 'field = ["thermistor_a", "thermistor_b"]   # side by side: width 2' in lines
+    lines.remove('field = "temperatures"                 # float32[2]: width 2')
+    path.write_text("\n".join(lines), encoding="utf-8")
+    assert [p.path for p in load_topic_map(path).skin["temperature"].fields] == [
+        "thermistor_a",
+        "thermistor_b",
+    ]
