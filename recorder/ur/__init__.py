@@ -1,0 +1,25 @@
+"""A Universal Robots arm over its real interfaces: RTDE state, URScript motion, a live skin.
+
+``URRig`` reads every RTDE data package (port 30004; 125 Hz on CB3, 500 Hz on e-Series),
+moves the arm with URScript programs (port 30002) and reads the skin the rig configuration's
+``[skin]`` table describes; limits (``[limits]``) are checked before anything moves.
+"""
+
+from recorder.ur._rig import JOINT_NAMES, RTDE_VARIABLES, UROptions, URRig, build_ur_rig
+from recorder.ur._rtde import Recipe, RtdeClient, RtdeError, TextMessage
+from recorder.ur._script import Announcement, Limits, Motion
+
+__all__ = [
+    "JOINT_NAMES",
+    "RTDE_VARIABLES",
+    "Announcement",
+    "Limits",
+    "Motion",
+    "Recipe",
+    "RtdeClient",
+    "RtdeError",
+    "TextMessage",
+    "UROptions",
+    "URRig",
+    "build_ur_rig",
+]
