@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
-COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command",)
+COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command", "recorder.virtuallab._command")
 
 
 REGISTRY = cli.Registry()

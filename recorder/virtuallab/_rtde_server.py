@@ -278,7 +278,8 @@ class RtdeServer:
     def _setup(self, session: _Session, payload: bytes) -> bytes:
         """Set up an output recipe; return the answer (recipe id and types)."""
         frequency = struct.unpack(">d", payload[:8])[0] if len(payload) >= 8 else 0.0  # noqa: PLR2004
-        names = payload[8:].decode(errors="replace").split(",")
+        # ur_rtde ends the list with a comma; a controller ignores the empty name.
+        names = payload[8:].decode(errors="replace").removesuffix(",").split(",")
         types = [VARIABLES[n][0] if n in VARIABLES else "NOT_FOUND" for n in names]
         ok = "NOT_FOUND" not in types and 0 < frequency <= self.max_frequency
         session.recipe = Recipe(1, tuple(names), tuple(types), frequency) if ok else None
