@@ -43,7 +43,7 @@ from recorder.ur._script import (
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Mapping, Sequence
+    from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
     from types import TracebackType
 
     from numpy.typing import NDArray
@@ -156,7 +156,10 @@ class UROptions:
             RigError: The value and what to give instead.
         """
         if self.frequency not in {125, 500}:
-            msg = f"{where}: rig option frequency = {self.frequency}: give 125 (CB3) or 500 (e-Series)"
+            msg = (
+                f"{where}: rig option frequency = {self.frequency}: "
+                "give 125 (CB3) or 500 (e-Series)"
+            )
             raise RigError(msg)
         if not 0 < self.time_scale <= 1:
             msg = f"{where}: rig option time_scale = {self.time_scale}: give a value in (0, 1]"
@@ -226,7 +229,10 @@ class URRig:
         check_motion(options.motion, limits, where)
         for object_id, pose in poses.items():
             if len(pose) != 6:  # noqa: PLR2004 (x, y, z, rx, ry, rz)
-                msg = f"{where}: [objects.{object_id}] pose = {list(pose)}: give [x, y, z, rx, ry, rz]"
+                msg = (
+                    f"{where}: [objects.{object_id}] pose = {list(pose)}: "
+                    "give [x, y, z, rx, ry, rz]"
+                )
                 raise RigError(msg)
             check_pose(object_id, pose, limits, where)
         self._poses = {k: np.asarray(v, dtype=np.float64) for k, v in poses.items()}
@@ -395,19 +401,30 @@ class URRig:
         motion = self.options.motion
         self._send(move_program(None, "present", target, motion.retract_m_s, motion))
         self._begin()
-        distance = 1.0 if self._arm.pose is None else float(
-            np.linalg.norm(self._arm.pose[:3] - target[:3])
+        distance = (
+            1.0
+            if self._arm.pose is None
+            else float(np.linalg.norm(self._arm.pose[:3] - target[:3]))
         )
         limit_ns = self._clock.now_ns() + round((5 + 3 * distance / motion.retract_m_s) * _NS)
         try:
-            while not self._reached(target):
-                list(self._pump())
-                if self._clock.now_ns() > limit_ns:
-                    raise _Stop(f"the arm did not reach the pose of {obj.id} within 1 mm", 0)
+            self._wait_until_reached(target, limit_ns, obj.id)
         except _Stop as stop:
             msg = f"{self.where}: moving to {obj.id}: {stop.reason}; check the arm, then retry"
             raise RigError(msg) from None
         return True
+
+    def _wait_until_reached(self, target: NDArray[np.float64], limit_ns: int, what: str) -> None:
+        """Read the arm's state (recording nothing) until it is within 1 mm of ``target``.
+
+        Raises:
+            _Stop: A stop condition, or the deadline passed.
+        """
+        while not self._reached(target):
+            list(self._pump())
+            if self._clock.now_ns() > limit_ns:
+                msg = f"the arm did not reach the pose of {what} within 1 mm"
+                raise _Stop(msg, self._clock.now_ns())
 
     def source_stats(self) -> list[SourceStats]:
         """Return the accounting of the last action: RTDE and the skin's sources."""
@@ -455,7 +472,7 @@ class URRig:
 
     # -- phases ------------------------------------------------------------------------
 
-    def _approach(self, said: Announcement) -> Iterator[StreamItem]:
+    def _approach(self, said: Announcement) -> Generator[StreamItem, None, NDArray[np.float64]]:
         """Approach with speed from proximity until the light contact; return the contact pose."""
         motion, skin = self.options.motion, self._live_skin()
         while self._arm.pose is None:
@@ -530,7 +547,8 @@ class URRig:
             if still_since is not None and now - still_since > settle and now - start > settle:
                 break
             if now > limit:
-                raise _Stop("the retract did not end within its time", now)
+                msg = "the retract did not end within its time"
+                raise _Stop(msg, now)
 
     # -- receiving ----------------------------------------------------------------------
 
@@ -568,7 +586,8 @@ class URRig:
         try:
             packages = ([first] if first is not None else []) + reader.drain()
         except SourceLostError as err:
-            raise _Stop(f"RTDE connection lost ({err.__cause__ or err})", self._clock.now_ns()) from None
+            msg = f"RTDE connection lost ({err.__cause__ or err})"
+            raise _Stop(msg, self._clock.now_ns()) from None
         items: list[StreamItem] = []
         recipe = rtde.recipe
         assert recipe is not None  # noqa: S101 (set up in __enter__)
@@ -577,7 +596,8 @@ class URRig:
         try:
             items.extend(skin.poll())
         except SourceLostError as err:
-            raise _Stop(f"skin connection lost ({err})", self._clock.now_ns()) from None
+            msg = f"skin connection lost ({err})"
+            raise _Stop(msg, self._clock.now_ns()) from None
         items.sort(key=lambda item: item.receive_ns)
         yield from items
         self._check()
@@ -615,21 +635,25 @@ class URRig:
         arm, now, limits = self._arm, self._clock.now_ns(), self.limits
         if arm.safety not in SAFE_STATUS:
             name = SAFETY_NAMES.get(arm.safety, "unsafe state")
-            raise _Stop(f"{name} (RTDE safety_status {arm.safety}) from the controller", now)
+            msg = f"{name} (RTDE safety_status {arm.safety}) from the controller"
+            raise _Stop(msg, now)
         force = float(np.linalg.norm(arm.force[:3]))
         if force > limits.max_force_n:
             reason = f"TCP force {force:.2f} N above [limits] max_force_n = {limits.max_force_n:g}"
             raise _Stop(reason, now)
         if arm.pose is not None and not limits.inside(arm.pose[:3]):
             where = [round(float(v), 4) for v in arm.pose[:3]]
-            raise _Stop(f"TCP at {where} left the [limits] workspace", now)
+            msg = f"TCP at {where} left the [limits] workspace"
+            raise _Stop(msg, now)
         silence = round(self.options.silence_s * _NS)
         last_rtde = max(arm.receive_ns, self._begun_ns)
         if now - last_rtde > silence:
-            raise _Stop(f"RTDE silent for {(now - last_rtde) / _NS:.2f} s", now)
+            msg = f"RTDE silent for {(now - last_rtde) / _NS:.2f} s"
+            raise _Stop(msg, now)
         last_skin = max(self._live_skin().last_receive_ns() or 0, self._begun_ns)
         if now - last_skin > silence:
-            raise _Stop(f"skin silent for {(now - last_skin) / _NS:.2f} s", now)
+            msg = f"skin silent for {(now - last_skin) / _NS:.2f} s"
+            raise _Stop(msg, now)
 
     def _rest(self) -> Iterator[StreamItem]:
         """Yield what is still queued: RTDE packages and the skin's open blocks."""
@@ -662,11 +686,13 @@ class URRig:
         sock = self._script
         where = f"{self.options.host}:{self.options.script_port}"
         if sock is None:
-            raise _Stop(f"URScript connection to {where} is closed", self._clock.now_ns())
+            msg = f"URScript connection to {where} is closed"
+            raise _Stop(msg, self._clock.now_ns())
         try:
             sock.sendall(text.encode())
         except OSError as err:
-            raise _Stop(f"URScript connection to {where} lost ({err})", self._clock.now_ns()) from None
+            msg = f"URScript connection to {where} lost ({err})"
+            raise _Stop(msg, self._clock.now_ns()) from None
 
 
 def build_ur_rig(seed: int, config: Any) -> URRig:  # noqa: ANN401 (a RigConfig)

@@ -92,7 +92,9 @@ class Limits:
             else:
                 values[key] = float(value)
         limits = cls(**values)
-        if not all(lo < hi for lo, hi in zip(limits.workspace_min_m, limits.workspace_max_m)):
+        if not all(
+            lo < hi for lo, hi in zip(limits.workspace_min_m, limits.workspace_max_m, strict=False)
+        ):
             msg = (
                 f"{where}: [limits] workspace_min_m {list(limits.workspace_min_m)} must be "
                 f"below workspace_max_m {list(limits.workspace_max_m)} on every axis"
@@ -100,7 +102,7 @@ class Limits:
             raise RigError(msg)
         return limits
 
-    def inside(self, position: Sequence[float]) -> bool:
+    def inside(self, position: Sequence[float] | NDArray[np.float64]) -> bool:
         """Return whether a TCP position (x, y, z) lies in the workspace box."""
         return all(
             lo <= float(v) <= hi
@@ -159,7 +161,9 @@ class Motion:
         return min(max(speed, self.approach_min_m_s), self.approach_max_m_s)
 
 
-def _refuse(where: str, what: str, value: float, limit: str, bound: float, fix: str) -> RigError:
+def _refuse(  # noqa: PLR0917 (one message from its six parts)
+    where: str, what: str, value: float, limit: str, bound: float, fix: str
+) -> RigError:
     return RigError(f"{where}: {what} = {value:g} exceeds [limits] {limit} = {bound:g}; {fix}")
 
 
@@ -208,11 +212,18 @@ def check_action(action: ActionSpec, limits: Limits, where: str) -> None:
         )
     if action.force_n > limits.max_force_n:
         raise _refuse(
-            where, f"action {action.id} force_n", action.force_n, "max_force_n", limits.max_force_n, fix
+            where,
+            f"action {action.id} force_n",
+            action.force_n,
+            "max_force_n",
+            limits.max_force_n,
+            fix,
         )
 
 
-def check_pose(object_id: str, pose: Sequence[float], limits: Limits, where: str) -> None:
+def check_pose(
+    object_id: str, pose: Sequence[float] | NDArray[np.float64], limits: Limits, where: str
+) -> None:
     """Check an object's pose (where the arm visits it) against the workspace box.
 
     Raises:
@@ -265,7 +276,7 @@ class Announcement:
 
 
 def program(name: str, lines: Sequence[str]) -> str:
-    """Return a URScript program ``def name(): ... end`` (sent whole, it replaces the running one)."""
+    """Return a URScript program ``def name(): ... end`` (sent whole, it replaces the running)."""
     body = "".join(f"  {line}\n" for line in lines)
     return f"def {name}():\n{body}end\n"
 
@@ -313,8 +324,10 @@ def slide_program(
         "atikt_slide",
         [
             said.line("execute"),
-            f"force_mode(get_actual_tcp_pose(), [0, 0, 1, 0, 0, 0], {_vector(wrench)}, 2, "
-            f"{_vector(limits)})",
+            (
+                f"force_mode(get_actual_tcp_pose(), [0, 0, 1, 0, 0, 0], {_vector(wrench)}, 2, "
+                f"{_vector(limits)})"
+            ),
             f"speedl({_vector(velocity)}, {motion.acceleration_m_s2:g}, {action.duration_s:g})",
             "end_force_mode()",
             f"stopl({motion.acceleration_m_s2:g})",

@@ -85,7 +85,7 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     """
     unknown = set(faults) - {"protective_stop"}
     if unknown:
-        msg = f"--fault script.{sorted(unknown)[0]}: the URScript fault is protective_stop"
+        msg = f"--fault script.{min(unknown)}: the URScript fault is protective_stop"
         raise RecorderError(msg)
     return ScriptFaults(faults.get("protective_stop", 0.0))
 
@@ -129,7 +129,12 @@ def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
     ),
     arg("--rig-config", type=Path, default=None, help="the lab's rig configuration (its [skin])"),
     arg("--time-scale", type=float, default=1.0, help="real s per simulated s (default: 1.0)"),
-    arg("--skin", default=None, metavar="URL", help="also serve skin frames, e.g. udp://127.0.0.1:5005"),
+    arg(
+        "--skin",
+        default=None,
+        metavar="URL",
+        help="also serve skin frames, e.g. udp://127.0.0.1:5005",
+    ),
     arg("--ros2", action="store_true", help="also publish the rig's ROS 2 topics over DDS"),
     arg("--topic-map", type=Path, default=None, help="topic map of the ROS 2 topics (--ros2)"),
     arg("--seed", type=int, default=0, help="seed of the simulated rig (default: 0)"),
@@ -176,7 +181,9 @@ def _serve_sim(args: argparse.Namespace) -> int:
         where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
         if args.skin:
             serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
-            stack.enter_context(serve(world, args.skin, sections.get("skin", {}), faults.get("skin", {})))
+            stack.enter_context(
+                serve(world, args.skin, sections.get("skin", {}), faults.get("skin", {}))
+            )
             where.append(f"skin {args.skin}")
         if args.ros2:
             serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")

@@ -50,20 +50,20 @@ if TYPE_CHECKING:
 
 #: Variables served, with their RTDE type and how to read them from the arm's state.
 VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
-    "timestamp": ("DOUBLE", lambda s, t: t),
-    "actual_q": ("VECTOR6D", lambda s, t: s.q),
-    "target_q": ("VECTOR6D", lambda s, t: s.q),
-    "actual_qd": ("VECTOR6D", lambda s, t: s.qd),
-    "target_qd": ("VECTOR6D", lambda s, t: s.qd),
-    "target_moment": ("VECTOR6D", lambda s, t: s.effort),
-    "actual_TCP_pose": ("VECTOR6D", lambda s, t: s.tcp_pose),
-    "target_TCP_pose": ("VECTOR6D", lambda s, t: s.tcp_pose),
-    "actual_TCP_force": ("VECTOR6D", lambda s, t: s.tcp_force),
-    "robot_mode": ("INT32", lambda s, t: s.robot_mode),
-    "safety_status": ("INT32", lambda s, t: s.safety_status),
-    "safety_mode": ("INT32", lambda s, t: s.safety_status),
-    "runtime_state": ("UINT32", lambda s, t: 2),
-    "speed_scaling": ("DOUBLE", lambda s, t: 1.0),
+    "timestamp": ("DOUBLE", lambda _s, t: t),
+    "actual_q": ("VECTOR6D", lambda s, _t: s.q),
+    "target_q": ("VECTOR6D", lambda s, _t: s.q),
+    "actual_qd": ("VECTOR6D", lambda s, _t: s.qd),
+    "target_qd": ("VECTOR6D", lambda s, _t: s.qd),
+    "target_moment": ("VECTOR6D", lambda s, _t: s.effort),
+    "actual_TCP_pose": ("VECTOR6D", lambda s, _t: s.tcp_pose),
+    "target_TCP_pose": ("VECTOR6D", lambda s, _t: s.tcp_pose),
+    "actual_TCP_force": ("VECTOR6D", lambda s, _t: s.tcp_force),
+    "robot_mode": ("INT32", lambda s, _t: s.robot_mode),
+    "safety_status": ("INT32", lambda s, _t: s.safety_status),
+    "safety_mode": ("INT32", lambda s, _t: s.safety_status),
+    "runtime_state": ("UINT32", lambda _s, _t: 2),
+    "speed_scaling": ("DOUBLE", lambda _s, _t: 1.0),
 }
 #: Controller version reported for each highest frequency.
 VERSIONS = {125: (3, 15, 7, 0), 500: (5, 11, 0, 0)}
@@ -261,7 +261,9 @@ class RtdeServer:
             sock.sendall(pack_package(kind, self._setup(session, payload)))
         elif kind == SETUP_INPUTS:
             names = payload.decode(errors="replace").split(",")
-            sock.sendall(pack_package(kind, b"\x00" + ",".join(["NOT_FOUND"] * len(names)).encode()))
+            sock.sendall(
+                pack_package(kind, b"\x00" + ",".join(["NOT_FOUND"] * len(names)).encode())
+            )
         elif kind == START:
             session.started = session.recipe is not None
             sock.sendall(pack_package(kind, bytes([session.started])))
@@ -313,7 +315,10 @@ class RtdeServer:
                 return False
             if not session.started or clock() < due:
                 continue
-            if faults.disconnect_after_s and clock() - started_ns >= faults.disconnect_after_s * 1e9:
+            if (
+                faults.disconnect_after_s
+                and clock() - started_ns >= faults.disconnect_after_s * 1e9
+            ):
                 self._count(disconnects=1)
                 return False
             if faults.stall_s and index == faults.after:

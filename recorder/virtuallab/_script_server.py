@@ -87,9 +87,11 @@ def check_program(program: str) -> list[str]:
         if not _STATEMENT.match(line):
             errors.append(f"line {number}: not a function call: {line!r}")
             continue
-        for name in _CALL.findall(_strip_strings(line)):
-            if name not in FUNCTIONS:
-                errors.append(f"line {number}: unknown function {name}()")
+        errors.extend(
+            f"line {number}: unknown function {name}()"
+            for name in _CALL.findall(_strip_strings(line))
+            if name not in FUNCTIONS
+        )
     return errors
 
 

@@ -13,7 +13,8 @@ from ur_lab import virtual_lab
 from recorder.live import SourceCounter, SourceReader
 from recorder.ur import RTDE_VARIABLES, RtdeClient, RtdeError
 from recorder.ur._rtde import TEXT_MESSAGE, pack_package, pack_text, unpack_text
-from recorder.virtuallab._rtde_server import RtdeFaults
+from recorder.virtuallab._controller import VirtualController
+from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 
 NS = 1_000_000_000
 
@@ -61,9 +62,12 @@ def test_every_injected_fault_is_counted_exactly() -> None:
 
 
 def test_unknown_variable_is_refused_by_name() -> None:
-    with virtual_lab() as lab, RtdeClient("127.0.0.1", lab.rtde.address[1]) as client:
-        with pytest.raises(RtdeError, match="does not provide no_such_variable") as info:
-            client.setup_outputs(["actual_q", "no_such_variable"], 125)
+    with (
+        virtual_lab() as lab,
+        RtdeClient("127.0.0.1", lab.rtde.address[1]) as client,
+        pytest.raises(RtdeError, match="does not provide no_such_variable") as info,
+    ):
+        client.setup_outputs(["actual_q", "no_such_variable"], 125)
     assert "\n" not in str(info.value)
 
 
@@ -118,9 +122,6 @@ def test_ur_rtde_reads_the_virtual_lab() -> None:
     # ur_rtde's receive interface has no port argument: it always connects to 30004.
     if not _port_free(30004):
         pytest.skip("127.0.0.1:30004 is in use; ur_rtde connects to no other port")
-    from recorder.virtuallab._controller import VirtualController
-    from recorder.virtuallab._rtde_server import RtdeServer
-
     with virtual_lab() as lab:
         lab.world.start_action("wood", "P1", 1)
         time.sleep(0.05)

@@ -9,10 +9,9 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from types import SimpleNamespace, TracebackType
-from typing import Any, Self
+from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 
@@ -23,8 +22,12 @@ from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._controller import VirtualController
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
-from recorder.writing._stream import SkinBlock
 from schemas import VOCABULARY
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Mapping
+
+    from recorder.writing._stream import SkinBlock
 
 TIME_SCALE = 0.05
 #: Where the tests present objects: above the simulator's workspace, tool pointing down.
@@ -177,4 +180,6 @@ def virtual_lab(
 
 def config(options: Mapping[str, Any], sections: Mapping[str, Any]) -> SimpleNamespace:
     """Return a stand-in rig configuration (name, options, sections, source)."""
-    return SimpleNamespace(name="ur", options=dict(options), sections=dict(sections), source="lab.toml")
+    return SimpleNamespace(
+        name="ur", options=dict(options), sections=dict(sections), source="lab.toml"
+    )
