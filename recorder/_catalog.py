@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, TypeAlias
 
 from recorder.errors import CatalogError
-from schemas import VOCABULARY
+from schemas import VOCABULARY, ContractError, check_id
 
 ActionKind: TypeAlias = str
 """An action kind's name, one of ``schemas.VOCABULARY.kinds`` (the contract's list)."""
@@ -57,6 +57,19 @@ def _kind(value: object) -> ActionKind:
     return str(value)
 
 
+def _catalog_id(name: str, what: str, value: str) -> str:
+    """Return a catalog key if it follows the id rule (it names a directory of datasets).
+
+    Raises:
+        CatalogError: It does not; the message names the file, the id and the rule.
+    """
+    try:
+        return check_id(what, value)
+    except ContractError as err:
+        msg = f"{name}: {err}; rename the entry"
+        raise CatalogError(msg) from err
+
+
 def read_toml(path: Path | None, default_name: str) -> tuple[str, dict[str, Any]]:
     """Read a catalog file, the packaged default when ``path`` is None.
 
@@ -91,6 +104,7 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
     name, table = read_toml(path, "actions.toml")
     actions: dict[str, ActionSpec] = {}
     for action_id, entry in table.items():
+        _catalog_id(name, "action", action_id)
         try:
             actions[action_id] = ActionSpec(
                 id=action_id,
@@ -340,6 +354,7 @@ def load_objects(path: Path | None = None) -> dict[str, ObjectSpec]:
     name, table = read_toml(path, "objects.toml")
     objects: dict[str, ObjectSpec] = {}
     for object_id, entry in table.items():
+        _catalog_id(name, "object", object_id)
         try:
             objects[object_id] = _object_from_entry(object_id, dict(entry))
         except (KeyError, ValueError, TypeError, AttributeError) as err:

@@ -5,15 +5,26 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
+from schemas._atomic import (
+    atomic_file,
+    atomic_path,
+    atomic_write,
+    atomic_write_text,
+    create_exclusive,
+    publish_temporary,
+    temporary_name,
+)
 from schemas._layout import (
     INCOMPLETE_RECORD,
     INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
+    check_inside,
     dataset_recordings,
     is_incomplete,
     is_recording,
+    recording_path,
 )
 from schemas._metadata import (
     MAX_SEED,
@@ -25,6 +36,12 @@ from schemas._metadata import (
     check_rig,
     parse_metadata,
     software_version,
+)
+from schemas._sources import (
+    SOURCES_RECORD,
+    SourceStats,
+    encode_source_stats,
+    parse_source_stats,
 )
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
@@ -61,6 +78,7 @@ __all__ = [
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "SOURCES_RECORD",
     "VOCABULARY",
     "Channel",
     "ChannelSpec",
@@ -71,19 +89,31 @@ __all__ = [
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
+    "SourceStats",
     "Vocabulary",
+    "atomic_file",
+    "atomic_path",
+    "atomic_write",
+    "atomic_write_text",
     "build_typestore",
     "channel_for_topic",
     "check_id",
+    "check_inside",
     "check_parameters",
     "check_rig",
     "cli",
+    "create_exclusive",
     "dataset_recordings",
+    "encode_source_stats",
     "full_type_name",
     "is_incomplete",
     "is_recording",
     "msg_definition",
     "parse_metadata",
+    "parse_source_stats",
     "parse_vocabulary",
+    "publish_temporary",
+    "recording_path",
     "software_version",
+    "temporary_name",
 ]

@@ -5,6 +5,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from schemas._metadata import check_id
+from schemas.errors import ContractError
+
 #: Suffix of a finished recording.
 RECORDING_SUFFIX = ".mcap"
 #: Suffix of a recording being written (renamed to its final name when complete).
@@ -43,3 +46,36 @@ def dataset_recordings(root: Path) -> list[Path]:
     checked and moved into place by hand; an incomplete one is kept for inspection.
     """
     return sorted(p for p in Path(root).rglob(f"*{RECORDING_SUFFIX}") if is_recording(p))
+
+
+def check_inside(root: Path, path: Path) -> Path:
+    """Return ``path`` if it lies inside ``root`` once both are resolved (links followed).
+
+    Every path builder that joins names to an output directory asserts this, so no name
+    (``..``, an absolute path, a link in the tree) makes the project write outside it.
+
+    Raises:
+        ContractError: ``path`` resolves outside ``root``.
+    """
+    resolved_root, resolved = Path(root).resolve(), Path(path).resolve()
+    if resolved != resolved_root and resolved_root not in resolved.parents:
+        msg = (
+            f"{path}: resolves to {resolved}, outside the output directory {resolved_root}; "
+            "names in a dataset are plain ids and links must stay inside it"
+        )
+        raise ContractError(msg)
+    return Path(path)
+
+
+def recording_path(root: Path, object_id: str, action_id: str, trial: int) -> Path:
+    """Return where a dataset keeps trial ``trial`` of ``action_id`` on ``object_id``.
+
+    ``<root>/<object>/<action>/<trial:03d>.mcap``; both ids follow the id rule and the
+    path is checked to lie inside ``root``.
+
+    Raises:
+        ContractError: An id breaks the id rule, or the path resolves outside ``root``.
+    """
+    name = f"{trial:03d}{RECORDING_SUFFIX}"
+    path = Path(root) / check_id("object", object_id) / check_id("action", action_id) / name
+    return check_inside(root, path)

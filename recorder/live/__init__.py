@@ -14,6 +14,8 @@ from recorder.live._accounting import (
     parse_source_stats,
 )
 from recorder.live._clock import RecorderClock
+from recorder.live._framelayout import SkinLayout, parse_layout
+from recorder.live._frames import SerialSkin, UdpSkin
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceLostError, SourceReader
 from recorder.live._skin import SKIN_TRANSPORTS, LiveSkin, open_skin
@@ -25,10 +27,14 @@ __all__ = [
     "LiveSkin",
     "Received",
     "RecorderClock",
+    "SerialSkin",
+    "SkinLayout",
     "SourceCounter",
     "SourceLostError",
     "SourceReader",
     "SourceStats",
+    "UdpSkin",
     "open_skin",
+    "parse_layout",
     "parse_source_stats",
 ]

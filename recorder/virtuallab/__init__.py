@@ -6,6 +6,14 @@ stream and URScript port, the skin's frames, ROS 2 topics. :class:`VirtualWorld`
 simulated execution being played; each server reads the world's state at its own rate.
 """
 
+from recorder.virtuallab._skin_server import InjectedFaults, SkinFaults, SkinServer, serve_skin
 from recorder.virtuallab._world import RobotState, VirtualWorld
 
-__all__ = ["RobotState", "VirtualWorld"]
+__all__ = [
+    "InjectedFaults",
+    "RobotState",
+    "SkinFaults",
+    "SkinServer",
+    "VirtualWorld",
+    "serve_skin",
+]

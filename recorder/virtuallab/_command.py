@@ -7,6 +7,7 @@ server and the ROS 2 publisher when they are installed (imported only when asked
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib
 import threading
 import tomllib
@@ -88,6 +89,28 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
         msg = f"--fault script.{min(unknown)}: the URScript fault is protective_stop"
         raise RecorderError(msg)
     return ScriptFaults(faults.get("protective_stop", 0.0))
+
+
+def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noqa: ANN401
+    """Return a server's fault dataclass from ``--fault server.name=number`` values.
+
+    ``name`` is a field of ``cls`` or a field without its ``_s`` suffix (``stall`` ->
+    ``stall_s``); integer fields get integers.
+
+    Raises:
+        RecorderError: No such numeric field.
+    """
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    for name, value in faults.items():
+        field = known.get(name) or known.get(f"{name}_s")
+        default = getattr(field, "default", None)
+        if field is None or isinstance(default, bool) or not isinstance(default, int | float):
+            numeric = [n for n, f in known.items() if isinstance(f.default, int | float)]
+            msg = f"--fault {server}.{name}: the {server} faults are {', '.join(numeric)}"
+            raise RecorderError(msg)
+        values[field.name] = int(value) if isinstance(default, int) else value
+    return cls(**values)
 
 
 def _lab_sections(path: Path | None) -> dict[str, Any]:
@@ -181,13 +204,15 @@ def _serve_sim(args: argparse.Namespace) -> int:
         where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
         if args.skin:
             serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
-            stack.enter_context(
-                serve(world, args.skin, sections.get("skin", {}), faults.get("skin", {}))
-            )
+            kind = _optional_server("recorder.virtuallab._skin_server", "SkinFaults", "skin")
+            skin_faults = typed_faults(kind, faults.get("skin", {}), "skin")
+            stack.enter_context(serve(world, args.skin, sections.get("skin", {}), skin_faults))
             where.append(f"skin {args.skin}")
         if args.ros2:
             serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")
-            stack.enter_context(serve(world, args.topic_map, faults.get("ros2", {})))
+            kind = _optional_server("recorder.virtuallab._ros2_server", "Ros2Faults", "ROS 2")
+            ros2_faults = typed_faults(kind, faults.get("ros2", {}), "ros2")
+            stack.enter_context(serve(world, args.topic_map, ros2_faults))
             where.append("ROS 2 topics")
         print(f"virtual lab listening: {', '.join(where)}; Ctrl-C stops it", flush=True)  # noqa: T201
         try:

@@ -26,17 +26,19 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import ActionStoppedError, OutputExistsError, RecorderError
-from recorder.live._accounting import SOURCES_RECORD, SourceStats, encode_source_stats
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 from schemas import (
     INCOMPLETE_RECORD,
     MESSAGE_VERSION,
     PART_SUFFIX,
     SCHEMA_VERSION,
+    SOURCES_RECORD,
     VOCABULARY,
     RecordingMetadata,
+    SourceStats,
     build_typestore,
     check_rig,
+    encode_source_stats,
     software_version,
 )
 
@@ -521,7 +523,11 @@ class RecordingWriter:
         if self._writer is None:
             msg = f"{self.path}: add_sources() outside the writer's 'with' block"
             raise RecorderError(msg)
-        record = encode_source_stats(stats)
+        try:
+            record = encode_source_stats(stats)
+        except ValueError as err:
+            msg = f"{self.path}: {err}"
+            raise RecorderError(msg) from err
         try:
             self._writer.add_metadata(SOURCES_RECORD, record)
         except OSError as err:
