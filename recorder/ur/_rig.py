@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Self
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from recorder._rigconfig import refuse_sections
+from recorder._rigconfig import refuse_sections, thaw
 from recorder.errors import ActionStoppedError, RigError
 from recorder.live import RecorderClock, SourceCounter, SourceLostError, SourceReader, open_skin
 from recorder.ur._rtde import MAX_FREQUENCY, RTDE_PORT, RtdeClient, RtdeError
@@ -710,7 +710,7 @@ def build_ur_rig(seed: int, config: Any) -> URRig:  # noqa: ANN401 (a RigConfig)
     del seed
     where = str(getattr(config, "source", None) or "<rig options>")
     refuse_sections(config, ("limits", "skin", "objects"))
-    sections: Mapping[str, Any] = getattr(config, "sections", {}) or {}
+    sections: Mapping[str, Any] = thaw(getattr(config, "sections", {}) or {})
     options = UROptions.from_options(dict(config.options), where)
     limits = Limits.from_section(sections.get("limits", {}), where)
     skin = sections.get("skin")

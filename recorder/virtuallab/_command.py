@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import signal
 import threading
 import tomllib
 from pathlib import Path
@@ -137,6 +138,23 @@ def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
         raise RecorderError(msg) from err
 
 
+def _wait_for_a_stop() -> None:
+    """Block until Ctrl-C (SIGINT) or SIGTERM.
+
+    Both are handled explicitly: a shell starts background jobs with SIGINT ignored, and the
+    virtual lab must still stop on the first Ctrl-C or ``kill`` sent to it.
+    """
+    handled = (signal.SIGINT, signal.SIGTERM)
+    previous = {number: signal.signal(number, signal.default_int_handler) for number in handled}
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        return
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
 @command(
     "serve-sim",
     "serve the simulator over a UR's RTDE and URScript ports (a virtual lab, on loopback)",
@@ -160,6 +178,7 @@ def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
     ),
     arg("--ros2", action="store_true", help="also publish the rig's ROS 2 topics over DDS"),
     arg("--topic-map", type=Path, default=None, help="topic map of the ROS 2 topics (--ros2)"),
+    arg("--domain-id", type=int, default=0, help="DDS domain of the ROS 2 topics (default: 0)"),
     arg("--seed", type=int, default=0, help="seed of the simulated rig (default: 0)"),
     arg(
         "--fault",
@@ -212,11 +231,12 @@ def _serve_sim(args: argparse.Namespace) -> int:
             serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")
             kind = _optional_server("recorder.virtuallab._ros2_server", "Ros2Faults", "ROS 2")
             ros2_faults = typed_faults(kind, faults.get("ros2", {}), "ros2")
-            stack.enter_context(serve(world, args.topic_map, ros2_faults))
+            if args.topic_map is None:
+                msg = "serve-sim --ros2 needs --topic-map MAP: the topics the rig reads"
+                raise RecorderError(msg)
+            stack.enter_context(serve(world, args.topic_map, ros2_faults, domain_id=args.domain_id))
             where.append("ROS 2 topics")
         print(f"virtual lab listening: {', '.join(where)}; Ctrl-C stops it", flush=True)  # noqa: T201
-        try:
-            threading.Event().wait()
-        except KeyboardInterrupt:
-            print("virtual lab stopped", flush=True)  # noqa: T201
+        _wait_for_a_stop()
+        print("virtual lab stopped", flush=True)  # noqa: T201
     return 0

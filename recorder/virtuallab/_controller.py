@@ -2,8 +2,8 @@
 
 The world plays whole simulated executions; between them, a program's ``movel`` (visiting an
 object) parks the arm at the target, so the state served over RTDE says the arm arrived. An
-action started from a parked arm is played from there: its TCP positions are shifted by the
-park position minus the simulator's start, so the arm never jumps.
+action is played from wherever the arm is (parked, or where the last action left it): its TCP
+positions are shifted by that pose minus the simulator's start, so the arm never jumps.
 Every server reads the arm through this object; it also keeps the controller's log (what a
 real controller shows on its pendant: program errors, stops).
 """
@@ -62,12 +62,12 @@ class VirtualController:
         Raises:
             RigError: The world refuses (unknown object or action, stopped, busy).
         """
+        here = self.state_at(self.world.controller_ns()).tcp_pose
         self.world.start_action(object_id, action_id, trial)
         start = self.world.robot_at(self.world.controller_ns()).tcp_pose
         with self._lock:
-            parked, self._parked = self._parked, None
-            if parked is not None:
-                self._shift = parked[:3] - start[:3]
+            self._parked = None
+            self._shift = here[:3] - start[:3]
 
     def note(self, line: str) -> None:
         """Add a line to the controller's log."""
