@@ -58,6 +58,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "recorder.bagimport._command",
     "recorder.bagimport._listen",
     "recorder._session",
+    "recorder.virtuallab._command",
 )
 
 

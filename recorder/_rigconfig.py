@@ -96,6 +96,18 @@ def _freeze(value: object) -> object:
     return value
 
 
+def thaw(value: object) -> Any:  # noqa: ANN401 (a TOML value)
+    """Return a configuration value as tomllib gives it: plain dicts and lists (a copy).
+
+    A rig's builder hands its tables to code that checks TOML as parsed (``dict``, ``list``).
+    """
+    if isinstance(value, Mapping):
+        return {str(key): thaw(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [thaw(item) for item in value]
+    return value
+
+
 @dataclass(frozen=True, slots=True)
 class RigConfig:
     """Which rig records, and how it is set up.

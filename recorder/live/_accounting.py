@@ -10,6 +10,7 @@ arrived once, twice, late or never, and how the source's clock relates to the re
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 
 from recorder.errors import RecorderError
@@ -26,6 +27,8 @@ __all__ = [
 #: How many recent sequence numbers are remembered to tell a duplicate from a late sample
 #: (at 1 kHz, 8 s of history: far beyond any reordering a network or a driver produces).
 SEEN_WINDOW = 8192
+#: Samples a counter without a known period waits for to measure it (the median step).
+LEARN_SAMPLES = 16
 #: Span of sensor time over which the lowest transport latency is taken as the clock offset.
 OFFSET_WINDOW_NS = 1_000_000_000
 
@@ -35,8 +38,9 @@ class SourceCounter:
 
     Give each sample its sequence number (``sequence``) when the source has a counter, else
     its sensor time: the number is then ``round((sensor - first) / period)``, so a missing
-    controller cycle is a missing sample. Counters that wrap (a 16-bit frame counter) are
-    unwrapped with ``modulo``.
+    controller cycle is a missing sample. Without a known period (a ROS 2 topic whose map
+    gives no rate), the first :data:`LEARN_SAMPLES` samples are held until their median step
+    gives it. Counters that wrap (a 16-bit frame counter) are unwrapped with ``modulo``.
     """
 
     def __init__(self, name: str, *, period_ns: int = 0, modulo: int = 0) -> None:
@@ -61,6 +65,7 @@ class SourceCounter:
         self._offset_last: int | None = None
         self._last_window_start = 0
         self._latency_max = 0
+        self._learning: list[tuple[int, int]] | None = None if period_ns > 0 else []
 
     def _unwrap(self, raw: int) -> int:
         """Return the unwrapped sequence number nearest to the largest seen so far."""
@@ -89,6 +94,11 @@ class SourceCounter:
             sensor_ns: The sample's time on the source's clock, ns.
             receive_ns: The sample's receive time on the recorder's clock, ns.
         """
+        if sequence is None and self._learning is not None:
+            self._learning.append((sensor_ns, receive_ns))
+            if len(self._learning) >= LEARN_SAMPLES:
+                self._settle()
+            return True
         number = self._number(sequence, sensor_ns)
         self._received += 1
         if self._first is None:
@@ -133,6 +143,15 @@ class SourceCounter:
         if self._offset_first is not None:
             self._latency_max = max(self._latency_max, offset - self._offset_first)
 
+    def _settle(self) -> None:
+        """Take the period from the held samples' median step, then count them."""
+        held, self._learning = self._learning or [], None
+        stamps = sorted({sensor for sensor, _ in held})
+        steps = [b - a for a, b in itertools.pairwise(stamps)]
+        self._period_ns = sorted(steps)[len(steps) // 2] if steps else 1
+        for sensor, receive in held:
+            self.observe(None, sensor, receive)
+
     def overflow(self, count: int = 1) -> None:
         """Count samples the reader's queue had to drop."""
         self._overflowed += count
@@ -144,6 +163,8 @@ class SourceCounter:
 
     def stats(self) -> SourceStats:
         """Return the counts so far."""
+        if self._learning:
+            self._settle()
         expected = 0 if self._first is None else self._max - self._first + 1
         offset = self._offset_first or 0
         return SourceStats(

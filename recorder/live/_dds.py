@@ -462,13 +462,10 @@ class Ros2Skin:
                     extractor.push_fields(fields, stamp, item.receive_ns)
                 self._last_receive = item.receive_ns
 
-    def _observe(self, counter: Any, extractor: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
-        """Count a message (the period is measured from the first two if the map has none)."""
-        if counter._period_ns <= 0:  # noqa: SLF001 (set once, before the first count)
-            last = extractor.buffer.last
-            if last is None or stamp <= last:
-                return
-            counter._period_ns = stamp - last  # noqa: SLF001
+    @staticmethod
+    def _observe(counter: Any, extractor: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Count a message (a counter without the map's rate measures the period itself)."""
+        del extractor
         counter.observe(None, stamp, receive_ns)
 
     def _blocks(self, *, final: bool) -> list[Any]:

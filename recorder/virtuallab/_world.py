@@ -55,6 +55,7 @@ class RobotState:
         tcp_force: Force and torque at the TCP (fx, fy, fz, tx, ty, tz), N and N m.
         robot_mode: RTDE robot mode (7: running).
         safety_status: RTDE safety status (1 normal, 3 protective stop, 7 emergency stop).
+        effort: Joint torques, N m, shape (joints,) (RTDE ``target_moment``).
     """
 
     q: NDArray[np.float64]
@@ -63,6 +64,7 @@ class RobotState:
     tcp_force: NDArray[np.float64]
     robot_mode: int
     safety_status: int
+    effort: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +99,7 @@ class _Execution:
     skin: Mapping[str, _Series]
     q: _Series
     qd: _Series
+    effort: _Series
     pose: _Series
     force: _Series | None
     phases: tuple[tuple[str, int], ...]
@@ -132,6 +135,7 @@ class _Execution:
             skin,
             _Series(stamps, np.array([j.position for j in joints])),
             _Series(stamps, np.array([j.velocity for j in joints])),
+            _Series(stamps, np.array([j.effort for j in joints])),
             _Series(np.array([p.stamp_ns for p in poses], dtype=np.int64), pose),
             force,
             tuple((e.phase, e.stamp_ns) for e in events),
@@ -253,7 +257,13 @@ class VirtualWorld:
         wrench = run.force.at(sim_ns) if run.force is not None else np.zeros(6)
         qd = run.qd.at(sim_ns) if moving else np.zeros_like(run.qd.values[0])
         return RobotState(
-            run.q.at(sim_ns), qd, run.pose.at(sim_ns), wrench, ROBOT_MODE_RUNNING, safety
+            run.q.at(sim_ns),
+            qd,
+            run.pose.at(sim_ns),
+            wrench,
+            ROBOT_MODE_RUNNING,
+            safety,
+            run.effort.at(sim_ns),
         )
 
     def skin_at(self, modality: str, controller_ns: int) -> NDArray[np.float64] | None:

@@ -185,3 +185,21 @@ def test_a_stopped_action_is_kept_incomplete(
     assert records[INCOMPLETE_RECORD]["reason"] == "protective stop"
     assert parse_source_stats(records[SOURCES_RECORD])[0].missing == 1
     assert messages > 0
+
+
+def test_counter_learns_the_period_of_a_source_without_a_rate() -> None:
+    counter = SourceCounter("topic")
+    stamps = [1000 * MS + i * 4 * MS for i in range(60) if i not in {3, 30, 31}]
+    for stamp in stamps:
+        counter.observe(None, stamp, stamp + MS)
+    counter.observe(None, stamps[-1], stamps[-1] + 2 * MS)  # a duplicate
+    stats = counter.stats()
+    assert (stats.period_ns, stats.expected, stats.missing, stats.duplicated) == (4 * MS, 60, 3, 1)
+
+
+def test_counter_with_too_few_samples_to_learn_still_counts_them() -> None:
+    counter = SourceCounter("topic")
+    counter.observe(None, 5 * MS, 6 * MS)
+    counter.observe(None, 9 * MS, 10 * MS)
+    stats = counter.stats()
+    assert (stats.expected, stats.received, stats.missing) == (2, 2, 0)

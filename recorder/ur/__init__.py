@@ -1,0 +1,34 @@
+"""A Universal Robots arm over its real interfaces: RTDE state, URScript motion, a live skin.
+
+``URRig`` reads every RTDE data package (port 30004; 125 Hz on CB3, 500 Hz on e-Series),
+moves the arm with URScript programs (port 30002) and reads the skin the rig configuration's
+``[skin]`` table describes; limits (``[limits]``) are checked before anything moves.
+"""
+
+from recorder._rigconfig import RigPlugin
+from recorder.ur._rig import JOINT_NAMES, RTDE_VARIABLES, UROptions, URRig, build_ur_rig
+from recorder.ur._rtde import Recipe, RtdeClient, RtdeError, TextMessage
+from recorder.ur._script import Announcement, Limits, Motion
+
+#: The UR rig as a plug-in: exclusive hardware (one action at a time, in the main process).
+PLUGIN = RigPlugin(
+    build=build_ur_rig,
+    exclusive=True,
+    description="a Universal Robots arm over RTDE and URScript, with a live skin",
+)
+
+__all__ = [
+    "JOINT_NAMES",
+    "PLUGIN",
+    "RTDE_VARIABLES",
+    "Announcement",
+    "Limits",
+    "Motion",
+    "Recipe",
+    "RtdeClient",
+    "RtdeError",
+    "TextMessage",
+    "UROptions",
+    "URRig",
+    "build_ur_rig",
+]

@@ -1,0 +1,242 @@
+"""``atikt-record serve-sim``: the virtual lab, the simulator served over a real rig's protocols.
+
+RTDE and the URScript port are served here; ``--skin`` and ``--ros2`` start the skin's frame
+server and the ROS 2 publisher when they are installed (imported only when asked for).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import signal
+import threading
+import tomllib
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from recorder._catalog import load_actions, load_objects
+from recorder._cli import _CATALOGS, arg, command
+from recorder.errors import RecorderError
+from recorder.virtuallab._controller import VirtualController
+from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
+from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
+from recorder.virtuallab._world import VirtualWorld
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable, Sequence
+
+#: Faults of the RTDE and URScript servers (``--fault rtde.drop=3``...); others go to the
+#: skin and ROS 2 servers by their prefix.
+_RTDE_FAULTS = {
+    "drop": "drop",
+    "duplicate": "duplicate",
+    "reorder": "reorder",
+    "after": "after",
+    "stall": "stall_s",
+    "disconnect": "disconnect_after_s",
+}
+
+
+def parse_faults(items: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Parse ``--fault server.name=value`` items into server -> name -> value.
+
+    Raises:
+        RecorderError: An item is not ``server.name=number``.
+    """
+    faults: dict[str, dict[str, float]] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        server, dot, name = key.partition(".")
+        try:
+            value = float(raw)
+        except ValueError:
+            value = float("nan")
+        if not (sep and dot and server and name) or value != value or value < 0:  # noqa: PLR0124
+            msg = (
+                f"--fault {item!r}: give server.name=number, e.g. rtde.drop=3, rtde.stall=1.5, "
+                "rtde.disconnect=2, script.protective_stop=1, skin.drop=5"
+            )
+            raise RecorderError(msg)
+        faults.setdefault(server, {})[name] = value
+    return faults
+
+
+def rtde_faults(faults: dict[str, float]) -> RtdeFaults:
+    """Return the RTDE server's faults.
+
+    Raises:
+        RecorderError: An unknown RTDE fault.
+    """
+    values: dict[str, Any] = {}
+    for name, value in faults.items():
+        field = _RTDE_FAULTS.get(name)
+        if field is None:
+            msg = f"--fault rtde.{name}: the RTDE faults are {', '.join(_RTDE_FAULTS)}"
+            raise RecorderError(msg)
+        values[field] = value if field.endswith("_s") else int(value)
+    return RtdeFaults(**values)
+
+
+def script_faults(faults: dict[str, float]) -> ScriptFaults:
+    """Return the URScript server's faults.
+
+    Raises:
+        RecorderError: An unknown URScript fault.
+    """
+    unknown = set(faults) - {"protective_stop"}
+    if unknown:
+        msg = f"--fault script.{min(unknown)}: the URScript fault is protective_stop"
+        raise RecorderError(msg)
+    return ScriptFaults(faults.get("protective_stop", 0.0))
+
+
+def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noqa: ANN401
+    """Return a server's fault dataclass from ``--fault server.name=number`` values.
+
+    ``name`` is a field of ``cls`` or a field without its ``_s`` suffix (``stall`` ->
+    ``stall_s``); integer fields get integers.
+
+    Raises:
+        RecorderError: No such numeric field.
+    """
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    for name, value in faults.items():
+        field = known.get(name) or known.get(f"{name}_s")
+        default = getattr(field, "default", None)
+        if field is None or isinstance(default, bool) or not isinstance(default, int | float):
+            numeric = [n for n, f in known.items() if isinstance(f.default, int | float)]
+            msg = f"--fault {server}.{name}: the {server} faults are {', '.join(numeric)}"
+            raise RecorderError(msg)
+        values[field.name] = int(value) if isinstance(default, int) else value
+    return cls(**values)
+
+
+def _lab_sections(path: Path | None) -> dict[str, Any]:
+    """Return the rig configuration's tables (``skin`` for the skin server)."""
+    if path is None:
+        return {}
+    try:
+        return tomllib.loads(path.read_text("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        msg = f"{path}: cannot read the rig configuration ({err}); fix the file or the path"
+        raise RecorderError(msg) from err
+
+
+def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
+    """Import a server written elsewhere (skin frames, ROS 2) only when asked for.
+
+    Raises:
+        RecorderError: It is not installed.
+    """
+    try:
+        return getattr(importlib.import_module(module), name)  # type: ignore[no-any-return]
+    except (ImportError, AttributeError) as err:
+        msg = f"serve-sim: the {what} server is not available in this installation ({err})"
+        raise RecorderError(msg) from err
+
+
+def _wait_for_a_stop() -> None:
+    """Block until Ctrl-C (SIGINT) or SIGTERM.
+
+    Both are handled explicitly: a shell starts background jobs with SIGINT ignored, and the
+    virtual lab must still stop on the first Ctrl-C or ``kill`` sent to it.
+    """
+    handled = (signal.SIGINT, signal.SIGTERM)
+    previous = {number: signal.signal(number, signal.default_int_handler) for number in handled}
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        return
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+@command(
+    "serve-sim",
+    "serve the simulator over a UR's RTDE and URScript ports (a virtual lab, on loopback)",
+    arg("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, loopback)"),
+    arg("--rtde-port", type=int, default=30004, help="RTDE port (default: 30004)"),
+    arg("--script-port", type=int, default=30002, help="URScript port (default: 30002)"),
+    arg(
+        "--frequency",
+        type=int,
+        choices=(125, 500),
+        default=125,
+        help="controller generation: 125 (CB3) or 500 Hz (e-Series) (default: 125)",
+    ),
+    arg("--rig-config", type=Path, default=None, help="the lab's rig configuration (its [skin])"),
+    arg("--time-scale", type=float, default=1.0, help="real s per simulated s (default: 1.0)"),
+    arg(
+        "--skin",
+        default=None,
+        metavar="URL",
+        help="also serve skin frames, e.g. udp://127.0.0.1:5005",
+    ),
+    arg("--ros2", action="store_true", help="also publish the rig's ROS 2 topics over DDS"),
+    arg("--topic-map", type=Path, default=None, help="topic map of the ROS 2 topics (--ros2)"),
+    arg("--domain-id", type=int, default=0, help="DDS domain of the ROS 2 topics (default: 0)"),
+    arg("--seed", type=int, default=0, help="seed of the simulated rig (default: 0)"),
+    arg(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="SERVER.NAME=VALUE",
+        help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
+        "rtde.disconnect=S, script.protective_stop=S, skin.* and ros2.* for those servers",
+    ),
+    *_CATALOGS,
+)
+def _serve_sim(args: argparse.Namespace) -> int:
+    from recorder._sim import SimulatedRig  # noqa: PLC0415 (loads scipy)
+
+    faults = parse_faults(args.fault)
+    sections = _lab_sections(args.rig_config)
+    with contextlib.ExitStack() as stack:
+        sim = stack.enter_context(SimulatedRig(args.seed))
+        world = VirtualWorld(
+            sim,
+            load_objects(args.objects_catalog),
+            load_actions(args.actions_catalog),
+            time_scale=args.time_scale,
+        )
+        controller = VirtualController(world)
+        rtde = RtdeServer(
+            controller,
+            args.host,
+            args.rtde_port,
+            frequency=args.frequency,
+            faults=rtde_faults(faults.get("rtde", {})),
+        )
+        script = ScriptServer(
+            controller, args.host, args.script_port, faults=script_faults(faults.get("script", {}))
+        )
+        try:
+            stack.enter_context(rtde)
+            stack.enter_context(script)
+        except OSError as err:
+            msg = f"serve-sim: cannot listen on {args.host} ({err}); choose other ports"
+            raise RecorderError(msg) from err
+        where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
+        if args.skin:
+            serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
+            kind = _optional_server("recorder.virtuallab._skin_server", "SkinFaults", "skin")
+            skin_faults = typed_faults(kind, faults.get("skin", {}), "skin")
+            stack.enter_context(serve(world, args.skin, sections.get("skin", {}), skin_faults))
+            where.append(f"skin {args.skin}")
+        if args.ros2:
+            serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")
+            kind = _optional_server("recorder.virtuallab._ros2_server", "Ros2Faults", "ROS 2")
+            ros2_faults = typed_faults(kind, faults.get("ros2", {}), "ros2")
+            if args.topic_map is None:
+                msg = "serve-sim --ros2 needs --topic-map MAP: the topics the rig reads"
+                raise RecorderError(msg)
+            stack.enter_context(serve(world, args.topic_map, ros2_faults, domain_id=args.domain_id))
+            where.append("ROS 2 topics")
+        print(f"virtual lab listening: {', '.join(where)}; Ctrl-C stops it", flush=True)  # noqa: T201
+        _wait_for_a_stop()
+        print("virtual lab stopped", flush=True)  # noqa: T201
+    return 0

@@ -1,0 +1,185 @@
+"""The UR rig against the virtual lab: full actions, limits, stops, accounting."""
+
+import socket
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from ur_lab import POSE, config, virtual_lab
+
+from recorder import (
+    ActionStoppedError,
+    RecorderError,
+    RigError,
+    load_actions,
+    load_objects,
+    record_action,
+)
+from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.ur import Limits, UROptions, URRig, build_ur_rig
+from recorder.virtuallab._command import parse_faults, rtde_faults
+from recorder.virtuallab._rtde_server import RtdeFaults
+from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs
+from replay import read_recording
+from replay.cli._main import main as replay_main
+
+OBJECTS = load_objects()
+ACTIONS = load_actions()
+
+
+def _record(lab_rig: URRig, action: str, path: Path) -> Path:
+    obj = OBJECTS["wood"]
+    with lab_rig as rig:
+        assert rig.present(obj)
+        written = record_action(rig, obj, ACTIONS[action], 1, path, seed=0)
+    return written.path
+
+
+def test_full_action_passes_check_and_opens_everywhere(tmp_path: Path) -> None:
+    faults = RtdeFaults(drop=2, duplicate=1, reorder=1, after=80)
+    path = tmp_path / "wood" / "C1" / "001.mcap"
+    with virtual_lab(rtde_faults=faults) as lab:
+        lab.world.prepare("wood", "C1", 1)
+        _record(lab.rig({"wood": POSE}), "C1", path)
+        injected = lab.rtde.injected
+        assert lab.controller.log == ()
+        assert all(
+            p.splitlines()[1].strip().startswith('textmsg("atikt:') for p in lab.script.programs[1:]
+        )
+    recording = read_recording(path)
+    assert recording.metadata.rig["kind"] == "ur"
+    assert float(recording.metadata.rig["time_scale"]) == 0.05
+    assert replay_main(["check", str(path)]) == 0
+    with AnyReader([path]) as reader:
+        assert sum(1 for _ in reader.messages()) > 100
+    with path.open("rb") as stream:
+        mcap = make_reader(stream)
+        sources = {
+            s.name: s
+            for s in parse_source_stats(
+                next(m.metadata for m in mcap.iter_metadata() if m.name == SOURCES_RECORD)
+            )
+        }
+        assert sum(1 for _ in mcap.iter_messages()) > 100
+    rtde = sources["rtde"]
+    assert (injected.dropped, injected.duplicated, injected.reordered) == (2, 1, 1)
+    assert (rtde.missing, rtde.duplicated, rtde.out_of_order) == (2, 1, 1)
+    assert "skin_force" in sources
+
+
+def test_protective_stop_keeps_an_incomplete_file(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    with virtual_lab(script_faults=ScriptFaults(protective_stop_s=0.2)) as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}), "C1", path)
+        assert lab.script.stops_injected == 1
+    error = info.value
+    assert "protective stop (RTDE safety_status 3)" in error.reason
+    assert "\n" not in str(error)
+    assert error.path == tmp_path / "001.incomplete.mcap"
+    assert error.path.exists()
+    assert not path.exists()
+
+
+def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
+    with virtual_lab(rtde_faults=RtdeFaults(disconnect_after_s=0.6)) as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with pytest.raises(ActionStoppedError, match="RTDE connection lost") as info:
+            _record(lab.rig({"wood": POSE}), "C1", tmp_path / "001.mcap")
+        assert lab.rtde.injected.disconnects == 1
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_silent_rtde_stops_the_action(tmp_path: Path) -> None:
+    with virtual_lab(rtde_faults=RtdeFaults(stall_s=1.0, after=70)) as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with pytest.raises(ActionStoppedError, match="RTDE silent for") as info:
+            _record(lab.rig({"wood": POSE}, silence_s=0.3), "C1", tmp_path / "001.mcap")
+    assert info.value.path is not None
+
+
+def test_limits_are_refused_before_any_byte_is_sent() -> None:
+    with virtual_lab() as lab, socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        rig = URRig(
+            UROptions.from_options(
+                {"rtde_port": lab.rtde.address[1], "script_port": listener.getsockname()[1]},
+                "lab.toml",
+            ),
+            Limits(max_tcp_speed_m_s=0.03, max_force_n=0.15),
+            {"transport": "test"},
+            {},
+            where="lab.toml",
+            skin_factory=lambda _s, clock, _w: __import__("ur_lab").WorldSkin(lab.world, clock),
+        )
+        with rig:
+            connection, _ = listener.accept()
+            with pytest.raises(RigError) as speed:
+                rig.perform(OBJECTS["wood"], ACTIONS["S2"], 1)
+            with pytest.raises(RigError) as force:
+                rig.perform(OBJECTS["wood"], ACTIONS["S3"], 1)
+            connection.settimeout(0.2)
+            with pytest.raises(TimeoutError):
+                connection.recv(1)  # not one byte reached the script port
+            connection.close()
+    assert str(speed.value) == (
+        "lab.toml: action S2 speed_m_s = 0.05 exceeds [limits] max_tcp_speed_m_s = 0.03; "
+        "change action S2 in the action catalog or raise the limit"
+    )
+    assert "action S3 force_n = 0.2 exceeds [limits] max_force_n = 0.15" in str(force.value)
+
+
+def test_builder_checks_options_limits_and_poses() -> None:
+    skin = {"transport": "udp"}
+    rig = build_ur_rig(0, config({"host": "10.0.0.2", "frequency": 500}, {"skin": skin}))
+    assert rig.options.host == "10.0.0.2"
+    assert rig.describe()["rtde_frequency_hz"] == "500"
+    assert "time_scale" not in rig.describe()
+    assert rig.joint_names[0] == "shoulder_pan_joint"
+    outside = {"skin": skin, "objects": {"wood": {"pose": [2.0, 0, 0.1, 0, 3.14, 0]}}}
+    with pytest.raises(RigError, match=r"lab.toml: \[objects.wood\] pose position \[2.0"):
+        build_ur_rig(0, config({}, outside))
+    with pytest.raises(RigError, match="rig option 'speed': the ur rig takes host"):
+        build_ur_rig(0, config({"speed": 1}, {"skin": skin}))
+    with pytest.raises(RigError, match="frequency = 200: give 125"):
+        build_ur_rig(0, config({"frequency": 200}, {"skin": skin}))
+    with pytest.raises(RigError, match=r"\[limits\] max_speed: unknown"):
+        build_ur_rig(0, config({}, {"skin": skin, "limits": {"max_speed": 1}}))
+    with pytest.raises(RigError, match=r"approach_max_m_s = 0\.5 exceeds"):
+        build_ur_rig(0, config({"approach_max_m_s": 0.5}, {"skin": skin}))
+    with pytest.raises(RigError, match=r"needs a \[skin\] table"):
+        build_ur_rig(0, config({}, {}))
+    placed = build_ur_rig(0, config({}, {"skin": skin, "objects": {"wood": {"pose": POSE}}}))
+    assert placed.can_present(OBJECTS["wood"])
+    assert not placed.can_present(OBJECTS["glass_plate"])
+
+
+def test_cb3_cannot_stream_at_500_hz() -> None:
+    with virtual_lab(frequency=125) as lab, pytest.raises(RigError, match="125 Hz at most"):
+        lab.rig(frequency=500).__enter__()
+
+
+def test_script_subset_is_checked() -> None:
+    programs, rest = split_programs(
+        'def a():\n  textmsg("x")\n  explode(1)\nend\nstopl(1)\ndef b():\n'
+    )
+    assert len(programs) == 2
+    assert rest == "def b():\n"
+    assert check_program(programs[0]) == ["line 2: unknown function explode()"]
+    assert check_program(programs[1]) == []
+    with virtual_lab() as lab:
+        lab.script.run("def a():\n  frobnicate()\nend\n")
+        assert lab.controller.log == (
+            "URScript error, program not run: line 1: unknown function frobnicate()",
+        )
+
+
+def test_fault_options_are_parsed() -> None:
+    faults = parse_faults(["rtde.drop=3", "rtde.stall=1.5", "script.protective_stop=1"])
+    assert rtde_faults(faults["rtde"]) == RtdeFaults(drop=3, stall_s=1.5)
+    with pytest.raises(RecorderError, match=r"give server\.name=number"):
+        parse_faults(["drop=3"])
