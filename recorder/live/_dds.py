@@ -477,10 +477,12 @@ class Ros2Skin:
             mine = [e for e in self._found.values() if modality in e.offsets]
             if any(e.size() < 2 for e in mine):  # noqa: PLR2004 (a period needs two)
                 continue
-            series = [e.take(-(2**62), 2**62)[modality] for e in mine]
+            cells = [c for e in mine for c in e.take_cells(-(2**62), 2**62)[modality]]
+            series = [s for _, s in sorted(cells, key=lambda cell: cell[0])]
             if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
                 continue
-            period = block_period(state.spec.period_ns, series[0].stamps)
+            exact = state.spec.period_ns if state.spec.timing == "message" else None
+            period = block_period(exact, series[0].stamps)
             if period <= 0:
                 continue
             hi = min(int(s.stamps[-1]) for s in series) + (1 if final else -period)

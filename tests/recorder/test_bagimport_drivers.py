@@ -484,3 +484,48 @@ def test_the_documented_examples_parse(tmp_path: Path) -> None:
         "thermistor_a",
         "thermistor_b",
     ]
+
+
+def test_live_sessions_stamp_receive_stamped_frames_as_the_import_does(tmp_path: Path) -> None:
+    """``listen`` feeds the same conversion (``feed``, ``Route``, a live ``_Session``) in
+    batches, trimming what no window needs: its files equal the bag import's."""
+    from recorder.bagimport._importer import _plans, _Session, feed, routes, tally  # noqa: PLC0415
+    from recorder.bagimport._report import ImportReport as Report  # noqa: PLC0415
+    from recorder.bagimport._source import extractors  # noqa: PLC0415
+    from recorder.bagimport._windows import windows_from_csv  # noqa: PLC0415
+
+    frames, store = _frames(ros1=False)
+    bag = _write(tmp_path / "tip", "mcap", frames.messages, store)
+    imported = _import(bag, FRAMES_MAP.format(timing="rate"), tmp_path, FRAMES_WINDOWS)
+    topic_map = load_topic_map(tmp_path / "map.toml")
+    out = tmp_path / "live"
+    report = Report(imported.bags, out, topic_map.path)
+    found = extractors(topic_map)
+    windows = windows_from_csv(tmp_path / "windows.csv", "ns", 0)
+    plans = _plans(windows, topic_map, out, load_objects(), load_actions())
+    session = _Session([], topic_map, found, report.bags, report, None, live=True)
+    for plan in plans:
+        session.add(plan)
+    channel = [("/tip/frames", "/tip/frames", "tip_msgs/msg/Frame")]
+    route = routes(store, channel, found, clock="header", deserialize=store.deserialize_cdr)
+    data = [
+        (route["/tip/frames"], receive, store.serialize_cdr(message, msgtype))
+        for receive, _, msgtype, message in frames.messages
+    ]
+    for start in range(0, len(data), 50):
+        feed(data[start : start + 50], session)
+        now = data[min(start + 50, len(data)) - 1][1]
+        session.advance(now)
+        session.trim(now - topic_map.max_delay_ns - 1_000_000_000)
+    while session.done < len(session.plans):
+        session.finish_one()
+    tally(found, report)
+    assert len(report.written) == len(imported.written) == 15
+    assert report.timing["/tip/frames"]["acceleration"]["runs"] == 4
+    for live, bagged in zip(report.written, imported.written, strict=True):
+        a, b = (
+            read_recording(live).skin("acceleration"),
+            read_recording(bagged).skin("acceleration"),
+        )
+        np.testing.assert_array_equal(a.data, b.data)
+        assert np.abs(a.stamps_ns - b.stamps_ns).max() < 30_000  # fits differ only by when
