@@ -189,9 +189,9 @@ class Timeline:
             if abs(drift) > MAX_DRIFT:
                 if span >= REFUSE_SPAN_NS:
                     msg = (
-                        f"{self.where}: the message stamps advance {drift * _PPM:+.0f} ppm off "
-                        f"rate_hz = {1e9 / nominal:g} (they say {1e9 / b:.6g} Hz); fix rate_hz "
-                        "or samples_per_message"
+                        f"{self.where}: the period the message stamps show is "
+                        f"{drift * _PPM:+.0f} ppm off rate_hz = {1e9 / nominal:g} (they say "
+                        f"{1e9 / b:.6g} Hz); fix rate_hz or samples_per_message"
                     )
                     raise BagImportError(msg)
                 b = nominal * (1 + float(np.clip(drift, -MAX_DRIFT, MAX_DRIFT)))

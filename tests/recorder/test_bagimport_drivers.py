@@ -529,3 +529,31 @@ def test_live_sessions_stamp_receive_stamped_frames_as_the_import_does(tmp_path:
         )
         np.testing.assert_array_equal(a.data, b.data)
         assert np.abs(a.stamps_ns - b.stamps_ns).max() < 30_000  # fits differ only by when
+
+
+def test_a_rate_the_stamps_contradict_is_refused_with_the_measured_rate(tmp_path: Path) -> None:
+    frames, store = _frames(ros1=True)
+    bag = _write(tmp_path / "tip", "ros1", frames.messages, store)
+    text = FRAMES_MAP.format(timing="rate").replace("rate_hz = 2200", "rate_hz = 2205")
+    wrong = r"is \+23\d\d ppm off rate_hz = 2205 \(they say 2199\.9 Hz\); fix rate_hz"
+    with pytest.raises(BagImportError, match=wrong):
+        _import(bag, text, tmp_path, FRAMES_WINDOWS)
+
+
+def test_without_jitter_the_samples_are_exactly_on_the_rate() -> None:
+    from fractions import Fraction  # noqa: PLC0415
+
+    from recorder.bagimport._timing import Timeline  # noqa: PLC0415
+
+    period = Fraction(NS, 2200)
+    timeline = Timeline("t", period, 22, 0)
+    frames = [m for m in range(3000) if m not in LOST]
+    for m in frames:
+        timeline.push(START + int(22 * m * period))
+    stamps = timeline.stamps(0, len(frames)).reshape(len(frames), 22)
+    truth = START + np.array([[int((22 * m + i) * period) for i in range(22)] for m in frames])
+    assert np.abs(stamps - truth).max() <= 1
+    summary = timeline.summary()
+    assert (summary["runs"], summary["lost_frames"]) == (4, 4)
+    assert summary["jitter_max_ms"] < 1e-6
+    assert abs(summary["drift_ppm"]) < 0.01
