@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 #: Messages of a run the line is fitted to (the latest ones).
 FIT_POINTS = 4096
 #: Messages between two fits of the current run's line.
-REFIT_EVERY = 64
+REFIT_EVERY = 256
 #: A run must span this long (ns) before its own slope is fitted.
 SLOPE_SPAN_NS = 2_000_000_000
 #: A run spanning this long (ns) whose slope is off by more than :data:`MAX_DRIFT` is refused.
@@ -53,33 +53,50 @@ REFUSE_SPAN_NS = 10_000_000_000
 MAX_DRIFT = 1e-3
 #: Frame periods beyond the fitted line from which a frame counts as lost frames.
 GAP_FRAMES = 0.5
-_SEARCH_STEPS = 80
 _GOLDEN = (5**0.5 - 1) / 2
+#: Relative precision of a fitted period.
+_PRECISION = 1e-12
+#: Half-width of the bracket around the previous period (100 ppm), and its edge zone.
+_BRACKET = 1e-4
+_EDGE = 0.01
 _PPM = 1e6
 _NS_PER_MS = 1e6
 
 
 def envelope_slope(
-    runs: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], lo: float, hi: float
+    runs: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    lo: float,
+    hi: float,
+    guess: float | None = None,
 ) -> float:
     """Return the common slope in ``[lo, hi]`` of the lower-envelope lines of runs of points.
 
     Each run ``(n, r)`` gets the line ``r = a_k + b n`` below its points; the slope ``b``
     maximises ``f(b) = sum_k size_k (min_i(r_i - b n_i) + b mean_k(n))`` (Moon et al. 1999,
     one anchor per run), a concave function of ``b``: a golden-section search finds its
-    maximum. Written by hand: a 1-D concave maximisation of a few lines, no solver needed.
+    maximum, to 1e-12 of ``b``, first near ``guess`` (the previous fit), then, if the maximum
+    is at that bracket's edge, over ``[lo, hi]``. Written by hand: a 1-D concave maximisation
+    of a few lines, no solver needed.
     """
 
     def f(b: float) -> float:
         return sum(r.size * (float((r - b * n).min()) + b * float(n.mean())) for n, r in runs)
 
-    for _ in range(_SEARCH_STEPS):
-        left, right = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
-        if f(left) < f(right):
-            lo = left
-        else:
-            hi = right
-    return 0.5 * (lo + hi)
+    def search(lo: float, hi: float) -> float:
+        while hi - lo > _PRECISION * hi:
+            left, right = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+            if f(left) < f(right):
+                lo = left
+            else:
+                hi = right
+        return 0.5 * (lo + hi)
+
+    if guess is not None:
+        near = (max(lo, guess * (1 - _BRACKET)), min(hi, guess * (1 + _BRACKET)))
+        found = search(*near)
+        if near[0] + _EDGE * (near[1] - near[0]) < found < near[1] - _EDGE * (near[1] - near[0]):
+            return found
+    return search(lo, hi)
 
 
 @dataclass(slots=True)
@@ -184,7 +201,7 @@ class Timeline:
         span = sum(float(n[-1] - n[0]) for n, _ in runs) * nominal
         b = self.slope if self.slope is not None else nominal
         if span >= SLOPE_SPAN_NS:
-            b = envelope_slope(runs, 0.9 * nominal, 1.1 * nominal)
+            b = envelope_slope(runs, 0.9 * nominal, 1.1 * nominal, self.slope)
             drift = b / nominal - 1
             if abs(drift) > MAX_DRIFT:
                 if span >= REFUSE_SPAN_NS:

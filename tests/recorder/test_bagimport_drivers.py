@@ -459,7 +459,7 @@ def test_cli_prints_runs_jitter_and_drift(
     row = next(line for line in printed.splitlines() if "/tip/frames" in line)
     cells = [cell.strip() for cell in row.split("│")[1:-1]]
     assert cells[:4] == ["/tip/frames", "acceleration", "4", "4"]
-    assert cells[4].startswith("1.939")
+    assert cells[4].startswith("1.93")
     assert cells[5] == "+40.2"
 
 
