@@ -43,7 +43,7 @@ if TYPE_CHECKING:
 
 #: Messages of a run the line is fitted to (the latest ones).
 FIT_POINTS = 4096
-#: Messages between two fits of the current run's line.
+#: Messages between two fits of the lines.
 REFIT_EVERY = 256
 #: A run must span this long (ns) before its own slope is fitted.
 SLOPE_SPAN_NS = 2_000_000_000
