@@ -34,6 +34,7 @@ from recorder._dataset import (
     recording_path,
     write_index,
 )
+from recorder._rig import rig_hook
 from recorder._rigconfig import (
     RigFactory,
     is_exclusive,
@@ -142,6 +143,9 @@ def _action(args: argparse.Namespace) -> int:
     )
     path = recording_path(args.out, task.obj.id, task.action.id, args.trial)
     with _rig(args)(args.seed) as rig:
+        can_present, present = rig_hook(rig, "can_present"), rig_hook(rig, "present")
+        if can_present is not None and present is not None and can_present(task.obj):
+            present(task.obj)  # the rig's configuration has the object's pose: go there
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
     Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")
