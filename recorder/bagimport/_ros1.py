@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.rosbag1.reader import IndexData
 
+
 class StreamingReader(Reader):
     """``rosbags.rosbag1.Reader`` that reads messages chunk by chunk, in file order."""
 

@@ -14,9 +14,8 @@ import pytest
 import zstandard
 from labbags import PROBE_MAP, Session, probe_messages
 from rosbags.rosbag1 import Writer as Ros1Writer
-from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import StoragePlugin, storage_mcap
 from rosbags.rosbag2 import Writer as Ros2Writer
-from rosbags.rosbag2 import storage_mcap
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
 from recorder.bagimport._bounded import bz2_bounded, lz4_bounded, zstd_bounded
@@ -35,7 +34,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def _write(path: Path, writer: Any, *, ros1: bool) -> Path:  # noqa: ANN401
+def _write(path: Path, writer: Any, *, ros1: bool) -> Path:
     messages, store = probe_messages(ros1=ros1, session=SMALL)
     serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
     with writer:
