@@ -17,8 +17,10 @@ from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin, storage_mcap
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from recorder.bagimport._bounded import bz2_bounded, lz4_bounded, zstd_bounded
+from recorder.bagimport._fastdecode import MAX_DECODER_LINES, compile_cdr, compile_ros1
 from recorder.bagimport._ros1 import StreamingReader
 
 ROOT = Path(__file__).parents[2]
@@ -108,3 +110,19 @@ def test_decompression_bombs_end_in_one_line_within_bounded_memory(
     assert result.stderr.count("\n") == 1, result.stderr[-2000:]
     assert "decompresses to more than" in result.stderr, result.stderr
     assert resource.getrlimit(resource.RLIMIT_AS)[0] != 3 << 30  # only the subprocess
+
+
+@pytest.mark.parametrize("compile_", [compile_ros1, compile_cdr])
+def test_a_type_of_nested_fixed_arrays_is_left_to_rosbags(compile_: Any) -> None:
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    for name, text in (
+        ("hostile/msg/Leaf", "string[8] s"),
+        ("hostile/msg/Mid", "hostile/msg/Leaf[64] leaves"),
+        ("hostile/msg/Top", "float64 v\nhostile/msg/Mid[64] mids"),  # 32768 strings
+    ):
+        store.register(get_types_from_msg(text, name))
+    assert compile_(store, "hostile/msg/Top", ["v"], stamped=False) is None
+    store.register(get_types_from_msg("float64 v\nfloat64[64] w", "hostile/msg/Ok"))
+    decoder = compile_(store, "hostile/msg/Ok", ["v"], stamped=False)
+    assert decoder is not None
+    assert decoder.key.count("\n") < MAX_DECODER_LINES
