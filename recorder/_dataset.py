@@ -44,6 +44,7 @@ from schemas import (
     RecordingMetadata,
     check_rig,
     dataset_recordings,
+    loads_toml,
     parse_metadata,
 )
 
@@ -452,7 +453,7 @@ def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
     path = Path(root) / OBJECTS_FILE
     try:
         text = path.read_text("utf-8") if path.exists() else ""
-        declared = tomllib.loads(text)
+        declared = loads_toml(text)
         new = [o for o in objects if o.id not in declared]
         if not new:
             return path

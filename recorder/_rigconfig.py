@@ -20,15 +20,15 @@ import dataclasses
 import functools
 import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 from recorder.errors import RecorderError
-from schemas import ContractError, RigValue, check_rig
+from schemas import ContractError, RigValue, check_rig, load_toml, loads_toml
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
+    from pathlib import Path
 
     from recorder._rig import Rig
     from recorder._sim import SimulatedRig
@@ -117,7 +117,7 @@ def _option(text: str) -> tuple[str, RigValue]:
         msg = f"--rig-option {text!r}: give key=value (e.g. room_c=21.0)"
         raise RecorderError(msg)
     try:
-        value: Any = tomllib.loads(f"v = {raw.strip()}")["v"]
+        value: Any = loads_toml(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
     return key.strip(), value
@@ -139,7 +139,7 @@ def load_rig_config(
     table: dict[str, Any] = {}
     if path is not None:
         try:
-            table = tomllib.loads(Path(path).read_text("utf-8"))
+            table = load_toml(path)
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
             msg = f"{path}: cannot read the rig configuration ({err}); fix the file or the path"
             raise RecorderError(msg) from err

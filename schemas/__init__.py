@@ -23,6 +23,7 @@ from schemas._metadata import (
     parse_metadata,
     software_version,
 )
+from schemas._toml import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, load_toml, loads_toml
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
     CUSTOM_TYPES,
@@ -49,6 +50,8 @@ __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
     "MAX_SEED",
+    "MAX_TOML_BYTES",
+    "MAX_TOML_DEPTH",
     "MAX_TRIAL",
     "MESSAGE_VERSION",
     "PACKAGE",
@@ -66,6 +69,7 @@ __all__ = [
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
+    "TomlLimitError",
     "Vocabulary",
     "build_typestore",
     "channel_for_topic",
@@ -76,6 +80,8 @@ __all__ = [
     "dataset_recordings",
     "full_type_name",
     "is_recording",
+    "load_toml",
+    "loads_toml",
     "msg_definition",
     "parse_metadata",
     "parse_vocabulary",

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import zstandard
@@ -19,9 +19,19 @@ from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from recorder import load_objects
+from recorder._rigconfig import load_rig_config
 from recorder.bagimport._bounded import bz2_bounded, lz4_bounded, zstd_bounded
 from recorder.bagimport._fastdecode import MAX_DECODER_LINES, compile_cdr, compile_ros1
 from recorder.bagimport._ros1 import StreamingReader
+from recorder.bagimport._topicmap import load_topic_map
+from recorder.errors import BagImportError, CatalogError, RecorderError
+from replay.errors import ReplayError
+from replay.learning._datasets import declared_novel
+from schemas import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, loads_toml
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 ROOT = Path(__file__).parents[2]
 SMALL = Session(("wood",), ("hold5",), trials=1, execute_s=1.0, gap_s=0.4)
@@ -126,3 +136,38 @@ def test_a_type_of_nested_fixed_arrays_is_left_to_rosbags(compile_: Any) -> None
     decoder = compile_(store, "hostile/msg/Ok", ["v"], stamped=False)
     assert decoder is not None
     assert decoder.key.count("\n") < MAX_DECODER_LINES
+
+
+_DEEP = "a = " + "[" * 50_000 + "]" * 50_000 + "\n"
+
+
+@pytest.mark.parametrize(
+    ("read", "error"),
+    [
+        (load_objects, CatalogError),
+        (load_topic_map, BagImportError),
+        (load_rig_config, RecorderError),
+        (lambda p: declared_novel(p.parent), ReplayError),
+    ],
+    ids=["catalog", "topic-map", "rig-config", "objects-toml"],
+)
+def test_deeply_nested_toml_is_an_error_not_a_recursion(
+    tmp_path: Path,
+    read: Callable[[Path], object],
+    error: type[Exception],
+) -> None:
+    path = tmp_path / "objects.toml"
+    path.write_text(_DEEP, encoding="utf-8")
+    with pytest.raises(error, match=r"nested 50000 deep, more than the 32 allowed") as info:
+        _ = read(path)
+    assert "\n" not in str(info.value)
+
+
+def test_the_toml_limits_count_only_what_nests() -> None:
+    text = "a = \"[[[[{{{{\"\nb = '''[[[[\n]'''\n# [[[[[[\nc = [[1], {x = [2]}]\n"
+    assert loads_toml(text)["c"] == [[1], {"x": [2]}]
+    with pytest.raises(TomlLimitError, match=r"keys nested 39 deep"):
+        _ = loads_toml("a" + ".a" * 39 + " = 1\n")
+    with pytest.raises(TomlLimitError, match=r"characters, more than the"):
+        _ = loads_toml("#" * (MAX_TOML_BYTES + 1))
+    assert loads_toml("a = " + "[" * MAX_TOML_DEPTH + "]" * MAX_TOML_DEPTH)["a"]
