@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import os
 import secrets
 import shutil
+import signal
 import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -33,6 +35,8 @@ if TYPE_CHECKING:
 
 #: Exit status of a refused input (a project error) and of a usage error.
 ERROR_STATUS, USAGE_STATUS = 1, 2
+#: Exit status after Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED_STATUS = 130
 
 
 class CliError(Exception):
@@ -123,16 +127,40 @@ def build_parser(
     return parser
 
 
+def _too_long(err: OSError) -> str:
+    """Return the one-line message for a path longer than the system allows."""
+    name = str(err.filename or "")
+    shown = name if len(name) <= 80 else f"{name[:40]}...{name[-30:]}"  # noqa: PLR2004
+    return (
+        f"the path {shown} ({len(name)} characters) is longer than the system allows "
+        f"(a name at most {_NAME_MAX}, a path at most {_PATH_MAX} bytes); give a shorter path"
+    )
+
+
+def _limit(name: str, default: int) -> int:
+    """Return a ``pathconf`` limit of the root file system, else ``default``."""
+    try:
+        return os.pathconf("/", name)
+    except (AttributeError, OSError, ValueError):  # Windows has no pathconf
+        return default
+
+
+#: The longest file name and path the system accepts (Linux: 255 and 4096 bytes).
+_NAME_MAX, _PATH_MAX = _limit("PC_NAME_MAX", 255), _limit("PC_PATH_MAX", 4096)
+
+
 def run(
     parser: argparse.ArgumentParser,
     argv: Sequence[str] | None,
     errors: tuple[type[Exception], ...],
+    interrupted: str = "interrupted; nothing unfinished was published, run it again to resume",
 ) -> int:
     """Parse ``argv`` and run the chosen subcommand; return its exit status.
 
-    Errors of the project (``errors`` and :class:`CliError`) are printed as one line on
-    stderr with status 1, usage errors with status 2; any other exception is a bug and keeps
-    its traceback.
+    Errors of the project (``errors`` and :class:`CliError`) and a path longer than the
+    system allows are printed as one line on stderr with status 1, usage errors with status 2,
+    Ctrl-C as ``interrupted`` with status 130; any other exception is a bug and keeps its
+    traceback.
     """
     try:
         args = parser.parse_args(argv)
@@ -140,11 +168,66 @@ def run(
         return done.code if isinstance(done.code, int) else USAGE_STATUS * (done.code is not None)
     caught: tuple[type[Exception], ...] = (*errors, CliError)
     try:
-        status: int = args.run(args)
+        with _quiet_interrupts():
+            status: int = args.run(args)
     except caught as err:
         print(f"{parser.prog}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
+    except OSError as err:
+        if err.errno != errno.ENAMETOOLONG:
+            raise
+        print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
+        return ERROR_STATUS
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: {interrupted}", file=sys.stderr)  # noqa: T201
+        return INTERRUPTED_STATUS
     return status
+
+
+@contextlib.contextmanager
+def workers_ignore_interrupts() -> Iterator[None]:
+    """Start worker processes inside the block with Ctrl-C ignored in them.
+
+    Ctrl-C in a terminal interrupts every process of the foreground group: each worker would
+    print its own traceback (or a fatal error while it starts). A signal ignored at ``exec``
+    stays ignored, and Python then installs no KeyboardInterrupt handler, so workers spawned
+    in this block leave Ctrl-C to the parent, which stops them. Keep the block short: Ctrl-C
+    is ignored in this process too while it runs (the spawn itself takes milliseconds).
+    """
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: signals are not ours to handle
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """Raise KeyboardInterrupt once; ignore every further Ctrl-C (the run is unwinding)."""
+    del signum, frame
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _quiet_interrupts() -> Iterator[None]:
+    """Run the block; after the first Ctrl-C, ignore further ones until the block is left.
+
+    A second Ctrl-C while workers shut down and temporary files are removed would print a
+    traceback from inside the clean-up and leave the files; the first one already stops.
+    """
+    try:
+        previous = signal.signal(signal.SIGINT, _interrupt)
+    except ValueError:  # not the main thread: signals are not ours to handle
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def workers(text: str) -> int:
@@ -320,4 +403,5 @@ __all__ = [
     "seed",
     "worker_count",
     "workers",
+    "workers_ignore_interrupts",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +52,7 @@ def ensure_default_dataset(
         ReplayError: The recording failed; the message says why.
     """
     from recorder import (  # noqa: PLC0415 (recording is live execution)
+        SET_ASIDE_DIR,
         RecorderError,
         generate_dataset,
         load_actions,
@@ -78,8 +80,17 @@ def ensure_default_dataset(
     except RecorderError as err:
         msg = f"{root}: recording the default dataset failed ({err})"
         raise ReplayError(msg) from err
+    if report.set_aside:
+        print(  # noqa: T201 (generated on first use, outside any command's own output)
+            f"{len(report.set_aside)} unfinished recordings of stopped runs moved to "
+            f"{root / SET_ASIDE_DIR}; their trials were recorded again",
+            file=sys.stderr,
+        )
     if report.incomplete:
-        msg = f"{root}: {len(report.incomplete)} recordings are incomplete; run again to resume"
+        msg = (
+            f"{root}: {len(report.incomplete)} recordings are being written by another "
+            "running recorder; run again when it has finished"
+        )
         raise ReplayError(msg)
     (root / _DONE).write_text(f"{report.written + report.skipped} recordings\n", "utf-8")
     return root
