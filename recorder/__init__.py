@@ -11,7 +11,6 @@ from recorder._catalog import (
     load_objects,
 )
 from recorder._dataset import (
-    SET_ASIDE_DIR,
     RecordingTask,
     declare_objects,
     generate_dataset,
@@ -69,7 +68,6 @@ def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
 
 
 __all__ = [
-    "SET_ASIDE_DIR",
     "ActionKind",
     "ActionSpec",
     "BagImportError",

@@ -27,7 +27,6 @@ from rich.table import Table
 from recorder._catalog import load_actions, load_objects
 from recorder._dataset import (
     INDEX_NAME,
-    SET_ASIDE_DIR,
     TaskResult,
     check_configuration,
     generate_dataset,
@@ -40,7 +39,7 @@ from recorder._dataset import (
 from recorder._rigconfig import RigFactory, load_rig_config, rig_factory, rig_names
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
-from schemas import ContractError, cli, software_version
+from schemas import SET_ASIDE_DIR, ContractError, cli, software_version
 
 if TYPE_CHECKING:
     import argparse

@@ -41,6 +41,7 @@ from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
     CHANNELS,
     PART_SUFFIX,
+    SET_ASIDE_DIR,
     VOCABULARY,
     ContractError,
     RecordingMetadata,
@@ -499,9 +500,6 @@ def incomplete_files(root: Path) -> tuple[Path, ...]:
     )
 
 
-#: Where unfinished recordings of dead recorders are moved (``<dataset>/.incomplete/...``):
-#: out of the way of the dataset, never deleted (``atikt-replay check FILE --recover``).
-SET_ASIDE_DIR = ".incomplete"
 #: A recorder's temporary name: ``<trial>.<pid>-<token>.mcap.part`` (recorder.writing).
 _PART_NAME = re.compile(r"\.(\d+)-[0-9a-f]+" + re.escape(PART_SUFFIX) + "$")
 #: How long to wait for killed workers to be gone before their files are removed.

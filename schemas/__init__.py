@@ -9,6 +9,7 @@ from schemas._layout import (
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
+    SET_ASIDE_DIR,
     dataset_recordings,
     is_recording,
 )
@@ -23,6 +24,7 @@ from schemas._metadata import (
     parse_metadata,
     software_version,
 )
+from schemas._parquet import ParquetMismatchError, read_checked_parquet, rows_allowed
 from schemas._toml import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, load_toml, loads_toml
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
@@ -59,6 +61,7 @@ __all__ = [
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "SET_ASIDE_DIR",
     "VOCABULARY",
     "Channel",
     "ChannelSpec",
@@ -66,6 +69,7 @@ __all__ = [
     "KindSpec",
     "LegacySpec",
     "ModalitySpec",
+    "ParquetMismatchError",
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
@@ -85,5 +89,7 @@ __all__ = [
     "msg_definition",
     "parse_metadata",
     "parse_vocabulary",
+    "read_checked_parquet",
+    "rows_allowed",
     "software_version",
 ]

@@ -10,6 +10,9 @@ RECORDING_SUFFIX = ".mcap"
 PART_SUFFIX = ".mcap.part"
 #: Suffix of a file salvaged from an incomplete or damaged recording.
 RECOVERED_SUFFIX = ".recovered.mcap"
+#: Where unfinished recordings of dead recorders are moved (``<dataset>/.incomplete/...``):
+#: out of the way of the dataset, never deleted (``atikt-replay check FILE --recover``).
+SET_ASIDE_DIR = ".incomplete"
 
 
 def is_recording(path: Path) -> bool:

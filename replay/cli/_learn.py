@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import polars as pl
 from rich.console import Console
+from rich.markup import escape
 
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
@@ -86,6 +87,8 @@ def _features(root: Path, workers: int) -> FeatureTable:
     bar, update = _progress(f"features of {root}")
     with bar:
         table = build_features(root, workers=workers, on_progress=update)
+    if table.discarded:
+        _CONSOLE.print(f"[yellow]{escape(table.discarded)}", highlight=False, soft_wrap=True)
     for path, reason in table.quarantined.iter_rows():
         _CONSOLE.print(f"[yellow]quarantined[/] {path}: {reason}", highlight=False)
     return table

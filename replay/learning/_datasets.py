@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from replay.errors import ReplayError
-from schemas import load_toml
+from schemas import SET_ASIDE_DIR, load_toml
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -52,7 +52,6 @@ def ensure_default_dataset(
         ReplayError: The recording failed; the message says why.
     """
     from recorder import (  # noqa: PLC0415 (recording is live execution)
-        SET_ASIDE_DIR,
         RecorderError,
         generate_dataset,
         load_actions,
