@@ -127,15 +127,13 @@ def _action(args: argparse.Namespace) -> int:
 
 
 def _progress(console: Console) -> Progress:
-    return Progress(
+    return cli.progress(  # a log or a pipe gets a plain line every few seconds, not a bar
+        console,
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=console,
-        transient=False,
-        disable=not console.is_terminal,  # a log or a pipe gets the report, not a bar
     )
 
 

@@ -339,6 +339,7 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
     Raises:
         RecorderError: The seeds or rig descriptions differ; the message names both and the fix.
     """
+    rig = dict(check_rig(factory(seed).describe()))  # a bad rig option fails before any worker
     found = _first_metadata(root)
     if found is None:
         return
@@ -350,7 +351,6 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
             f"{meta.seed} to resume it"
         )
         raise RecorderError(msg)
-    rig = dict(check_rig(factory(seed).describe()))
     if differ := sorted(k for k in {*rig, *meta.rig} if rig.get(k) != meta.rig.get(k)):
         theirs = ", ".join(f"{k}={meta.rig.get(k)!r}" for k in differ)
         wanted = ", ".join(f"{k}={rig.get(k)!r}" for k in differ)

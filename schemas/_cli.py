@@ -26,12 +26,18 @@ import secrets
 import shutil
 import signal
 import sys
+import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NoReturn
+
+from rich.progress import Progress, ProgressColumn
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
     from pathlib import Path
+    from types import TracebackType
+
+    from rich.console import Console
 
 #: Exit status of a refused input (a project error) and of a usage error.
 ERROR_STATUS, USAGE_STATUS = 1, 2
@@ -203,6 +209,75 @@ def workers_ignore_interrupts() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+#: Seconds between two plain progress lines when the output is not a terminal (a log, a pipe,
+#: CI): often enough to show the run is alive, rare enough to keep a log readable.
+PROGRESS_INTERVAL_S = 5.0
+
+
+class PlainProgress(Progress):
+    """A rich ``Progress`` for output that is not a terminal: a plain line every few seconds.
+
+    rich draws nothing when the console is not a terminal; a long phase then prints nothing
+    for minutes. This keeps rich's task bookkeeping and prints, every
+    :data:`PROGRESS_INTERVAL_S` and once at the end, ``description: done/total (elapsed s)``
+    for every task (from a thread, so also while a task makes no progress).
+    """
+
+    def __init__(self, console: Console, interval_s: float | None = None) -> None:
+        """Keep the console; nothing is drawn (``disable``), lines are printed instead."""
+        super().__init__(console=console, disable=True)
+        self._interval_s = PROGRESS_INTERVAL_S if interval_s is None else interval_s
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Start printing lines."""
+        super().start()
+        self._done.clear()
+        self._thread = threading.Thread(target=self._report, name="atikt-progress", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop printing lines."""
+        self._done.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        super().stop()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_val: BaseException | None,
+        exc_tb: TracebackType | None,
+    ) -> None:
+        """Stop; print the last state once unless an error ends the block (its line alone)."""
+        self.stop()
+        if exc_type is None:
+            self.print_lines()
+
+    def _report(self) -> None:
+        while not self._done.wait(self._interval_s):
+            self.print_lines()
+
+    def print_lines(self) -> None:
+        """Print one line per task: description, done of total, elapsed seconds."""
+        for task in self.tasks:
+            total = "" if task.total is None else f"/{task.total:g}"
+            self.console.print(
+                f"{task.description}: {task.completed:g}{total} ({task.elapsed or 0:.0f} s)",
+                highlight=False,
+                soft_wrap=True,
+            )
+
+
+def progress(console: Console, *columns: str | ProgressColumn) -> Progress:
+    """Return a progress display: rich's bar on a terminal, else a :class:`PlainProgress`."""
+    if console.is_terminal:
+        return Progress(*columns, console=console, transient=False)
+    return PlainProgress(console)
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -387,15 +462,18 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
 
 
 __all__ = [
+    "PROGRESS_INTERVAL_S",
     "Argument",
     "CliError",
     "Command",
+    "PlainProgress",
     "Registry",
     "arg",
     "build_parser",
     "check_new_file",
     "numbered_directory",
     "one_line",
+    "progress",
     "publish_directory",
     "publish_file",
     "refuse_existing",

@@ -47,7 +47,7 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
-from schemas import cli
+from schemas import cli, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -80,6 +80,25 @@ def _dataset(path: Path | None, workers: int) -> Path:
     bar, update = _progress("recording the default simulated dataset")
     with bar:
         return ensure_default_dataset(workers=workers, on_progress=update)
+
+
+def _check_names_early(root: Path, args: argparse.Namespace) -> None:
+    """Check ``--new``, ``--priors`` and ``--actions`` against the dataset's file layout.
+
+    ``<root>/<object>/<action>/<trial>.mcap`` names the objects and actions before any
+    feature is extracted; the feature table is checked again after (a recording may be
+    quarantined).
+
+    Raises:
+        ReplayError: A name is not in the dataset.
+    """
+    parts = [p.relative_to(root).parts for p in dataset_recordings(root)]
+    objects = sorted({p[0] for p in parts if len(p) == 3})  # noqa: PLR2004 (the layout)
+    actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004
+    if objects:
+        _ = dataset_roles(root, objects, _ids(args.new), _ids(args.priors))
+    if actions and (chosen := _ids(getattr(args, "actions", None))):
+        _ = check_names("--actions", chosen, actions)
 
 
 def _features(root: Path, workers: int) -> FeatureTable:
@@ -312,6 +331,7 @@ def _learn_command(args: argparse.Namespace) -> int:
         _check_rig(args.rig)
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
+    _check_names_early(prior_root, args)
     table = _features(prior_root, workers)
     roles = dataset_roles(
         prior_root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)
@@ -485,6 +505,7 @@ def _study_command(args: argparse.Namespace) -> int:
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
     workers = cli.worker_count(args.workers)
     root = _dataset(args.recordings, workers)
+    _check_names_early(root, args)
     table = _features(root, workers)
     roles = dataset_roles(
         root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)

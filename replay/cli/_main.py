@@ -223,14 +223,16 @@ def _recover(path: Path, out: Path | None) -> int:
 
 
 def progress_bar(console: Console) -> Progress:
-    """Return a rich progress bar (description, bar, done of total, elapsed) on ``console``."""
-    return Progress(
+    """Return a progress bar (description, bar, done of total, elapsed) on ``console``.
+
+    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`schemas.cli.progress`).
+    """
+    return cli.progress(
+        console,
         "[progress.description]{task.description}",
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
-        console=console,
-        disable=not console.is_terminal,
     )
 
 
