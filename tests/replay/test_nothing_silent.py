@@ -6,17 +6,15 @@ import io
 import shutil
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import pytest
 from rich.console import Console
 
 from recorder._cli import main as record
 from replay.cli._main import main as replay
+from replay.studies._studies import QUICK_REFERENCE_SAMPLES, REFERENCE_SAMPLES, StudyConfig
 from schemas import cli
 from schemas._cli import PlainProgress
-
-if TYPE_CHECKING:
-    import pytest
 
 ROOT = Path(__file__).parents[2]
 DATA = ROOT / "recordings" / "data"
@@ -88,3 +86,24 @@ def test_view_without_a_display_says_save_or_serve(
     assert "no display to open the viewer on" in err
     assert "--save FILE.rrd" in err
     assert "--serve" in err
+
+
+def test_quick_reduces_the_serial_hyperparameter_fit(tmp_path: Path) -> None:
+    config = StudyConfig(out=tmp_path).quick()
+    assert config.reference_samples == QUICK_REFERENCE_SAMPLES < REFERENCE_SAMPLES
+    assert StudyConfig(out=tmp_path).reference_samples == REFERENCE_SAMPLES
+
+
+@pytest.mark.parametrize("program", ["record", "replay"])
+def test_an_over_long_path_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], program: str
+) -> None:
+    long = tmp_path / "/".join(["a" * 200] * 25)  # 5000 characters
+    if program == "record":
+        argv = ["dataset", "--out", str(long), "--objects", "wood", "--actions", "P1"]
+        assert record([*argv, "--trials", "1", "--workers", "1"]) == 1
+    else:
+        assert replay(["check", str(long / "x.mcap")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err[-500:]
+    assert "give a shorter path" in err or "File name too long" in err
