@@ -242,9 +242,10 @@ def _check_all(files: Sequence[Path], workers: int) -> list[str]:
     task = bar.add_task("checking", total=len(files))
     problems: list[str] = []
     with bar:
-        results = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)), return_as="generator")(
-            joblib.delayed(_check_one)(file) for file in files
-        )
+        with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
+            results = joblib.Parallel(
+                n_jobs=min(workers, max(len(files), 1)), return_as="generator"
+            )(joblib.delayed(_check_one)(file) for file in files)
         for problem in results:
             bar.advance(task)
             if problem is not None:
