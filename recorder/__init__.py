@@ -20,8 +20,16 @@ from recorder._dataset import (
 )
 from recorder._rig import Rig
 from recorder._rigconfig import (
+    ENTRY_POINT_GROUP,
+    SIM_RIG,
+    ConfiguredRig,
+    FrozenTable,
     RigConfig,
+    RigPlugin,
+    find_rig,
+    is_exclusive,
     load_rig_config,
+    refuse_sections,
     register_rig,
     rig_factory,
     rig_names,
@@ -30,6 +38,7 @@ from recorder.bagimport._importer import import_bag
 from recorder.bagimport._report import ImportReport
 from recorder.bagimport._topicmap import TopicMap, load_topic_map
 from recorder.errors import (
+    ActionStoppedError,
     BagImportError,
     CatalogError,
     OutputExistsError,
@@ -55,6 +64,7 @@ from schemas import software_version
 
 if TYPE_CHECKING:
     from recorder._sim import SimConfig, SimulatedRig
+    from recorder._sim.rig import SIMULATOR_VERSION
 
 
 def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
@@ -63,15 +73,25 @@ def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
         from recorder import _sim  # noqa: PLC0415
 
         return getattr(_sim, name)
+    if name == "SIMULATOR_VERSION":
+        from recorder._sim import rig  # noqa: PLC0415
+
+        return rig.SIMULATOR_VERSION
     msg = f"module 'recorder' has no attribute {name!r}"
     raise AttributeError(msg)
 
 
 __all__ = [
+    "ENTRY_POINT_GROUP",
+    "SIMULATOR_VERSION",
+    "SIM_RIG",
     "ActionKind",
     "ActionSpec",
+    "ActionStoppedError",
     "BagImportError",
     "CatalogError",
+    "ConfiguredRig",
+    "FrozenTable",
     "ImportReport",
     "JointSample",
     "Modality",
@@ -88,6 +108,7 @@ __all__ = [
     "Rig",
     "RigConfig",
     "RigError",
+    "RigPlugin",
     "SimConfig",
     "SimulatedRig",
     "SkinBlock",
@@ -95,8 +116,10 @@ __all__ = [
     "TopicMap",
     "WrittenRecording",
     "declare_objects",
+    "find_rig",
     "generate_dataset",
     "import_bag",
+    "is_exclusive",
     "load_actions",
     "load_objects",
     "load_rig_config",
@@ -104,6 +127,7 @@ __all__ = [
     "plan_dataset",
     "record_action",
     "recording_path",
+    "refuse_sections",
     "register_rig",
     "rig_factory",
     "rig_names",

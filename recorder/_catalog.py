@@ -9,7 +9,7 @@ from importlib import resources
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 from recorder.errors import CatalogError
-from schemas import VOCABULARY, load_toml, loads_toml
+from schemas import VOCABULARY, ContractError, check_id, load_toml, loads_toml
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -59,6 +59,19 @@ def _kind(value: object) -> ActionKind:
     return str(value)
 
 
+def _catalog_id(name: str, what: str, value: str) -> str:
+    """Return a catalog key if it follows the id rule (it names a directory of datasets).
+
+    Raises:
+        CatalogError: It does not; the message names the file, the id and the rule.
+    """
+    try:
+        return check_id(what, value)
+    except ContractError as err:
+        msg = f"{name}: {err}; rename the entry"
+        raise CatalogError(msg) from err
+
+
 def read_toml(path: Path | None, default_name: str) -> tuple[str, dict[str, Any]]:
     """Read a catalog file, the packaged default when ``path`` is None.
 
@@ -96,6 +109,7 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
     name, table = read_toml(path, "actions.toml")
     actions: dict[str, ActionSpec] = {}
     for action_id, entry in table.items():
+        _catalog_id(name, "action", action_id)
         try:
             actions[action_id] = ActionSpec(
                 id=action_id,
@@ -345,6 +359,7 @@ def load_objects(path: Path | None = None) -> dict[str, ObjectSpec]:
     name, table = read_toml(path, "objects.toml")
     objects: dict[str, ObjectSpec] = {}
     for object_id, entry in table.items():
+        _catalog_id(name, "object", object_id)
         try:
             objects[object_id] = _object_from_entry(object_id, dict(entry))
         except (KeyError, ValueError, TypeError, AttributeError) as err:

@@ -36,7 +36,13 @@ from recorder._dataset import (
     recordings,
     write_index,
 )
-from recorder._rigconfig import RigFactory, load_rig_config, rig_factory, rig_names
+from recorder._rigconfig import (
+    RigFactory,
+    is_exclusive,
+    load_rig_config,
+    rig_factory,
+    rig_names,
+)
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
 from schemas import SET_ASIDE_DIR, ContractError, cli, software_version
@@ -50,7 +56,11 @@ if TYPE_CHECKING:
 PROG = "atikt-record"
 DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
-COMMAND_MODULES: tuple[str, ...] = ("recorder.bagimport._command",)
+COMMAND_MODULES: tuple[str, ...] = (
+    "recorder.bagimport._command",
+    "recorder.bagimport._listen",
+    "recorder._session",
+)
 
 
 REGISTRY = cli.Registry()
@@ -90,6 +100,20 @@ def _rig_arguments() -> tuple[cli.Argument, ...]:
     )
 
 
+def refuse_overlap(args: argparse.Namespace, *more: tuple[str, Path | None]) -> None:
+    """Refuse an ``--out`` that equals, contains or lies inside an input (catalogs, rig file).
+
+    Raises:
+        schemas.cli.CliError: It does; the message names the input.
+    """
+    named = [
+        ("--objects-catalog", args.objects_catalog),
+        ("--actions-catalog", args.actions_catalog),
+        ("--rig-config", getattr(args, "rig_config", None)),
+    ]
+    cli.refuse_overlap(args.out, [*named, *more])
+
+
 def _rig(args: argparse.Namespace) -> RigFactory:
     """Return the factory of the rig the options configure."""
     config = load_rig_config(args.rig_config, args.rig, args.rig_option)
@@ -111,6 +135,7 @@ def _action(args: argparse.Namespace) -> int:
     if args.trial < 1:
         msg = f"--trial {args.trial}: trials are numbered from 1"
         raise RecorderError(msg)
+    refuse_overlap(args)
     objects = load_objects(args.objects_catalog)
     actions = load_actions(args.actions_catalog)
     (task,) = plan_dataset(
@@ -171,6 +196,7 @@ def _report(console: Console, report: DatasetReport) -> None:
     *_CATALOGS,
 )
 def _dataset(args: argparse.Namespace) -> int:
+    refuse_overlap(args)
     tasks = plan_dataset(
         load_objects(args.objects_catalog),
         load_actions(args.actions_catalog),
@@ -180,6 +206,9 @@ def _dataset(args: argparse.Namespace) -> int:
     )
     factory = _rig(args)
     console = Console(stderr=True)
+    if is_exclusive(factory) and (args.workers or 1) > 1:
+        note = f"{PROG}: rig {factory.config.name} is exclusive hardware: one action at a time"
+        print(f"{note} in this process (--workers {args.workers} not used)", file=sys.stderr)  # noqa: T201
     with _progress(console) as progress:
         bar = progress.add_task("recording", total=len(tasks))
 

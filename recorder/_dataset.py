@@ -17,10 +17,8 @@ import contextlib
 import enum
 import hashlib
 import io
-import json
 import os
 import re
-import secrets
 import struct
 import threading
 import time
@@ -29,13 +27,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cloudpickle
 import joblib
 import polars as pl
+import tomli_w
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
-from recorder._rigconfig import register_rig, rig_factory, rig_names
+from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
@@ -45,12 +45,15 @@ from schemas import (
     VOCABULARY,
     ContractError,
     RecordingMetadata,
+    atomic_write,
+    check_id,
     check_rig,
     cli,
     dataset_recordings,
     loads_toml,
     parse_metadata,
 )
+from schemas import recording_path as schemas_recording_path
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -65,8 +68,16 @@ __all__ = ["INDEX_NAME", "register_rig", "rig_factory", "rig_names"]
 
 
 def recording_path(root: Path, object_id: str, action_id: str, trial: int) -> Path:
-    """Return where a dataset keeps trial ``trial`` of ``action_id`` on ``object_id``."""
-    return Path(root) / object_id / action_id / f"{trial:03d}.mcap"
+    """Return where a dataset keeps trial ``trial`` of ``action_id`` on ``object_id``.
+
+    Raises:
+        RecorderError: An id breaks the id rule or the path would lie outside ``root``.
+    """
+    try:
+        return schemas_recording_path(root, object_id, action_id, trial)
+    except ContractError as err:
+        msg = f"{root}: {err}"
+        raise RecorderError(msg) from err
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,6 +216,26 @@ def run_task(
     return TaskResult(task, TaskStatus.WRITTEN, written.size_bytes)
 
 
+def check_sendable(factory: RigFactory) -> None:
+    """Refuse, before any worker starts, a rig factory that cannot be sent to workers.
+
+    joblib's process pool (loky) sends tasks with cloudpickle, so the check uses it too.
+
+    Raises:
+        RecorderError: The factory does not pickle; the message names it and the fix.
+    """
+    try:
+        cloudpickle.dumps(factory)
+    except Exception as err:  # pickling a user's object may raise anything
+        name = factory.config.name if isinstance(factory, ConfiguredRig) else repr(factory)
+        msg = (
+            f"rig {name}: its builder cannot be sent to worker processes "
+            f"({type(err).__name__}: {err}); define the rig's builder at the top level of an "
+            "importable module, or record with --workers 1"
+        )
+        raise RecorderError(msg) from err
+
+
 @dataclass(frozen=True, slots=True)
 class DatasetReport:
     """Summary of a dataset run.
@@ -244,21 +275,24 @@ def generate_dataset(
         root: Dataset directory (created if needed).
         factory: Makes a rig from the seed; called once per task, in the worker.
         seed: Dataset seed, given to every rig and written to every file.
-        workers: Worker processes; all cores when None.
+        workers: Worker processes; all cores when None. An exclusive rig (see
+            :func:`recorder.is_exclusive`) records one action at a time in this process,
+            whatever ``workers`` says.
         on_result: Called in the parent for every finished task (progress display).
 
     Returns:
         What was written and skipped, and the index.
 
     Raises:
-        RecorderError: ``root`` holds recordings of another seed or rig configuration, or a
-            task failed: no new task starts, those running finish, and every recording
-            finished is kept.
+        RecorderError: ``root`` holds recordings of another seed or rig configuration, the
+            rig cannot be sent to worker processes, or a task failed: no new task starts,
+            those running finish, and every recording finished is kept.
     """
-    root = Path(root)
+    root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
     set_aside = set_aside_stale_parts(root)
     before = set(incomplete_files(root))
+    n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
     notify = on_result or (lambda _result: None)
     pending = []
     for task in tasks:
@@ -270,10 +304,11 @@ def generate_dataset(
     skipped = len(tasks) - len(pending)
     failed: list[TaskResult] = []
     parent = os.getpid()
+    if n_jobs > 1 and pending:
+        check_sendable(factory)
     with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
-        results = joblib.Parallel(
-            n_jobs=workers or os.cpu_count() or 1, return_as="generator_unordered"
-        )(  # tasks are handed out lazily: after a failure, none starts
+        # tasks are handed out lazily: after a failure, none starts
+        results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
             joblib.delayed(run_task)(task, root, factory, seed, parent)
             for task in pending
             if not failed
@@ -450,9 +485,23 @@ def index_row(root: Path, path: Path) -> dict[str, Any]:
 OBJECTS_FILE = "objects.toml"
 
 
-def _toml_text(value: str) -> str:
-    """Return a TOML basic string (JSON's escapes are TOML's for these characters)."""
-    return json.dumps(value, ensure_ascii=False)
+_OBJECTS_HEADER = b"# Objects of this dataset; novel = true: new by default.\n"
+
+
+def objects_toml(objects: Iterable[ObjectSpec]) -> bytes:
+    """Return the ``objects.toml`` declarations of ``objects`` (sorted by id).
+
+    Written by a TOML writer (tomli-w: keys quoted where TOML needs it, so ids such as
+    ``oak+1`` or ``oak.v2`` stay one key), never by string formatting.
+
+    Raises:
+        ContractError: An id breaks the id rule.
+    """
+    table = {
+        check_id("object", o.id): {"name": o.name, "description": o.description, "novel": o.novel}
+        for o in sorted(objects, key=lambda o: o.id)
+    }
+    return _OBJECTS_HEADER + tomli_w.dumps(table).encode("utf-8")
 
 
 def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
@@ -468,20 +517,14 @@ def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
     try:
         text = path.read_text("utf-8") if path.exists() else ""
         declared = loads_toml(text)
-        new = [o for o in objects if o.id not in declared]
+        new = {o.id: o for o in objects if o.id not in declared}
         if not new:
             return path
-        entries = [
-            f"[{o.id}]\nname = {_toml_text(o.name)}\ndescription = {_toml_text(o.description)}\n"
-            f"novel = {'true' if o.novel else 'false'}\n"
-            for o in sorted({o.id: o for o in new}.values(), key=lambda o: o.id)
-        ]
-        header = "# Objects of this dataset; novel = true: new by default.\n"
-        body = "\n".join([text.rstrip("\n"), *entries] if text else [header, *entries])
-        temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        temporary.write_text(body, "utf-8")
-        temporary.replace(path)
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        body = objects_toml(new.values())
+        if text:  # appended below the existing declarations, which stay as they are
+            body = text.rstrip("\n").encode("utf-8") + b"\n\n" + body[len(_OBJECTS_HEADER) :]
+        atomic_write(path, lambda stream: stream.write(body))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, ContractError) as err:
         msg = f"{path}: cannot update the object declarations ({err}); fix or delete the file"
         raise RecorderError(msg) from err
     return path
@@ -596,17 +639,13 @@ def write_index(root: Path) -> Path:
     """
     root = Path(root)
     target = root / INDEX_NAME
-    temporary = root / f".{INDEX_NAME}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
     try:
         root.mkdir(parents=True, exist_ok=True)
         with _index_lock(root):  # the last writer lists every file linked before it
-            frame = build_index(root)
-            _check_one_seed(root, frame)
-            frame.write_parquet(temporary)
-            temporary.replace(target)
+            index = build_index(root)
+            _check_one_seed(root, index)
+            atomic_write(target, index.write_parquet)
     except (OSError, pl.exceptions.PolarsError) as err:
-        with contextlib.suppress(OSError):
-            temporary.unlink(missing_ok=True)
         reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
         msg = (
             f"{target}: cannot write the index ({reason}); check free space and that "

@@ -5,13 +5,27 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
+from schemas._atomic import (
+    atomic_file,
+    atomic_path,
+    atomic_write,
+    atomic_write_text,
+    create_exclusive,
+    publish_temporary,
+    temporary_name,
+)
 from schemas._layout import (
+    INCOMPLETE_RECORD,
+    INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
     SET_ASIDE_DIR,
+    check_inside,
     dataset_recordings,
+    is_incomplete,
     is_recording,
+    recording_path,
 )
 from schemas._metadata import (
     MAX_SEED,
@@ -25,6 +39,12 @@ from schemas._metadata import (
     software_version,
 )
 from schemas._parquet import ParquetMismatchError, read_checked_parquet, rows_allowed
+from schemas._sources import (
+    SOURCES_RECORD,
+    SourceStats,
+    encode_source_stats,
+    parse_source_stats,
+)
 from schemas._toml import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, load_toml, loads_toml
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
@@ -51,6 +71,8 @@ from schemas.errors import ContractError
 __all__ = [
     "CHANNELS",
     "CUSTOM_TYPES",
+    "INCOMPLETE_RECORD",
+    "INCOMPLETE_SUFFIX",
     "MAX_SEED",
     "MAX_TOML_BYTES",
     "MAX_TOML_DEPTH",
@@ -62,6 +84,7 @@ __all__ = [
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
     "SET_ASIDE_DIR",
+    "SOURCES_RECORD",
     "VOCABULARY",
     "Channel",
     "ChannelSpec",
@@ -73,23 +96,36 @@ __all__ = [
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
+    "SourceStats",
     "TomlLimitError",
     "Vocabulary",
+    "atomic_file",
+    "atomic_path",
+    "atomic_write",
+    "atomic_write_text",
     "build_typestore",
     "channel_for_topic",
     "check_id",
+    "check_inside",
     "check_parameters",
     "check_rig",
     "cli",
+    "create_exclusive",
     "dataset_recordings",
+    "encode_source_stats",
     "full_type_name",
+    "is_incomplete",
     "is_recording",
     "load_toml",
     "loads_toml",
     "msg_definition",
     "parse_metadata",
+    "parse_source_stats",
     "parse_vocabulary",
+    "publish_temporary",
     "read_checked_parquet",
+    "recording_path",
     "rows_allowed",
     "software_version",
+    "temporary_name",
 ]

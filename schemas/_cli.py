@@ -22,7 +22,6 @@ import argparse
 import contextlib
 import errno
 import os
-import secrets
 import shutil
 import signal
 import sys
@@ -32,8 +31,10 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from rich.progress import Progress, ProgressColumn
 
+from schemas._atomic import create_exclusive, temporary_name
+
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Sequence
+    from collections.abc import Callable, Iterable, Iterator, Sequence
     from pathlib import Path
     from types import TracebackType
 
@@ -375,6 +376,51 @@ def refuse_existing(path: Path, *, force: bool, option: str = "--out") -> None:
         raise CliError(msg)
 
 
+def _within(inner: Path, outer: Path) -> bool:
+    """Return True if resolved ``inner`` is ``outer`` or lies below it."""
+    return inner == outer or outer in inner.parents
+
+
+def refuse_overlap(
+    out: Path, inputs: Iterable[tuple[str, Path | None]], *, option: str = "--out"
+) -> None:
+    """Refuse an output that equals, contains or lies inside one of the command's inputs.
+
+    Called by every command that writes (``--out``, ``--save``) before anything is written,
+    with or without ``--force``: replacing an output must never delete or replace an input
+    (a dataset, a recording being viewed, a catalog, a topic map, a session). Paths are
+    compared resolved, so a link to an input is the input.
+
+    Args:
+        out: The output path (file or directory; it need not exist).
+        inputs: ``(what, path)`` pairs naming each input for the message; None is skipped.
+        option: The option that named ``out``.
+
+    Raises:
+        CliError: ``out`` equals, contains or lies inside an input.
+    """
+    target = out.resolve()
+    for what, given in inputs:
+        if given is None:
+            continue
+        source = given.resolve()
+        how = (
+            "is"
+            if target == source
+            else "contains"
+            if _within(source, target)
+            else "lies inside"
+            if _within(target, source)
+            else None
+        )
+        if how is not None:
+            msg = (
+                f"{option} {out}: {how} the {what} {given}, an input of this command; "
+                f"inputs are never replaced or written into: give an {option} outside it"
+            )
+            raise CliError(msg)
+
+
 def check_new_file(path: Path, *, force: bool, option: str = "--out") -> None:
     """Refuse an existing file (or a directory) at ``path`` unless ``force`` (and a file).
 
@@ -388,8 +434,8 @@ def check_new_file(path: Path, *, force: bool, option: str = "--out") -> None:
 
 
 def _temporary_sibling(target: Path, what: str) -> Path:
-    """Return an unused hidden name beside ``target``."""
-    return target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.{what}")
+    """Return an unpredictable hidden name beside ``target`` (created exclusively by callers)."""
+    return temporary_name(target, what)
 
 
 def _swap_in(temporary: Path, target: Path) -> None:
@@ -449,9 +495,10 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
         CliError: ``target`` exists and ``force`` is False, or it cannot be written.
     """
     check_new_file(target, force=force, option=option)
-    temporary = _temporary_sibling(target, f"tmp{target.suffix}")
+    temporary = temporary_name(target, f"tmp{target.suffix}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
+        create_exclusive(temporary).close()  # never a link planted at the name
         yield temporary
         temporary.replace(target)
     except OSError as err:
@@ -477,6 +524,7 @@ __all__ = [
     "publish_directory",
     "publish_file",
     "refuse_existing",
+    "refuse_overlap",
     "run",
     "seed",
     "worker_count",

@@ -7,6 +7,7 @@ channels, with a short last block per channel so uneven blocks are exercised.
 
 from __future__ import annotations
 
+import os
 import zlib
 from typing import TYPE_CHECKING, Self
 
@@ -36,6 +37,17 @@ if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
     from pathlib import Path
     from types import TracebackType
+
+#: Cyclone DDS restricted to the loopback interface, no multicast, one peer: 127.0.0.1. Set
+#: when pytest loads this file, before any test imports ``cyclonedds`` (which reads it when
+#: the first participant is created); ``dds_domain`` checks it is still in force.
+LOOPBACK_URI = (
+    '<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
+    '<Peer address="127.0.0.1"/></Peers><ParticipantIndex>auto</ParticipantIndex>'
+    "</Discovery></Domain></CycloneDDS>"
+)
+os.environ["CYCLONEDDS_URI"] = LOOPBACK_URI
 
 NS = 1_000_000_000
 _CHANNELS_PER_CELL = {
@@ -189,3 +201,10 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     generate_dataset(tasks, root, rig_factory("sim"), seed=0, workers=1)
     return root
+
+
+@pytest.fixture(scope="session")
+def dds_domain() -> int:
+    """Return this run's DDS domain id (from the process id: parallel runs do not meet)."""
+    assert os.environ["CYCLONEDDS_URI"] == LOOPBACK_URI
+    return 1 + os.getpid() % 200

@@ -11,7 +11,7 @@ from rich.table import Table
 from rich.text import Text
 
 from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, arg, command
+from recorder._cli import _CATALOGS, arg, command, refuse_overlap
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
@@ -92,6 +92,8 @@ def _import_bag(args: argparse.Namespace) -> int:
     if args.topic_map is None or args.out is None:
         msg = f"--topic-map and --out are required (start from recorder/data/{EXAMPLE})"
         raise BagImportError(msg)
+    bags_named: list[tuple[str, Path | None]] = [("bag", bag) for bag in bags]
+    refuse_overlap(args, *bags_named, ("--topic-map", args.topic_map), ("--windows", args.windows))
     topic_map = load_topic_map(args.topic_map)
     if args.windows is not None:
         topic_map = topic_map.with_csv(args.windows)

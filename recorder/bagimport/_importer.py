@@ -60,14 +60,16 @@ from recorder.writing._writer import RecordingInfo, RecordingWriter
 from schemas import SCHEMA_VERSION, VOCABULARY, RecordingMetadata, check_rig, software_version
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping, Sequence
+    from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
 
     from recorder._catalog import ActionSpec
     from recorder.bagimport._source import Extractor
     from recorder.bagimport._topicmap import TopicMap
+    from recorder.live._accounting import SourceStats
     from recorder.writing._stream import StreamItem
 
 #: Samples kept around a window: the skin's last sample before it, and alignment neighbours.
@@ -148,6 +150,34 @@ def _check_action(window: Window, action: LabAction, topic_map: TopicMap) -> Non
         raise BagImportError(msg)
 
 
+def lab_catalogs(
+    objects: Mapping[str, ObjectSpec], actions: Mapping[str, ActionSpec]
+) -> tuple[dict[str, LabObject], dict[str, LabAction]]:
+    """Return the catalogs' objects and actions as the map declares its own."""
+    return (
+        {k: _lab_object(v) for k, v in objects.items()},
+        {k: _lab_action(v) for k, v in actions.items()},
+    )
+
+
+def plan_window(
+    planned: tuple[Window, int, Path],
+    topic_map: TopicMap,
+    catalogs: tuple[Mapping[str, LabObject], Mapping[str, LabAction]],
+) -> _Plan:
+    """Resolve a window's object and action and check it (``planned``: from ``plan_paths``).
+
+    Raises:
+        BagImportError: Unknown object or action, or a window the reader would refuse.
+    """
+    window, trial, path = planned
+    where = window.describe()
+    obj = _entry("object", window.object_id, topic_map.objects, catalogs[0], where)
+    action = _entry("action", window.action_id, topic_map.actions, catalogs[1], where)
+    _check_action(window, action, topic_map)
+    return _Plan(window, trial, path, obj, action)
+
+
 def _plans(
     windows: Sequence[Window],
     topic_map: TopicMap,
@@ -156,16 +186,11 @@ def _plans(
     actions: Mapping[str, ActionSpec],
 ) -> list[_Plan]:
     """Resolve every window's object and action, check it, and give it a path."""
-    catalog_objects = {k: _lab_object(v) for k, v in objects.items()}
-    catalog_actions = {k: _lab_action(v) for k, v in actions.items()}
-    plans = []
-    for window, trial, path in plan_paths(check_no_overlap(windows), out):
-        where = window.describe()
-        obj = _entry("object", window.object_id, topic_map.objects, catalog_objects, where)
-        action = _entry("action", window.action_id, topic_map.actions, catalog_actions, where)
-        _check_action(window, action, topic_map)
-        plans.append(_Plan(window, trial, path, obj, action))
-    return plans
+    catalogs = lab_catalogs(objects, actions)
+    return [
+        plan_window(planned, topic_map, catalogs)
+        for planned in plan_paths(check_no_overlap(windows), out)
+    ]
 
 
 # -------------------------------------------------------------------------------- windows
@@ -318,6 +343,11 @@ class _Session:
     his: list[int] = field(default_factory=list)
     closed_ns: int = -(2**63)
     version: str = ""
+    #: Live (``listen``): windows are added as their annotations arrive, every message is
+    #: kept until :meth:`trim`, and a sample of a written window is counted, not refused.
+    live: bool = False
+    #: Returns the per-source accounting written into a window's file (live recordings).
+    sources: Callable[[_Plan], Sequence[SourceStats]] | None = None
 
     def __post_init__(self) -> None:
         """Index the windows' reach ``[start - margin, stop + margin)``; read the version."""
@@ -325,12 +355,33 @@ class _Session:
         self.los = [p.window.start_ns - MARGIN_NS for p in self.plans]
         self.his = [p.window.stop_ns + MARGIN_NS for p in self.plans]
 
+    def add(self, plan: _Plan) -> None:
+        """Add a window that follows every window known (live: its ``end`` arrived)."""
+        self.plans.append(plan)
+        self.los.append(plan.window.start_ns - MARGIN_NS)
+        self.his.append(plan.window.stop_ns + MARGIN_NS)
+
+    def trim(self, before_ns: int) -> int:
+        """Forget messages stamped before ``before_ns`` that no window still to write needs.
+
+        Returns:
+            The stamp before which messages were forgotten.
+        """
+        if self.done < len(self.plans):
+            before_ns = min(before_ns, self.los[self.done])
+        for extractor in self.found.values():
+            extractor.forget(before_ns)
+        self.pending_bytes = 0
+        return before_ns
+
     def wanted(self, receive_ns: int) -> tuple[int, int, bool]:
         """Return whether a message received at ``receive_ns`` may hold a window's sample.
 
         Returns:
             ``(start, stop, wanted)``: receive times in ``[start, stop)`` share the answer.
         """
+        if self.live:
+            return -(2**63), 2**63, True
         delay, count = self.topic_map.max_delay_ns, len(self.plans)
         i = bisect.bisect_right(self.his, receive_ns - delay)
         if i < count and self.los[i] <= receive_ns + delay:
@@ -383,6 +434,10 @@ class _Session:
         first, last = stamp + reach[0], stamp + reach[1]
         j = bisect.bisect_right(self.his, first)
         if j < self.done and self.los[j] <= last:
+            if self.live:
+                topic = extractor.buffer.topic
+                self.report.late_samples[topic] = self.report.late_samples.get(topic, 0) + 1
+                return
             msg = (
                 f"topic {extractor.buffer.topic}: a sample stamped {stamp} ns arrived at "
                 f"{receive_ns} ns, after {self.plans[j].window.describe()} was written; raise "
@@ -403,7 +458,9 @@ class _Session:
         plan = self.plans[i]
         cells = _cells(self.found, self.topic_map, self.los[i], self.his[i])
         self.done, self.closed_ns, self.pending_bytes = i + 1, self.his[i], 0
-        forget = self.los[i + 1] if i + 1 < len(self.plans) else self.his[i]
+        # live: the next window is not known yet, but it cannot start before this one ends
+        last = plan.window.stop_ns - MARGIN_NS if self.live else self.his[i]
+        forget = self.los[i + 1] if i + 1 < len(self.plans) else last
         items, reason = _window_items(plan, cells, self.found, self.topic_map, self.report)
         for extractor in self.found.values():
             extractor.forget(forget)
@@ -438,23 +495,44 @@ class _Session:
         with RecordingWriter(plan.path, RecordingInfo(metadata, tuple(names))) as writer:
             for item in items:
                 writer.write(item)
+            if self.sources is not None:
+                writer.add_sources(self.sources(plan))
         self.report.written.append(plan.path)
         if self.on_written is not None:
             self.on_written(plan.path)
 
 
-def _decode(reader: AnyReader, connection: Connection, receive_ns: int, raw: bytes) -> Any:  # noqa: ANN401
+@dataclass(frozen=True, slots=True)
+class Route:
+    """How the messages of one bag connection (or one live topic) are read.
+
+    Attributes:
+        topic: The topic.
+        msgtype: Its message type.
+        extractor: Where its samples go.
+        deserialize: rosbags' ``(raw, msgtype) -> message`` for the bytes.
+        decode: The generated decoder of its stamp and fields (None: rosbags decodes).
+    """
+
+    topic: str
+    msgtype: str
+    extractor: Extractor
+    deserialize: Callable[[bytes, str], Any]
+    decode: Callable[[bytes], tuple[Any, ...] | None] | None = None
+
+
+def _decode(route: Route, receive_ns: int, raw: bytes) -> Any:  # noqa: ANN401
     """Return a decoded message.
 
     Raises:
-        BagImportError: The bytes do not decode as the connection's type.
+        BagImportError: The bytes do not decode as the route's type.
     """
     try:
-        return reader.deserialize(raw, connection.msgtype)
+        return route.deserialize(raw, route.msgtype)
     except READ_ERRORS as err:
         msg = (
-            f"topic {connection.topic}: the message at {receive_ns} ns does not decode as "
-            f"{connection.msgtype} ({err}); the bag is damaged or its definitions differ "
+            f"topic {route.topic}: the message at {receive_ns} ns does not decode as "
+            f"{route.msgtype} ({err}); the bag is damaged or its definitions differ "
             "(give the right ones under [types])"
         )
         raise BagImportError(msg) from err
@@ -497,36 +575,90 @@ class _Counts:
         return counts
 
 
-def _decoders(
-    reader: AnyReader, data: Sequence[Connection], found: Mapping[str, Extractor], clock: str
-) -> dict[int, Callable[[bytes], tuple[Any, ...] | None]]:
-    """Return id(connection) -> generated decoder for the skin and joint topics.
+def routes(
+    store: Typestore,
+    channels: Sequence[tuple[Hashable, str, str]],
+    found: Mapping[str, Extractor],
+    *,
+    clock: str,
+    deserialize: Callable[[bytes, str], Any],
+    ros1: bool = False,
+) -> dict[Hashable, Route]:
+    """Return key -> route of every channel ``(key, topic, msgtype)`` of a mapped topic.
 
-    A topic gets decoders only if every connection carrying it has the same layout; its
-    extractor then takes the decoded fields (``push_fields``).
+    Skin and joint topics get generated decoders only if every channel carrying the topic has
+    the same layout; its extractor then takes the decoded fields (``push_fields``).
     """
-    make = compile_cdr if reader.is2 else compile_ros1
-    out: dict[int, Callable[[bytes], tuple[Any, ...] | None]] = {}
+    make = compile_ros1 if ros1 else compile_cdr
+    out: dict[Hashable, Route] = {}
     for topic, extractor in found.items():
+        mine = [(key, msgtype) for key, name, msgtype in channels if name == topic]
         if isinstance(extractor, SkinTopic):
             fields = [spec.field for spec in extractor.fields]
         elif isinstance(extractor, JointTopic):
             fields = ["name", "position", "velocity", "effort"]
         else:
-            continue
-        mine = [c for c in data if c.topic == topic]
+            fields = []
         decoders = [
-            make(reader.typestore, c.msgtype, fields, stamped=clock == "header") for c in mine
+            make(store, msgtype, fields, stamped=clock == "header") if fields else None
+            for _, msgtype in mine
         ]
         first = decoders[0] if decoders else None
-        if first is None or any(d is None or d.key != first.key for d in decoders):
-            continue
-        if isinstance(extractor, SkinTopic):
-            extractor.dtypes = cast("tuple[np.dtype[Any], ...]", first.dtypes)
-        else:
-            extractor.dtypes = first.dtypes
-        out.update({id(c): d.decode for c, d in zip(mine, decoders, strict=True) if d})
+        usable = first is not None and all(d is not None and d.key == first.key for d in decoders)
+        if usable and first is not None:
+            if isinstance(extractor, SkinTopic):
+                extractor.dtypes = cast("tuple[np.dtype[Any], ...]", first.dtypes)
+            elif isinstance(extractor, JointTopic):
+                extractor.dtypes = first.dtypes
+        for (key, msgtype), decoder in zip(mine, decoders, strict=True):
+            decode = decoder.decode if usable and decoder is not None else None
+            out[key] = Route(topic, msgtype, extractor, deserialize, decode)
     return out
+
+
+def feed(messages: Iterable[tuple[Route, int, bytes]], session: _Session) -> None:
+    """Push messages (route, receive ns, raw bytes) into the session, writing windows it passes.
+
+    Skin and joint-state messages of a layout :mod:`~recorder.bagimport._fastdecode` reads are
+    not decoded by rosbags: their stamp and fields come from the bytes (a message it cannot
+    vouch for is decoded by rosbags, as every other message).
+    """
+    header = session.topic_map.stamps == "header"
+    clock = session.topic_map.stamps
+    close_at, (lo, hi, wanted) = session.close_at(), session.wanted(0)
+    closed_ns = session.closed_ns
+    for route, receive_ns, raw in messages:
+        if receive_ns >= close_at:
+            session.advance(receive_ns)
+            close_at, closed_ns = session.close_at(), session.closed_ns
+        if not lo <= receive_ns < hi:
+            lo, hi, wanted = session.wanted(receive_ns)
+        if not wanted:
+            continue
+        decode = route.decode
+        fields = decode(raw) if decode is not None else None
+        if fields is None:
+            message = _decode(route, receive_ns, raw)
+            stamp = stamp_of(message, route.topic, clock, receive_ns)
+            session.push(route.extractor, message, stamp, receive_ns, len(raw))
+            continue
+        extractor = route.extractor
+        stamp = fields[0] * _NS_PER_S + fields[1] if header else receive_ns
+        if stamp < closed_ns:
+            session.check_late(extractor, stamp, receive_ns)
+        extractor.push_fields(fields, stamp, receive_ns)  # type: ignore[union-attr]
+        session.grow(len(raw))
+
+
+def _ticked(
+    messages: Iterable[tuple[Connection, int, bytes]],
+    counts: _Counts,
+    by_connection: Mapping[Hashable, Route],
+) -> Iterator[tuple[Route, int, bytes]]:
+    """Yield a bag's messages with their routes, counting them per bag."""
+    for connection, receive_ns, raw in messages:
+        counts.tick(id(connection.owner))
+        yield by_connection[id(connection)], receive_ns, raw
 
 
 def _stream(
@@ -536,47 +668,23 @@ def _stream(
     on_progress: Callable[[str, int], Any] | None,
     on_start: Callable[[str, int], Any] | None = None,
 ) -> None:
-    """Read every mapped data message once, feeding and closing windows as the bag passes.
-
-    Skin and joint-state messages of a layout :mod:`~recorder.bagimport._fastdecode` reads are
-    not decoded by rosbags: their stamp and fields come from the bytes (a message it cannot
-    vouch for is decoded by rosbags, as every other message).
-    """
-    found, clock = session.found, session.topic_map.stamps
+    """Read every mapped data message once, feeding and closing windows as the bag passes."""
+    found = session.found
     owners = {id(c.owner): Path(str(getattr(c.owner, "path", "bag"))).name for c in connections}
     data = [c for c in connections if c.topic in found]
     if on_start is not None:
         for bag in dict.fromkeys(owners.values()):
             on_start(bag, sum(c.msgcount for c in data if owners[id(c.owner)] == bag))
     counts = _Counts(owners, on_progress)
-    decoders = _decoders(reader, data, found, clock)
-    by_connection = {id(c): found[c.topic] for c in data}
-    header = clock == "header"
-    close_at, (lo, hi, wanted) = session.close_at(), session.wanted(0)
-    closed_ns = session.closed_ns
-    for connection, receive_ns, raw in raw_messages(reader, data):
-        counts.tick(id(connection.owner))
-        if receive_ns >= close_at:
-            session.advance(receive_ns)
-            close_at, closed_ns = session.close_at(), session.closed_ns
-        if not lo <= receive_ns < hi:
-            lo, hi, wanted = session.wanted(receive_ns)
-        if not wanted:
-            continue
-        key = id(connection)
-        decode = decoders.get(key)
-        fields = decode(raw) if decode is not None else None
-        if fields is None:
-            message = _decode(reader, connection, receive_ns, raw)
-            stamp = stamp_of(message, connection.topic, clock, receive_ns)
-            session.push(by_connection[key], message, stamp, receive_ns, len(raw))
-            continue
-        extractor = by_connection[key]
-        stamp = fields[0] * _NS_PER_S + fields[1] if header else receive_ns
-        if stamp < closed_ns:
-            session.check_late(extractor, stamp, receive_ns)
-        extractor.push_fields(fields, stamp, receive_ns)  # type: ignore[union-attr]
-        session.grow(len(raw))
+    by_connection = routes(
+        reader.typestore,
+        [(id(c), c.topic, c.msgtype) for c in data],
+        found,
+        clock=session.topic_map.stamps,
+        deserialize=reader.deserialize,
+        ros1=not reader.is2,
+    )
+    feed(_ticked(raw_messages(reader, data), counts, by_connection), session)
     session.report.messages = counts.finish()
     while session.done < len(session.plans):
         session.finish_one()
@@ -624,6 +732,12 @@ def _run(
         plans = _plans(windows, topic_map, out, objects, actions)
         session = _Session(plans, topic_map, found, report.bags, report, on_written)
         _stream(reader, connections, session, on_progress, on_start)
+    tally(found, report)
+    return plans
+
+
+def tally(found: Mapping[str, Extractor], report: ImportReport) -> None:
+    """Add the extractors' repeated stamps to the report (after the last window)."""
     for name, kind in (("joint_states", JointTopic), ("tcp_pose", PoseTopic)):
         if repeated := [e.repeated for e in found.values() if isinstance(e, kind)]:
             report.dropped_samples[name] = report.dropped_samples.get(name, 0) + sum(repeated)
@@ -632,7 +746,6 @@ def _run(
             for spec in extractor.fields:
                 report.dropped_rows[spec.modality] = report.dropped_rows.get(spec.modality, 0)
             report.repeated_stamps += extractor.repeated
-    return plans
 
 
 def import_bag(

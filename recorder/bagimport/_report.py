@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from recorder.errors import BagImportError
+from schemas import atomic_write_text
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -101,6 +101,7 @@ class ImportReport:
         json_path: Where the report was written as JSON.
         already_imported: Bags skipped because ``out`` holds them already.
         repeated_stamps: Skin messages dropped because they repeat the previous stamp.
+        late_samples: Live: samples per topic that arrived after their window was written.
     """
 
     bags: Sequence[BagIdentity]
@@ -117,6 +118,7 @@ class ImportReport:
     json_path: Path | None = None
     already_imported: dict[str, str] = field(default_factory=dict)
     repeated_stamps: int = 0
+    late_samples: dict[str, int] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -146,6 +148,7 @@ class ImportReport:
             "max_cell_offset_ns": self.max_cell_offset_ns,
             "max_jitter_ns": self.max_jitter_ns,
             "repeated_skin_stamps": self.repeated_stamps,
+            **({"late_samples": self.late_samples} if self.late_samples else {}),
         }
 
     def save(self) -> Path:
@@ -156,13 +159,10 @@ class ImportReport:
         """
         combined = hashlib.sha256("".join(b.sha256 for b in self.bags).encode()).hexdigest()
         path = self.out / IMPORTS_DIR / f"{combined[:16]}.json"
+        text = json.dumps(self.to_json(), indent=2, sort_keys=True) + "\n"
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            with path.open("x", encoding="utf-8") as handle:
-                json.dump(self.to_json(), handle, indent=2, sort_keys=True)
-                handle.write("\n")
-                handle.flush()
-                os.fsync(handle.fileno())
+            atomic_write_text(path, text, replace=False)
         except OSError as err:
             msg = f"{path}: cannot write the import report ({err.strerror}); check --out"
             raise BagImportError(msg) from err

@@ -167,6 +167,57 @@ def parse_annotation(text: str, receive_ns: int, topic: str) -> tuple[_Key, str,
     return key, phase, stamp
 
 
+class AnnotationGrouper:
+    """Groups annotations into windows as they come: each window from its first phase to ``end``.
+
+    The import feeds a bag's annotations in stamp order; ``listen`` feeds them as they arrive.
+    """
+
+    def __init__(self, topic: str) -> None:
+        """Start with no open window."""
+        self.topic = topic
+        self._current: list[tuple[str, int]] = []
+        self._key: _Key | None = None
+
+    @property
+    def open_start_ns(self) -> int | None:
+        """Return the first stamp of the window being annotated (None: none is open)."""
+        return self._current[0][1] if self._current else None
+
+    def add(self, key: _Key, phase: str, stamp: int) -> Window | None:
+        """Add one parsed annotation; return the window it ends, if it is an ``end``.
+
+        Raises:
+            BagImportError: A phase of another action comes before this one's ``end``, or the
+                window's phases are wrong.
+        """
+        if self._key is not None and key != self._key:
+            msg = (
+                f"topic {self.topic}: at {stamp} ns a phase of {key[0]}/{key[1]} starts before "
+                f"the '{_PHASES[-1]}' of {self._key[0]}/{self._key[1]}; annotate an end for "
+                "every action"
+            )
+            self._current, self._key = [], None
+            raise BagImportError(msg)
+        self._key = key
+        self._current.append((phase, stamp))
+        if phase != _PHASES[-1]:
+            return None
+        events, self._current, self._key = tuple(self._current), [], None
+        return check_window(Window(*key, events, f"topic {self.topic}"))
+
+    def close(self) -> None:
+        """Refuse an action without its ``end``.
+
+        Raises:
+            BagImportError: A window is still open.
+        """
+        if self._key is not None:
+            what = f"{self._key[0]}/{self._key[1]}"
+            msg = f"topic {self.topic}: {what} has no '{_PHASES[-1]}' annotation"
+            raise BagImportError(msg)
+
+
 def windows_from_annotations(events: Iterable[tuple[str, int]], topic: str) -> list[Window]:
     """Group annotation texts (text, receive ns) into windows: first event to its ``end``.
 
@@ -174,24 +225,9 @@ def windows_from_annotations(events: Iterable[tuple[str, int]], topic: str) -> l
         BagImportError: An annotation is malformed, or actions overlap or lack an end.
     """
     parsed = sorted((parse_annotation(t, r, topic) for t, r in events), key=lambda e: e[2])
-    windows: list[Window] = []
-    current: list[tuple[str, int]] = []
-    current_key: _Key | None = None
-    for key, phase, stamp in parsed:
-        if current_key is not None and key != current_key:
-            msg = (
-                f"topic {topic}: at {stamp} ns a phase of {key[0]}/{key[1]} starts before the "
-                f"'end' of {current_key[0]}/{current_key[1]}; annotate an end for every action"
-            )
-            raise BagImportError(msg)
-        current_key = key
-        current.append((phase, stamp))
-        if phase == _PHASES[-1]:
-            windows.append(check_window(Window(*key, tuple(current), f"topic {topic}")))
-            current, current_key = [], None
-    if current_key is not None:
-        msg = f"topic {topic}: {current_key[0]}/{current_key[1]} has no '{_PHASES[-1]}' annotation"
-        raise BagImportError(msg)
+    grouper = AnnotationGrouper(topic)
+    windows = [w for key, phase, stamp in parsed if (w := grouper.add(key, phase, stamp))]
+    grouper.close()
     return windows
 
 
@@ -280,33 +316,49 @@ def _existing_trials(out: Path, object_id: str, action_id: str) -> int:
     return max((int(n) for n in names if n.isdigit()), default=0)
 
 
-def plan_paths(windows: Sequence[Window], out: Path) -> list[tuple[Window, int, Path]]:
-    """Give every window its trial number and output path.
+class PathPlanner:
+    """Gives windows trial numbers and output paths, one after the other.
 
     Windows without a trial continue after the highest trial in ``out`` (and in this import).
-
-    Raises:
-        BagImportError: A path exists already or two windows get the same path.
     """
-    used: dict[tuple[str, str], int] = {}
-    planned: list[tuple[Window, int, Path]] = []
-    seen: set[Path] = set()
-    for window in windows:
+
+    def __init__(self, out: Path) -> None:
+        """Plan into ``out``."""
+        self.out = out
+        self._used: dict[tuple[str, str], int] = {}
+        self._seen: set[Path] = set()
+
+    def plan(self, window: Window) -> tuple[Window, int, Path]:
+        """Return the window with its trial and path.
+
+        Raises:
+            BagImportError: The path exists already or another window got it.
+        """
+        used = self._used
         pair = (window.object_id, window.action_id)
         if pair not in used:
-            used[pair] = _existing_trials(out, *pair)
+            used[pair] = _existing_trials(self.out, *pair)
         trial = window.trial if window.trial is not None else used[pair] + 1
         if trial > MAX_TRIAL:
             msg = f"{window.describe()}: trial {trial} exceeds {MAX_TRIAL}; choose another --out"
             raise BagImportError(msg)
-        used[pair] = max(used[pair], trial)
-        path = recording_path(out, window.object_id, window.action_id, trial)
-        if path.exists() or path in seen:
+        path = recording_path(self.out, window.object_id, window.action_id, trial)
+        if path.exists() or path in self._seen:
             msg = (
                 f"{path}: {window.describe()} would overwrite a recording; recordings are never "
                 "overwritten: remove its trial number to number it on, or choose another --out"
             )
             raise BagImportError(msg)
-        seen.add(path)
-        planned.append((window, trial, path))
-    return planned
+        used[pair] = max(used[pair], trial)
+        self._seen.add(path)
+        return window, trial, path
+
+
+def plan_paths(windows: Sequence[Window], out: Path) -> list[tuple[Window, int, Path]]:
+    """Give every window its trial number and output path (see :class:`PathPlanner`).
+
+    Raises:
+        BagImportError: A path exists already or two windows get the same path.
+    """
+    planner = PathPlanner(out)
+    return [planner.plan(window) for window in windows]

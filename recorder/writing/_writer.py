@@ -25,16 +25,20 @@ from typing import IO, TYPE_CHECKING, Any, Self
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from recorder.errors import OutputExistsError, RecorderError
+from recorder.errors import ActionStoppedError, OutputExistsError, RecorderError
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 from schemas import (
+    INCOMPLETE_RECORD,
     MESSAGE_VERSION,
     PART_SUFFIX,
     SCHEMA_VERSION,
+    SOURCES_RECORD,
     VOCABULARY,
     RecordingMetadata,
+    SourceStats,
     build_typestore,
     check_rig,
+    encode_source_stats,
     software_version,
 )
 
@@ -112,6 +116,8 @@ class WrittenRecording:
         start_ns: First log time, ns.
         end_ns: Last log time, ns.
         size_bytes: File size in bytes.
+        incomplete: Why a stop ended the action early (empty: the recording is complete).
+        sources: The live sources' accounting written into the file (empty: none).
     """
 
     path: Path
@@ -119,6 +125,8 @@ class WrittenRecording:
     start_ns: int
     end_ns: int
     size_bytes: int
+    incomplete: str = ""
+    sources: tuple[SourceStats, ...] = ()
 
 
 def _time(store: Typestore, stamp_ns: int) -> Any:  # noqa: ANN401 (typestore message class)
@@ -346,6 +354,20 @@ def _temporary_path(final: Path) -> Path:
     return final.with_name(f"{stem}.{os.getpid()}-{secrets.token_hex(4)}{PART_SUFFIX}")
 
 
+def incomplete_path(final: Path, attempt: int = 1) -> Path:
+    """Return the name of an incomplete recording of ``final``.
+
+    ``001.incomplete.mcap``, then ``001.incomplete-2.mcap``, ... when the trial stopped again.
+    """
+    stem = final.name.removesuffix(".mcap")
+    suffix = "" if attempt == 1 else f"-{attempt}"
+    return final.with_name(f"{stem}.incomplete{suffix}.mcap")
+
+
+#: Most incomplete recordings kept of one trial (a rig that stops every time needs fixing).
+MAX_INCOMPLETE = 999
+
+
 def _open_exclusive(path: Path) -> IO[bytes]:
     """Create ``path`` for writing; fail if it exists (two recorders never share a file)."""
     return path.open("xb")
@@ -479,7 +501,38 @@ class RecordingWriter:
         self._last_flush_ns: int | None = None
         self._start_ns: int | None = None
         self._end_ns = 0
+        self._incomplete: tuple[str, int] | None = None
+        self._sources: tuple[SourceStats, ...] = ()
         self.result: WrittenRecording | None = None
+
+    def mark_incomplete(self, reason: str, at_ns: int = 0) -> None:
+        """Keep the file on a clean exit, but as incomplete: a stop ended the action early.
+
+        The file gets a metadata record ``atikt.incomplete`` (reason, time of the stop) and
+        the name ``<trial>.incomplete.mcap`` beside the final name, which stays free for the
+        action recorded again.
+        """
+        self._incomplete = (reason, at_ns)
+
+    def add_sources(self, stats: Sequence[SourceStats]) -> None:
+        """Write the live sources' accounting into the file (metadata record ``atikt.sources``).
+
+        Raises:
+            RecorderError: The writer is not open, a source name is invalid, or it failed.
+        """
+        if self._writer is None:
+            msg = f"{self.path}: add_sources() outside the writer's 'with' block"
+            raise RecorderError(msg)
+        try:
+            record = encode_source_stats(stats)
+        except ValueError as err:
+            msg = f"{self.path}: {err}"
+            raise RecorderError(msg) from err
+        try:
+            self._writer.add_metadata(SOURCES_RECORD, record)
+        except OSError as err:
+            raise _write_error(self.path, err) from err
+        self._sources = tuple(stats)
 
     def __enter__(self) -> Self:
         """Create the temporary file and write the header, schemas, channels and metadata.
@@ -582,11 +635,15 @@ class RecordingWriter:
         if self._writer is None or self._stream is None or self._temporary is None:
             return
         try:
+            if self._incomplete is not None:
+                reason, at_ns = self._incomplete
+                record = {"reason": reason, "stopped_ns": str(at_ns)}
+                self._writer.add_metadata(INCOMPLETE_RECORD, record)
             self._writer.finish()  # type: ignore[no-untyped-call]
             self._stream.flush()
             os.fsync(self._stream.fileno())
             self._stream.close()
-            _link_no_replace(self._temporary, self.path)
+            final = self._publish(self._temporary)
             _sync_directory(self.path.parent)
         except BaseException as err:
             self._discard()
@@ -594,13 +651,29 @@ class RecordingWriter:
                 raise _write_error(self.path, err) from err
             raise
         self.result = WrittenRecording(
-            path=self.path,
+            path=final,
             message_counts=dict(self._sequences),
             start_ns=self._start_ns or 0,
             end_ns=self._end_ns,
-            size_bytes=self.path.stat().st_size,
+            size_bytes=final.stat().st_size,
+            incomplete=self._incomplete[0] if self._incomplete else "",
+            sources=self._sources,
         )
         self._writer = None
+
+    def _publish(self, temporary: Path) -> Path:
+        """Link the finished file to its final name (an incomplete one to a free variant)."""
+        if self._incomplete is None:
+            _link_no_replace(temporary, self.path)
+            return self.path
+        for attempt in range(1, MAX_INCOMPLETE + 1):
+            target = incomplete_path(self.path, attempt)
+            try:
+                _link_no_replace(temporary, target)
+            except OutputExistsError:
+                continue
+            return target
+        raise _exists_error(incomplete_path(self.path, MAX_INCOMPLETE))
 
     def _discard(self) -> None:
         """Close and delete the temporary file (whatever closing it says: the disk may be full)."""
@@ -640,13 +713,30 @@ def record_action(
 
     Raises:
         OutputExistsError: ``path`` exists.
+        ActionStoppedError: A stop ended the action early; what arrived is kept in the
+            incomplete file the error names (``<trial>.incomplete.mcap``).
         RecorderError: The rig or the file failed; no file is left under ``path``.
     """
     info = RecordingInfo.create(obj, action, trial, rig, seed)
+    stopped: ActionStoppedError | None = None
     with RecordingWriter(path, info) as writer:
-        for item in rig.perform(obj, action, trial):
-            writer.write(item)
+        try:
+            for item in rig.perform(obj, action, trial):
+                writer.write(item)
+        except ActionStoppedError as stop:
+            writer.mark_incomplete(stop.reason, stop.at_ns)
+            stopped = stop
+        if (sources := _source_stats(rig)) is not None:
+            writer.add_sources(sources)
     if writer.result is None:  # pragma: no cover (the 'with' block always sets it)
         msg = f"{path}: the recording was not finished"
         raise RecorderError(msg)
+    if stopped is not None:
+        raise ActionStoppedError(stopped.reason, stopped.at_ns, writer.result.path) from stopped
     return writer.result
+
+
+def _source_stats(rig: Rig) -> Sequence[SourceStats] | None:
+    """Return the accounting of a live rig's last action (``rig.source_stats()``), if any."""
+    method = getattr(rig, "source_stats", None)
+    return None if method is None else tuple(method())

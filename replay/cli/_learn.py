@@ -15,14 +15,11 @@ from rich.markup import escape
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
-from replay.learning._datasets import (
-    check_names,
-    dataset_roles,
-    default_dataset_ready,
-    ensure_default_dataset,
-)
-from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay.learning._cachedir import feature_cache_path
+from replay.learning._datasets import check_names, dataset_roles
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_features
+from replay.learning._parallel import scheduler_warning
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
     DEFAULT_HYPER_SD,
@@ -36,6 +33,15 @@ from replay.learning._session import (
     run_learning,
     run_offline,
 )
+from replay.live import (
+    LiveView,
+    check_rig,
+    configured_rig,
+    default_dataset_dir,
+    default_dataset_ready,
+    ensure_default_dataset,
+    learn_live,
+)
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._studies import (
     FUSION_PRIORS,
@@ -47,7 +53,7 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
-from schemas import cli, dataset_recordings
+from schemas import atomic_write, atomic_write_text, cli, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -216,23 +222,11 @@ _FORCE = arg(
 )
 
 
-def _configured_rig(args: argparse.Namespace) -> Any:  # noqa: ANN401 (recorder.RigConfig)
-    """Return the live rig's configuration (``--rig``, ``--rig-config``, ``--rig-option``)."""
-    from recorder import RecorderError, load_rig_config  # noqa: PLC0415 (live execution only)
-
-    try:
-        return load_rig_config(args.rig_config, args.rig, args.rig_option)
-    except RecorderError as err:
-        raise ReplayError(cli.one_line(str(err))) from err
-
-
-def _check_rig(name: str) -> None:
-    """Refuse an unknown ``--rig`` before any work, listing the registered rigs."""
-    from recorder import rig_names  # noqa: PLC0415 (live execution only)
-
-    if name not in rig_names():
-        msg = f"--rig {name}: unknown rig; registered rigs: {', '.join(rig_names()) or 'none'}"
-        raise ReplayError(msg)
+def _dataset_input(path: Path | None) -> tuple[str, Path]:
+    """Return the dataset a command reads, for :func:`schemas.cli.refuse_overlap`."""
+    if path is not None:
+        return ("dataset", path)
+    return ("default dataset", default_dataset_dir())
 
 
 def _output(out: Path | None, default: Path, *, force: bool) -> Path:
@@ -255,7 +249,7 @@ def _features_command(args: argparse.Namespace) -> int:
     )
     print(  # noqa: T201 (the command's output)
         f"{table.frame.height} recordings ({table.extracted} extracted, "
-        f"{table.quarantined.height} quarantined) -> {table.root / 'features.parquet'}"
+        f"{table.quarantined.height} quarantined) -> {feature_cache_path(table.root)}"
     )
     return 0 if table.quarantined.height == 0 else 1
 
@@ -313,6 +307,15 @@ def _step_line(row: dict[str, Any]) -> str:
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
+        "--view",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE.rrd",
+        help="live: show each recording in rerun as it is made (a viewer; with FILE.rrd, "
+        "write a file instead)",
+    ),
+    arg(
         "--out",
         type=Path,
         default=None,
@@ -326,10 +329,17 @@ def _step_line(row: dict[str, Any]) -> str:
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
     if args.rig is None and args.rig_config is not None:
-        args.rig = _configured_rig(args).name
+        args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
-        _check_rig(args.rig)
+        check_rig(args.rig)
+    if args.view is not None and args.rig is None:
+        msg = "--view shows a live run's recordings as they are made; give --rig too"
+        raise ReplayError(msg)
+    if args.view:
+        cli.check_new_file(Path(args.view), force=args.force, option="--view")
     target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
+    inputs = [_dataset_input(args.recordings), ("--session", args.session)]
+    cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
     table = _features(prior_root, workers)
@@ -388,13 +398,13 @@ def _learn_into(
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
     try:
-        frame.write_parquet(out / HISTORY_NAME)
+        atomic_write(out / HISTORY_NAME, frame.write_parquet)
     except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
         msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
         raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
-    (out / SETTINGS_NAME).write_text(json.dumps(settings, indent=1) + "\n", "utf-8")
+    atomic_write_text(out / SETTINGS_NAME, json.dumps(settings, indent=1) + "\n")
     method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
     plot_learning_curves(
         frame.with_columns(pl.lit(method).alias("method")),
@@ -430,40 +440,17 @@ def _learn_live(
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
-    from recorder import RecorderError  # noqa: PLC0415 (live only)
-
-    try:
-        return _record_and_learn(args, spec, models, out, on_step)
-    except RecorderError as err:  # the recorder's error, at the edge of the replay
-        msg = f"--rig {args.rig}: {cli.one_line(str(err))}"
-        raise ReplayError(msg) from err
-
-
-def _record_and_learn(
-    args: argparse.Namespace,
-    spec: RunSpec,
-    models: Any,  # noqa: ANN401
-    out: Path,
-    on_step: Callable[[dict[str, Any]], Any],
-) -> pl.DataFrame:
-    """Record the test trials, then every observation the learner asks for."""
-    from recorder import load_actions, load_objects, rig_factory  # noqa: PLC0415 (live only)
-
-    objects = load_objects()
-    unknown = [o for o in spec.new_objects if o not in objects]
-    if unknown:
-        msg = (
-            f"--new {','.join(unknown)}: not in the object catalog, so the rig cannot perform "
-            f"on it; choose from {', '.join(objects)}"
+    config = configured_rig(args.rig_config, args.rig, args.rig_option)
+    session = out / "session"
+    if args.view is None:
+        return learn_live(
+            config, spec, models, session, test_trials=args.test_trials, on_step=on_step
         )
-        raise ReplayError(msg)
-    rig = rig_factory(_configured_rig(args))(args.seed)
-    executor = LiveExecutor(
-        rig, [objects[o] for o in spec.new_objects], load_actions(), out / "session", seed=args.seed
-    )
-    with executor:
-        test = executor.record_test_set(spec.actions, args.test_trials)
-        return run_learning(spec, executor, test, models, on_step=on_step).frame()
+    save = Path(args.view) if args.view else None
+    with LiveView(f"live run on {config.name}", save) as view:
+        return learn_live(
+            config, spec, models, session, test_trials=args.test_trials, on_step=on_step, view=view
+        )
 
 
 @command(
@@ -480,7 +467,16 @@ def _record_and_learn(
     ),
     _FORCE,
     arg("--quick", action="store_true", help="a reduced version for a first look"),
-    arg("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)"),
+    arg(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a Dask cluster (tls://host:8786 or tcp://...). Connect only to a scheduler "
+        "you control: results come back pickled, so whoever runs the scheduler or a worker can "
+        "run code in this process. tls:// uses Dask's TLS settings (distributed.comm.tls.ca-file, "
+        ".client.cert, .client.key in ~/.config/dask/*.yaml or DASK_DISTRIBUTED__COMM__TLS__* "
+        "variables); tcp:// is unencrypted and unauthenticated",
+    ),
     arg(
         "--transfer",
         default="prediction",
@@ -503,7 +499,12 @@ def _study_command(args: argparse.Namespace) -> int:
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
+    prior = None if args.fusion_prior in FUSION_PRIORS else Path(args.fusion_prior)
+    for target in targets.values():
+        cli.refuse_overlap(target, [_dataset_input(args.recordings), ("--fusion-prior", prior)])
     workers = cli.worker_count(args.workers)
+    if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
+        _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)
     root = _dataset(args.recordings, workers)
     _check_names_early(root, args)
     table = _features(root, workers)

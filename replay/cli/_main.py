@@ -33,15 +33,19 @@ from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
     check_dataset_location,
     parse_metadata,
+    parse_sources,
     read_recording,
+    stopped_reason,
 )
 from replay.recording._salvage import salvage
 from schemas import (
     PART_SUFFIX,
     SET_ASIDE_DIR,
     ContractError,
+    SourceStats,
     cli,
     dataset_recordings,
+    is_incomplete,
     software_version,
 )
 
@@ -52,6 +56,7 @@ if TYPE_CHECKING:
     from replay.recording._container import ContainerSummary
     from replay.recording._reader import ActionRecording
     from replay.recording._salvage import RecoveryReport
+    from schemas import RecordingMetadata
 
 PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
@@ -90,17 +95,56 @@ def _seconds(ns: int) -> str:
     return f"{ns / _NS_PER_S:.3f} s"
 
 
-def _print_recording(console: Console, recording: ActionRecording) -> None:
-    """Print what a recording holds: metadata, channels, phases."""
-    meta = recording.metadata
-    about = Table(title=str(recording.path), show_header=False)
+def _about(path: Path, meta: RecordingMetadata) -> Table:
+    """Return the table of a recording's metadata."""
+    about = Table(title=str(path), show_header=False)
     for key in ("object_id", "object_name", "action_id", "action_kind", "trial", "source"):
         about.add_row(key, str(getattr(meta, key)))
     about.add_row("action parameters", str(dict(meta.action_parameters)))
     about.add_row("rig", str(dict(meta.rig)))
     about.add_row("seed", str(meta.seed))
     about.add_row("software / schema", f"{meta.software_version} / {meta.schema_version}")
-    console.print(about)
+    return about
+
+
+def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
+    """Print what each live source delivered (nothing for a recording without live sources)."""
+    if not sources:
+        return
+    table = Table(
+        "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
+        "overflow", "clock offset", "drift", "max latency", title="live sources",
+    )  # fmt: skip
+    for item in sources:
+        table.add_row(
+            item.name,
+            item.basis,
+            *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
+            str(item.out_of_order),
+            str(item.overflowed),
+            _seconds(item.clock_offset_ns),
+            f"{item.clock_drift_ns / 1e6:.3f} ms",
+            f"{item.latency_max_ns / 1e6:.3f} ms",
+        )
+    console.print(table)
+
+
+def _print_incomplete(console: Console, path: Path) -> None:
+    """Print what a recording that a stop ended early holds (it is not decoded)."""
+    summary = read_summary(path)
+    console.print(_about(path, parse_metadata(path, summary.metadata)))
+    reason = stopped_reason(summary.metadata) or "unknown"
+    console.print(f"[yellow]incomplete: the action was stopped ({reason})", highlight=False)
+    channels = Table("channel", "messages", title="channels")
+    for topic, channel in sorted(summary.channels.items()):
+        channels.add_row(topic, str(channel.message_count))
+    console.print(channels)
+    _print_sources(console, parse_sources(path, summary.metadata))
+
+
+def _print_recording(console: Console, recording: ActionRecording) -> None:
+    """Print what a recording holds: metadata, channels, phases, live sources."""
+    console.print(_about(recording.path, recording.metadata))
     channels = Table("channel", "samples", "shape", "rate (Hz)", title="channels")
     series = [(m, s.stamps_ns, s.data.shape) for m, s in recording.signals.items()]
     if recording.joints is not None:
@@ -119,6 +163,7 @@ def _print_recording(console: Console, recording: ActionRecording) -> None:
         start, stop = recording.phase_range(mark.phase)
         phases.add_row(mark.phase, _seconds(start - origin), _seconds(stop - start))
     console.print(phases)
+    _print_sources(console, recording.sources)
 
 
 def _summaries(files: Sequence[Path]) -> pl.DataFrame:
@@ -160,6 +205,9 @@ def _print_dataset(console: Console, root: Path) -> None:
     )
     if leftovers := sorted(root.rglob("*.mcap.part")):
         console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)")
+    from replay.learning._cachedir import feature_cache_path  # noqa: PLC0415 (info on datasets)
+
+    console.print(f"feature cache: {feature_cache_path(root)}", highlight=False, soft_wrap=True)
 
 
 @command(
@@ -172,18 +220,34 @@ def _info(args: argparse.Namespace) -> int:
     console = Console()
     if path.is_dir():
         _print_dataset(console, path)
+    elif is_incomplete(path):
+        _print_incomplete(console, path)
     else:
         _print_recording(console, read_recording(path))
     return 0
 
 
-def _check_one(path: Path) -> str | None:
-    """Return None if the recording reads and validates, else the error message."""
+def _check_one(path: Path) -> tuple[str | None, str | None]:
+    """Return (the error message or None, a warning about lost samples or None)."""
     try:
-        check_dataset_location(read_recording(path))
+        recording = read_recording(path)
+        check_dataset_location(recording)
     except ReplayError as err:
-        return one_line(str(err))
-    return None
+        return one_line(str(err)), None
+    lost = [f"{item.name}: {item.problems()}" for item in recording.sources if not item.complete]
+    warning = f"{path}: live sources lost samples ({'; '.join(lost)})" if lost else None
+    return None, warning
+
+
+def _incomplete(root: Path) -> list[str]:
+    """Return one warning per recording a stop ended early under ``root``."""
+    return [
+        f"{path}: incomplete, kept for inspection (the action was stopped: "
+        f"{stopped_reason(read_summary(path).metadata) or 'unknown'}); not a recording of the "
+        "dataset"
+        for path in sorted(root.rglob("*.mcap"))
+        if is_incomplete(path)
+    ]
 
 
 def _unfinished(root: Path) -> list[str]:
@@ -218,6 +282,8 @@ def _recover(path: Path, out: Path | None) -> int:
     if path.is_dir():
         msg = f"{path}: --recover salvages one file; give the *.mcap.part or damaged *.mcap file"
         raise ReplayError(msg)
+    if out is not None:
+        cli.refuse_overlap(out, [("recording", path)])
     _print_salvage(salvage(path, out))
     return 0
 
@@ -236,21 +302,26 @@ def progress_bar(console: Console) -> Progress:
     )
 
 
-def _check_all(files: Sequence[Path], workers: int) -> list[str]:
-    """Check every file on ``workers`` processes with a progress bar; return the problems."""
+def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str]]:
+    """Check every file on ``workers`` processes with a progress bar.
+
+    Returns:
+        The problems (files refused) and the warnings (files valid, but samples were lost).
+    """
     bar = progress_bar(Console(stderr=True))
     task = bar.add_task("checking", total=len(files))
     problems: list[str] = []
+    warnings: list[str] = []
     with bar:
         with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
             results = joblib.Parallel(
                 n_jobs=min(workers, max(len(files), 1)), return_as="generator"
             )(joblib.delayed(_check_one)(file) for file in files)
-        for problem in results:
+        for problem, warning in results:
             bar.advance(task)
-            if problem is not None:
-                problems.append(problem)
-    return problems
+            problems += [problem] if problem is not None else []
+            warnings += [warning] if warning is not None else []
+    return problems, warnings
 
 
 @command(
@@ -271,7 +342,7 @@ def _check(args: argparse.Namespace) -> int:
     if args.recover:
         return _recover(path, args.out)
     files = dataset_files(path) if path.is_dir() else [path]
-    bad = _check_all(files, cli.worker_count(args.workers))
+    bad, warnings = _check_all(files, cli.worker_count(args.workers))
     console = Console(stderr=True)
     unfinished = _unfinished(path) if path.is_dir() else []
     try:
@@ -280,6 +351,8 @@ def _check(args: argparse.Namespace) -> int:
         index = [str(err)]
     for problem in bad + index + unfinished:
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
+    for warning in warnings + (_incomplete(path) if path.is_dir() else []):
+        console.print(f"[yellow]WARN[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
     Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
     if unfinished:
         Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})")

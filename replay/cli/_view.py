@@ -5,10 +5,8 @@ rerun and matplotlib are imported when a command runs, not when the command line
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,6 +18,7 @@ from replay.cli._main import arg, command, dataset_files
 from replay.errors import ReplayError
 from replay.learning._run_history import LearnRun, is_run_directory
 from replay.outputs._export import FORMATS, LAYOUTS, export
+from replay.outputs._serve import DEFAULT_HOST, Served, serve_viewer, wait_until_interrupted
 from schemas import cli
 
 if TYPE_CHECKING:
@@ -79,6 +78,11 @@ def collect_inputs(paths: Sequence[Path], *, allow_runs: bool = True) -> Inputs:
     return Inputs(tuple(recordings), tuple(runs), root)
 
 
+def _named(paths: Sequence[Path]) -> list[tuple[str, Path | None]]:
+    """Return the inputs named on the command line, for :func:`schemas.cli.refuse_overlap`."""
+    return [("input", path) for path in paths]
+
+
 def _view_name(inputs: Inputs) -> str:
     """Return the name of the rerun recording of a view."""
     items = [*inputs.recordings, *inputs.runs]
@@ -87,33 +91,23 @@ def _view_name(inputs: Inputs) -> str:
     return f"{len(inputs.recordings)} recordings, {len(inputs.runs)} runs under {inputs.root}"
 
 
-def _attach_sink(
-    stream: rr.RecordingStream, args: argparse.Namespace, save: Path | None
-) -> str | None:
+def _attach_sink(stream: rr.RecordingStream, save: Path | None, served: Served | None) -> None:
     """Connect the stream to a file (``save``), a served web viewer or a spawned viewer.
-
-    Returns:
-        The web viewer's address when serving, else None.
 
     Raises:
         ReplayError: The sink cannot be set up; the message says which option to change.
     """
-    import rerun as rr  # noqa: PLC0415 (only when viewing)
-
     try:
         if save is not None:
             stream.save(save)
-            return None
-        if args.serve:
-            url = stream.serve_grpc(grpc_port=args.grpc_port)
-            rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
-            return f"http://localhost:{args.web_port}/?url={url}"
-        stream.spawn()
+        elif served is not None:
+            stream.connect_grpc(served.grpc_url)
+        else:
+            stream.spawn()
     except (OSError, RuntimeError, ValueError) as err:
-        how = "--save" if args.save is not None else "--serve" if args.serve else "the viewer"
+        how = "--save" if save is not None else "--serve" if served is not None else "the viewer"
         msg = f"{how}: rerun could not start ({err}); use --save FILE.rrd to write a file instead"
         raise ReplayError(msg) from err
-    return None
 
 
 def _check_display(args: argparse.Namespace) -> None:
@@ -158,7 +152,17 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
         help="write FILE.rrd instead of opening a viewer (never overwritten without --force)",
     ),
     arg("--force", action="store_true", help="replace an existing --save file"),
-    arg("--serve", action="store_true", help="serve the web viewer on localhost until Ctrl-C"),
+    arg(
+        "--serve",
+        action="store_true",
+        help="serve a web viewer until Ctrl-C, on --host (this machine only by default)",
+    ),
+    arg(
+        "--host",
+        default=DEFAULT_HOST,
+        help="--serve: the address to listen on; 0.0.0.0 exposes the viewer and its data, "
+        "without authentication, to every machine that reaches this one",
+    ),
     arg("--web-port", type=int, default=WEB_PORT, help="web viewer port"),
     arg("--grpc-port", type=int, default=GRPC_PORT, help="data port"),
     arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
@@ -172,39 +176,49 @@ def _view_command(args: argparse.Namespace) -> int:
         raise ReplayError(msg)
     _check_display(args)
     inputs = collect_inputs(args.paths)
+    if args.save is not None:
+        cli.refuse_overlap(args.save, _named(args.paths), option="--save")
     runs = [load_run(path) for path in inputs.runs]
+    if args.serve:
+        return _serve(args, inputs, runs)
     if args.save is None:
-        address = _log(args, inputs, runs, None)
+        _log(inputs, runs, None, None)
     else:
         with cli.publish_file(args.save, force=args.force, option="--save") as temporary:
-            _log(args, inputs, runs, temporary)
+            _log(inputs, runs, temporary, None)
         print(f"view -> {args.save}  (open it with: rerun {args.save})")  # noqa: T201
-        address = None
     if not args.no_figures:
         _figures(args, runs)
-    if address is not None:
-        print(f"web viewer on {address}; Ctrl-C stops serving", flush=True)  # noqa: T201
-        with contextlib.suppress(KeyboardInterrupt):
-            threading.Event().wait()
+    return 0
+
+
+def _serve(args: argparse.Namespace, inputs: Inputs, runs: Sequence[LearnRun]) -> int:
+    """Serve the web viewer on ``--host`` until Ctrl-C (or SIGTERM)."""
+    with serve_viewer(args.host, args.web_port, args.grpc_port) as served:
+        _log(inputs, runs, None, served)
+        if not args.no_figures:
+            _figures(args, runs)
+        print(f"web viewer on {served.address}; Ctrl-C stops serving", flush=True)  # noqa: T201
+        wait_until_interrupted(served)
+    print("stopped serving", flush=True)  # noqa: T201
     return 0
 
 
 def _log(
-    args: argparse.Namespace, inputs: Inputs, runs: Sequence[LearnRun], save: Path | None
-) -> str | None:
-    """Log recordings and runs to the chosen sink; return the web viewer's address if served."""
+    inputs: Inputs, runs: Sequence[LearnRun], save: Path | None, served: Served | None
+) -> None:
+    """Log recordings and runs to the chosen sink (a file, a served viewer, or a new viewer)."""
     from replay.outputs._view import log_recordings, log_run, new_stream  # noqa: PLC0415
     from replay.recording._reader import read_recording  # noqa: PLC0415 (keeps parsing fast)
 
     stream = new_stream(_view_name(inputs))
-    address = _attach_sink(stream, args, save)
+    _attach_sink(stream, save, served)
     log_recordings(stream, (read_recording(path) for path in inputs.recordings))
     for run in runs:
         log_run(stream, run, "run" if len(runs) == 1 else f"run/{run.path.name}")
     stream.flush()
     if save is not None:
         stream.disconnect()
-    return address
 
 
 @command(
@@ -217,6 +231,7 @@ def _log(
 )
 def _export_command(args: argparse.Namespace) -> int:
     inputs = collect_inputs(args.paths, allow_runs=False)
+    cli.refuse_overlap(args.out, _named(args.paths))
     progress = cli.progress(
         _CONSOLE,
         "[progress.description]{task.description}",

@@ -1,23 +1,25 @@
-"""Where datasets live: the default simulated dataset, made on first use and reused after."""
+"""Datasets: where the cache lives, object declarations and the roles of a run's objects.
+
+The default simulated dataset is recorded by ``replay.live`` (the recorder's side) under
+:func:`cache_root`.
+"""
 
 from __future__ import annotations
 
 import os
-import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from replay.errors import ReplayError
-from schemas import SET_ASIDE_DIR, load_toml
+from schemas import load_toml
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Sequence
 
 #: Seed of the default simulated dataset.
 DEFAULT_SEED = 0
-_DONE = ".complete"
 
 
 def cache_root() -> Path:
@@ -26,73 +28,6 @@ def cache_root() -> Path:
         return Path(configured)
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "atikt"
-
-
-def default_dataset_dir(seed: int = DEFAULT_SEED) -> Path:
-    """Return where the default simulated dataset of ``seed`` lives."""
-    from recorder import software_version  # noqa: PLC0415 (generation is the recorder's job)
-    from recorder._sim.rig import SIMULATOR_VERSION  # noqa: PLC0415
-    from schemas import SCHEMA_VERSION  # noqa: PLC0415
-
-    name = f"sim{SIMULATOR_VERSION}-seed{seed}-schema{SCHEMA_VERSION}-v{software_version()}"
-    return cache_root() / name
-
-
-def ensure_default_dataset(
-    *,
-    seed: int = DEFAULT_SEED,
-    workers: int | None = None,
-    on_progress: Callable[[int, int], Any] | None = None,
-) -> Path:
-    """Return the default simulated dataset, recording it first if it is not complete.
-
-    Generation resumes where an interrupted one stopped: finished recordings are kept.
-
-    Raises:
-        ReplayError: The recording failed; the message says why.
-    """
-    from recorder import (  # noqa: PLC0415 (recording is live execution)
-        RecorderError,
-        generate_dataset,
-        load_actions,
-        load_objects,
-        plan_dataset,
-        rig_factory,
-    )
-
-    root = default_dataset_dir(seed)
-    if (root / _DONE).exists():
-        return root
-    tasks = plan_dataset(load_objects(), load_actions())
-    done = 0
-
-    def progress(_result: object) -> None:
-        nonlocal done
-        done += 1
-        if on_progress is not None:
-            on_progress(done, len(tasks))
-
-    try:
-        report = generate_dataset(
-            tasks, root, rig_factory("sim"), seed=seed, workers=workers, on_result=progress
-        )
-    except RecorderError as err:
-        msg = f"{root}: recording the default dataset failed ({err})"
-        raise ReplayError(msg) from err
-    if report.set_aside:
-        print(  # noqa: T201 (generated on first use, outside any command's own output)
-            f"{len(report.set_aside)} unfinished recordings of stopped runs moved to "
-            f"{root / SET_ASIDE_DIR}; their trials were recorded again",
-            file=sys.stderr,
-        )
-    if report.incomplete:
-        msg = (
-            f"{root}: {len(report.incomplete)} recordings are being written by another "
-            "running recorder; run again when it has finished"
-        )
-        raise ReplayError(msg)
-    (root / _DONE).write_text(f"{report.written + report.skipped} recordings\n", "utf-8")
-    return root
 
 
 #: A dataset's object declarations (``<dataset>/objects.toml``): per object id a table with
@@ -190,8 +125,3 @@ def dataset_roles(
         msg = f"{', '.join(both)}: both new (--new) and prior (--priors); give each object one role"
         raise ReplayError(msg)
     return Roles(tuple(sorted(chosen_new)), tuple(sorted(chosen_old)))
-
-
-def default_dataset_ready(seed: int = DEFAULT_SEED) -> bool:
-    """Return True if the default simulated dataset of ``seed`` is complete (nothing to record)."""
-    return (default_dataset_dir(seed) / _DONE).exists()

@@ -2,8 +2,9 @@
 
 Both executors serve ``executor(object_index, action) -> RawFeatures`` and both go through the
 one path MCAP file -> reader -> features. The :class:`PoolExecutor` serves recordings of a
-dataset (through its feature cache, built by that same path); the :class:`LiveExecutor` performs
-the action on a rig, records it, and reads back the file it just wrote.
+dataset (through its feature cache, built by that same path); the live executor
+(``replay.live.LiveExecutor``, the only one that uses the recorder) performs the action on a
+rig, records it, and reads back the file it just wrote.
 """
 
 from __future__ import annotations
@@ -11,20 +12,18 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
-from replay.learning._features import as_raw, file_features, row_blocks, select_blocks
+from replay.learning._features import as_raw, row_blocks, select_blocks
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
-    from types import TracebackType
 
     from atikt import RawFeatures
-    from recorder import ActionSpec, ObjectSpec, Rig
 
 #: Manifest of a live session: every recording in the order it was made, with its role.
 SESSION_NAME = "session.parquet"
@@ -236,99 +235,3 @@ class PoolExecutor:
                     labels.append(index)
             test[action] = (observations, labels)
         return test
-
-
-class LiveExecutor:
-    """Performs each requested action on a rig, records it, and reads the file back.
-
-    Recordings go to ``<session>/<object>/<action>/<trial>.mcap``; ``session.parquet`` lists
-    them in the order they were made, with their role (``test`` or ``pool``), so that an
-    offline run over the session (``Split.from_session``) serves exactly the same files.
-    """
-
-    def __init__(
-        self,
-        rig: Rig,
-        objects: Sequence[ObjectSpec],
-        actions: Mapping[str, ActionSpec],
-        session: Path,
-        *,
-        seed: int,
-    ) -> None:
-        """Store the rig and where to record; nothing is performed before ``__enter__``."""
-        self.rig = rig
-        self.objects = list(objects)
-        self.actions = dict(actions)
-        self.session = Path(session)
-        self.seed = seed
-        self.made: list[dict[str, Any]] = []
-        self._trials: dict[Pair, int] = {}
-
-    def __enter__(self) -> Self:
-        """Connect the rig; refuse a session directory that already holds recordings."""
-        if (self.session / SESSION_NAME).exists() or any(self.session.rglob("*.mcap")):
-            msg = f"{self.session}: already holds a session; choose a new --session directory"
-            raise ReplayError(msg)
-        self.session.mkdir(parents=True, exist_ok=True)
-        self.rig.__enter__()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        """Disconnect the rig and write the manifest of what was recorded."""
-        try:
-            self.rig.__exit__(exc_type, exc, tb)
-        finally:
-            self._write_manifest()
-
-    def available(self, obj: int, action: str) -> bool:  # noqa: ARG002
-        """A rig can always perform another trial."""
-        return True
-
-    def _perform(self, obj: ObjectSpec, action_id: str, role: str) -> Path:
-        """Record one more trial of (obj, action) and return its file."""
-        from recorder import record_action, recording_path  # noqa: PLC0415 (live only)
-
-        pair = (obj.id, action_id)
-        trial = self._trials.get(pair, 0) + 1
-        self._trials[pair] = trial
-        path = recording_path(self.session, obj.id, action_id, trial)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        record_action(self.rig, obj, self.actions[action_id], trial, path, seed=self.seed)
-        self.made.append(
-            {"order": len(self.made), "object_id": obj.id, "action_id": action_id}
-            | {"trial": trial, "role": role, "path": path.relative_to(self.session).as_posix()}
-        )
-        return path
-
-    def __call__(self, obj: int, action: str) -> RawFeatures:
-        """Perform, record and read back one observation."""
-        return file_features(self._perform(self.objects[obj], action, "pool"))
-
-    def record_test_set(self, actions: Sequence[str], trials: int) -> TestSet:
-        """Record ``trials`` held-out trials of every (new object, action) and return them."""
-        test: TestSet = {}
-        for action in actions:
-            observations, labels = [], []
-            for index, obj in enumerate(self.objects):
-                for _ in range(trials):
-                    observations.append(file_features(self._perform(obj, action, "test")))
-                    labels.append(index)
-            test[action] = (observations, labels)
-        return test
-
-    def _write_manifest(self) -> None:
-        """Write ``session.parquet`` (the recordings made so far, in order)."""
-        schema = {
-            "order": pl.Int64,
-            "object_id": pl.String,
-            "action_id": pl.String,
-            "trial": pl.Int64,
-            "role": pl.String,
-            "path": pl.String,
-        }
-        pl.DataFrame(self.made, schema=schema).write_parquet(self.session / SESSION_NAME)

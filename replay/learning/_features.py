@@ -1,6 +1,7 @@
 """Features of recordings: the one path MCAP file -> reader -> features, and its cache.
 
-A dataset's features are extracted once into ``<dataset>/features.parquet`` (polars), one row
+A dataset's features are extracted once into ``features.parquet`` (polars; beside the data, or
+in the user cache where the data must not be written to, see :func:`feature_cache_path`), one row
 per recording keyed by the SHA-256 of the file's bytes; a rebuild re-extracts only the files
 whose content changed, and drops rows of files that are gone. Files that cannot be read are
 quarantined: listed with the reason, never silently used.
@@ -9,7 +10,6 @@ quarantined: listed with the reason, never silently used.
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -20,11 +20,13 @@ import polars as pl
 
 from atikt import AtiktError, RawFeatures, extract_features
 from replay.errors import ReplayError
+from replay.learning._cachedir import FEATURES_NAME, feature_cache_path
 from replay.learning._parallel import run_tasks
 from replay.recording._reader import check_not_partial, read_recording
 from schemas import (
     VOCABULARY,
     ParquetMismatchError,
+    atomic_write,
     dataset_recordings,
     read_checked_parquet,
     rows_allowed,
@@ -35,8 +37,6 @@ if TYPE_CHECKING:
 
     from replay.recording._reader import ActionRecording
 
-#: File name of the feature cache inside a dataset directory.
-FEATURES_NAME = "features.parquet"
 #: Version of the feature definition; a cache of another version is rebuilt.
 FEATURES_VERSION = 2
 #: Points of the resampled thermal sequence (the same for every action).
@@ -59,6 +59,19 @@ _SCHEMA: dict[str, Any] = {
     "features_version": pl.Int64,
 }
 _QUARANTINE_SCHEMA: dict[str, Any] = {"path": pl.String, "reason": pl.String}
+__all__ = [
+    "FEATURES_NAME",
+    "FEATURES_VERSION",
+    "FEATURE_POLICIES",
+    "THERMAL_POINTS",
+    "FeatureTable",
+    "as_raw",
+    "build_features",
+    "file_features",
+    "recording_features",
+    "row_blocks",
+    "select_blocks",
+]
 
 
 def select_blocks(kind: str, available: Iterable[str], policy: str = "thesis") -> tuple[str, ...]:
@@ -247,7 +260,7 @@ def build_features(
         root: Dataset directory (``<object>/<action>/<trial>.mcap`` files).
         workers: Worker processes for the extraction.
         chunk: Recordings per parallel task.
-        cache: The cache file; ``<root>/features.parquet`` when None.
+        cache: The cache file; :func:`feature_cache_path` of ``root`` when None.
         on_progress: Called with (recordings done, recordings to extract).
 
     Returns:
@@ -262,7 +275,7 @@ def build_features(
         msg = f"{root}: no recordings (*.mcap) found; record a dataset with atikt-record dataset"
         raise ReplayError(msg)
     digests = {p.relative_to(root).as_posix(): _digest(p) for p in paths}
-    cache = root / FEATURES_NAME if cache is None else Path(cache)
+    cache = feature_cache_path(root) if cache is None else Path(cache)
     cached, discarded = _cached(cache, len(paths))
     current = pl.DataFrame(
         {"path": list(digests), "sha256": list(digests.values())},
@@ -271,7 +284,8 @@ def build_features(
     keep = cached.join(current, on=["path", "sha256"], how="semi")
     known = set(keep["path"].to_list())
     todo = [(p, d) for p, d in digests.items() if p not in known]
-    jobs = [_Job(root, tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
+    # worker processes may have another working directory (a reused pool): absolute paths
+    jobs = [_Job(root.absolute(), tuple(todo[i : i + chunk])) for i in range(0, len(todo), chunk)]
     sizes = [len(job.files) for job in jobs]
 
     def progress(done: int) -> None:
@@ -288,13 +302,11 @@ def build_features(
 
 
 def _write(frame: pl.DataFrame, target: Path) -> None:
-    """Write the cache atomically (temporary file, then rename)."""
-    temporary = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    """Write the cache atomically (exclusive temporary file, then rename)."""
     try:
-        frame.write_parquet(temporary)
-        temporary.replace(target)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(target, frame.write_parquet)
     except (OSError, pl.exceptions.PolarsError) as err:  # polars: ComputeError on a full disk
-        temporary.unlink(missing_ok=True)
         reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
         msg = f"{target}: cannot write the feature cache ({reason}); check free space"
         raise ReplayError(msg) from err

@@ -30,6 +30,28 @@ def _pinned(function: Callable[[T], R], task: T) -> R:
         return function(task)
 
 
+#: Hosts a plain ``tcp://`` scheduler address may name without a warning (this machine).
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]", "::1")
+
+
+def scheduler_warning(scheduler: str) -> str | None:
+    """Return a one-line warning for a scheduler reached without TLS off this machine, or None.
+
+    A Dask scheduler and its workers send results back pickled: whoever runs them can run
+    code in this process. ``tls://`` (with Dask's TLS settings) authenticates the cluster and
+    encrypts the traffic; ``tcp://`` does neither.
+    """
+    scheme, _, rest = scheduler.rpartition("://")
+    host = rest.rsplit(":", 1)[0] if ":" in rest.lstrip("[").split("]")[-1] else rest
+    if scheme == "tls" or host in LOOPBACK_HOSTS:
+        return None
+    return (
+        f"--scheduler {scheduler}: unencrypted and unauthenticated; results come back pickled, "
+        "so whoever runs this scheduler can run code here. Use a cluster you control, "
+        "preferably over tls:// with Dask's TLS settings (distributed.comm.tls.*)"
+    )
+
+
 @contextlib.contextmanager
 def _dask_backend(scheduler: str, timeout_s: float) -> Iterator[None]:
     """Route joblib to the Dask cluster at ``scheduler`` for the duration of the block."""

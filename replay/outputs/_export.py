@@ -35,7 +35,9 @@ file at the end. Existing tables in ``out`` are never overwritten.
 
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -45,7 +47,7 @@ import polars as pl
 
 from replay.errors import ReplayError
 from replay.recording._reader import MODALITIES, read_recording
-from schemas import VOCABULARY
+from schemas import VOCABULARY, atomic_path, create_exclusive, publish_temporary, temporary_name
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -217,11 +219,6 @@ def recording_tables(
 # ------------------------------------------------------------------------------------ writing
 
 
-def _temporary(path: Path) -> Path:
-    """Return the name a table has while it is written (``<name>.part``)."""
-    return path.with_name(path.name + ".part")
-
-
 #: What writing a table may raise: the operating system's error, or polars' (ComputeError
 #: "underlying IO error: No space left on device" on a full disk).
 _WRITE_ERRORS = (OSError, pl.exceptions.PolarsError)
@@ -242,6 +239,7 @@ class _Table:
     rows: int = 0
     parts: list[Path] = field(default_factory=list)
     handle: IO[bytes] | None = None
+    temporary: Path | None = None
 
     def check(self, frame: pl.DataFrame, source: str) -> None:
         """Refuse a frame whose columns differ from the table's first frame.
@@ -267,7 +265,7 @@ class _Writer:
         self.out = out
         self.fmt = fmt
         self.tables = {name: _Table(out / f"{name}.{fmt}") for name in TABLES}
-        self._parts = out / f".export-parts-{fmt}"
+        self._parts: Path | None = None
 
     def open(self) -> None:
         """Create the output directory; refuse existing tables.
@@ -283,8 +281,8 @@ class _Writer:
             raise ReplayError(msg)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
-            if self.fmt == "parquet":
-                self._parts.mkdir(exist_ok=True)
+            if self.fmt == "parquet":  # a fresh private directory (mode 0700, random name)
+                self._parts = Path(tempfile.mkdtemp(prefix=".export-parts-", dir=self.out))
         except OSError as err:
             raise _write_error(self.out, err) from err
 
@@ -308,9 +306,13 @@ class _Writer:
         if self.fmt == "csv":
             first = table.handle is None
             if table.handle is None:
-                table.handle = _temporary(table.path).open("wb")
+                table.temporary = temporary_name(table.path, "part")
+                table.handle = create_exclusive(table.temporary)
             frame.write_csv(table.handle, include_header=first)
             return
+        if self._parts is None:
+            msg = "parquet parts written before the export was opened"
+            raise RuntimeError(msg)
         part = self._parts / f"{name}-{len(table.parts):06d}.parquet"
         frame.write_parquet(part)
         table.parts.append(part)
@@ -329,27 +331,37 @@ class _Writer:
                 self._finish(table)
             except _WRITE_ERRORS as err:
                 raise _write_error(table.path, err) from err
-        shutil.rmtree(self._parts, ignore_errors=True)
+        self._remove_parts()
         return {name: table.rows for name, table in self.tables.items()}
 
     def _finish(self, table: _Table) -> None:
-        """Close or merge one table's temporary output and give it its final name."""
-        temporary = _temporary(table.path)
+        """Close or merge one table's temporary output and give it its final name.
+
+        The final name is never replaced (a file that appeared meanwhile is refused).
+        """
         if self.fmt == "csv":
-            if table.handle is not None:
+            if table.handle is not None and table.temporary is not None:
+                table.handle.flush()
+                os.fsync(table.handle.fileno())
                 table.handle.close()
+                publish_temporary(table.temporary, table.path, replace=False)
         elif table.parts:
-            pl.scan_parquet(table.parts).sink_parquet(temporary)
-        if temporary.exists():
-            temporary.replace(table.path)
+            with atomic_path(table.path, replace=False) as temporary:
+                pl.scan_parquet(table.parts).sink_parquet(temporary)
+
+    def _remove_parts(self) -> None:
+        """Remove the parquet parts' private directory."""
+        if self._parts is not None:
+            shutil.rmtree(self._parts, ignore_errors=True)
 
     def abort(self) -> None:
         """Remove everything written so far (the final tables were never created)."""
         for table in self.tables.values():
             if table.handle is not None:
                 table.handle.close()
-            _temporary(table.path).unlink(missing_ok=True)
-        shutil.rmtree(self._parts, ignore_errors=True)
+            if table.temporary is not None:
+                table.temporary.unlink(missing_ok=True)
+        self._remove_parts()
 
 
 @dataclass(frozen=True, slots=True)

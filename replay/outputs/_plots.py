@@ -22,7 +22,7 @@ from matplotlib.ticker import MaxNLocator
 from scipy import stats
 
 from replay.errors import ReplayError
-from schemas import VOCABULARY
+from schemas import VOCABULARY, atomic_write
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -190,7 +190,7 @@ def save_figure(fig: Figure, path: Path) -> Path:
         ReplayError: The file cannot be written.
     """
     try:
-        fig.savefig(path, dpi=DPI, metadata=_METADATA)
+        atomic_write(path, lambda out: fig.savefig(out, format="png", dpi=DPI, metadata=_METADATA))
     except OSError as err:
         msg = f"{path}: cannot write the figure ({err.strerror}); check free space and the --out"
         raise ReplayError(msg) from err

@@ -28,6 +28,7 @@ from matplotlib.ticker import MaxNLocator
 
 from replay.errors import ReplayError
 from replay.outputs._plots import ACCURACY_LABEL, DPI, STEP_LABEL, colour
+from schemas import atomic_write
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -51,7 +52,7 @@ def _save(fig: Figure, path: Path) -> Path:
         if axes.get_xlabel() in {"step", STEP_LABEL}:
             axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     try:
-        fig.savefig(path, dpi=DPI, metadata=_METADATA)
+        atomic_write(path, lambda out: fig.savefig(out, format="png", dpi=DPI, metadata=_METADATA))
     except OSError as err:
         msg = f"{path}: cannot write the figure ({err.strerror}); check the --figures directory"
         raise ReplayError(msg) from err

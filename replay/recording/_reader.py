@@ -33,11 +33,15 @@ from replay.recording._checks import (
 from replay.recording._container import RawChannel, read_container
 from replay.recording._decode import DecodedGroup, decode_topic, gather
 from schemas import (
+    INCOMPLETE_RECORD,
     MESSAGE_VERSION,
+    SOURCES_RECORD,
     VOCABULARY,
     ContractError,
     RecordingMetadata,
+    SourceStats,
     build_typestore,
+    parse_source_stats,
 )
 from schemas import parse_metadata as read_metadata
 
@@ -158,6 +162,8 @@ class ActionRecording:
         tcp: TCP poses, or None.
         phases: Phase starts in time order (approach, contact, execute, retract, end; an
             import holds at least execute and end).
+        sources: What each live source delivered (expected, received, missing...), for
+            recordings of a live rig or a live listener; empty otherwise.
     """
 
     path: Path
@@ -166,6 +172,7 @@ class ActionRecording:
     joints: JointStates | None
     tcp: TcpPoses | None
     phases: tuple[PhaseStart, ...]
+    sources: tuple[SourceStats, ...] = ()
 
     @property
     def modalities(self) -> tuple[str, ...]:
@@ -235,6 +242,46 @@ def parse_metadata(path: Path, records: Mapping[str, Mapping[str, str]]) -> Reco
         if "upgrade" not in str(err) and "release" not in str(err):
             msg += "; the file was not written by atikt-record or is damaged: record it again"
         raise RecordingError(msg) from err
+
+
+def parse_sources(path: Path, records: Mapping[str, Mapping[str, str]]) -> tuple[SourceStats, ...]:
+    """Return the live sources' accounting (``atikt.sources``; empty when there is none).
+
+    Raises:
+        RecordingError: The record is malformed.
+    """
+    record = records.get(SOURCES_RECORD)
+    if record is None:
+        return ()
+    try:
+        return parse_source_stats(record)
+    except ValueError as err:
+        msg = f"{path}: metadata record {SOURCES_RECORD!r}: {err}; {_DAMAGED}"
+        raise RecordingError(msg) from err
+
+
+def stopped_reason(records: Mapping[str, Mapping[str, str]]) -> str | None:
+    """Return why a stop ended the recorded action early (None: the recording is complete)."""
+    record = records.get(INCOMPLETE_RECORD)
+    if record is None:
+        return None
+    return record.get("reason") or "unknown"
+
+
+def _refuse_incomplete(path: Path, records: Mapping[str, Mapping[str, str]]) -> None:
+    """Refuse a recording a stop ended early: it is kept for inspection, not for learning.
+
+    Raises:
+        RecordingError: The file carries the ``atikt.incomplete`` record.
+    """
+    reason = stopped_reason(records)
+    if reason is not None:
+        msg = (
+            f"{path}: an incomplete recording (the action was stopped: {reason}); it is kept "
+            f"for inspection (atikt-replay info {path}), not learned from; record the action "
+            "again"
+        )
+        raise RecordingError(msg)
 
 
 def _topics(metadata: RecordingMetadata) -> Mapping[str, str]:
@@ -624,6 +671,8 @@ def decode_recording(container: Container) -> ActionRecording:
     """
     path = container.summary.path
     metadata = parse_metadata(path, container.summary.metadata)
+    _refuse_incomplete(path, container.summary.metadata)
+    sources = parse_sources(path, container.summary.metadata)
     channels = _contract_channels(container, metadata)
     signals = {
         name: _decode_skin(path, name, channels[spec.topic])
@@ -641,6 +690,7 @@ def decode_recording(container: Container) -> ActionRecording:
         joints=_decode_joints(path, channels[joints]) if joints in channels else None,
         tcp=_decode_poses(path, channels[poses]) if poses in channels else None,
         phases=events,
+        sources=sources,
     )
     _check_duration(recording)
     return recording

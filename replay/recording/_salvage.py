@@ -23,8 +23,6 @@ a recorder killed during the execute phase leaves a recording the reader refuses
 from __future__ import annotations
 
 import json
-import os
-import secrets
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -37,7 +35,7 @@ from replay.recording._container import (
     FormatError,
     walk_data_section,
 )
-from schemas import PART_SUFFIX, RECOVERED_SUFFIX, VOCABULARY
+from schemas import PART_SUFFIX, RECOVERED_SUFFIX, VOCABULARY, atomic_file
 
 if TYPE_CHECKING:
     from replay.recording._container import ChannelMessages, DataSection
@@ -240,26 +238,6 @@ def _file_order(section: DataSection) -> list[tuple[int, int, ChannelMessages]]:
     return [(channel_id, index, lists) for _, channel_id, index, lists in located]
 
 
-def _publish(temporary: Path, target: Path) -> None:
-    """Give the finished ``temporary`` file the name ``target``, never replacing a file.
-
-    Raises:
-        RecordingError: ``target`` exists or cannot be created.
-    """
-    try:
-        os.link(temporary, target)
-    except FileExistsError as err:
-        raise _exists(target) from err
-    except OSError:  # no hard links on this file system: reserve the name, then rename
-        try:
-            os.close(os.open(target, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-        except FileExistsError as err:
-            raise _exists(target) from err
-        temporary.replace(target)
-    else:
-        temporary.unlink()
-
-
 def _exists(target: Path) -> RecordingError:
     return RecordingError(
         f"{target}: exists and is never overwritten; delete or move it, or give another "
@@ -274,18 +252,14 @@ def _save(section: DataSection, report: RecoveryReport) -> None:
         RecordingError: The target exists or the file cannot be written.
     """
     target = report.target
-    temporary = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
-        with temporary.open("xb") as stream:
+        with atomic_file(target, replace=False) as stream:  # never replaces a file
             _write(stream, section, report)
-            stream.flush()
-            os.fsync(stream.fileno())
-        _publish(temporary, target)
+    except FileExistsError as err:
+        raise _exists(target) from err
     except OSError as err:
         msg = f"{target}: cannot write the salvaged recording ({err.strerror}); check --out"
         raise RecordingError(msg) from err
-    finally:
-        temporary.unlink(missing_ok=True)
 
 
 def salvage(source: Path, target: Path | None = None) -> RecoveryReport:

@@ -36,7 +36,7 @@ from replay.learning._session import (
 from replay.outputs._plots import plot_learning_curves
 from replay.studies._relatedness import least_similar, most_similar, similarity_to_new
 from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
-from schemas import VOCABULARY
+from schemas import VOCABULARY, atomic_write, atomic_write_text
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
@@ -550,7 +550,7 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
         "actions": actions,
     }
     path = config.out / HYPERPARAMETERS
-    path.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    atomic_write_text(path, json.dumps(document, indent=1) + "\n")
     return path
 
 
@@ -1059,7 +1059,7 @@ def run_study(
     path, summary = out / "results.parquet", out / "summary.md"
     try:
         out.mkdir(parents=True, exist_ok=True)
-        results.write_parquet(path)
+        atomic_write(path, results.write_parquet)
         text = study.report(results, config, study.title)
         if study.save is not None:
             saved = study.save(frame, config)
@@ -1071,7 +1071,7 @@ def run_study(
         if quarantined is not None and quarantined.height:
             listing = "\n".join(f"- `{p}`: {r}" for p, r in quarantined.iter_rows())
             text += f"\n## Quarantined recordings ({quarantined.height})\n\n{listing}\n"
-        summary.write_text(text, encoding="utf-8")
+        atomic_write_text(summary, text)
     except (OSError, pl.exceptions.PolarsError) as err:  # polars: ComputeError on a full disk
         reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
         msg = f"{out}: cannot write the study's results ({reason}); check free space and --out"

@@ -34,10 +34,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_atikt import TimedLearner, print_quality, sklearn_old_models
 
-from replay.learning._datasets import dataset_roles, ensure_default_dataset
+from replay.learning._datasets import dataset_roles
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
 from replay.learning._session import fit_priors, prior_data
+from replay.live import ensure_default_dataset
 from replay.studies._studies import StudyConfig, dataset_actions, prior_groups, run_study
 
 

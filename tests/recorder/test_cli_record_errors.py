@@ -19,7 +19,7 @@ CASES: list[tuple[str, str]] = [
     (_ACTION + " --trial 0", "--trial 0: trials are numbered from 1"),
     (_ACTION + " --object marble", "--objects marble: not in the objects catalog"),
     (_ACTION + " --action S9", "--actions S9: not in the actions catalog"),
-    (_ACTION + " --rig nosuch", "--rig nosuch: unknown rig; registered rigs: sim"),
+    (_ACTION + " --rig nosuch", "--rig nosuch: unknown rig; known rigs: sim, ur"),
     (_ACTION + " --objects-catalog {tmp}/none.toml", "none.toml: cannot read the catalog"),
     (_DATASET + " --workers 0", "argument --workers: 0: give 1 or more worker processes"),
     (_DATASET + " --trials 0", "--trials 0: need at least one trial"),

@@ -10,7 +10,8 @@ def test_a_rig_is_configured_from_a_file_and_the_command_line(tmp_path: Path) ->
     path = tmp_path / "rig.toml"
     path.write_text('rig = "sim"\n[options]\nroom_c = 21.0\nlocation_spread_m = 0.005\n')
     config = load_rig_config(path, options=["room_c=20.5", "tilt_deg=0"])
-    assert config == RigConfig("sim", {"location_spread_m": 0.005, "room_c": 20.5, "tilt_deg": 0})
+    options = {"location_spread_m": 0.005, "room_c": 20.5, "tilt_deg": 0}
+    assert config == RigConfig("sim", options, source=str(path))
     rig = rig_factory(config)(3)
     assert isinstance(rig, SimulatedRig)
     assert rig.config.room_c == 20.5
@@ -22,10 +23,11 @@ def test_a_rig_is_configured_from_a_file_and_the_command_line(tmp_path: Path) ->
     [
         ('rig = "sim"\n[options]\nroom = 21.0\n', [], "rig option 'room': the sim rig takes"),
         ('rig = "sim"\n[options]\nroom_c = "warm"\n', [], "room_c='warm': give a number"),
-        ('rig = "ur10-lab"\n', [], "--rig ur10-lab: unknown rig; registered rigs: sim"),
+        ('rig = "ur10-lab"\n', [], "--rig ur10-lab: unknown rig; known rigs: sim, ur"),
         ('rig = "sim"\n[options.nested]\nx = 1\n', [], "no nesting"),
         ("rig = ", [], "cannot read the rig configuration"),
         ('rig = "sim"\nhost = "x"\n', [], r"unknown keys \['host'\]"),
+        ('rig = "sim"\n[limits]\nspeed_m_s = 0.1\n', [], r"unknown tables \[limits\]; rig 'sim'"),
         ('rig = "sim"\n', ["room_c"], "give key=value"),
     ],
 )

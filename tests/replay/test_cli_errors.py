@@ -41,7 +41,7 @@ CASES: list[tuple[str, str]] = [
         "learn --recordings {data} --seed -1",
         "argument --seed: -1: give a whole number in 0..4294967295",
     ),
-    ("learn --recordings {data} --rig nosuch", "--rig nosuch: unknown rig; registered rigs: sim"),
+    ("learn --recordings {data} --rig nosuch", "--rig nosuch: unknown rig; known rigs: sim, ur"),
     ("learn --recordings {data} --priors woood", "--priors woood: not in the dataset; it has"),
     ("learn --recordings {data} --new woood,wood", "--new woood: not in the dataset; it has"),
     ("learn --recordings {data} --actions S9", "--actions S9: not in the dataset; it has P1, S2"),

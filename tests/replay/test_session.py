@@ -6,9 +6,10 @@ from conftest import ACTIONS, NEW, OLD, TRIALS
 
 from recorder import SimulatedRig, load_actions, load_objects
 from replay.errors import ReplayError
-from replay.learning._executors import FeatureLookup, LiveExecutor, PoolExecutor, Split
+from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
 from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.live import LiveExecutor
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,219 @@
+"""``atikt-record session``: record actions at a rig, object by object, resumable.
+
+A session records every (action, trial) of one object, then of the next, into the dataset
+layout ``<out>/<object>/<action>/<trial>.mcap`` with the dataset's index and object
+declarations. Before an object's recordings the rig presents it: a rig may implement
+``present(obj) -> bool`` (it moves the object under the skin when its configuration has a pose
+for it and returns True; False when a person must place it, and the session asks on the
+terminal) and ``can_present(obj) -> bool`` (whether it could, checked before anything moves for
+an unattended ``--yes`` run). A rig without them (the simulator) needs nobody.
+
+An interrupted session resumes: recordings on disk are kept and skipped, as ``dataset`` does,
+and a directory of another seed or rig configuration is refused.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console
+
+from recorder._catalog import load_actions, load_objects
+from recorder._cli import _CATALOGS, _names, _rig, _rig_arguments, arg, command
+from recorder._dataset import (
+    check_configuration,
+    declare_objects,
+    plan_dataset,
+    write_index,
+)
+from recorder.errors import RecorderError
+from recorder.writing._writer import record_action
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable, Sequence
+
+    from recorder._catalog import ObjectSpec
+    from recorder._dataset import RecordingTask
+    from recorder._rig import Rig
+    from recorder._rigconfig import RigFactory
+    from recorder.writing._writer import WrittenRecording
+
+
+@dataclass(frozen=True, slots=True)
+class SessionReport:
+    """What a session did.
+
+    Attributes:
+        root: The session's dataset directory.
+        written: Recordings made by this run.
+        kept: Recordings that were on disk already (an earlier, interrupted run).
+        index: The rebuilt index.
+    """
+
+    root: Path
+    written: int
+    kept: int
+    index: Path
+
+
+def _hook(rig: Rig, name: str) -> Callable[[ObjectSpec], Any] | None:
+    """Return the rig's optional method ``name`` (``present``, ``can_present``), if any."""
+    method: Callable[[ObjectSpec], Any] | None = getattr(rig, name, None)
+    return method
+
+
+def refuse_unpresentable(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
+    """Refuse an unattended run (``--yes``) with objects the rig cannot bring itself.
+
+    Raises:
+        RecorderError: Objects without a pose; one line naming them and the fix.
+    """
+    can_present = _hook(rig, "can_present")
+    if can_present is None:
+        return
+    if missing := [obj.id for obj in objects if not can_present(obj)]:
+        msg = (
+            f"--yes: the rig has no pose for {', '.join(missing)}; give them a pose in the rig "
+            "configuration, or run without --yes to place them by hand"
+        )
+        raise RecorderError(msg)
+
+
+def present(
+    rig: Rig, obj: ObjectSpec, *, unattended: bool, ask: Callable[[str], str], root: Path
+) -> None:
+    """Bring ``obj`` under the skin: the rig moves there, or a person places it.
+
+    Raises:
+        RecorderError: Unattended and the rig cannot present it, or the prompt ended (EOF,
+            Ctrl-C); the message says that recordings are kept and how to resume.
+    """
+    hook = _hook(rig, "present")
+    if hook is None or hook(obj):
+        return
+    if unattended:
+        msg = f"--yes: the rig could not present {obj.id}; give it a pose or run without --yes"
+        raise RecorderError(msg)
+    try:
+        ask(f"place {obj.name} ({obj.id}), then Enter ")
+    except (EOFError, KeyboardInterrupt) as err:
+        msg = (
+            f"session stopped at the prompt for {obj.id}; the recordings made are kept in "
+            f"{root}; run the same command again to resume"
+        )
+        raise RecorderError(msg) from err
+
+
+def _finish(root: Path, tasks: Sequence[RecordingTask]) -> Path:
+    """Declare the objects recorded so far and rebuild the index."""
+    declare_objects(root, [task.obj for task in tasks if task.path(root).exists()])
+    return write_index(root)
+
+
+def run_session(
+    tasks: Sequence[RecordingTask],
+    root: Path,
+    factory: RigFactory,
+    *,
+    seed: int,
+    unattended: bool = False,
+    ask: Callable[[str], str] = input,
+    on_recorded: Callable[[RecordingTask, WrittenRecording], Any] | None = None,
+) -> SessionReport:
+    """Record ``tasks`` object by object with one rig, skipping recordings on disk.
+
+    Args:
+        tasks: The recordings, grouped by object (see :func:`recorder.plan_dataset`).
+        root: Dataset directory.
+        factory: Makes the rig (one for the whole session, in this process).
+        seed: Seed of the rig, written to every file; a directory of another seed is refused.
+        unattended: Never ask a person: every object must be presentable by the rig.
+        ask: Shows a prompt and waits for Enter (``input``).
+        on_recorded: Called after every recording.
+
+    Returns:
+        What was written and kept, and the index.
+
+    Raises:
+        RecorderError: Another seed or rig configuration in ``root``, an object without a pose
+            when unattended (before anything moves), a stopped prompt, or a failed recording;
+            the recordings finished are kept and indexed.
+    """
+    root = Path(root)
+    check_configuration(root, seed, factory)
+    pending = [task for task in tasks if not task.path(root).exists()]
+    by_object: dict[str, list[RecordingTask]] = {}
+    for task in pending:
+        by_object.setdefault(task.obj.id, []).append(task)
+    rig = factory(seed)
+    if unattended:
+        refuse_unpresentable(rig, [group[0].obj for group in by_object.values()])
+    try:
+        with rig:
+            for group in by_object.values():
+                present(rig, group[0].obj, unattended=unattended, ask=ask, root=root)
+                for task in group:
+                    path = task.path(root)
+                    written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
+                    if on_recorded is not None:
+                        on_recorded(task, written)
+    except BaseException:
+        with contextlib.suppress(RecorderError):  # the first error is the one to report
+            _finish(root, tasks)
+        raise
+    return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
+
+
+@command(
+    "session",
+    "record actions at a rig object by object (objects presented by the rig or placed by "
+    "hand); an interrupted session resumes",
+    arg("--objects", type=_names, required=True, help="comma-separated object ids, in order"),
+    arg("--actions", type=_names, required=True, help="comma-separated action ids"),
+    arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
+    arg("--out", type=Path, required=True, help="dataset directory (resumed if it exists)"),
+    arg(
+        "--yes",
+        action="store_true",
+        help="unattended: ask nobody; every object needs a pose in the rig configuration",
+    ),
+    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    *_rig_arguments(),
+    *_CATALOGS,
+)
+def _session(args: argparse.Namespace) -> int:
+    objects = load_objects(args.objects_catalog)
+    tasks = plan_dataset(
+        objects,
+        load_actions(args.actions_catalog),
+        object_ids=args.objects,
+        action_ids=args.actions,
+        trials=args.trials,
+    )
+    order = {object_id: position for position, object_id in enumerate(args.objects)}
+    tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
+    console = Console(soft_wrap=True, highlight=False)
+
+    def recorded(task: RecordingTask, written: WrittenRecording) -> None:
+        seconds = (written.end_ns - written.start_ns) / 1e9
+        console.print(
+            f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
+        )
+
+    report = run_session(
+        tasks,
+        args.out,
+        _rig(args),
+        seed=args.seed,
+        unattended=args.yes,
+        on_recorded=recorded,
+    )
+    console.print(
+        f"session {report.root}: {report.written} recordings written, {report.kept} kept "
+        f"(existed); index {report.index}"
+    )
+    return 0

@@ -1,0 +1,512 @@
+"""``atikt-record listen``: a lab's ROS 2 topics recorded live, one file per action.
+
+The lab's own system drives the robot and publishes; this subscribes over DDS (Cyclone DDS,
+no ROS installation: :mod:`recorder.live._dds`) to the topics of a topic map and cuts one
+recording per action window, exactly as ``import-bag`` cuts a bag of the same data: the
+samples are the same CDR bytes and go through the same conversion (:func:`feed` of the
+import's streaming session: decoders, extractors, alignment, packing, checks, file names).
+
+Windows come from the annotation topic as it arrives (a window is known when its ``end``
+annotation came, and written once ``[time] max_delay_s`` has passed beyond its end plus the
+import's one-second margin) or from a CSV (known up front). Each file also records, per topic,
+the samples expected (from the header stamps and the topic's period), received, missing,
+duplicated and out of order, and those its reader's queue could not hold
+(``atikt.sources``). At ``--duration`` or Ctrl-C the windows whose ``end`` arrived are
+written; the one being annotated is dropped with a line saying so; nothing written is lost.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import numpy as np
+
+from recorder._catalog import load_actions, load_objects
+from recorder._cli import _CATALOGS, arg, command
+from recorder._dataset import declare_objects, write_index
+from recorder.bagimport._importer import (
+    MARGIN_NS,
+    Route,
+    _object_spec,
+    _Plan,
+    _plans,
+    _Session,
+    feed,
+    lab_catalogs,
+    plan_window,
+    routes,
+    tally,
+)
+from recorder.bagimport._report import BagIdentity, ImportReport
+from recorder.bagimport._source import (
+    ANNOTATION_TYPE,
+    SkinTopic,
+    check_fields,
+    extractors,
+    required_types,
+    typestore,
+)
+from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
+from recorder.bagimport._windows import (
+    AnnotationGrouper,
+    PathPlanner,
+    parse_annotation,
+    windows_from_csv,
+)
+from recorder.errors import BagImportError, RecorderError
+from recorder.live._accounting import SourceCounter
+from recorder.live._clock import RecorderClock
+
+if TYPE_CHECKING:
+    import argparse
+    import threading
+    from collections.abc import Callable, Mapping, Sequence
+
+    from rosbags.typesys.store import Typestore
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder.bagimport._topicmap import TopicMap
+    from recorder.bagimport._windows import Window
+    from recorder.live._accounting import SourceStats
+    from recorder.live._dds import DdsDomain, Publication
+    from recorder.live._reader import Received, SourceReader
+
+_NS_PER_S = 1_000_000_000
+#: How often idle windows are closed and old messages forgotten, s.
+_TICK_S = 0.05
+_HEADER = ("header", (1, "std_msgs/msg/Header"))
+
+
+def _dds() -> Any:  # noqa: ANN401 (the module)
+    """Return :mod:`recorder.live._dds` (Cyclone DDS's binding is an optional extra).
+
+    Raises:
+        BagImportError: The binding is not installed.
+    """
+    try:
+        from recorder.live import _dds  # noqa: PLC0415 (optional dependency)
+    except ImportError as err:
+        msg = f"listen needs Cyclone DDS ({err}); install it with pip install 'atikt[ros2]'"
+        raise BagImportError(msg) from err
+    return _dds
+
+
+@dataclass(slots=True)
+class _Arrivals:
+    """Header stamps and receive times of one topic as they arrived (duplicates too)."""
+
+    period_ns: int
+    stamps: list[int] = field(default_factory=list)
+    receives: list[int] = field(default_factory=list)
+    overflow_seen: int = 0
+
+    def stats(self, name: str, lo: int, hi: int, overflowed: int) -> SourceStats | None:
+        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none)."""
+        inside = [i for i, s in enumerate(self.stamps) if lo <= s < hi]
+        if not inside:
+            return None
+        stamps = [self.stamps[i] for i in inside]
+        period = self.period_ns
+        if period <= 0:  # no rate in the map: the median step of the distinct stamps
+            steps = np.diff(np.unique(np.asarray(stamps, dtype=np.int64)))
+            period = int(np.median(steps)) if steps.size else 0
+        if period <= 0:
+            return None
+        counter = SourceCounter(name, period_ns=period)
+        for i in inside:
+            counter.observe(None, self.stamps[i], self.receives[i])
+        counter.overflow(overflowed - self.overflow_seen)
+        self.overflow_seen = overflowed
+        return counter.stats()
+
+    def forget(self, before_ns: int) -> None:
+        """Drop arrivals stamped before ``before_ns`` (they arrive in about stamp order)."""
+        keep = next((i for i, s in enumerate(self.stamps) if s >= before_ns), len(self.stamps))
+        del self.stamps[:keep]
+        del self.receives[:keep]
+
+
+@dataclass
+class Listener:
+    """One ``listen`` run: DDS readers, the import's streaming session, the windows."""
+
+    topic_map: TopicMap
+    out: Path
+    objects: Mapping[str, ObjectSpec]
+    actions: Mapping[str, ActionSpec]
+    domain_id: int = 0
+    discovery_s: float = 10.0
+    capacity: int = 100_000
+    on_written: Callable[[Path], Any] | None = None
+    on_note: Callable[[str], Any] | None = None
+    clock: RecorderClock = field(default_factory=RecorderClock)
+    report: ImportReport = field(init=False)
+    session: _Session = field(init=False)
+    _domain: DdsDomain | None = field(default=None, init=False)
+    _readers: list[SourceReader] = field(default_factory=list, init=False)
+    _routes: dict[str, Route] = field(default_factory=dict, init=False)
+    _arrivals: dict[str, _Arrivals] = field(default_factory=dict, init=False)
+    _overflow: dict[str, SourceReader] = field(default_factory=dict, init=False)
+    _grouper: AnnotationGrouper | None = field(default=None, init=False)
+    _planner: PathPlanner = field(init=False)
+    _catalogs: Any = field(init=False)
+    _store: Typestore = field(init=False)
+
+    def __post_init__(self) -> None:
+        """Prepare the report, the session and the windows (nothing is subscribed yet)."""
+        started = time.time_ns()
+        topics = ",".join(sorted(t for t, _ in required_types(self.topic_map)))
+        digest = hashlib.sha256(f"dds {self.domain_id} {started} {topics}".encode()).hexdigest()
+        identity = BagIdentity(Path(f"dds-domain{self.domain_id}-{started}"), digest, 0)
+        self.report = ImportReport([identity], self.out, self.topic_map.path)
+        found = extractors(self.topic_map)
+        self.session = _Session(
+            [],
+            self.topic_map,
+            found,
+            self.report.bags,
+            self.report,
+            self.on_written,
+            live=True,
+            sources=self._sources,
+        )
+        self._planner = PathPlanner(self.out)
+        self._catalogs = lab_catalogs(self.objects, self.actions)
+        windows = self.topic_map.windows
+        if windows.source == "topic":
+            self._grouper = AnnotationGrouper(windows.topic)
+        else:
+            for plan in self._csv_plans():
+                self.session.add(plan)
+
+    def _csv_plans(self) -> list[_Plan]:
+        """Return the plans of a windows CSV (absolute times only).
+
+        Raises:
+            BagImportError: The CSV is missing or its times are relative.
+        """
+        source = self.topic_map.windows
+        if source.csv is None or source.relative:
+            msg = (
+                f"{self.topic_map.path}: listen needs [windows] source = 'topic', or a csv "
+                "with absolute times (relative = false)"
+            )
+            raise BagImportError(msg)
+        windows = windows_from_csv(source.csv, source.time_unit, 0)
+        return _plans(windows, self.topic_map, self.out, self.objects, self.actions)
+
+    # --------------------------------------------------------------------------- subscribe
+
+    def _types(self, seen: Mapping[str, Sequence[Publication]]) -> dict[str, tuple[str, bool]]:
+        """Return topic -> (type, reliable) of every mapped topic, checked like a bag's.
+
+        Raises:
+            BagImportError: A topic without a known type, or with another type than its role.
+        """
+        out: dict[str, tuple[str, bool]] = {}
+        for topic, required in required_types(self.topic_map):
+            publications = seen.get(topic, ())
+            msgtype = publications[0].msgtype if publications else required
+            if msgtype is None:
+                msg = (
+                    f"topic {topic}: no publisher on DDS domain {self.domain_id} within "
+                    f"{self.discovery_s:g} s, so its type is unknown; start the lab's system "
+                    "first, or check the domain id and the topic map"
+                )
+                raise BagImportError(msg)
+            if required is not None and msgtype != required:
+                msg = (
+                    f"topic {topic} carries {msgtype}, but the topic map uses it as "
+                    f"{required}; map the topic that carries {required}"
+                )
+                raise BagImportError(msg)
+            # a best-effort reader matches every publisher (one not seen yet, too)
+            reliable = bool(publications) and all(p.reliable for p in publications)
+            out[topic] = (msgtype, reliable)
+        return out
+
+    def start(self) -> None:
+        """Join the domain, find the topics' types and start one reader thread per topic.
+
+        Raises:
+            BagImportError: DDS is not installed, or a topic cannot be mapped.
+        """
+        dds = _dds()
+        from recorder.live._reader import SourceReader  # noqa: PLC0415
+
+        self._store = typestore(self.topic_map)
+        try:
+            self._domain = domain = dds.DdsDomain(self.domain_id, self._store)
+        except dds.DdsError as err:
+            raise BagImportError(str(err)) from err
+        topics = [t for t, _ in required_types(self.topic_map)]
+        types = self._types(domain.wait_for(topics, self.discovery_s))
+        channels = [_Channel(t, msgtype) for t, (msgtype, _) in types.items()]
+        reader = cast("Any", _Store(self._store))
+        check_fields(reader, cast("Any", channels), self.topic_map)
+        found = self.session.found
+        made = routes(
+            self._store,
+            [(c.topic, c.topic, c.msgtype) for c in channels if c.topic in found],
+            found,
+            clock=self.topic_map.stamps,
+            deserialize=self._store.deserialize_cdr,
+        )
+        self._routes = cast("dict[str, Route]", made)
+        for topic, (msgtype, reliable) in types.items():
+            raw = domain.reader(topic, msgtype, reliable=reliable)
+            raw.clock = self.clock.now_ns
+            source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
+            self._readers.append(source)
+            self._overflow[topic] = source
+            if topic in found and _has_header(self._store, msgtype):
+                self._arrivals[topic] = _Arrivals(_period(found[topic]))
+        for source in self._readers:
+            source.start()
+
+    def stop(self) -> None:
+        """Stop the reader threads."""
+        for source in self._readers:
+            source.stop()
+
+    # ------------------------------------------------------------------------------ stream
+
+    def _sources(self, plan: _Plan) -> list[SourceStats]:
+        """Return the accounting of every topic over a window (for its file)."""
+        out = []
+        window = plan.window
+        for topic, arrivals in self._arrivals.items():
+            overflowed = self._overflow[topic].overflowed
+            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed)
+            if stats is not None:
+                out.append(stats)
+        return out
+
+    def _annotate(self, raw: bytes, receive_ns: int) -> None:
+        """Take one annotation: a window whose ``end`` it is gets planned (or is skipped)."""
+        grouper = self._grouper
+        if grouper is None:
+            return
+        topic = grouper.topic
+        try:
+            text = str(self._store.deserialize_cdr(raw, ANNOTATION_TYPE).data)  # type: ignore[attr-defined]
+            window = grouper.add(*parse_annotation(text, receive_ns, topic))
+            if window is not None:
+                self._add(window)
+        except RecorderError as err:
+            self.report.skipped.append((f"topic {topic} at {receive_ns} ns", str(err)))
+            self._note(f"skipped: {err}")
+
+    def _add(self, window: Window) -> None:
+        """Plan a window (after every window known).
+
+        Raises:
+            BagImportError: It overlaps the previous window, or cannot be planned.
+        """
+        plans = self.session.plans
+        if plans and window.start_ns < plans[-1].window.stop_ns:
+            msg = f"{window.describe()} overlaps {plans[-1].window.describe()}"
+            raise BagImportError(msg)
+        self.session.add(plan_window(self._planner.plan(window), self.topic_map, self._catalogs))
+
+    def _note(self, line: str) -> None:
+        if self.on_note is not None:
+            self.on_note(line)
+
+    def step(self, wait_s: float = _TICK_S) -> int:
+        """Feed what arrived since the last step; write the windows it completes.
+
+        Returns:
+            The number of messages taken.
+        """
+        items = self._take(wait_s)
+        data: list[tuple[Route, int, bytes]] = []
+        annotation = self._grouper.topic if self._grouper is not None else None
+        for item in items:
+            topic, raw = item.payload
+            if topic == annotation:
+                self._flush(data)
+                self._annotate(raw, item.receive_ns)
+                continue
+            route = self._routes.get(topic)
+            if route is None:
+                continue
+            arrivals = self._arrivals.get(topic)
+            if arrivals is not None and len(raw) >= 12:  # noqa: PLR2004 (CDR header + stamp)
+                sec, nanosec = _STAMP(raw, 4)
+                arrivals.stamps.append(sec * _NS_PER_S + nanosec)
+                arrivals.receives.append(item.receive_ns)
+            data.append((route, item.receive_ns, raw))
+        self._flush(data)
+        now = self.clock.now_ns()
+        self.session.advance(now)
+        self._trim(now)
+        return len(items)
+
+    def _flush(self, data: list[tuple[Route, int, bytes]]) -> None:
+        """Feed the data messages collected so far."""
+        if data:
+            feed(data, self.session)
+            data.clear()
+
+    def _take(self, wait_s: float) -> list[Received]:
+        """Return what every reader queued, in receive order (waiting ``wait_s`` once)."""
+        time.sleep(wait_s)
+        items = [item for source in self._readers for item in source.drain()]
+        items.sort(key=lambda item: item.receive_ns)
+        return items
+
+    def _trim(self, now_ns: int) -> None:
+        """Forget what no window can need any more (no window started before then)."""
+        bound = now_ns - self.topic_map.max_delay_ns - MARGIN_NS
+        if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
+            bound = min(bound, start - MARGIN_NS)
+        bound = self.session.trim(bound)
+        for arrivals in self._arrivals.values():
+            arrivals.forget(bound)
+
+    def finish(self) -> ImportReport:
+        """Write the windows whose ``end`` arrived, then objects, index and report."""
+        session = self.session
+        if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
+            line = f"dropped the action being recorded since {start} ns: no 'end' annotation"
+            self.report.skipped.append((f"topic {self._grouper.topic}", line))
+            self._note(line)
+        while session.done < len(session.plans):
+            session.finish_one()
+        tally(session.found, self.report)
+        self.report.messages = {
+            self.report.bags[0].path.name: sum(r.received for r in self._readers)
+        }
+        if self.report.written:
+            written = set(self.report.written)
+            objects = [_object_spec(p.obj) for p in session.plans if p.path in written]
+            declare_objects(self.out, objects)
+            self.report.index = write_index(self.out)
+            self.report.save()
+        return self.report
+
+
+_STAMP = __import__("struct").Struct("<iI").unpack_from
+
+
+@dataclass(frozen=True, slots=True)
+class _Channel:
+    """A live topic as :func:`check_fields` sees a bag connection."""
+
+    topic: str
+    msgtype: str
+
+
+@dataclass(frozen=True, slots=True)
+class _Store:
+    """What :func:`check_fields` reads of a bag reader: its typestore."""
+
+    typestore: Typestore
+
+
+def _has_header(store: Typestore, msgtype: str) -> bool:
+    """Whether a type's first field is a std_msgs/Header (its stamp at CDR offset 4)."""
+    fields = store.fielddefs[msgtype][1]
+    return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == _HEADER[1][1]
+
+
+def _period(extractor: Any) -> int:  # noqa: ANN401
+    """Return a topic's message period from the map's rate (0: measured from the stamps)."""
+    if isinstance(extractor, SkinTopic):
+        spec = extractor.fields[0]
+        if spec.period_ns is not None:
+            return round(spec.period_ns * spec.samples_per_message)
+    return 0
+
+
+def listen(
+    topic_map: TopicMap,
+    out: Path,
+    *,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    domain_id: int = 0,
+    duration_s: float | None = None,
+    stop: threading.Event | None = None,
+    discovery_s: float = 10.0,
+    on_written: Callable[[Path], Any] | None = None,
+    on_note: Callable[[str], Any] | None = None,
+) -> ImportReport:
+    """Record a lab's ROS 2 topics live: one recording per action window, then the index.
+
+    Args:
+        topic_map: What the topics carry (:func:`load_topic_map`), as for ``import-bag``.
+        out: Dataset directory; existing recordings are never overwritten.
+        objects: Object catalog (the map's declarations take precedence).
+        actions: Action catalog (the map's declarations take precedence).
+        domain_id: The DDS domain (``ROS_DOMAIN_ID``).
+        duration_s: Stop after this long (None: at ``stop`` or Ctrl-C).
+        stop: Set it to stop (another thread).
+        discovery_s: How long to wait for the topics' publishers at the start.
+        on_written: Called with every recording written.
+        on_note: Called with one line per window skipped or dropped.
+
+    Returns:
+        What was written and skipped.
+
+    Raises:
+        BagImportError: DDS is missing, or a topic or the map is wrong.
+    """
+    listener = Listener(
+        topic_map,
+        Path(out),
+        objects,
+        actions,
+        domain_id,
+        discovery_s,
+        on_written=on_written,
+        on_note=on_note,
+    )
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    try:
+        listener.start()
+        while not (stop is not None and stop.is_set()):
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            listener.step()
+    except KeyboardInterrupt:
+        listener._note("interrupted: writing the actions whose end arrived")  # noqa: SLF001
+    finally:
+        listener.stop()
+    listener.step(0)
+    return listener.finish()
+
+
+@command(
+    "listen",
+    "record a lab's ROS 2 topics live over DDS: one file per annotated action, as import-bag",
+    arg("--topic-map", type=Path, required=True, help=f"topic map TOML (example: {EXAMPLE})"),
+    arg("--out", type=Path, required=True, help="dataset directory (existing recordings kept)"),
+    arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
+    arg("--domain-id", type=int, default=0, help="DDS domain id (ROS_DOMAIN_ID; default: 0)"),
+    arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
+    *_CATALOGS,
+)
+def _listen(args: argparse.Namespace) -> int:
+    topic_map = load_topic_map(args.topic_map)
+    if args.windows is not None:
+        topic_map = topic_map.with_csv(args.windows)
+    objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
+    report = listen(
+        topic_map,
+        args.out,
+        objects=objects,
+        actions=actions,
+        domain_id=args.domain_id,
+        duration_s=args.duration,
+        discovery_s=10.0 if args.duration is None else min(10.0, args.duration),
+        on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
+        on_note=lambda line: print(line, flush=True),  # noqa: T201
+    )
+    print(f"{len(report.written)} recordings -> {args.out}")  # noqa: T201
+    return 0

@@ -1,0 +1,40 @@
+"""Live sources: reader threads, bounded queues, sample accounting, clocks and skin blocks.
+
+Every live source (the arm's RTDE stream, a skin's UDP or serial frames, ROS 2 topics over
+DDS) is read by one :class:`SourceReader` thread into a bounded queue that counts what it
+could not hold; the consumer counts every sample with a :class:`SourceCounter` (expected from
+the source's sequence counter or clock, received, missing, duplicated, out of order, clock
+offset), and the counts of each recording are written into its file (:class:`SourceStats`).
+"""
+
+from recorder.live._accounting import (
+    SOURCES_RECORD,
+    SourceCounter,
+    SourceStats,
+    parse_source_stats,
+)
+from recorder.live._clock import RecorderClock
+from recorder.live._framelayout import SkinLayout, parse_layout
+from recorder.live._frames import SerialSkin, UdpSkin
+from recorder.live._packer import BlockPacker
+from recorder.live._reader import Received, SourceLostError, SourceReader
+from recorder.live._skin import SKIN_TRANSPORTS, LiveSkin, open_skin
+
+__all__ = [
+    "SKIN_TRANSPORTS",
+    "SOURCES_RECORD",
+    "BlockPacker",
+    "LiveSkin",
+    "Received",
+    "RecorderClock",
+    "SerialSkin",
+    "SkinLayout",
+    "SourceCounter",
+    "SourceLostError",
+    "SourceReader",
+    "SourceStats",
+    "UdpSkin",
+    "open_skin",
+    "parse_layout",
+    "parse_source_stats",
+]

@@ -1,0 +1,600 @@
+"""ROS 2 topics over DDS, without a ROS installation (Cyclone DDS's Python binding).
+
+A ROS 2 node on Cyclone DDS (``rmw_cyclonedds``) publishes topic ``/joint_states`` of type
+``sensor_msgs/msg/JointState`` as the DDS topic ``rt/joint_states`` of type
+``sensor_msgs::msg::dds_::JointState_``, serialized as little-endian CDR (XCDR1, the
+encapsulation rosbags reads and writes). This module speaks that mapping: the DDS types are
+generated at run time from the message definitions of a rosbags typestore (the standard ROS 2
+types, the virtual lab's own, a topic map's ``[types]``), and the samples are moved as their
+CDR bytes, so the bytes a reader hands on are exactly the bytes ``ros2 bag record`` would have
+written into a bag, and the import's decoders read them unchanged.
+
+Quality of service follows the publishers: a reader is reliable when every publisher of its
+topic is (ROS 2's default profile), else best effort (the sensor-data profile), so it matches
+both; durability is volatile (matches volatile and transient-local publishers).
+
+The live skin of a rig configuration (``[skin] transport = "ros2"``) is :func:`ros2_skin`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Self
+
+import numpy as np
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+from cyclonedds.core import (
+    DDSException,
+    InstanceState,
+    Policy,
+    Qos,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct, make_idl_struct
+from cyclonedds.idl import types as idl
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from rosbags.interfaces import Nodetype
+from rosbags.typesys import get_types_from_msg
+
+from recorder.errors import RecorderError, RigError
+from recorder.live._reader import Received, SourceReader
+
+# DataReader.take() deserializes every sample into a Python object; the import wants the CDR
+# bytes (its compiled decoders read them), so samples are taken and written as bytes with the
+# binding's own C layer, which DataReader.take and DataWriter.write call themselves.
+_CLAYER: Any = importlib.import_module("cyclonedds._clayer")
+ddspy_take = _CLAYER.ddspy_take
+ddspy_write = _CLAYER.ddspy_write
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+    from types import TracebackType
+
+    from rosbags.typesys.store import Typestore
+
+#: The virtual lab's own message types (the skin cell of the example topic map).
+ATIKT_TYPES = {
+    "atikt_msgs/msg/SkinCell": (
+        "std_msgs/Header header\nfloat32[3] force\nfloat32[3] acc\nfloat32 temp\nfloat32 prox\n"
+    ),
+}
+#: Samples a reader's DDS cache keeps before the oldest is replaced (the reader thread takes
+#: them every few ms; a replaced sample is counted missing from the stamps).
+READER_DEPTH = 4096
+#: Samples a writer keeps for late retransmission (reliable writers).
+WRITER_DEPTH = 1000
+#: cyclonedds.idl.types, untyped: its generic annotations are built at run time here.
+_IDL: Any = idl
+_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+_POLL_NS = 20_000_000
+_BASE: dict[str, Any] = {
+    "bool": bool,
+    "byte": idl.uint8,
+    "char": idl.uint8,
+    "int8": idl.int8,
+    "uint8": idl.uint8,
+    "int16": idl.int16,
+    "uint16": idl.uint16,
+    "int32": idl.int32,
+    "uint32": idl.uint32,
+    "int64": idl.int64,
+    "uint64": idl.uint64,
+    "float32": idl.float32,
+    "float64": idl.float64,
+    "string": str,
+}
+
+
+class DdsError(RecorderError):
+    """DDS refused something (a domain id, a type, a topic)."""
+
+
+def dds_topic(topic: str) -> str:
+    """Return the DDS topic of a ROS 2 topic (``/joint_states`` -> ``rt/joint_states``)."""
+    return "rt/" + topic.lstrip("/")
+
+
+def dds_type(msgtype: str) -> str:
+    """Return the DDS type name of a ROS 2 type (``a/msg/B`` -> ``a::msg::dds_::B_``)."""
+    package, kind, name = msgtype.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def ros_type(type_name: str) -> str:
+    """Return the ROS 2 type of a DDS type name (the inverse of :func:`dds_type`)."""
+    parts = type_name.split("::")
+    if len(parts) != 4 or parts[2] != "dds_" or not parts[3].endswith("_"):  # noqa: PLR2004
+        return type_name
+    return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
+
+
+def register_atikt_types(store: Typestore) -> Typestore:
+    """Add the virtual lab's message types to a typestore (those it lacks) and return it."""
+    for name, text in ATIKT_TYPES.items():
+        if name not in store.fielddefs:
+            store.register(get_types_from_msg(text, name))
+    return store
+
+
+class IdlTypes:
+    """DDS types generated from a typestore's message definitions, cached by ROS 2 name."""
+
+    def __init__(self, store: Typestore) -> None:
+        """Keep the typestore."""
+        self._store = store
+        self._made: dict[str, type[IdlStruct]] = {}
+
+    def get(self, msgtype: str) -> type[IdlStruct]:
+        """Return the DDS type of ``msgtype`` (``pkg/msg/Name``).
+
+        Raises:
+            DdsError: The typestore does not know the type.
+        """
+        if msgtype not in self._made:
+            if msgtype not in self._store.fielddefs:
+                msg = (
+                    f"message type {msgtype} is unknown; give its definition under [types] "
+                    "of the topic map"
+                )
+                raise DdsError(msg)
+            fields = {name: self._node(desc) for name, desc in self._store.fielddefs[msgtype][1]}
+            name = msgtype.rsplit("/", 1)[-1]
+            self._made[msgtype] = make_idl_struct(name, dds_type(msgtype), fields)
+        return self._made[msgtype]
+
+    def _node(self, desc: tuple[Any, ...]) -> Any:  # noqa: ANN401 (an IDL type annotation)
+        """Return the IDL annotation of one field's type node."""
+        kind, rest = desc
+        if kind == Nodetype.BASE:
+            name, bound = rest
+            if name == "string" and bound:
+                return _IDL.bounded_str[bound]
+            return _BASE[name]
+        if kind == Nodetype.NAME:
+            return self.get(rest)
+        sub = self._node(rest[0])
+        if kind == Nodetype.ARRAY:
+            return _IDL.array[sub, rest[1]]
+        return _IDL.sequence[sub, rest[1]] if rest[1] else _IDL.sequence[sub]
+
+
+def ros_qos(*, reliable: bool, depth: int) -> Qos:
+    """Return the QoS of a ROS 2 endpoint (reliable: default profile, else sensor data)."""
+    reliability = Policy.Reliability.Reliable(0) if reliable else Policy.Reliability.BestEffort
+    return Qos(
+        reliability,
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(depth),
+        Policy.DataRepresentation(use_cdrv0_representation=True),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Publication:
+    """A publisher seen on the domain: its ROS 2 topic and type, and whether it is reliable."""
+
+    topic: str
+    msgtype: str
+    reliable: bool
+
+
+def _publication(sample: Any) -> Publication | None:  # noqa: ANN401 (a DcpsEndpoint)
+    """Return a discovered publication of a ROS 2 topic (None: another DDS topic)."""
+    name = str(sample.topic_name)
+    if not name.startswith("rt/"):
+        return None
+    reliability = sample.qos[Policy.Reliability] if sample.qos is not None else None
+    reliable = isinstance(reliability, Policy.Reliability.Reliable)
+    return Publication("/" + name[3:], ros_type(str(sample.type_name)), reliable)
+
+
+class DdsDomain:
+    """One DDS participant on a domain: discovery, raw readers and raw writers."""
+
+    def __init__(self, domain_id: int, store: Typestore) -> None:
+        """Join the domain.
+
+        Raises:
+            DdsError: DDS refuses the domain id (0..232) or its configuration.
+        """
+        try:
+            self.participant = DomainParticipant(domain_id)
+        except DDSException as err:
+            msg = (
+                f"DDS domain {domain_id}: cannot join ({err}); give a domain id 0..232 and "
+                "check CYCLONEDDS_URI"
+            )
+            raise DdsError(msg) from err
+        self.domain_id = domain_id
+        self.store = register_atikt_types(store)
+        self.types = IdlTypes(self.store)
+        self._topics: dict[str, Topic[Any]] = {}
+        self._discovery = BuiltinDataReader(self.participant, BuiltinTopicDcpsPublication)
+        self.seen: dict[str, list[Publication]] = {}
+
+    def topic(self, topic: str, msgtype: str) -> Topic[Any]:
+        """Return the DDS topic of a ROS 2 topic and type (created once).
+
+        Raises:
+            DdsError: The type is unknown, or the topic exists with another type.
+        """
+        if topic not in self._topics:
+            self._topics[topic] = Topic(self.participant, dds_topic(topic), self.types.get(msgtype))
+        made = self._topics[topic]
+        if made.data_type.__idl_typename__.replace(".", "::") != dds_type(msgtype):
+            msg = f"topic {topic}: used with two types here ({msgtype}); map each topic once"
+            raise DdsError(msg)
+        return made
+
+    def discover(self) -> dict[str, list[Publication]]:
+        """Return the ROS 2 publications seen so far, by topic."""
+        for sample in self._discovery.take(256):
+            if getattr(sample, "sample_info", None) is None or not sample.sample_info.valid_data:
+                continue
+            found = _publication(sample)
+            if found is not None:
+                self.seen.setdefault(found.topic, []).append(found)
+        return self.seen
+
+    def wait_for(self, topics: Iterable[str], timeout_s: float) -> dict[str, list[Publication]]:
+        """Return the publications of ``topics`` seen within ``timeout_s`` (some may lack)."""
+        wanted = set(topics)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            seen = self.discover()
+            if wanted <= set(seen) or time.monotonic() >= deadline:
+                return {t: seen[t] for t in wanted if t in seen}
+            time.sleep(0.02)
+
+    def reader(self, topic: str, msgtype: str, *, reliable: bool) -> RawReader:
+        """Return a reader of a topic's CDR bytes."""
+        return RawReader(self, topic, msgtype, reliable=reliable)
+
+    def writer(self, topic: str, msgtype: str, *, reliable: bool = True) -> RawWriter:
+        """Return a writer of a topic's CDR bytes (for the virtual lab and the tests)."""
+        made = DataWriter(
+            self.participant,
+            self.topic(topic, msgtype),
+            qos=ros_qos(reliable=reliable, depth=WRITER_DEPTH),
+        )
+        return RawWriter(topic, made)
+
+
+@dataclass(slots=True)
+class RawWriter:
+    """Publishes CDR bytes (with their encapsulation header) on one topic."""
+
+    topic: str
+    writer: DataWriter[Any]
+
+    def write(self, raw: bytes) -> None:
+        """Publish one message.
+
+        Raises:
+            DdsError: DDS refused it.
+        """
+        code = ddspy_write(self.writer._ref, raw)  # noqa: SLF001 (the binding's own handle)
+        if code < 0:
+            msg = f"topic {self.topic}: DDS refused a message (code {code})"
+            raise DdsError(msg)
+
+    def matched(self) -> int:
+        """Return the number of readers matched."""
+        status: Any = self.writer.get_publication_matched_status()  # type: ignore[no-untyped-call]
+        return int(status.current_count)
+
+
+class RawReader:
+    """Takes one topic's samples as CDR bytes; ``receive`` is a :class:`SourceReader` source."""
+
+    def __init__(self, domain: DdsDomain, topic: str, msgtype: str, *, reliable: bool) -> None:
+        """Create the DDS reader (matching starts now)."""
+        self.topic = topic
+        self.msgtype = msgtype
+        self.reader = DataReader(
+            domain.participant,
+            domain.topic(topic, msgtype),
+            qos=ros_qos(reliable=reliable, depth=READER_DEPTH),
+        )
+        self._waitset = WaitSet(domain.participant)
+        self._waitset.attach(ReadCondition(self.reader, _ANY))
+        self._pending: deque[tuple[int, bytes]] = deque()
+        self.clock = time.time_ns
+
+    def take(self) -> list[bytes]:
+        """Return the valid samples waiting now, as bytes."""
+        taken = ddspy_take(self.reader._ref, _ANY, 256)  # noqa: SLF001 (the binding's handle)
+        if isinstance(taken, int):
+            msg = f"topic {self.topic}: DDS read failed (code {taken})"
+            raise DdsError(msg)
+        return [bytes(data) for data, info in taken if info.valid_data]
+
+    def receive(self) -> Received | None:
+        """Return one sample ``(topic, bytes)`` with its receive time, waiting 20 ms at most."""
+        if not self._pending:
+            self._waitset.wait(_POLL_NS)
+            now = self.clock()
+            self._pending.extend((now, raw) for raw in self.take())
+            if not self._pending:
+                return None
+        receive_ns, raw = self._pending.popleft()
+        return Received(receive_ns, (self.topic, raw))
+
+
+# ------------------------------------------------------------------------------ live skin
+
+
+@dataclass(slots=True)
+class _Modality:
+    """One skin modality's packing state."""
+
+    spec: Any
+    period_ns: int
+    emitted_ns: int = -(2**63)
+    latest: Any = None
+
+
+@dataclass
+class Ros2Skin:
+    """A live skin read from the ROS 2 topics of a topic map (a :class:`LiveSkin`).
+
+    The samples go through the import's own extractors (:class:`SkinTopic`: fields, scales,
+    batching, widths) and cell alignment (:func:`align_rows`); blocks are cut where every
+    cell has samples, shifted onto the recorder's time base by each source's clock offset.
+    """
+
+    topic_map: Any
+    clock: Any
+    domain_id: int = 0
+    discovery_s: float = 10.0
+    capacity: int = 10_000
+    _domain: DdsDomain | None = field(default=None, init=False)
+    _readers: dict[str, SourceReader] = field(default_factory=dict, init=False)
+    _found: dict[str, Any] = field(default_factory=dict, init=False)
+    _decoders: dict[str, Any] = field(default_factory=dict, init=False)
+    _counters: dict[str, Any] = field(default_factory=dict, init=False)
+    _overflow0: dict[str, int] = field(default_factory=dict, init=False)
+    _modalities: dict[str, _Modality] = field(default_factory=dict, init=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
+    _last_receive: int | None = field(default=None, init=False)
+
+    def __enter__(self) -> Self:
+        """Join the domain, find the skin topics' types and start one reader per topic.
+
+        Raises:
+            RigError: A skin topic has no publisher within ``discovery_s``.
+        """
+        from recorder.bagimport._fastdecode import compile_cdr  # noqa: PLC0415
+        from recorder.bagimport._source import SkinTopic, extractors, typestore  # noqa: PLC0415
+
+        store = typestore(self.topic_map)
+        self._domain = DdsDomain(self.domain_id, store)
+        self._found = {
+            t: e for t, e in extractors(self.topic_map).items() if isinstance(e, SkinTopic)
+        }
+        seen = self._domain.wait_for(self._found, self.discovery_s)
+        if missing := sorted(set(self._found) - set(seen)):
+            msg = (
+                f"{self.topic_map.path}: no publisher of skin topic {missing[0]} on DDS domain "
+                f"{self.domain_id} within {self.discovery_s:g} s; start the skin's driver or fix "
+                "the topic map or domain_id"
+            )
+            raise RigError(msg)
+        for topic, extractor in self._found.items():
+            publications = seen[topic]
+            msgtype = publications[0].msgtype
+            reliable = all(p.reliable for p in publications)
+            fields = [spec.field for spec in extractor.fields]
+            decoder = compile_cdr(store, msgtype, fields, stamped=True)
+            if decoder is None:
+                msg = f"topic {topic} ({msgtype}): its layout cannot be read live; map plain fields"
+                raise RigError(msg)
+            extractor.dtypes = decoder.dtypes
+            self._decoders[topic] = decoder.decode
+            raw = self._domain.reader(topic, msgtype, reliable=reliable)
+            raw.clock = self.clock.now_ns
+            reader = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
+            self._readers[topic] = reader
+            reader.start()
+        for modality, spec in self.topic_map.skin.items():
+            period = int(spec.period_ns) if spec.period_ns is not None else 0
+            self._modalities[modality] = _Modality(spec, period)
+        self.begin()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Stop the reader threads."""
+        for reader in self._readers.values():
+            reader.stop()
+
+    @property
+    def cells(self) -> int:
+        """Return the number of cells."""
+        return len(self.topic_map.cells)
+
+    def begin(self) -> None:
+        """Start a new recording: fresh accounting, forget what was received before."""
+        from recorder.live._accounting import SourceCounter  # noqa: PLC0415
+
+        for topic, reader in self._readers.items():
+            reader.drain()
+            extractor = self._found[topic]
+            spec = extractor.fields[0]
+            period = int(spec.period_ns * spec.samples_per_message) if spec.period_ns else 0
+            self._counters[topic] = SourceCounter(
+                topic.lstrip("/").replace(".", "_"), period_ns=period
+            )
+            self._overflow0[topic] = reader.overflowed
+            extractor.forget(2**62)
+        for state in self._modalities.values():
+            state.emitted_ns = -(2**63)
+
+    def _ingest(self) -> None:
+        """Move every queued sample into the extractors, counting it."""
+        for topic, reader in self._readers.items():
+            extractor, decode, counter = (
+                self._found[topic],
+                self._decoders[topic],
+                self._counters[topic],
+            )
+            for item in reader.drain():
+                fields = decode(item.payload[1])
+                if fields is None:
+                    continue
+                stamp = fields[0] * 1_000_000_000 + fields[1]
+                self._observe(counter, extractor, stamp, item.receive_ns)
+                if extractor.buffer.last is None or stamp > extractor.buffer.last:
+                    extractor.push_fields(fields, stamp, item.receive_ns)
+                self._last_receive = item.receive_ns
+
+    def _observe(self, counter: Any, extractor: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
+        """Count a message (the period is measured from the first two if the map has none)."""
+        if counter._period_ns <= 0:  # noqa: SLF001 (set once, before the first count)
+            last = extractor.buffer.last
+            if last is None or stamp <= last:
+                return
+            counter._period_ns = stamp - last  # noqa: SLF001
+        counter.observe(None, stamp, receive_ns)
+
+    def _blocks(self, *, final: bool) -> list[Any]:
+        """Return the blocks of every modality that all cells have samples for."""
+        from recorder.bagimport._pack import align_rows, block_period, skin_blocks  # noqa: PLC0415
+
+        out: list[Any] = []
+        for modality, state in self._modalities.items():
+            mine = [e for e in self._found.values() if modality in e.offsets]
+            if any(e.size() < 2 for e in mine):  # noqa: PLR2004 (a period needs two)
+                continue
+            series = [e.take(-(2**62), 2**62)[modality] for e in mine]
+            if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
+                continue
+            period = block_period(state.spec.period_ns, series[0].stamps)
+            if period <= 0:
+                continue
+            hi = min(int(s.stamps[-1]) for s in series) + (1 if final else -period)
+            lo = max(state.emitted_ns, int(series[0].stamps[0]))
+            if hi <= lo:
+                continue
+            rows = align_rows(series, lo, hi, period)
+            blocks, _, _ = skin_blocks(modality, rows, period, self.topic_map.max_jitter)
+            state.emitted_ns = hi
+            offset = self._offset(modality)
+            out.extend(_shift(b, offset) for b in blocks)
+            if len(blocks):
+                state.latest = np.asarray(blocks[-1].data[-1], dtype=np.float64)
+        for extractor in self._found.values():
+            keep = min((s.emitted_ns for s in self._modalities.values()), default=0)
+            extractor.forget(keep - 2_000_000_000)
+        return out
+
+    def _offset(self, modality: str) -> int:
+        """Return the clock offset of the first cell's topic of a modality."""
+        for topic, extractor in self._found.items():
+            if modality in extractor.offsets:
+                return int(self._counters[topic].clock_offset_ns or 0)
+        return 0
+
+    def poll(self) -> list[Any]:
+        """Return the blocks completed since the last poll.
+
+        Raises:
+            SourceLostError: A reader thread failed.
+        """
+        with self._lock:
+            self._ingest()
+            return self._blocks(final=False)
+
+    def finish(self) -> list[Any]:
+        """Return everything received (the end of a recording)."""
+        with self._lock:
+            self._ingest()
+            return self._blocks(final=True)
+
+    def total_force(self) -> float | None:
+        """Return the latest total force over every cell and sensor, N (None: none yet)."""
+        state = self._modalities.get("force")
+        return None if state is None or state.latest is None else float(state.latest.sum())
+
+    def nearest(self) -> float | None:
+        """Return the latest smallest proximity, m (None: no proximity sensing)."""
+        state = self._modalities.get("proximity")
+        return None if state is None or state.latest is None else float(state.latest.min())
+
+    def last_receive_ns(self) -> int | None:
+        """Return the receive time of the latest sample (None: nothing yet)."""
+        return self._last_receive
+
+    def stats(self) -> list[Any]:
+        """Return each topic's accounting since :meth:`begin` (overflow included)."""
+        out = []
+        for topic, counter in self._counters.items():
+            overflowed = self._readers[topic].overflowed
+            counter.overflow(overflowed - self._overflow0[topic])
+            self._overflow0[topic] = overflowed
+            out.append(counter.stats())
+        return out
+
+
+def _shift(block: Any, offset_ns: int) -> Any:  # noqa: ANN401
+    """Return a block with its stamp moved onto the recorder's time base."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    return replace(block, stamp_ns=block.stamp_ns + offset_ns)
+
+
+def ros2_skin(section: Mapping[str, Any], clock: Any, where: str) -> Ros2Skin:  # noqa: ANN401
+    """Build the live skin of a rig configuration's ``[skin]`` table (``transport = "ros2"``).
+
+    Keys: ``topic_map`` (path of the topic map, relative to the configuration), optional
+    ``domain_id`` (default 0) and ``discovery_s`` (default 10).
+
+    Raises:
+        RigError: A key is missing, unknown or wrong, or the map does not load.
+    """
+    from pathlib import Path  # noqa: PLC0415
+
+    from recorder.bagimport._topicmap import load_topic_map  # noqa: PLC0415
+
+    known = {"transport", "topic_map", "domain_id", "discovery_s"}
+    if unknown := sorted(set(section) - known):
+        msg = (
+            f"{where}: [skin] key {unknown[0]!r} is unknown for transport ros2; use {sorted(known)}"
+        )
+        raise RigError(msg)
+    path = section.get("topic_map")
+    if not isinstance(path, str):
+        msg = f'{where}: [skin] transport = "ros2" needs topic_map = "path/to/topic_map.toml"'
+        raise RigError(msg)
+    domain = section.get("domain_id", 0)
+    if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:  # noqa: PLR2004
+        msg = f"{where}: [skin] domain_id = {domain!r}: give a DDS domain id 0..232"
+        raise RigError(msg)
+    base = Path(where).parent if where else Path()
+    try:
+        topic_map = load_topic_map(base / path)
+    except RecorderError as err:
+        raise RigError(str(err)) from err
+    discovery = float(section.get("discovery_s", 10.0))
+    return Ros2Skin(topic_map, clock, domain, discovery)
+
+
+def merge_received(readers: Sequence[SourceReader]) -> list[Received]:
+    """Return what every reader has queued now, in receive order."""
+    items = [item for reader in readers for item in reader.drain()]
+    items.sort(key=lambda item: item.receive_ns)
+    return items

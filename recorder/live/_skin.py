@@ -1,0 +1,121 @@
+"""A live skin, whatever carries it: the interface a real rig reads its skin through.
+
+A lab's skin reaches the recorder as UDP or serial frames (layout described in the rig
+configuration's ``[skin]`` table) or as ROS 2 topics (mapped by a topic map). Each transport
+implements :class:`LiveSkin`; the rig configuration's ``[skin] transport = "udp" | "serial"
+| "ros2"`` picks one through :data:`SKIN_TRANSPORTS` (loaded by import string, so a rig that
+does not use DDS never imports it).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any, Protocol, Self
+
+from recorder.errors import RigError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
+    from types import TracebackType
+
+    from recorder.live._accounting import SourceStats
+    from recorder.live._clock import RecorderClock
+    from recorder.writing._stream import SkinBlock
+
+
+class LiveSkin(Protocol):
+    """A skin read live: reader threads while inside ``with``, blocks polled by the rig.
+
+    Sensor stamps of the blocks are on the recorder's time base (the source's clock plus the
+    estimated offset); receive times are the recorder's clock.
+    """
+
+    def __enter__(self) -> Self:
+        """Open the transport and start its reader thread(s)."""
+        ...
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Stop the threads and close the transport."""
+        ...
+
+    @property
+    def cells(self) -> int:
+        """Return the number of cells."""
+        ...
+
+    def begin(self) -> None:
+        """Start a new recording: fresh accounting, drop what was queued before."""
+        ...
+
+    def poll(self) -> list[SkinBlock]:
+        """Return the blocks completed since the last poll (does not wait).
+
+        Raises:
+            SourceLostError: The connection was lost.
+        """
+        ...
+
+    def finish(self) -> list[SkinBlock]:
+        """Return everything still open or queued (the end of a recording)."""
+        ...
+
+    def total_force(self) -> float | None:
+        """Return the latest total normal force over every cell and sensor, N (None: none)."""
+        ...
+
+    def nearest(self) -> float | None:
+        """Return the latest smallest proximity reading, m (None: no proximity sensing)."""
+        ...
+
+    def last_receive_ns(self) -> int | None:
+        """Return the receive time of the latest sample (None: nothing yet)."""
+        ...
+
+    def stats(self) -> list[SourceStats]:
+        """Return the accounting of each of its sources since :meth:`begin`."""
+        ...
+
+
+#: ``build(section, clock, where) -> LiveSkin`` of each transport, by import string.
+SKIN_TRANSPORTS: dict[str, str] = {
+    "udp": "recorder.live._frames:udp_skin",
+    "serial": "recorder.live._frames:serial_skin",
+    "ros2": "recorder.live._dds:ros2_skin",
+}
+
+
+def open_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> LiveSkin:
+    """Build the live skin a rig configuration's ``[skin]`` table describes (not yet open).
+
+    Args:
+        section: The ``[skin]`` table (``transport`` and the transport's own keys).
+        clock: The recorder's clock (receive times).
+        where: The configuration file, for messages.
+
+    Raises:
+        RigError: No or an unknown transport, or the transport refuses the table.
+    """
+    transport = section.get("transport")
+    target = SKIN_TRANSPORTS.get(str(transport))
+    if target is None:
+        known = ", ".join(SKIN_TRANSPORTS)
+        msg = f"{where}: [skin] transport = {transport!r}: give one of {known}"
+        raise RigError(msg)
+    module, _, name = target.partition(":")
+    try:
+        build: Callable[[Mapping[str, Any], RecorderClock, str], LiveSkin] = getattr(
+            importlib.import_module(module), name
+        )
+    except (ImportError, AttributeError) as err:
+        extra = "ros2" if transport == "ros2" else "serial"
+        msg = (
+            f"{where}: the {transport} skin transport is not available ({err}); "
+            f"install it with pip install 'atikt[{extra}]'"
+        )
+        raise RigError(msg) from err
+    return build(section, clock, where)

@@ -1,0 +1,226 @@
+"""The virtual lab's ROS 2 side: the world's joint states and skin published over DDS.
+
+A lab rehearses ``listen`` or a ``[skin] transport = "ros2"`` rig configuration without the
+robot: :func:`serve_ros2` publishes, on the topics a topic map names, what a ROS 2 driver of
+the arm and of the skin would publish (``sensor_msgs/msg/JointState``, and one
+``atikt_msgs/msg/SkinCell`` message per cell with the fields the map reads, in the map's raw
+units), stamped with the wall clock. Only those topics: annotations are the lab's own.
+Faults for tests: samples of a topic not published (counted exactly by the readers), and a
+stall of every topic.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from recorder.bagimport._source import JOINT_TYPE, SkinTopic, extractors, typestore
+from recorder.bagimport._topicmap import load_topic_map
+from recorder.errors import RigError
+from recorder.live._dds import DdsDomain
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Mapping
+    from pathlib import Path
+
+    from recorder.bagimport._topicmap import TopicMap
+    from recorder.live._dds import RawWriter
+    from recorder.virtuallab._world import VirtualWorld
+
+CELL_TYPE = "atikt_msgs/msg/SkinCell"
+#: Field of the cell message -> (modality, values per cell).
+CELL_FIELDS = {"force": 3, "acc": 3, "temp": 1, "prox": 1}
+JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+_NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True, slots=True)
+class Ros2Faults:
+    """Faults the virtual lab injects into its ROS 2 topics.
+
+    Attributes:
+        drop: Topic -> how many consecutive samples are not published.
+        drop_after: Samples of each topic published before the drop starts.
+        stall_s: Every topic pauses this long once (0: never).
+        stall_after_s: When the pause starts, s after the start.
+    """
+
+    drop: Mapping[str, int] = field(default_factory=dict)
+    drop_after: int = 50
+    stall_s: float = 0.0
+    stall_after_s: float = 0.0
+
+
+@dataclass
+class Ros2Server:
+    """The publishing thread of :func:`serve_ros2`; ``sent`` counts what went out per topic."""
+
+    world: VirtualWorld
+    topic_map: TopicMap
+    faults: Ros2Faults
+    domain: DdsDomain
+    rate_hz: float
+    joint_rate_hz: float
+    sent: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _thread: threading.Thread | None = None
+    _writers: dict[str, RawWriter] = field(default_factory=dict)
+    _cells: dict[str, SkinTopic] = field(default_factory=dict)
+
+    def start(self) -> None:
+        """Create the writers and start publishing.
+
+        Raises:
+            RigError: A mapped skin field is not a field of the cell message.
+        """
+        for topic, extractor in extractors(self.topic_map).items():
+            if not isinstance(extractor, SkinTopic):
+                continue
+            if bad := [s.field for s in extractor.fields if s.field not in CELL_FIELDS]:
+                msg = (
+                    f"{self.topic_map.path}: the virtual lab publishes {CELL_TYPE} "
+                    f"({', '.join(CELL_FIELDS)}), not field {bad[0]!r} of {topic}"
+                )
+                raise RigError(msg)
+            self._cells[topic] = extractor
+            self._writers[topic] = self.domain.writer(topic, CELL_TYPE)
+        if self.topic_map.joints is not None:
+            topic = self.topic_map.joints.topic
+            self._writers[topic] = self.domain.writer(topic, JOINT_TYPE)
+        self._thread = threading.Thread(target=self._run, name="atikt-ros2-server", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop publishing."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+
+    def _publish(self, topic: str, raw: bytes) -> None:
+        """Publish one sample unless a fault drops it."""
+        count = self.sent.get(topic, 0) + self.dropped.get(topic, 0)
+        drop = self.faults.drop.get(topic, 0)
+        if self.faults.drop_after <= count < self.faults.drop_after + drop:
+            self.dropped[topic] = self.dropped.get(topic, 0) + 1
+            return
+        self._writers[topic].write(raw)
+        self.sent[topic] = self.sent.get(topic, 0) + 1
+
+    def _run(self) -> None:
+        """Publish at the rates until stopped (sample times on an exact grid)."""
+        store = self.domain.store
+        start = time.time_ns()
+        cell_period = round(_NS_PER_S / self.rate_hz)
+        joint_period = round(_NS_PER_S / self.joint_rate_hz)
+        stalled = self.faults.stall_s <= 0
+        next_cell, next_joint = start, start
+        while not self._stop.is_set():
+            due = min(next_cell, next_joint)
+            delay = (due - time.time_ns()) / _NS_PER_S
+            if delay > 0:
+                time.sleep(delay)
+            if not stalled and due - start >= self.faults.stall_after_s * _NS_PER_S:
+                stalled = True
+                time.sleep(self.faults.stall_s)
+            controller = self.world.controller_ns()
+            if due == next_joint and self.topic_map.joints is not None:
+                self._publish(self.topic_map.joints.topic, self._joint(store, due, controller))
+                next_joint += joint_period
+            if due == next_cell:
+                for topic, extractor in self._cells.items():
+                    self._publish(topic, self._cell(store, extractor, due, controller))
+                next_cell += cell_period
+
+    def _joint(self, store: Any, stamp: int, controller_ns: int) -> bytes:  # noqa: ANN401
+        """Return a JointState of the world's arm, serialized."""
+        state = self.world.robot_at(controller_ns)
+        types = store.types
+        message = types[JOINT_TYPE](
+            header=_header(store, stamp),
+            name=list(JOINT_NAMES),
+            position=np.asarray(state.q, dtype=np.float64),
+            velocity=np.asarray(state.qd, dtype=np.float64),
+            effort=np.zeros(len(JOINT_NAMES)),
+        )
+        return bytes(store.serialize_cdr(message, JOINT_TYPE))
+
+    def _cell(self, store: Any, extractor: SkinTopic, stamp: int, controller_ns: int) -> bytes:  # noqa: ANN401
+        """Return one cell's message, its fields in the map's raw units, serialized."""
+        values: dict[str, Any] = {
+            "force": np.zeros(3),
+            "acc": np.zeros(3),
+            "temp": 0.0,
+            "prox": 0.0,
+        }
+        for spec in extractor.fields:
+            sample = self.world.skin_at(spec.modality, controller_ns)
+            if sample is None:
+                continue
+            si = np.asarray(sample[extractor.cell], dtype=np.float64).reshape(-1)
+            raw = (si - spec.offset) / spec.scale
+            values[spec.field] = raw[: CELL_FIELDS[spec.field]] if raw.size > 1 else float(raw[0])
+        message = store.types[CELL_TYPE](
+            header=_header(store, stamp),
+            force=np.asarray(values["force"], dtype=np.float32),
+            acc=np.asarray(values["acc"], dtype=np.float32),
+            temp=float(values["temp"]),
+            prox=float(values["prox"]),
+        )
+        return bytes(store.serialize_cdr(message, CELL_TYPE))
+
+
+def _header(store: Any, stamp: int) -> Any:  # noqa: ANN401
+    """Return a std_msgs/Header at ``stamp``."""
+    time_msg = store.types["builtin_interfaces/msg/Time"](
+        sec=stamp // _NS_PER_S, nanosec=stamp % _NS_PER_S
+    )
+    return store.types["std_msgs/msg/Header"](stamp=time_msg, frame_id="virtual_lab")
+
+
+@contextmanager
+def serve_ros2(
+    world: VirtualWorld,
+    topic_map_path: Path,
+    faults: Ros2Faults | None = None,
+    *,
+    domain_id: int = 0,
+    rate_hz: float = 250.0,
+    joint_rate_hz: float = 500.0,
+) -> Iterator[Ros2Server]:
+    """Publish the world's joint states and skin on a topic map's topics while inside.
+
+    Args:
+        world: The simulated execution being played.
+        topic_map_path: The map whose ``[joint_states]`` and ``[skin]`` topics are published.
+        faults: Faults to inject (default: none).
+        domain_id: The DDS domain (``ROS_DOMAIN_ID``).
+        rate_hz: Messages per second of each skin cell topic.
+        joint_rate_hz: Messages per second of the joint states.
+
+    Yields:
+        The running server (its ``sent`` and ``dropped`` counts per topic).
+
+    Raises:
+        RigError: The map maps a skin field the cell message does not have.
+    """
+    topic_map = load_topic_map(topic_map_path)
+    domain = DdsDomain(domain_id, typestore(topic_map))
+    server = Ros2Server(world, topic_map, faults or Ros2Faults(), domain, rate_hz, joint_rate_hz)
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()

@@ -1,0 +1,23 @@
+"""Live execution: the only part of ``replay`` that uses the recorder.
+
+A live run performs each action the learner asks for on a rig, records it with the recorder
+and reads the file back through the same reader and features as offline runs
+(:class:`LiveExecutor`, :func:`learn_live`); the default simulated dataset is recorded here
+on first use (:func:`ensure_default_dataset`). Every other module of ``replay`` reads files
+only, and a test keeps it that way.
+"""
+
+from replay.live._default import default_dataset_dir, default_dataset_ready, ensure_default_dataset
+from replay.live._executor import LiveExecutor
+from replay.live._run import LiveView, check_rig, configured_rig, learn_live
+
+__all__ = [
+    "LiveExecutor",
+    "LiveView",
+    "check_rig",
+    "configured_rig",
+    "default_dataset_dir",
+    "default_dataset_ready",
+    "ensure_default_dataset",
+    "learn_live",
+]

@@ -1,0 +1,139 @@
+"""The accounting of a live recording's sources: a metadata record every reader understands.
+
+A live recording says, per source (the arm's state stream, the skin's links, ROS 2 topics),
+how many samples the source sent in the recording's span (from its sequence counter or its
+clock) and how many of them arrived once, twice, late or never, and how the source's clock
+relates to the recorder's. The recorder writes it (``atikt.sources``); ``atikt-replay info``
+shows it and ``check`` warns where anything is missing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+#: Name of the MCAP metadata record that holds the per-source counts of a live recording.
+SOURCES_RECORD = "atikt.sources"
+
+
+@dataclass(frozen=True, slots=True)
+class SourceStats:
+    """The accounting of one source over one recording.
+
+    Attributes:
+        name: The source (``rtde``, ``skin``, a topic...).
+        basis: What ``expected`` comes from: ``counter`` (sequence numbers) or ``clock``
+            (the source's timestamps and its nominal period).
+        expected: Samples the source sent in the span from its first to its last received one.
+        received: Samples that arrived (duplicates included).
+        missing: Expected samples that never arrived (lost in transport or dropped by a full
+            queue).
+        duplicated: Samples that arrived more than once (the copies).
+        out_of_order: Samples that arrived after a later one.
+        overflowed: Samples the reader's queue could not hold (also counted in ``missing``).
+        period_ns: The source's nominal sample period, ns (0: unknown).
+        first_sensor_ns: Sensor time of the first sample, on the source's clock, ns.
+        last_sensor_ns: Sensor time of the last sample, on the source's clock, ns.
+        first_receive_ns: Receive time of the first sample, on the recorder's clock, ns.
+        last_receive_ns: Receive time of the last sample, on the recorder's clock, ns.
+        clock_offset_ns: Recorder time minus source time, from the lowest-latency samples of
+            the first second (sensor stamp + offset = recorder time of the measurement).
+        clock_drift_ns: How much that offset changed by the last second of the recording.
+        latency_max_ns: Largest receive delay beyond the offset, ns.
+        malformed: Frames or packets that could not be parsed (wrong sync bytes, length or
+            type; a serial stream's sync losses); their samples are counted in ``missing``.
+    """
+
+    name: str
+    basis: str = "counter"
+    expected: int = 0
+    received: int = 0
+    missing: int = 0
+    duplicated: int = 0
+    out_of_order: int = 0
+    overflowed: int = 0
+    period_ns: int = 0
+    first_sensor_ns: int = 0
+    last_sensor_ns: int = 0
+    first_receive_ns: int = 0
+    last_receive_ns: int = 0
+    clock_offset_ns: int = 0
+    clock_drift_ns: int = 0
+    latency_max_ns: int = 0
+    malformed: int = 0
+
+    @property
+    def complete(self) -> bool:
+        """Whether every expected sample arrived exactly once and in order."""
+        return not (
+            self.missing
+            or self.duplicated
+            or self.out_of_order
+            or self.overflowed
+            or self.malformed
+        )
+
+    def problems(self) -> str:
+        """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
+        parts = []
+        if self.missing:
+            parts.append(f"{self.missing} of {self.expected} missing")
+        if self.duplicated:
+            parts.append(f"{self.duplicated} duplicated")
+        if self.out_of_order:
+            parts.append(f"{self.out_of_order} out of order")
+        if self.overflowed:
+            parts.append(f"{self.overflowed} dropped by a full queue")
+        if self.malformed:
+            parts.append(f"{self.malformed} malformed")
+        return ", ".join(parts)
+
+
+_INT_FIELDS = tuple(
+    f.name for f in dataclasses.fields(SourceStats) if f.name not in {"name", "basis"}
+)
+_BASES = ("counter", "clock")
+
+
+def encode_source_stats(stats: Sequence[SourceStats]) -> dict[str, str]:
+    """Return the ``atikt.sources`` metadata record of a recording's sources.
+
+    Raises:
+        ValueError: A source name is empty, holds a dot, or appears twice.
+    """
+    record: dict[str, str] = {}
+    for item in stats:
+        if not item.name or "." in item.name or f"{item.name}.basis" in record:
+            msg = f"source name {item.name!r}: give every source a unique name without dots"
+            raise ValueError(msg)
+        record[f"{item.name}.basis"] = item.basis
+        for name in _INT_FIELDS:
+            record[f"{item.name}.{name}"] = str(getattr(item, name))
+    return record
+
+
+def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
+    """Return the sources of an ``atikt.sources`` metadata record, in name order.
+
+    Raises:
+        ValueError: A key or value is malformed (the caller names the file).
+    """
+    fields: dict[str, dict[str, str]] = {}
+    for key, value in record.items():
+        name, sep, field = key.rpartition(".")
+        if not sep or not name or field not in {*_INT_FIELDS, "basis"}:
+            msg = f"unknown key {key!r} in {SOURCES_RECORD!r}"
+            raise ValueError(msg)
+        fields.setdefault(name, {})[field] = value
+    out = []
+    for name, values in sorted(fields.items()):
+        if values.get("basis") not in _BASES or set(values) != {*_INT_FIELDS, "basis"}:
+            msg = f"source {name!r} in {SOURCES_RECORD!r} lacks fields or has an unknown basis"
+            raise ValueError(msg)
+        numbers = {key: int(values[key]) for key in _INT_FIELDS}
+        out.append(SourceStats(name, values["basis"], **numbers))
+    return tuple(out)

@@ -1,0 +1,98 @@
+"""Live recordings as the reader, info and check see them: sources' accounting, stopped actions."""
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import FakeRig
+
+from recorder import ActionSpec, ActionStoppedError, StreamItem
+from recorder._catalog import ObjectSpec
+from recorder.writing._writer import record_action
+from replay import RecordingError, read_recording
+from replay.cli._main import main
+from schemas import SourceStats
+
+LOSSY = SourceStats("skin", "counter", expected=100, received=99, missing=2, duplicated=1)
+
+
+class _LiveRig(FakeRig):
+    """A fake rig that reports its sources' accounting, like a live rig."""
+
+    def __init__(self, stats: SourceStats, stop_at: float | None = None) -> None:
+        super().__init__(seed=0)
+        self._stats = stats
+        self._stop_at = stop_at
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        items = list(super().perform(obj, action, trial))
+        if self._stop_at is None:
+            yield from items
+            return
+        cut = int(len(items) * self._stop_at)
+        yield from items[:cut]
+        msg = "protective stop (safety status 3)"
+        raise ActionStoppedError(msg, items[cut].receive_ns)
+
+    def source_stats(self) -> list[SourceStats]:
+        return [self._stats]
+
+
+def _record(rig: FakeRig, root: Path, obj: ObjectSpec, action: ActionSpec) -> Path:
+    path = root / obj.id / action.id / "001.mcap"
+    with rig:
+        return record_action(rig, obj, action, 1, path, seed=0).path
+
+
+def test_sources_are_read_and_losses_warned(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    path = _record(_LiveRig(LOSSY), tmp_path, objects["wood"], actions["P1"])
+    assert read_recording(path).sources == (LOSSY,)
+    assert main(["info", str(path)]) == 0
+    shown = capsys.readouterr().out
+    assert "live sources" in shown
+    assert "skin" in shown
+    assert main(["check", str(tmp_path), "--workers", "1"]) == 0  # valid, with a warning
+    captured = capsys.readouterr()
+    assert "1 of 1 recordings valid" in captured.out
+    assert "WARN" in captured.err
+    assert "2 of 100 missing, 1 duplicated" in captured.err
+
+
+def test_complete_sources_give_no_warning(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    whole = SourceStats("skin", "counter", expected=100, received=100)
+    _record(_LiveRig(whole), tmp_path, objects["wood"], actions["P1"])
+    assert main(["check", str(tmp_path), "--workers", "1"]) == 0
+    assert "WARN" not in capsys.readouterr().err
+
+
+def test_a_stopped_action_is_shown_warned_and_never_learned_from(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    _record(_LiveRig(LOSSY), tmp_path, objects["wood"], actions["P1"])
+    with pytest.raises(ActionStoppedError) as stopped:
+        _record(_LiveRig(LOSSY, stop_at=0.5), tmp_path, objects["wood"], actions["S1"])
+    incomplete = stopped.value.path
+    assert incomplete is not None
+    assert incomplete.name == "001.incomplete.mcap"
+    with pytest.raises(RecordingError, match=r"incomplete recording.*protective stop"):
+        read_recording(incomplete)
+    assert main(["info", str(incomplete)]) == 0
+    shown = capsys.readouterr().out
+    assert "incomplete: the action was stopped (protective stop" in shown
+    assert main(["check", str(tmp_path), "--workers", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "1 of 1 recordings valid" in captured.out
+    assert "incomplete, kept for inspection" in captured.err

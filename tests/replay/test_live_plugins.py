@@ -1,0 +1,72 @@
+"""Live learning on a plug-in rig (exclusive hardware), its live view, and its offline replay."""
+
+import os
+from pathlib import Path
+
+import pytest
+from conftest import NEW
+from rerun_frames import read_rrd
+
+from recorder import RigConfig, RigPlugin, SimulatedRig, refuse_sections
+from recorder import _rigconfig as rigconfig
+from replay.cli._main import main
+
+PROCESSES: list[int] = []
+
+
+class _TracedSim(SimulatedRig):
+    def perform(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        PROCESSES.append(os.getpid())
+        return super().perform(*args, **kwargs)
+
+
+def build_lab_rig(seed: int, config: RigConfig) -> SimulatedRig:
+    refuse_sections(config)
+    return _TracedSim(seed)
+
+
+LAB_RIG = RigPlugin(build_lab_rig, exclusive=True, description="the simulator as exclusive rig")
+
+
+@pytest.fixture(autouse=True)
+def lab_rig(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(rigconfig._BUILDERS, "lab", LAB_RIG)
+    PROCESSES.clear()
+
+
+def test_live_learning_on_an_exclusive_plugin_rig_replays_offline_with_the_same_steps(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "lab.toml"
+    config.write_text('rig = "lab"\n')
+    common = ["--recordings", str(small_dataset), "--budget", "2", "--actions", "P1,S2"]
+    common += ["--new", ",".join(NEW), "--workers", "2", "--seed", "4"]
+    live_out, replay_out, view = tmp_path / "live", tmp_path / "replay", tmp_path / "live.rrd"
+    argv = ["learn", "--rig-config", str(config), *common, "--test-trials", "1"]
+    assert main([*argv, "--out", str(live_out), "--view", str(view)]) == 0
+    live = capsys.readouterr().out.splitlines()
+    assert [os.getpid()] * (len(NEW) * 2 * 2 + 2) == PROCESSES  # test, initial, asked
+
+    session = live_out / "session"
+    assert main(["learn", "--session", str(session), *common, "--out", str(replay_out)]) == 0
+    replay = capsys.readouterr().out.splitlines()
+    steps = [line for line in live if line.startswith("step")]
+    assert len(steps) == 3
+    assert steps == [line for line in replay if line.startswith("step")]
+
+    shown = read_rrd(view)
+    recorded = sorted(
+        p.relative_to(session).with_suffix("").as_posix() for p in session.rglob("*.mcap")
+    )
+    keys = sorted({"/".join(e.split("/")[1:4]) for e in shown.temporal if e.count("/") >= 3})
+    assert keys == recorded
+    assert len(recorded) == len(NEW) * 2 * 2 + 2
+
+
+def test_view_needs_a_live_run(small_dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["learn", "--recordings", str(small_dataset), "--view", "x.rrd", "--workers", "1"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "atikt-replay: error: --view shows a live run's recordings as they are made; give --rig too"
+    ]
