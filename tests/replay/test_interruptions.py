@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import polars as pl
 import pytest
@@ -17,6 +18,9 @@ from recorder._cli import main as record
 from replay.cli._main import main as replay
 from replay.learning._features import build_features
 from schemas import PART_SUFFIX, SET_ASIDE_DIR
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 ROOT = Path(__file__).parents[2]
 #: A process id above any the kernel hands out (Linux: pid_max is at most 2**22).
@@ -37,7 +41,23 @@ def _children(pid: int) -> list[int]:
     return found
 
 
-def _interrupt(argv: list[str], ready: object) -> subprocess.CompletedProcess[str]:
+def _workers_running(after_s: float = 0.5) -> Callable[[int], bool]:
+    """Return a test of a process: it has had 2 children for ``after_s`` (workers running).
+
+    Ctrl-C is ignored for the milliseconds in which workers are started (they inherit that,
+    see ``schemas.cli.workers_ignore_interrupts``); half a second later it is not.
+    """
+    seen: list[float] = []
+
+    def ready(pid: int) -> bool:
+        if len(_children(pid)) >= 2:
+            seen.append(time.monotonic())
+        return bool(seen) and time.monotonic() - seen[0] >= after_s
+
+    return ready
+
+
+def _interrupt(argv: list[str], ready: Callable[[int], bool]) -> subprocess.CompletedProcess[str]:
     """Run ``python -m argv`` in its own process group; Ctrl-C the group once ``ready()``.
 
     The whole group gets SIGINT, as from a terminal: the workers too.
@@ -52,7 +72,7 @@ def _interrupt(argv: list[str], ready: object) -> subprocess.CompletedProcess[st
         env={**os.environ, "PYTHONPATH": str(ROOT)},
     )
     deadline = time.monotonic() + 120
-    while not ready(process.pid) and process.poll() is None and time.monotonic() < deadline:  # type: ignore[operator]
+    while not ready(process.pid) and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
     assert process.poll() is None, "the command ended before it could be interrupted"
     os.killpg(process.pid, signal.SIGINT)
@@ -79,7 +99,7 @@ def test_ctrl_c_in_a_study_is_one_line_and_a_rerun_completes(tmp_path: Path) -> 
     out = tmp_path / "out"
     argv = ["replay", "study", "transfer", "--quick", "--workers", "2"]
     argv += ["--recordings", str(data), "--out", str(out)]
-    result = _interrupt(argv, lambda pid: len(_children(pid)) >= 2)  # workers started
+    result = _interrupt(argv, _workers_running())
     assert result.returncode == 130, result.stderr[-2000:]
     assert result.stderr.count("\n") == 1, result.stderr[-3000:]
     assert result.stderr.startswith("atikt-replay: interrupted"), result.stderr
