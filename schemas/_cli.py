@@ -222,8 +222,9 @@ class PlainProgress(Progress):
 
     rich draws nothing when the console is not a terminal; a long phase then prints nothing
     for minutes. This keeps rich's task bookkeeping and prints, every
-    :data:`PROGRESS_INTERVAL_S` and once at the end, ``description: done/total (elapsed s)``
-    for every task (from a thread, so also while a task makes no progress).
+    :data:`PROGRESS_INTERVAL_S` (and once at the end of a phase that printed),
+    ``description: done/total (elapsed s)`` for every task (from a thread, so also while a
+    task makes no progress).
     """
 
     def __init__(self, console: Console, interval_s: float | None = None) -> None:
@@ -232,6 +233,7 @@ class PlainProgress(Progress):
         self._interval_s = PROGRESS_INTERVAL_S if interval_s is None else interval_s
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
+        self._printed = False
 
     def start(self) -> None:
         """Start printing lines."""
@@ -254,13 +256,18 @@ class PlainProgress(Progress):
         exc_val: BaseException | None,
         exc_tb: TracebackType | None,
     ) -> None:
-        """Stop; print the last state once unless an error ends the block (its line alone)."""
+        """Stop; print the last state if lines were printed and no error ends the block.
+
+        A phase shorter than the interval prints nothing (a command's output stays its own);
+        after an error, its one line is the last.
+        """
         self.stop()
-        if exc_type is None:
+        if exc_type is None and self._printed:
             self.print_lines()
 
     def _report(self) -> None:
         while not self._done.wait(self._interval_s):
+            self._printed = True
             self.print_lines()
 
     def print_lines(self) -> None:

@@ -36,8 +36,9 @@ def test_without_a_terminal_progress_is_a_plain_line_every_interval() -> None:
 
 
 def test_a_dataset_run_into_a_log_reports_progress(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setattr("schemas._cli.PROGRESS_INTERVAL_S", 0.05)
     argv = ["dataset", "--out", str(tmp_path / "d"), "--objects", "wood", "--actions", "P1"]
     assert record([*argv, "--trials", "2", "--workers", "1"]) == 0
     err = " ".join(capsys.readouterr().err.split())
