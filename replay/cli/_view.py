@@ -174,8 +174,8 @@ def _view_command(args: argparse.Namespace) -> int:
     if args.save is not None and args.serve:
         msg = "--save and --serve: choose one (a file, or a web viewer)"
         raise ReplayError(msg)
-    _check_display(args)
     inputs = collect_inputs(args.paths)
+    _check_display(args)
     if args.save is not None:
         cli.refuse_overlap(args.save, _named(args.paths), option="--save")
     runs = [load_run(path) for path in inputs.runs]
