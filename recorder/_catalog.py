@@ -6,11 +6,13 @@ import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
-from pathlib import Path
-from typing import Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from recorder.errors import CatalogError
-from schemas import VOCABULARY, ContractError, check_id
+from schemas import VOCABULARY, ContractError, check_id, load_toml, loads_toml
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 ActionKind: TypeAlias = str
 """An action kind's name, one of ``schemas.VOCABULARY.kinds`` (the contract's list)."""
@@ -81,11 +83,14 @@ def read_toml(path: Path | None, default_name: str) -> tuple[str, dict[str, Any]
     """
     if path is None:
         source = resources.files(__package__).joinpath("data", default_name)
-        return f"<packaged {default_name}>", tomllib.loads(source.read_text("utf-8"))
+        return f"<packaged {default_name}>", loads_toml(source.read_text("utf-8"))
     try:
-        return str(path), tomllib.loads(Path(path).read_text("utf-8"))
+        return str(path), load_toml(path)
     except OSError as err:
         msg = f"{path}: cannot read the catalog ({err.strerror}); check the path"
+        raise CatalogError(msg) from err
+    except UnicodeDecodeError as err:
+        msg = f"{path}: the catalog is not UTF-8 (byte {err.start}); save it as UTF-8"
         raise CatalogError(msg) from err
     except tomllib.TOMLDecodeError as err:
         msg = f"{path}: not valid TOML ({err}); fix the file's syntax"

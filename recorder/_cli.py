@@ -28,12 +28,15 @@ from recorder._catalog import load_actions, load_objects
 from recorder._dataset import (
     INDEX_NAME,
     TaskResult,
+    check_configuration,
     generate_dataset,
     incomplete_files,
     plan_dataset,
     recording_path,
+    recordings,
     write_index,
 )
+from recorder._rig import rig_hook
 from recorder._rigconfig import (
     RigFactory,
     is_exclusive,
@@ -43,7 +46,7 @@ from recorder._rigconfig import (
 )
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
-from schemas import ContractError, cli, software_version
+from schemas import SET_ASIDE_DIR, ContractError, cli, software_version
 
 if TYPE_CHECKING:
     import argparse
@@ -141,7 +144,12 @@ def _action(args: argparse.Namespace) -> int:
         objects, actions, object_ids=[args.object], action_ids=[args.action], trials=1
     )
     path = recording_path(args.out, task.obj.id, task.action.id, args.trial)
-    with _rig(args)(args.seed) as rig:
+    factory = _rig(args)
+    check_configuration(args.out, args.seed, factory)
+    with factory(args.seed) as rig:
+        can_present, present = rig_hook(rig, "can_present"), rig_hook(rig, "present")
+        if can_present is not None and present is not None and can_present(task.obj):
+            present(task.obj)  # the rig's configuration has the object's pose: go there
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
     Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")
@@ -149,15 +157,13 @@ def _action(args: argparse.Namespace) -> int:
 
 
 def _progress(console: Console) -> Progress:
-    return Progress(
+    return cli.progress(  # a log or a pipe gets a plain line every few seconds, not a bar
+        console,
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=console,
-        transient=False,
-        disable=not console.is_terminal,  # a log or a pipe gets the report, not a bar
     )
 
 
@@ -168,6 +174,12 @@ def _report(console: Console, report: DatasetReport) -> None:
     table.add_row("size of all recordings", f"{report.size_bytes / 1e6:.1f} MB")
     table.add_row("index", str(report.index))
     console.print(table)
+    if report.set_aside:
+        console.print(
+            f"[yellow]{len(report.set_aside)} unfinished recordings of stopped recorders moved "
+            f"to {report.root / SET_ASIDE_DIR} (salvage one with 'atikt-replay check FILE "
+            "--recover'); their trials were recorded again"
+        )
     if report.incomplete:
         console.print(
             f"[yellow]{len(report.incomplete)} unfinished recordings (*.mcap.part) from "
@@ -229,6 +241,12 @@ def _index(args: argparse.Namespace) -> int:
     if not args.dir.is_dir():
         msg = f"{args.dir}: not a directory; give the dataset directory (--out of 'dataset')"
         raise RecorderError(msg)
+    if not recordings(args.dir):
+        msg = (
+            f"{args.dir}: no recordings (*.mcap) in it or below; give the dataset directory "
+            "(--out of 'dataset', 'action' or 'import-bag')"
+        )
+        raise RecorderError(msg)
     path = write_index(args.dir)
     console = Console()
     console.print(f"{path}")
@@ -254,10 +272,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``atikt-record``; return the exit status (1 for a project error, 2 for usage)."""
+    interrupted = "interrupted; finished recordings are kept, run it again to resume"
     try:
-        return cli.run(build_parser(), argv, (RecorderError, ContractError))
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; finished recordings are kept", file=sys.stderr)  # noqa: T201
+        return cli.run(build_parser(), argv, (RecorderError, ContractError), interrupted)
+    except KeyboardInterrupt:  # while the parser is built
+        print(f"{PROG}: {interrupted}", file=sys.stderr)  # noqa: T201
         return 130
 
 

@@ -18,8 +18,10 @@ import enum
 import hashlib
 import io
 import os
+import re
 import struct
 import threading
+import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,13 +41,16 @@ from recorder.writing._writer import METADATA_NAME, record_action
 from schemas import (
     CHANNELS,
     PART_SUFFIX,
+    SET_ASIDE_DIR,
     VOCABULARY,
     ContractError,
     RecordingMetadata,
     atomic_write,
     check_id,
     check_rig,
+    cli,
     dataset_recordings,
+    loads_toml,
     parse_metadata,
 )
 from schemas import recording_path as schemas_recording_path
@@ -241,7 +246,8 @@ class DatasetReport:
         skipped: Recordings that existed already.
         index: Path of the rebuilt index.
         size_bytes: Size of all recordings of the index.
-        incomplete: Temporary files left by interrupted recorders (``*.mcap.part``).
+        incomplete: Temporary files of recorders still running (``*.mcap.part``).
+        set_aside: Unfinished recordings of dead recorders, moved to :data:`SET_ASIDE_DIR`.
     """
 
     root: Path
@@ -250,6 +256,7 @@ class DatasetReport:
     index: Path
     size_bytes: int
     incomplete: tuple[Path, ...]
+    set_aside: tuple[Path, ...] = ()
 
 
 def generate_dataset(
@@ -283,6 +290,8 @@ def generate_dataset(
     """
     root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
+    set_aside = set_aside_stale_parts(root)
+    before = set(incomplete_files(root))
     n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
     notify = on_result or (lambda _result: None)
     pending = []
@@ -297,17 +306,22 @@ def generate_dataset(
     parent = os.getpid()
     if n_jobs > 1 and pending:
         check_sendable(factory)
-    # tasks are handed out lazily: after a failure, none starts
-    results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
-        joblib.delayed(run_task)(task, root, factory, seed, parent)
-        for task in pending
-        if not failed
-    )
-    for result in results:
-        skipped += result.status == TaskStatus.SKIPPED
-        if result.status == TaskStatus.FAILED:
-            failed.append(result)
-        notify(result)
+    with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
+        # tasks are handed out lazily: after a failure, none starts
+        results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
+            joblib.delayed(run_task)(task, root, factory, seed, parent)
+            for task in pending
+            if not failed
+        )
+    try:
+        for result in results:
+            skipped += result.status == TaskStatus.SKIPPED
+            if result.status == TaskStatus.FAILED:
+                failed.append(result)
+            notify(result)
+    except KeyboardInterrupt:  # joblib has killed the workers: their recordings are cut off
+        _remove_own_parts(root, before)
+        raise
     if failed:
         more = f" ({len(failed) - 1} more recordings failed)" if len(failed) > 1 else ""
         raise RecorderError(failed[0].error + more)
@@ -321,6 +335,7 @@ def generate_dataset(
         index=index,
         size_bytes=int(frame["size_bytes"].sum()),
         incomplete=incomplete_files(root),
+        set_aside=set_aside,
     )
 
 
@@ -359,6 +374,7 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
     Raises:
         RecorderError: The seeds or rig descriptions differ; the message names both and the fix.
     """
+    rig = dict(check_rig(factory(seed).describe()))  # a bad rig option fails before any worker
     found = _first_metadata(root)
     if found is None:
         return
@@ -370,7 +386,6 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
             f"{meta.seed} to resume it"
         )
         raise RecorderError(msg)
-    rig = dict(check_rig(factory(seed).describe()))
     if differ := sorted(k for k in {*rig, *meta.rig} if rig.get(k) != meta.rig.get(k)):
         theirs = ", ".join(f"{k}={meta.rig.get(k)!r}" for k in differ)
         wanted = ", ".join(f"{k}={rig.get(k)!r}" for k in differ)
@@ -501,7 +516,7 @@ def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
     path = Path(root) / OBJECTS_FILE
     try:
         text = path.read_text("utf-8") if path.exists() else ""
-        declared = tomllib.loads(text)
+        declared = loads_toml(text)
         new = {o.id: o for o in objects if o.id not in declared}
         if not new:
             return path
@@ -521,8 +536,85 @@ def recordings(root: Path) -> list[Path]:
 
 
 def incomplete_files(root: Path) -> tuple[Path, ...]:
-    """Return temporary files of unfinished or interrupted recordings under ``root``."""
-    return tuple(sorted(Path(root).rglob(f"*{PART_SUFFIX}")))
+    """Return temporary files of unfinished recordings under ``root`` (not those set aside)."""
+    aside = Path(root) / SET_ASIDE_DIR
+    return tuple(
+        sorted(p for p in Path(root).rglob(f"*{PART_SUFFIX}") if not p.is_relative_to(aside))
+    )
+
+
+#: A recorder's temporary name: ``<trial>.<pid>-<token>.mcap.part`` (recorder.writing).
+_PART_NAME = re.compile(r"\.(\d+)-[0-9a-f]+" + re.escape(PART_SUFFIX) + "$")
+#: How long to wait for killed workers to be gone before their files are removed.
+_WORKER_EXIT_S = 5.0
+
+
+def _writer_pid(path: Path) -> int | None:
+    """Return the process id in a temporary recording's name, None if it has none."""
+    match = _PART_NAME.search(path.name)
+    return int(match.group(1)) if match else None
+
+
+def _alive(pid: int | None) -> bool:
+    """Return whether process ``pid`` exists (this process counts; None never)."""
+    if pid is None:
+        return False
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
+    """Move unfinished recordings whose recorder died to ``<root>/.incomplete/`` (kept).
+
+    A ``.part`` of a recorder that is still running (its process id in the name is alive)
+    stays; one of a dead recorder would otherwise be counted as unfinished forever. The
+    trial is recorded again by the next dataset run.
+
+    Returns:
+        The new paths of the files set aside.
+
+    Raises:
+        RecorderError: A file cannot be moved.
+    """
+    root = Path(root)
+    moved = []
+    for part in incomplete_files(root):
+        if _alive(_writer_pid(part)):
+            continue
+        target = root / SET_ASIDE_DIR / part.relative_to(root)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            part.rename(target)
+        except FileNotFoundError:  # its recorder finished or removed it meanwhile
+            continue
+        except OSError as err:
+            msg = f"{part}: cannot move it to {target.parent} ({err.strerror}); move it by hand"
+            raise RecorderError(msg) from err
+        moved.append(target)
+    return tuple(moved)
+
+
+def _remove_own_parts(root: Path, before: set[Path]) -> None:
+    """Remove the cut-off recordings of this run's killed workers (new since ``before``).
+
+    A worker that gets the interrupt removes its temporary file itself; workers killed by
+    joblib cannot, so their files (trials recorded again by the next run) are removed here
+    once their processes are gone.
+    """
+    deadline = time.monotonic() + _WORKER_EXIT_S
+    for part in set(incomplete_files(root)) - before:
+        pid = _writer_pid(part)
+        while _alive(pid) and pid != os.getpid() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not _alive(pid):
+            part.unlink(missing_ok=True)
 
 
 def build_index(root: Path, paths: Iterable[Path] | None = None) -> pl.DataFrame:
@@ -551,6 +643,7 @@ def write_index(root: Path) -> Path:
         root.mkdir(parents=True, exist_ok=True)
         with _index_lock(root):  # the last writer lists every file linked before it
             index = build_index(root)
+            _check_one_seed(root, index)
             atomic_write(target, index.write_parquet)
     except (OSError, pl.exceptions.PolarsError) as err:
         reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
@@ -560,6 +653,26 @@ def write_index(root: Path) -> Path:
         )
         raise RecorderError(msg) from err
     return target
+
+
+def _check_one_seed(root: Path, frame: pl.DataFrame) -> None:
+    """Refuse an index of recordings of several seeds or rig configurations.
+
+    :func:`check_configuration` refuses a run into a dataset of another seed; two runs that
+    start at once into an empty dataset both pass it, and are caught here, when they index.
+
+    Raises:
+        RecorderError: The recordings have more than one seed or rig description.
+    """
+    for column in ("seed", "rig"):
+        firsts = frame.group_by(column, maintain_order=True).agg(pl.col("path").first())
+        if firsts.height > 1:
+            shown = "; ".join(f"{column} {v} (e.g. {p})" for v, p in firsts.head(2).iter_rows())
+            msg = (
+                f"{root}: holds recordings of {firsts.height} different {column}s ({shown}); "
+                f"a dataset holds one: move the recordings of one {column} to another directory"
+            )
+            raise RecorderError(msg)
 
 
 @contextlib.contextmanager

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping
+    from collections.abc import Callable, Iterator, Mapping
     from types import TracebackType
 
     from recorder._catalog import ActionSpec, ObjectSpec
@@ -45,3 +45,14 @@ class Rig(Protocol):
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
         """Perform ``action`` on ``obj`` as trial number ``trial``; stream what is measured."""
         ...
+
+
+def rig_hook(rig: Rig, name: str) -> Callable[[ObjectSpec], Any] | None:
+    """Return a rig's optional method ``name`` (``present``, ``can_present``), if it has one.
+
+    ``present(obj) -> bool`` brings the object under the skin when the rig's configuration has
+    its pose (False: a person must place it); ``can_present(obj) -> bool`` says whether it
+    could, before anything moves.
+    """
+    method: Callable[[ObjectSpec], Any] | None = getattr(rig, name, None)
+    return method

@@ -33,14 +33,14 @@ import importlib.metadata
 import tomllib
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias, TypeGuard
 
 from recorder.errors import RecorderError
-from schemas import ContractError, RigValue, check_rig
+from schemas import ContractError, RigValue, check_rig, load_toml, loads_toml
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+    from pathlib import Path
 
     from recorder._rig import Rig
     from recorder._sim import SimulatedRig
@@ -365,7 +365,7 @@ def _option(text: str) -> tuple[str, RigValue]:
         msg = f"--rig-option {text!r}: give key=value (e.g. room_c=21.0)"
         raise RecorderError(msg)
     try:
-        value: Any = tomllib.loads(f"v = {raw.strip()}")["v"]
+        value: Any = loads_toml(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
     return key.strip(), value
@@ -379,7 +379,7 @@ def _read(path: Path) -> dict[str, Any]:
             outside a table.
     """
     try:
-        table = tomllib.loads(Path(path).read_text("utf-8"))
+        table = load_toml(path)
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         msg = f"{path}: cannot read the rig configuration ({err}); fix the file or the path"
         raise RecorderError(msg) from err

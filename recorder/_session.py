@@ -29,6 +29,7 @@ from recorder._dataset import (
     plan_dataset,
     write_index,
 )
+from recorder._rig import rig_hook
 from recorder.errors import RecorderError
 from recorder.writing._writer import record_action
 
@@ -60,19 +61,13 @@ class SessionReport:
     index: Path
 
 
-def _hook(rig: Rig, name: str) -> Callable[[ObjectSpec], Any] | None:
-    """Return the rig's optional method ``name`` (``present``, ``can_present``), if any."""
-    method: Callable[[ObjectSpec], Any] | None = getattr(rig, name, None)
-    return method
-
-
 def refuse_unpresentable(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
     """Refuse an unattended run (``--yes``) with objects the rig cannot bring itself.
 
     Raises:
         RecorderError: Objects without a pose; one line naming them and the fix.
     """
-    can_present = _hook(rig, "can_present")
+    can_present = rig_hook(rig, "can_present")
     if can_present is None:
         return
     if missing := [obj.id for obj in objects if not can_present(obj)]:
@@ -92,7 +87,7 @@ def present(
         RecorderError: Unattended and the rig cannot present it, or the prompt ended (EOF,
             Ctrl-C); the message says that recordings are kept and how to resume.
     """
-    hook = _hook(rig, "present")
+    hook = rig_hook(rig, "present")
     if hook is None or hook(obj):
         return
     if unattended:

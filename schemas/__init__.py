@@ -20,6 +20,7 @@ from schemas._layout import (
     PART_SUFFIX,
     RECORDING_SUFFIX,
     RECOVERED_SUFFIX,
+    SET_ASIDE_DIR,
     check_inside,
     dataset_recordings,
     is_incomplete,
@@ -37,12 +38,14 @@ from schemas._metadata import (
     parse_metadata,
     software_version,
 )
+from schemas._parquet import ParquetMismatchError, read_checked_parquet, rows_allowed
 from schemas._sources import (
     SOURCES_RECORD,
     SourceStats,
     encode_source_stats,
     parse_source_stats,
 )
+from schemas._toml import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, load_toml, loads_toml
 from schemas._topics import CHANNELS, Channel, channel_for_topic
 from schemas._typestore import (
     CUSTOM_TYPES,
@@ -71,6 +74,8 @@ __all__ = [
     "INCOMPLETE_RECORD",
     "INCOMPLETE_SUFFIX",
     "MAX_SEED",
+    "MAX_TOML_BYTES",
+    "MAX_TOML_DEPTH",
     "MAX_TRIAL",
     "MESSAGE_VERSION",
     "PACKAGE",
@@ -78,6 +83,7 @@ __all__ = [
     "RECORDING_SUFFIX",
     "RECOVERED_SUFFIX",
     "SCHEMA_VERSION",
+    "SET_ASIDE_DIR",
     "SOURCES_RECORD",
     "VOCABULARY",
     "Channel",
@@ -86,10 +92,12 @@ __all__ = [
     "KindSpec",
     "LegacySpec",
     "ModalitySpec",
+    "ParquetMismatchError",
     "RecordingMetadata",
     "RigValue",
     "SourceSpec",
     "SourceStats",
+    "TomlLimitError",
     "Vocabulary",
     "atomic_file",
     "atomic_path",
@@ -108,12 +116,16 @@ __all__ = [
     "full_type_name",
     "is_incomplete",
     "is_recording",
+    "load_toml",
+    "loads_toml",
     "msg_definition",
     "parse_metadata",
     "parse_source_stats",
     "parse_vocabulary",
     "publish_temporary",
+    "read_checked_parquet",
     "recording_path",
+    "rows_allowed",
     "software_version",
     "temporary_name",
 ]

@@ -20,20 +20,30 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import os
 import shutil
+import signal
 import sys
+import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NoReturn
+
+from rich.progress import Progress, ProgressColumn
 
 from schemas._atomic import create_exclusive, temporary_name
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence
     from pathlib import Path
+    from types import TracebackType
+
+    from rich.console import Console
 
 #: Exit status of a refused input (a project error) and of a usage error.
 ERROR_STATUS, USAGE_STATUS = 1, 2
+#: Exit status after Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED_STATUS = 130
 
 
 class CliError(Exception):
@@ -124,16 +134,40 @@ def build_parser(
     return parser
 
 
+def _too_long(err: OSError) -> str:
+    """Return the one-line message for a path longer than the system allows."""
+    name = str(err.filename or "")
+    shown = name if len(name) <= 80 else f"{name[:40]}...{name[-30:]}"  # noqa: PLR2004
+    return (
+        f"the path {shown} ({len(name)} characters) is longer than the system allows "
+        f"(a name at most {_NAME_MAX}, a path at most {_PATH_MAX} bytes); give a shorter path"
+    )
+
+
+def _limit(name: str, default: int) -> int:
+    """Return a ``pathconf`` limit of the root file system, else ``default``."""
+    try:
+        return os.pathconf("/", name)
+    except (AttributeError, OSError, ValueError):  # Windows has no pathconf
+        return default
+
+
+#: The longest file name and path the system accepts (Linux: 255 and 4096 bytes).
+_NAME_MAX, _PATH_MAX = _limit("PC_NAME_MAX", 255), _limit("PC_PATH_MAX", 4096)
+
+
 def run(
     parser: argparse.ArgumentParser,
     argv: Sequence[str] | None,
     errors: tuple[type[Exception], ...],
+    interrupted: str = "interrupted; nothing unfinished was published, run it again to resume",
 ) -> int:
     """Parse ``argv`` and run the chosen subcommand; return its exit status.
 
-    Errors of the project (``errors`` and :class:`CliError`) are printed as one line on
-    stderr with status 1, usage errors with status 2; any other exception is a bug and keeps
-    its traceback.
+    Errors of the project (``errors`` and :class:`CliError`) and a path longer than the
+    system allows are printed as one line on stderr with status 1, usage errors with status 2,
+    Ctrl-C as ``interrupted`` with status 130; any other exception is a bug and keeps its
+    traceback.
     """
     try:
         args = parser.parse_args(argv)
@@ -141,11 +175,142 @@ def run(
         return done.code if isinstance(done.code, int) else USAGE_STATUS * (done.code is not None)
     caught: tuple[type[Exception], ...] = (*errors, CliError)
     try:
-        status: int = args.run(args)
+        with _quiet_interrupts():
+            status: int = args.run(args)
     except caught as err:
         print(f"{parser.prog}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
+    except OSError as err:
+        if err.errno != errno.ENAMETOOLONG:
+            raise
+        print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
+        return ERROR_STATUS
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: {interrupted}", file=sys.stderr)  # noqa: T201
+        return INTERRUPTED_STATUS
     return status
+
+
+@contextlib.contextmanager
+def workers_ignore_interrupts() -> Iterator[None]:
+    """Start worker processes inside the block with Ctrl-C ignored in them.
+
+    Ctrl-C in a terminal interrupts every process of the foreground group: each worker would
+    print its own traceback (or a fatal error while it starts). A signal ignored at ``exec``
+    stays ignored, and Python then installs no KeyboardInterrupt handler, so workers spawned
+    in this block leave Ctrl-C to the parent, which stops them. Keep the block short: Ctrl-C
+    is ignored in this process too while it runs (the spawn itself takes milliseconds).
+    """
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: signals are not ours to handle
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+#: Seconds between two plain progress lines when the output is not a terminal (a log, a pipe,
+#: CI): often enough to show the run is alive, rare enough to keep a log readable.
+PROGRESS_INTERVAL_S = 5.0
+
+
+class PlainProgress(Progress):
+    """A rich ``Progress`` for output that is not a terminal: a plain line every few seconds.
+
+    rich draws nothing when the console is not a terminal; a long phase then prints nothing
+    for minutes. This keeps rich's task bookkeeping and prints, every
+    :data:`PROGRESS_INTERVAL_S` (and once at the end of a phase that printed),
+    ``description: done/total (elapsed s)`` for every task (from a thread, so also while a
+    task makes no progress).
+    """
+
+    def __init__(self, console: Console, interval_s: float | None = None) -> None:
+        """Keep the console; nothing is drawn (``disable``), lines are printed instead."""
+        super().__init__(console=console, disable=True)
+        self._interval_s = PROGRESS_INTERVAL_S if interval_s is None else interval_s
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._printed = False
+
+    def start(self) -> None:
+        """Start printing lines."""
+        super().start()
+        self._done.clear()
+        self._thread = threading.Thread(target=self._report, name="atikt-progress", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop printing lines."""
+        self._done.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        super().stop()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_val: BaseException | None,
+        exc_tb: TracebackType | None,
+    ) -> None:
+        """Stop; print the last state if lines were printed and no error ends the block.
+
+        A phase shorter than the interval prints nothing (a command's output stays its own);
+        after an error, its one line is the last.
+        """
+        self.stop()
+        if exc_type is None and self._printed:
+            self.print_lines()
+
+    def _report(self) -> None:
+        while not self._done.wait(self._interval_s):
+            self._printed = True
+            self.print_lines()
+
+    def print_lines(self) -> None:
+        """Print one line per task: description, done of total, elapsed seconds."""
+        for task in self.tasks:
+            total = "" if task.total is None else f"/{task.total:g}"
+            self.console.print(
+                f"{task.description}: {task.completed:g}{total} ({task.elapsed or 0:.0f} s)",
+                highlight=False,
+                soft_wrap=True,
+            )
+
+
+def progress(console: Console, *columns: str | ProgressColumn) -> Progress:
+    """Return a progress display: rich's bar on a terminal, else a :class:`PlainProgress`."""
+    if console.is_terminal:
+        return Progress(*columns, console=console, transient=False)
+    return PlainProgress(console)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """Raise KeyboardInterrupt once; ignore every further Ctrl-C (the run is unwinding)."""
+    del signum, frame
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _quiet_interrupts() -> Iterator[None]:
+    """Run the block; after the first Ctrl-C, ignore further ones until the block is left.
+
+    A second Ctrl-C while workers shut down and temporary files are removed would print a
+    traceback from inside the clean-up and leave the files; the first one already stops.
+    """
+    try:
+        previous = signal.signal(signal.SIGINT, _interrupt)
+    except ValueError:  # not the main thread: signals are not ours to handle
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def workers(text: str) -> int:
@@ -351,15 +516,18 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
 
 
 __all__ = [
+    "PROGRESS_INTERVAL_S",
     "Argument",
     "CliError",
     "Command",
+    "PlainProgress",
     "Registry",
     "arg",
     "build_parser",
     "check_new_file",
     "numbered_directory",
     "one_line",
+    "progress",
     "publish_directory",
     "publish_file",
     "refuse_existing",
@@ -368,4 +536,5 @@ __all__ = [
     "seed",
     "worker_count",
     "workers",
+    "workers_ignore_interrupts",
 ]

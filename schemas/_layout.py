@@ -14,6 +14,9 @@ RECORDING_SUFFIX = ".mcap"
 PART_SUFFIX = ".mcap.part"
 #: Suffix of a file salvaged from an incomplete or damaged recording.
 RECOVERED_SUFFIX = ".recovered.mcap"
+#: Where unfinished recordings of dead recorders are moved (``<dataset>/.incomplete/...``):
+#: out of the way of the dataset, never deleted (``atikt-replay check FILE --recover``).
+SET_ASIDE_DIR = ".incomplete"
 #: Suffix of a recording that a stop ended early (protective stop, lost connection...): it
 #: keeps what arrived and is never taken as a recording of the dataset (``.incomplete-2.mcap``
 #: and so on when the same trial stopped again).

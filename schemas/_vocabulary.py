@@ -15,6 +15,7 @@ from importlib import resources
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from schemas._toml import loads_toml
 from schemas.errors import ContractError
 
 if TYPE_CHECKING:
@@ -258,7 +259,7 @@ def parse_vocabulary(text: str, package: str) -> Vocabulary:
         ContractError: The text is not a consistent contract.
     """
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
         contract = _table(data, "contract")
         vocabulary = Vocabulary(
             schema_version=int(contract["schema_version"]),

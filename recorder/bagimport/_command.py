@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn
+from rich.progress import BarColumn, MofNCompleteColumn, ProgressColumn, TextColumn
 from rich.table import Table
 from rich.text import Text
 
@@ -16,6 +16,7 @@ from recorder.bagimport._importer import import_bag
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
+from schemas import cli
 
 if TYPE_CHECKING:
     import argparse
@@ -120,7 +121,7 @@ def _import_bag(args: argparse.Namespace) -> int:
         topic_map = topic_map.with_csv(args.windows)
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), _Rate())
-    with Progress(*columns, console=console, transient=False) as progress:
+    with cli.progress(console, *columns) as progress:
         tasks: dict[str, TaskID] = {}
         report = import_bag(
             bags,

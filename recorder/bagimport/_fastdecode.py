@@ -53,6 +53,10 @@ _VALUES = frozenset(
 )
 #: Longest fixed array of strings or messages unrolled into the generated code.
 _MAX_UNROLL = 64
+#: Most lines of a generated decoder: a joint state's is ~60 lines, a skin message's ~100.
+#: Fixed arrays of messages nest multiplicatively (64 x 64 x 64 strings: 1.6 M lines, 3.4 GB to
+#: compile), so a larger type is left to rosbags' deserializer (which calls, not unrolls).
+MAX_DECODER_LINES = 20_000
 #: The names of the generated code's helpers.
 _GLOBALS: dict[str, Any] = {"u32": struct.Struct("<I").unpack_from}
 
@@ -104,6 +108,9 @@ class _Gen:
         self._inside = False  # emitting the body of a cached list of strings
 
     def emit(self, line: str, depth: int) -> None:
+        """Append a line; refuse past :data:`MAX_DECODER_LINES` (rosbags decodes the type)."""
+        if len(self.lines) >= MAX_DECODER_LINES:
+            raise _UnsupportedError
         self.lines.append("    " * depth + line)
 
     def cached(self, k: int, depth: int, body: Callable[[int], object]) -> None:
@@ -353,7 +360,7 @@ def _compile(
     gen = kind(store, wanted, store.max_sequence_length, stamped=stamped)
     try:
         gen.message(msgtype, "", 1)
-    except (_UnsupportedError, KeyError):
+    except (_UnsupportedError, KeyError, RecursionError):  # RecursionError: types nest too deep
         return None
     needed = set(fields) | ({"header.stamp.sec", "header.stamp.nanosec"} if stamped else set())
     if gen.found != needed or len(wanted) != len(fields):

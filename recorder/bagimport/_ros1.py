@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.rosbag1.reader import Header, RecordType, read_bytes, read_uint32
 
+from recorder.bagimport._bounded import MAX_CHUNK_BYTES, ROS1_DECOMPRESSORS
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
@@ -28,14 +29,12 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.rosbag1.reader import IndexData
 
-#: Largest uncompressed chunk accepted (rosbag record writes 768 kB chunks).
-MAX_CHUNK_BYTES = 256 * 1024 * 1024
 #: Most message bytes of chunks overlapping in time held at once (a merged bag's k-way merge).
 MAX_OPEN_BYTES = 512 * 1024 * 1024
 
 
 class StreamingReader(Reader):
-    """``rosbags.rosbag1.Reader`` that reads messages chunk by chunk, in file order."""
+    """``rosbags.rosbag1.Reader`` that reads messages chunk by chunk, in receive-time order."""
 
     def read_index_data(self, pos: int, indexes: dict[int, list[IndexData]]) -> None:
         """Skip the per-message index (messages are found by walking the chunks)."""
@@ -53,18 +52,31 @@ class StreamingReader(Reader):
     def _chunk(self, pos: int) -> bytes:
         """Return the decompressed records of the chunk at ``pos``.
 
+        Decompression stops one byte past the declared size (a chunk that lies about its
+        size is refused without producing the rest: a bz2 bomb of 500 kB makes gigabytes).
+
         Raises:
-            ReaderError: The chunk claims more than :data:`MAX_CHUNK_BYTES`.
+            ReaderError: The chunk claims more than :data:`MAX_CHUNK_BYTES`, its data
+                decompresses to another size, or its compression is unknown.
         """
         assert self.bio  # noqa: S101 (open() set it)
         _ = self.bio.seek(pos)
         header = Header.read(self.bio, RecordType.CHUNK)
-        if header.get_uint32("size") > MAX_CHUNK_BYTES:
-            msg = f"a chunk at byte {pos} claims {header.get_uint32('size')} bytes"
+        size = header.get_uint32("size")
+        if size > MAX_CHUNK_BYTES:
+            msg = f"a chunk at byte {pos} claims {size} bytes"
+            raise ReaderError(msg)
+        compression = header.get_string("compression")
+        if compression not in ROS1_DECOMPRESSORS:
+            msg = f"a chunk at byte {pos} has compression {compression!r} (known: bz2, lz4, none)"
             raise ReaderError(msg)
         chunk = self.chunks[pos]
         _ = self.bio.seek(chunk.datapos)
-        return chunk.decompressor(read_bytes(self.bio, chunk.datasize))
+        records = ROS1_DECOMPRESSORS[compression](read_bytes(self.bio, chunk.datasize), size)
+        if len(records) != size:
+            msg = f"a chunk at byte {pos} decompresses to {len(records)} bytes, it claims {size}"
+            raise ReaderError(msg)
+        return records
 
     def messages(
         self,

@@ -27,6 +27,8 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
+from recorder.bagimport import _bounded
+from recorder.bagimport._bounded import MAX_MESSAGE_BYTES
 from recorder.bagimport._pack import Series
 from recorder.bagimport._ros1 import StreamingReader
 from recorder.bagimport._timing import Timeline
@@ -45,8 +47,6 @@ _NS_PER_S = 1_000_000_000
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 ANNOTATION_TYPE = "std_msgs/msg/String"
-#: Largest message the import accepts (a skin block of a second at 10 kHz is ~1 MB).
-MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 READ_ERRORS = (
     AnyReaderError,
     Ros1ReaderError,
@@ -800,8 +800,9 @@ def open_reader(bags: Sequence[Path], topic_map: TopicMap) -> AnyReader:
     """Return an (unopened) reader of the bags with the map's fallback definitions.
 
     ROS 1 bags are read by :class:`~recorder.bagimport._ros1.StreamingReader` (no per-message
-    index in memory).
+    index in memory); ROS 2 bags decompress through :mod:`~recorder.bagimport._bounded`.
     """
+    _bounded.install()
     reader = AnyReader([Path(b) for b in bags], default_typestore=typestore(topic_map))
     if not reader.is2:
         reader.readers = [StreamingReader(Path(b)) for b in bags]
@@ -832,6 +833,7 @@ def bag_topics(bags: Sequence[Path]) -> list[tuple[str, str, int]]:
     Raises:
         BagImportError: A bag cannot be read.
     """
+    _bounded.install()
     try:
         with AnyReader([Path(b) for b in bags]) as reader:
             return [(c.topic, c.msgtype, c.msgcount) for c in reader.connections]

@@ -25,7 +25,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from recorder.errors import BagImportError
-from schemas import VOCABULARY, ContractError, check_id, check_parameters
+from schemas import VOCABULARY, ContractError, check_id, check_parameters, load_toml
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -543,8 +543,7 @@ def _actions(root: _Table) -> dict[str, LabAction]:
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        text = Path(path).read_bytes().decode("utf-8")
-        return tomllib.loads(text, parse_float=Decimal)
+        return load_toml(path, parse_float=Decimal)
     except OSError as err:
         msg = f"{path}: cannot read the topic map ({err.strerror}); check --topic-map"
         raise BagImportError(msg) from err

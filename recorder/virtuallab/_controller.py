@@ -23,6 +23,9 @@ if TYPE_CHECKING:
     from recorder.virtuallab._world import RobotState, VirtualWorld
 
 _log = logging.getLogger("atikt.virtuallab")
+#: Where the virtual arm waits before anything moved it: above the simulator's workspace, the
+#: tool pointing down (x, y, z in m, rotation vector in rad).
+HOME_POSE = (-0.6, -0.2, 0.2, 0.0, np.pi, 0.0)
 
 
 class VirtualController:
@@ -32,7 +35,7 @@ class VirtualController:
         """Wrap a world."""
         self.world = world
         self._lock = threading.Lock()
-        self._parked: NDArray[np.float64] | None = None
+        self._parked: NDArray[np.float64] | None = np.array(HOME_POSE)
         self._shift = np.zeros(3)
         self._log: list[str] = []
 

@@ -214,7 +214,15 @@ class ScriptServer:
             self.controller.park(pose)
 
     def _start(self, said: dict[str, str]) -> None:
-        """Start the announced action; schedule an injected protective stop."""
+        """Start the announced action; schedule an injected protective stop.
+
+        The approach is sent again whenever its speed changes (speed from proximity): an
+        announcement of the action already playing is such an update, not a new action.
+        """
+        key = (said.get("object"), said.get("action"), said.get("trial"))
+        playing = self.controller.world.playing()
+        if playing is not None and key == (playing[0], playing[1], str(playing[2])):
+            return
         try:
             self.controller.start_action(said["object"], said["action"], int(said["trial"]))
         except (KeyError, ValueError, RigError) as err:

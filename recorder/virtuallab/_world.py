@@ -219,6 +219,14 @@ class VirtualWorld:
         playing = self._playing
         return playing is not None and self._sim_ns(self.controller_ns()) < playing.end_ns
 
+    def playing(self) -> tuple[str, str, int] | None:
+        """Return (object, action, trial) of the action playing now (None: none is)."""
+        with self._lock:
+            run = self._playing
+            if run is None or not self.busy_locked():
+                return None
+            return (run.object_id, run.action_id, run.trial)
+
     @property
     def busy(self) -> bool:
         """Whether an action is playing."""

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import polars as pl
 from rich.console import Console
+from rich.markup import escape
 
 from atikt.active import METRIC_CHECKS
 from replay.cli._main import WORKERS, arg, command, progress_bar
@@ -52,7 +53,7 @@ from replay.studies._studies import (
     prior_groups,
     run_study,
 )
-from schemas import atomic_write, atomic_write_text, cli
+from schemas import atomic_write, atomic_write_text, cli, dataset_recordings
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -87,11 +88,32 @@ def _dataset(path: Path | None, workers: int) -> Path:
         return ensure_default_dataset(workers=workers, on_progress=update)
 
 
+def _check_names_early(root: Path, args: argparse.Namespace) -> None:
+    """Check ``--new``, ``--priors`` and ``--actions`` against the dataset's file layout.
+
+    ``<root>/<object>/<action>/<trial>.mcap`` names the objects and actions before any
+    feature is extracted; the feature table is checked again after (a recording may be
+    quarantined).
+
+    Raises:
+        ReplayError: A name is not in the dataset.
+    """
+    parts = [p.relative_to(root).parts for p in dataset_recordings(root)]
+    objects = sorted({p[0] for p in parts if len(p) == 3})  # noqa: PLR2004 (the layout)
+    actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004
+    if objects:
+        _ = dataset_roles(root, objects, _ids(args.new), _ids(args.priors))
+    if actions and (chosen := _ids(getattr(args, "actions", None))):
+        _ = check_names("--actions", chosen, actions)
+
+
 def _features(root: Path, workers: int) -> FeatureTable:
     """Build or update a dataset's feature cache with a progress bar."""
     bar, update = _progress(f"features of {root}")
     with bar:
         table = build_features(root, workers=workers, on_progress=update)
+    if table.discarded:
+        _CONSOLE.print(f"[yellow]{escape(table.discarded)}", highlight=False, soft_wrap=True)
     for path, reason in table.quarantined.iter_rows():
         _CONSOLE.print(f"[yellow]quarantined[/] {path}: {reason}", highlight=False)
     return table
@@ -319,6 +341,7 @@ def _learn_command(args: argparse.Namespace) -> int:
     inputs = [_dataset_input(args.recordings), ("--session", args.session)]
     cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
+    _check_names_early(prior_root, args)
     table = _features(prior_root, workers)
     roles = dataset_roles(
         prior_root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)
@@ -483,6 +506,7 @@ def _study_command(args: argparse.Namespace) -> int:
     if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
         _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)
     root = _dataset(args.recordings, workers)
+    _check_names_early(root, args)
     table = _features(root, workers)
     roles = dataset_roles(
         root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)

@@ -27,7 +27,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
-from replay.errors import ReplayError
+from replay.errors import RecordingError, ReplayError
+from replay.recording._checks import index_problems
 from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
     check_dataset_location,
@@ -39,6 +40,7 @@ from replay.recording._reader import (
 from replay.recording._salvage import salvage
 from schemas import (
     PART_SUFFIX,
+    SET_ASIDE_DIR,
     ContractError,
     SourceStats,
     cli,
@@ -254,6 +256,7 @@ def _unfinished(root: Path) -> list[str]:
         f"{part}: an unfinished recording (the recorder was interrupted); salvage it with "
         f"{recover_command(part)}"
         for part in sorted(root.rglob(f"*{PART_SUFFIX}"))
+        if not part.is_relative_to(root / SET_ASIDE_DIR)  # set aside: reported, not failed
     ]
 
 
@@ -286,14 +289,16 @@ def _recover(path: Path, out: Path | None) -> int:
 
 
 def progress_bar(console: Console) -> Progress:
-    """Return a rich progress bar (description, bar, done of total, elapsed) on ``console``."""
-    return Progress(
+    """Return a progress bar (description, bar, done of total, elapsed) on ``console``.
+
+    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`schemas.cli.progress`).
+    """
+    return cli.progress(
+        console,
         "[progress.description]{task.description}",
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
-        console=console,
-        disable=not console.is_terminal,
     )
 
 
@@ -308,9 +313,10 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
     problems: list[str] = []
     warnings: list[str] = []
     with bar:
-        results = joblib.Parallel(n_jobs=min(workers, max(len(files), 1)), return_as="generator")(
-            joblib.delayed(_check_one)(file) for file in files
-        )
+        with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
+            results = joblib.Parallel(
+                n_jobs=min(workers, max(len(files), 1)), return_as="generator"
+            )(joblib.delayed(_check_one)(file) for file in files)
         for problem, warning in results:
             bar.advance(task)
             problems += [problem] if problem is not None else []
@@ -339,17 +345,28 @@ def _check(args: argparse.Namespace) -> int:
     bad, warnings = _check_all(files, cli.worker_count(args.workers))
     console = Console(stderr=True)
     unfinished = _unfinished(path) if path.is_dir() else []
-    for problem in bad + unfinished:
+    try:
+        index = index_problems(path, files) if path.is_dir() else []
+    except RecordingError as err:
+        index = [str(err)]
+    for problem in bad + index + unfinished:
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
     for warning in warnings + (_incomplete(path) if path.is_dir() else []):
         console.print(f"[yellow]WARN[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
     Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
     if unfinished:
         Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})")
+    if path.is_dir() and (aside := sorted((path / SET_ASIDE_DIR).rglob(f"*{PART_SUFFIX}"))):
+        Console().print(
+            f"{len(aside)} unfinished recordings of stopped recorders set aside in "
+            f"{path / SET_ASIDE_DIR} (salvage one with {recover_command(aside[0])})",
+            highlight=False,
+            soft_wrap=True,
+        )
     if not files and not unfinished:
         msg = f"{path}: no recordings (*.mcap) found"
         raise ReplayError(msg)
-    return 1 if bad or unfinished else 0
+    return 1 if bad or index or unfinished else 0
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -6,12 +6,13 @@ rerun and matplotlib are imported when a command runs, not when the command line
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TimeElapsedColumn
 
 from replay.cli._main import arg, command, dataset_files
 from replay.errors import ReplayError
@@ -109,6 +110,25 @@ def _attach_sink(stream: rr.RecordingStream, save: Path | None, served: Served |
         raise ReplayError(msg) from err
 
 
+def _check_display(args: argparse.Namespace) -> None:
+    """Refuse to spawn the desktop viewer where there is no display (before any work).
+
+    Without ``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux the viewer spends many seconds
+    logging before it fails; macOS and Windows always have a display.
+
+    Raises:
+        ReplayError: No display on Linux and neither ``--save`` nor ``--serve`` given.
+    """
+    if args.save is not None or args.serve or not sys.platform.startswith("linux"):
+        return
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        msg = (
+            "no display to open the viewer on (DISPLAY and WAYLAND_DISPLAY are unset); write "
+            "a file with --save FILE.rrd, or serve a web viewer with --serve"
+        )
+        raise ReplayError(msg)
+
+
 def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     """Write the PNG figures of every learn run and print where."""
     from replay.outputs._run_figures import plot_run  # noqa: PLC0415 (matplotlib only when needed)
@@ -155,6 +175,7 @@ def _view_command(args: argparse.Namespace) -> int:
         msg = "--save and --serve: choose one (a file, or a web viewer)"
         raise ReplayError(msg)
     inputs = collect_inputs(args.paths)
+    _check_display(args)
     if args.save is not None:
         cli.refuse_overlap(args.save, _named(args.paths), option="--save")
     runs = [load_run(path) for path in inputs.runs]
@@ -211,13 +232,12 @@ def _log(
 def _export_command(args: argparse.Namespace) -> int:
     inputs = collect_inputs(args.paths, allow_runs=False)
     cli.refuse_overlap(args.out, _named(args.paths))
-    progress = Progress(
+    progress = cli.progress(
+        _CONSOLE,
         "[progress.description]{task.description}",
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
-        console=_CONSOLE,
-        disable=not _CONSOLE.is_terminal,
     )
     task = progress.add_task("exporting", total=len(inputs.recordings))
     with progress:

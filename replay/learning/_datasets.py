@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from replay.errors import ReplayError
+from schemas import load_toml
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -59,7 +60,7 @@ def declared_novel(root: Path) -> set[str]:
     if not path.is_file():
         return set()
     try:
-        table = tomllib.loads(path.read_text("utf-8"))
+        table = load_toml(path)
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         msg = f"{path}: cannot read the object declarations ({err}); fix or delete the file"
         raise ReplayError(msg) from err

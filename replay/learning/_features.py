@@ -23,7 +23,14 @@ from replay.errors import ReplayError
 from replay.learning._cachedir import FEATURES_NAME, feature_cache_path
 from replay.learning._parallel import run_tasks
 from replay.recording._reader import check_not_partial, read_recording
-from schemas import VOCABULARY, atomic_write, dataset_recordings
+from schemas import (
+    VOCABULARY,
+    ParquetMismatchError,
+    atomic_write,
+    dataset_recordings,
+    read_checked_parquet,
+    rows_allowed,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -203,17 +210,21 @@ def _digest(path: Path) -> str:
         raise ReplayError(msg) from err
 
 
-def _cached(target: Path) -> pl.DataFrame:
-    """Return the usable rows of an existing cache (none if absent or of another version)."""
+def _cached(target: Path, recordings: int) -> tuple[pl.DataFrame, str]:
+    """Return the usable rows of an existing cache and why it was discarded ("" if kept).
+
+    The cache is checked before it is read (:func:`schemas.read_checked_parquet`): rows for
+    the recordings it describes, the expected columns and dtypes, a size its rows can hold. A
+    cache of another version is silently replaced (an upgrade); any other mismatch is said.
+    """
+    empty = pl.DataFrame(schema=_SCHEMA)
     if not target.exists():
-        return pl.DataFrame(schema=_SCHEMA)
+        return empty, ""
     try:
-        frame = pl.read_parquet(target)
-    except (OSError, pl.exceptions.PolarsError):
-        return pl.DataFrame(schema=_SCHEMA)
-    if frame.schema != pl.Schema(_SCHEMA):
-        return pl.DataFrame(schema=_SCHEMA)
-    return frame.filter(pl.col("features_version") == FEATURES_VERSION)
+        frame = read_checked_parquet(target, _SCHEMA, max_rows=rows_allowed(recordings))
+    except (OSError, ParquetMismatchError) as err:
+        return empty, f"{target}: the feature cache does not match the dataset ({err}); rebuilt"
+    return frame.filter(pl.col("features_version") == FEATURES_VERSION), ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,12 +236,14 @@ class FeatureTable:
         frame: One row per good recording (see ``_SCHEMA``), sorted by path.
         quarantined: One row per refused recording: path and reason.
         extracted: How many recordings were (re-)extracted by this build.
+        discarded: Why an existing cache was discarded and rebuilt (one line; "" if not).
     """
 
     root: Path
     frame: pl.DataFrame
     quarantined: pl.DataFrame
     extracted: int
+    discarded: str = ""
 
 
 def build_features(
@@ -263,7 +276,7 @@ def build_features(
         raise ReplayError(msg)
     digests = {p.relative_to(root).as_posix(): _digest(p) for p in paths}
     cache = feature_cache_path(root) if cache is None else Path(cache)
-    cached = _cached(cache)
+    cached, discarded = _cached(cache, len(paths))
     current = pl.DataFrame(
         {"path": list(digests), "sha256": list(digests.values())},
         schema={"path": pl.String, "sha256": pl.String},
@@ -285,7 +298,7 @@ def build_features(
     frame = pl.concat([keep, pl.DataFrame(rows, schema=_SCHEMA)]).sort("path")
     _write(frame, cache)
     quarantined = pl.DataFrame(bad, schema=_QUARANTINE_SCHEMA).sort("path")
-    return FeatureTable(root, frame, quarantined, extracted=len(todo))
+    return FeatureTable(root, frame, quarantined, extracted=len(todo), discarded=discarded)
 
 
 def _write(frame: pl.DataFrame, target: Path) -> None:

@@ -15,6 +15,7 @@ import joblib
 from threadpoolctl import threadpool_limits
 
 from replay.errors import ReplayError
+from schemas import cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Sequence
@@ -110,10 +111,10 @@ def run_tasks(
     n_jobs = -1 if scheduler else workers
     with backend:
         parallel = joblib.Parallel(n_jobs=n_jobs, return_as="generator")
+        with cli.workers_ignore_interrupts():  # the call starts the workers
+            outputs = parallel(joblib.delayed(_pinned)(function, task) for task in tasks)
         results = []
-        for done, result in enumerate(
-            parallel(joblib.delayed(_pinned)(function, task) for task in tasks), start=1
-        ):
+        for done, result in enumerate(outputs, start=1):
             results.append(result)
             if on_done is not None:
                 on_done(done)

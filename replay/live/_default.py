@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from typing import TYPE_CHECKING, Any
 
 from recorder import (
@@ -16,7 +17,7 @@ from recorder import (
 )
 from replay.errors import ReplayError
 from replay.learning._datasets import DEFAULT_SEED, cache_root
-from schemas import SCHEMA_VERSION
+from schemas import SCHEMA_VERSION, SET_ASIDE_DIR
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -68,8 +69,17 @@ def ensure_default_dataset(
     except RecorderError as err:
         msg = f"{root}: recording the default dataset failed ({err})"
         raise ReplayError(msg) from err
+    if report.set_aside:
+        print(  # noqa: T201 (generated on first use, outside any command's own output)
+            f"{len(report.set_aside)} unfinished recordings of stopped runs moved to "
+            f"{root / SET_ASIDE_DIR}; their trials were recorded again",
+            file=sys.stderr,
+        )
     if report.incomplete:
-        msg = f"{root}: {len(report.incomplete)} recordings are incomplete; run again to resume"
+        msg = (
+            f"{root}: {len(report.incomplete)} recordings are being written by another "
+            "running recorder; run again when it has finished"
+        )
         raise ReplayError(msg)
     (root / _DONE).write_text(f"{report.written + report.skipped} recordings\n", "utf-8")
     return root

@@ -36,7 +36,15 @@ import numpy as np
 import polars as pl
 
 from replay.errors import RecordingError
-from schemas import SCHEMA_VERSION, VOCABULARY, build_typestore
+from schemas import (
+    SCHEMA_VERSION,
+    VOCABULARY,
+    ParquetMismatchError,
+    build_typestore,
+    dataset_recordings,
+    read_checked_parquet,
+    rows_allowed,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -270,11 +278,58 @@ def check_duration(
             raise RecordingError(msg)
 
 
+#: The index columns the checks compare (the index has more: see ``atikt-record index``).
+INDEX_COLUMNS: dict[str, Any] = {
+    "path": pl.String,
+    "object_id": pl.String,
+    "action_id": pl.String,
+    "trial": pl.Int64,
+    "seed": pl.Int64,
+    "size_bytes": pl.Int64,
+}
+
+
 @functools.lru_cache(maxsize=8)
 def _index_rows(index: Path, _mtime_ns: int, _size: int) -> dict[str, dict[str, Any]]:
-    """Return a dataset index's rows by relative path (cached while the file is unchanged)."""
-    frame = pl.read_parquet(index)
+    """Return a dataset index's rows by relative path (cached while the file is unchanged).
+
+    The index is checked before it is read: rows for the recordings of its dataset.
+    """
+    recordings = len(dataset_recordings(index.parent))
+    frame = read_checked_parquet(index, INDEX_COLUMNS, rows_allowed(recordings), exact=False)
     return {row["path"]: row for row in frame.iter_rows(named=True)}
+
+
+def index_problems(root: Path, files: Sequence[Path]) -> list[str]:
+    """Return how ``<root>/index.parquet`` disagrees with the recordings ``files`` (one each).
+
+    The index must list every recording once, with its size, and nothing else; a dataset
+    without an index has no problem here (it is derived data, made by ``atikt-record``).
+
+    Raises:
+        RecordingError: The index cannot be read or does not match its format.
+    """
+    index = Path(root) / INDEX_NAME
+    if not index.is_file():
+        return []
+    rows = _read_index(index, Path(root))
+    sizes = {f.relative_to(root).as_posix(): f.stat().st_size for f in files}
+    fix = f"rebuild it with 'atikt-record index {root}'"
+    problems = []
+    if missing := sorted(sizes.keys() - rows.keys()):
+        problems.append(
+            f"{index}: lists {len(sizes) - len(missing)} of the {len(sizes)} recordings "
+            f"(not {missing[0]}{' and more' if len(missing) > 1 else ''}); {fix}"
+        )
+    if extra := sorted(rows.keys() - sizes.keys()):
+        problems.append(f"{index}: lists {len(extra)} files that are not there ({extra[0]}); {fix}")
+    if changed := sorted(
+        p for p in sizes.keys() & rows.keys() if rows[p]["size_bytes"] != sizes[p]
+    ):
+        problems.append(
+            f"{index}: gives another size for {len(changed)} files ({changed[0]}); {fix}"
+        )
+    return problems
 
 
 def _read_index(index: Path, root: Path) -> dict[str, dict[str, Any]]:
@@ -286,7 +341,7 @@ def _read_index(index: Path, root: Path) -> dict[str, dict[str, Any]]:
     try:
         stat = index.stat()
         return _index_rows(index, stat.st_mtime_ns, stat.st_size)
-    except (OSError, pl.exceptions.PolarsError, KeyError) as err:
+    except (OSError, pl.exceptions.PolarsError, KeyError, ParquetMismatchError) as err:
         msg = (
             f"{index}: the dataset index cannot be read ({' '.join(str(err).split())}); it is "
             f"derived data: rebuild it with 'atikt-record index {root}'"

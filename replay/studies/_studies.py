@@ -45,6 +45,12 @@ if TYPE_CHECKING:
 
 #: Label of the ATIKT runs and of the no-transfer baseline in results.
 ATIKT, BASELINE = "ATIKT", "baseline"
+#: Training samples per object of the other objects' model (``reference_theta``) and of the
+#: saved hyperparameters (``write_hyperparameters``): ``StudyConfig.reference_samples``.
+REFERENCE_SAMPLES = 10
+#: The same with ``--quick``: the fit on every object of an action is serial and cubic in the
+#: samples (10 per object: ~60 s of a 90 s quick fusion study on 2 cores; 3: a few seconds).
+QUICK_REFERENCE_SAMPLES = 3
 #: Training samples per object at which the fusion study measures accuracy.
 FUSION_SIZES = (1, 2, 3, 5, 7, 10)
 
@@ -87,6 +93,8 @@ class StudyConfig:
             value is the path of a ``hyperparameters.json`` an earlier fusion study wrote
             (another session or dataset of the same rig), whose hyperparameters centre the
             prior instead (``load_hyperparameters``).
+        reference_samples: Trials per object of the fits on other objects and of the saved
+            hyperparameters (``REFERENCE_SAMPLES``; ``--quick``: ``QUICK_REFERENCE_SAMPLES``).
     """
 
     out: Path
@@ -113,6 +121,7 @@ class StudyConfig:
     metric_check: str = DEFAULT_METRIC_CHECK
     metric_until: int | None = DEFAULT_METRIC_UNTIL
     fusion_prior: str = "others"
+    reference_samples: int = REFERENCE_SAMPLES
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -125,6 +134,7 @@ class StudyConfig:
             fusion_groups=2,
             fusion_repetitions=2,
             prior_counts=(3, 7),
+            reference_samples=QUICK_REFERENCE_SAMPLES,
         )
 
 
@@ -428,6 +438,7 @@ class FusionTask:
         features: Feature policy.
         fusion_prior: ``others``, ``none`` or ``saved`` (see :class:`StudyConfig`).
         saved_theta: With ``saved``: the log hyperparameters that centre the prior.
+        reference_samples: Trials per object of ``reference_theta``.
     """
 
     frame: pl.DataFrame
@@ -439,10 +450,9 @@ class FusionTask:
     features: str = "thesis"
     fusion_prior: str = "others"
     saved_theta: tuple[float, ...] | None = None
+    reference_samples: int = REFERENCE_SAMPLES
 
 
-#: Training samples per object of the other objects' model (``reference_theta``).
-REFERENCE_SAMPLES = 10
 #: Prior standard deviation of the log hyperparameters around the other objects' ones
 #: (measured against 1.0 in tests/bench/fusion_candidates.py: smaller worst-case loss).
 REFERENCE_PRIOR_SD = 0.5
@@ -455,16 +465,20 @@ _HYPERPARAMETERS_FORMAT = "atikt fusion hyperparameters"
 
 
 def _fit_theta(
-    lookup: FeatureLookup, action: str, objects: Sequence[str], seed: int
+    lookup: FeatureLookup,
+    action: str,
+    objects: Sequence[str],
+    seed: int,
+    samples: int = REFERENCE_SAMPLES,
 ) -> tuple[tuple[str, ...], np.ndarray[Any, np.dtype[np.float64]]]:
-    """Fit the fused kernel on up to ``REFERENCE_SAMPLES`` trials of each object (the first).
+    """Fit the fused kernel on up to ``samples`` trials of each object (the first).
 
     Returns:
         The kernel's hyperparameter names and its fitted log hyperparameters.
     """
     train, labels = [], []
     for label, obj in enumerate(objects):
-        for trial in lookup.trials(obj, action)[:REFERENCE_SAMPLES]:
+        for trial in lookup.trials(obj, action)[:samples]:
             train.append(lookup.get(obj, action, trial))
             labels.append(label)
     model = MultiModalGPC(random_state=seed).fit(train, labels)
@@ -472,11 +486,15 @@ def _fit_theta(
 
 
 def reference_theta(
-    lookup: FeatureLookup, action: str, objects: Sequence[str], seed: int
+    lookup: FeatureLookup,
+    action: str,
+    objects: Sequence[str],
+    seed: int,
+    samples: int = REFERENCE_SAMPLES,
 ) -> np.ndarray[Any, np.dtype[np.float64]] | None:
     """Return the fused kernel's hyperparameters fitted on the other objects of the dataset.
 
-    The objects outside the group (up to ``REFERENCE_SAMPLES`` trials each, the first by trial
+    The objects outside the group (up to ``samples`` trials each, the first by trial
     number) are what a lab already knows about this action: which modality separates objects
     and on what scale. None when fewer than two other objects have the action.
     """
@@ -485,7 +503,7 @@ def reference_theta(
     ]
     if len(others) < 2:  # noqa: PLR2004 - a classifier needs two classes
         return None
-    return _fit_theta(lookup, action, others, seed)[1]
+    return _fit_theta(lookup, action, others, seed, samples)[1]
 
 
 def kernel_names(lookup: FeatureLookup, action: str) -> tuple[str, ...]:
@@ -514,10 +532,11 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
         objects = [o for o in lookup.objects(action) if o in {*config.new, *config.old}]
         if len(objects) < 2:  # noqa: PLR2004 - a classifier needs two classes
             continue
-        names, theta = _fit_theta(lookup, action, objects, _seed(config.seed, action, "saved"))
+        seed = _seed(config.seed, action, "saved")
+        names, theta = _fit_theta(lookup, action, objects, seed, config.reference_samples)
         actions[action] = {
             "objects": objects,
-            "samples_per_object": REFERENCE_SAMPLES,
+            "samples_per_object": config.reference_samples,
             "names": list(names),
             "theta": [float(v) for v in theta],
         }
@@ -581,7 +600,9 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     subsets = {"multi-modal": None} | {m: (m,) for m in modalities}
     reference = None
     if task.fusion_prior == "others":
-        reference = reference_theta(lookup, task.action, task.objects, task.seed)
+        reference = reference_theta(
+            lookup, task.action, task.objects, task.seed, task.reference_samples
+        )
     elif task.saved_theta is not None:
         reference = np.asarray(task.saved_theta, dtype=np.float64)
     fused: dict[str, Any] = {}
@@ -677,6 +698,7 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
             config.features,
             mode,
             saved.get(action),
+            config.reference_samples,
         )
         for action in actions
         for number, group in enumerate(groups)

@@ -39,7 +39,7 @@ def test_action_records_one_file_and_refuses_to_overwrite_it(
     assert path.is_file()
     assert str(path) in capsys.readouterr().out
     before = path.read_bytes()
-    assert main(_action(tmp_path, "--trial", "2", "--seed", "4")) == 1
+    assert main(_action(tmp_path, "--trial", "2", "--seed", "3")) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert err.startswith("atikt-record: error: ")
@@ -47,6 +47,12 @@ def test_action_records_one_file_and_refuses_to_overwrite_it(
     assert "never overwritten" in err
     assert "Traceback" not in err
     assert path.read_bytes() == before
+    assert main(_action(tmp_path, "--trial", "3", "--seed", "4")) == 1  # another seed
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "holds recordings of seed 3" in err
+    assert "--seed 3 to resume it" in err
+    assert not (path.parent / "003.mcap").exists()
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,7 +28,11 @@ if TYPE_CHECKING:
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "recorder" / "data"
-TIME_SCALE = "0.05"
+#: Real seconds per simulated second. The virtual lab plays the simulator's motion whatever the
+#: rig decides, so the rig's detection latency (UDP ~10 ms, DDS ~50 ms) counts 1 / TIME_SCALE
+#: times over in simulated motion: keep it large enough for the 1 mm press check.
+TIME_SCALE = "0.1"
+ROS2_TIME_SCALE = "0.25"
 
 
 def _free_port(kind: int) -> int:
@@ -36,12 +41,12 @@ def _free_port(kind: int) -> int:
         return int(probe.getsockname()[1])
 
 
-def _lab(tmp_path: Path, rtde: int, script: int, skin: str) -> Path:
+def _lab(tmp_path: Path, rtde: int, script: int, skin: str, scale: str = TIME_SCALE) -> Path:
     """Write the example UR configuration with this test's ports and a skin table."""
     text = (DATA / "ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
     text = text.replace("script_port = 30002", f"script_port = {script}")
-    text = text.replace("# time_scale = 0.1", f"time_scale = {TIME_SCALE}")
+    text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
     text = text[: text.index("\n[skin]\n") + 1] + skin
     lab = tmp_path / "lab.toml"
     lab.write_text(text, "utf-8")
@@ -49,9 +54,9 @@ def _lab(tmp_path: Path, rtde: int, script: int, skin: str) -> Path:
 
 
 @contextlib.contextmanager
-def _serve_sim(*options: str) -> Iterator[subprocess.Popen[str]]:
+def _serve_sim(*options: str, scale: str = TIME_SCALE) -> Iterator[subprocess.Popen[str]]:
     """Run the virtual lab in its own process until the block ends (then Ctrl-C it)."""
-    command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", TIME_SCALE]
+    command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", scale]
     env = os.environ | {"PYTHONPATH": str(ROOT)}
     process = subprocess.Popen(  # noqa: S603 (this project's command)
         [*command, *options], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -129,10 +134,52 @@ def test_a_session_with_a_ros2_skin(
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
     topic_map = DATA / "topic_map.example.toml"
     skin = f'[skin]\ntransport = "ros2"\ntopic_map = "{topic_map}"\ndomain_id = {dds_domain}\n'
-    lab = _lab(tmp_path, rtde, script, skin)
+    lab = _lab(tmp_path, rtde, script, skin, ROS2_TIME_SCALE)
     out = tmp_path / "session"
     served = ["--rtde-port", str(rtde), "--script-port", str(script), "--ros2"]
     served += ["--topic-map", str(topic_map), "--domain-id", str(dds_domain)]
-    with _serve_sim(*served):
+    with _serve_sim(*served, scale=ROS2_TIME_SCALE):
         _session(lab, out, capsys)
     _check_every_sample(out, capsys, {"rtde", *(f"skin/cell_{c}" for c in range(7))})
+
+
+def _last_log_ns(path: Path) -> int:
+    from mcap.reader import make_reader  # noqa: PLC0415
+
+    with path.open("rb") as stream:
+        return max(message.log_time for _, _, message in make_reader(stream).iter_messages())
+
+
+def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) -> None:
+    from replay import salvage  # noqa: PLC0415
+
+    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    udp = _free_port(socket.SOCK_DGRAM)
+    skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
+    skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
+    lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :], "0.3")
+    out = tmp_path / "data"
+    served = ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
+    served += ["--skin", f"udp://127.0.0.1:{udp}"]
+    command = [sys.executable, "-m", "recorder", "action", "--rig-config", str(lab)]
+    command += ["--object", "wood", "--action", "C1", "--trial", "1", "--out", str(out)]
+    with _serve_sim(*served, scale="0.3") as lab_process:
+        del lab_process
+        recorder = subprocess.Popen(  # noqa: S603 (this project's command)
+            command, env=os.environ | {"PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE
+        )
+        deadline = time.monotonic() + 30
+        parts: list[Path] = []
+        while not parts and time.monotonic() < deadline and recorder.poll() is None:
+            parts = sorted(out.rglob("*.mcap.part"))
+            time.sleep(0.05)
+        assert parts, recorder.stderr.read() if recorder.stderr else ""
+        time.sleep(2.0)  # well inside the 4.5 s hold (C1 at time_scale 0.3)
+        killed_ns = time.time_ns()
+        recorder.send_signal(signal.SIGKILL)
+        recorder.wait(timeout=10)
+    assert recorder.returncode == -signal.SIGKILL
+    assert not (out / "wood" / "C1" / "001.mcap").exists()
+    report = salvage(parts[0])
+    lost_s = (killed_ns - _last_log_ns(report.target)) / 1e9
+    assert 0 <= lost_s < 0.5, lost_s
