@@ -28,8 +28,9 @@ from scipy.linalg import lapack
 from scipy.special import erf, expit
 
 from atikt.errors import AtiktError, NotFittedError, NumericalError
-from atikt.features import FeatureTransformer, RawFeatures
-from atikt.kernels import Kernel, modality_kernel
+from atikt.features import FeatureTransformer, RawFeatures, stack_features
+from atikt.kernels import Kernel, ModalityKernel, fusion_kernel, modality_kernel
+from atikt.noise import feature_noise, noise_logits
 from atikt.optimize import SearchResult, minimize_box
 
 if TYPE_CHECKING:
@@ -412,7 +413,7 @@ class BinaryGPC:
         newton_max_iter: int = 100,
         newton_tol: float = 1e-10,
         jitter: float = 1e-10,
-        prior_sd: float | None = None,
+        prior_sd: float | FloatArray | None = None,
         prior_mean: FloatArray | None = None,
         random_state: RandomState = None,
     ) -> None:
@@ -662,7 +663,7 @@ def best_search(
 def with_prior(
     objective: Callable[[FloatArray], tuple[float, FloatArray]],
     kernel: Kernel,
-    sd: float | None,
+    sd: float | npt.ArrayLike | None,
     mean: FloatArray | None = None,
 ) -> Callable[[FloatArray], tuple[float, FloatArray]]:
     """Add the negative log density of a Gaussian prior on log hyperparameters to an objective.
@@ -670,7 +671,8 @@ def with_prior(
     Args:
         objective: ``theta -> (value, gradient)`` to minimise (negative log evidence).
         kernel: The kernel (its ``theta`` is the prior's centre when ``mean`` is None).
-        sd: Prior standard deviation of every log hyperparameter; None: no prior.
+        sd: Prior standard deviation of every log hyperparameter, or one per hyperparameter
+            (shape (n_params,); ``inf`` leaves that one without a prior); None: no prior.
         mean: Prior centre, shape (n_params,).
 
     Returns:
@@ -683,17 +685,19 @@ def with_prior(
     if sd is None:
         return objective
     centre = kernel.theta if mean is None else np.asarray(mean, dtype=np.float64)
-    if not sd > 0 or centre.shape != kernel.theta.shape:
+    sds = np.broadcast_to(np.asarray(sd, dtype=np.float64), kernel.theta.shape)
+    if not np.all(sds > 0) or centre.shape != kernel.theta.shape:
         msg = (
             f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {kernel.theta.shape}"
         )
         raise AtiktError(msg)
-    precision = 1.0 / sd**2
+    precision = 1.0 / sds**2  # inf -> 0: no prior on that hyperparameter
 
     def penalised(theta: FloatArray) -> tuple[float, FloatArray]:
         value, gradient = objective(theta)
         offset = theta - centre
-        return value + 0.5 * precision * float(offset @ offset), gradient + precision * offset
+        weighted = precision * offset
+        return value + 0.5 * float(offset @ weighted), gradient + weighted
 
     return penalised
 
@@ -807,7 +811,7 @@ class OneVsAllGPC:
         max_iter: int = 50,
         jitter: float = 1e-10,
         shared: bool = False,
-        prior_sd: float | None = None,
+        prior_sd: float | FloatArray | None = None,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
@@ -925,6 +929,10 @@ def normalise(p: FloatArray) -> FloatArray:
     return np.asarray(np.divide(p, total, out=uniform, where=total > 0), dtype=np.float64)
 
 
+NOISE_PRIOR_SD: Final = 0.5
+"""Prior sd of the modality-weight logits around the declared-noise centre (MultiModalGPC)."""
+
+
 class MultiModalGPC:
     """One action's object classifier over a chosen subset of modalities (fusion study).
 
@@ -957,6 +965,18 @@ class MultiModalGPC:
             ``prior_sd``, the prior's centre), e.g. ``theta_`` of a model fitted on other
             objects of the same action: an empirical-Bayes prior over the modality weights
             and length scales. None: the default kernel (equal weights, unit length scales).
+        sensor_noise: Declared noise (sd of one sample, the sensor's units) of the sensor
+            each feature block comes from, e.g. ``{"force": 0.05, "thermal": 0.03125}``. Used
+            when ``initial_theta`` is None and the kernel is a weighted sum: the modality
+            weights start from, and get a Gaussian prior of sd ``noise_sd`` around, the
+            logits of :func:`atikt.noise.noise_logits` (weights proportional to each block's
+            spread over the training observations relative to its declared noise); the
+            other hyperparameters keep no prior (or ``prior_sd`` around the default). None:
+            no such prior.
+        noise_sd: Prior sd of the logits around the declared-noise centre.
+        combination: ``"sum"`` (the weighted sum, the thesis) or ``"product"`` of the
+            per-modality kernels (``atikt.kernels.COMBINATIONS``).
+        parts: Kernel of each modality (``atikt.kernels.PART_KERNELS``; RBF where not named).
         n_restarts: Random restarts per binary classifier.
         max_iter: Iteration limit of the hyperparameter search per start.
         random_state: Seed of the restarts.
@@ -981,11 +1001,19 @@ class MultiModalGPC:
         shared: bool = True,
         prior_sd: float | None = None,
         initial_theta: npt.ArrayLike | None = None,
+        sensor_noise: Mapping[str, float] | None = None,
+        noise_sd: float = NOISE_PRIOR_SD,
+        combination: str = "sum",
+        parts: Mapping[str, str] | None = None,
         n_restarts: int = 1,
         max_iter: int = 50,
         random_state: RandomState = None,
     ) -> None:
         """Store the parameters; see the class docstring."""
+        self.sensor_noise = sensor_noise
+        self.noise_sd = noise_sd
+        self.combination = combination
+        self.parts = parts
         self.modalities = modalities
         self.n_thermal_components = n_thermal_components
         self.amplitude = amplitude
@@ -1012,7 +1040,12 @@ class MultiModalGPC:
         self.transformer_ = FeatureTransformer(self.modalities, self.n_thermal_components)
         X = self.transformer_.fit_transform(observations)
         slices = self.transformer_.slices_
-        fused = modality_kernel(slices, amplitude=self.amplitude)
+        fused: Kernel = fusion_kernel(
+            slices, combination=self.combination, parts=self.parts, amplitude=self.amplitude
+        )
+        prior_sd: float | FloatArray | None = self.prior_sd
+        if self.initial_theta is None and self.sensor_noise is not None:
+            fused, prior_sd = self._noise_prior(fused, observations)
         if self.initial_theta is not None:
             theta = np.asarray(self.initial_theta, dtype=np.float64)
             if theta.shape != fused.theta.shape or not np.all(np.isfinite(theta)):
@@ -1022,10 +1055,12 @@ class MultiModalGPC:
                 )
                 raise AtiktError(msg)
             fused = fused.with_theta(np.clip(theta, fused.bounds[:, 0], fused.bounds[:, 1]))
-        candidates = {tuple(slices): fused}
+        candidates: dict[tuple[str, ...], tuple[Kernel, float | FloatArray | None]] = {
+            tuple(slices): (fused, prior_sd)
+        }
         if self.selection != "fused" and len(slices) > 1:
             candidates |= {
-                (name,): modality_kernel({name: cols}, amplitude=self.amplitude)
+                (name,): (modality_kernel({name: cols}, amplitude=self.amplitude), self.prior_sd)
                 for name, cols in slices.items()
             }
         fitted = {
@@ -1034,10 +1069,10 @@ class MultiModalGPC:
                 n_restarts=self.n_restarts,
                 max_iter=self.max_iter,
                 shared=self.shared,
-                prior_sd=self.prior_sd,
+                prior_sd=sd,
                 random_state=self.random_state,
             ).fit(X, labels)
-            for names, kernel in candidates.items()
+            for names, (kernel, sd) in candidates.items()
         }
         self.theta_ = fitted[tuple(slices)].estimators_[0].kernel_.theta.copy()
         self.model_, self.selected_ = _select_by_evidence(
@@ -1045,6 +1080,33 @@ class MultiModalGPC:
         )
         self.classes_ = self.model_.classes_
         return self
+
+    def _noise_prior(
+        self, kernel: Kernel, observations: Sequence[RawFeatures]
+    ) -> tuple[Kernel, float | FloatArray | None]:
+        """Return the kernel with its logits at the declared-noise centre, and the prior sds.
+
+        Only a weighted sum has logits; any other kernel, or no declared noise, is returned
+        unchanged with ``prior_sd``.
+        """
+        noise = self.sensor_noise or {}
+        if not isinstance(kernel, ModalityKernel) or len(kernel.parts) < 2:  # noqa: PLR2004
+            return kernel, self.prior_sd
+        blocks = stack_features(observations).blocks
+        modalities = kernel.modalities
+        declared = {
+            m: feature_noise(m, blocks[m].shape[1], noise[m]) for m in modalities if m in noise
+        }
+        logits = noise_logits(blocks, declared, modalities, kernel.logit_bounds)
+        if logits is None:
+            return kernel, self.prior_sd
+        theta = kernel.theta
+        n_part = sum(p.n_params for p in kernel.parts)
+        theta[n_part : n_part + logits.shape[0]] = logits
+        default = np.inf if self.prior_sd is None else self.prior_sd
+        sds = np.full(theta.shape, default)
+        sds[n_part : n_part + logits.shape[0]] = self.noise_sd
+        return kernel.with_theta(theta), sds
 
     def _features(self, observations: Sequence[RawFeatures]) -> FloatArray:
         """Transform test observations with the training statistics."""

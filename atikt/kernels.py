@@ -50,6 +50,12 @@ DEFAULT_VARIANCE_BOUNDS: Final = (0.1, 100.0)
 """Signal-variance box of the amplitude variant."""
 DEFAULT_RHO_BOUNDS: Final = (1e-3, 1.0)
 DEFAULT_BIAS_BOUNDS: Final = (1e-3, 100.0)
+MATERN_NUS: Final = (1.5, 2.5)
+"""Smoothness values of :class:`SliceMatern` (closed forms, R&W eq. 4.17)."""
+PART_KERNELS: Final = ("rbf", "matern32", "matern52")
+"""Per-modality kernel choices of :func:`modality_kernel`."""
+COMBINATIONS: Final = ("sum", "product")
+"""How :func:`modality_kernel` combines the per-modality kernels."""
 """Box of a learned transfer coefficient rho (log space, so 0 itself is excluded)."""
 
 _EMPTY_BOUNDS: Final = np.zeros((0, 2))
@@ -243,6 +249,204 @@ class SliceRBF(Kernel):
             if scale is not None:
                 K *= scale
             return K, (K * scaled)[None]
+
+        return evaluate
+
+
+class SliceMatern(SliceRBF):
+    """Matern kernel of smoothness ``nu`` (3/2 or 5/2) on one modality's column slice.
+
+    ``k = (1 + a) e^-a`` (``nu = 3/2``, ``a = sqrt(3) d / l``) or ``(1 + a + a^2 / 3) e^-a``
+    (``nu = 5/2``, ``a = sqrt(5) d / l``), Rasmussen & Williams eq. 4.17; unit variance like the
+    RBF, rougher functions of the features (the RBF is the limit ``nu -> inf``).
+
+    Args:
+        columns: The columns of the modality in the feature matrix.
+        length_scale: Length scale ``l > 0``.
+        length_scale_bounds: Box of ``l`` or ``"fixed"``.
+        name: Modality name, used in ``names``.
+        nu: 1.5 or 2.5.
+    """
+
+    def __init__(
+        self,
+        columns: slice,
+        length_scale: float = 1.0,
+        length_scale_bounds: Bounds = DEFAULT_LENGTH_SCALE_BOUNDS,
+        name: str = "matern",
+        nu: float = 2.5,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        if nu not in MATERN_NUS:
+            msg = f"nu={nu}; use one of {MATERN_NUS}"
+            raise AtiktError(msg)
+        super().__init__(columns, length_scale, length_scale_bounds, name)
+        self.nu = float(nu)
+
+    def _values(self, D: FloatArray, log_l: float) -> tuple[FloatArray, FloatArray]:
+        """Return ``k`` and ``dk/dlog l`` from squared distances ``D`` (eq. 4.17)."""
+        a = np.sqrt(D) * (math.sqrt(2.0 * self.nu) * math.exp(-log_l))
+        e = np.exp(-a)
+        if self.nu == MATERN_NUS[0]:
+            return (1.0 + a) * e, a * a * e  # dk/da = -a e^-a, da/dlog l = -a
+        return (1.0 + a + a * a / 3.0) * e, a * a * (1.0 + a) / 3.0 * e
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return the Matern kernel of the slice."""
+        return self._values(self.sq_dist(X, Y), math.log(self.length_scale))[0]
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dlog l``."""
+        K, dK = self._values(self.sq_dist(X), math.log(self.length_scale))
+        if self.length_scale_bounds == "fixed":
+            return K, np.zeros((0, *K.shape))
+        return K, dK[None]
+
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
+        """Return ``theta -> (K, dK)`` with the squared distances computed once."""
+        D = self.sq_dist(X)
+        fixed = self.length_scale_bounds == "fixed"
+        log_l = math.log(self.length_scale)
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            K, dK = self._values(D, log_l if fixed else float(theta[0]))
+            if scale is not None:
+                K *= scale
+                dK *= scale
+            return K, np.zeros((0, *K.shape)) if fixed else dK[None]
+
+        return evaluate
+
+
+class ProductKernel(Kernel):
+    """Product of per-modality kernels times a signal variance: ``s^2 prod_m k_m(x, y)``.
+
+    A non-additive combination: two observations are alike only if they are alike in every
+    modality. A modality is switched off by a long length scale instead of a small weight (its
+    factor tends to 1), so there are no weights. With RBF parts it is one RBF with a length
+    scale per modality (automatic relevance determination over the modalities). ``theta`` is
+    ``[parts' log length scales..., log s^2]``; PSD as a product of PSD kernels (Schur).
+
+    Args:
+        parts: One unit-variance kernel per modality (:class:`SliceRBF`, :class:`SliceMatern`).
+        variance: Signal variance ``s^2``; None: ``s^2 = 1``, not learned.
+        variance_bounds: Box of ``s^2`` or ``"fixed"``.
+    """
+
+    def __init__(
+        self,
+        parts: Sequence[SliceRBF],
+        variance: float | None = 1.0,
+        variance_bounds: Bounds = DEFAULT_VARIANCE_BOUNDS,
+    ) -> None:
+        """Store the parameters; see the class docstring."""
+        if not parts:
+            msg = "ProductKernel needs at least one modality kernel"
+            raise AtiktError(msg)
+        if variance is not None and not variance > 0:
+            msg = f"variance={variance}; it must be > 0 (or None for s^2 = 1)"
+            raise AtiktError(msg)
+        self.parts = tuple(parts)
+        self.variance = variance
+        self.variance_bounds = variance_bounds
+        self._learn_variance = variance is not None and variance_bounds != "fixed"
+        self._bounds = np.vstack(
+            [
+                *(p.bounds for p in self.parts),
+                _log_bounds(variance_bounds) if self._learn_variance else _EMPTY_BOUNDS,
+            ]
+        )
+
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Names of the modality kernels, in order."""
+        return tuple(p.name for p in self.parts)
+
+    @property
+    def signal_variance(self) -> float:
+        """``s^2``."""
+        return 1.0 if self.variance is None else self.variance
+
+    @property
+    def theta(self) -> FloatArray:
+        """``[log l_m..., log s^2]``."""
+        tail = [np.log(self.signal_variance)] if self._learn_variance else []
+        return np.concatenate([*(p.theta for p in self.parts), tail])
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Log-space box of ``theta``."""
+        return self._bounds
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the ``theta`` entries."""
+        tail = ["signal_variance"] if self._learn_variance else []
+        return (*(n for p in self.parts for n in p.names), *tail)
+
+    def _with_values(self, values: FloatArray) -> Self:
+        """Return a copy with the free hyperparameters set from ``values``."""
+        parts, start = [], 0
+        for part in self.parts:
+            parts.append(part._with_values(values[start : start + part.n_params]))  # noqa: SLF001
+            start += part.n_params
+        new = self._copy()
+        new.parts = tuple(parts)
+        if self._learn_variance:
+            new.variance = math.exp(values[start])
+        return new
+
+    def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
+        """Return ``s^2 prod_m K_m(X, Y)``."""
+        K = self.signal_variance * self.parts[0](X, Y)
+        for part in self.parts[1:]:
+            K *= part(X, Y)
+        return K
+
+    def _combine(
+        self, pieces: Sequence[tuple[FloatArray, FloatArray]], s2: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK`` from the parts' ``(K_m, dK_m)`` (product rule)."""
+        n = pieces[0][0].shape[0]
+        dK = np.empty((self.n_params, n, n))
+        start = 0
+        for m, (_, dKm) in enumerate(pieces):
+            others = np.full((n, n), s2)
+            for o, (Ko, _) in enumerate(pieces):
+                if o != m:
+                    others *= Ko
+            k = dKm.shape[0]
+            np.multiply(dKm, others, out=dK[start : start + k])
+            start += k
+        K = np.full((n, n), s2)
+        for Km, _ in pieces:
+            K *= Km
+        if self._learn_variance:
+            dK[start] = K
+        return K, dK
+
+    def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Return ``K`` and ``dK/dtheta``: ``dK/dtheta_m = s^2 dK_m prod_(o != m) K_o``."""
+        return self._combine([p.gradient(X) for p in self.parts], self.signal_variance)
+
+    def diag(self, X: FloatArray) -> FloatArray:
+        """Return ``s^2`` for every row (unit-variance parts)."""
+        return np.full(X.shape[0], self.signal_variance)
+
+    def evaluator(self, X: FloatArray, scale: FloatArray | None = None) -> Evaluator:
+        """Return ``theta -> (K, dK)`` on the parts' evaluators (``scale`` goes into the first)."""
+        parts = [
+            (p.evaluator(X, scale if m == 0 else None), p.n_params)
+            for m, p in enumerate(self.parts)
+        ]
+        learn, fixed = self._learn_variance, self.signal_variance
+
+        def evaluate(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+            pieces, start = [], 0
+            for evaluate_part, k in parts:
+                pieces.append(evaluate_part(theta[start : start + k]))
+                start += k
+            return self._combine(pieces, math.exp(theta[start]) if learn else fixed)
 
         return evaluate
 
@@ -745,6 +949,30 @@ class MultiSourceKernel(Kernel):
         return super().evaluator(X, scale)
 
 
+def _parts(
+    slices: Mapping[str, slice], parts: Mapping[str, str] | None, length_scale: float
+) -> list[SliceRBF]:
+    """Return one unit-variance kernel per modality, of the kind ``parts`` names (RBF default).
+
+    Raises:
+        AtiktError: An unknown part kernel.
+    """
+    chosen = dict(parts or {})
+    unknown = sorted({k for k in chosen.values() if k not in PART_KERNELS})
+    if unknown:
+        msg = f"modality kernels {unknown}: use {PART_KERNELS}"
+        raise AtiktError(msg)
+    built: list[SliceRBF] = []
+    for name, cols in slices.items():
+        kind = chosen.get(name, "rbf")
+        if kind == "rbf":
+            built.append(SliceRBF(cols, length_scale, name=name))
+        else:
+            nu = MATERN_NUS[0] if kind == "matern32" else MATERN_NUS[1]
+            built.append(SliceMatern(cols, length_scale, name=name, nu=nu))
+    return built
+
+
 def modality_kernel(
     slices: Mapping[str, slice],
     *,
@@ -752,6 +980,7 @@ def modality_kernel(
     length_scale: float = 1.0,
     variance: float = 1.0,
     bias: float | None = None,
+    parts: Mapping[str, str] | None = None,
 ) -> ModalityKernel:
     """Build the multi-modal kernel for a feature matrix with the given modality slices.
 
@@ -762,9 +991,38 @@ def modality_kernel(
         variance: Initial signal variance (with ``amplitude``).
         bias: Initial variance ``b^2`` of a learned constant part of the latent function
             (a bias); None: none (the thesis).
+        parts: Kernel of each modality (``PART_KERNELS``); a modality not named gets the RBF
+            (the thesis).
 
     Returns:
         The kernel with equal initial weights.
     """
-    parts = [SliceRBF(cols, length_scale, name=name) for name, cols in slices.items()]
-    return ModalityKernel(parts, variance=variance if amplitude else None, bias=bias)
+    built = _parts(slices, parts, length_scale)
+    return ModalityKernel(built, variance=variance if amplitude else None, bias=bias)
+
+
+def fusion_kernel(
+    slices: Mapping[str, slice],
+    *,
+    combination: str = "sum",
+    parts: Mapping[str, str] | None = None,
+    amplitude: bool = True,
+) -> ModalityKernel | ProductKernel:
+    """Build the multi-modal kernel of a combination: ``sum`` (weighted) or ``product``.
+
+    Args:
+        slices: Column slice of each modality.
+        combination: ``COMBINATIONS``: ``sum`` (:func:`modality_kernel`) or ``product``
+            (:class:`ProductKernel`).
+        parts: Kernel of each modality (``PART_KERNELS``; RBF where not named).
+        amplitude: Learn a signal variance.
+
+    Raises:
+        AtiktError: An unknown combination or part kernel.
+    """
+    if combination not in COMBINATIONS:
+        msg = f"combination={combination!r}; use one of {COMBINATIONS}"
+        raise AtiktError(msg)
+    if combination == "product":
+        return ProductKernel(_parts(slices, parts, 1.0), variance=1.0 if amplitude else None)
+    return modality_kernel(slices, amplitude=amplitude, parts=parts)
