@@ -974,6 +974,9 @@ class MultiModalGPC:
             other hyperparameters keep no prior (or ``prior_sd`` around the default). None:
             no such prior.
         noise_sd: Prior sd of the logits around the declared-noise centre.
+        controlled: Feature blocks the action itself sets (e.g. ``("force",)`` for a
+            force-controlled press): their spread counts as the controller's, signal-to-noise
+            1 (see :func:`atikt.noise.noise_logits`); used with ``sensor_noise``.
         combination: ``"sum"`` (the weighted sum, the thesis) or ``"product"`` of the
             per-modality kernels (``atikt.kernels.COMBINATIONS``).
         parts: Kernel of each modality (``atikt.kernels.PART_KERNELS``; RBF where not named).
@@ -1003,6 +1006,7 @@ class MultiModalGPC:
         initial_theta: npt.ArrayLike | None = None,
         sensor_noise: Mapping[str, float] | None = None,
         noise_sd: float = NOISE_PRIOR_SD,
+        controlled: Sequence[str] = (),
         combination: str = "sum",
         parts: Mapping[str, str] | None = None,
         n_restarts: int = 1,
@@ -1012,6 +1016,7 @@ class MultiModalGPC:
         """Store the parameters; see the class docstring."""
         self.sensor_noise = sensor_noise
         self.noise_sd = noise_sd
+        self.controlled = controlled
         self.combination = combination
         self.parts = parts
         self.modalities = modalities
@@ -1097,7 +1102,9 @@ class MultiModalGPC:
         declared = {
             m: feature_noise(m, blocks[m].shape[1], noise[m]) for m in modalities if m in noise
         }
-        logits = noise_logits(blocks, declared, modalities, kernel.logit_bounds)
+        logits = noise_logits(
+            blocks, declared, modalities, kernel.logit_bounds, controlled=self.controlled
+        )
         if logits is None:
             return kernel, self.prior_sd
         theta = kernel.theta

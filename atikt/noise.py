@@ -27,7 +27,7 @@ import numpy.typing as npt
 from atikt.errors import AtiktError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Collection, Mapping, Sequence
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -107,24 +107,32 @@ def noise_logits(
     noise: Mapping[str, FloatArray],
     modalities: Sequence[str],
     bounds: tuple[float, float],
+    controlled: Collection[str] = (),
 ) -> FloatArray | None:
     """Return modality-weight logits ``log(SNR_m^2 / SNR_1^2)`` relative to the first modality.
 
     A modality without declared noise gets the geometric mean of the declared ones (a neutral
-    weight); a declared one whose training spread is zero gets the lower bound.
+    weight); a declared one whose training spread is zero gets the lower bound. A block the
+    action itself sets (``controlled``: e.g. the force of a force-controlled press) has
+    ``SNR^2 = 1``: its whole spread is the controller's, none of it the objects'.
 
     Args:
         blocks: Raw training observations per block, shape (n, d_m) each.
         noise: Declared noise per column of each block (:func:`feature_noise`).
         modalities: The kernel's modalities in order (the first is the reference).
         bounds: Box of the logits; the result is clipped to it.
+        controlled: Blocks whose values the action sets.
 
     Returns:
         Shape (len(modalities) - 1,), or None when no modality declares its noise.
     """
     ratios = np.array(
         [
-            signal_to_noise(blocks[m], noise[m]) if m in noise else float("nan")
+            1.0
+            if m in controlled
+            else signal_to_noise(blocks[m], noise[m])
+            if m in noise
+            else float("nan")
             for m in modalities
         ]
     )

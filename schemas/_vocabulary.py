@@ -41,6 +41,12 @@ class ModalitySpec:
         property: The object property it measures, as objects name what they share with a
             related object ("" for none).
         description: One line for people.
+        noise: Declared noise of one sample (standard deviation, or the resolution where
+            that is all a datasheet gives), in ``units``; 0: not declared. The fusion study's
+            prior on the modality weights compares each feature's spread with it.
+        controlled_by: The action parameter that sets this modality's values when an action
+            states it (``force_n``: a force-controlled action), so that its feature then
+            measures the rig's controller, not the object; "" for none.
     """
 
     name: str
@@ -54,6 +60,8 @@ class ModalitySpec:
     feature: str
     property: str
     description: str
+    noise: float = 0.0
+    controlled_by: str = ""
 
     def value_names(self, width: int) -> tuple[str, ...]:
         """Return names of ``width`` values per cell: the default names, or numbered ones."""
@@ -205,6 +213,8 @@ def _modality(name: str, row: Mapping[str, Any], package: str) -> ModalitySpec:
         feature=str(row["feature"]),
         property=str(row.get("property", "")),
         description=str(row["description"]),
+        noise=float(row.get("noise", 0.0)),
+        controlled_by=str(row.get("controlled_by", "")),
     )
 
 

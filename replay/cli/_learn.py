@@ -12,7 +12,9 @@ import polars as pl
 from rich.console import Console
 from rich.markup import escape
 
+from atikt import MODALITIES
 from atikt.active import METRIC_CHECKS
+from atikt.kernels import COMBINATIONS, PART_KERNELS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.errors import ReplayError
 from replay.learning._cachedir import feature_cache_path
@@ -48,6 +50,7 @@ from replay.studies._studies import (
     HYPERPARAMETERS,
     STUDIES,
     StudyConfig,
+    action_parameter_names,
     dataset_actions,
     load_hyperparameters,
     prior_groups,
@@ -86,6 +89,25 @@ def _dataset(path: Path | None, workers: int) -> Path:
     bar, update = _progress("recording the default simulated dataset")
     with bar:
         return ensure_default_dataset(workers=workers, on_progress=update)
+
+
+def _fusion_parts(text: str) -> tuple[tuple[str, str], ...]:
+    """Parse ``--fusion-parts`` (``block=kernel,..``).
+
+    Raises:
+        ReplayError: A malformed pair, an unknown block or kernel, in one line.
+    """
+    pairs = []
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        block, _, kind = item.partition("=")
+        if block not in MODALITIES or kind not in PART_KERNELS:
+            msg = (
+                f"--fusion-parts {text!r}: {item!r} is not BLOCK=KERNEL with a block of "
+                f"{', '.join(MODALITIES)} and a kernel of {', '.join(PART_KERNELS)}"
+            )
+            raise ReplayError(msg)
+        pairs.append((block, kind))
+    return tuple(pairs)
 
 
 def _check_names_early(root: Path, args: argparse.Namespace) -> None:
@@ -206,9 +228,25 @@ _FUSION_PRIOR = arg(
     default="others",
     metavar="{" + ",".join(FUSION_PRIORS) + ",FILE}",
     help="fusion study: centre the multi-modal kernel's hyperparameters on those fitted on the "
-    "objects outside each group (others), on those an earlier fusion study saved in FILE "
-    f"(its {HYPERPARAMETERS}, e.g. of another session of the same rig), or maximum likelihood "
-    "on the group alone, as the thesis (none) (default: others)",
+    "objects outside each group, or where there are none, weight the modalities by their "
+    "spread over their sensors' declared noise (others); always the latter (noise); on those "
+    f"an earlier fusion study saved in FILE (its {HYPERPARAMETERS}, e.g. of another session "
+    "of the same rig); or maximum likelihood on the group alone, as the thesis (none) "
+    "(default: others)",
+)
+_FUSION_KERNEL = arg(
+    "--fusion-kernel",
+    default="sum",
+    choices=COMBINATIONS,
+    help="fusion study: combine the per-modality kernels by a weighted sum (the thesis) or a "
+    "product (default: sum)",
+)
+_FUSION_PARTS = arg(
+    "--fusion-parts",
+    default="",
+    metavar="BLOCK=KERNEL,..",
+    help=f"fusion study: kernel per feature block, of {', '.join(PART_KERNELS)} (default: rbf "
+    "for every block), e.g. texture=matern52",
 )
 _ROLES = (
     arg("--new", default=None, help="new objects (default: those the dataset declares new)"),
@@ -491,11 +529,14 @@ def _learn_live(
     *_ROLES,
     _FEATURES,
     _FUSION_PRIOR,
+    _FUSION_KERNEL,
+    _FUSION_PARTS,
     _SEED,
     WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
     names = list(STUDIES) if args.name == "all" else [args.name]
+    parts = _fusion_parts(args.fusion_parts)  # refused before any work
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
@@ -532,6 +573,9 @@ def _study_command(args: argparse.Namespace) -> int:
                 metric_check=args.metric_check,
                 metric_until=args.metric_until,
                 fusion_prior=args.fusion_prior,
+                action_parameters=action_parameter_names(table.root, table.frame),
+                fusion_kernel=args.fusion_kernel,
+                fusion_parts=parts,
             )
             config = config.quick() if args.quick else config
             bar, update = _progress(f"study {name}")

@@ -19,7 +19,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from atikt import MODALITIES, AtiktError, MultiModalGPC, modality_kernel
+from atikt import MODALITIES, AtiktError, MultiModalGPC
+from atikt.gpc import NOISE_PRIOR_SD
+from atikt.kernels import fusion_kernel
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._parallel import run_tasks
@@ -34,6 +36,7 @@ from replay.learning._session import (
     run_learning,
 )
 from replay.outputs._plots import plot_learning_curves
+from replay.recording._reader import read_recording
 from replay.studies._relatedness import least_similar, most_similar, similarity_to_new
 from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
 from schemas import VOCABULARY, atomic_write, atomic_write_text
@@ -88,13 +91,22 @@ class StudyConfig:
         metric_until: Most observations of a new object for which it is used
             (``DEFAULT_METRIC_UNTIL``; None: always).
         fusion_prior: ``others``: the multi-modal kernel's hyperparameters get a prior
-            centred on those of the other objects of the dataset (``reference_theta``);
+            centred on those of the other objects of the dataset (``reference_theta``), and
+            where fewer than two objects lie outside a group, the modality weights get the
+            prior of the sensors' declared noise (``noise``); ``noise``: always that one;
             ``none``: maximum likelihood on the group's samples alone (the thesis); any other
             value is the path of a ``hyperparameters.json`` an earlier fusion study wrote
             (another session or dataset of the same rig), whose hyperparameters centre the
             prior instead (``load_hyperparameters``).
         reference_samples: Trials per object of the fits on other objects and of the saved
             hyperparameters (``REFERENCE_SAMPLES``; ``--quick``: ``QUICK_REFERENCE_SAMPLES``).
+        action_parameters: Per action, the names of the parameters it states
+            (``action_parameter_names``): an action stating a modality's ``controlled_by``
+            (e.g. ``force_n``) sets that modality, whose feature the declared-noise prior
+            then counts as uninformative. Empty: none known.
+        fusion_kernel: Combination of the per-modality kernels (``atikt.kernels.COMBINATIONS``).
+        fusion_parts: Kernel per feature block (``atikt.kernels.PART_KERNELS``; RBF where
+            not named), as (block, kernel) pairs.
     """
 
     out: Path
@@ -122,6 +134,9 @@ class StudyConfig:
     metric_until: int | None = DEFAULT_METRIC_UNTIL
     fusion_prior: str = "others"
     reference_samples: int = REFERENCE_SAMPLES
+    action_parameters: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    fusion_kernel: str = "sum"
+    fusion_parts: tuple[tuple[str, str], ...] = ()
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -439,6 +454,8 @@ class FusionTask:
         fusion_prior: ``others``, ``none`` or ``saved`` (see :class:`StudyConfig`).
         saved_theta: With ``saved``: the log hyperparameters that centre the prior.
         reference_samples: Trials per object of ``reference_theta``.
+        controlled: Feature blocks the action sets (see ``StudyConfig.action_parameters``).
+        kernel: ``MultiModalGPC`` options of the multi-modal kernel (combination, parts).
     """
 
     frame: pl.DataFrame
@@ -451,13 +468,48 @@ class FusionTask:
     fusion_prior: str = "others"
     saved_theta: tuple[float, ...] | None = None
     reference_samples: int = REFERENCE_SAMPLES
+    controlled: tuple[str, ...] = ()
+    kernel: tuple[tuple[str, Any], ...] = ()
 
 
 #: Prior standard deviation of the log hyperparameters around the other objects' ones
 #: (measured against 1.0 in tests/bench/fusion_candidates.py: smaller worst-case loss).
 REFERENCE_PRIOR_SD = 0.5
 #: Choices of ``StudyConfig.fusion_prior`` besides the path of a saved hyperparameters file.
-FUSION_PRIORS = ("others", "none")
+FUSION_PRIORS = ("others", "noise", "none")
+#: Prior sd of the length scales and signal variance around the initial kernel (1 in log
+#: space) when the declared-noise prior sets the modality weights: with one sample per object
+#: maximum likelihood drives every length scale to its lower bound, where the weights no
+#: longer matter (measured on the heated probe, atikt/README.md *Fusion*).
+NOISE_OTHER_SD = 1.0
+
+
+def declared_noise() -> dict[str, float]:
+    """Return the contract's declared noise of one sample per feature block (``noise``)."""
+    return {m.feature: m.noise for m in VOCABULARY.modalities.values() if m.feature and m.noise}
+
+
+def controlled_blocks(parameters: Sequence[str]) -> tuple[str, ...]:
+    """Return the feature blocks an action stating ``parameters`` sets (``controlled_by``)."""
+    return tuple(
+        m.feature
+        for m in VOCABULARY.modalities.values()
+        if m.feature and m.controlled_by and m.controlled_by in parameters
+    )
+
+
+def action_parameter_names(root: Path, frame: pl.DataFrame) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """Return per action the parameter names its first recording states (metadata only).
+
+    Raises:
+        ReplayError: The recording cannot be read (the reader's one-line message).
+    """
+    out = []
+    for action in dataset_actions(frame):
+        path = frame.filter(pl.col("action_id") == action).sort("path")["path"][0]
+        metadata = read_recording(root / path).metadata
+        out.append((action, tuple(sorted(metadata.action_parameters))))
+    return tuple(out)
 #: The fusion study's file of the multi-modal kernel's hyperparameters, fitted per action on
 #: every object of the dataset: what another study takes as ``--fusion-prior FILE``.
 HYPERPARAMETERS = "hyperparameters.json"
@@ -470,8 +522,11 @@ def _fit_theta(
     objects: Sequence[str],
     seed: int,
     samples: int = REFERENCE_SAMPLES,
+    kernel: Sequence[tuple[str, Any]] = (),
 ) -> tuple[tuple[str, ...], np.ndarray[Any, np.dtype[np.float64]]]:
     """Fit the fused kernel on up to ``samples`` trials of each object (the first).
+
+    ``kernel``: ``MultiModalGPC`` options of the kernel (``StudyConfig.fusion_kernel``).
 
     Returns:
         The kernel's hyperparameter names and its fitted log hyperparameters.
@@ -481,8 +536,8 @@ def _fit_theta(
         for trial in lookup.trials(obj, action)[:samples]:
             train.append(lookup.get(obj, action, trial))
             labels.append(label)
-    model = MultiModalGPC(random_state=seed).fit(train, labels)
-    return modality_kernel(model.transformer_.slices_).names, model.theta_
+    model = MultiModalGPC(random_state=seed, **dict(kernel)).fit(train, labels)
+    return model.model_.estimators_[0].kernel_.names, model.theta_
 
 
 def reference_theta(
@@ -491,6 +546,7 @@ def reference_theta(
     objects: Sequence[str],
     seed: int,
     samples: int = REFERENCE_SAMPLES,
+    kernel: Sequence[tuple[str, Any]] = (),
 ) -> np.ndarray[Any, np.dtype[np.float64]] | None:
     """Return the fused kernel's hyperparameters fitted on the other objects of the dataset.
 
@@ -503,16 +559,33 @@ def reference_theta(
     ]
     if len(others) < 2:  # noqa: PLR2004 - a classifier needs two classes
         return None
-    return _fit_theta(lookup, action, others, seed, samples)[1]
+    return _fit_theta(lookup, action, others, seed, samples, kernel)[1]
 
 
-def kernel_names(lookup: FeatureLookup, action: str) -> tuple[str, ...]:
+def kernel_names(
+    lookup: FeatureLookup, action: str, kernel: Sequence[tuple[str, Any]] = ()
+) -> tuple[str, ...]:
     """Return the hyperparameter names of the fused kernel of ``action`` (its modalities).
 
     In the order ``atikt.FeatureTransformer`` stacks the modalities (``atikt.MODALITIES``).
     """
     held = [m for m in MODALITIES if m in lookup.blocks[action]]
-    return modality_kernel({m: slice(i, i + 1) for i, m in enumerate(held)}).names
+    options = dict(kernel)
+    return fusion_kernel(
+        {m: slice(i, i + 1) for i, m in enumerate(held)},
+        combination=options.get("combination", "sum"),
+        parts=options.get("parts"),
+    ).names
+
+
+def kernel_options(config: StudyConfig) -> tuple[tuple[str, Any], ...]:
+    """Return the ``MultiModalGPC`` options of the configured multi-modal kernel."""
+    options: list[tuple[str, Any]] = []
+    if config.fusion_kernel != "sum":
+        options.append(("combination", config.fusion_kernel))
+    if config.fusion_parts:
+        options.append(("parts", dict(config.fusion_parts)))
+    return tuple(options)
 
 
 def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
@@ -533,7 +606,9 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
         if len(objects) < 2:  # noqa: PLR2004 - a classifier needs two classes
             continue
         seed = _seed(config.seed, action, "saved")
-        names, theta = _fit_theta(lookup, action, objects, seed, config.reference_samples)
+        names, theta = _fit_theta(
+            lookup, action, objects, seed, config.reference_samples, kernel_options(config)
+        )
         actions[action] = {
             "objects": objects,
             "samples_per_object": config.reference_samples,
@@ -598,16 +673,21 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     lookup = FeatureLookup(task.frame, task.features)
     modalities = lookup.blocks[task.action]
     subsets = {"multi-modal": None} | {m: (m,) for m in modalities}
-    reference = None
+    reference, prior = None, "none"
     if task.fusion_prior == "others":
         reference = reference_theta(
-            lookup, task.action, task.objects, task.seed, task.reference_samples
+            lookup, task.action, task.objects, task.seed, task.reference_samples, task.kernel
         )
     elif task.saved_theta is not None:
         reference = np.asarray(task.saved_theta, dtype=np.float64)
-    fused: dict[str, Any] = {}
+    fused: dict[str, Any] = dict(task.kernel)
     if reference is not None:
-        fused = {"initial_theta": reference, "prior_sd": REFERENCE_PRIOR_SD}
+        fused |= {"initial_theta": reference, "prior_sd": REFERENCE_PRIOR_SD}
+        prior = task.fusion_prior
+    elif task.fusion_prior in {"others", "noise"} and (noise := declared_noise()):
+        fused |= {"sensor_noise": noise, "controlled": task.controlled}
+        fused |= {"prior_sd": NOISE_OTHER_SD}
+        prior = "noise"
     rows = []
     for split in fusion_splits(task, lookup):
         for name, subset in subsets.items():
@@ -622,7 +702,7 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
             rows.append(
                 {"action": task.action, "group": task.group, "repetition": split.repetition}
                 | {"modalities": name, "samples": split.size, "accuracy": accuracy}
-                | {"fusion_prior": "none" if reference is None else task.fusion_prior}
+                | {"fusion_prior": prior}
             )
     return pl.DataFrame(rows)
 
@@ -682,6 +762,8 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
     mode, saved = config.fusion_prior, {}
     if mode not in FUSION_PRIORS:
         mode, saved = "saved", _saved_thetas(frame, config, Path(config.fusion_prior))
+    parameters = dict(config.action_parameters)
+    kernel = kernel_options(config)
     rng = np.random.default_rng(_seed(config.seed, "fusion"))
     size = min(config.fusion_objects, len(objects))
     groups = [
@@ -699,6 +781,8 @@ def fusion_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[FusionTask]:
             mode,
             saved.get(action),
             config.reference_samples,
+            controlled_blocks(parameters.get(action, ())),
+            kernel,
         )
         for action in actions
         for number, group in enumerate(groups)
@@ -725,7 +809,7 @@ def _saved_thetas(
             )
             raise ReplayError(msg)
         names, theta = saved[action]
-        wanted = kernel_names(lookup, action)
+        wanted = kernel_names(lookup, action, kernel_options(config))
         if names != wanted:
             msg = (
                 f"--fusion-prior {path}: action {action!r} was saved for the kernel "
@@ -920,13 +1004,27 @@ def report_fusion(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
     return (
         f"# {title}\n{_reduced(config, learners=False)}\nMean test accuracy over training sizes, "
         "groups of "
-        f"{config.fusion_objects} objects, multi-modal kernel vs single modalities. "
+        f"{_group_size(config)} objects, multi-modal kernel vs single modalities"
+        f"{_kernel_note(config)}. "
         f"{_fusion_prior_note(frame)}\n\n"
         f"{_markdown(table)}\n\nPer training size (samples per object):\n\n"
         f"{_markdown(sizes)}\n\nMulti-modal minus the best single modality at each size, "
         "paired per group, with its 95 % bootstrap interval over groups:\n\n"
         f"{margin_table}"
     )
+
+
+def _group_size(config: StudyConfig) -> int:
+    """Return the number of objects per fusion group (``fusion_tasks``)."""
+    return min(config.fusion_objects, len({*config.new, *config.old}))
+
+
+def _kernel_note(config: StudyConfig) -> str:
+    """Name the multi-modal kernel when it is not the thesis's weighted sum of RBFs."""
+    parts = ", ".join(f"{block} {kind}" for block, kind in config.fusion_parts)
+    if config.fusion_kernel == "sum" and not parts:
+        return ""
+    return f" (kernel: {config.fusion_kernel}" + (f"; {parts})" if parts else ")")
 
 
 def _signed_points(value: float, low: float, high: float) -> str:
@@ -948,6 +1046,17 @@ def _fusion_prior_note(frame: pl.DataFrame) -> str:
             f"{', '.join(saved)} (--fusion-prior FILE, sd {REFERENCE_PRIOR_SD} in log space)."
         )
     used = frame.filter(pl.col("fusion_prior") == "others")["action"].unique().sort().to_list()
+    noise = frame.filter(pl.col("fusion_prior") == "noise")["action"].unique().sort().to_list()
+    noise_note = (
+        f" Modality weights of {', '.join(noise)}: a prior (sd {NOISE_PRIOR_SD}) centred on "
+        "each feature's spread relative to its sensor's declared noise (contract `noise`; a "
+        "modality the action sets, `controlled_by`, counts as noise), length scales and "
+        f"signal variance a prior of sd {NOISE_OTHER_SD} around the initial kernel."
+        if noise
+        else ""
+    )
+    if not used and noise:
+        return noise_note.lstrip()
     if not used:
         return (
             "Multi-modal hyperparameters by maximum likelihood on the group's samples (no prior "
@@ -956,8 +1065,8 @@ def _fusion_prior_note(frame: pl.DataFrame) -> str:
         )
     return (
         "Multi-modal hyperparameters: a prior centred on those fitted on the objects outside "
-        f"the group (sd {REFERENCE_PRIOR_SD} in log space) for {', '.join(used)}; maximum "
-        "likelihood elsewhere."
+        f"the group (sd {REFERENCE_PRIOR_SD} in log space) for {', '.join(used)}"
+        + (f".{noise_note}" if noise else "; maximum likelihood elsewhere.")
     )
 
 

@@ -7,7 +7,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
+from sklearn.gaussian_process.kernels import Matern
+
 from atikt import AtiktError, DependentKernel, Kernel, ModalityKernel, SliceRBF, modality_kernel
+from atikt.kernels import ProductKernel, SliceMatern, fusion_kernel
 from atikt.transfer import with_domain
 
 if TYPE_CHECKING:
@@ -48,7 +51,19 @@ def kernels() -> list[object]:
     generic = ModalityKernel(fixed_parts, [0.3, -0.2], variance=1.5, bias=0.7)
     X = features(12, 1)
     Xf = flagged(5, 7, 2)
+    matern = {"force": "matern32", "texture": "matern52"}
+    mixed_sum = modality_kernel(SLICES, parts=matern)
+    mixed_sum = mixed_sum.with_theta(rng.uniform(-1, 1, mixed_sum.n_params))
+    product = fusion_kernel(SLICES, combination="product", parts=matern)
+    product = product.with_theta(rng.uniform(-1, 1, product.n_params))
     return [
+        pytest.param(SliceMatern(slice(1, 4), 0.7, nu=1.5), X, id="matern32"),
+        pytest.param(SliceMatern(slice(1, 4), 1.3, nu=2.5), X, id="matern52"),
+        pytest.param(SliceMatern(slice(1, 4), 1.3, "fixed", nu=2.5), X, id="matern-fixed"),
+        pytest.param(mixed_sum, X, id="sum-matern-parts"),
+        pytest.param(product, X, id="product"),
+        pytest.param(fusion_kernel(SLICES, combination="product", amplitude=False), X, id="prod-1"),
+        pytest.param(DependentKernel(product, 0.4, (1e-3, 1.0)), Xf, id="dependent-product"),
         pytest.param(biased, X, id="bias"),
         pytest.param(modality_kernel(SLICES, amplitude=False, bias=2.0), X, id="bias-thesis"),
         pytest.param(generic, X, id="bias-fixed-length-scales"),
@@ -195,3 +210,48 @@ def test_evaluator_equals_with_theta_gradient(kernel: Kernel, X: np.ndarray) -> 
     scaled = kernel.evaluator(X, scale)(theta)
     assert_same_kernel(scaled[0], K_ref * scale)
     assert_same_kernel(scaled[1], dK_ref * scale)
+
+
+@pytest.mark.parametrize("nu", [1.5, 2.5])
+def test_matern_equals_scikit_learn(nu: float) -> None:
+    X = features(9, 3)
+    ours = SliceMatern(slice(1, 4), 0.8, nu=nu)
+    reference = Matern(length_scale=0.8, nu=nu)(X[:, 1:4])
+    np.testing.assert_allclose(ours(X), reference, rtol=1e-12, atol=1e-15)
+
+
+def test_product_is_the_product_of_its_parts() -> None:
+    X = features(10, 4)
+    product = fusion_kernel(SLICES, combination="product", parts={"thermal": "matern52"})
+    product = product.with_theta([0.1, -0.3, 0.2, np.log(2.0)])
+    assert isinstance(product, ProductKernel)
+    expected = 2.0 * np.prod([part(X) for part in product.parts], axis=0)
+    np.testing.assert_allclose(product(X), expected, rtol=1e-12)
+    assert product.names == (
+        "force.length_scale",
+        "texture.length_scale",
+        "thermal.length_scale",
+        "signal_variance",
+    )
+
+
+def test_product_switches_a_modality_off_with_a_long_length_scale() -> None:
+    X = features(10, 5)
+    product = fusion_kernel({"a": slice(0, 1), "b": slice(1, 4)}, combination="product")
+    long_b = product.with_theta([0.0, np.log(1e6), 0.0])
+    only_a = SliceRBF(slice(0, 1))(X)
+    np.testing.assert_allclose(long_b(X), only_a, rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("build", "match"),
+    [
+        (lambda: SliceMatern(slice(0, 1), nu=0.5), "nu=0.5"),
+        (lambda: fusion_kernel(SLICES, combination="max"), "combination='max'"),
+        (lambda: modality_kernel(SLICES, parts={"force": "cubic"}), "cubic"),
+        (lambda: ProductKernel([]), "at least one"),
+    ],
+)
+def test_bad_kernel_choices_are_refused(build: Callable[[], object], match: str) -> None:
+    with pytest.raises(AtiktError, match=match):
+        build()
