@@ -41,7 +41,7 @@ def _texture_axes(width: int) -> int:
     Raises:
         AtiktError: No texture layout has that width.
     """
-    if width in {3, 4}:  # noqa: PLR2004 - averaged layouts (and one axis)
+    if width in {3, 4}:
         return 1
     for axes in range(2, 16):
         if 3 * axes + axes * (axes - 1) // 2 == width:
@@ -143,4 +143,4 @@ def noise_logits(
     logs = np.log(np.maximum(ratios[declared], floor * ratios[declared].max() + 1e-300))
     filled = np.full(ratios.shape, float(np.mean(logs)))
     filled[declared] = logs
-    return np.clip(filled[1:] - filled[0], bounds[0], bounds[1])
+    return np.asarray(np.clip(filled[1:] - filled[0], bounds[0], bounds[1]), dtype=np.float64)

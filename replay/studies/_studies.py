@@ -498,8 +498,13 @@ def controlled_blocks(parameters: Sequence[str]) -> tuple[str, ...]:
     )
 
 
-def action_parameter_names(root: Path, frame: pl.DataFrame) -> tuple[tuple[str, tuple[str, ...]], ...]:
-    """Return per action the parameter names its first recording states (metadata only).
+def action_parameter_names(
+    root: Path, frame: pl.DataFrame
+) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """Return per action the parameters its first recording sets (metadata only).
+
+    A parameter of value 0 is not set: the recorder writes every parameter and 0 for those
+    the action's kind does not use (a press has ``force_n = 0``).
 
     Raises:
         ReplayError: The recording cannot be read (the reader's one-line message).
@@ -508,8 +513,11 @@ def action_parameter_names(root: Path, frame: pl.DataFrame) -> tuple[tuple[str, 
     for action in dataset_actions(frame):
         path = frame.filter(pl.col("action_id") == action).sort("path")["path"][0]
         metadata = read_recording(root / path).metadata
-        out.append((action, tuple(sorted(metadata.action_parameters))))
+        parameters = metadata.action_parameters
+        out.append((action, tuple(sorted(k for k, v in parameters.items() if v != 0))))
     return tuple(out)
+
+
 #: The fusion study's file of the multi-modal kernel's hyperparameters, fitted per action on
 #: every object of the dataset: what another study takes as ``--fusion-prior FILE``.
 HYPERPARAMETERS = "hyperparameters.json"
@@ -522,6 +530,7 @@ def _fit_theta(
     objects: Sequence[str],
     seed: int,
     samples: int = REFERENCE_SAMPLES,
+    *,
     kernel: Sequence[tuple[str, Any]] = (),
 ) -> tuple[tuple[str, ...], np.ndarray[Any, np.dtype[np.float64]]]:
     """Fit the fused kernel on up to ``samples`` trials of each object (the first).
@@ -546,6 +555,7 @@ def reference_theta(
     objects: Sequence[str],
     seed: int,
     samples: int = REFERENCE_SAMPLES,
+    *,
     kernel: Sequence[tuple[str, Any]] = (),
 ) -> np.ndarray[Any, np.dtype[np.float64]] | None:
     """Return the fused kernel's hyperparameters fitted on the other objects of the dataset.
@@ -559,7 +569,7 @@ def reference_theta(
     ]
     if len(others) < 2:  # noqa: PLR2004 - a classifier needs two classes
         return None
-    return _fit_theta(lookup, action, others, seed, samples, kernel)[1]
+    return _fit_theta(lookup, action, others, seed, samples, kernel=kernel)[1]
 
 
 def kernel_names(
@@ -607,7 +617,7 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
             continue
         seed = _seed(config.seed, action, "saved")
         names, theta = _fit_theta(
-            lookup, action, objects, seed, config.reference_samples, kernel_options(config)
+            lookup, action, objects, seed, config.reference_samples, kernel=kernel_options(config)
         )
         actions[action] = {
             "objects": objects,
@@ -676,7 +686,12 @@ def run_fusion_task(task: FusionTask) -> pl.DataFrame:
     reference, prior = None, "none"
     if task.fusion_prior == "others":
         reference = reference_theta(
-            lookup, task.action, task.objects, task.seed, task.reference_samples, task.kernel
+            lookup,
+            task.action,
+            task.objects,
+            task.seed,
+            task.reference_samples,
+            kernel=task.kernel,
         )
     elif task.saved_theta is not None:
         reference = np.asarray(task.saved_theta, dtype=np.float64)

@@ -6,7 +6,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-
 from sklearn.gaussian_process.kernels import Matern
 
 from atikt import AtiktError, DependentKernel, Kernel, ModalityKernel, SliceRBF, modality_kernel

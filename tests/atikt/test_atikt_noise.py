@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from atikt import AtiktError, MultiModalGPC, RawFeatures
+from atikt import AtiktError, ModalityKernel, MultiModalGPC, RawFeatures
 from atikt.gpc import with_prior
 from atikt.kernels import modality_kernel
 from atikt.noise import feature_noise, noise_logits, signal_to_noise
@@ -48,7 +48,9 @@ def test_noise_logits_favour_the_block_far_above_its_noise() -> None:
     snr_thermal = np.var([0.0, 5.0, 9.0]) / 0.03125**2
     np.testing.assert_allclose(logits, [min(6.0, np.log(snr_thermal / snr_force))])
     # a modality without declared noise is neutral (the geometric mean of the others)
-    three = noise_logits(blocks | {"texture": blocks["force"]}, noise, ("force", "texture", "thermal"), (-20.0, 20.0))
+    three = noise_logits(
+        blocks | {"texture": blocks["force"]}, noise, ("force", "texture", "thermal"), (-20.0, 20.0)
+    )
     assert three is not None
     np.testing.assert_allclose(three[0], 0.5 * np.log(snr_thermal / snr_force))
     assert noise_logits(blocks, {}, ("force", "thermal"), (-6.0, 6.0)) is None
@@ -56,7 +58,9 @@ def test_noise_logits_favour_the_block_far_above_its_noise() -> None:
 
 def test_with_prior_takes_one_sd_per_hyperparameter() -> None:
     kernel = modality_kernel({"a": slice(0, 1), "b": slice(1, 2)})
-    function = with_prior(lambda t: (0.0, np.zeros_like(t)), kernel, np.array([np.inf, 1.0, 0.5, 2.0]))
+    function = with_prior(
+        lambda t: (0.0, np.zeros_like(t)), kernel, np.array([np.inf, 1.0, 0.5, 2.0])
+    )
     theta = np.array([3.0, 1.0, 1.0, 2.0])
     value, gradient = function(theta)
     assert value == pytest.approx(0.5 * (1.0 + 4.0 + 1.0))
@@ -85,8 +89,10 @@ def test_declared_noise_weights_the_informative_modality_with_one_sample() -> No
     train, labels = probe_like(1, 0)
     test, test_labels = probe_like(30, 1)
     fused = MultiModalGPC(sensor_noise=NOISE, prior_sd=1.0, random_state=0).fit(train, labels)
-    weights = fused.model_.estimators_[0].kernel_.weights
-    assert weights[1] > 0.95  # thermal  # noqa: PLR2004
+    kernel = fused.model_.estimators_[0].kernel_
+    assert isinstance(kernel, ModalityKernel)
+    weights = kernel.weights
+    assert weights[1] > 0.95  # thermal
     thermal = MultiModalGPC(["thermal"], random_state=0).fit(train, labels)
     assert fused.score(test, test_labels) >= thermal.score(test, test_labels) - 0.02
 

@@ -63,6 +63,10 @@ CASES: list[tuple[str, str]] = [
         "--fusion-prior {tmp}/none.json: cannot read it",  # before the dataset is looked at
     ),
     ("study all --fusion-prior {file}", "cannot read it (not UTF-8 JSON text)"),
+    (
+        "study fusion --recordings {tmp}/missing --fusion-parts texture=cubic",
+        "--fusion-parts 'texture=cubic': 'texture=cubic' is not BLOCK=KERNEL",
+    ),
     ("view {tmp}/missing.mcap", "no such file or directory"),
     ("view {tmp}", "no recordings (*.mcap) or learn runs found"),
     ("view {file} --save {tmp}/v.rrd --serve", "--save and --serve: choose one"),

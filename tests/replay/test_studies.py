@@ -13,6 +13,9 @@ from replay.studies._studies import (
     HYPERPARAMETERS,
     STUDIES,
     StudyConfig,
+    action_parameter_names,
+    controlled_blocks,
+    declared_noise,
     fusion_tasks,
     negative_tasks,
     prior_groups,
@@ -170,8 +173,28 @@ def test_fusion_prior_from_the_other_objects_and_the_margin_table(
     )
     assert set(pl.read_parquet(alone.results)["fusion_prior"]) == {"none"}
     assert "maximum likelihood on the group's samples" in alone.text
+    assert f"groups of {objects - 2} objects" in output.text
     whole = run_study("fusion", features, _config(tmp_path / "all", fusion_objects=objects))
-    assert set(pl.read_parquet(whole.results)["fusion_prior"]) == {"none"}  # no other objects
+    # no other objects: the modality weights come from the sensors' declared noise
+    assert set(pl.read_parquet(whole.results)["fusion_prior"]) == {"noise"}
+    assert "relative to its sensor's declared noise" in whole.text
+    assert f"groups of {objects} objects" in whole.text
+    noise = run_study(
+        "fusion", features, replace(config, out=tmp_path / "noise", fusion_prior="noise")
+    )
+    assert set(pl.read_parquet(noise.results)["fusion_prior"]) == {"noise"}
+
+
+def test_an_action_that_sets_the_force_makes_it_a_controlled_block(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    assert controlled_blocks(("duration_s", "force_n")) == ("force",)
+    assert controlled_blocks(("duration_s", "depth_m")) == ()
+    assert declared_noise() == {"force": 0.002, "thermal": 0.012, "texture": 0.04}
+    parameters = tuple((a, ("duration_s", "force_n")) for a in ACTIONS)
+    config = _config(tmp_path, action_parameters=parameters)
+    assert {task.controlled for task in fusion_tasks(features, config)} == {("force",)}
+    assert {task.controlled for task in fusion_tasks(features, _config(tmp_path))} == {()}
 
 
 def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
@@ -197,7 +220,7 @@ def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
     assert set(results["fusion_prior"]) == {"saved"}
     assert "a prior centred on the saved hyperparameters" in later.text
     plain = pl.read_parquet(first.results)
-    assert set(plain["fusion_prior"]) == {"none"}
+    assert set(plain["fusion_prior"]) == {"noise"}
     assert not results["accuracy"].equals(plain["accuracy"])  # the prior changed the fits
 
 
@@ -237,3 +260,14 @@ def test_a_bad_saved_prior_is_refused_in_one_line_naming_the_file(
         fusion_tasks(features, config)
     assert str(caught.value).startswith(f"--fusion-prior {path}: ")
     assert "\n" not in str(caught.value)
+
+
+def test_action_parameter_names_come_from_the_recordings(
+    small_dataset: Path, features: pl.DataFrame
+) -> None:
+    names = dict(action_parameter_names(small_dataset, features))
+    kinds = dict(features.select("action_id", "action_kind").unique().iter_rows())
+    assert set(names) == set(kinds)
+    for action, parameters in names.items():
+        assert "duration_s" in parameters
+        assert ("force_n" in parameters) == (kinds[action] == "slide")  # slides set the force
