@@ -4,8 +4,10 @@
 block of README.md between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` and
 rewrites the block (running it twice changes nothing); ``--check`` only compares and exits 1
 when README.md differs (for CI). ``NAME`` is a study's output directory, or a fusion study's
-plus ``-margins`` (multi-modal minus best single modality); ``real-NAME`` reads
-``studies-real/`` (``--real-studies``), the studies on the real probe data.
+plus ``-margins`` (multi-modal minus best single modality), or two fusion studies'
+``A-vs-B`` (A's multi-modal kernel minus B's, paired per group: runs that differ only in
+``--fusion-prior``, ``--fusion-kernel`` or ``--fusion-parts``); ``real-NAME`` reads
+``studies-real/`` (``--real-studies``), the studies on the real data.
 
 The numbers are the studies' own, computed by the same functions as their summaries
 (``replay.studies._studies.headline``, ``replay.studies._stats.paired_gains`` and
@@ -29,7 +31,14 @@ import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
-from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
+from replay.studies._stats import (
+    HEADLINES,
+    RESAMPLES,
+    fusion_differences,
+    fusion_margins,
+    gain_cells,
+    paired_gains,
+)
 from replay.studies._studies import ATIKT, BASELINE, fusion_means, headline
 from schemas import VOCABULARY, cli
 
@@ -152,6 +161,58 @@ def margins_block(frame: pl.DataFrame, seed: int) -> str:
     return f"{_markdown(['action', *(f'{s} / object' for s in sizes)], rows)}\n\n{note}"
 
 
+def _signed(value: float, low: float, high: float) -> str:
+    """Format fractions as signed points with the interval (none with one group)."""
+    text = f"{100 * value:+.1f}"
+    return text + (f" [{100 * low:+.1f}, {100 * high:+.1f}]" if np.isfinite(low) else "")
+
+
+def differences_block(name: str, frame: pl.DataFrame, other: pl.DataFrame, seed: int) -> str:
+    """Return one fusion study's multi-modal minus another's per action and size."""
+    needed = {"action", "modalities", "accuracy", "samples", "group"}
+    if not (needed <= set(frame.columns) and needed <= set(other.columns)):
+        msg = f"{name}: results lack {', '.join(sorted(needed))}; run both fusion studies again"
+        raise ReplayError(msg)
+    differences = fusion_differences(frame, other, seed=seed)
+    if differences.is_empty():
+        msg = f"{name}: the two fusion studies share no action, size and group; use one dataset"
+        raise ReplayError(msg)
+    sizes = sorted(set(differences["samples"].to_list()))
+    cells = {(r["action"], r["samples"]): r for r in differences.iter_rows(named=True)}
+    rows = [
+        [action]
+        + [
+            "-"
+            if (cell := cells.get((action, size))) is None
+            else _signed(cell["difference"], cell["low"], cell["high"])
+            for size in sizes
+        ]
+        for action in sorted(set(differences["action"].to_list()))
+    ]
+    groups = frame.select("group").unique().height
+    first, second = name.removeprefix(REAL).split("-vs-", 1)
+    note = (
+        f"Multi-modal accuracy of `{first}` minus that of `{second}`, in points, paired per "
+        f"group (same groups and splits); [95 % interval]: bootstrap over the {groups} groups "
+        f"({RESAMPLES} resamples)."
+    )
+    return f"{_markdown(['action', *(f'{s} / object' for s in sizes)], rows)}\n\n{note}"
+
+
+def _read_results(path: Path, study: str) -> pl.DataFrame:
+    """Read a study's results.parquet.
+
+    Raises:
+        ReplayError: Missing or unreadable, in one line naming the command that writes it.
+    """
+    try:
+        return pl.read_parquet(path)
+    except (OSError, pl.exceptions.PolarsError) as err:
+        reason = cli.one_line(str(err))
+        msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {study}'"
+        raise ReplayError(msg) from err
+
+
 def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-real")) -> str:
     """Return the markdown block ``name`` from ``<studies>/<study>/results.parquet``.
 
@@ -163,14 +224,17 @@ def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-
         ReplayError: The results file is missing or unreadable.
     """
     base = name.removeprefix(REAL)
+    root = real if name.startswith(REAL) else studies
+    if "-vs-" in base:
+        first, second = base.split("-vs-", 1)
+        return differences_block(
+            name,
+            _read_results(root / first / "results.parquet", "fusion"),
+            _read_results(root / second / "results.parquet", "fusion"),
+            seed,
+        )
     study = base.removesuffix("-margins")
-    path = (real if name.startswith(REAL) else studies) / study / "results.parquet"
-    try:
-        frame = pl.read_parquet(path)
-    except (OSError, pl.exceptions.PolarsError) as err:
-        reason = cli.one_line(str(err))
-        msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {study}'"
-        raise ReplayError(msg) from err
+    frame = _read_results(root / study / "results.parquet", study)
     if base.endswith("-margins"):
         return margins_block(frame, seed)
     if "modalities" in frame.columns:

@@ -137,3 +137,44 @@ def fusion_margins(frame: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
             | {"margin": float(diff.mean()), "low": low, "high": high}
         )
     return pl.DataFrame(rows)
+
+
+def fusion_differences(frame: pl.DataFrame, other: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
+    """Return per action and training size one fusion study's multi-modal minus another's.
+
+    Two runs of the fusion study on the same dataset and seed have the same groups, splits
+    and single-modality fits; only the multi-modal kernel differs (its prior, combination or
+    parts). The difference is paired per group (repetitions averaged first), its interval the
+    bootstrap over groups, as :func:`fusion_margins`.
+
+    Args:
+        frame: The fusion study's results whose multi-modal accuracy is the minuend.
+        other: The other fusion study's results (the subtrahend).
+        seed: Seed of the resampling.
+
+    Returns:
+        Columns ``action``, ``samples``, ``difference``, ``low``, ``high`` (fractions).
+    """
+
+    def multi_modal(results: pl.DataFrame, name: str) -> pl.DataFrame:
+        return (
+            results.filter(pl.col("modalities") == "multi-modal")
+            .group_by("action", "samples", "group")
+            .agg(pl.col("accuracy").mean().alias(name))
+        )
+
+    paired = multi_modal(frame, "a").join(
+        multi_modal(other, "b"), on=["action", "samples", "group"], how="inner"
+    )
+    rng = np.random.default_rng(seed)
+    rows = []
+    for (action, samples), part in sorted(
+        paired.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
+    ):
+        diff = (part.sort("group")["a"] - part.sort("group")["b"]).to_numpy()
+        low, high = _interval(diff, rng)
+        rows.append(
+            {"action": action, "samples": samples, "difference": float(diff.mean())}
+            | {"low": low, "high": high}
+        )
+    return pl.DataFrame(rows)

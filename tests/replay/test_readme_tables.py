@@ -8,6 +8,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from replay.errors import ReplayError
 from replay.outputs.readme_tables import gain_intervals, main, rewrite
 
 if TYPE_CHECKING:
@@ -160,3 +161,20 @@ def test_a_missing_marker_or_results_file_is_refused_in_one_line(
 def test_rewrite_of_one_block(project: Path) -> None:
     text = "<!-- results:fusion -->\nold\n<!-- /results:fusion -->\n"
     assert rewrite(text, project / "studies", 0).startswith("<!-- results:fusion -->\n| action |")
+
+
+def test_a_vs_block_is_one_fusion_studys_multi_modal_minus_anothers(project: Path) -> None:
+    name = "real-fusion-vs-fusion-session"
+    text = f"<!-- results:{name} -->\n<!-- /results:{name} -->"
+    block = rewrite(text, project / "studies", 0, real=project / "studies-real")
+    # 0.5 x 0.9 - 0.25 x 0.9 on P1, 0.5 x 0.8 - 0.25 x 0.8 on S2, at both sizes
+    assert "| P1 | +22.5 [+22.5, +22.5] | +22.5 [+22.5, +22.5] |" in block
+    assert "| S2 | +20.0 [+20.0, +20.0] | +20.0 [+20.0, +20.0] |" in block
+    assert "`fusion` minus that of `fusion-session`" in block
+    with pytest.raises(ReplayError, match=r"fusion-none/results\.parquet: cannot read"):
+        rewrite(
+            text.replace("fusion-session", "fusion-none"),
+            project / "studies",
+            0,
+            real=project / "studies-real",
+        )
