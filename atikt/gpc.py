@@ -29,8 +29,15 @@ from scipy.special import erf, expit
 
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import FeatureTransformer, RawFeatures, stack_features
-from atikt.kernels import Kernel, ModalityKernel, fusion_kernel, modality_kernel
-from atikt.noise import feature_noise, noise_logits
+from atikt.kernels import (
+    DEFAULT_LOGIT_BOUNDS,
+    Kernel,
+    ModalityKernel,
+    ProductKernel,
+    fusion_kernel,
+    modality_kernel,
+)
+from atikt.noise import feature_noise, noise_length_scales, noise_logits
 from atikt.optimize import SearchResult, minimize_box
 
 if TYPE_CHECKING:
@@ -1091,27 +1098,33 @@ class MultiModalGPC:
     ) -> tuple[Kernel, float | FloatArray | None]:
         """Return the kernel with its logits at the declared-noise centre, and the prior sds.
 
-        Only a weighted sum has logits; any other kernel, or no declared noise, is returned
-        unchanged with ``prior_sd``.
+        A weighted sum gets its logits there; a product its parts' length scales
+        (:func:`atikt.noise.noise_length_scales`); any other kernel, or no declared noise, is
+        returned unchanged with ``prior_sd``.
         """
         noise = self.sensor_noise or {}
-        if not isinstance(kernel, ModalityKernel) or len(kernel.parts) < 2:  # noqa: PLR2004
+        product = isinstance(kernel, ProductKernel)
+        if not isinstance(kernel, ModalityKernel | ProductKernel) or len(kernel.parts) < 2:  # noqa: PLR2004
             return kernel, self.prior_sd
         blocks = stack_features(observations).blocks
         modalities = kernel.modalities
         declared = {
             m: feature_noise(m, blocks[m].shape[1], noise[m]) for m in modalities if m in noise
         }
-        logits = noise_logits(
-            blocks, declared, modalities, kernel.logit_bounds, controlled=self.controlled
-        )
+        box = kernel.logit_bounds if isinstance(kernel, ModalityKernel) else DEFAULT_LOGIT_BOUNDS
+        logits = noise_logits(blocks, declared, modalities, box, controlled=self.controlled)
         if logits is None:
             return kernel, self.prior_sd
         theta = kernel.theta
-        n_part = sum(p.n_params for p in kernel.parts)
-        theta[n_part : n_part + logits.shape[0]] = logits
         default = np.inf if self.prior_sd is None else self.prior_sd
         sds = np.full(theta.shape, default)
+        if product:  # the parts' length scales, one each, lead theta
+            n = len(kernel.parts)
+            theta[:n] = noise_length_scales(logits, kernel.bounds[:n])
+            sds[:n] = self.noise_sd
+            return kernel.with_theta(theta), sds
+        n_part = sum(p.n_params for p in kernel.parts)
+        theta[n_part : n_part + logits.shape[0]] = logits
         sds[n_part : n_part + logits.shape[0]] = self.noise_sd
         return kernel.with_theta(theta), sds
 

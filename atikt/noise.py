@@ -144,3 +144,22 @@ def noise_logits(
     filled = np.full(ratios.shape, float(np.mean(logs)))
     filled[declared] = logs
     return np.asarray(np.clip(filled[1:] - filled[0], bounds[0], bounds[1]), dtype=np.float64)
+
+
+def noise_length_scales(logits: FloatArray, bounds: FloatArray) -> FloatArray:
+    """Return log length scales of a product kernel's parts from :func:`noise_logits`.
+
+    The product has no weights: a modality is muted by a long length scale (its factor tends
+    to 1). The modality of the largest signal-to-noise ratio keeps the unit length scale; one
+    whose ``SNR^2`` is ``r`` times smaller gets ``l = sqrt(r)`` (distances in its normalised
+    block count ``sqrt(r)`` times less), clipped to the box.
+
+    Args:
+        logits: ``log(SNR_m^2 / SNR_1^2)`` of modalities 2..M (shape (M - 1,)).
+        bounds: Box of the log length scales, shape (M, 2).
+
+    Returns:
+        Shape (M,) log length scales.
+    """
+    logs = np.concatenate([[0.0], logits])
+    return np.asarray(np.clip(0.5 * (logs.max() - logs), bounds[:, 0], bounds[:, 1]))

@@ -8,7 +8,7 @@ import pytest
 from atikt import AtiktError, ModalityKernel, MultiModalGPC, RawFeatures
 from atikt.gpc import with_prior
 from atikt.kernels import modality_kernel
-from atikt.noise import feature_noise, noise_logits, signal_to_noise
+from atikt.noise import feature_noise, noise_length_scales, noise_logits, signal_to_noise
 
 NOISE = {"force": 0.05, "thermal": 0.03125}
 
@@ -113,3 +113,16 @@ def test_a_block_the_action_sets_has_unit_signal_to_noise() -> None:
     assert controlled is not None
     assert free[0] < 0  # force's spread is far above its noise
     np.testing.assert_allclose(controlled, [np.log(0.25 / 0.01)])  # SNR^2 of thermal over 1
+
+
+def test_a_product_mutes_the_weaker_modality_with_a_long_length_scale() -> None:
+    bounds = np.log([[0.05, 20.0]] * 3)
+    logs = noise_length_scales(np.array([np.log(100.0), np.log(1e6)]), bounds)
+    # SNR^2 relative to the best: 1e-6, 1e-4, 1 -> l = 1000 (clipped to 20), 100 (20), 1
+    np.testing.assert_allclose(logs, [np.log(20.0), np.log(20.0), 0.0])
+    train, labels = probe_like(1, 0)
+    fused = MultiModalGPC(
+        sensor_noise=NOISE, controlled=("force",), combination="product", random_state=0
+    ).fit(train, labels)
+    force_length, thermal_length = np.exp(fused.theta_[:2])
+    assert force_length > 5 * thermal_length

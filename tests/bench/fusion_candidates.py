@@ -45,9 +45,11 @@ from replay.learning._executors import FeatureLookup
 from replay.learning._parallel import run_tasks
 from replay.studies._studies import (
     FUSION_SIZES,
+    NOISE_OTHER_SD,
     StudyConfig,
     _seed,
     dataset_actions,
+    declared_noise,
     fusion_splits,
     fusion_tasks,
     reference_theta,
@@ -68,6 +70,11 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "ref-start": {"selection": "fused", "initial_theta": "reference"},
     "ref-prior1": {"selection": "fused", "initial_theta": "reference", "prior_sd": 1.0},
     "ref-prior05": {"selection": "fused", "initial_theta": "reference", "prior_sd": 0.5},
+    # The study's fallback without other objects: modality weights from the sensors' declared
+    # noise (contract `noise`; the probe's force is set by its controller, `controlled_by`),
+    # length scales and signal variance a prior of sd 1 around the initial kernel.
+    "noise": {"selection": "fused", "sensor_noise": "declared", "prior_sd": NOISE_OTHER_SD},
+    "product": {"selection": "fused", "combination": "product", "prior_sd": NOISE_OTHER_SD},
 }
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 REAL = Path("/work/shared/data/thermal-ambiguity-toh/robot_study.npz")
@@ -105,6 +112,7 @@ def fit_rows(  # noqa: PLR0917 - one training set and its test set
     seed: int,
     names: list[str],
     reference: np.ndarray | None = None,
+    controlled: tuple[str, ...] = (),
 ) -> list[dict[str, Any]]:
     """Accuracy and fit time of every candidate and single modality on one training set.
 
@@ -119,6 +127,8 @@ def fit_rows(  # noqa: PLR0917 - one training set and its test set
             if reference is None:
                 continue
             options["initial_theta"] = reference
+        if options.get("sensor_noise") == "declared":
+            options |= {"sensor_noise": declared_noise(), "controlled": controlled}
         subsets[n] = options
     subsets |= {m: {"modalities": (m,), "selection": "fused", "shared": False} for m in modalities}
     subsets |= {
@@ -154,6 +164,7 @@ def sim_task(args: tuple[Any, list[str]]) -> pl.DataFrame:
                 split.seed,
                 names,
                 reference,
+                task.controlled,
             )
         ]
     return pl.DataFrame(rows)
@@ -187,6 +198,7 @@ def real_task(args: tuple[int, int, list[str]]) -> pl.DataFrame:
                     ("force", "thermal"),
                     seed,
                     names,
+                    controlled=("force",),  # the probe's controller sets the force (4.5 N)
                 )
             ]
     return pl.DataFrame(rows)
