@@ -698,6 +698,15 @@ def with_prior(
             f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {kernel.theta.shape}"
         )
         raise AtiktError(msg)
+    if np.ndim(sd) == 0:  # one sd for all: the arithmetic of the learners' goldens
+        scalar = 1.0 / float(sd) ** 2  # type: ignore[arg-type]
+
+        def penalised_scalar(theta: FloatArray) -> tuple[float, FloatArray]:
+            value, gradient = objective(theta)
+            offset = theta - centre
+            return value + 0.5 * scalar * float(offset @ offset), gradient + scalar * offset
+
+        return penalised_scalar
     precision = 1.0 / sds**2  # inf -> 0: no prior on that hyperparameter
 
     def penalised(theta: FloatArray) -> tuple[float, FloatArray]:
