@@ -1063,7 +1063,8 @@ def _fusion_prior_note(frame: pl.DataFrame) -> str:
     used = frame.filter(pl.col("fusion_prior") == "others")["action"].unique().sort().to_list()
     noise = frame.filter(pl.col("fusion_prior") == "noise")["action"].unique().sort().to_list()
     noise_note = (
-        f" Modality weights of {', '.join(noise)}: a prior (sd {NOISE_PRIOR_SD}) centred on "
+        f" Modality weights (of a product kernel: its length scales) of {', '.join(noise)}: a "
+        f"prior (sd {NOISE_PRIOR_SD}) centred on "
         "each feature's spread relative to its sensor's declared noise (contract `noise`; a "
         "modality the action sets, `controlled_by`, counts as noise), length scales and "
         f"signal variance a prior of sd {NOISE_OTHER_SD} around the initial kernel."
