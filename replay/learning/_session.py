@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import polars as pl
+from threadpoolctl import threadpool_limits
 
 from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
 from atikt.active import METRIC_CHECKS
@@ -162,7 +163,8 @@ def fit_priors(data: PriorData, seed: int) -> dict[str, PriorModel]:
         ReplayError: The prior data cannot be fitted.
     """
     try:
-        return fit_prior_models(data, random_state=seed)
+        with threadpool_limits(limits=1):  # small matrices: see run_learning
+            return fit_prior_models(data, random_state=seed)
     except AtiktError as err:
         msg = f"prior objects: cannot fit their models ({err})"
         raise ReplayError(msg) from err
@@ -239,6 +241,27 @@ def run_learning(
         random_state=spec.seed,
     )
     result = RunResult(spec)
+    # One BLAS thread: the learner's matrices are small (tens to a few hundred rows), and
+    # OpenBLAS's threads cost more than they save there (the heated-probe run of
+    # tests/bench/transfer_speed.py: --transfer optimization 11.5 s with the default threads,
+    # 1.2 s with one); the studies' tasks already run with one (replay.learning._parallel).
+    with threadpool_limits(limits=1):
+        _learn(learner, spec, test, result, on_step)
+    return result
+
+
+def _learn(
+    learner: ActiveLearner,
+    spec: RunSpec,
+    test: TestSet,
+    result: RunResult,
+    on_step: Callable[[dict[str, Any]], Any] | None,
+) -> None:
+    """Initialise the learner and step it to the end, appending one scored row per step.
+
+    Raises:
+        ReplayError: The learner refused its input; the message says why.
+    """
     try:
         learner.initialise()
         initial = {"step": 0, "object": "", "action": "", "explored": False, "prior": ""}
@@ -255,7 +278,6 @@ def run_learning(
     except AtiktError as err:
         msg = f"learning run (seed {spec.seed}): {err}"
         raise ReplayError(msg) from err
-    return result
 
 
 def run_offline(
