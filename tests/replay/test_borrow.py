@@ -12,6 +12,7 @@ from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup
 from replay.learning._features import build_features
 from replay.learning._session import borrow_pairs, prior_data
+from replay.outputs.readme_tables import study_block
 from replay.studies._studies import StudyConfig, run_study
 
 
@@ -82,6 +83,12 @@ def test_cross_action_study_runs_three_learners_on_the_same_splits(
     within = steps.filter(pl.col("method") == "within")["accuracy"].to_list()
     assert steps.filter(pl.col("method") == "cross-action")["accuracy"].to_list() == within
     assert "cross-action - baseline" in output.text
+    # the README table prints the summary's paired differences
+    table = study_block(tmp_path.name, tmp_path.parent, config.seed)
+    line = next(r for r in table.splitlines() if "| within - baseline |" in r)
+    cells = line.strip("| ").split(" | ")[2:]
+    assert len(cells) == 3
+    assert all(f"{c.replace(' [', ' pts [')} |" in output.text for c in cells)
     assert output.plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
