@@ -48,6 +48,7 @@ from rosbags.typesys import get_types_from_msg
 
 from recorder.errors import RecorderError, RigError
 from recorder.live._reader import Received, SourceReader
+from schemas.cdr import compile_cdr
 
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
 # bytes (its compiled decoders read them), so samples are taken and written as bytes with the
@@ -383,7 +384,6 @@ class Ros2Skin:
         Raises:
             RigError: A skin topic has no publisher within ``discovery_s``.
         """
-        from recorder.bagimport._fastdecode import compile_cdr  # noqa: PLC0415
         from recorder.bagimport._source import SkinTopic, extractors, typestore  # noqa: PLC0415
 
         store = typestore(self.topic_map)
