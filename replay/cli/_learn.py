@@ -366,6 +366,9 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
+    if args.budget < 0:  # before any work: the run would refuse it after the features
+        msg = f"--budget {args.budget}: give 0 or more observations"
+        raise ReplayError(msg)
     if args.rig is None and args.rig_config is not None:
         args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
