@@ -42,6 +42,7 @@ from atikt.transfer import (
     choose_by_prediction,
     evidence_gains,
     relatedness,
+    shared_observations,
 )
 
 __all__ = [
@@ -80,6 +81,7 @@ __all__ = [
     "linear_correlation",
     "modality_kernel",
     "relatedness",
+    "shared_observations",
     "stiffness",
     "texture",
     "thermal_sequence",

@@ -25,12 +25,19 @@ unaffected by the other old objects.
 
 Without a source (or with ``rho = 0``) the classifier is exactly the plain :class:`BinaryGPC` on
 the new objects' observations.
+
+Old objects' observations of *another* action, or recorded by *another* rig, become priors of
+an action through :func:`shared_observations`: the feature blocks both have (same feature
+definition, e.g. the stiffness block of a press and of a static contact, or the thermal block
+of a 7-cell skin and of a heated probe), relabelled with the action's kind. Relatedness then
+decides, as for the action's own priors, whether and how much they are transferred.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Final, Self
 
 import numpy as np
@@ -38,6 +45,7 @@ import numpy.typing as npt
 from scipy.stats import chi2
 
 from atikt.errors import AtiktError, NotFittedError
+from atikt.features import RawFeatures
 from atikt.gpc import BinaryGPC, OneVsAllGPC, RandomState, predictive_probability
 from atikt.kernels import (
     DEFAULT_RHO_BOUNDS,
@@ -60,6 +68,42 @@ def with_domain(X: npt.ArrayLike, flag: float) -> FloatArray:
     """Append the domain flag column to ``X`` (n, d) -> (n, d + 1)."""
     Xa = np.asarray(X, dtype=np.float64)
     return np.hstack([Xa, np.full((Xa.shape[0], 1), flag)])
+
+
+def shared_observations(
+    observations: Sequence[RawFeatures], kind: str, blocks: Sequence[str]
+) -> tuple[RawFeatures, ...]:
+    """Observations of another action or rig as observations of ``kind`` with ``blocks``.
+
+    Cross-action and cross-rig transfer: an old object's observations of action B (or of
+    another rig's action) serve as prior observations of action A through the feature blocks
+    A uses, which B must have with the same definition and length (e.g. stiffness from a
+    press P1 for a static contact C1, texture from slide S1 for slide S3, the thermal block
+    of a 7-cell skin for a heated probe). Nothing else changes: the prior model of A is then
+    fitted on them and relatedness decides whether they are transferred.
+
+    Args:
+        observations: The source observations (one action's, of any kind).
+        kind: The kind of the action they are to serve (its observations' ``kind``).
+        blocks: The feature blocks that action's observations have.
+
+    Returns:
+        One observation per source observation, with ``kind`` and exactly ``blocks``.
+
+    Raises:
+        AtiktError: A source observation lacks one of ``blocks``.
+    """
+    shared = []
+    for obs in observations:
+        missing = [b for b in blocks if b not in obs.blocks]
+        if missing:
+            msg = (
+                f"a {obs.kind!r} observation has no {missing} features, the {kind!r} action "
+                f"uses {list(blocks)}; borrow from an action (or rig) that has them"
+            )
+            raise AtiktError(msg)
+        shared.append(RawFeatures(kind, MappingProxyType({b: obs.blocks[b] for b in blocks})))
+    return tuple(shared)
 
 
 def _stack_domains(X_old: FloatArray, X_new: FloatArray) -> FloatArray:

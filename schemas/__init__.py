@@ -5,6 +5,7 @@ channels, phases, sources and action kinds; nothing else in the project lists th
 """
 
 from schemas import _cli as cli
+from schemas import cdr
 from schemas._atomic import (
     atomic_file,
     atomic_path,
@@ -66,7 +67,7 @@ from schemas._vocabulary import (
     Vocabulary,
     parse_vocabulary,
 )
-from schemas.errors import ContractError
+from schemas.errors import CdrError, ContractError
 
 __all__ = [
     "CHANNELS",
@@ -86,6 +87,7 @@ __all__ = [
     "SET_ASIDE_DIR",
     "SOURCES_RECORD",
     "VOCABULARY",
+    "CdrError",
     "Channel",
     "ChannelSpec",
     "ContractError",
@@ -104,6 +106,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_text",
     "build_typestore",
+    "cdr",
     "channel_for_topic",
     "check_id",
     "check_inside",

@@ -32,7 +32,6 @@ import numpy as np
 
 from recorder._catalog import ObjectSpec
 from recorder._dataset import declare_objects, write_index
-from recorder.bagimport._fastdecode import compile_cdr, compile_ros1
 from recorder.bagimport._pack import Series, align_rows, block_period, skin_blocks
 from recorder.bagimport._report import BagIdentity, ImportReport, bag_identity, imported_bags
 from recorder.bagimport._source import (
@@ -60,6 +59,7 @@ from recorder.errors import BagImportError, RecorderError
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 from schemas import SCHEMA_VERSION, VOCABULARY, RecordingMetadata, check_rig, software_version
+from schemas.cdr import compile_cdr, compile_ros1
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
@@ -623,7 +623,7 @@ def routes(
 def feed(messages: Iterable[tuple[Route, int, bytes]], session: _Session) -> None:
     """Push messages (route, receive ns, raw bytes) into the session, writing windows it passes.
 
-    Skin and joint-state messages of a layout :mod:`~recorder.bagimport._fastdecode` reads are
+    Skin and joint-state messages of a layout :mod:`schemas.cdr` reads are
     not decoded by rosbags: their stamp and fields come from the bytes (a message it cannot
     vouch for is decoded by rosbags, as every other message).
     """

@@ -9,9 +9,10 @@ length or type) are counted as malformed, never raised.
 
 Sensor time of a frame is its stamp (``[skin.frames.<name>] stamp``) or its counter times the
 period. It is put on the recorder's time base with one offset per frame type, fixed for the
-recording from the first frames after :meth:`FrameSkin.begin` (the lowest latency among them),
-so stamps never go back; how much the offset drifts over a recording is reported in
-the source's ``clock_drift_ns``. Samples are placed on the frame type's nominal grid
+recording at its start from the lowest latency among the frames received since the previous
+recording and the first frames after :meth:`FrameSkin.begin` (one late frame cannot shift a
+recording's stamps), so stamps never go back; how much the offset drifts over a recording is
+reported in the source's ``clock_drift_ns``. Samples are placed on the frame type's nominal grid
 (``first + round((sensor - first) / period) * period``) so consecutive samples pack into one
 block; a late or duplicated frame is counted and left out (a block never goes back in time).
 """
@@ -92,12 +93,13 @@ class _Stream:
         }
         self.origin: int | None = None
         self.offset: int | None = None
+        self.offset_hint: int | None = None
         self.last_index = -1
         self.pending: dict[int, _Pending] = {}
         self.latest: dict[str, NDArray[np.float32]] = {}
         self.malformed = 0
 
-    def _times(self, frames: NDArray[np.void]) -> tuple[list[int], list[int | None]]:
+    def times(self, frames: NDArray[np.void]) -> tuple[list[int], list[int | None]]:
         """Return each frame's sensor time, ns, and counter number (None: counted by time)."""
         frame = self.frame
         sequences: list[int | None] = [None] * len(frames)
@@ -112,10 +114,11 @@ class _Stream:
 
     def consume(self, frames: NDArray[np.void], receives: list[int]) -> list[SkinBlock]:
         """Count, time and pack a batch of frames of this type (in arrival order)."""
-        sensor, sequences = self._times(frames)
+        sensor, sequences = self.times(frames)
         decoded = self.frame.decode(frames, self.layout.cells)
         if self.offset is None:
-            self.offset = min(r - s for r, s in zip(receives, sensor, strict=True))
+            first = min(r - s for r, s in zip(receives, sensor, strict=True))
+            self.offset = first if self.offset_hint is None else min(first, self.offset_hint)
         cells = frames["cell"].tolist() if self.frame.cell is not None else None
         blocks: list[SkinBlock] = []
         for i, (sensor_ns, number, receive_ns) in enumerate(
@@ -325,10 +328,31 @@ class FrameSkin:
         self._framer_base = self._framer_malformed()
 
     def begin(self) -> None:
-        """Start a new recording: fresh accounting and time base, drop what was queued."""
-        if self._reader is not None:
-            self._reader.drain()
+        """Start a new recording: fresh accounting and time base, drop what was queued.
+
+        What was queued since the previous recording is not recorded, but its lowest latency
+        per frame type seeds the new recording's clock offset.
+        """
+        drained = self._reader.drain() if self._reader is not None else []
+        hints = self._lowest_offsets(drained)
         self._reset()
+        for stream in self._streams:
+            stream.offset_hint = hints.get(stream.frame.name)
+
+    def _lowest_offsets(self, items: list[Received]) -> dict[str, int]:
+        """Return, per frame type, the lowest receive-minus-sensor time among ``items``."""
+        groups: dict[int, tuple[_Stream, list[bytes], list[int]]] = {}
+        for item in items:
+            stream = self._classify(item.payload)
+            if stream is not None:
+                group = groups.setdefault(id(stream), (stream, [], []))
+                group[1].append(item.payload)
+                group[2].append(item.receive_ns)
+        lowest: dict[str, int] = {}
+        for stream, payloads, receives in groups.values():
+            sensor, _ = stream.times(np.frombuffer(b"".join(payloads), dtype=stream.dtype))
+            lowest[stream.frame.name] = min(r - s for r, s in zip(receives, sensor, strict=True))
+        return lowest
 
     def _classify(self, payload: bytes) -> _Stream | None:
         """Return the frame type of a frame (None: malformed, counted)."""

@@ -94,6 +94,8 @@ SETTLE_S = 0.25
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
+#: How long the skin is read in free air before each approach to find its zero, ns.
+TARE_NS = 30_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -473,11 +475,30 @@ class URRig:
 
     # -- phases ------------------------------------------------------------------------
 
+    def _tare(self) -> Generator[StreamItem, None, float]:
+        """Return the skin's total force in free air before the approach (its zero).
+
+        A skin's offsets drift between actions (temperature, ageing of the cover): the light
+        contact is the total force rising above this zero by the threshold, as labs tare
+        their skins before each touch.
+        """
+        skin, readings = self._live_skin(), list[float]()
+        deadline = self._clock.now_ns() + TARE_NS
+        while self._clock.now_ns() < deadline or not readings:
+            yield from self._pump()
+            total = skin.total_force()
+            if total is not None:
+                readings.append(total)
+            if self._clock.now_ns() > deadline + 100 * TARE_NS:
+                return 0.0  # no force sensing: nothing to tare
+        return float(np.median(readings))
+
     def _approach(self, said: Announcement) -> Generator[StreamItem, None, NDArray[np.float64]]:
         """Approach with speed from proximity until the light contact; return the contact pose."""
         motion, skin = self.options.motion, self._live_skin()
         while self._arm.pose is None:
             yield from self._pump()
+        zero = yield from self._tare()
         start = self._arm.pose.copy()
         direction = tool_axis(start, 2)
         speed = motion.approach_speed(skin.nearest())
@@ -486,7 +507,7 @@ class URRig:
         while True:
             yield from self._pump()
             total = skin.total_force()
-            if total is not None and total > motion.contact_force_n:
+            if total is not None and total - zero > motion.contact_force_n:
                 break
             travelled = float(np.linalg.norm(self._arm.pose[:3] - start[:3]))
             if travelled > motion.approach_limit_m:

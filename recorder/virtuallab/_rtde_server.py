@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import contextlib
 import select
-import socket
 import struct
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,10 +39,11 @@ from recorder.ur._rtde import (
     pack_text,
     unpack_text,
 )
+from recorder.virtuallab._tcp import TcpServer
 
 if TYPE_CHECKING:
+    import socket
     from collections.abc import Callable
-    from types import TracebackType
 
     from recorder.virtuallab._controller import VirtualController
     from recorder.virtuallab._world import RobotState
@@ -128,8 +128,11 @@ class _Session:
     buffer: bytearray = field(default_factory=bytearray)
 
 
-class RtdeServer:
+class RtdeServer(TcpServer):
     """Serve the arm over RTDE on ``host:port`` (a context manager; port 0: any free port)."""
+
+    thread_name = "atikt-rtde-server"
+    no_delay = True
 
     def __init__(
         self,
@@ -150,22 +153,11 @@ class RtdeServer:
             faults: Faults to inject into every stream.
         """
         self.controller = controller
-        self._bind = (host, port)
+        super().__init__(host, port)
         self.max_frequency = frequency
         self.faults = faults or RtdeFaults()
-        self._listener: socket.socket | None = None
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
         self._lock = threading.Lock()
         self._injected = Injected()
-
-    @property
-    def address(self) -> tuple[str, int]:
-        """Return the bound (host, port)."""
-        if self._listener is None:
-            return self._bind
-        host, port = self._listener.getsockname()[:2]
-        return str(host), int(port)
 
     @property
     def injected(self) -> Injected:
@@ -173,58 +165,16 @@ class RtdeServer:
         with self._lock:
             return Injected(**{k: getattr(self._injected, k) for k in Injected.__slots__})
 
-    def __enter__(self) -> Self:
-        """Bind, listen and start accepting clients."""
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(self._bind)
-        listener.listen()
-        listener.settimeout(0.1)
-        self._listener = listener
-        self._spawn(self._accept)
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        """Stop serving and close every connection."""
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(2.0)
-        if self._listener is not None:
-            self._listener.close()
-
-    def _spawn(self, target: Callable[..., None], *args: Any) -> None:  # noqa: ANN401
-        thread = threading.Thread(target=target, args=args, daemon=True, name="atikt-rtde-server")
-        self._threads.append(thread)
-        thread.start()
-
-    def _accept(self) -> None:
-        listener = self._listener
-        assert listener is not None  # noqa: S101 (set in __enter__)
-        while not self._stop.is_set():
-            try:
-                sock, _ = listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._spawn(self._serve, sock)
-
     def _count(self, **counts: int) -> None:
         with self._lock:
             for key, value in counts.items():
                 setattr(self._injected, key, getattr(self._injected, key) + value)
 
-    def _serve(self, sock: socket.socket) -> None:
+    def serve(self, sock: socket.socket) -> None:
         """Answer one client until it leaves, the server stops or a disconnect is injected."""
         session = _Session(sock)
         with contextlib.closing(sock), contextlib.suppress(OSError):
-            while not self._stop.is_set():
+            while not self.stopping.is_set():
                 if session.started:
                     if not self._stream(session):
                         return
@@ -308,7 +258,7 @@ class RtdeServer:
         tick = -(-clock() // period)
         plan, faults = self.faults.plan(), self.faults
         started_ns, index, held = clock(), 0, None
-        while session.started and not self._stop.is_set():
+        while session.started and not self.stopping.is_set():
             due = tick * period
             wait = (due - clock()) / 1e9
             if wait > 0 and not self._handle_ready(session, wait):

@@ -15,19 +15,18 @@ from __future__ import annotations
 
 import contextlib
 import re
-import socket
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from recorder.errors import RigError
 from recorder.ur._script import FUNCTIONS
+from recorder.virtuallab._tcp import TcpServer
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-    from types import TracebackType
+    import socket
 
     from recorder.virtuallab._controller import VirtualController
 
@@ -108,8 +107,10 @@ def announcement(program: str) -> dict[str, str] | None:
     return {key: value for key, _, value in pairs}
 
 
-class ScriptServer:
+class ScriptServer(TcpServer):
     """Accept URScript programs on ``host:port`` (a context manager; port 0: a free one)."""
+
+    thread_name = "atikt-script"
 
     def __init__(
         self,
@@ -121,70 +122,18 @@ class ScriptServer:
     ) -> None:
         """Prepare the server (it listens from ``__enter__``)."""
         self.controller = controller
-        self._bind = (host, port)
+        super().__init__(host, port)
         self.faults = faults or ScriptFaults()
-        self._listener: socket.socket | None = None
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
         self._lock = threading.Lock()
         self.programs: list[str] = []
         self.stops_injected = 0
 
-    @property
-    def address(self) -> tuple[str, int]:
-        """Return the bound (host, port)."""
-        if self._listener is None:
-            return self._bind
-        host, port = self._listener.getsockname()[:2]
-        return str(host), int(port)
-
-    def __enter__(self) -> Self:
-        """Bind, listen and start accepting clients."""
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(self._bind)
-        listener.listen()
-        listener.settimeout(0.1)
-        self._listener = listener
-        self._spawn(self._accept)
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        """Stop serving."""
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(2.0)
-        if self._listener is not None:
-            self._listener.close()
-
-    def _spawn(self, target: Callable[..., None], *args: Any) -> None:  # noqa: ANN401
-        thread = threading.Thread(target=target, args=args, daemon=True, name="atikt-script")
-        self._threads.append(thread)
-        thread.start()
-
-    def _accept(self) -> None:
-        listener = self._listener
-        assert listener is not None  # noqa: S101 (set in __enter__)
-        while not self._stop.is_set():
-            try:
-                sock, _ = listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            self._spawn(self._serve, sock)
-
-    def _serve(self, sock: socket.socket) -> None:
+    def serve(self, sock: socket.socket) -> None:
         """Read programs from one client until it leaves."""
         text = ""
         sock.settimeout(0.1)
         with contextlib.closing(sock), contextlib.suppress(OSError):
-            while not self._stop.is_set():
+            while not self.stopping.is_set():
                 try:
                     chunk = sock.recv(65536)
                 except TimeoutError:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +31,7 @@ from replay.learning._session import (
     DEFAULT_METRIC_UNTIL,
     TRANSFER_MODES,
     RunSpec,
+    borrow_pairs,
     fit_priors,
     prior_data,
     run_learning,
@@ -124,7 +126,9 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
     objects = sorted({p[0] for p in parts if len(p) == 3})  # noqa: PLR2004 (the layout)
     actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004
     if objects:
-        _ = dataset_roles(root, objects, _ids(args.new), _ids(args.priors))
+        # --priors names the other dataset's objects with --prior-recordings (checked there)
+        other = getattr(args, "prior_recordings", None) is not None
+        _ = dataset_roles(root, objects, _ids(args.new), None if other else _ids(args.priors))
     if actions and (chosen := _ids(getattr(args, "actions", None))):
         _ = check_names("--actions", chosen, actions)
 
@@ -258,6 +262,38 @@ _ROLES = (
 _FORCE = arg(
     "--force", action="store_true", help="replace an existing --out (written aside, then swapped)"
 )
+_PRIOR_RECORDINGS = arg(
+    "--prior-recordings",
+    type=Path,
+    default=None,
+    metavar="DIR",
+    help="cross-rig transfer: the old objects' recordings come from this dataset (another rig "
+    "or session), through the feature blocks both datasets' actions share; --priors then "
+    "names its objects (default: all of them)",
+)
+
+
+def _pairs(text: str) -> dict[str, str]:
+    """``T=S,...``: action T borrows the priors' recordings of action S."""
+    pairs = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        target, sep, origin = part.partition("=")
+        if not sep or not target.strip() or not origin.strip():
+            msg = f"{part!r}: give ACTION=SOURCE_ACTION pairs, e.g. C1=P1,S3=S1"
+            raise argparse.ArgumentTypeError(msg)
+        pairs[target.strip()] = origin.strip()
+    return pairs
+
+
+_PRIOR_ACTIONS = arg(
+    "--prior-actions",
+    type=_pairs,
+    default=None,
+    metavar="T=S,...",
+    help="cross-action transfer: action T's priors are the old objects' recordings of action "
+    "S (same feature blocks, e.g. C1=P1,S3=S1); with --prior-recordings, S is an action of "
+    "that dataset (default there: the same id, else the first of the same kind)",
+)
 
 
 def _dataset_input(path: Path | None) -> tuple[str, Path]:
@@ -342,6 +378,8 @@ def _step_line(row: dict[str, Any]) -> str:
     _METRIC,
     _METRIC_CHECK,
     _METRIC_UNTIL,
+    _PRIOR_RECORDINGS,
+    _PRIOR_ACTIONS,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -366,6 +404,9 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
+    if args.budget < 0:  # before any work: the run would refuse it after the features
+        msg = f"--budget {args.budget}: give 0 or more observations"
+        raise ReplayError(msg)
     if args.rig is None and args.rig_config is not None:
         args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
@@ -381,13 +422,17 @@ def _learn_command(args: argparse.Namespace) -> int:
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
     table = _features(prior_root, workers)
+    other = _other_rig(args, workers) if args.prior_recordings is not None else None
     roles = dataset_roles(
-        prior_root, table.frame["object_id"].to_list(), _ids(args.new), _ids(args.priors)
+        prior_root,
+        table.frame["object_id"].to_list(),
+        _ids(args.new),
+        None if other is not None else _ids(args.priors),
     )
     known_actions = dataset_actions(table.frame)
     actions = _ids(args.actions)
-    priors = roles.old
-    if args.priors is None and args.transfer != "none":
+    priors = roles.old if other is None else other.objects
+    if other is None and args.priors is None and args.transfer != "none":
         if not roles.old:
             msg = (
                 f"{prior_root}: no old objects to transfer from (all are new); give --priors "
@@ -404,7 +449,7 @@ def _learn_command(args: argparse.Namespace) -> int:
         raise ReplayError(msg)
     spec = RunSpec(
         new_objects=roles.new,
-        prior_objects=tuple(priors),
+        prior_objects=tuple(priors) if other is None else other.labels,
         actions=check_names("--actions", actions, known_actions) if actions else known_actions,
         budget=args.budget,
         transfer=args.transfer,
@@ -417,19 +462,63 @@ def _learn_command(args: argparse.Namespace) -> int:
         metric_until=args.metric_until,
     )
     with cli.publish_directory(target, force=args.force) as out:
-        _learn_into(args, table, spec, prior_root, out)
+        _learn_into(args, table, spec, prior_root, out, other=other)
     print(f"history -> {target / HISTORY_NAME}, plot -> {target / 'learning_curve.png'}")  # noqa: T201
     return 0
 
 
+@dataclass(frozen=True, slots=True)
+class _OtherRig:
+    """The old objects of ``--prior-recordings``: their ids there and their labels in a run.
+
+    Attributes:
+        root: The other dataset.
+        table: Its feature table.
+        objects: The old objects' ids in that dataset.
+        labels: The same as ``<dataset directory name>:<id>`` (the run's prior names, so
+            that an object of the same id in both datasets is not taken for a new one).
+    """
+
+    root: Path
+    table: FeatureTable
+    objects: tuple[str, ...]
+    labels: tuple[str, ...]
+
+
+def _other_rig(args: argparse.Namespace, workers: int) -> _OtherRig:
+    """Read ``--prior-recordings`` and choose its old objects (``--priors``, else all).
+
+    Raises:
+        ReplayError: Not a dataset, or ``--priors`` names objects it does not have.
+    """
+    root = _dataset(args.prior_recordings, workers)
+    table = _features(root, workers)
+    known = sorted(set(table.frame["object_id"].to_list()))
+    chosen = _ids(args.priors) or known
+    objects = tuple(check_names("--priors", chosen, known))
+    return _OtherRig(root, table, objects, tuple(f"{root.name}:{o}" for o in objects))
+
+
 def _learn_into(
-    args: argparse.Namespace, table: FeatureTable, spec: RunSpec, prior_root: Path, out: Path
+    args: argparse.Namespace,
+    table: FeatureTable,
+    spec: RunSpec,
+    prior_root: Path,
+    out: Path,
+    *,
+    other: _OtherRig | None = None,
 ) -> None:
     """Run the learning and write its history, settings and plot into ``out``."""
     models = None
     if spec.transfer != "none":
         lookup = FeatureLookup(table.frame, spec.features)
-        models = fit_priors(prior_data(lookup, spec.prior_objects, spec.actions), args.seed)
+        rig = None if other is None else FeatureLookup(other.table.frame, spec.features)
+        borrow = args.prior_actions
+        if rig is not None:
+            borrow = borrow_pairs(lookup, rig, args.prior_actions)
+        objects = spec.prior_objects if other is None else other.objects
+        data = prior_data(lookup, objects, spec.actions, source=rig, borrow=borrow)
+        models = fit_priors(data, args.seed)
     on_step = lambda row: print(_step_line(row), flush=True)  # noqa: E731, T201
     if args.rig is not None:
         frame = _learn_live(args, spec, models, out, on_step)
@@ -441,7 +530,9 @@ def _learn_into(
         msg = f"the run's {HISTORY_NAME} cannot be written ({cli.one_line(str(err))}); free space"
         raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
-    settings = dataclasses.asdict(spec) | {"source": source, "priors_from": str(prior_root)}
+    priors_from = str(prior_root if other is None else other.root)
+    settings = dataclasses.asdict(spec) | {"source": source, "priors_from": priors_from}
+    settings |= {"prior_actions": args.prior_actions}
     atomic_write_text(out / SETTINGS_NAME, json.dumps(settings, indent=1) + "\n")
     method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
     plot_learning_curves(
@@ -493,7 +584,7 @@ def _learn_live(
 
 @command(
     "study",
-    "run a study of the thesis (fusion, transfer, single-action, priors, negative, all)",
+    "run a study (fusion, transfer, single-action, priors, negative, cross-action, cross-rig, all)",
     arg("name", choices=[*STUDIES, "all"], help="which study"),
     _DATASET,
     arg(
@@ -531,11 +622,15 @@ def _learn_live(
     _FUSION_PRIOR,
     _FUSION_KERNEL,
     _FUSION_PARTS,
+    _PRIOR_RECORDINGS,
+    _PRIOR_ACTIONS,
     _SEED,
     WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
-    names = list(STUDIES) if args.name == "all" else [args.name]
+    # all: cross-rig only with another rig's recordings to transfer from
+    every = [n for n in STUDIES if n != "cross-rig" or args.prior_recordings is not None]
+    names = every if args.name == "all" else [args.name]
     parts = _fusion_parts(args.fusion_parts)  # refused before any work
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
@@ -555,6 +650,9 @@ def _study_command(args: argparse.Namespace) -> int:
     known_actions = dataset_actions(table.frame)
     chosen = _ids(args.actions)
     actions = check_names("--actions", chosen, known_actions) if chosen else known_actions
+    other = None
+    if args.prior_recordings is not None:
+        other = _features(_dataset(args.prior_recordings, workers), workers).frame
     for name, target in targets.items():
         with cli.publish_directory(target, force=args.force) as out:
             config = StudyConfig(
@@ -576,6 +674,8 @@ def _study_command(args: argparse.Namespace) -> int:
                 action_parameters=action_parameter_names(table.root, table.frame),
                 fusion_kernel=args.fusion_kernel,
                 fusion_parts=parts,
+                prior_frame=other,
+                prior_actions=tuple((args.prior_actions or {}).items()),
             )
             config = config.quick() if args.quick else config
             bar, update = _progress(f"study {name}")

@@ -152,6 +152,7 @@ class FeatureLookup:
             blocks = set(row_blocks(row))
             held[action] = held[action] & blocks if action in held else blocks
             kinds[action] = row["action_kind"]
+        self.kinds: dict[str, str] = kinds
         self.blocks: dict[str, tuple[str, ...]] = {
             action: select_blocks(kinds[action], blocks, policy) for action, blocks in held.items()
         }

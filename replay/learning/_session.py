@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import polars as pl
+from threadpoolctl import threadpool_limits
 
-from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models
+from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models, shared_observations
 from atikt.active import METRIC_CHECKS
 from atikt.active import TRANSFER_MODES as ATIKT_TRANSFER_MODES
 from replay.errors import ReplayError
@@ -143,16 +144,98 @@ class RunSpec:
 
 
 def prior_data(
-    lookup: FeatureLookup, prior_objects: Sequence[str], actions: Sequence[str]
+    lookup: FeatureLookup,
+    prior_objects: Sequence[str],
+    actions: Sequence[str],
+    *,
+    source: FeatureLookup | None = None,
+    borrow: Mapping[str, str] | None = None,
 ) -> PriorData:
-    """Return every recording of the prior objects, action -> prior index -> features."""
-    return {
-        action: {
-            index: [lookup.get(obj, action, t) for t in lookup.trials(obj, action)]
+    """Return every recording of the prior objects, action -> prior index -> features.
+
+    Args:
+        lookup: The features of the dataset the learner runs on (its actions' kinds and
+            feature blocks).
+        prior_objects: The old objects, in prior index order.
+        actions: The learner's actions.
+        source: Where the prior objects' recordings come from: another dataset (another rig:
+            cross-rig transfer); None: ``lookup``.
+        borrow: Action -> the source action whose recordings serve as its priors
+            (cross-action transfer, e.g. ``{"C1": "P1"}``; cross-rig, e.g. ``{"H5": "C1"}``);
+            an action it does not name borrows from the source action of the same id. The
+            observations keep the feature blocks the action uses (``atikt.shared_observations``).
+
+    Raises:
+        ReplayError: A source action lacks a feature block the action uses.
+    """
+    source = lookup if source is None else source
+    borrow = borrow or {}
+    data: PriorData = {}
+    for action in actions:
+        origin = borrow.get(action, action)
+        if origin not in source.blocks and action in borrow:
+            msg = (
+                f"--prior-actions {action}={origin}: the prior recordings have no action "
+                f"{origin}; choose one of {', '.join(sorted(source.blocks))}"
+            )
+            raise ReplayError(msg)
+        if origin not in source.blocks:
+            continue  # the other rig has no such action: no priors for it
+        groups = {
+            index: [source.get(obj, origin, t) for t in source.trials(obj, origin)]
             for index, obj in enumerate(prior_objects)
         }
-        for action in actions
-    }
+        if origin == action and source is lookup:
+            data[action] = groups
+            continue
+        kind, blocks = lookup.kinds[action], lookup.blocks[action]
+        try:
+            data[action] = {
+                i: list(shared_observations(obs, kind, blocks)) for i, obs in groups.items()
+            }
+        except AtiktError as err:
+            msg = f"priors of action {action} from action {origin}: {err}"
+            raise ReplayError(msg) from err
+    return data
+
+
+def borrow_pairs(
+    lookup: FeatureLookup, source: FeatureLookup, named: Mapping[str, str] | None = None
+) -> dict[str, str]:
+    """Return which source action serves as priors of each of the learner's actions.
+
+    Named pairs first; then the action of the same id when the source has it with every
+    feature block the action uses; else the first source action (by id) of the same kind with
+    those blocks (e.g. a heated probe's static ``H5`` takes a skin's static ``C1``). Actions
+    with no such source action are left out (they get no priors).
+
+    Raises:
+        ReplayError: A named action is in neither dataset.
+    """
+    pairs = dict(named or {})
+    for target, origin in pairs.items():
+        if target not in lookup.blocks or origin not in source.blocks:
+            msg = (
+                f"--prior-actions {target}={origin}: {target} must be an action of the "
+                f"recordings ({', '.join(sorted(lookup.blocks))}) and {origin} one of the "
+                f"prior recordings ({', '.join(sorted(source.blocks))})"
+            )
+            raise ReplayError(msg)
+
+    def fits(target: str, origin: str) -> bool:
+        return set(lookup.blocks[target]) <= set(source.blocks[origin])
+
+    for target in sorted(lookup.blocks):
+        if target in pairs:
+            continue
+        if target in source.blocks and fits(target, target):
+            pairs[target] = target
+            continue
+        kind = lookup.kinds[target]
+        same = [a for a in sorted(source.blocks) if source.kinds[a] == kind and fits(target, a)]
+        if same:
+            pairs[target] = same[0]
+    return pairs
 
 
 def fit_priors(data: PriorData, seed: int) -> dict[str, PriorModel]:
@@ -162,7 +245,8 @@ def fit_priors(data: PriorData, seed: int) -> dict[str, PriorModel]:
         ReplayError: The prior data cannot be fitted.
     """
     try:
-        return fit_prior_models(data, random_state=seed)
+        with threadpool_limits(limits=1):  # small matrices: see run_learning
+            return fit_prior_models(data, random_state=seed)
     except AtiktError as err:
         msg = f"prior objects: cannot fit their models ({err})"
         raise ReplayError(msg) from err
@@ -239,6 +323,27 @@ def run_learning(
         random_state=spec.seed,
     )
     result = RunResult(spec)
+    # One BLAS thread: the learner's matrices are small (tens to a few hundred rows), and
+    # OpenBLAS's threads cost more than they save there (the heated-probe run of
+    # tests/bench/transfer_speed.py: --transfer optimization 11.5 s with the default threads,
+    # 1.2 s with one); the studies' tasks already run with one (replay.learning._parallel).
+    with threadpool_limits(limits=1):
+        _learn(learner, spec, test, result, on_step)
+    return result
+
+
+def _learn(
+    learner: ActiveLearner,
+    spec: RunSpec,
+    test: TestSet,
+    result: RunResult,
+    on_step: Callable[[dict[str, Any]], Any] | None,
+) -> None:
+    """Initialise the learner and step it to the end, appending one scored row per step.
+
+    Raises:
+        ReplayError: The learner refused its input; the message says why.
+    """
     try:
         learner.initialise()
         initial = {"step": 0, "object": "", "action": "", "explored": False, "prior": ""}
@@ -255,7 +360,6 @@ def run_learning(
     except AtiktError as err:
         msg = f"learning run (seed {spec.seed}): {err}"
         raise ReplayError(msg) from err
-    return result
 
 
 def run_offline(

@@ -9,6 +9,7 @@ from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
 from replay.learning._session import run_learning
 from replay.live._executor import LiveExecutor
+from replay.live._stream import StreamingRig
 from replay.outputs._view import (
     ViewedRecording,
     log_recording,
@@ -55,11 +56,12 @@ def check_rig(name: str) -> None:
 
 
 class LiveView:
-    """Shows each recording of a live run in rerun as soon as it is written.
+    """Shows a live run in rerun: the signals as they arrive, and each file once written.
 
-    The recorder writes a file per action; each finished file is read with the replay's
-    reader and logged with the rerun view's code (``atikt-replay view``), so the viewer shows
-    the same signals as a view of the session later.
+    While the rig records, its items are streamed (:class:`replay.live._stream.StreamingRig`,
+    under ``live/...``); each finished file is then read with the replay's reader and logged
+    with the rerun view's code (``atikt-replay view``), so the viewer also shows the same
+    signals as a view of the session later.
     """
 
     def __init__(self, name: str, save: Path | None = None) -> None:
@@ -140,8 +142,9 @@ def learn_live(
                 f"perform on it; choose from {', '.join(objects)}"
             )
             raise ReplayError(msg)
+        rig = make_factory(config)(spec.seed)
         executor = LiveExecutor(
-            make_factory(config)(spec.seed),
+            rig if view is None else StreamingRig(rig, view.stream),
             [objects[o] for o in spec.new_objects],
             load_actions(),
             session,

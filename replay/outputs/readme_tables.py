@@ -31,6 +31,7 @@ import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
+from replay.studies._borrow import CROSS_ACTION, CROSS_RIG, WITHIN
 from replay.studies._stats import (
     HEADLINES,
     RESAMPLES,
@@ -111,6 +112,45 @@ def transfer_block(name: str, frame: pl.DataFrame, seed: int) -> str:
             if units > 1
             else f"one {unit}: no interval."
         )
+    )
+    return f"{_markdown(header, rows)}\n\n{note}"
+
+
+def borrow_block(frame: pl.DataFrame, seed: int) -> str:
+    """Return the markdown of a cross-action or cross-rig study: accuracies and paired gains.
+
+    Per target action: the headline accuracies of the baseline, ``within`` and the borrowed
+    priors, then each paired difference (borrowed - baseline, within - baseline, borrowed -
+    within) with its 95 % interval over prior groups, as in the study's summary.
+    """
+    budget = int(frame["step"].max())  # type: ignore[arg-type]
+    methods = set(frame["method"].to_list())
+    borrowed = CROSS_RIG if CROSS_RIG in methods else CROSS_ACTION
+    accuracies = {
+        (row["actions"], row["method"]): row
+        for row in headline(frame, ["actions", "method"], budget).iter_rows(named=True)
+    }
+    sources = dict(frame.select("actions", "source").unique().iter_rows())
+    rows: list[list[str]] = []
+    for action in sorted(sources):
+        for method in (BASELINE, WITHIN, borrowed):
+            if (row := accuracies.get((action, method))) is not None:
+                cells = [_percent(row[h]) for h in HEADLINES]
+                rows.append([f"{action} <- {sources[action]}", method, *cells])
+        for treated, reference in ((borrowed, BASELINE), (WITHIN, BASELINE), (borrowed, WITHIN)):
+            if not {treated, reference} <= methods:
+                continue
+            part = frame.filter(pl.col("actions") == action)
+            gain = paired_gains(
+                part, [], "group", budget, methods=(treated, reference), seed=seed
+            ).row(0, named=True)
+            cells = [gain_cells(gain, h).replace(" pts", "") for h in HEADLINES]
+            rows.append([f"{action} <- {sources[action]}", f"{treated} - {reference}", *cells])
+    groups = frame.select("group").unique().height
+    header = ["action <- source", "method", "initial", f"mean 1..{budget}", "final"]
+    note = (
+        "Differences in percentage points on the same splits; interval: "
+        f"{RESAMPLES} paired bootstrap resamples of the {groups} prior groups (seed {seed})."
     )
     return f"{_markdown(header, rows)}\n\n{note}"
 
@@ -239,6 +279,8 @@ def study_block(name: str, studies: Path, seed: int, real: Path = Path("studies-
         return margins_block(frame, seed)
     if "modalities" in frame.columns:
         return fusion_block(frame)
+    if "source" in frame.columns:
+        return borrow_block(frame, seed)
     return transfer_block(name, frame, seed)
 
 

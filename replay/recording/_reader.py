@@ -1,7 +1,7 @@
 """One recording -> an immutable, typed :class:`ActionRecording` (numpy arrays, phases, metadata).
 
 Three layers: :mod:`replay.recording._container` reads the file and checks its CRCs,
-:mod:`replay.recording._decode` turns CDR payloads into arrays, and this module validates the
+:mod:`schemas.cdr` turns CDR payloads into arrays, and this module validates the
 contract (profile, metadata, schema version, required channels, and with
 :mod:`replay.recording._checks` message definitions, strictly increasing stamps, finite values,
 phases and the action's duration) and assembles the typed recording. Nothing is repaired or
@@ -31,7 +31,6 @@ from replay.recording._checks import (
     time_scale,
 )
 from replay.recording._container import RawChannel, read_container
-from replay.recording._decode import DecodedGroup, decode_topic, gather
 from schemas import (
     INCOMPLETE_RECORD,
     MESSAGE_VERSION,
@@ -44,6 +43,7 @@ from schemas import (
     parse_source_stats,
 )
 from schemas import parse_metadata as read_metadata
+from schemas.cdr import CdrError, DecodedGroup, decode_topic, gather
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -351,20 +351,20 @@ def _check_needs(path: Path, metadata: RecordingMetadata, held: Sequence[str]) -
 
 
 def _groups(path: Path, raw: RawChannel, msgtype: str) -> list[DecodedGroup]:
-    """Decode a channel's payloads (see :func:`replay.recording._decode.decode_topic`).
+    """Decode a channel's payloads (see :func:`schemas.cdr.decode_topic`).
 
     Raises:
         RecordingError: A payload is malformed; the message names the file and the channel.
     """
     try:
         return decode_topic(build_typestore(), msgtype, raw.payloads)
-    except RecordingError as err:
+    except CdrError as err:  # the schemas' error, translated here with the file and the fix
         msg = f"{path}: {raw.info.topic}: {err}; {_DAMAGED}"
         raise RecordingError(msg) from err
 
 
 def _gather(path: Path, topic: str, groups: Sequence[DecodedGroup], name: str) -> NDArray[Any]:
-    """Return field ``name`` of every message (see :func:`replay.recording._decode.gather`).
+    """Return field ``name`` of every message (see :func:`schemas.cdr.gather`).
 
     Raises:
         RecordingError: The field's length differs between messages.
@@ -372,7 +372,7 @@ def _gather(path: Path, topic: str, groups: Sequence[DecodedGroup], name: str) -
     total = sum(group.indices.size for group in groups)
     try:
         return gather(groups, name, total)
-    except RecordingError as err:
+    except CdrError as err:
         msg = f"{path}: {topic}: {err}; {_DAMAGED}"
         raise RecordingError(msg) from err
 

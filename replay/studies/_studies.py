@@ -37,6 +37,12 @@ from replay.learning._session import (
 )
 from replay.outputs._plots import plot_learning_curves
 from replay.recording._reader import read_recording
+from replay.studies._borrow import (
+    cross_action_tasks,
+    cross_rig_tasks,
+    report_borrow,
+    run_borrow_task,
+)
 from replay.studies._relatedness import least_similar, most_similar, similarity_to_new
 from replay.studies._stats import HEADLINES, RESAMPLES, fusion_margins, gain_cells, paired_gains
 from schemas import VOCABULARY, atomic_write, atomic_write_text
@@ -107,6 +113,10 @@ class StudyConfig:
         fusion_kernel: Combination of the per-modality kernels (``atikt.kernels.COMBINATIONS``).
         fusion_parts: Kernel per feature block (``atikt.kernels.PART_KERNELS``; RBF where
             not named), as (block, kernel) pairs.
+        prior_frame: The feature table of another rig's dataset (``--prior-recordings``): the
+            cross-rig study's priors.
+        prior_actions: (target action, source action) pairs of the cross-action and
+            cross-rig studies (``--prior-actions``; empty: their defaults).
     """
 
     out: Path
@@ -137,6 +147,8 @@ class StudyConfig:
     action_parameters: tuple[tuple[str, tuple[str, ...]], ...] = ()
     fusion_kernel: str = "sum"
     fusion_parts: tuple[tuple[str, str], ...] = ()
+    prior_frame: pl.DataFrame | None = field(default=None, compare=False)
+    prior_actions: tuple[tuple[str, str], ...] = ()
 
     def quick(self) -> StudyConfig:
         """Return a reduced version of this configuration for a first look."""
@@ -1139,6 +1151,20 @@ STUDIES: dict[str, Study] = {
         run_transfer_task,
         report_transfer,
         ("method", "repetition", "trial", "step"),
+    ),
+    "cross-action": Study(
+        "Cross-action transfer: priors from another action",
+        cross_action_tasks,
+        run_borrow_task,
+        report_borrow,
+        ("actions", "method", "group", "trial", "step"),
+    ),
+    "cross-rig": Study(
+        "Cross-rig transfer: priors from another rig's recordings",
+        cross_rig_tasks,
+        run_borrow_task,
+        report_borrow,
+        ("actions", "method", "group", "trial", "step"),
     ),
 }
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 import pytest
 
@@ -10,11 +12,13 @@ from atikt import (
     BinaryGPC,
     NotFittedError,
     OneVsAllGPC,
+    RawFeatures,
     TransferGPC,
     choose_by_optimization,
     choose_by_prediction,
     modality_kernel,
     relatedness,
+    shared_observations,
 )
 
 SLICES = {"force": slice(0, 1), "thermal": slice(1, 3)}
@@ -156,3 +160,16 @@ def test_training_positive_and_warm_start_from_the_previous_update() -> None:
             np.testing.assert_allclose(
                 warm.predict_positive(X), cold.predict_positive(X), atol=0.02
             )
+
+
+def test_shared_observations_keep_the_named_blocks_under_the_new_kind() -> None:
+    press = RawFeatures(
+        "press",
+        MappingProxyType({"force": np.array([2.0]), "thermal": np.arange(40.0)}),
+    )
+    (static,) = shared_observations([press], "static", ["thermal"])
+    assert static.kind == "static"
+    assert static.modalities == ("thermal",)
+    assert np.array_equal(static.blocks["thermal"], press.blocks["thermal"])
+    with pytest.raises(AtiktError, match=r"no \['texture'\] features"):
+        shared_observations([press], "slide", ["texture", "thermal"])

@@ -25,10 +25,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from recorder import load_actions, load_objects
 from recorder.bagimport import _importer
-from recorder.bagimport._fastdecode import compile_cdr, compile_ros1
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._ros1 import StreamingReader, _records, _records_checked
 from recorder.bagimport._topicmap import load_topic_map
+from schemas.cdr import compile_cdr, compile_ros1
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

@@ -22,13 +22,13 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from recorder import load_objects
 from recorder._rigconfig import load_rig_config
 from recorder.bagimport._bounded import bz2_bounded, lz4_bounded, zstd_bounded
-from recorder.bagimport._fastdecode import MAX_DECODER_LINES, compile_cdr, compile_ros1
 from recorder.bagimport._ros1 import StreamingReader
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import BagImportError, CatalogError, RecorderError
 from replay.errors import ReplayError
 from replay.learning._datasets import declared_novel
 from schemas import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, loads_toml
+from schemas.cdr import MAX_DECODER_LINES, compile_cdr, compile_ros1
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -183,3 +183,28 @@ def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) ->
     report = salvage(parts[0])
     lost_s = (killed_ns - _last_log_ns(report.target)) / 1e9
     assert 0 <= lost_s < 0.5, lost_s
+
+
+def test_live_learning_at_the_virtual_robot_replays_offline(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    udp = _free_port(socket.SOCK_DGRAM)
+    skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
+    skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
+    lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
+    served = ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
+    run = ["--new", "wood,foam_block", "--actions", "P1", "--budget", "2", "--test-trials", "1"]
+    # priors from the committed recordings (not the default dataset: nothing to generate)
+    run += ["--recordings", str(ROOT / "recordings" / "data"), "--priors", "soft_sponge,pine_board"]
+    with _serve_sim(*served, "--skin", f"udp://127.0.0.1:{udp}"):
+        live = replay(["learn", "--rig-config", str(lab), *run, "--out", str(tmp_path / "live")])
+    printed = capsys.readouterr()
+    assert live == 0, printed.err
+    steps = [line for line in printed.out.splitlines() if line.startswith("step")]
+    assert len(steps) == 3
+    session = tmp_path / "live" / "session"
+    again = replay(["learn", "--session", str(session), *run, "--out", str(tmp_path / "off")])
+    replayed = capsys.readouterr()
+    assert again == 0, replayed.err
+    assert [line for line in replayed.out.splitlines() if line.startswith("step")] == steps

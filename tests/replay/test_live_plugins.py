@@ -58,8 +58,12 @@ def test_live_learning_on_an_exclusive_plugin_rig_replays_offline_with_the_same_
     recorded = sorted(
         p.relative_to(session).with_suffix("").as_posix() for p in session.rglob("*.mcap")
     )
-    keys = sorted({"/".join(e.split("/")[1:4]) for e in shown.temporal if e.count("/") >= 3})
-    assert keys == recorded
+    files = {e for e in shown.temporal if e.count("/") >= 3 and not e.startswith("/live/")}
+    keys = sorted({"/".join(e.split("/")[1:4]) for e in files})
+    assert keys == recorded  # every file, logged once written
+    streamed = {e for e in shown.temporal if e.startswith("/live/")}
+    assert sorted({"/".join(e.split("/")[2:5]) for e in streamed}) == recorded  # and live
+    assert any("/skin/" in e for e in streamed)
     assert len(recorded) == len(NEW) * 2 * 2 + 2
 
 

@@ -8,18 +8,19 @@ import pytest
 from recorder._cli import main as record
 from replay.cli._main import main as replay
 
-LAB_RIG_TOML = """\
-rig = "sim"                       # a rig found by name: the simulated one takes SimConfig's fields
-[options]
-room_c = 21.0
-location_spread_m = 0.005
-"""
-COMMANDS = """\
-atikt-record dataset --out data/lab --rig-config lab_rig.toml --rig-option room_c=22.0 \
---objects wood,soft_sponge,metal_toolbox,foam_block,pine_board --actions P1 --trials 2
-atikt-replay learn --recordings data/lab --rig-config lab_rig.toml --new foam_block,pine_board \
---actions P1 --budget 3 --test-trials 2
-"""
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _blocks(after: str) -> tuple[str, str]:
+    """Return the bash and the TOML block that follow ``after`` in README.md."""
+    text = README.read_text("utf-8")
+    rest = text[text.index(after) :]
+    bash = rest[rest.index("```bash\n") + 8 :]
+    toml = rest[rest.index("```toml\n") + 8 :]
+    return bash[: bash.index("```")], toml[: toml.index("```")]
+
+
+COMMANDS, LAB_RIG_TOML = _blocks("**Its rig, live**")
 
 
 def test_the_readme_commands_run_as_printed(
@@ -28,7 +29,7 @@ def test_the_readme_commands_run_as_printed(
     monkeypatch.chdir(tmp_path)
     Path("lab_rig.toml").write_text(LAB_RIG_TOML, "utf-8")
     programs = {"atikt-record": record, "atikt-replay": replay}
-    for line in COMMANDS.splitlines():
+    for line in COMMANDS.replace("\\\n", " ").splitlines():
         program, *argv = shlex.split(line)
         assert programs[program](argv) == 0, capsys.readouterr().err
     assert len(list(Path("data/lab").rglob("*.mcap"))) == 5 * 2

@@ -1,4 +1,4 @@
-"""Reading a message's stamp and mapped fields straight from its ROS 1 or CDR bytes.
+"""Generated decoders: a message's stamp and mapped fields straight from its ROS 1 or CDR bytes.
 
 rosbags' deserializer builds a message object (the header, its stamp, an array per field) for
 every message; the import needs only the stamp and a few numeric fields (or a joint state's
@@ -8,7 +8,9 @@ little-endian CDR) generate a function that walks the serialized bytes as rosbag
 deserializer does (the same field order, lengths, padding, string and sequence checks, the
 same end-of-message check) and returns the stamp's ``sec`` and ``nanosec`` and each mapped
 field's bytes. The values are the same as rosbags': a field's bytes are read with the field's
-own little-endian dtype (and converted to float64 in bulk, a window at a time).
+own little-endian dtype (and converted to float64 in bulk, a window at a time). The bounds
+checks (a length prefix beyond the message, a count beyond what the remaining bytes can hold,
+nesting) are those of :mod:`schemas.cdr._rules`, inlined as source text.
 
 A message the function cannot vouch for (a size mismatch, an invalid string, a sequence
 longer than the bytes, big-endian CDR) makes it return None, and the caller decodes that
@@ -26,37 +28,27 @@ import numpy as np
 from rosbags.interfaces import Nodetype
 from rosbags.serde.utils import align, align_after
 
+from schemas.cdr._rules import (
+    BASES,
+    MAX_DECODER_LINES,
+    MAX_UNROLL,
+    check_depth,
+    count_fits_source,
+    element_size,
+    length_fits_source,
+)
+from schemas.errors import CdrError
+
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from rosbags.typesys.store import Typestore
 
-#: Sizes and struct codes of the base types the generated code reads.
-_BASE = {
-    "bool": (1, "?"),
-    "byte": (1, "b"),
-    "char": (1, "B"),
-    "int8": (1, "b"),
-    "uint8": (1, "B"),
-    "int16": (2, "h"),
-    "uint16": (2, "H"),
-    "int32": (4, "i"),
-    "uint32": (4, "I"),
-    "int64": (8, "q"),
-    "uint64": (8, "Q"),
-    "float32": (4, "f"),
-    "float64": (8, "d"),
-}
+#: Sizes and struct codes of the base types the generated code reads (octet: rosbags reads
+#: it as byte, so it never reaches a decoder).
+_BASE = {name: (base.size, base.code) for name, base in BASES.items() if name != "octet"}
 #: Base types a mapped field may have (bool, byte and char stay with rosbags).
-_VALUES = frozenset(
-    ["int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32", "float64"]
-)
-#: Longest fixed array of strings or messages unrolled into the generated code.
-_MAX_UNROLL = 64
-#: Most lines of a generated decoder: a joint state's is ~60 lines, a skin message's ~100.
-#: Fixed arrays of messages nest multiplicatively (64 x 64 x 64 strings: 1.6 M lines, 3.4 GB to
-#: compile), so a larger type is left to rosbags' deserializer (which calls, not unrolls).
-MAX_DECODER_LINES = 20_000
+_VALUES = frozenset(name for name, base in BASES.items() if base.value)
 #: The names of the generated code's helpers.
 _GLOBALS: dict[str, Any] = {"u32": struct.Struct("<I").unpack_from}
 
@@ -106,6 +98,7 @@ class _Gen:
         self.found: set[str] = set()
         self.caches: list[int] = []
         self._inside = False  # emitting the body of a cached list of strings
+        self._nested = 0  # messages entered and not left
 
     def emit(self, line: str, depth: int) -> None:
         """Append a line; refuse past :data:`MAX_DECODER_LINES` (rosbags decodes the type)."""
@@ -139,7 +132,7 @@ class _Gen:
         # rosbags: uint32 length, the bytes must fit and decode as UTF-8.
         self.emit("length = u32(raw, pos)[0]", depth)
         self.emit("end = pos + 4 + length", depth)
-        self.emit("if end > size:", depth)
+        self.emit(f"if not {length_fits_source('length', 'pos + 4')}:", depth)
         self.emit("    return None", depth)
         if into:
             self.emit(f"{into}.append(raw[pos + 4:end].decode())", depth)
@@ -148,10 +141,13 @@ class _Gen:
         self.emit("pos = end", depth)
 
     def message(self, msgtype: str, prefix: str, depth: int) -> None:
+        check_depth(self._nested, msgtype)
+        self._nested += 1
         for name, desc in self.store.fielddefs[msgtype][1]:
             if name == "structure_needs_at_least_one_member":
                 continue
             self.field(desc, f"{prefix}{name}", depth)
+        self._nested -= 1
 
     def capture(self, path: str, base: str, count: str, depth: int) -> None:
         """Keep the bytes of a mapped field (``count`` values of ``base``) as ``f<k>``."""
@@ -197,7 +193,7 @@ class _Gen:
                 self.capture(path, sub[1][0], str(length), depth)
             self.emit(f"pos += {length * _BASE[sub[1][0]][0]}", depth)
             return
-        if length > _MAX_UNROLL or path in self.wanted:
+        if length > MAX_UNROLL or path in self.wanted:
             raise _UnsupportedError
         for _ in range(length):
             if sub[0] == Nodetype.BASE and sub[1][0] == "string":
@@ -216,10 +212,10 @@ class _Gen:
             self.cached(self.wanted[path], depth, lambda d: self.sequence(sub, path, d))
             self._inside = False
             return
-        width = _BASE[sub[1][0]][0] if sub[1][0] in _BASE else 4
+        width = element_size(sub)
         self.emit("count = u32(raw, pos)[0]", depth)
         self.emit("pos += 4", depth)
-        self.emit(f"if pos + count * {width} > size or count > {self.max_sequence}:", depth)
+        self.emit(f"if not ({count_fits_source(width, self.max_sequence)}):", depth)
         self.emit("    return None", depth)
         if sub[1][0] in _BASE:
             if path in self.wanted:
@@ -253,7 +249,8 @@ class _CdrGen(_Gen):
         # rosbags: uint32 length with the terminating NUL, which must be there; UTF-8.
         self.emit("length = u32(raw, pos)[0]", depth)
         self.emit("end = pos + 4 + length", depth)
-        self.emit("if length < 1 or end > size or raw[end - 1] != 0:", depth)
+        fits = length_fits_source("length", "pos + 4")
+        self.emit(f"if length < 1 or not ({fits}) or raw[end - 1] != 0:", depth)
         self.emit("    return None", depth)
         if into:
             self.emit(f"{into}.append(raw[pos + 4:end - 1].decode())", depth)
@@ -265,6 +262,8 @@ class _CdrGen(_Gen):
         self.emit(f"pos = (pos + {alignment - 1}) & -{alignment}", depth)
 
     def message(self, msgtype: str, prefix: str, depth: int) -> None:
+        check_depth(self._nested, msgtype)
+        self._nested += 1
         fields = self.store.fielddefs[msgtype][1]
         aligned = 8
         for (name, desc), following in zip(fields, [*fields[1:], None], strict=True):
@@ -272,6 +271,7 @@ class _CdrGen(_Gen):
             if following is not None and aligned < (before := align(following[1], self.store)):
                 self.pad(before, depth)
                 aligned = before
+        self._nested -= 1
 
     def cdr_field(self, desc: tuple[Any, ...], path: str, depth: int) -> int:
         """Emit one field; return the alignment known after it (as rosbags computes it)."""
@@ -286,7 +286,7 @@ class _CdrGen(_Gen):
         if kind == Nodetype.ARRAY:
             length = desc[1][1]
             if sub[0] == Nodetype.BASE and sub[1][0] == "string":
-                if length > _MAX_UNROLL or path in self.wanted:
+                if length > MAX_UNROLL or path in self.wanted:
                     raise _UnsupportedError
                 for idx in range(length):
                     if idx:
@@ -309,10 +309,10 @@ class _CdrGen(_Gen):
             self._inside = False
             return 1
         string = sub[1][0] == "string"
-        width = 5 if string else _BASE[sub[1][0]][0]
+        width = element_size(sub)
         self.emit("count = u32(raw, pos)[0]", depth)
         self.emit("pos += 4", depth)
-        self.emit(f"if pos + count * {width} > size or count > {self.max_sequence}:", depth)
+        self.emit(f"if not ({count_fits_source(width, self.max_sequence)}):", depth)
         self.emit("    return None", depth)
         if string:
             into = ""
@@ -360,7 +360,7 @@ def _compile(
     gen = kind(store, wanted, store.max_sequence_length, stamped=stamped)
     try:
         gen.message(msgtype, "", 1)
-    except (_UnsupportedError, KeyError, RecursionError):  # RecursionError: types nest too deep
+    except (_UnsupportedError, CdrError, KeyError, RecursionError):  # CdrError: nests too deep
         return None
     needed = set(fields) | ({"header.stamp.sec", "header.stamp.nanosec"} if stamped else set())
     if gen.found != needed or len(wanted) != len(fields):

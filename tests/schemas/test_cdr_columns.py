@@ -6,9 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.interfaces import Nodetype
 
-from replay.errors import RecordingError
-from replay.recording._decode import decode_topic, gather, message_layout
 from schemas import CHANNELS, build_typestore, full_type_name
+from schemas.cdr import CdrError, decode_topic, gather, message_layout
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -140,11 +139,17 @@ def _empty_message(msgtype: str) -> bytes:
     return bytes(STORE.serialize_cdr(build(msgtype), msgtype))
 
 
-def test_malformed_payloads_are_recording_errors() -> None:
+def test_malformed_payloads_are_cdr_errors() -> None:
     good = _skin("SkinForce", 2, 7, 1)
-    with pytest.raises(RecordingError, match="encapsulation header"):
+    with pytest.raises(CdrError, match="encapsulation header"):
         message_layout(STORE, full_type_name("SkinForce"), b"\x07" + good[1:])
-    with pytest.raises(RecordingError, match="shorter than its layout"):
+    with pytest.raises(CdrError, match=r"field data: count 42 at byte \d+ needs at least 168"):
         message_layout(STORE, full_type_name("SkinForce"), good[:-8])
-    with pytest.raises(RecordingError, match="malformed"):
+    pose = _empty_message("geometry_msgs/msg/PoseStamped")
+    with pytest.raises(CdrError, match="shorter than its layout"):
+        message_layout(STORE, "geometry_msgs/msg/PoseStamped", pose[:-8])
+    cut = len(good) - 7 * 2 * 3 * 4 - 4 - 2  # inside the count of ``data``
+    with pytest.raises(CdrError, match="field data: the length prefix at byte"):
+        message_layout(STORE, full_type_name("SkinForce"), good[:cut])
+    with pytest.raises(CdrError, match="malformed"):
         decode_topic(STORE, full_type_name("SkinForce"), [good[:30]])

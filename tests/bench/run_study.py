@@ -1,0 +1,92 @@
+"""Run one study with chosen numbers of groups, trials and budget (the CLI has full or --quick).
+
+``atikt-replay study NAME`` runs the full design (10 groups x 5 trials, budget 40) or a reduced
+one (``--quick``); this script runs ``replay.studies._studies.run_study`` with the numbers
+given, on any dataset, and writes the same results.parquet, learning_curves.png and
+summary.md. Used for the cross-action, cross-rig and real-data transfer numbers of
+atikt/README.
+
+Run: ``python tests/bench/run_study.py NAME --recordings DIR --out OUT [--prior-recordings
+DIR2] [--new a,b] [--priors c,d] [--actions C1,P1] [--groups 10] [--trials 2] [--budget 40]
+[--group-size 3] [--transfer prediction] [--metric-sd 1|none] [--workers 2]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
+
+from replay.learning._datasets import dataset_roles
+from replay.learning._features import build_features
+from replay.studies._studies import StudyConfig, dataset_actions, run_study
+
+
+def _optional(text: str) -> float | None:
+    """``none`` or a number."""
+    return None if text.lower() == "none" else float(text)
+
+
+def _split(text: str | None) -> list[str] | None:
+    """A comma-separated list, or None."""
+    return None if text is None else [p for p in text.split(",") if p]
+
+
+def main() -> int:
+    """Run the study and print its summary."""
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("name")
+    parser.add_argument("--recordings", type=Path, required=True)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--prior-recordings", type=Path, default=None)
+    parser.add_argument("--prior-actions", default=None, help="T=S,... pairs")
+    parser.add_argument("--new", default=None)
+    parser.add_argument("--priors", default=None)
+    parser.add_argument("--actions", default=None)
+    parser.add_argument("--groups", type=int, default=10)
+    parser.add_argument("--trials", type=int, default=2)
+    parser.add_argument("--budget", type=int, default=40)
+    parser.add_argument("--group-size", type=int, default=3)
+    parser.add_argument("--transfer", default="prediction")
+    parser.add_argument("--metric-sd", type=_optional, default=1.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    frame = build_features(args.recordings, workers=args.workers).frame
+    roles = dataset_roles(
+        args.recordings, frame["object_id"].to_list(), _split(args.new), _split(args.priors)
+    )
+    other = None
+    if args.prior_recordings is not None:
+        other = build_features(args.prior_recordings, workers=args.workers).frame
+    pairs = tuple(tuple(p.split("=", 1)) for p in _split(args.prior_actions) or [])
+    config = StudyConfig(
+        out=args.out,
+        seed=args.seed,
+        groups=args.groups,
+        trials=args.trials,
+        budget=args.budget,
+        workers=args.workers,
+        transfer=args.transfer,
+        new=roles.new,
+        old=roles.old,
+        actions=tuple(_split(args.actions) or dataset_actions(frame)),
+        group_size=args.group_size,
+        metric_sd=args.metric_sd,
+        prior_frame=other,
+        prior_actions=pairs,  # type: ignore[arg-type]
+    )
+    output = run_study(args.name, frame, config)
+    print(output.text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
