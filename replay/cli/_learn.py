@@ -145,6 +145,15 @@ def _features(root: Path, workers: int) -> FeatureTable:
     return table
 
 
+def _one_prior(prior: str) -> ReplayError:
+    """Return the error of a prediction-transfer run with a single old object."""
+    return ReplayError(
+        f"--transfer prediction compares old objects' models and needs >= 2 old objects; "
+        f"the run has 1 ({prior}); use --transfer optimization, density or evidence, "
+        "or give more --priors"
+    )
+
+
 def _ids(text: str | None) -> list[str] | None:
     """Split a comma-separated option."""
     return None if text is None else [part for part in text.split(",") if part]
@@ -421,6 +430,9 @@ def _learn_command(args: argparse.Namespace) -> int:
     cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
+    named = _ids(args.priors) if args.prior_recordings is None else None
+    if args.transfer == "prediction" and named is not None and len(named) == 1:
+        raise _one_prior(named[0])  # before the features
     table = _features(prior_root, workers)
     other = _other_rig(args, workers) if args.prior_recordings is not None else None
     roles = dataset_roles(
@@ -441,12 +453,7 @@ def _learn_command(args: argparse.Namespace) -> int:
             raise ReplayError(msg)
         priors = prior_groups(roles.old, min(3, len(roles.old)), 1, args.seed)[0]
     if args.transfer == "prediction" and len(priors) == 1:
-        msg = (
-            f"--transfer prediction compares old objects' models and needs >= 2 old objects; "
-            f"the run has 1 ({priors[0]}); use --transfer optimization, density or evidence, "
-            "or give more --priors"
-        )
-        raise ReplayError(msg)
+        raise _one_prior(priors[0])
     spec = RunSpec(
         new_objects=roles.new,
         prior_objects=tuple(priors) if other is None else other.labels,
