@@ -504,11 +504,21 @@ class URRig:
         speed = motion.approach_speed(skin.nearest())
         self._send(approach_program(said, direction, speed, motion))
         sent_ns = self._clock.now_ns()
+        # the slowest approach over the whole distance, twice: an arm that does not move
+        # (a program the controller refused) must not keep the action waiting forever
+        limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
+        give_up_ns = sent_ns + round(limit_s * _NS)
         while True:
             yield from self._pump()
             total = skin.total_force()
             if total is not None and total - zero > motion.contact_force_n:
                 break
+            if self._clock.now_ns() > give_up_ns:
+                reason = (
+                    f"no light contact within {limit_s:.1f} s of approach: the arm did not "
+                    "reach the object (check the controller's log for a refused program)"
+                )
+                raise _Stop(reason, self._clock.now_ns())
             travelled = float(np.linalg.norm(self._arm.pose[:3] - start[:3]))
             if travelled > motion.approach_limit_m:
                 reason = (

@@ -199,16 +199,16 @@ class VirtualWorld:
     def start_action(self, object_id: str, action_id: str, trial: int) -> None:
         """Play the execution of ``action_id`` on ``object_id`` from now on.
 
+        As on a controller, a new program replaces the running one: an action announced while
+        the previous one still plays (its rest after the retract) starts at once.
+
         Raises:
-            RigError: Unknown object or action, an action is playing, or the arm is stopped.
+            RigError: Unknown object or action, or the arm is stopped.
         """
         self.prepare(object_id, action_id, trial)
         with self._lock:
             if self._safety != SAFETY_NORMAL:
                 msg = "the arm is stopped (protective or emergency stop): unlock it first"
-                raise RigError(msg)
-            if self.busy_locked():
-                msg = "an action is playing; wait for its end"
                 raise RigError(msg)
             self._playing = self._cache.pop((object_id, action_id, trial))
             self._start_ns = self.controller_ns()

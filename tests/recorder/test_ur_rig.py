@@ -93,6 +93,25 @@ def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
     assert info.value.path.name == "001.incomplete.mcap"
 
 
+def test_an_arm_that_never_moves_ends_the_approach(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with virtual_lab() as lab:
+        monkeypatch.setattr(lab.controller, "start_action", lambda *_: None)  # program refused
+        rig = lab.rig({"wood": POSE}, approach_min_m_s=0.05)  # gives up after 0.4 s
+        with pytest.raises(ActionStoppedError, match=r"no light contact within 0\.4 s") as info:
+            _record(rig, "P1", tmp_path / "001.mcap")
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_a_new_program_replaces_the_playing_action() -> None:
+    with virtual_lab() as lab:
+        lab.world.start_action("wood", "C1", 1)
+        lab.world.start_action("foam_block", "P1", 1)  # a controller runs the newest program
+        assert lab.world.playing() == ("foam_block", "P1", 1)
+
+
 def test_silent_rtde_stops_the_action(tmp_path: Path) -> None:
     with virtual_lab(rtde_faults=RtdeFaults(stall_s=1.0, after=70)) as lab:
         lab.world.prepare("wood", "C1", 1)
