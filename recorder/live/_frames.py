@@ -533,17 +533,29 @@ class SerialSkin(FrameSkin):
             self._port = None
 
 
+def _layout(section: Mapping[str, Any], where: str, transport: str) -> SkinLayout:
+    """Return the layout a ``[skin]`` table describes, for the transport that was asked for.
+
+    Raises:
+        RigError: The table is malformed or names another transport (one line).
+    """
+    layout = parse_layout(section, where)
+    if layout.transport != transport:
+        msg = (
+            f"{where}: [skin] transport = {layout.transport!r}: the "
+            f"{'UDP' if transport == 'udp' else transport} skin needs '{transport}'"
+        )
+        raise RigError(msg)
+    return layout
+
+
 def udp_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> UdpSkin:
     """Build the UDP skin a ``[skin]`` table describes (``transport = "udp"``; not yet open).
 
     Raises:
         RigError: The table is malformed (one line: file, key, value, fix).
     """
-    layout = parse_layout(section, where)
-    if layout.transport != "udp":
-        msg = f"{where}: [skin] transport = {layout.transport!r}: the UDP skin needs 'udp'"
-        raise RigError(msg)
-    return UdpSkin(layout, clock)
+    return UdpSkin(_layout(section, where, "udp"), clock)
 
 
 def serial_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> SerialSkin:
@@ -552,8 +564,4 @@ def serial_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) ->
     Raises:
         RigError: The table is malformed (one line: file, key, value, fix).
     """
-    layout = parse_layout(section, where)
-    if layout.transport != "serial":
-        msg = f"{where}: [skin] transport = {layout.transport!r}: the serial skin needs 'serial'"
-        raise RigError(msg)
-    return SerialSkin(layout, clock)
+    return SerialSkin(_layout(section, where, "serial"), clock)
