@@ -11,12 +11,12 @@ import dataclasses
 import importlib
 import signal
 import threading
-import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import _CATALOGS, arg, command
+from recorder._rigconfig import load_rig_config, thaw
 from recorder.errors import RecorderError
 from recorder.virtuallab._controller import VirtualController
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
@@ -25,7 +25,7 @@ from recorder.virtuallab._world import VirtualWorld
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
 #: Faults of the RTDE and URScript servers (``--fault rtde.drop=3``...); others go to the
 #: skin and ROS 2 servers by their prefix.
@@ -114,15 +114,15 @@ def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noq
     return cls(**values)
 
 
-def _lab_sections(path: Path | None) -> dict[str, Any]:
-    """Return the rig configuration's tables (``skin`` for the skin server)."""
-    if path is None:
-        return {}
-    try:
-        return tomllib.loads(path.read_text("utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        msg = f"{path}: cannot read the rig configuration ({err}); fix the file or the path"
-        raise RecorderError(msg) from err
+def _lab_sections(path: Path | None) -> Mapping[str, Any]:
+    """Return the rig configuration's tables (``skin`` for the skin server).
+
+    The file is read as every command reads a rig configuration (``load_rig_config``).
+
+    Raises:
+        RecorderError: The file is unreadable, too large or malformed.
+    """
+    return {} if path is None else thaw(load_rig_config(path).sections)
 
 
 def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
