@@ -3,14 +3,7 @@
 Pure numpy/scipy: takes arrays, never files (Feng, Kaboli & Cheng, TUM 2017).
 """
 
-from atikt.active import (
-    ActiveLearner,
-    PriorModel,
-    StepRecord,
-    entropy,
-    fit_prior_model,
-    fit_prior_models,
-)
+from atikt.active import ActiveLearner, StepRecord, entropy
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import (
     MODALITIES,
@@ -32,6 +25,20 @@ from atikt.kernels import (
     SliceRBF,
     modality_kernel,
 )
+from atikt.options import LearnerOptions
+from atikt.priors import PriorModel, fit_prior_model, fit_prior_models
+from atikt.strategies import (
+    Density,
+    Evidence,
+    NoTransfer,
+    ObjectFit,
+    Optimization,
+    Prediction,
+    TransferStrategy,
+    register_strategy,
+    strategy_names,
+    transfer_strategy,
+)
 from atikt.transfer import (
     ObjectDensities,
     PriorChoice,
@@ -50,23 +57,31 @@ __all__ = [
     "ActiveLearner",
     "AtiktError",
     "BinaryGPC",
+    "Density",
     "DependentKernel",
+    "Evidence",
     "FeatureTransformer",
     "Kernel",
     "LaplaceMode",
+    "LearnerOptions",
     "ModalityKernel",
     "MultiModalGPC",
     "MultiSourceKernel",
+    "NoTransfer",
     "NotFittedError",
     "NumericalError",
     "ObjectDensities",
+    "ObjectFit",
     "OneVsAllGPC",
+    "Optimization",
+    "Prediction",
     "PriorChoice",
     "PriorModel",
     "RawFeatures",
     "SliceRBF",
     "StepRecord",
     "TransferGPC",
+    "TransferStrategy",
     "choose_by_density",
     "choose_by_evidence",
     "choose_by_optimization",
@@ -80,9 +95,12 @@ __all__ = [
     "laplace_mode",
     "linear_correlation",
     "modality_kernel",
+    "register_strategy",
     "relatedness",
     "shared_observations",
     "stiffness",
+    "strategy_names",
     "texture",
     "thermal_sequence",
+    "transfer_strategy",
 ]

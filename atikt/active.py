@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final, Literal
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -39,60 +39,45 @@ from atikt.errors import AtiktError, NotFittedError
 from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, stack_features
 from atikt.gpc import (
     BinaryGPC,
-    OneVsAllGPC,
     RandomState,
     normalise,
     predictive_probability,
     spawn_seeds,
 )
 from atikt.kernels import ModalityKernel, modality_kernel
-from atikt.transfer import (
-    ObjectDensities,
-    PriorChoice,
-    TransferGPC,
-    check_threshold,
-    choose_by_density,
-    choose_by_evidence,
-    choose_by_optimization,
-    choose_by_relatedness,
-    evidence_gains,
-)
+from atikt.options import METRIC_CHECKS, LearnerOptions, MetricCheck
+from atikt.priors import PriorModel, PriorsInput, fit_prior_model, fit_prior_models
+from atikt.strategies import NO_CHOICE, ObjectFit, strategy_names
 
 if TYPE_CHECKING:
     import builtins
 
+    from atikt.transfer import PriorChoice, TransferGPC
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-TransferMode = Literal["prediction", "optimization", "density", "evidence", "none"]
 Observe = Callable[[int, str], RawFeatures]
 """``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
 Available = Callable[[int, str], bool]
 """``available(new_object_index, action) -> bool``: can another observation be served?"""
 
-TRANSFER_MODES: Final = ("prediction", "optimization", "density", "evidence", "none")
-_SCORED: Final = ("prediction", "density")
-"""Modes whose relatedness is a per-observation score of the fixed prior models (cached)."""
-_KEPT: Final = (*_SCORED, "evidence")
-"""Modes whose choice for a new object is kept while only other objects' observations change."""
-MetricCheck = Literal["evidence", "separation", "either", "none"]
-METRIC_CHECKS: Final = ("evidence", "separation", "either", "none")
-_NO_CHOICE: Final = PriorChoice(None, 0.0, (), ())
-
-
-def _metric_check(value: object) -> MetricCheck:
-    """``metric_check`` as one of :data:`METRIC_CHECKS` (True: evidence; False, None: none).
-
-    Raises:
-        AtiktError: Any other value.
-    """
-    if value is None:
-        return "none"
-    if isinstance(value, bool | int | float) and value in {0, 1}:
-        return "evidence" if value else "none"
-    if value not in METRIC_CHECKS:
-        msg = f"metric_check={value!r} must be one of {METRIC_CHECKS} (or True / False)"
-        raise AtiktError(msg)
-    return value
+TRANSFER_MODES: Final = strategy_names()
+"""The registered transfer strategies' names (prediction, optimization, density, evidence, none)."""
+__all__ = [
+    "METRIC_CHECKS",
+    "TRANSFER_MODES",
+    "ActionState",
+    "ActiveLearner",
+    "LearnerOptions",
+    "MetricCheck",
+    "PriorModel",
+    "PriorsInput",
+    "StepRecord",
+    "entropy",
+    "fit_prior_model",
+    "fit_prior_models",
+    "separation",
+]
 
 
 SEPARATION_REPEATS: Final = 32
@@ -144,118 +129,6 @@ def entropy(p: FloatArray) -> FloatArray:
     """Shannon entropy in nats of each row of ``p`` (m, k); ``0 log 0 = 0``."""
     logs = np.log(np.where(p > 0, p, 1.0))
     return np.asarray(-(p * logs).sum(axis=1), dtype=np.float64)
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class PriorModel:
-    """The old objects' knowledge of one action.
-
-    Attributes:
-        observations: Prior observations of all old objects.
-        labels: Old-object label of each observation, shape (n,).
-        transformer: Feature transformer fitted on ``observations``.
-        model: One-vs-all GPC over the old objects in the transformer's space (None with a
-            single old object: the model prediction approach then cannot be used).
-        densities: Each old object's feature distribution in the transformer's space (the
-            open-set relatedness of ``transfer="density"``).
-    """
-
-    observations: tuple[RawFeatures, ...]
-    labels: IntArray
-    transformer: FeatureTransformer
-    model: OneVsAllGPC | None
-    densities: ObjectDensities | None = None
-
-    @property
-    def old_objects(self) -> tuple[int, ...]:
-        """The old objects' labels, sorted."""
-        return tuple(int(v) for v in np.unique(self.labels))
-
-    def by_object(self) -> dict[int, list[RawFeatures]]:
-        """Prior observations grouped by old object."""
-        groups: dict[int, list[RawFeatures]] = {o: [] for o in self.old_objects}
-        for obs, label in zip(self.observations, self.labels, strict=True):
-            groups[int(label)].append(obs)
-        return groups
-
-
-PriorsInput = Mapping[str, Mapping[int, Sequence[RawFeatures]] | PriorModel]
-
-
-def fit_prior_model(
-    observations_by_object: Mapping[int, Sequence[RawFeatures]],
-    *,
-    amplitude: bool = True,
-    n_thermal_components: int = 10,
-    n_restarts: int = 1,
-    max_iter: int = 50,
-    random_state: RandomState = None,
-) -> PriorModel:
-    """Fit the old objects' models of one action on their prior observations.
-
-    Args:
-        observations_by_object: Old-object label -> its observations of the action.
-        amplitude: Learn a signal variance (False: the thesis kernel).
-        n_thermal_components: Thermal PCA dimensions.
-        n_restarts: Random restarts per binary classifier.
-        max_iter: Iteration limit of the hyperparameter search per start.
-        random_state: Seed of the restarts.
-
-    Returns:
-        The fitted prior model.
-
-    Raises:
-        AtiktError: No observations.
-    """
-    observations = [o for obs in observations_by_object.values() for o in obs]
-    labels = np.array([k for k, obs in observations_by_object.items() for _ in obs], dtype=np.int64)
-    transformer = FeatureTransformer(n_thermal_components=n_thermal_components)
-    X = transformer.fit_transform(observations)
-    model = None
-    if np.unique(labels).shape[0] >= 2:  # noqa: PLR2004
-        kernel = modality_kernel(transformer.slices_, amplitude=amplitude)
-        model = OneVsAllGPC(
-            kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
-        ).fit(X, labels)
-    densities = ObjectDensities.fit(X, labels)
-    return PriorModel(tuple(observations), labels, transformer, model, densities)
-
-
-def fit_prior_models(
-    priors: Mapping[str, Mapping[int, Sequence[RawFeatures]]],
-    *,
-    amplitude: bool = True,
-    n_thermal_components: int = 10,
-    n_restarts: int = 1,
-    max_iter: int = 50,
-    random_state: RandomState = None,
-) -> dict[str, PriorModel]:
-    """Fit the old objects' models of every action (reusable by many learners of a study).
-
-    Args:
-        priors: Action -> old-object label -> observations.
-        amplitude: See :func:`fit_prior_model`.
-        n_thermal_components: See :func:`fit_prior_model`.
-        n_restarts: See :func:`fit_prior_model`.
-        max_iter: See :func:`fit_prior_model`.
-        random_state: Seed; each action gets its own derived seed.
-
-    Returns:
-        Action -> fitted prior model (actions without observations are left out).
-    """
-    actions = [a for a, groups in priors.items() if any(len(o) for o in groups.values())]
-    seeds = spawn_seeds(random_state, len(actions))
-    return {
-        action: fit_prior_model(
-            {k: v for k, v in priors[action].items() if len(v)},
-            amplitude=amplitude,
-            n_thermal_components=n_thermal_components,
-            n_restarts=n_restarts,
-            max_iter=max_iter,
-            random_state=seed,
-        )
-        for action, seed in zip(actions, seeds, strict=True)
-    }
 
 
 @dataclass(frozen=True, slots=True)
@@ -376,58 +249,17 @@ class ActiveLearner:
             done when no pair is left. None: every pair is always available.
         priors: Action -> old-object label -> raw observations, or action -> a
             :class:`PriorModel` from :func:`fit_prior_models` (fitted once for many
-            learners). Ignored with ``transfer="none"``.
-        budget: Number of steps (observations after the initial one per object and action).
-        eps_explore: Probability of a uniformly random (object, action).
-        transfer: ``"prediction"`` (model prediction approach), ``"optimization"`` (rho by
-            marginal likelihood), ``"density"`` (open-set score of each old object's own
-            feature distribution, :func:`~atikt.transfer.choose_by_density`), ``"evidence"``
-            (the dependent GP's evidence gain of each old object,
-            :func:`~atikt.transfer.choose_by_evidence`) or ``"none"`` (baseline).
-        eps_neg1: Threshold of the model prediction approach, in (0.5, 1].
-        eps_neg2: Threshold of the model optimisation approach, in (0, 1].
-        eps_density: Threshold of the open-set score, in (0, 1].
-        density_rho_scale: ``rho = min(1, density_rho_scale * score)`` of the open-set score.
-        eps_evidence: Smallest evidence gain (nats) for a transfer (``transfer="evidence"``).
-        evidence_rho: ``rho`` at which the evidence gain is evaluated and transferred, (0, 1].
-        max_sources: Most old objects transferred to one new object's classifier at once (the
-            most related ones passing the threshold, one ``rho`` each, through the
-            multi-source kernel); 1 is the thesis's single source. Prediction, density and
-            evidence approaches only.
-        hyper_sd: Standard deviation of a Gaussian prior on every new-object classifier's log
-            hyperparameters, centred on the initial kernel (unit length scales, equal weights,
-            unit variance): maximum a posteriori instead of the thesis's maximum likelihood,
-            for baseline and transfer alike; None: maximum likelihood.
-        metric_sd: Metric transfer: with prior models of two or more old objects, every
-            new-object classifier starts from the old objects' kernel hyperparameters (their
-            median) and its hyperprior, of this sd, is centred there instead of on the
-            initial kernel (``hyper_sd``). None: no metric transfer (the thesis). Ignored
-            without priors (the baseline).
-        metric_check: When to use the old objects' kernel, checked at every update:
-            ``"evidence"`` (or True) when the new objects' summed one-vs-all log evidence is
-            at least as large there as at the initial kernel; ``"separation"`` when it
-            separates the new objects at least as well (:func:`separation`: the old objects'
-            repeat observations against the new objects' pairs); ``"either"`` when one of
-            the two holds (the default: separation decides after one observation per
-            object, where the evidence always prefers the kernel that makes the few
-            observations independent); ``"none"`` (or False): whenever there is one.
-        metric_until: The old objects' kernel centres a new object's hyperprior only while the
-            object has at most this many observations of the action; with more, its own
-            observations decide (the initial kernel's centre and ``hyper_sd``). None: always
-            (the old kernel's pull then costs up to 10 points once an action has many
-            observations, atikt/README *Metric transfer*).
-        bias: Add a learned constant ``b^2`` to the kernel (a bias of the latent function).
-        patience: Stop early after this many steps without the mean ``UNC`` improving by
-            ``min_improvement``; None runs the whole budget.
-        min_improvement: See ``patience`` (nats).
-        amplitude: Learn a signal variance (False: the thesis kernel, ``|w|_1 = 1`` only).
-        n_thermal_components: Thermal PCA dimensions (thesis: 10).
-        n_restarts: Random restarts of each hyperparameter search in :meth:`initialise`.
-        max_iter_initial: Search iteration limit per start in :meth:`initialise`.
-        max_iter_step: Iteration limit of the warm-started search of each step.
+            learners). Ignored by a strategy that does not transfer (the baseline).
+        options: Every other option (:class:`~atikt.options.LearnerOptions`: budget,
+            exploration, the transfer strategy with its own thresholds, hyperpriors, metric
+            transfer, kernels, search limits). None: the defaults.
         random_state: Seed of every random choice (exploration, restarts).
+        **overrides: Options changed from ``options`` by name, a convenience for
+            ``options.replace(...)``: ``ActiveLearner(..., transfer="none", budget=10)``.
 
     Attributes:
+        options: The options in use.
+        strategy: ``options.transfer``, the transfer strategy.
         history_: One :class:`StepRecord` per step.
         uncertainty_: ``UNC``, shape (n_actions, n_new_objects).
         states_: Action -> its :class:`ActionState`.
@@ -442,109 +274,31 @@ class ActiveLearner:
         observe: Observe,
         available: Available | None = None,
         priors: PriorsInput | None = None,
-        budget: int = 40,
-        eps_explore: float = 0.3,
-        transfer: TransferMode = "prediction",
-        eps_neg1: float = 0.6,
-        eps_neg2: float = 0.6,
-        eps_density: float = 0.1,
-        density_rho_scale: float = 2.0,
-        eps_evidence: float = 0.0,
-        evidence_rho: float = 0.9,
-        max_sources: int = 1,
-        hyper_sd: float | None = None,
-        metric_sd: float | None = 1.0,
-        bias: bool = False,
-        metric_check: MetricCheck | bool = "either",
-        metric_until: int | None = 2,
-        patience: int | None = None,
-        min_improvement: float = 1e-3,
-        amplitude: bool = True,
-        n_thermal_components: int = 10,
-        n_restarts: int = 1,
-        max_iter_initial: int = 30,
-        max_iter_step: int = 10,
+        options: LearnerOptions | None = None,
         random_state: RandomState = None,
+        **overrides: Any,  # noqa: ANN401 (any option of LearnerOptions)
     ) -> None:
-        """Store and validate the parameters; see the class docstring."""
+        """Store and validate the parameters; see the class docstring.
+
+        Raises:
+            AtiktError: A parameter is out of range or unknown; the message names it.
+        """
         self.actions = tuple(actions)
         self.n_new_objects = n_new_objects
         self.observe = observe
         self.available = available
         self.priors = priors
-        self.budget = budget
-        self.eps_explore = eps_explore
-        self.transfer = transfer
-        self.eps_neg1 = eps_neg1
-        self.eps_neg2 = eps_neg2
-        self.eps_density = eps_density
-        self.density_rho_scale = density_rho_scale
-        self.eps_evidence = eps_evidence
-        self.evidence_rho = evidence_rho
-        self.max_sources = max_sources
-        self.hyper_sd = hyper_sd
-        self.metric_sd = metric_sd
-        self.bias = bool(bias)
-        self.metric_check = _metric_check(metric_check)
-        self.metric_until = None if metric_until is None else int(metric_until)
-        self.patience = patience
-        self.min_improvement = min_improvement
-        self.amplitude = amplitude
-        self.n_thermal_components = n_thermal_components
-        self.n_restarts = n_restarts
-        self.max_iter_initial = max_iter_initial
-        self.max_iter_step = max_iter_step
+        base = LearnerOptions() if options is None else options
+        self.options = base.replace(**overrides) if overrides else base
+        self.strategy = self.options.transfer
         self.random_state = random_state
-        self._validate()
-
-    def _validate(self) -> None:
-        """Check the parameters.
-
-        Raises:
-            AtiktError: A parameter is out of range; the message names it.
-        """
         problems = []
         if len(set(self.actions)) != len(self.actions) or not self.actions:
             problems.append(f"actions={list(self.actions)} must be non-empty and distinct")
         if self.n_new_objects < 2:  # noqa: PLR2004
             problems.append(f"n_new_objects={self.n_new_objects} must be >= 2")
-        if self.transfer not in TRANSFER_MODES:
-            problems.append(f"transfer={self.transfer!r} must be one of {TRANSFER_MODES}")
-        if not 0.0 <= self.eps_explore <= 1.0:
-            problems.append(f"eps_explore={self.eps_explore} must lie in [0, 1]")
-        if not self.density_rho_scale > 0:
-            problems.append(f"density_rho_scale={self.density_rho_scale} must be > 0")
-        ranges = (
-            (
-                0.0 < self.evidence_rho <= 1.0,
-                f"evidence_rho={self.evidence_rho} must lie in (0, 1]",
-            ),
-            (
-                bool(np.isfinite(self.eps_evidence)),
-                f"eps_evidence={self.eps_evidence} must be finite",
-            ),
-            (self.max_sources >= 1, f"max_sources={self.max_sources} must be >= 1"),
-            (
-                self.metric_until is None or self.metric_until >= 1,
-                f"metric_until={self.metric_until} must be None or >= 1",
-            ),
-            (
-                self.hyper_sd is None or 0.0 < self.hyper_sd < np.inf,
-                f"hyper_sd={self.hyper_sd} must be None or > 0",
-            ),
-            (
-                self.metric_sd is None or 0.0 < self.metric_sd < np.inf,
-                f"metric_sd={self.metric_sd} must be None or > 0",
-            ),
-        )
-        problems += [problem for ok, problem in ranges if not ok]
-        if self.budget < 0:
-            problems.append(f"budget={self.budget} must be >= 0")
         if problems:
             raise AtiktError("; ".join(problems))
-        check_threshold("eps_neg1", self.eps_neg1)
-        check_threshold("eps_neg2", self.eps_neg2, low=0.0)
-        check_threshold("eps_density", self.eps_density, low=0.0)
 
     # ----------------------------------------------------------------------------- state
 
@@ -553,7 +307,9 @@ class ActiveLearner:
         """True when the budget is spent or the models stopped improving."""
         if not hasattr(self, "history_"):
             return False
-        return len(self.history_) >= self.budget or self._stalled() or not self._candidates()
+        return (
+            len(self.history_) >= self.options.budget or self._stalled() or not self._candidates()
+        )
 
     def _candidates(self) -> list[int]:
         """Flat indices (action-major) of the (action, object) pairs that can be observed."""
@@ -565,11 +321,12 @@ class ActiveLearner:
 
     def _stalled(self) -> bool:
         """True after ``patience`` steps without the mean UNC improving by ``min_improvement``."""
-        if self.patience is None or len(self.history_) < self.patience:
+        patience = self.options.patience
+        if patience is None or len(self.history_) < patience:
             return False
         means = [self._initial_mean_entropy, *(r.mean_entropy for r in self.history_)]
-        best_before = min(means[: -self.patience])
-        return min(means[-self.patience :]) > best_before - self.min_improvement
+        best_before = min(means[:-patience])
+        return min(means[-patience:]) > best_before - self.options.min_improvement
 
     def _check_initialised(self) -> None:
         """Raise NotFittedError before :meth:`initialise`."""
@@ -593,31 +350,29 @@ class ActiveLearner:
             for obj in range(self.n_new_objects):
                 self._record(action, obj, self._observe(obj, action), priors)
         for action in self.actions:
-            self._update(action, n_restarts=self.n_restarts, max_iter=self.max_iter_initial)
+            self._update(
+                action, n_restarts=self.options.n_restarts, max_iter=self.options.max_iter_initial
+            )
         self.uncertainty_ = np.vstack([self.states_[a].uncertainty for a in self.actions])
         self._initial_mean_entropy = float(self.uncertainty_.mean())
 
     def _prior_models(self) -> dict[str, PriorModel]:
         """Fit (or take) the prior models of the actions; none for the baseline."""
-        if self.transfer == "none" or not self.priors:
+        if not self.strategy.transfers or not self.priors:
             return {}
         given = {a: p for a, p in self.priors.items() if isinstance(p, PriorModel)}
         raw = {a: p for a, p in self.priors.items() if not isinstance(p, PriorModel)}
         fitted = fit_prior_models(
             raw,
-            amplitude=self.amplitude,
-            n_thermal_components=self.n_thermal_components,
-            n_restarts=self.n_restarts,
+            amplitude=self.options.amplitude,
+            n_thermal_components=self.options.n_thermal_components,
+            n_restarts=self.options.n_restarts,
+            parts=self.options.parts,
             random_state=self._rng.spawn(1)[0],  # leaves the decisions' stream untouched
         )
         models = {**given, **fitted}
         for action, prior in models.items():
-            if self.transfer == "prediction" and prior.model is None:
-                msg = (
-                    f"action {action!r} has prior data of one old object only; the model "
-                    "prediction approach needs >= 2 old objects (use transfer='optimization')"
-                )
-                raise AtiktError(msg)
+            self.strategy.check_prior(action, prior)
         return models
 
     def _observe(self, obj: int, action: str) -> RawFeatures:
@@ -674,7 +429,7 @@ class ActiveLearner:
             raise AtiktError(msg)
         entropies = self.uncertainty_.copy()
         candidates = self._candidates()
-        explored = bool(self._rng.random() < self.eps_explore)
+        explored = bool(self._rng.random() < self.options.eps_explore)
         # Exploration: a uniformly random available (action, object); exploitation: the largest
         # UNC among the available pairs, ties to the first in (action, object) order.
         if explored:
@@ -685,7 +440,7 @@ class ActiveLearner:
         action = self.actions[action_index]
         observation = self._observe(obj, action)
         self._record(action, obj, observation, {})
-        self._update(action, n_restarts=0, max_iter=self.max_iter_step, changed=obj)
+        self._update(action, n_restarts=0, max_iter=self.options.max_iter_step, changed=obj)
         self.uncertainty_[action_index] = self.states_[action].uncertainty
         record = self._step_record(obj, action, entropies, explored=explored)
         self.history_.append(record)
@@ -734,35 +489,39 @@ class ActiveLearner:
         prior = state.prior
         # The new objects' feature space comes from their own observations (the learning task's
         # training set), exactly as without priors; auxiliary observations are mapped into it.
-        transformer = FeatureTransformer(n_thermal_components=self.n_thermal_components)
+        transformer = FeatureTransformer(n_thermal_components=self.options.n_thermal_components)
         X = transformer.fit_transform(state.observations)
         labels = np.asarray(state.labels)
         auxiliary = self._auxiliary(state, transformer)
         if not state.models:
             n = self.n_new_objects
-            state.models, state.choices = [], [_NO_CHOICE] * n
+            state.models, state.choices = [], [NO_CHOICE] * n
             state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         probabilities = self._prior_probabilities(state)
         models = []
+        options = self.options
         initial = modality_kernel(
-            transformer.slices_, amplitude=self.amplitude, bias=1.0 if self.bias else None
+            transformer.slices_,
+            amplitude=options.amplitude,
+            bias=1.0 if options.bias else None,
+            parts=options.parts,
         )
-        base, base_sd = initial, self.hyper_sd
+        base, base_sd = initial, options.hyper_sd
         counts = np.bincount(labels, minlength=self.n_new_objects)
         prior_sd = base_sd
-        if self.metric_until is None or counts.min() <= self.metric_until:  # someone uses it
+        if options.metric_until is None or counts.min() <= options.metric_until:  # someone uses it
             initial, prior_sd = self._metric(prior, initial, X, labels, auxiliary)
         for obj, seed in enumerate(seeds):
             centre, sd = initial, prior_sd
-            if self.metric_until is not None and counts[obj] > self.metric_until:
+            if options.metric_until is not None and counts[obj] > options.metric_until:
                 centre, sd = base, base_sd  # enough own observations: the data decide
             kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            keep = changed is not None and obj != changed and self.transfer in _KEPT
+            keep = changed is not None and obj != changed and self.strategy.keeps_choice
             choice, model = self._fit_object(
                 kernel,
                 X,
@@ -803,19 +562,20 @@ class ActiveLearner:
         one-vs-all model), with ``metric_sd=None`` or when ``metric_check`` refuses it: the
         initial kernel and ``hyper_sd``.
         """
-        if self.metric_sd is None or prior is None or prior.model is None:
-            return initial, self.hyper_sd
+        options = self.options
+        if options.metric_sd is None or prior is None or prior.model is None:
+            return initial, options.hyper_sd
         thetas = [e.kernel_.theta for e in prior.model.estimators_]
         if any(t.shape != initial.theta.shape for t in thetas):  # e.g. bias in one only
-            return initial, self.hyper_sd
+            return initial, options.hyper_sd
         metric = initial.with_theta(np.median(thetas, axis=0))
-        check = self.metric_check
+        check = options.metric_check
         passed = check == "none"
         if not passed and check in {"separation", "either"}:
             passed = separation(metric, X, labels, aux) >= separation(initial, X, labels, aux)
         if not passed and check in {"evidence", "either"}:
             passed = self._evidence(metric, X, labels) >= self._evidence(initial, X, labels)
-        return (metric, self.metric_sd) if passed else (initial, self.hyper_sd)
+        return (metric, options.metric_sd) if passed else (initial, options.hyper_sd)
 
     def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
         """Sum over the new objects of their one-vs-all log evidence at ``kernel``."""
@@ -832,19 +592,15 @@ class ActiveLearner:
         scored.
         """
         prior = state.prior
-        if prior is None or self.transfer not in _SCORED:
+        if prior is None:
             return None
-        scorer = prior.model if self.transfer == "prediction" else prior.densities
+        scorer = self.strategy.scorer(prior)
         if scorer is None:
             return None
         done = 0 if state.prior_probabilities is None else state.prior_probabilities.shape[0]
         if done < len(state.observations):
             features = prior.transformer.transform(state.observations[done:])
-            new = (
-                scorer.predict_binary(features)
-                if isinstance(scorer, OneVsAllGPC)
-                else scorer.tail_probabilities(features)
-            )
+            new = scorer(features)
             old = state.prior_probabilities
             state.prior_probabilities = new if old is None else np.vstack([old, new])
         assert state.prior_probabilities is not None  # noqa: S101 - set just above
@@ -879,7 +635,7 @@ class ActiveLearner:
         max_iter: int,
         seed: int,
     ) -> tuple[PriorChoice, TransferGPC]:
-        """Choose where from / how much to transfer and fit one new object's classifier."""
+        """Let the strategy choose where from / how much to transfer and fit one classifier."""
         # every classifier fitted here searches its hyperparameters the same way
         search: dict[str, Any] = {
             "n_restarts": n_restarts,
@@ -888,46 +644,10 @@ class ActiveLearner:
             "prior_mean": centre,
             "random_state": seed,
         }
-        if prior is not None and self.transfer == "optimization":
-            choice, model = choose_by_optimization(
-                kernel, X, y, auxiliary, eps_neg2=self.eps_neg2, rho0=rho_starts, **search
-            )
-            rho_starts.update(zip(choice.candidates, choice.scores, strict=True))
-            return choice, model
-        choice = _NO_CHOICE if known is None else known
-        if known is None and prior is not None and self.transfer == "evidence" and auxiliary:
-            # the gains are evaluated at the hyperparameters the labels give without transfer
-            plain = TransferGPC(kernel, previous=previous, **search).fit(X, y)
-            gains = evidence_gains(plain.base_kernel_, X, y, auxiliary, self.evidence_rho)
-            choice = choose_by_evidence(
-                gains, tuple(auxiliary), self.eps_evidence, self.max_sources, self.evidence_rho
-            )
-            if choice.source is None:
-                return choice, plain
-            fitted = plain.base_kernel_
-            assert isinstance(fitted, ModalityKernel)  # noqa: S101 - the plain fit of kernel
-            kernel, previous = fitted, plain
-        scored = related is not None and related.shape[0] > 0
-        if known is None and prior is not None and scored:
-            assert related is not None  # noqa: S101 - scored
-            # relatedness: the mean of the old models' scores of this object's observations
-            scores = related.mean(axis=0)
-            if self.transfer == "density" and prior.densities is not None:
-                classes = prior.densities.classes
-                choice = choose_by_density(
-                    scores, classes, self.eps_density, self.max_sources, self.density_rho_scale
-                )
-            elif prior.model is not None:
-                classes = prior.model.classes_
-                choice = choose_by_relatedness(scores, classes, self.eps_neg1, self.max_sources)
-        aux: FloatArray | list[FloatArray] | None = None
-        rho: float | tuple[float, ...] = choice.rho
-        if len(choice.sources) > 1:
-            aux, rho = [auxiliary[s] for s in choice.sources], choice.rhos
-        elif choice.source is not None:
-            aux = auxiliary[choice.source]
-        model = TransferGPC(kernel, rho=rho, previous=previous, **search).fit(X, y, aux)
-        return choice, model
+        fit = ObjectFit(
+            kernel, X, y, prior, auxiliary, known, related, rho_starts, previous, search
+        )
+        return self.strategy.fit(fit)
 
     def _uncertainty(self, state: ActionState) -> FloatArray:
         """``UNC`` of each new object: mean entropy of its own observations' posteriors."""

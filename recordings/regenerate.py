@@ -31,7 +31,7 @@ from recorder._catalog import load_objects
 from recorder._dataset import generate_dataset, rig_factory
 from replay import read_recording
 from replay.learning._features import build_features
-from replay.learning._session import RunSpec, run_offline
+from replay.learning._session import DEFAULT_LEARNER, RunSpec, run_offline
 from replay.recording._container import read_summary
 
 if TYPE_CHECKING:
@@ -138,7 +138,12 @@ def regression_run(data: Path) -> pl.DataFrame:
     with tempfile.TemporaryDirectory() as scratch:
         frame = build_features(data, cache=Path(scratch) / "features.parquet").frame
     spec = RunSpec(
-        LEARN_NEW, LEARN_PRIORS, LEARN_ACTIONS, budget=LEARN_BUDGET, seed=SEED, test_fraction=0.25
+        new_objects=LEARN_NEW,
+        prior_objects=LEARN_PRIORS,
+        actions=LEARN_ACTIONS,
+        learner=DEFAULT_LEARNER.replace(budget=LEARN_BUDGET),
+        seed=SEED,
+        test_fraction=0.25,
     )
     return run_offline(frame, spec).frame()
 

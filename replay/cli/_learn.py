@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,10 +12,9 @@ import polars as pl
 from rich.console import Console
 from rich.markup import escape
 
-from atikt import MODALITIES
-from atikt.active import METRIC_CHECKS
 from atikt.kernels import COMBINATIONS, PART_KERNELS
 from replay.cli._main import WORKERS, arg, command, progress_bar
+from replay.cli._options import learner_args, learner_from_args, parse_parts
 from replay.errors import ReplayError
 from replay.learning._cachedir import feature_cache_path
 from replay.learning._datasets import check_names, dataset_roles
@@ -25,11 +23,6 @@ from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_feat
 from replay.learning._parallel import scheduler_warning
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
-    DEFAULT_HYPER_SD,
-    DEFAULT_METRIC_CHECK,
-    DEFAULT_METRIC_SD,
-    DEFAULT_METRIC_UNTIL,
-    TRANSFER_MODES,
     RunSpec,
     borrow_pairs,
     fit_priors,
@@ -93,25 +86,6 @@ def _dataset(path: Path | None, workers: int) -> Path:
         return ensure_default_dataset(workers=workers, on_progress=update)
 
 
-def _fusion_parts(text: str) -> tuple[tuple[str, str], ...]:
-    """Parse ``--fusion-parts`` (``block=kernel,..``).
-
-    Raises:
-        ReplayError: A malformed pair, an unknown block or kernel, in one line.
-    """
-    pairs = []
-    for item in filter(None, (p.strip() for p in text.split(","))):
-        block, _, kind = item.partition("=")
-        if block not in MODALITIES or kind not in PART_KERNELS:
-            msg = (
-                f"--fusion-parts {text!r}: {item!r} is not BLOCK=KERNEL with a block of "
-                f"{', '.join(MODALITIES)} and a kernel of {', '.join(PART_KERNELS)}"
-            )
-            raise ReplayError(msg)
-        pairs.append((block, kind))
-    return tuple(pairs)
-
-
 def _check_names_early(root: Path, args: argparse.Namespace) -> None:
     """Check ``--new``, ``--priors`` and ``--actions`` against the dataset's file layout.
 
@@ -166,69 +140,6 @@ _DATASET = arg(
     help="dataset directory (default: the simulated dataset, recorded on first use)",
 )
 _SEED = arg("--seed", type=cli.seed, default=0, help="seed of every random choice (default: 0)")
-_SOURCES = arg(
-    "--max-sources",
-    type=int,
-    default=1,
-    help="old objects transferred at once per new object and action (1: the thesis)",
-)
-
-
-def _hyper_sd(text: str) -> float | None:
-    """``none`` (maximum likelihood, the thesis) or a number."""
-    if text.strip().lower() == "none":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        msg = f"{text!r}: give a positive standard deviation (e.g. 5) or none"
-        raise argparse.ArgumentTypeError(msg) from None
-
-
-_HYPER = arg(
-    "--hyper-sd",
-    type=_hyper_sd,
-    default=DEFAULT_HYPER_SD,
-    metavar="SD|none",
-    help="sd of a Gaussian prior on the classifiers' log hyperparameters around the initial "
-    "kernel; none: maximum likelihood as in the thesis",
-)
-_METRIC = arg(
-    "--metric-sd",
-    type=_hyper_sd,
-    default=DEFAULT_METRIC_SD,
-    metavar="SD|none",
-    help="metric transfer: the new objects' classifiers start from the old objects' kernel, "
-    "with a Gaussian prior of this sd around it; none: as in the thesis",
-)
-_METRIC_CHECK = arg(
-    "--metric-check",
-    default=DEFAULT_METRIC_CHECK,
-    choices=METRIC_CHECKS,
-    help="when the old objects' kernel is used: the new objects' evidence is at least as "
-    "large there (evidence), it separates them at least as well (separation), either, or "
-    f"always (none) (default: {DEFAULT_METRIC_CHECK})",
-)
-
-
-def _count(text: str) -> int | None:
-    """``none`` or a positive integer."""
-    if text.strip().lower() == "none":
-        return None
-    if not text.strip().isdigit() or int(text) < 1:
-        msg = f"{text!r}: give a number of observations (1 or more) or none"
-        raise argparse.ArgumentTypeError(msg)
-    return int(text)
-
-
-_METRIC_UNTIL = arg(
-    "--metric-until",
-    type=_count,
-    default=DEFAULT_METRIC_UNTIL,
-    metavar="N|none",
-    help="the old objects' kernel centres a new object's hyperprior while it has at most N "
-    f"observations of the action; none: always (default: {DEFAULT_METRIC_UNTIL})",
-)
 _FEATURES = arg(
     "--features",
     default="thesis",
@@ -380,13 +291,7 @@ def _step_line(row: dict[str, Any]) -> str:
     ),
     arg("--actions", default=None, help="actions, comma-separated (default: all of the dataset)"),
     _FEATURES,
-    arg("--budget", type=int, default=40, help="actively collected observations"),
-    arg("--transfer", default="prediction", choices=TRANSFER_MODES, help="transfer mode"),
-    _SOURCES,
-    _HYPER,
-    _METRIC,
-    _METRIC_CHECK,
-    _METRIC_UNTIL,
+    *learner_args(baseline=True),
     _PRIOR_RECORDINGS,
     _PRIOR_ACTIONS,
     arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
@@ -413,9 +318,8 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
-    if args.budget < 0:  # before any work: the run would refuse it after the features
-        msg = f"--budget {args.budget}: give 0 or more observations"
-        raise ReplayError(msg)
+    learner = learner_from_args(args)  # before any work: refused in one line
+    transfer = learner.transfer.name
     if args.rig is None and args.rig_config is not None:
         args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
@@ -431,7 +335,7 @@ def _learn_command(args: argparse.Namespace) -> int:
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
     named = _ids(args.priors) if args.prior_recordings is None else None
-    if args.transfer == "prediction" and named is not None and len(named) == 1:
+    if transfer == "prediction" and named is not None and len(named) == 1:
         raise _one_prior(named[0])  # before the features
     table = _features(prior_root, workers)
     other = _other_rig(args, workers) if args.prior_recordings is not None else None
@@ -444,7 +348,7 @@ def _learn_command(args: argparse.Namespace) -> int:
     known_actions = dataset_actions(table.frame)
     actions = _ids(args.actions)
     priors = roles.old if other is None else other.objects
-    if other is None and args.priors is None and args.transfer != "none":
+    if other is None and args.priors is None and learner.transfer.transfers:
         if not roles.old:
             msg = (
                 f"{prior_root}: no old objects to transfer from (all are new); give --priors "
@@ -452,21 +356,15 @@ def _learn_command(args: argparse.Namespace) -> int:
             )
             raise ReplayError(msg)
         priors = prior_groups(roles.old, min(3, len(roles.old)), 1, args.seed)[0]
-    if args.transfer == "prediction" and len(priors) == 1:
+    if transfer == "prediction" and len(priors) == 1:
         raise _one_prior(priors[0])
     spec = RunSpec(
         new_objects=roles.new,
         prior_objects=tuple(priors) if other is None else other.labels,
         actions=check_names("--actions", actions, known_actions) if actions else known_actions,
-        budget=args.budget,
-        transfer=args.transfer,
+        learner=learner,
         seed=args.seed,
         features=args.features,
-        max_sources=args.max_sources,
-        hyper_sd=args.hyper_sd,
-        metric_sd=args.metric_sd,
-        metric_check=args.metric_check,
-        metric_until=args.metric_until,
     )
     with cli.publish_directory(target, force=args.force) as out:
         _learn_into(args, table, spec, prior_root, out, other=other)
@@ -517,7 +415,7 @@ def _learn_into(
 ) -> None:
     """Run the learning and write its history, settings and plot into ``out``."""
     models = None
-    if spec.transfer != "none":
+    if spec.transfers:
         lookup = FeatureLookup(table.frame, spec.features)
         rig = None if other is None else FeatureLookup(other.table.frame, spec.features)
         borrow = args.prior_actions
@@ -525,7 +423,7 @@ def _learn_into(
             borrow = borrow_pairs(lookup, rig, args.prior_actions)
         objects = spec.prior_objects if other is None else other.objects
         data = prior_data(lookup, objects, spec.actions, source=rig, borrow=borrow)
-        models = fit_priors(data, args.seed)
+        models = fit_priors(data, args.seed, spec.learner)
     on_step = lambda row: print(_step_line(row), flush=True)  # noqa: E731, T201
     if args.rig is not None:
         frame = _learn_live(args, spec, models, out, on_step)
@@ -538,10 +436,20 @@ def _learn_into(
         raise ReplayError(msg) from err
     source = f"rig:{args.rig}" if args.rig else str(args.session or prior_root)
     priors_from = str(prior_root if other is None else other.root)
-    settings = dataclasses.asdict(spec) | {"source": source, "priors_from": priors_from}
-    settings |= {"prior_actions": args.prior_actions}
+    settings = {
+        "new_objects": list(spec.new_objects),
+        "prior_objects": list(spec.prior_objects),
+        "actions": list(spec.actions),
+        "seed": spec.seed,
+        "test_fraction": spec.test_fraction,
+        "features": spec.features,
+        "learner": spec.learner.as_dict(),  # --learner-config run.json repeats it
+        "source": source,
+        "priors_from": priors_from,
+        "prior_actions": args.prior_actions,
+    }
     atomic_write_text(out / SETTINGS_NAME, json.dumps(settings, indent=1) + "\n")
-    method = "baseline" if spec.transfer == "none" else f"ATIKT ({spec.transfer})"
+    method = f"ATIKT ({spec.learner.transfer.name})" if spec.transfers else "baseline"
     plot_learning_curves(
         frame.with_columns(pl.lit(method).alias("method")),
         out / "learning_curve.png",
@@ -613,17 +521,7 @@ def _learn_live(
         ".client.cert, .client.key in ~/.config/dask/*.yaml or DASK_DISTRIBUTED__COMM__TLS__* "
         "variables); tcp:// is unencrypted and unauthenticated",
     ),
-    arg(
-        "--transfer",
-        default="prediction",
-        choices=[m for m in TRANSFER_MODES if m != "none"],
-        help="ATIKT mode (density: open-set relatedness; evidence: dependent GP evidence gain)",
-    ),
-    _SOURCES,
-    _HYPER,
-    _METRIC,
-    _METRIC_CHECK,
-    _METRIC_UNTIL,
+    *learner_args(baseline=False),
     *_ROLES,
     _FEATURES,
     _FUSION_PRIOR,
@@ -638,7 +536,8 @@ def _study_command(args: argparse.Namespace) -> int:
     # all: cross-rig only with another rig's recordings to transfer from
     every = [n for n in STUDIES if n != "cross-rig" or args.prior_recordings is not None]
     names = every if args.name == "all" else [args.name]
-    parts = _fusion_parts(args.fusion_parts)  # refused before any work
+    parts = parse_parts(args.fusion_parts, "--fusion-parts")  # refused before any work
+    learner = learner_from_args(args)
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
         load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
@@ -667,16 +566,17 @@ def _study_command(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 workers=workers,
                 scheduler=args.scheduler,
-                transfer=args.transfer,
+                transfer=learner.transfer.name,
+                budget=learner.budget,
                 new=roles.new,
                 old=roles.old,
                 actions=tuple(actions),
                 features=args.features,
-                max_sources=args.max_sources,
-                hyper_sd=args.hyper_sd,
-                metric_sd=args.metric_sd,
-                metric_check=args.metric_check,
-                metric_until=args.metric_until,
+                max_sources=getattr(learner.transfer, "max_sources", 1),
+                hyper_sd=learner.hyper_sd,
+                metric_sd=learner.metric_sd,
+                metric_check=learner.metric_check,
+                metric_until=learner.metric_until,
                 fusion_prior=args.fusion_prior,
                 action_parameters=action_parameter_names(table.root, table.frame),
                 fusion_kernel=args.fusion_kernel,

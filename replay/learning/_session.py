@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import polars as pl
 from threadpoolctl import threadpool_limits
 
-from atikt import ActiveLearner, AtiktError, PriorModel, fit_prior_models, shared_observations
-from atikt.active import METRIC_CHECKS
-from atikt.active import TRANSFER_MODES as ATIKT_TRANSFER_MODES
+from atikt import (
+    ActiveLearner,
+    AtiktError,
+    LearnerOptions,
+    PriorModel,
+    fit_prior_models,
+    shared_observations,
+    strategy_names,
+)
+from atikt.strategies import strategy_options
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 
@@ -19,10 +25,12 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
     from atikt import RawFeatures
+    from atikt.options import MetricCheck
     from replay.learning._executors import Executor, TestSet
 
-#: Transfer modes: the thesis's model prediction approach, rho by marginal likelihood, none.
-TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, evidence, none
+#: Transfer modes: the registered transfer strategies (prediction, optimization, density,
+#: evidence, none; ``atikt.strategy_names``).
+TRANSFER_MODES = strategy_names()
 
 #: The learners' default hyperprior: a Gaussian of this sd on every classifier's log
 #: hyperparameters around the initial kernel (maximum a posteriori instead of the thesis's
@@ -31,24 +39,52 @@ TRANSFER_MODES = ATIKT_TRANSFER_MODES  # prediction, optimization, density, evid
 #: the baseline gain the most; ``--hyper-sd none`` is the thesis.
 DEFAULT_HYPER_SD = 5.0
 
-#: Metric transfer (``ActiveLearner(metric_sd=...)``): the new objects' classifiers start from
+#: Metric transfer (``LearnerOptions.metric_sd``): the new objects' classifiers start from
 #: the old objects' kernel hyperparameters, with a Gaussian prior of this sd around them.
 #: Chosen from sd 1 and 5 on the negative and related runs of
 #: ``tests/bench/relatedness_candidates.py`` (atikt/README, *Metric transfer*);
 #: ``--metric-sd none`` is the thesis.
 DEFAULT_METRIC_SD = 1.0
 
-#: When the old objects' kernel is used (``ActiveLearner(metric_check=...)``) and until how
+#: When the old objects' kernel is used (``LearnerOptions.metric_check``) and until how
 #: many observations of a new object (``metric_until``): chosen on the priors, negative,
 #: related and single-action runs of ``tests/bench/relatedness_candidates.py``
 #: (atikt/README, *Metric transfer*).
-DEFAULT_METRIC_CHECK = "either"
+DEFAULT_METRIC_CHECK: MetricCheck = "either"
 DEFAULT_METRIC_UNTIL: int | None = 2
+
+#: The project's learner: the thesis's ATIKT (model prediction, one source, 40 steps) with
+#: the hyperprior and metric transfer above; every run and study starts from it.
+DEFAULT_LEARNER = LearnerOptions(
+    hyper_sd=DEFAULT_HYPER_SD,
+    metric_sd=DEFAULT_METRIC_SD,
+    metric_check=DEFAULT_METRIC_CHECK,
+    metric_until=DEFAULT_METRIC_UNTIL,
+)
 
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
 
 
-@dataclass(frozen=True, slots=True)
+def learner_options(transfer: str, *, max_sources: int = 1, **options: Any) -> LearnerOptions:  # noqa: ANN401 (any option of LearnerOptions)
+    """:data:`DEFAULT_LEARNER` with a transfer strategy and options changed.
+
+    ``max_sources`` goes to the strategies that transfer several sources at once and is
+    left out for the others (``optimization``, ``none``), so one study setting serves them
+    all.
+
+    Raises:
+        ReplayError: An option out of range or unknown (one line naming it).
+    """
+    changes = {"transfer": transfer, **options}
+    if transfer in strategy_options().get("max_sources", ()):
+        changes["max_sources"] = max_sources
+    try:
+        return DEFAULT_LEARNER.replace(**changes)
+    except AtiktError as err:
+        raise ReplayError(str(err)) from err
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RunSpec:
     """Everything that determines one learning run (with the data and the seed).
 
@@ -56,84 +92,36 @@ class RunSpec:
         new_objects: Ids of the objects to learn, in label order.
         prior_objects: Ids of the old objects whose observations may be transferred.
         actions: Actions the learner may choose.
-        budget: Actively collected observations after the initial one per (object, action).
-        transfer: ``prediction`` (ATIKT, thesis default), ``optimization`` or ``none``.
-        eps_explore: Probability of a random (object, action) instead of the most uncertain.
-        eps_neg1: Smallest mean probability for a prior to be transferred (prediction).
+        learner: The learner's options (budget, transfer strategy, hyperpriors, ...).
         seed: Seed of every random choice of the run.
         test_fraction: Share of each (object, action)'s recordings held out for testing.
         features: Feature policy (``thesis`` or ``all``; see ``select_blocks``).
-        max_sources: Old objects transferred at once (1: the thesis; more: multi-source).
-        eps_density: Smallest open-set relatedness score of a source (``density`` mode).
-        hyper_sd: Prior sd of the classifiers' log hyperparameters around the initial kernel
-            (``DEFAULT_HYPER_SD``; None: maximum likelihood, the thesis).
-        metric_sd: Prior sd of the classifiers' log hyperparameters around the old objects'
-            kernel with two or more prior objects (``DEFAULT_METRIC_SD``; None: no metric
-            transfer, the thesis).
-        metric_check: When the old objects' kernel is used: ``evidence``, ``separation``,
-            ``either`` or ``none`` (always; see ``ActiveLearner``).
-        metric_until: Most observations of a new object for which the old objects' kernel
-            centres its hyperprior (None: always).
     """
 
     new_objects: tuple[str, ...]
     prior_objects: tuple[str, ...]
     actions: tuple[str, ...]
-    budget: int = 40
-    transfer: str = "prediction"
-    eps_explore: float = 0.3
-    eps_neg1: float = 0.6
+    learner: LearnerOptions = DEFAULT_LEARNER
     seed: int = 0
     test_fraction: float = 0.5
     features: str = "thesis"
-    max_sources: int = 1
-    eps_density: float = 0.1
-    hyper_sd: float | None = DEFAULT_HYPER_SD
-    metric_sd: float | None = DEFAULT_METRIC_SD
-    metric_check: str = DEFAULT_METRIC_CHECK
-    metric_until: int | None = DEFAULT_METRIC_UNTIL
 
-    def _check_hyperpriors(self) -> None:
-        """Check the hyperprior and metric transfer options; errors name the option."""
-        checks = (
-            (
-                self.hyper_sd is None or 0 < self.hyper_sd < math.inf,
-                f"--hyper-sd {self.hyper_sd}: give a positive standard deviation, e.g. 5, or none",
-            ),
-            (
-                self.metric_sd is None or 0 < self.metric_sd < math.inf,
-                f"--metric-sd {self.metric_sd}: give a positive standard deviation or none",
-            ),
-            (
-                self.metric_check in METRIC_CHECKS,
-                f"--metric-check {self.metric_check}: use one of {', '.join(METRIC_CHECKS)}",
-            ),
-            (
-                self.metric_until is None or self.metric_until >= 1,
-                f"--metric-until {self.metric_until}: give 1 or more observations, or none",
-            ),
-        )
-        for ok, msg in checks:
-            if not ok:
-                raise ReplayError(msg)
+    @property
+    def transfers(self) -> bool:
+        """True when the learner transfers from prior objects (not the baseline)."""
+        return self.learner.transfer.transfers
+
+    def baseline(self) -> RunSpec:
+        """The same run without transfer (the baseline on the same split and seed)."""
+        return replace(self, learner=self.learner.replace(transfer="none"))
 
     def __post_init__(self) -> None:
         """Check the spec; errors name the option to fix."""
-        if self.transfer not in TRANSFER_MODES:
-            msg = f"--transfer {self.transfer}: use one of {', '.join(TRANSFER_MODES)}"
-            raise ReplayError(msg)
         if len(self.new_objects) < 2:  # noqa: PLR2004
             msg = (
                 f"--new {','.join(self.new_objects) or '(none)'}: a run needs at least two new "
                 "objects; name them with --new or declare them new in the dataset's objects.toml"
             )
-            raise ReplayError(msg)
-        if self.max_sources < 1:
-            msg = f"--max-sources {self.max_sources}: give 1 (the thesis) or more"
-            raise ReplayError(msg)
-        self._check_hyperpriors()
-        if self.budget < 0:
-            msg = f"--budget {self.budget}: give 0 or more observations"
             raise ReplayError(msg)
         if not 0 <= self.seed < 2**32:
             msg = f"--seed {self.seed}: give an integer in 0..{2**32 - 1}"
@@ -238,15 +226,29 @@ def borrow_pairs(
     return pairs
 
 
-def fit_priors(data: PriorData, seed: int) -> dict[str, PriorModel]:
+def fit_priors(
+    data: PriorData, seed: int, learner: LearnerOptions = DEFAULT_LEARNER
+) -> dict[str, PriorModel]:
     """Fit the prior objects' models once, to share them between runs.
+
+    Args:
+        data: Action -> old-object index -> observations.
+        seed: Seed of the fits.
+        learner: The learners' options (their kernels and feature space).
 
     Raises:
         ReplayError: The prior data cannot be fitted.
     """
     try:
         with threadpool_limits(limits=1):  # small matrices: see run_learning
-            return fit_prior_models(data, random_state=seed)
+            return fit_prior_models(
+                data,
+                amplitude=learner.amplitude,
+                n_thermal_components=learner.n_thermal_components,
+                n_restarts=learner.n_restarts,
+                parts=learner.parts,
+                random_state=seed,
+            )
     except AtiktError as err:
         msg = f"prior objects: cannot fit their models ({err})"
         raise ReplayError(msg) from err
@@ -309,17 +311,8 @@ def run_learning(
         len(spec.new_objects),
         observe=executor,
         available=executor.available,
-        priors=None if spec.transfer == "none" else dict(priors or {}),
-        budget=spec.budget,
-        eps_explore=spec.eps_explore,
-        eps_neg1=spec.eps_neg1,
-        transfer=spec.transfer,  # type: ignore[arg-type]
-        max_sources=spec.max_sources,
-        eps_density=spec.eps_density,
-        hyper_sd=spec.hyper_sd,
-        metric_sd=spec.metric_sd,
-        metric_check=spec.metric_check,  # type: ignore[arg-type]
-        metric_until=spec.metric_until,
+        priors=dict(priors or {}) if spec.transfers else None,
+        options=spec.learner,
         random_state=spec.seed,
     )
     result = RunResult(spec)
@@ -381,8 +374,9 @@ def run_offline(
         The rows of the run.
     """
     lookup = FeatureLookup(frame, spec.features)
-    if priors is None and spec.transfer != "none":
-        priors = fit_priors(prior_data(lookup, spec.prior_objects, spec.actions), spec.seed)
+    if priors is None and spec.transfers:
+        data = prior_data(lookup, spec.prior_objects, spec.actions)
+        priors = fit_priors(data, spec.seed, spec.learner)
     split = Split.random(
         frame, spec.new_objects, spec.actions, seed=spec.seed, test_fraction=spec.test_fraction
     )

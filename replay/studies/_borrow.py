@@ -25,6 +25,7 @@ from replay.learning._session import (
     RunSpec,
     borrow_pairs,
     fit_priors,
+    learner_options,
     prior_data,
     run_learning,
 )
@@ -111,14 +112,20 @@ def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
         for method in (BASELINE, *models):
             if method != BASELINE and target not in models[method]:
                 continue  # the source has no action for this target
+            settings = dict(task.settings)
+            mode = settings.pop("transfer", "prediction")
             spec = RunSpec(
-                task.new,
-                names.get(method, ()),
-                (target,),
-                task.budget,
-                "none" if method == BASELINE else task.settings.get("transfer", "prediction"),
+                new_objects=task.new,
+                prior_objects=names.get(method, ()),
+                actions=(target,),
+                learner=learner_options(
+                    "none" if method == BASELINE else mode,
+                    budget=task.budget,
+                    max_sources=settings.pop("max_sources", 1),
+                    **{k: v for k, v in settings.items() if k != "features"},
+                ),
                 seed=run_seed,
-                **{k: v for k, v in task.settings.items() if k != "transfer"},
+                features=settings.get("features", "thesis"),
             )
             executor = PoolExecutor(lookup, task.new, split)
             priors = models.get(method)

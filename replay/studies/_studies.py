@@ -32,6 +32,7 @@ from replay.learning._session import (
     DEFAULT_METRIC_UNTIL,
     RunSpec,
     fit_priors,
+    learner_options,
     prior_data,
     run_learning,
 )
@@ -261,18 +262,20 @@ def run_transfer_task(task: TransferTask) -> pl.DataFrame:
         split = Split.random(task.frame, task.new, actions, seed=run_seed)
         for method, mode in ((ATIKT, task.transfer), (BASELINE, "none")):
             spec = RunSpec(
-                task.new,
-                task.priors,
-                actions,
-                task.budget,
-                mode,
+                new_objects=task.new,
+                prior_objects=task.priors,
+                actions=actions,
+                learner=learner_options(
+                    mode,
+                    budget=task.budget,
+                    max_sources=task.max_sources,
+                    hyper_sd=task.hyper_sd,
+                    metric_sd=task.metric_sd,
+                    metric_check=task.metric_check,
+                    metric_until=task.metric_until,
+                ),
                 seed=run_seed,
                 features=task.features,
-                max_sources=task.max_sources,
-                hyper_sd=task.hyper_sd,
-                metric_sd=task.metric_sd,
-                metric_check=task.metric_check,
-                metric_until=task.metric_until,
             )
             executor = PoolExecutor(lookup, task.new, split)
             result = run_learning(spec, executor, executor.test_set(actions), models)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 import pytest
 from atikt_synthetic import NEW_OBJECTS, OLD_OBJECTS, PoolObserver, pool
@@ -10,17 +14,25 @@ from atikt import (
     ActiveLearner,
     AtiktError,
     BinaryGPC,
+    Density,
     DependentKernel,
+    LearnerOptions,
     MultiModalGPC,
     MultiSourceKernel,
+    NoTransfer,
     ObjectDensities,
     OneVsAllGPC,
     RawFeatures,
     TransferGPC,
+    TransferStrategy,
     choose_by_density,
     choose_by_evidence,
     evidence_gains,
     modality_kernel,
+    register_strategy,
+    strategies,
+    strategy_names,
+    transfer_strategy,
 )
 from atikt.active import SEPARATION_REPEATS, separation
 from atikt.gpc import with_prior
@@ -559,13 +571,11 @@ def test_separation_prefers_the_kernel_whose_modality_tells_the_new_objects_apar
 
 def test_metric_check_must_be_a_known_check() -> None:
     with pytest.raises(AtiktError, match="metric_check='loose' must be one of"):
-        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check="loose")  # type: ignore[arg-type]
-    assert ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=True).metric_check == (
-        "evidence"
-    )
-    assert ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=False).metric_check == (
-        "none"
-    )
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check="loose")
+    learner = ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=True)
+    assert learner.options.metric_check == "evidence"
+    learner = ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_check=False)
+    assert learner.options.metric_check == "none"
 
 
 def test_metric_transfer_needs_two_old_objects_and_leaves_the_baseline_alone(
@@ -583,15 +593,54 @@ def test_metric_transfer_needs_two_old_objects_and_leaves_the_baseline_alone(
 
 
 def test_max_sources_and_rho_scale_must_be_positive() -> None:
-    with pytest.raises(AtiktError, match="max_sources"):
+    with pytest.raises(AtiktError, match="max_sources=0 must be >= 1"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), max_sources=0)
-    with pytest.raises(AtiktError, match="density_rho_scale"):
-        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), density_rho_scale=0.0)
+    with pytest.raises(AtiktError, match=r"density_rho_scale=0\.0 must be > 0"):
+        ActiveLearner(
+            ACTIONS, 2, observe=PoolObserver({}), transfer="density", density_rho_scale=0.0
+        )
     with pytest.raises(AtiktError, match=r"hyper_sd=0\.0 must be None or > 0"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), hyper_sd=0.0)
     with pytest.raises(AtiktError, match=r"metric_sd=-1\.0 must be None or > 0"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_sd=-1.0)
-    with pytest.raises(AtiktError, match=r"evidence_rho=1\.5"):
-        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), evidence_rho=1.5)
-    with pytest.raises(AtiktError, match="eps_evidence=nan"):
-        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), eps_evidence=float("nan"))
+    with pytest.raises(AtiktError, match=r"evidence_rho=1\.5 must lie in"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), transfer="evidence", evidence_rho=1.5)
+    with pytest.raises(AtiktError, match="eps_evidence=nan must be finite"):
+        ActiveLearner(
+            ACTIONS, 2, observe=PoolObserver({}), transfer="evidence", eps_evidence=float("nan")
+        )
+
+
+def test_a_strategy_refuses_options_it_does_not_own() -> None:
+    with pytest.raises(AtiktError, match=r"transfer 'prediction' has no option eps_density"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), eps_density=0.2)
+    with pytest.raises(AtiktError, match="unknown learner option"):
+        ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), eps_neg3=0.2)
+
+
+def test_options_round_trip_through_their_dict() -> None:
+    options = LearnerOptions.from_dict(
+        {"transfer": "density", "eps_density": 0.2, "kernel_parts": {"texture": "matern32"}}
+    )
+    assert LearnerOptions.from_dict(json.loads(json.dumps(options.as_dict()))) == options
+    assert options.replace(transfer="none").transfer == NoTransfer()
+    assert options.replace(max_sources=3).transfer == Density(eps_density=0.2, max_sources=3)
+
+
+def test_a_registered_strategy_is_used_by_name(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(strategies, "_REGISTRY", dict(strategies._REGISTRY))
+
+    @dataclass(frozen=True, slots=True)
+    class Never(TransferStrategy):
+        name: ClassVar[str] = "never-test"
+
+    register_strategy(Never)
+    assert "never-test" in strategy_names()
+    assert transfer_strategy("never-test") == Never()
+
+    @dataclass(frozen=True, slots=True)
+    class Other(TransferStrategy):
+        name: ClassVar[str] = "never-test"
+
+    with pytest.raises(AtiktError, match="name 'never-test' is empty or taken"):
+        register_strategy(Other)

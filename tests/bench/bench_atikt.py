@@ -110,9 +110,9 @@ class TimedLearner(ActiveLearner):
         return reference_update(
             state,
             n_new_objects=learner.n_new_objects,
-            amplitude=learner.amplitude,
-            n_thermal_components=learner.n_thermal_components,
-            eps_neg1=learner.eps_neg1,
+            amplitude=learner.options.amplitude,
+            n_thermal_components=learner.options.n_thermal_components,
+            eps_neg1=learner.options.transfer.options()["eps_neg1"],
             max_iter=snapshot.max_iter,
             old_model=self.reference.get(snapshot.action),
             changed=snapshot.changed,
@@ -349,11 +349,12 @@ def search_iterations(steps: int) -> None:
     finally:
         namespace["BinaryGPC"] = original
     iterations = np.array(CountingGPC.iterations)
-    capped = np.mean(iterations >= learner.max_iter_step)
+    capped = np.mean(iterations >= learner.options.max_iter_step)
     evaluations = np.array(CountingGPC.evaluations)
     print(
         f"step searches: {len(iterations)}, {capped:.0%} stopped at the cap of "
-        f"{learner.max_iter_step} iterations, median {np.median(iterations):.0f}; objective "
+        f"{learner.options.max_iter_step} iterations, median {np.median(iterations):.0f}; "
+        "objective "
         f"evaluations per search: mean {evaluations.mean():.2f}, median "
         f"{np.median(evaluations):.0f}; scipy's L-BFGS-B on the same searches (same start and "
         f"cap): mean {np.mean(CountingGPC.lbfgsb):.2f}, median {np.median(CountingGPC.lbfgsb):.0f}"

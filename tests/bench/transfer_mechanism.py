@@ -28,7 +28,7 @@ import polars as pl
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
 import replay.learning._session
-from atikt.active import TRANSFER_MODES, ActiveLearner
+from atikt.active import TRANSFER_MODES, ActiveLearner, LearnerOptions
 from replay.learning._datasets import dataset_roles
 from replay.studies._studies import (
     StudyConfig,
@@ -46,13 +46,15 @@ class Logged(ActiveLearner):
 
     settings: dict[str, Any] = {}  # noqa: RUF012 - set per mode before the runs
 
-    def __init__(self, *positional: Any, **keywords: Any) -> None:
-        super().__init__(*positional, **(keywords | self.settings))
+    def __init__(self, *positional: Any, options: LearnerOptions, **keywords: Any) -> None:
+        if options.transfer.name == "evidence":  # the baseline has no evidence options
+            options = options.replace(**self.settings)
+        super().__init__(*positional, options=options, **keywords)
 
     def _update(self, action: str, **keywords: Any) -> None:
         super()._update(action, **keywords)
         state = self.states_[action]
-        method = "baseline" if self.transfer == "none" else "ATIKT"
+        method = "ATIKT" if self.strategy.transfers else "baseline"
         n = len(state.observations)
         FITS.extend(
             {"method": method, "action": action, "n": n, "signal_variance": variance}
@@ -81,7 +83,7 @@ def main() -> None:
     )
     Logged.settings = {"eps_evidence": -1e9, "evidence_rho": args.rho}
     replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
-    replay.learning._session.ActiveLearner = Logged  # type: ignore[attr-defined]
+    replay.learning._session.ActiveLearner = Logged  # type: ignore[assignment,attr-defined]
     n_new = len(roles.new)
     rows = []
     for study in ("negative", "related"):

@@ -9,7 +9,7 @@ from conftest import NEW, FakeRig
 from recorder import _rigconfig as rigconfig
 from recorder.errors import RigError
 from replay.cli._main import main
-from replay.learning._run_history import SETTINGS_NAME, load_run
+from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME, load_run
 from replay.learning._session import DEFAULT_HYPER_SD, DEFAULT_METRIC_CHECK, DEFAULT_METRIC_UNTIL
 
 
@@ -205,8 +205,8 @@ def test_learn_records_its_hyperprior_and_none_is_the_thesis(
         name: json.loads((tmp_path / name / SETTINGS_NAME).read_text("utf-8"))
         for name in ("map", "ml")
     }
-    assert settings["map"]["hyper_sd"] == DEFAULT_HYPER_SD
-    assert settings["ml"]["hyper_sd"] is None
+    assert settings["map"]["learner"]["hyper_sd"] == DEFAULT_HYPER_SD
+    assert settings["ml"]["learner"]["hyper_sd"] is None
 
 
 def test_learn_records_its_metric_transfer_settings(
@@ -221,9 +221,50 @@ def test_learn_records_its_metric_transfer_settings(
         name: json.loads((tmp_path / name / SETTINGS_NAME).read_text("utf-8"))
         for name in ("default", "chosen")
     }
-    assert settings["default"]["metric_check"] == DEFAULT_METRIC_CHECK
-    assert settings["default"]["metric_until"] == DEFAULT_METRIC_UNTIL
-    assert (settings["chosen"]["metric_check"], settings["chosen"]["metric_until"]) == (
-        "separation",
-        None,
+    default, chosen = settings["default"]["learner"], settings["chosen"]["learner"]
+    assert default["metric_check"] == DEFAULT_METRIC_CHECK
+    assert default["metric_until"] == DEFAULT_METRIC_UNTIL
+    assert (chosen["metric_check"], chosen["metric_until"]) == ("separation", None)
+
+
+def test_a_run_repeats_from_its_run_json(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["learn", "--recordings", str(small_dataset), "--workers", "1", "--actions", "P1"]
+    options = ["--budget", "2", "--transfer", "density", "--max-sources", "2", "--hyper-sd", "3"]
+    assert main([*argv, *options, "--out", str(tmp_path / "first")]) == 0
+    again = ["--learner-config", str(tmp_path / "first" / SETTINGS_NAME)]
+    assert main([*argv, *again, "--out", str(tmp_path / "again")]) == 0
+    capsys.readouterr()
+    first, repeated = (
+        json.loads((tmp_path / name / SETTINGS_NAME).read_text("utf-8"))["learner"]
+        for name in ("first", "again")
     )
+    assert first == repeated
+    assert first["transfer"] == {
+        "name": "density",
+        "eps_density": 0.1,
+        "density_rho_scale": 2.0,
+        "max_sources": 2,
+    }
+    history = [(tmp_path / name / HISTORY_NAME).read_bytes() for name in ("first", "again")]
+    assert history[0] == history[1]
+
+
+def test_learner_options_from_a_toml_file_and_flags_over_it(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "learner.toml"
+    config.write_text('budget = 1\ntransfer = "evidence"\nevidence_rho = 0.5\n', "utf-8")
+    argv = ["learn", "--recordings", str(small_dataset), "--workers", "1", "--actions", "P1"]
+    argv += ["--learner-config", str(config)]
+    assert main([*argv, "--budget", "2", "--out", str(tmp_path / "run")]) == 0
+    capsys.readouterr()
+    learner = json.loads((tmp_path / "run" / SETTINGS_NAME).read_text("utf-8"))["learner"]
+    assert (learner["budget"], learner["transfer"]["evidence_rho"]) == (2, 0.5)
+    config.write_text('transfer = "prediction"\neps_density = 0.5\n', "utf-8")
+    assert main([*argv, "--out", str(tmp_path / "bad")]) == 1
+    error = capsys.readouterr().err
+    assert "learner.toml" in error
+    assert "transfer 'prediction' has no option eps_density" in error
+    assert not (tmp_path / "bad").exists()

@@ -8,7 +8,13 @@ from recorder import SimulatedRig, load_actions, load_objects
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
-from replay.learning._session import RunSpec, fit_priors, prior_data, run_learning
+from replay.learning._session import (
+    RunSpec,
+    fit_priors,
+    learner_options,
+    prior_data,
+    run_learning,
+)
 from replay.live import LiveExecutor
 
 
@@ -52,7 +58,13 @@ def test_test_set_holds_the_held_out_trials(features: pl.DataFrame) -> None:
 
 
 def test_offline_run_is_deterministic(features: pl.DataFrame) -> None:
-    spec = RunSpec(NEW, OLD, ACTIONS, budget=4, seed=5)
+    spec = RunSpec(
+        new_objects=NEW,
+        prior_objects=OLD,
+        actions=ACTIONS,
+        learner=learner_options("prediction", budget=4),
+        seed=5,
+    )
     models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=5)
 
     def run() -> pl.DataFrame:
@@ -68,7 +80,13 @@ def test_offline_run_is_deterministic(features: pl.DataFrame) -> None:
 def test_live_run_then_offline_replay_of_its_session_agree(
     features: pl.DataFrame, tmp_path: Path
 ) -> None:
-    spec = RunSpec(NEW, OLD, ACTIONS, budget=3, seed=2)
+    spec = RunSpec(
+        new_objects=NEW,
+        prior_objects=OLD,
+        actions=ACTIONS,
+        learner=learner_options("prediction", budget=3),
+        seed=2,
+    )
     models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=2)
     objects = load_objects()
     session = tmp_path / "session"
@@ -103,6 +121,6 @@ def test_live_session_refuses_a_directory_with_recordings(
 
 def test_spec_refuses_an_object_that_is_new_and_prior() -> None:
     with pytest.raises(ReplayError, match="new and prior"):
-        RunSpec(NEW, (NEW[0],), ACTIONS)
-    with pytest.raises(ReplayError, match="--transfer"):
-        RunSpec(NEW, OLD, ACTIONS, transfer="maybe")
+        RunSpec(new_objects=NEW, prior_objects=(NEW[0],), actions=ACTIONS)
+    with pytest.raises(ReplayError, match=r"transfer='maybe' must be one of \('prediction'"):
+        learner_options("maybe")
