@@ -47,17 +47,15 @@ from replay.live import (
     learn_live,
 )
 from replay.outputs._plots import plot_learning_curves
-from replay.studies._studies import (
+from replay.outputs._study_report import run_study
+from replay.studies._fusion_prior import (
     FUSION_PRIORS,
     HYPERPARAMETERS,
-    STUDIES,
-    StudyConfig,
     action_parameter_names,
-    dataset_actions,
     load_hyperparameters,
-    prior_groups,
-    run_study,
 )
+from replay.studies._registry import STUDIES
+from replay.studies._running import StudyConfig, dataset_actions, prior_groups
 from schemas import atomic_write, atomic_write_text, cli, dataset_recordings
 
 if TYPE_CHECKING:
@@ -591,7 +589,7 @@ def _learn_live(
 
 @command(
     "study",
-    "run a study (fusion, transfer, single-action, priors, negative, cross-action, cross-rig, all)",
+    f"run a study ({', '.join([*STUDIES, 'all'])})",
     arg("name", choices=[*STUDIES, "all"], help="which study"),
     _DATASET,
     arg(
@@ -635,8 +633,12 @@ def _learn_live(
     WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
-    # all: cross-rig only with another rig's recordings to transfer from
-    every = [n for n in STUDIES if n != "cross-rig" or args.prior_recordings is not None]
+    # all: a study of another rig's priors only with that rig's recordings
+    every = [
+        n
+        for n, s in STUDIES.items()
+        if not s.needs_prior_frame or args.prior_recordings is not None
+    ]
     names = every if args.name == "all" else [args.name]
     parts = _fusion_parts(args.fusion_parts)  # refused before any work
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:

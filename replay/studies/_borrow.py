@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 import polars as pl
 
+from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._session import (
     RunSpec,
@@ -28,24 +29,32 @@ from replay.learning._session import (
     prior_data,
     run_learning,
 )
-from replay.outputs._plots import plot_learning_curves
-from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, paired_gains
+from replay.studies._report import Comparisons, Curves, Headlines, Report
+from replay.studies._running import (
+    BASELINE,
+    Study,
+    derive_seed,
+    min_old,
+    prior_groups,
+    roles,
+    rows,
+    too_small,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from atikt import PriorModel
-    from replay.studies._studies import StudyConfig
+    from replay.studies._running import StudyConfig
 
 WITHIN, CROSS_ACTION, CROSS_RIG = "within", "cross-action", "cross-rig"
-BASELINE: Final = "baseline"
 #: Target action <- source action of the cross-action study (the feature blocks the target
 #: uses, same definition): stiffness and thermal from a press for a static contact, a press of
 #: another force, and back; texture and thermal from one slide for another.
 CROSS_ACTION_PAIRS: Final = (("C1", "P1"), ("P2", "P1"), ("P1", "C1"), ("S3", "S1"))
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class BorrowTask:
     """The runs of one prior group: baseline, within-action and borrowed priors.
 
@@ -80,12 +89,10 @@ class BorrowTask:
 
 def _models(task: BorrowTask, lookup: FeatureLookup) -> dict[str, dict[str, PriorModel]]:
     """The prior models of each method that has priors: method -> target action -> model."""
-    from replay.studies._studies import _seed  # noqa: PLC0415 - _studies imports this module
-
     targets = tuple(t for t, _ in task.pairs)
     features = task.settings.get("features", "thesis")
     source = None if task.source_frame is None else FeatureLookup(task.source_frame, features)
-    seed = _seed(task.seed, "prior")
+    seed = derive_seed(task.seed, "prior")
     models = {}
     if task.within:
         models[WITHIN] = fit_priors(prior_data(lookup, task.within, targets), seed)
@@ -96,8 +103,6 @@ def _models(task: BorrowTask, lookup: FeatureLookup) -> dict[str, dict[str, Prio
 
 def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
     """Run the baseline, ``within`` and the borrowed priors on the same splits."""
-    from replay.studies._studies import _rows, _seed  # noqa: PLC0415 - a cycle otherwise
-
     lookup = FeatureLookup(task.frame, task.settings.get("features", "thesis"))
     models = _models(task, lookup)
     names = {
@@ -106,7 +111,7 @@ def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
     }
     frames = []
     for (target, origin), trial in itertools.product(task.pairs, range(task.trials)):
-        run_seed = _seed(task.seed, trial, target)
+        run_seed = derive_seed(task.seed, trial, target)
         split = Split.random(task.frame, task.new, (target,), seed=run_seed)
         for method in (BASELINE, *models):
             if method != BASELINE and target not in models[method]:
@@ -125,7 +130,7 @@ def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
             result = run_learning(spec, executor, executor.test_set((target,)), priors)
             labels = task.labels | {"method": method, "trial": trial, "actions": target}
             labels |= {"source": origin, "priors": ",".join(spec.prior_objects)}
-            frames.append(_rows(result.frame(), labels))
+            frames.append(rows(result.frame(), labels))
     return pl.concat(frames, how="diagonal_relaxed")
 
 
@@ -147,11 +152,6 @@ def _settings(config: StudyConfig) -> dict[str, Any]:
     }
 
 
-def _min_old(config: StudyConfig) -> int:
-    """Old objects a prior group needs (two for the model prediction approach)."""
-    return 2 if config.transfer == "prediction" else 1
-
-
 def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask]:
     """Tasks of the cross-action study: one per prior group of the dataset's old objects.
 
@@ -161,9 +161,7 @@ def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowT
     Raises:
         ReplayError: No pair fits, or too few objects.
     """
-    from replay.studies._studies import _roles, _seed, _too_small, prior_groups  # noqa: PLC0415
-
-    actions = _roles(config, "cross-action")
+    actions = roles(config, "cross-action")
     lookup = FeatureLookup(frame, config.features)
     wanted = config.prior_actions or CROSS_ACTION_PAIRS
     pairs = tuple(
@@ -175,23 +173,23 @@ def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowT
         has = f"actions {', '.join(actions)}"
         needs = "a target and a source action with the same feature blocks (--prior-actions T=S)"
         study = "cross-action"
-        raise _too_small(study, has, needs)
+        raise too_small(study, has, needs)
     size = min(config.group_size, len(config.old))
     groups = prior_groups(config.old, size, config.groups, config.seed)
     return [
         BorrowTask(
-            frame,
-            config.new,
-            group,
-            group,
-            None,
-            pairs,
-            config.trials,
-            config.budget,
-            _seed(config.seed, "cross-action", number),
-            CROSS_ACTION,
-            {"group": number},
-            _settings(config),
+            frame=frame,
+            new=config.new,
+            within=group,
+            borrowed=group,
+            source_frame=None,
+            pairs=pairs,
+            trials=config.trials,
+            budget=config.budget,
+            seed=derive_seed(config.seed, "cross-action", number),
+            method=CROSS_ACTION,
+            labels={"group": number},
+            settings=_settings(config),
         )
         for number, group in enumerate(groups)
     ]
@@ -208,15 +206,12 @@ def cross_rig_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask
     Raises:
         ReplayError: No other dataset, no shared action, or too few objects.
     """
-    from replay.errors import ReplayError  # noqa: PLC0415
-    from replay.studies._studies import _seed, _too_small, prior_groups  # noqa: PLC0415
-
     if config.prior_frame is None:
         msg = "study cross-rig: give the other rig's dataset with --prior-recordings DIR"
         raise ReplayError(msg)
     if len(config.new) < 2 or not config.actions:  # noqa: PLR2004
         study, has = "cross-rig", f"{len(config.new)} new objects"
-        raise _too_small(study, has, ">= 2 new objects")
+        raise too_small(study, has, ">= 2 new objects")
     lookup = FeatureLookup(frame, config.features)
     source = FeatureLookup(config.prior_frame, config.features)
     pairs = tuple(
@@ -225,66 +220,55 @@ def cross_rig_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask
         if t in config.actions
     )
     others = sorted(set(config.prior_frame["object_id"].to_list()))
-    if not pairs or len(others) < _min_old(config):
+    if not pairs or len(others) < min_old(config):
         has = f"{len(pairs)} shared actions, {len(others)} objects in --prior-recordings"
-        study, needs = "cross-rig", f">= 1 shared action and {_min_old(config)} objects"
-        raise _too_small(study, has, needs)
+        study, needs = "cross-rig", f">= 1 shared action and {min_old(config)} objects"
+        raise too_small(study, has, needs)
     size = min(config.group_size, len(others))
     groups = prior_groups(others, size, config.groups, config.seed)
     within: list[tuple[str, ...]] = [()]
-    if len(config.old) >= _min_old(config):
+    if len(config.old) >= min_old(config):
         own = min(config.group_size, len(config.old))
         within = prior_groups(config.old, own, config.groups, config.seed)
     return [
         BorrowTask(
-            frame,
-            config.new,
-            within[number % len(within)],
-            group,
-            config.prior_frame,
-            pairs,
-            config.trials,
-            config.budget,
-            _seed(config.seed, "cross-rig", number),
-            CROSS_RIG,
-            {"group": number},
-            _settings(config),
+            frame=frame,
+            new=config.new,
+            within=within[number % len(within)],
+            borrowed=group,
+            source_frame=config.prior_frame,
+            pairs=pairs,
+            trials=config.trials,
+            budget=config.budget,
+            seed=derive_seed(config.seed, "cross-rig", number),
+            method=CROSS_RIG,
+            labels={"group": number},
+            settings=_settings(config),
         )
         for number, group in enumerate(groups)
     ]
 
 
-def report_borrow(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
-    """Plot and summarise a cross-action or cross-rig study; return the markdown summary."""
-    from replay.studies._studies import _markdown, _reduced, headline  # noqa: PLC0415
+def _borrowed(frame: pl.DataFrame) -> str:
+    """Return the label of the results' borrowed runs (``cross-rig`` or ``cross-action``)."""
+    return CROSS_RIG if CROSS_RIG in set(frame["method"].to_list()) else CROSS_ACTION
 
-    plot_learning_curves(
-        frame, config.out / "learning_curves.png", x="step", panel="actions", title=title
-    )
-    methods = set(frame["method"].to_list())
-    borrowed = CROSS_RIG if CROSS_RIG in methods else CROSS_ACTION
-    comparisons = [(borrowed, BASELINE), (WITHIN, BASELINE), (borrowed, WITHIN)]
-    comparisons = [c for c in comparisons if set(c) <= methods]
+
+def _comparisons(frame: pl.DataFrame) -> list[tuple[str, str]]:
+    """Return the (treated, reference) pairs of the summary's table of differences."""
+    borrowed = _borrowed(frame)
+    return [(borrowed, BASELINE), (WITHIN, BASELINE), (borrowed, WITHIN)]
+
+
+def _learners(frame: pl.DataFrame, config: StudyConfig) -> str:
+    """Return the summary's sentence on the three learners and where the priors come from."""
+    borrowed = _borrowed(frame)
     sources = (
         frame.select("actions", "source").unique().sort("actions").iter_rows()
         if "source" in frame.columns
         else []
     )
     pairs = ", ".join(f"{t} <- {s}" for t, s in sources)
-    header = ["actions", "comparison", "groups", *(f"{h} (points)" for h in HEADLINES)]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    for treated, reference in comparisons:
-        gains = paired_gains(
-            frame,
-            ["actions"],
-            "group",
-            config.budget,
-            methods=(treated, reference),
-            seed=config.seed,
-        )
-        for row in gains.iter_rows(named=True):
-            cells = [str(row["actions"]), f"{treated} - {reference}", str(row["units"])]
-            lines.append("| " + " | ".join(cells + [gain_cells(row, h) for h in HEADLINES]) + " |")
     runs = frame.filter((pl.col("step") == 0) & (pl.col("method") == BASELINE)).height
     source = (
         f"the old objects' recordings of another rig (`--prior-recordings`, {pairs})"
@@ -292,14 +276,32 @@ def report_borrow(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
         else f"the old objects' recordings of another action ({pairs})"
     )
     return (
-        f"# {title}\n{_reduced(config)}\nOne target action at a time; {runs} runs of each "
-        f"learner on the same splits and seeds, budget {config.budget}: no transfer "
-        f"(`{BASELINE}`), the target action's own priors (`{WITHIN}`), and {source} "
-        f"(`{borrowed}`), fed through the feature blocks the target action uses.\n\n"
-        f"{_markdown(headline(frame, ['actions', 'method'], config.budget))}\n\n"
-        + "\n".join(lines)
-        + f"\n\nPaired differences in percentage points, mean over prior groups; [95 % "
-        f"interval]: percentile bootstrap over groups ({RESAMPLES} resamples). initial: after "
-        "one observation per new object; mean: over observations 1..budget; final: after the "
-        "last.\n"
+        f"One target action at a time; {runs} runs of each learner on the same splits and "
+        f"seeds, budget {config.budget}: no transfer (`{BASELINE}`), the target action's own "
+        f"priors (`{WITHIN}`), and {source} (`{borrowed}`), fed through the feature blocks the "
+        "target action uses."
     )
+
+
+_LABELS: Final = ("actions", "method", "group", "trial", "step")
+_REPORT: Final = Report(
+    (_learners, Headlines(("actions", "method")), Comparisons(("actions",), _comparisons)),
+    Curves(panel="actions"),
+)
+CROSS_ACTION_STUDY: Final = Study(
+    name=CROSS_ACTION,
+    title="Cross-action transfer: priors from another action",
+    tasks=cross_action_tasks,
+    run=run_borrow_task,
+    labels=_LABELS,
+    report=_REPORT,
+)
+CROSS_RIG_STUDY: Final = Study(
+    name=CROSS_RIG,
+    title="Cross-rig transfer: priors from another rig's recordings",
+    tasks=cross_rig_tasks,
+    run=run_borrow_task,
+    labels=_LABELS,
+    report=_REPORT,
+    needs_prior_frame=True,
+)

@@ -27,6 +27,23 @@ LEVEL = 0.95
 HEADLINES = ("initial", "mean", "final")
 
 
+def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFrame:
+    """Return accuracy after the initial observations, mean over steps 1..budget, and final.
+
+    Accuracies are averaged over runs first per step, then over steps.
+    """
+    per_step = frame.group_by([*by, "step"]).agg(pl.col("accuracy").mean())
+    return (
+        per_step.group_by(by)
+        .agg(
+            pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
+            pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
+            pl.col("accuracy").sort_by("step").last().alias("final"),
+        )
+        .sort(by)
+    )
+
+
 def unit_headlines(frame: pl.DataFrame, by: Sequence[str], unit: str, budget: int) -> pl.DataFrame:
     """Return the headline accuracies per (by, unit, method), runs of a unit averaged first."""
     keys = [*by, unit, "method"]

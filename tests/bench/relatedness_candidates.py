@@ -2,7 +2,7 @@
 
 Every new object of the catalog names its designed counterpart among the old objects
 (``related_to`` in recorder/data/objects.toml). For each transfer mode this runs, with the
-protocol and seeds of the studies in replay/_studies.py (ATIKT and the no-transfer baseline on
+protocol and seeds of the studies in replay/studies/ (ATIKT and the no-transfer baseline on
 the same splits):
 
 - the ``priors`` study's runs (random groups of 3, 5, 7, 10 prior objects);
@@ -45,14 +45,10 @@ import replay.learning._session
 from atikt.active import TRANSFER_MODES, ActiveLearner
 from replay.learning._datasets import dataset_roles
 from replay.learning._parallel import run_tasks
-from replay.studies._studies import (
-    StudyConfig,
-    dataset_actions,
-    priors_tasks,
-    run_transfer_task,
-    similarity_tasks,
-    transfer_tasks,
-)
+from replay.studies._negative import similarity_tasks
+from replay.studies._priors import priors_tasks
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._transfer import run_transfer_task, transfer_tasks
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDY_NAMES = ("priors", "negative", "related", "single-action")

@@ -30,12 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 import replay.learning._session
 from atikt.active import TRANSFER_MODES, ActiveLearner
 from replay.learning._datasets import dataset_roles
-from replay.studies._studies import (
-    StudyConfig,
-    dataset_actions,
-    run_transfer_task,
-    similarity_tasks,
-)
+from replay.studies._negative import similarity_tasks
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._transfer import run_transfer_task
 
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 FITS: list[dict[str, Any]] = []

@@ -12,8 +12,9 @@ from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup
 from replay.learning._features import build_features
 from replay.learning._session import borrow_pairs, prior_data
+from replay.outputs._study_report import run_study
 from replay.outputs.readme_tables import study_block
-from replay.studies._studies import StudyConfig, run_study
+from replay.studies._running import StudyConfig
 
 
 @pytest.fixture(scope="module")

@@ -9,20 +9,19 @@ from conftest import ACTIONS, NEW, OLD
 
 from replay.errors import ReplayError
 from replay.learning._features import build_features
-from replay.studies._studies import (
+from replay.outputs._study_report import run_study, write_report
+from replay.studies._fusion import fusion_tasks
+from replay.studies._fusion_prior import (
     HYPERPARAMETERS,
-    STUDIES,
-    StudyConfig,
     action_parameter_names,
     controlled_blocks,
     declared_noise,
-    fusion_tasks,
-    negative_tasks,
-    prior_groups,
-    run_study,
-    similarity_tasks,
-    transfer_tasks,
 )
+from replay.studies._negative import negative_tasks, similarity_tasks
+from replay.studies._registry import STUDIES
+from replay.studies._report import Gains, Headlines, Report, Text
+from replay.studies._running import Study, StudyConfig, prior_groups, study_results
+from replay.studies._transfer import transfer_tasks
 
 
 @pytest.fixture(scope="module")
@@ -271,3 +270,39 @@ def test_action_parameter_names_come_from_the_recordings(
     for action, parameters in names.items():
         assert "duration_s" in parameters
         assert ("force_n" in parameters) == (kinds[action] == "slide")  # slides set the force
+
+
+def _toy_rows(group: int) -> pl.DataFrame:
+    """One toy task: ATIKT gains 0.1 per step over the baseline, more in group 1."""
+    return pl.DataFrame(
+        {"method": method, "group": group, "trial": 0, "step": step}
+        | {"accuracy": 0.5 + step * (0.1 + 0.1 * group if method == "ATIKT" else 0.0)}
+        for method in ("baseline", "ATIKT")
+        for step in range(3)
+    )
+
+
+def test_a_study_declared_outside_the_package_is_reported_by_the_one_writer(
+    tmp_path: Path,
+) -> None:
+    toy = Study(
+        name="toy",
+        title="Toy study",
+        tasks=lambda frame, config: [1, 0],  # noqa: ARG005
+        run=_toy_rows,
+        labels=("method", "group", "trial", "step"),
+        report=Report((Text("Two toy groups."), Headlines(("method",)), Gains(()))),
+    )
+    config = StudyConfig(out=tmp_path / "toy", budget=2, hyper_sd=None, metric_sd=None)
+    results = study_results(toy, pl.DataFrame(), config)
+    assert results["group"].to_list()[:3] == [0, 0, 0]  # sorted by its labels
+    output = write_report(toy, results, pl.DataFrame(), config)
+    assert output.plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert output.summary.read_text() == output.text
+    assert output.text.startswith("# Toy study\n\nLearners: maximum likelihood")
+    assert "\nTwo toy groups.\n\n| method | initial | mean | final |\n" in output.text
+    assert "| ATIKT | 50.0 % | 72.5 % | 80.0 % |" in output.text
+    assert (
+        "| 2 | +0.0 pts [+0.0, +0.0] | +22.5 pts [+15.0, +30.0] | +30.0 pts [+20.0, +40.0] |"
+        in (output.text)
+    )
