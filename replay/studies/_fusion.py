@@ -290,10 +290,15 @@ def _means_table(frame: pl.DataFrame, config: StudyConfig) -> str:  # noqa: ARG0
 
 
 def _sizes_table(frame: pl.DataFrame, config: StudyConfig) -> str:  # noqa: ARG001
-    """Return the mean accuracy per action and training size (rows) and modality set."""
+    """Return the mean accuracy per action and training size (rows) and modality set.
+
+    Sorted before the pivot, whose columns follow the order in which it meets the modality
+    sets (as the means table's): an unordered ``group_by`` made it random from run to run.
+    """
     sizes = (
         frame.group_by("action", "modalities", "samples")
         .agg(pl.col("accuracy").mean())
+        .sort("action", "samples", "modalities")
         .pivot(on="modalities", index=["action", "samples"], values="accuracy")
         .sort("action", "samples")
     )

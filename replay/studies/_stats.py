@@ -143,7 +143,9 @@ def fusion_margins(frame: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
         per_group.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
     ):
         wide = part.pivot(on="modalities", index="group", values="accuracy").sort("group")
-        singles = [c for c in wide.columns if c not in {"group", "multi-modal"}]
+        # sorted: the pivot's columns come in the unordered group_by's order, and a tie goes
+        # to the first (the same modality in every run)
+        singles = sorted(c for c in wide.columns if c not in {"group", "multi-modal"})
         if "multi-modal" not in wide.columns or not singles:
             continue
         best = max(singles, key=lambda c: float(wide[c].mean()))  # type: ignore[arg-type]

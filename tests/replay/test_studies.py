@@ -10,7 +10,7 @@ from conftest import ACTIONS, NEW, OLD
 from replay.errors import ReplayError
 from replay.learning._features import build_features
 from replay.outputs._study_report import run_study, write_report
-from replay.studies._fusion import fusion_tasks
+from replay.studies._fusion import FUSION, fusion_tasks
 from replay.studies._fusion_prior import (
     HYPERPARAMETERS,
     action_parameter_names,
@@ -19,7 +19,7 @@ from replay.studies._fusion_prior import (
 )
 from replay.studies._negative import negative_tasks, similarity_tasks
 from replay.studies._registry import STUDIES
-from replay.studies._report import Gains, Headlines, Report, Text
+from replay.studies._report import Gains, Headlines, Report, Text, summary
 from replay.studies._running import Study, StudyConfig, prior_groups, study_results
 from replay.studies._transfer import transfer_tasks
 
@@ -306,3 +306,21 @@ def test_a_study_declared_outside_the_package_is_reported_by_the_one_writer(
         "| 2 | +0.0 pts [+0.0, +0.0] | +22.5 pts [+15.0, +30.0] | +30.0 pts [+20.0, +40.0] |"
         in (output.text)
     )
+
+
+def test_the_fusion_summary_is_the_same_text_for_rows_in_any_order(tmp_path: Path) -> None:
+    rows = pl.DataFrame(
+        {"action": action, "group": 0, "repetition": 0, "modalities": name}
+        | {"samples": samples, "accuracy": 0.1 * len(name) + 0.01 * samples}
+        for action in ("C1", "S1")
+        for name in ("multi-modal", "force", "thermal", "texture")
+        for samples in (1, 2)
+        if action == "S1" or name != "texture"
+    )
+    config = StudyConfig(out=tmp_path)
+    texts = {
+        summary(FUSION, rows.sample(fraction=1.0, shuffle=True, seed=seed), config)
+        for seed in range(10)
+    }
+    assert len(texts) == 1
+    assert "| action | samples | force | multi-modal | thermal | texture |" in texts.pop()
