@@ -99,11 +99,13 @@ class TransferStrategy:
         transfers: False: the learner fits no prior models (the baseline).
         keeps_choice: A new object's choice depends only on its own observations and the
             fixed prior models, so it is kept while only other objects' observations change.
+        min_old_objects: Old objects the strategy needs in an action's priors.
     """
 
     name: ClassVar[str] = ""
     transfers: ClassVar[bool] = True
     keeps_choice: ClassVar[bool] = False
+    min_old_objects: ClassVar[int] = 1
 
     def options(self) -> dict[str, Any]:
         """The strategy's own options by name (as given to :func:`transfer_strategy`)."""
@@ -180,6 +182,7 @@ class Prediction(TransferStrategy):
 
     name: ClassVar[str] = "prediction"
     keeps_choice: ClassVar[bool] = True
+    min_old_objects: ClassVar[int] = 2  # one-vs-all models of the old objects
     eps_neg1: float = 0.6
     max_sources: int = 1
 

@@ -12,6 +12,7 @@ import polars as pl
 from rich.console import Console
 from rich.markup import escape
 
+from atikt import transfer_strategy
 from atikt.kernels import COMBINATIONS, PART_KERNELS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.cli._options import learner_args, learner_from_args, parse_parts
@@ -23,6 +24,7 @@ from replay.learning._features import FEATURE_POLICIES, FeatureTable, build_feat
 from replay.learning._parallel import scheduler_warning
 from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
 from replay.learning._session import (
+    TRANSFER_MODES,
     RunSpec,
     borrow_pairs,
     fit_priors,
@@ -40,23 +42,23 @@ from replay.live import (
     learn_live,
 )
 from replay.outputs._plots import plot_learning_curves
-from replay.studies._studies import (
+from replay.outputs._study_report import run_study
+from replay.studies._fusion_prior import (
     FUSION_PRIORS,
     HYPERPARAMETERS,
-    STUDIES,
-    StudyConfig,
     action_parameter_names,
-    dataset_actions,
     load_hyperparameters,
-    prior_groups,
-    run_study,
 )
+from replay.studies._registry import STUDIES
+from replay.studies._running import StudyConfig, dataset_actions, prior_groups
 from schemas import atomic_write, atomic_write_text, cli, dataset_recordings
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
 
     from rich.progress import Progress
+
+    from atikt import LearnerOptions
 
 _CONSOLE = Console(stderr=True)
 
@@ -119,13 +121,22 @@ def _features(root: Path, workers: int) -> FeatureTable:
     return table
 
 
-def _one_prior(prior: str) -> ReplayError:
-    """Return the error of a prediction-transfer run with a single old object."""
-    return ReplayError(
-        f"--transfer prediction compares old objects' models and needs >= 2 old objects; "
-        f"the run has 1 ({prior}); use --transfer optimization, density or evidence, "
-        "or give more --priors"
+def _too_few_priors(learner: LearnerOptions, priors: Sequence[str]) -> None:
+    """Refuse fewer old objects than the transfer strategy needs.
+
+    Raises:
+        ReplayError: The run has too few, naming the strategy and the fix.
+    """
+    needs = learner.transfer.min_old_objects
+    if not learner.transfer.transfers or len(priors) >= needs:
+        return
+    fewer = [m for m in TRANSFER_MODES if transfer_strategy(m).min_old_objects < needs]
+    msg = (
+        f"--transfer {learner.transfer.name} needs >= {needs} old objects; the run has "
+        f"{len(priors)} ({', '.join(priors) or 'none'}); use --transfer "
+        f"{' or '.join(m for m in fewer if m != 'none')}, or give more --priors"
     )
+    raise ReplayError(msg)
 
 
 def _ids(text: str | None) -> list[str] | None:
@@ -319,7 +330,6 @@ def _step_line(row: dict[str, Any]) -> str:
 def _learn_command(args: argparse.Namespace) -> int:
     workers = cli.worker_count(args.workers)
     learner = learner_from_args(args)  # before any work: refused in one line
-    transfer = learner.transfer.name
     if args.rig is None and args.rig_config is not None:
         args.rig = configured_rig(args.rig_config, None, args.rig_option).name
     if args.rig is not None:
@@ -335,8 +345,8 @@ def _learn_command(args: argparse.Namespace) -> int:
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
     named = _ids(args.priors) if args.prior_recordings is None else None
-    if transfer == "prediction" and named is not None and len(named) == 1:
-        raise _one_prior(named[0])  # before the features
+    if named is not None:
+        _too_few_priors(learner, named)  # before the features
     table = _features(prior_root, workers)
     other = _other_rig(args, workers) if args.prior_recordings is not None else None
     roles = dataset_roles(
@@ -356,8 +366,7 @@ def _learn_command(args: argparse.Namespace) -> int:
             )
             raise ReplayError(msg)
         priors = prior_groups(roles.old, min(3, len(roles.old)), 1, args.seed)[0]
-    if transfer == "prediction" and len(priors) == 1:
-        raise _one_prior(priors[0])
+    _too_few_priors(learner, priors)
     spec = RunSpec(
         new_objects=roles.new,
         prior_objects=tuple(priors) if other is None else other.labels,
@@ -499,7 +508,7 @@ def _learn_live(
 
 @command(
     "study",
-    "run a study (fusion, transfer, single-action, priors, negative, cross-action, cross-rig, all)",
+    f"run a study ({', '.join([*STUDIES, 'all'])})",
     arg("name", choices=[*STUDIES, "all"], help="which study"),
     _DATASET,
     arg(
@@ -533,8 +542,12 @@ def _learn_live(
     WORKERS,
 )
 def _study_command(args: argparse.Namespace) -> int:
-    # all: cross-rig only with another rig's recordings to transfer from
-    every = [n for n in STUDIES if n != "cross-rig" or args.prior_recordings is not None]
+    # all: a study of another rig's priors only with that rig's recordings
+    every = [
+        n
+        for n, s in STUDIES.items()
+        if not s.needs_prior_frame or args.prior_recordings is not None
+    ]
     names = every if args.name == "all" else [args.name]
     parts = parse_parts(args.fusion_parts, "--fusion-parts")  # refused before any work
     learner = learner_from_args(args)
@@ -566,17 +579,11 @@ def _study_command(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 workers=workers,
                 scheduler=args.scheduler,
-                transfer=learner.transfer.name,
-                budget=learner.budget,
+                learner=learner,
                 new=roles.new,
                 old=roles.old,
                 actions=tuple(actions),
                 features=args.features,
-                max_sources=getattr(learner.transfer, "max_sources", 1),
-                hyper_sd=learner.hyper_sd,
-                metric_sd=learner.metric_sd,
-                metric_check=learner.metric_check,
-                metric_until=learner.metric_until,
                 fusion_prior=args.fusion_prior,
                 action_parameters=action_parameter_names(table.root, table.frame),
                 fusion_kernel=args.fusion_kernel,

@@ -12,13 +12,13 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import polars as pl
 
 from replay.errors import ReplayError
-from replay.learning._features import as_raw, row_blocks, select_blocks
+from replay.learning._features import raw_table
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -141,21 +141,12 @@ class FeatureLookup:
     """
 
     def __init__(self, frame: pl.DataFrame, policy: str = "thesis") -> None:
-        """Index the table's rows and choose each action's feature blocks."""
-        self._rows: dict[tuple[str, str, int], dict[str, Any]] = {
-            (row["object_id"], row["action_id"], row["trial"]): row
-            for row in frame.iter_rows(named=True)
-        }
-        held: dict[str, set[str]] = {}
-        kinds: dict[str, str] = {}
-        for (_, action, _), row in self._rows.items():
-            blocks = set(row_blocks(row))
-            held[action] = held[action] & blocks if action in held else blocks
-            kinds[action] = row["action_kind"]
-        self.kinds: dict[str, str] = kinds
-        self.blocks: dict[str, tuple[str, ...]] = {
-            action: select_blocks(kinds[action], blocks, policy) for action, blocks in held.items()
-        }
+        """Convert the table's rows once and choose each action's feature blocks."""
+        self._raw, self.kinds, self.blocks = raw_table(frame, policy)
+        index: dict[tuple[str, str], list[int]] = {}
+        for obj, action, trial in sorted(self._raw):
+            index.setdefault((obj, action), []).append(trial)
+        self._trials = index
 
     def get(self, obj: str, action: str, trial: int) -> RawFeatures:
         """Return the features of one recording.
@@ -163,19 +154,26 @@ class FeatureLookup:
         Raises:
             ReplayError: The table has no such recording.
         """
-        row = self._rows.get((obj, action, trial))
-        if row is None:
+        raw = self._raw.get((obj, action, trial))
+        if raw is None:
             msg = f"no recording of object {obj!r}, action {action!r}, trial {trial}"
             raise ReplayError(msg)
-        return as_raw(row, self.blocks[action])
+        return raw
+
+    def groups(self, objects: Sequence[str], action: str) -> dict[int, list[RawFeatures]]:
+        """Return every recording of each object of ``action``, trials in order, by index."""
+        return {
+            i: [self._raw[obj, action, t] for t in self._trials.get((obj, action), [])]
+            for i, obj in enumerate(objects)
+        }
 
     def trials(self, obj: str, action: str) -> list[int]:
         """Return the sorted trials of (obj, action)."""
-        return sorted(t for (o, a, t) in self._rows if (o, a) == (obj, action))
+        return list(self._trials.get((obj, action), []))
 
     def objects(self, action: str) -> list[str]:
         """Return the sorted objects with at least one recording of ``action``."""
-        return sorted({o for (o, a, _) in self._rows if a == action})
+        return sorted({o for (o, a) in self._trials if a == action})
 
 
 @dataclass(slots=True)
@@ -197,6 +195,18 @@ class PoolExecutor:
     like_rig: bool = False
     served: list[tuple[str, str, int]] = field(default_factory=list)
     _next: dict[Pair, int] = field(default_factory=dict)
+
+    @property
+    def capacity(self) -> dict[tuple[int, str], int] | None:
+        """Return the pool size of every (object index, action); None like a rig."""
+        if self.like_rig:
+            return None
+        return {
+            (i, a): len(trials)
+            for (obj, a), trials in self.split.pool.items()
+            for i, o in enumerate(self.objects)
+            if o == obj
+        }
 
     def available(self, obj: int, action: str) -> bool:
         """Return whether the pool of (obj, action) still has an unused recording."""

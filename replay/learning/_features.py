@@ -336,3 +336,32 @@ def as_raw(row: Mapping[str, Any], blocks: Sequence[str] | None = None) -> RawFe
     if blocks is None:
         blocks = select_blocks(features.kind, features.modalities)
     return _subset(features, blocks, str(row["path"]))
+
+
+def raw_table(
+    frame: pl.DataFrame, policy: str = "thesis"
+) -> tuple[dict[tuple[str, str, int], RawFeatures], dict[str, str], dict[str, tuple[str, ...]]]:
+    """Convert a feature table once: every row's features, each action's kind and blocks.
+
+    Every observation of an action gets the same feature blocks: those ``policy`` selects
+    (:func:`select_blocks`) among the blocks every recording of the action has.
+
+    Returns:
+        (object, action, trial) -> features; action -> kind; action -> feature blocks.
+
+    Raises:
+        ReplayError: A row lacks one of its action's blocks (cannot happen for a table's own).
+    """
+    rows = {
+        (row["object_id"], row["action_id"], row["trial"]): row
+        for row in frame.iter_rows(named=True)
+    }
+    held: dict[str, set[str]] = {}
+    kinds: dict[str, str] = {}
+    for (_, action, _), row in rows.items():
+        have = set(row_blocks(row))
+        held[action] = held[action] & have if action in held else have
+        kinds[action] = row["action_kind"]
+    blocks = {a: select_blocks(kinds[a], have, policy) for a, have in held.items()}
+    raw = {key: as_raw(row, blocks[key[1]]) for key, row in rows.items()}
+    return raw, kinds, blocks

@@ -169,10 +169,7 @@ def prior_data(
             raise ReplayError(msg)
         if origin not in source.blocks:
             continue  # the other rig has no such action: no priors for it
-        groups = {
-            index: [source.get(obj, origin, t) for t in source.trials(obj, origin)]
-            for index, obj in enumerate(prior_objects)
-        }
+        groups = source.groups(prior_objects, origin)
         if origin == action and source is lookup:
             data[action] = groups
             continue
@@ -361,6 +358,7 @@ def run_offline(
     *,
     priors: Mapping[str, PriorModel] | None = None,
     on_step: Callable[[dict[str, Any]], Any] | None = None,
+    lookup: FeatureLookup | None = None,
 ) -> RunResult:
     """Run one learning session over a dataset's feature table (random split by the seed).
 
@@ -369,11 +367,13 @@ def run_offline(
         spec: What to run; its seed also draws the test/pool split.
         priors: Prior models fitted beforehand (fitted here from ``frame`` when None).
         on_step: Called with every row as soon as it is known.
+        lookup: The table's features already converted (``FeatureLookup(frame, spec.features)``,
+            shared by the runs of a study task); None: converted here.
 
     Returns:
         The rows of the run.
     """
-    lookup = FeatureLookup(frame, spec.features)
+    lookup = FeatureLookup(frame, spec.features) if lookup is None else lookup
     if priors is None and spec.transfers:
         data = prior_data(lookup, spec.prior_objects, spec.actions)
         priors = fit_priors(data, spec.seed, spec.learner)

@@ -10,7 +10,7 @@ plus ``-margins`` (multi-modal minus best single modality), or two fusion studie
 ``studies-real/`` (``--real-studies``), the studies on the real data.
 
 The numbers are the studies' own, computed by the same functions as their summaries
-(``replay.studies._studies.headline``, ``replay.studies._stats.paired_gains`` and
+(``replay.studies._stats.headline``, ``replay.studies._stats.paired_gains`` and
 ``fusion_margins``, same seed): "initial" is step 0 (one observation per new object and
 action), "mean" the mean over steps 1..budget, "final" the last step, accuracies averaged over
 runs per step first; the gain is ATIKT minus the baseline on the same splits, in percentage
@@ -32,15 +32,17 @@ import polars as pl
 
 from replay.errors import ReplayError
 from replay.studies._borrow import CROSS_ACTION, CROSS_RIG, WITHIN
+from replay.studies._fusion import fusion_means
+from replay.studies._running import ATIKT, BASELINE
 from replay.studies._stats import (
     HEADLINES,
     RESAMPLES,
     fusion_differences,
     fusion_margins,
     gain_cells,
+    headline,
     paired_gains,
 )
-from replay.studies._studies import ATIKT, BASELINE, fusion_means, headline
 from schemas import VOCABULARY, cli
 
 if TYPE_CHECKING:

@@ -20,33 +20,42 @@ from typing import TYPE_CHECKING, Any, Final
 
 import polars as pl
 
-from replay.learning._executors import FeatureLookup, PoolExecutor, Split
+from replay.errors import ReplayError
+from replay.learning._executors import FeatureLookup
 from replay.learning._session import (
+    DEFAULT_LEARNER,
     RunSpec,
     borrow_pairs,
     fit_priors,
-    learner_options,
     prior_data,
-    run_learning,
+    run_offline,
 )
-from replay.outputs._plots import plot_learning_curves
-from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, paired_gains
+from replay.studies._report import Comparisons, Curves, Headlines, Report
+from replay.studies._running import (
+    BASELINE,
+    Study,
+    derive_seed,
+    min_old,
+    prior_groups,
+    roles,
+    rows,
+    too_small,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from atikt import PriorModel
-    from replay.studies._studies import StudyConfig
+    from atikt import LearnerOptions, PriorModel
+    from replay.studies._running import StudyConfig
 
 WITHIN, CROSS_ACTION, CROSS_RIG = "within", "cross-action", "cross-rig"
-BASELINE: Final = "baseline"
 #: Target action <- source action of the cross-action study (the feature blocks the target
 #: uses, same definition): stiffness and thermal from a press for a static contact, a press of
 #: another force, and back; texture and thermal from one slide for another.
 CROSS_ACTION_PAIRS: Final = (("C1", "P1"), ("P2", "P1"), ("P1", "C1"), ("S3", "S1"))
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class BorrowTask:
     """The runs of one prior group: baseline, within-action and borrowed priors.
 
@@ -58,11 +67,11 @@ class BorrowTask:
         source_frame: The other rig's feature table (cross-rig), None for cross-action.
         pairs: (target action, source action) pairs, each run separately.
         trials: Runs per pair.
-        budget: Actively collected observations per run.
         seed: Seed of the group's splits and learners.
         method: ``cross-action`` or ``cross-rig`` (the borrowed runs' label).
         labels: Extra columns of every row.
-        settings: Learner options (transfer, features, hyperpriors) as ``RunSpec`` fields.
+        learner: The transferring runs' options; the baseline's are the same without transfer.
+        features: Feature policy.
     """
 
     frame: pl.DataFrame
@@ -72,34 +81,31 @@ class BorrowTask:
     source_frame: pl.DataFrame | None
     pairs: tuple[tuple[str, str], ...]
     trials: int
-    budget: int
     seed: int
     method: str
     labels: dict[str, Any] = field(default_factory=dict)
-    settings: dict[str, Any] = field(default_factory=dict)
+    learner: LearnerOptions = DEFAULT_LEARNER
+    features: str = "thesis"
 
 
 def _models(task: BorrowTask, lookup: FeatureLookup) -> dict[str, dict[str, PriorModel]]:
     """The prior models of each method that has priors: method -> target action -> model."""
-    from replay.studies._studies import _seed  # noqa: PLC0415 - _studies imports this module
-
     targets = tuple(t for t, _ in task.pairs)
-    features = task.settings.get("features", "thesis")
+    features = task.features
     source = None if task.source_frame is None else FeatureLookup(task.source_frame, features)
-    seed = _seed(task.seed, "prior")
+    seed = derive_seed(task.seed, "prior")
     models = {}
     if task.within:
-        models[WITHIN] = fit_priors(prior_data(lookup, task.within, targets), seed)
+        within = prior_data(lookup, task.within, targets)
+        models[WITHIN] = fit_priors(within, seed, task.learner)
     data = prior_data(lookup, task.borrowed, targets, source=source, borrow=dict(task.pairs))
-    models[task.method] = fit_priors(data, seed)
+    models[task.method] = fit_priors(data, seed, task.learner)
     return models
 
 
 def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
     """Run the baseline, ``within`` and the borrowed priors on the same splits."""
-    from replay.studies._studies import _rows, _seed  # noqa: PLC0415 - a cycle otherwise
-
-    lookup = FeatureLookup(task.frame, task.settings.get("features", "thesis"))
+    lookup = FeatureLookup(task.frame, task.features)
     models = _models(task, lookup)
     names = {
         WITHIN: task.within,
@@ -107,56 +113,29 @@ def run_borrow_task(task: BorrowTask) -> pl.DataFrame:
     }
     frames = []
     for (target, origin), trial in itertools.product(task.pairs, range(task.trials)):
-        run_seed = _seed(task.seed, trial, target)
-        split = Split.random(task.frame, task.new, (target,), seed=run_seed)
         for method in (BASELINE, *models):
             if method != BASELINE and target not in models[method]:
                 continue  # the source has no action for this target
-            settings = dict(task.settings)
-            mode = settings.pop("transfer", "prediction")
             spec = RunSpec(
                 new_objects=task.new,
                 prior_objects=names.get(method, ()),
                 actions=(target,),
-                learner=learner_options(
-                    "none" if method == BASELINE else mode,
-                    budget=task.budget,
-                    max_sources=settings.pop("max_sources", 1),
-                    **{k: v for k, v in settings.items() if k != "features"},
-                ),
-                seed=run_seed,
-                features=settings.get("features", "thesis"),
+                learner=task.learner,
+                seed=derive_seed(task.seed, trial, target),
+                features=task.features,
             )
-            executor = PoolExecutor(lookup, task.new, split)
+            spec = spec.baseline() if method == BASELINE else spec
             priors = models.get(method)
-            result = run_learning(spec, executor, executor.test_set((target,)), priors)
+            result = run_offline(task.frame, spec, priors=priors, lookup=lookup)
             labels = task.labels | {"method": method, "trial": trial, "actions": target}
             labels |= {"source": origin, "priors": ",".join(spec.prior_objects)}
-            frames.append(_rows(result.frame(), labels))
+            frames.append(rows(result.frame(), labels))
     return pl.concat(frames, how="diagonal_relaxed")
 
 
 def _rig(objects: Sequence[str]) -> tuple[str, ...]:
     """The other rig's objects as prior names (never equal to a new object's id)."""
     return tuple(f"rig:{o}" for o in objects)
-
-
-def _settings(config: StudyConfig) -> dict[str, Any]:
-    """The learner options of a study's configuration."""
-    return {
-        "transfer": config.transfer,
-        "features": config.features,
-        "max_sources": config.max_sources,
-        "hyper_sd": config.hyper_sd,
-        "metric_sd": config.metric_sd,
-        "metric_check": config.metric_check,
-        "metric_until": config.metric_until,
-    }
-
-
-def _min_old(config: StudyConfig) -> int:
-    """Old objects a prior group needs (two for the model prediction approach)."""
-    return 2 if config.transfer == "prediction" else 1
 
 
 def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask]:
@@ -168,9 +147,7 @@ def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowT
     Raises:
         ReplayError: No pair fits, or too few objects.
     """
-    from replay.studies._studies import _roles, _seed, _too_small, prior_groups  # noqa: PLC0415
-
-    actions = _roles(config, "cross-action")
+    actions = roles(config, "cross-action")
     lookup = FeatureLookup(frame, config.features)
     wanted = config.prior_actions or CROSS_ACTION_PAIRS
     pairs = tuple(
@@ -182,23 +159,23 @@ def cross_action_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowT
         has = f"actions {', '.join(actions)}"
         needs = "a target and a source action with the same feature blocks (--prior-actions T=S)"
         study = "cross-action"
-        raise _too_small(study, has, needs)
+        raise too_small(study, has, needs)
     size = min(config.group_size, len(config.old))
     groups = prior_groups(config.old, size, config.groups, config.seed)
     return [
         BorrowTask(
-            frame,
-            config.new,
-            group,
-            group,
-            None,
-            pairs,
-            config.trials,
-            config.budget,
-            _seed(config.seed, "cross-action", number),
-            CROSS_ACTION,
-            {"group": number},
-            _settings(config),
+            frame=frame,
+            new=config.new,
+            within=group,
+            borrowed=group,
+            source_frame=None,
+            pairs=pairs,
+            trials=config.trials,
+            seed=derive_seed(config.seed, "cross-action", number),
+            method=CROSS_ACTION,
+            labels={"group": number},
+            learner=config.learner,
+            features=config.features,
         )
         for number, group in enumerate(groups)
     ]
@@ -215,15 +192,12 @@ def cross_rig_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask
     Raises:
         ReplayError: No other dataset, no shared action, or too few objects.
     """
-    from replay.errors import ReplayError  # noqa: PLC0415
-    from replay.studies._studies import _seed, _too_small, prior_groups  # noqa: PLC0415
-
     if config.prior_frame is None:
         msg = "study cross-rig: give the other rig's dataset with --prior-recordings DIR"
         raise ReplayError(msg)
     if len(config.new) < 2 or not config.actions:  # noqa: PLR2004
         study, has = "cross-rig", f"{len(config.new)} new objects"
-        raise _too_small(study, has, ">= 2 new objects")
+        raise too_small(study, has, ">= 2 new objects")
     lookup = FeatureLookup(frame, config.features)
     source = FeatureLookup(config.prior_frame, config.features)
     pairs = tuple(
@@ -232,66 +206,55 @@ def cross_rig_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[BorrowTask
         if t in config.actions
     )
     others = sorted(set(config.prior_frame["object_id"].to_list()))
-    if not pairs or len(others) < _min_old(config):
+    if not pairs or len(others) < min_old(config):
         has = f"{len(pairs)} shared actions, {len(others)} objects in --prior-recordings"
-        study, needs = "cross-rig", f">= 1 shared action and {_min_old(config)} objects"
-        raise _too_small(study, has, needs)
+        study, needs = "cross-rig", f">= 1 shared action and {min_old(config)} objects"
+        raise too_small(study, has, needs)
     size = min(config.group_size, len(others))
     groups = prior_groups(others, size, config.groups, config.seed)
     within: list[tuple[str, ...]] = [()]
-    if len(config.old) >= _min_old(config):
+    if len(config.old) >= min_old(config):
         own = min(config.group_size, len(config.old))
         within = prior_groups(config.old, own, config.groups, config.seed)
     return [
         BorrowTask(
-            frame,
-            config.new,
-            within[number % len(within)],
-            group,
-            config.prior_frame,
-            pairs,
-            config.trials,
-            config.budget,
-            _seed(config.seed, "cross-rig", number),
-            CROSS_RIG,
-            {"group": number},
-            _settings(config),
+            frame=frame,
+            new=config.new,
+            within=within[number % len(within)],
+            borrowed=group,
+            source_frame=config.prior_frame,
+            pairs=pairs,
+            trials=config.trials,
+            seed=derive_seed(config.seed, "cross-rig", number),
+            method=CROSS_RIG,
+            labels={"group": number},
+            learner=config.learner,
+            features=config.features,
         )
         for number, group in enumerate(groups)
     ]
 
 
-def report_borrow(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
-    """Plot and summarise a cross-action or cross-rig study; return the markdown summary."""
-    from replay.studies._studies import _markdown, _reduced, headline  # noqa: PLC0415
+def _borrowed(frame: pl.DataFrame) -> str:
+    """Return the label of the results' borrowed runs (``cross-rig`` or ``cross-action``)."""
+    return CROSS_RIG if CROSS_RIG in set(frame["method"].to_list()) else CROSS_ACTION
 
-    plot_learning_curves(
-        frame, config.out / "learning_curves.png", x="step", panel="actions", title=title
-    )
-    methods = set(frame["method"].to_list())
-    borrowed = CROSS_RIG if CROSS_RIG in methods else CROSS_ACTION
-    comparisons = [(borrowed, BASELINE), (WITHIN, BASELINE), (borrowed, WITHIN)]
-    comparisons = [c for c in comparisons if set(c) <= methods]
+
+def _comparisons(frame: pl.DataFrame) -> list[tuple[str, str]]:
+    """Return the (treated, reference) pairs of the summary's table of differences."""
+    borrowed = _borrowed(frame)
+    return [(borrowed, BASELINE), (WITHIN, BASELINE), (borrowed, WITHIN)]
+
+
+def _learners(frame: pl.DataFrame, config: StudyConfig) -> str:
+    """Return the summary's sentence on the three learners and where the priors come from."""
+    borrowed = _borrowed(frame)
     sources = (
         frame.select("actions", "source").unique().sort("actions").iter_rows()
         if "source" in frame.columns
         else []
     )
     pairs = ", ".join(f"{t} <- {s}" for t, s in sources)
-    header = ["actions", "comparison", "groups", *(f"{h} (points)" for h in HEADLINES)]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    for treated, reference in comparisons:
-        gains = paired_gains(
-            frame,
-            ["actions"],
-            "group",
-            config.budget,
-            methods=(treated, reference),
-            seed=config.seed,
-        )
-        for row in gains.iter_rows(named=True):
-            cells = [str(row["actions"]), f"{treated} - {reference}", str(row["units"])]
-            lines.append("| " + " | ".join(cells + [gain_cells(row, h) for h in HEADLINES]) + " |")
     runs = frame.filter((pl.col("step") == 0) & (pl.col("method") == BASELINE)).height
     source = (
         f"the old objects' recordings of another rig (`--prior-recordings`, {pairs})"
@@ -299,14 +262,32 @@ def report_borrow(frame: pl.DataFrame, config: StudyConfig, title: str) -> str:
         else f"the old objects' recordings of another action ({pairs})"
     )
     return (
-        f"# {title}\n{_reduced(config)}\nOne target action at a time; {runs} runs of each "
-        f"learner on the same splits and seeds, budget {config.budget}: no transfer "
-        f"(`{BASELINE}`), the target action's own priors (`{WITHIN}`), and {source} "
-        f"(`{borrowed}`), fed through the feature blocks the target action uses.\n\n"
-        f"{_markdown(headline(frame, ['actions', 'method'], config.budget))}\n\n"
-        + "\n".join(lines)
-        + f"\n\nPaired differences in percentage points, mean over prior groups; [95 % "
-        f"interval]: percentile bootstrap over groups ({RESAMPLES} resamples). initial: after "
-        "one observation per new object; mean: over observations 1..budget; final: after the "
-        "last.\n"
+        f"One target action at a time; {runs} runs of each learner on the same splits and "
+        f"seeds, budget {config.budget}: no transfer (`{BASELINE}`), the target action's own "
+        f"priors (`{WITHIN}`), and {source} (`{borrowed}`), fed through the feature blocks the "
+        "target action uses."
     )
+
+
+_LABELS: Final = ("actions", "method", "group", "trial", "step")
+_REPORT: Final = Report(
+    (_learners, Headlines(("actions", "method")), Comparisons(("actions",), _comparisons)),
+    Curves(panel="actions"),
+)
+CROSS_ACTION_STUDY: Final = Study(
+    name=CROSS_ACTION,
+    title="Cross-action transfer: priors from another action",
+    tasks=cross_action_tasks,
+    run=run_borrow_task,
+    labels=_LABELS,
+    report=_REPORT,
+)
+CROSS_RIG_STUDY: Final = Study(
+    name=CROSS_RIG,
+    title="Cross-rig transfer: priors from another rig's recordings",
+    tasks=cross_rig_tasks,
+    run=run_borrow_task,
+    labels=_LABELS,
+    report=_REPORT,
+    needs_prior_frame=True,
+)

@@ -27,6 +27,23 @@ LEVEL = 0.95
 HEADLINES = ("initial", "mean", "final")
 
 
+def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFrame:
+    """Return accuracy after the initial observations, mean over steps 1..budget, and final.
+
+    Accuracies are averaged over runs first per step, then over steps.
+    """
+    per_step = frame.group_by([*by, "step"]).agg(pl.col("accuracy").mean())
+    return (
+        per_step.group_by(by)
+        .agg(
+            pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
+            pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
+            pl.col("accuracy").sort_by("step").last().alias("final"),
+        )
+        .sort(by)
+    )
+
+
 def unit_headlines(frame: pl.DataFrame, by: Sequence[str], unit: str, budget: int) -> pl.DataFrame:
     """Return the headline accuracies per (by, unit, method), runs of a unit averaged first."""
     keys = [*by, unit, "method"]
@@ -126,7 +143,9 @@ def fusion_margins(frame: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
         per_group.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
     ):
         wide = part.pivot(on="modalities", index="group", values="accuracy").sort("group")
-        singles = [c for c in wide.columns if c not in {"group", "multi-modal"}]
+        # sorted: the pivot's columns come in the unordered group_by's order, and a tie goes
+        # to the first (the same modality in every run)
+        singles = sorted(c for c in wide.columns if c not in {"group", "multi-modal"})
         if "multi-modal" not in wide.columns or not singles:
             continue
         best = max(singles, key=lambda c: float(wide[c].mean()))  # type: ignore[arg-type]

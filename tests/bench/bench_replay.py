@@ -39,7 +39,8 @@ from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
 from replay.learning._session import fit_priors, prior_data
 from replay.live import ensure_default_dataset
-from replay.studies._studies import StudyConfig, dataset_actions, prior_groups, run_study
+from replay.outputs._study_report import run_study
+from replay.studies._running import StudyConfig, dataset_actions, prior_groups
 
 
 def extraction(root: Path, workers: int, *, one_worker: bool) -> None:

@@ -1,7 +1,7 @@
 """Modality fusion candidates against the best single modality, per action and training size.
 
-The protocol of ``atikt-replay study fusion`` (replay/_studies.py): per action, random groups of
-objects x repetitions (a random half of each object's trials held out for testing), a
+The protocol of ``atikt-replay study fusion`` (replay/studies/_fusion.py): per action, random
+groups of objects x repetitions (a random half of each object's trials held out for testing), a
 classifier fitted on 1, 2, 3, 5, 7, 10 training samples per object, test accuracy. Every
 candidate and every single modality is fitted on the same splits with the same seeds.
 
@@ -43,17 +43,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 from atikt import MultiModalGPC, RawFeatures, extract_features
 from replay.learning._executors import FeatureLookup
 from replay.learning._parallel import run_tasks
-from replay.studies._studies import (
-    FUSION_SIZES,
-    NOISE_OTHER_SD,
-    StudyConfig,
-    _seed,
-    dataset_actions,
-    declared_noise,
-    fusion_splits,
-    fusion_tasks,
-    reference_theta,
-)
+from replay.studies._fusion import FUSION_SIZES, fusion_splits, fusion_tasks
+from replay.studies._fusion_prior import NOISE_OTHER_SD, declared_noise, reference_theta
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._running import derive_seed as _seed
 
 CANDIDATES: dict[str, dict[str, Any]] = {
     "fused": {"selection": "fused"},

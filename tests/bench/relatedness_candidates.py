@@ -2,7 +2,7 @@
 
 Every new object of the catalog names its designed counterpart among the old objects
 (``related_to`` in recorder/data/objects.toml). For each transfer mode this runs, with the
-protocol and seeds of the studies in replay/_studies.py (ATIKT and the no-transfer baseline on
+protocol and seeds of the studies in replay/studies/ (ATIKT and the no-transfer baseline on
 the same splits):
 
 - the ``priors`` study's runs (random groups of 3, 5, 7, 10 prior objects);
@@ -41,18 +41,13 @@ import polars as pl
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
-import replay.learning._session
-from atikt.active import TRANSFER_MODES, ActiveLearner
 from replay.learning._datasets import dataset_roles
 from replay.learning._parallel import run_tasks
-from replay.studies._studies import (
-    StudyConfig,
-    dataset_actions,
-    priors_tasks,
-    run_transfer_task,
-    similarity_tasks,
-    transfer_tasks,
-)
+from replay.learning._session import DEFAULT_LEARNER, learner_options
+from replay.studies._negative import similarity_tasks
+from replay.studies._priors import priors_tasks
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._transfer import run_transfer_task, transfer_tasks
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDY_NAMES = ("priors", "negative", "related", "single-action")
@@ -71,24 +66,16 @@ def counterparts() -> dict[str, str]:
 
 
 def run(args: tuple[Any, dict[str, float | str | None]]) -> pl.DataFrame:
-    """One study task, with the learner's transfer modes registered in the session check.
-
-    The studies pass their own settings to the learner; the mode's options (``max_sources``,
-    ``eps_density``, ``hyper_sd``, ...) override them, for the ATIKT and the baseline runs
-    alike, through the learner class the session builds.
+    """One study task with the mode's options (``max_sources``, ``eps_density``, ``hyper_sd``,
+    ...) over the study's learner; the baseline keeps the options that are not the strategy's.
     """
     task, options = args
     settings = {
         k: int(v) if k == "max_sources" and isinstance(v, float) else v for k, v in options.items()
     }
-
-    class Configured(ActiveLearner):
-        def __init__(self, *positional: Any, **keywords: Any) -> None:
-            super().__init__(*positional, **(keywords | settings))
-
-    replay.learning._session.TRANSFER_MODES = TRANSFER_MODES
-    replay.learning._session.ActiveLearner = Configured  # type: ignore[attr-defined]
-    return run_transfer_task(task)
+    sources = int(settings.pop("max_sources", 1) or 1)
+    learner = learner_options(task.learner.transfer.name, max_sources=sources, **settings)
+    return run_transfer_task(replace(task, learner=replace(learner, budget=task.learner.budget)))
 
 
 def value(text: str) -> float | str | None:
@@ -222,8 +209,7 @@ def main() -> None:
             out=Path(),
             groups=args.groups,
             trials=args.trials,
-            budget=args.budget,
-            transfer=mode,
+            learner=DEFAULT_LEARNER.replace(budget=args.budget, transfer=mode),
             new=roles.new,
             old=roles.old,
             actions=dataset_actions(frame),

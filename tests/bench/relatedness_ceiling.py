@@ -49,7 +49,7 @@ from atikt.kernels import DependentKernel, modality_kernel
 from atikt.transfer import _stack_domains
 from replay.learning._executors import FeatureLookup
 from replay.learning._session import fit_priors, prior_data
-from replay.studies._studies import prior_groups
+from replay.studies._running import prior_groups
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"

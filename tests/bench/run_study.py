@@ -1,7 +1,7 @@
 """Run one study with chosen numbers of groups, trials and budget (the CLI has full or --quick).
 
 ``atikt-replay study NAME`` runs the full design (10 groups x 5 trials, budget 40) or a reduced
-one (``--quick``); this script runs ``replay.studies._studies.run_study`` with the numbers
+one (``--quick``); this script runs ``replay.outputs._study_report.run_study`` with the numbers
 given, on any dataset, and writes the same results.parquet, learning_curves.png and
 summary.md. Used for the cross-action, cross-rig and real-data transfer numbers of
 atikt/README.
@@ -26,7 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 
 from replay.learning._datasets import dataset_roles
 from replay.learning._features import build_features
-from replay.studies._studies import StudyConfig, dataset_actions, run_study
+from replay.learning._session import DEFAULT_LEARNER
+from replay.outputs._study_report import run_study
+from replay.studies._running import StudyConfig, dataset_actions
 
 
 def _optional(text: str) -> float | None:
@@ -72,14 +74,14 @@ def main() -> int:
         seed=args.seed,
         groups=args.groups,
         trials=args.trials,
-        budget=args.budget,
         workers=args.workers,
-        transfer=args.transfer,
+        learner=DEFAULT_LEARNER.replace(
+            budget=args.budget, transfer=args.transfer, metric_sd=args.metric_sd
+        ),
         new=roles.new,
         old=roles.old,
         actions=tuple(_split(args.actions) or dataset_actions(frame)),
         group_size=args.group_size,
-        metric_sd=args.metric_sd,
         prior_frame=other,
         prior_actions=pairs,  # type: ignore[arg-type]
     )

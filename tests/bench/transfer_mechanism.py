@@ -30,12 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's 
 import replay.learning._session
 from atikt.active import TRANSFER_MODES, ActiveLearner, LearnerOptions
 from replay.learning._datasets import dataset_roles
-from replay.studies._studies import (
-    StudyConfig,
-    dataset_actions,
-    run_transfer_task,
-    similarity_tasks,
-)
+from replay.learning._session import DEFAULT_LEARNER
+from replay.studies._negative import similarity_tasks
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._transfer import run_transfer_task
 
 SIM = Path.home() / ".cache/atikt/sim2-seed0-schema2-v0.2.0/features.parquet"
 FITS: list[dict[str, Any]] = []
@@ -75,8 +73,7 @@ def main() -> None:
         out=Path(),
         groups=1,
         trials=args.runs,
-        budget=1,
-        transfer="evidence",
+        learner=DEFAULT_LEARNER.replace(budget=1, transfer="evidence"),
         new=roles.new,
         old=roles.old,
         actions=dataset_actions(frame),

@@ -15,7 +15,8 @@ from scripts import load_script
 
 from replay import read_recording
 from replay.learning._features import build_features
-from replay.studies._studies import StudyConfig, run_study
+from replay.outputs._study_report import run_study
+from replay.studies._running import StudyConfig
 
 if TYPE_CHECKING:
     from types import ModuleType

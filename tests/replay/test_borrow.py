@@ -11,9 +11,10 @@ from conftest import NEW, OLD
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup
 from replay.learning._features import build_features
-from replay.learning._session import borrow_pairs, prior_data
+from replay.learning._session import DEFAULT_LEARNER, borrow_pairs, prior_data
+from replay.outputs._study_report import run_study
 from replay.outputs.readme_tables import study_block
-from replay.studies._studies import StudyConfig, run_study
+from replay.studies._running import StudyConfig
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +32,8 @@ def with_copy(features: pl.DataFrame) -> pl.DataFrame:
 
 
 def _config(out: Path, **changes: object) -> StudyConfig:
-    base = StudyConfig(out=out, groups=2, trials=1, budget=3, new=NEW, old=OLD, group_size=2)
+    learner = DEFAULT_LEARNER.replace(budget=3)
+    base = StudyConfig(out=out, groups=2, trials=1, learner=learner, new=NEW, old=OLD, group_size=2)
     return replace(base, **changes)  # type: ignore[arg-type]
 
 

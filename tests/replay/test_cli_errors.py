@@ -48,7 +48,7 @@ CASES: list[tuple[str, str]] = [
     ("learn --recordings {data} --transfer bad", "argument --transfer: invalid choice"),
     (
         "learn --recordings {data} --priors wood",
-        "--transfer prediction compares old objects' models and needs >= 2 old objects",
+        "--transfer prediction needs >= 2 old objects; the run has 1 (wood)",
     ),
     ("learn --recordings {data} --out {taken}", "exists, and outputs are never overwritten"),
     ("learn --recordings {data} --workers 0", "give 1 or more worker processes"),

@@ -117,8 +117,11 @@ def test_study_without_out_takes_a_new_numbered_directory(
     assert sorted(p.name for p in made.iterdir()) == [
         "learning_curves.png",
         "results.parquet",
+        "study.json",
         "summary.md",
     ]
+    options = json.loads((made / "study.json").read_text("utf-8"))
+    assert (options["study"], options["learner"]["budget"]) == ("negative", 10)  # --quick
 
 
 def test_a_complete_default_dataset_prints_no_recording_progress(

@@ -12,7 +12,7 @@ from rich.console import Console
 
 from recorder._cli import main as record
 from replay.cli._main import main as replay
-from replay.studies._studies import QUICK_REFERENCE_SAMPLES, REFERENCE_SAMPLES, StudyConfig
+from replay.studies._running import QUICK_REFERENCE_SAMPLES, REFERENCE_SAMPLES, StudyConfig
 from schemas import cli
 from schemas._cli import PlainProgress
 

@@ -9,20 +9,20 @@ from conftest import ACTIONS, NEW, OLD
 
 from replay.errors import ReplayError
 from replay.learning._features import build_features
-from replay.studies._studies import (
+from replay.learning._session import DEFAULT_LEARNER
+from replay.outputs._study_report import run_study, write_report
+from replay.studies._fusion import FUSION, fusion_tasks
+from replay.studies._fusion_prior import (
     HYPERPARAMETERS,
-    STUDIES,
-    StudyConfig,
     action_parameter_names,
     controlled_blocks,
     declared_noise,
-    fusion_tasks,
-    negative_tasks,
-    prior_groups,
-    run_study,
-    similarity_tasks,
-    transfer_tasks,
 )
+from replay.studies._negative import negative_tasks, similarity_tasks
+from replay.studies._registry import STUDIES
+from replay.studies._report import Gains, Headlines, Report, Text, summary
+from replay.studies._running import Study, StudyConfig, prior_groups, study_results
+from replay.studies._transfer import transfer_tasks
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +35,7 @@ def _config(out: Path, **changes: object) -> StudyConfig:
         out=out,
         groups=1,
         trials=1,
-        budget=4,
+        learner=DEFAULT_LEARNER.replace(budget=4),
         fusion_groups=1,
         fusion_repetitions=1,
         new=NEW,
@@ -60,7 +60,9 @@ def test_every_study_writes_results_plot_and_summary(
 def test_transfer_study_pairs_atikt_with_the_baseline(
     features: pl.DataFrame, tmp_path: Path
 ) -> None:
-    output = run_study("transfer", features, _config(tmp_path, budget=6))
+    output = run_study(
+        "transfer", features, _config(tmp_path, learner=DEFAULT_LEARNER.replace(budget=6))
+    )
     results = pl.read_parquet(output.results)
     assert set(results["method"]) == {"ATIKT", "baseline"}
     per_method = results.group_by("method").agg(pl.col("step").max())
@@ -121,7 +123,9 @@ def test_study_over_bad_files_equals_the_study_without_them(
 def test_negative_and_related_runs_take_the_least_and_most_similar_priors(
     features: pl.DataFrame,
 ) -> None:
-    config = _config(Path(), group_size=1, trials=2, transfer="optimization")
+    config = _config(
+        Path(), group_size=1, trials=2, learner=DEFAULT_LEARNER.replace(transfer="optimization")
+    )
     least = similarity_tasks(features, config, "negative", nearest=False)
     most = similarity_tasks(features, config, "related", nearest=True)
     assert [t.priors for t in negative_tasks(features, config)] == [t.priors for t in least]
@@ -154,7 +158,8 @@ def test_prediction_transfer_needs_two_old_objects_the_others_one(
     with pytest.raises(ReplayError, match=r">= 2 old objects .*--transfer optimization"):
         transfer_tasks(features, one_old)
     for mode in ("optimization", "density"):
-        tasks = transfer_tasks(features, replace(one_old, transfer=mode))
+        learner = one_old.learner.replace(transfer=mode)
+        tasks = transfer_tasks(features, replace(one_old, learner=learner))
         assert [task.priors for task in tasks] == [OLD[:1]]
 
 
@@ -271,3 +276,58 @@ def test_action_parameter_names_come_from_the_recordings(
     for action, parameters in names.items():
         assert "duration_s" in parameters
         assert ("force_n" in parameters) == (kinds[action] == "slide")  # slides set the force
+
+
+def _toy_rows(group: int) -> pl.DataFrame:
+    """One toy task: ATIKT gains 0.1 per step over the baseline, more in group 1."""
+    return pl.DataFrame(
+        {"method": method, "group": group, "trial": 0, "step": step}
+        | {"accuracy": 0.5 + step * (0.1 + 0.1 * group if method == "ATIKT" else 0.0)}
+        for method in ("baseline", "ATIKT")
+        for step in range(3)
+    )
+
+
+def test_a_study_declared_outside_the_package_is_reported_by_the_one_writer(
+    tmp_path: Path,
+) -> None:
+    toy = Study(
+        name="toy",
+        title="Toy study",
+        tasks=lambda frame, config: [1, 0],  # noqa: ARG005
+        run=_toy_rows,
+        labels=("method", "group", "trial", "step"),
+        report=Report((Text("Two toy groups."), Headlines(("method",)), Gains(()))),
+    )
+    learner = DEFAULT_LEARNER.replace(budget=2, hyper_sd=None, metric_sd=None)
+    config = StudyConfig(out=tmp_path / "toy", learner=learner)
+    results = study_results(toy, pl.DataFrame(), config)
+    assert results["group"].to_list()[:3] == [0, 0, 0]  # sorted by its labels
+    output = write_report(toy, results, pl.DataFrame(), config)
+    assert output.plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert output.summary.read_text() == output.text
+    assert output.text.startswith("# Toy study\n\nLearners: maximum likelihood")
+    assert "\nTwo toy groups.\n\n| method | initial | mean | final |\n" in output.text
+    assert "| ATIKT | 50.0 % | 72.5 % | 80.0 % |" in output.text
+    assert (
+        "| 2 | +0.0 pts [+0.0, +0.0] | +22.5 pts [+15.0, +30.0] | +30.0 pts [+20.0, +40.0] |"
+        in (output.text)
+    )
+
+
+def test_the_fusion_summary_is_the_same_text_for_rows_in_any_order(tmp_path: Path) -> None:
+    rows = pl.DataFrame(
+        {"action": action, "group": 0, "repetition": 0, "modalities": name}
+        | {"samples": samples, "accuracy": 0.1 * len(name) + 0.01 * samples}
+        for action in ("C1", "S1")
+        for name in ("multi-modal", "force", "thermal", "texture")
+        for samples in (1, 2)
+        if action == "S1" or name != "texture"
+    )
+    config = StudyConfig(out=tmp_path)
+    texts = {
+        summary(FUSION, rows.sample(fraction=1.0, shuffle=True, seed=seed), config)
+        for seed in range(10)
+    }
+    assert len(texts) == 1
+    assert "| action | samples | force | multi-modal | thermal | texture |" in texts.pop()
