@@ -58,8 +58,8 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 Observe = Callable[[int, str], RawFeatures]
 """``observe(new_object_index, action) -> RawFeatures`` of one performed action."""
-Available = Callable[[int, str], bool]
-"""``available(new_object_index, action) -> bool``: can another observation be served?"""
+Capacity = Mapping[tuple[int, str], int]
+"""(new object index, action) -> how many observations it can give in all."""
 
 TRANSFER_MODES: Final = strategy_names()
 """The registered transfer strategies' names (prediction, optimization, density, evidence, none)."""
@@ -244,9 +244,10 @@ class ActiveLearner:
         n_new_objects: Number of new objects (indices ``0 .. n_new_objects - 1``).
         observe: ``observe(object_index, action) -> RawFeatures``: performs (or replays) an
             action and returns its raw features.
-        available: ``available(object_index, action) -> bool``; decisions only consider
-            pairs for which it is True (e.g. a finite pool of recordings), and the learner is
-            done when no pair is left. None: every pair is always available.
+        capacity: (object index, action) -> how many observations the pair can give in all,
+            the initial one included (e.g. a finite pool of recordings; a pair not named gives
+            only the initial one); decisions only consider pairs below it, and the learner is
+            done when none is left. None: every pair can always give another (a rig).
         priors: Action -> old-object label -> raw observations, or action -> a
             :class:`PriorModel` from :func:`fit_prior_models` (fitted once for many
             learners). Ignored by a strategy that does not transfer (the baseline).
@@ -272,7 +273,7 @@ class ActiveLearner:
         n_new_objects: int,
         *,
         observe: Observe,
-        available: Available | None = None,
+        capacity: Capacity | None = None,
         priors: PriorsInput | None = None,
         options: LearnerOptions | None = None,
         random_state: RandomState = None,
@@ -286,7 +287,7 @@ class ActiveLearner:
         self.actions = tuple(actions)
         self.n_new_objects = n_new_objects
         self.observe = observe
-        self.available = available
+        self.capacity = capacity
         self.priors = priors
         base = LearnerOptions() if options is None else options
         self.options = base.replace(**overrides) if overrides else base
@@ -314,10 +315,14 @@ class ActiveLearner:
     def _candidates(self) -> list[int]:
         """Flat indices (action-major) of the (action, object) pairs that can be observed."""
         pairs = range(len(self.actions) * self.n_new_objects)
-        if self.available is None:
+        if self.capacity is None:
             return list(pairs)
-        n = self.n_new_objects
-        return [i for i in pairs if self.available(i % n, self.actions[i // n])]
+        n, capacity, served = self.n_new_objects, self.capacity, self._served
+        return [
+            i
+            for i in pairs
+            if served.get(key := (i % n, self.actions[i // n]), 0) < capacity.get(key, 1)
+        ]
 
     def _stalled(self) -> bool:
         """True after ``patience`` steps without the mean UNC improving by ``min_improvement``."""
@@ -344,6 +349,7 @@ class ActiveLearner:
         self._rng = np.random.default_rng(self.random_state)
         self.history_: list[StepRecord] = []
         self.n_observations_ = 0
+        self._served: dict[tuple[int, str], int] = {}
         priors = self._prior_models()
         self.states_: dict[str, ActionState] = {}
         for action in self.actions:
@@ -389,6 +395,7 @@ class ActiveLearner:
             )
             raise AtiktError(msg)
         self.n_observations_ += 1
+        self._served[obj, action] = self._served.get((obj, action), 0) + 1
         return observation
 
     def _record(

@@ -39,8 +39,9 @@ class Executor(Protocol):
         """Return a new observation of ``action`` on new object number ``obj``."""
         ...
 
-    def available(self, obj: int, action: str) -> bool:
-        """Return whether another observation of (``obj``, ``action``) can be served."""
+    @property
+    def capacity(self) -> Mapping[tuple[int, str], int] | None:
+        """Observations each (new object index, action) can give in all; None: unlimited."""
         ...
 
 
@@ -201,12 +202,9 @@ class PoolExecutor:
         """Return the pool size of every (object index, action); None like a rig."""
         if self.like_rig:
             return None
-        return {
-            (i, a): len(trials)
-            for (obj, a), trials in self.split.pool.items()
-            for i, o in enumerate(self.objects)
-            if o == obj
-        }
+        index = {obj: i for i, obj in enumerate(self.objects)}
+        pools = self.split.pool.items()
+        return {(index[obj], a): len(trials) for (obj, a), trials in pools if obj in index}
 
     def available(self, obj: int, action: str) -> bool:
         """Return whether the pool of (obj, action) still has an unused recording."""

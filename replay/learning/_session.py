@@ -307,7 +307,7 @@ def run_learning(
         spec.actions,
         len(spec.new_objects),
         observe=executor,
-        available=executor.available,
+        capacity=executor.capacity,
         priors=dict(priors or {}) if spec.transfers else None,
         options=spec.learner,
         random_state=spec.seed,

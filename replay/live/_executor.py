@@ -79,9 +79,10 @@ class LiveExecutor:
         finally:
             self._write_manifest()
 
-    def available(self, obj: int, action: str) -> bool:  # noqa: ARG002
-        """A rig can always perform another trial."""
-        return True
+    @property
+    def capacity(self) -> None:
+        """A rig can always perform another trial: no limit."""
+        return None
 
     def _perform(self, obj: ObjectSpec, action_id: str, role: str) -> Path:
         """Record one more trial of (obj, action) and return its file."""

@@ -225,9 +225,7 @@ def test_single_old_object_needs_the_optimization_approach(
 
 def test_only_available_pairs_are_chosen(train: dict[str, dict[int, list[RawFeatures]]]) -> None:
     observer = PoolObserver(train)
-
-    def available(obj: int, action: str) -> bool:
-        return action == "S2" and obj in (1, 3) and observer.used.get((action, obj), 0) < 3
+    capacity = {(1, "S2"): 3, (3, "S2"): 3}  # every other pair: its initial observation only
 
     for eps in (0.0, 1.0):
         observer.used.clear()
@@ -235,7 +233,7 @@ def test_only_available_pairs_are_chosen(train: dict[str, dict[int, list[RawFeat
             ACTIONS,
             N_NEW,
             observe=observer,
-            available=available,
+            capacity=capacity,
             transfer="none",
             budget=20,
             eps_explore=eps,

@@ -92,7 +92,7 @@ def one_run(root: Path) -> None:
         ACTIONS,
         len(new),
         observe=executor,
-        available=executor.available,
+        capacity=executor.capacity,
         priors=priors,
         budget=40,
         random_state=0,

@@ -61,6 +61,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
+import dataclasses
 import importlib
 import json
 import sys
@@ -242,6 +243,16 @@ def _load(dotted: str) -> Any:
     return getattr(importlib.import_module(module), attribute)
 
 
+def _budget(options: Any, budget: int) -> dict[str, Any]:
+    """The budget as the options class takes it: a field, or inside its learner options."""
+    names = {f.name for f in dataclasses.fields(options)}
+    if "budget" in names:  # the code before the learner's options were one object
+        return {"budget": budget}
+    from replay.learning._session import DEFAULT_LEARNER  # noqa: PLC0415 (the checkout's)
+
+    return {"learner": DEFAULT_LEARNER.replace(budget=budget)}
+
+
 def _inputs(args: argparse.Namespace) -> tuple[Any, Any, Any]:
     """Return the feature table, the study options and the run options."""
     from replay.learning._datasets import dataset_roles  # noqa: PLC0415 (the checkout's)
@@ -258,17 +269,17 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, Any, Any]:
         out=Path(tempfile.gettempdir()) / "call_flow",
         groups=1,
         trials=args.trials,
-        budget=args.budget,
         new=new,
         old=old,
         actions=actions,
+        **_budget(_load(args.config), args.budget),
     )
     spec = _load(args.spec)(
         new_objects=new,
         prior_objects=old,
         actions=actions,
-        budget=args.budget,
         seed=args.seed,
+        **_budget(_load(args.spec), args.budget),
     )
     return frame, config, spec
 
@@ -276,9 +287,9 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, Any, Any]:
 def main() -> int:
     """Trace a study task and an offline run; print the tables (and write JSON)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--tasks", default="replay.studies._studies:transfer_tasks")
-    parser.add_argument("--run", default="replay.studies._studies:run_transfer_task")
-    parser.add_argument("--config", default="replay.studies._studies:StudyConfig")
+    parser.add_argument("--tasks", default="replay.studies._transfer:transfer_tasks")
+    parser.add_argument("--run", default="replay.studies._transfer:run_transfer_task")
+    parser.add_argument("--config", default="replay.studies._running:StudyConfig")
     parser.add_argument("--offline", default="replay.learning._session:run_offline")
     parser.add_argument("--spec", default="replay.learning._session:RunSpec")
     parser.add_argument("--new", type=int, default=3, help="declared new objects used")
