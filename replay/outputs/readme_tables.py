@@ -171,7 +171,8 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     """Return how often the borrowed priors were used, as a sentence (empty without ``rho``).
 
     Per target action: the share of the borrowed learner's steps 1..budget whose update
-    transferred (``rho > 0``: relatedness admitted an old object of the source).
+    transferred observations (``rho > 0``: relatedness admitted an old object of the source).
+    The results do not say when metric transfer used the old objects' kernel.
     """
     if "rho" not in frame.columns:
         return ""
@@ -184,7 +185,10 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     if shares.is_empty():
         return ""
     parts = ", ".join(f"{a} {100 * v:.0f} %" for a, v in shares.iter_rows())
-    return f" Steps of `{borrowed}` whose update used the borrowed priors (rho > 0): {parts}."
+    return (
+        f" Steps of `{borrowed}` that transferred a borrowed object's observations (rho > 0; "
+        f"metric transfer of the old objects' kernel is not counted): {parts}."
+    )
 
 
 def fusion_block(frame: pl.DataFrame) -> str:

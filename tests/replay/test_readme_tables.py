@@ -218,8 +218,8 @@ def test_a_borrow_block_gives_each_target_actions_accuracies_and_paired_differen
         assert f"| {action} | {borrowed} - within | +3.0 [+3.0, +3.0] |" in block
     assert "4000 paired bootstrap resamples of the 4 prior groups (seed 0)" in block
     # relatedness admitted the borrowed priors at every step of C1 and never for P2
-    assert f"Steps of `{borrowed}` whose update used the borrowed priors" in block
-    assert "(rho > 0): C1 100 %, P2 0 %." in block
+    assert f"Steps of `{borrowed}` that transferred a borrowed object's observations" in block
+    assert "is not counted): C1 100 %, P2 0 %." in block
     assert rewrite(block, tmp_path / "studies", 0) == block
 
 
