@@ -20,6 +20,7 @@ A configuration file names the rig, its flat options, and any tables the rig's b
     [options]
     room_c = 21.0          # the simulated rig takes the fields of SimConfig
     location_spread_m = 0.005
+    cells = 3              # the skin's shape: a 3-cell fingertip (default 7, layout "hex")
 
 ``--rig-option key=value`` on the command line overrides the file (values in TOML syntax:
 ``room_c=21.0``, ``host="192.168.1.10"``; a bare word is a string).
@@ -175,16 +176,35 @@ def sim_rig(seed: int, options: Mapping[str, RigValue]) -> SimulatedRig:
     from recorder._sim import SimConfig, SimulatedRig  # noqa: PLC0415 (imports never load it)
 
     known = {f.name: f for f in dataclasses.fields(SimConfig)}
-    values: dict[str, float] = {}
+    values: dict[str, float | int | str] = {}
     for key, value in options.items():
         if key not in known:
             msg = f"rig option {key!r}: the sim rig takes {', '.join(known)}"
             raise RecorderError(msg)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            msg = f"rig option {key}={value!r}: give a number (e.g. {key}=1.0)"
+        values[key] = _sim_value(key, value, str(known[key].type))
+    return SimulatedRig(seed, SimConfig(**values))  # type: ignore[arg-type]
+
+
+def _sim_value(key: str, value: RigValue, kind: str) -> float | int | str:
+    """Return one sim option as its field's type (``kind``: ``float``, ``int`` or ``str``).
+
+    Raises:
+        RecorderError: The value has the wrong type; one line with an example.
+    """
+    if kind == "str":
+        if not isinstance(value, str):
+            msg = f"rig option {key}={value!r}: give a word (e.g. {key}=hex)"
             raise RecorderError(msg)
-        values[key] = float(value)
-    return SimulatedRig(seed, SimConfig(**values))
+        return value
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            msg = f"rig option {key}={value!r}: give a whole number (e.g. {key}=3)"
+            raise RecorderError(msg)
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        msg = f"rig option {key}={value!r}: give a number (e.g. {key}=1.0)"
+        raise RecorderError(msg)
+    return float(value)
 
 
 def _build_sim(seed: int, config: RigConfig) -> SimulatedRig:
@@ -193,7 +213,8 @@ def _build_sim(seed: int, config: RigConfig) -> SimulatedRig:
     return sim_rig(seed, config.options)
 
 
-#: The simulated rig: a physics-based UR10 with a 7-cell skin (many may run in parallel).
+#: The simulated rig: a physics-based UR10 with a skin, 7 cells unless ``cells`` says otherwise
+#: (many may run in parallel).
 SIM_RIG = RigPlugin(_build_sim, description="physics-based simulated UR10 with a 7-cell skin")
 
 

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Final
 
+from recorder._sim.skin import CELL_PITCH_M, N_CELLS, SkinLayout
 from recorder.errors import RigError
+
+SKIN_FIELDS: Final = ("cells", "layout", "cell_pitch_m")
+"""The skin's shape; in a recording's metadata only when it is not the thesis's patch, so
+that recordings of the thesis's patch keep the metadata (and bytes) they always had."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +38,10 @@ class SimConfig:
         location_spread_m: Contact location varies uniformly within +- this on each axis, m.
         tilt_deg: RMS tilt between the object's top face and the skin, degrees.
         force_control_error: Relative RMS error of the sliding force controller.
+        cells: Number of skin cells: 7 is the thesis's patch; fewer (e.g. 3, a fingertip)
+            keep its first cells (``hex``) or lie in a row (``row``).
+        layout: Arrangement of the cells, ``hex`` or ``row`` (see ``skin.LAYOUTS``).
+        cell_pitch_m: Centre-to-centre distance of neighbouring cells, m.
     """
 
     room_c: float = 22.5
@@ -52,6 +62,9 @@ class SimConfig:
     location_spread_m: float = 0.01
     tilt_deg: float = 0.3
     force_control_error: float = 0.08
+    cells: int = N_CELLS
+    layout: str = "hex"
+    cell_pitch_m: float = CELL_PITCH_M
 
     def __post_init__(self) -> None:
         """Refuse settings the controller cannot run with.
@@ -59,9 +72,15 @@ class SimConfig:
         Raises:
             RigError: A setting is out of range; the message names it and the fix.
         """
+        problem = self.skin.problem()
+        if problem is not None:
+            msg = f"SimConfig: {problem}"
+            raise RigError(msg)
         for field in fields(self):
             value = getattr(self, field.name)
-            if field.name != "room_c" and not value >= 0:
+            if field.name in {"room_c", "layout"}:
+                continue
+            if not value >= 0:
                 msg = f"SimConfig.{field.name} = {value!r} must be >= 0"
                 raise RigError(msg)
         if not 0 < self.creep_speed_m_s <= self.approach_speed_m_s:
@@ -87,6 +106,19 @@ class SimConfig:
             msg = "SimConfig: contact_force_n, press_speed_m_s and retract_speed_m_s must be > 0"
             raise RigError(msg)
 
+    @property
+    def skin(self) -> SkinLayout:
+        """The skin's shape."""
+        return SkinLayout(self.cells, self.layout, self.cell_pitch_m)
+
     def describe(self) -> dict[str, str]:
-        """Return every setting as text, for the recording's metadata."""
-        return {field.name: repr(getattr(self, field.name)) for field in fields(self)}
+        """Return every setting as text, for the recording's metadata.
+
+        The skin's shape is left out for the thesis's patch (``SKIN_FIELDS``).
+        """
+        thesis = self.skin == SkinLayout()
+        return {
+            field.name: repr(getattr(self, field.name))
+            for field in fields(self)
+            if not (thesis and field.name in SKIN_FIELDS)
+        }

@@ -25,6 +25,9 @@ if TYPE_CHECKING:
 F64 = NDArray[np.float64]
 
 SENSORS: Final = N_CELLS * FORCE_SENSORS
+"""Force sensors of the thesis's 7-cell patch. The catalog's stiffnesses and the cover's are
+those under that patch; each sensor takes its share of the area, so a skin of other shape
+keeps the per-sensor laws and its total force scales with its number of cells."""
 SKIN_STIFFNESS_N_M: Final = 2250.0
 """Stiffness of the skin's cover under the whole patch: 2 mm on a hard object give 4.5 N."""
 SKIN_RELAXATION: Final = 0.04
@@ -135,9 +138,9 @@ def total_force_curve(law: ContactLaw, offsets: F64, gain: F64, depths: F64) -> 
 
     Args:
         law: Contact law of one sensor.
-        offsets: Extra depth of each force sensor over the patch centre, shape (7, 3), m;
+        offsets: Extra depth of each force sensor over the patch centre, shape (c, 3), m;
             NaN where the sensor is off the object.
-        gain: Gain of each force sensor, shape (7, 3).
+        gain: Gain of each force sensor, shape (c, 3).
         depths: Patch-centre depths to evaluate, shape (n,), m.
 
     Returns:
@@ -153,8 +156,8 @@ def depth_for_force(law: ContactLaw, offsets: F64, gain: F64, target_n: float) -
 
     Args:
         law: Contact law of one sensor.
-        offsets: Extra depth of each force sensor, shape (7, 3), m; NaN off the object.
-        gain: Gain of each force sensor, shape (7, 3).
+        offsets: Extra depth of each force sensor, shape (c, 3), m; NaN off the object.
+        gain: Gain of each force sensor, shape (c, 3).
         target_n: Total force, N.
 
     Returns:
@@ -182,13 +185,13 @@ def sensor_forces(
     Args:
         law: Contact law of one sensor.
         depth: Patch-centre depth over time, shape (n,), m (negative: gap).
-        offsets: Extra depth of each force sensor, shape (7, 3), m; NaN off the object.
+        offsets: Extra depth of each force sensor, shape (c, 3), m; NaN off the object.
         dt_s: Sample period, s.
         relief: Optional surface height under each sensor over time (texture while
-            sliding), shape (n, 7, 3), m.
+            sliding), shape (n, c, 3), m.
 
     Returns:
-        Forces, shape (n, 7, 3), N.
+        Forces, shape (n, c, 3), N.
     """
     local = depth[:, None, None] + np.nan_to_num(offsets, nan=-1.0)
     if relief is not None:

@@ -1,4 +1,4 @@
-"""The simulated rig: a UR10 with a 7-cell skin exploring catalog objects.
+"""The simulated rig: a UR10 with a skin (7 cells by default) exploring catalog objects.
 
 Time: every execution starts at 0 ns (the start of the approach); stamps and receive times
 are relative to it, and the recording covers ``[0, end)`` with ``end`` on a 0.1 s boundary.
@@ -11,6 +11,8 @@ depend on nothing else (not on the order of executions, nor on the process). Wha
 session carries from one action to the next (residual heat, the skin's ageing) is therefore
 drawn per execution, or is a function of the trial (the session's round), never simulated
 history. The spread of every source and the fact it is calibrated to: CALIBRATION.md.
+
+Array shapes name the skin's cells ``c``: 7 for the thesis's patch, else ``SimConfig.cells``.
 """
 
 from __future__ import annotations
@@ -111,11 +113,11 @@ class Conditions:
         location: Where the patch centre lands on the top face, object frame, shape (2,), m.
         yaw: The object's orientation about the vertical relative to the patch, rad.
         tilt: Slope of the top face relative to the patch along its x and y, shape (2,).
-        irregularity: Height of the surface under each cell, shape (7,), m.
+        irregularity: Height of the surface under each cell, shape (c,), m.
         height_error: How much higher the top face is than the robot believes, m.
         force_error: Relative error of the sliding force controller.
-        force_gain: Gain of each force sensor during this execution, shape (7, 3).
-        temp_offset: Offset of each temperature sensor during this execution, shape (7,), C.
+        force_gain: Gain of each force sensor during this execution, shape (c, 3).
+        temp_offset: Offset of each temperature sensor during this execution, shape (c,), C.
         slide: Ridge angle and phases of the slide.
     """
 
@@ -179,7 +181,7 @@ class Conditions:
             location=config.location_spread_m * rng.uniform(-1.0, 1.0, 2),
             yaw=yaw,
             tilt=np.tan(np.deg2rad(config.tilt_deg)) * rng.standard_normal(2),
-            irregularity=obj.flatness_m * rng.standard_normal(skin.N_CELLS),
+            irregularity=obj.flatness_m * rng.standard_normal(hardware.n_cells),
             height_error=config.height_spread_m * float(rng.uniform(-1.0, 1.0)),
             force_error=config.force_control_error * float(rng.standard_normal()),
             force_gain=aged_gain * (1.0 + skin.FORCE_GAIN_DRIFT * float(rng.standard_normal())),
@@ -203,7 +205,7 @@ def _on_object(obj: ObjectPhysics, conditions: Conditions, points: F64) -> NDArr
 
 
 def sensor_offsets(obj: ObjectPhysics, conditions: Conditions, hardware: skin.SkinHardware) -> F64:
-    """Return each force sensor's depth over the patch centre's, shape (7, 3), m.
+    """Return each force sensor's depth over the patch centre's, shape (c, 3), m.
 
     Tilt, the top face's curvature around its centre and its irregularity under each cell put
     some sensors deeper than others; sensors off the object are NaN.
@@ -215,7 +217,7 @@ def sensor_offsets(obj: ObjectPhysics, conditions: Conditions, hardware: skin.Sk
         -0.5 * obj.curvature_1_m * ((local**2).sum(axis=-1) - float((conditions.location**2).sum()))
     )
     offsets = points @ conditions.tilt + dome + conditions.irregularity[:, None]
-    cells_on = _on_object(obj, conditions, skin.cell_centres())
+    cells_on = _on_object(obj, conditions, hardware.centres)
     return np.where(cells_on[:, None], offsets, np.nan)
 
 
@@ -225,10 +227,10 @@ class Signals:
 
     Attributes:
         plan: The motion.
-        force: Normal force of every force sensor at 250 Hz, shape (n / 4, 7, 3), N.
-        specific_force: Accelerometer input in the patch frame, shape (n, 7, 3), m/s^2.
-        temperature: Sensor temperatures at 20 Hz, shape (n / 50, 7), C.
-        distance: Distance from each cell to the surface below, shape (n, 7), m.
+        force: Normal force of every force sensor at 250 Hz, shape (n / 4, c, 3), N.
+        specific_force: Accelerometer input in the patch frame, shape (n, c, 3), m/s^2.
+        temperature: Sensor temperatures at 20 Hz, shape (n / 50, c), C.
+        distance: Distance from each cell to the surface below, shape (n, c), m.
     """
 
     plan: motion.Plan
@@ -261,7 +263,8 @@ class SimulatedRig:
         self._seed = seed
         self._config = SimConfig() if config is None else config
         hardware_seed = np.random.SeedSequence([seed, stable_hash("skin hardware")])
-        self._hardware = skin.SkinHardware.draw(np.random.default_rng(hardware_seed))
+        hardware_rng = np.random.default_rng(hardware_seed)
+        self._hardware = skin.SkinHardware.draw(hardware_rng, self._config.skin)
         above = np.eye(4)
         above[:3, :3] = TCP_ROTATION
         above[:3, 3] = (*WORKSPACE_XY_M, 0.1)
@@ -387,7 +390,7 @@ class SimulatedRig:
         plan = motion.plan_execution(action, self._config, approach, slide_depth)
         force = self._forces(action, law, plan, offsets, conditions)
         cell_force = force.sum(axis=2)
-        specific = _motion_specific_force(plan)
+        specific = _motion_specific_force(plan, self._hardware.n_cells)
         if action.kind == "slide":
             window = slice(plan.execute, plan.retract)
             held = np.repeat(cell_force, motion.FORCE_DECIMATION, axis=0)
@@ -396,7 +399,7 @@ class SimulatedRig:
                 law,
                 plan.slide[window],
                 cell_force=held[window],
-                cells=skin.cell_centres(),
+                cells=self._hardware.centres,
                 conditions=conditions.slide,
                 rng=rng,
             )
@@ -414,12 +417,12 @@ class SimulatedRig:
         offsets: F64,
         conditions: Conditions,
     ) -> F64:
-        """Return every force sensor's true force at 250 Hz, shape (n / 4, 7, 3), N."""
+        """Return every force sensor's true force at 250 Hz, shape (n / 4, c, 3), N."""
         obj = conditions.obj
         samples = np.arange(0, plan.n, motion.FORCE_DECIMATION)
         relief = None
         if action.kind == "slide":
-            relief = np.zeros((samples.shape[0], skin.N_CELLS, skin.FORCE_SENSORS))
+            relief = np.zeros((samples.shape[0], self._hardware.n_cells, skin.FORCE_SENSORS))
             inside = (samples >= plan.execute) & (samples < plan.retract)
             points = self._hardware.force_sensor_positions()
             slid = plan.slide[samples[inside]]
@@ -545,10 +548,10 @@ def _phase_events(plan: motion.Plan) -> list[PhaseEvent]:
     return [PhaseEvent(i * 1_000_000, i * 1_000_000, phase) for i, phase in starts]
 
 
-def _motion_specific_force(plan: motion.Plan) -> F64:
+def _motion_specific_force(plan: motion.Plan, cells: int) -> F64:
     """Return the accelerometers' input from the arm's motion and gravity, patch frame."""
     dt = motion.DT_S
-    specific = np.zeros((plan.n, skin.N_CELLS, 3))
+    specific = np.zeros((plan.n, cells, 3))
     specific[..., 0] = np.gradient(np.gradient(plan.slide, dt), dt)[:, None]
     specific[..., 2] = np.gradient(np.gradient(plan.depth, dt), dt)[:, None] - skin.GRAVITY_M_S2
     return specific
@@ -557,7 +560,7 @@ def _motion_specific_force(plan: motion.Plan) -> F64:
 def _cell_distances(
     obj: ObjectPhysics, plan: motion.Plan, offsets: F64, height_error: float
 ) -> F64:
-    """Return each cell's distance to the surface below it over time, shape (n, 7), m."""
+    """Return each cell's distance to the surface below it over time, shape (n, c), m."""
     cell_offset = offsets.mean(axis=1)
     over_object = -(plan.depth[:, None] + np.nan_to_num(cell_offset, nan=0.0))
     over_table = -plan.depth[:, None] + obj.height_m + height_error
@@ -568,7 +571,7 @@ def _cell_distances(
 def _cut_blocks(
     modality: Modality, data: NDArray[np.floating[Any]], jitter: F64
 ) -> list[SkinBlock]:
-    """Cut one modality's readings (samples, 7, channels) into the contract's blocks."""
+    """Cut one modality's readings (samples, c, channels) into the contract's blocks."""
     channel = VOCABULARY.modalities[modality]
     per_block = channel.block_samples
     period_ns = round(1e9 / channel.rate_hz)

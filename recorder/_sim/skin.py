@@ -1,4 +1,7 @@
-"""The simulated skin patch: 7 hexagonal cells, their sensors and the sensors' imperfections.
+"""The simulated skin patch: hexagonal cells, their sensors and the sensors' imperfections.
+
+The thesis's patch has 7 cells, a centre cell and a ring of 6 (the default); a smaller skin
+(e.g. a 3-cell fingertip) keeps the first cells of that patch, or lies in a row (``SkinLayout``).
 
 Per cell (HEX-o-SKIN style): 3 normal-force sensors, 1 temperature sensor (LM71), 1 three-axis
 accelerometer (BMA250) and 1 proximity sensor (VCNL4010). The patch is flat; its frame is the
@@ -12,7 +15,7 @@ about 0.05 N; VCNL4010 16-bit counts, up to 200 mm.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
@@ -22,6 +25,7 @@ F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
 
 N_CELLS: Final = 7
+"""Cells of the thesis's patch (the default layout)."""
 FORCE_SENSORS: Final = 3
 CELL_PITCH_M: Final = 0.015
 """Centre-to-centre distance of neighbouring cells."""
@@ -77,11 +81,62 @@ NOMINAL_REFLECTANCE: Final = 0.6
 """Reflectance the driver assumes when it converts counts to distance."""
 
 
-def cell_centres() -> F64:
-    """Return the cell centres in the patch frame, shape (7, 2), m (centre cell first)."""
-    angles = np.deg2rad(30.0 + 60.0 * np.arange(6))
-    ring = CELL_PITCH_M * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    return np.vstack([np.zeros((1, 2)), ring])
+LAYOUTS: Final = ("hex", "row")
+"""Cell arrangements: ``hex``, the thesis's patch (centre cell, then the ring of 6
+counter-clockwise from 30 degrees: its first 3 cells are a compact triangle); ``row``, cells in
+a line across the sliding direction (a finger's phalanx)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SkinLayout:
+    """The shape of the skin: how many cells and where they lie.
+
+    Attributes:
+        cells: Number of cells, 1 to 7 for ``hex``, at least 1 for ``row``.
+        layout: ``hex`` or ``row`` (``LAYOUTS``).
+        pitch_m: Centre-to-centre distance of neighbouring cells, m.
+    """
+
+    cells: int = N_CELLS
+    layout: str = "hex"
+    pitch_m: float = CELL_PITCH_M
+
+    def problem(self) -> str | None:
+        """Return what is wrong with the layout and the fix, in words, or None when valid."""
+        if self.layout not in LAYOUTS:
+            return f"layout = {self.layout!r} is not one of {', '.join(LAYOUTS)}; give one of them"
+        if self.cells < 1:
+            return f"cells = {self.cells} must be >= 1; give the skin's number of cells"
+        if self.layout == "hex" and self.cells > N_CELLS:
+            return (
+                f"cells = {self.cells} exceeds the {N_CELLS} cells of layout 'hex' (the thesis's "
+                "patch); give fewer cells, or layout=row for a longer skin"
+            )
+        if not self.pitch_m > 2 * FORCE_SENSOR_RADIUS_M:
+            return (
+                f"cell_pitch_m = {self.pitch_m} must exceed {2 * FORCE_SENSOR_RADIUS_M:.4g} m "
+                "(neighbouring cells' force sensors would overlap); give a larger pitch"
+            )
+        return None
+
+    def centres(self) -> F64:
+        """Return the cell centres in the patch frame, shape (cells, 2), m."""
+        if self.layout == "row":
+            across = self.pitch_m * (np.arange(self.cells) - 0.5 * (self.cells - 1))
+            return np.stack([np.zeros(self.cells), across], axis=1)
+        angles = np.deg2rad(30.0 + 60.0 * np.arange(N_CELLS - 1))
+        ring = self.pitch_m * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        patch: F64 = np.vstack([np.zeros((1, 2)), ring])
+        return patch[: self.cells]
+
+
+THESIS_LAYOUT: Final = SkinLayout()
+"""The thesis's 7-cell hexagonal patch."""
+
+
+def cell_centres(layout: SkinLayout = THESIS_LAYOUT) -> F64:
+    """Return the cell centres in the patch frame, shape (cells, 2), m (centre cell first)."""
+    return layout.centres()
 
 
 def rotations_2d(angles: F64) -> F64:
@@ -94,14 +149,17 @@ def rotations_2d(angles: F64) -> F64:
 class SkinHardware:
     """Properties of one physical skin patch, fixed for the rig's lifetime (drawn from its seed).
 
+    Arrays have one row per cell: ``c`` rows, 7 for the thesis's patch.
+
     Attributes:
-        cell_angle: Mounting angle of each cell about the patch normal, shape (7,), rad.
-        force_gain: Gain of each force sensor, shape (7, 3).
-        temp_offset: Offset of each temperature sensor, shape (7,), C.
-        acc_bias: Zero-g offset of each accelerometer axis, shape (7, 3), m/s^2.
-        proximity_gain: Gain of each proximity sensor, shape (7,).
-        temp_ageing: Change of each temperature sensor's offset per trial, shape (7,), C.
-        force_ageing: Relative change of each force sensor's gain per trial, shape (7, 3).
+        centres: Cell centres in the patch frame, shape (c, 2), m.
+        cell_angle: Mounting angle of each cell about the patch normal, shape (c,), rad.
+        force_gain: Gain of each force sensor, shape (c, 3).
+        temp_offset: Offset of each temperature sensor, shape (c,), C.
+        acc_bias: Zero-g offset of each accelerometer axis, shape (c, 3), m/s^2.
+        proximity_gain: Gain of each proximity sensor, shape (c,).
+        temp_ageing: Change of each temperature sensor's offset per trial, shape (c,), C.
+        force_ageing: Relative change of each force sensor's gain per trial, shape (c, 3).
     """
 
     cell_angle: F64
@@ -111,24 +169,32 @@ class SkinHardware:
     proximity_gain: F64
     temp_ageing: F64
     force_ageing: F64
+    centres: F64 = field(default_factory=cell_centres)
+
+    @property
+    def n_cells(self) -> int:
+        """Return the number of cells."""
+        return int(self.centres.shape[0])
 
     @classmethod
-    def draw(cls, rng: np.random.Generator) -> SkinHardware:
-        """Draw a patch's hardware properties."""
+    def draw(cls, rng: np.random.Generator, layout: SkinLayout = THESIS_LAYOUT) -> SkinHardware:
+        """Draw a patch's hardware (for the thesis's patch, the same draws in every version)."""
+        n = layout.cells
         return cls(
-            cell_angle=np.deg2rad(60.0 * rng.integers(0, 6, N_CELLS)),
-            force_gain=1.0 + FORCE_GAIN_SPREAD * rng.standard_normal((N_CELLS, FORCE_SENSORS)),
+            cell_angle=np.deg2rad(60.0 * rng.integers(0, 6, n)),
+            force_gain=1.0 + FORCE_GAIN_SPREAD * rng.standard_normal((n, FORCE_SENSORS)),
             temp_offset=np.clip(
-                TEMP_OFFSET_C * rng.standard_normal(N_CELLS), -TEMP_ACCURACY_C, TEMP_ACCURACY_C
+                TEMP_OFFSET_C * rng.standard_normal(n), -TEMP_ACCURACY_C, TEMP_ACCURACY_C
             ),
-            acc_bias=ACC_BIAS_M_S2 * rng.standard_normal((N_CELLS, 3)),
-            proximity_gain=1.0 + 0.05 * rng.standard_normal(N_CELLS),
-            temp_ageing=TEMP_AGEING_C * rng.standard_normal(N_CELLS),
-            force_ageing=FORCE_AGEING * rng.standard_normal((N_CELLS, FORCE_SENSORS)),
+            acc_bias=ACC_BIAS_M_S2 * rng.standard_normal((n, 3)),
+            proximity_gain=1.0 + 0.05 * rng.standard_normal(n),
+            temp_ageing=TEMP_AGEING_C * rng.standard_normal(n),
+            force_ageing=FORCE_AGEING * rng.standard_normal((n, FORCE_SENSORS)),
+            centres=layout.centres(),
         )
 
     def aged(self, trial: int) -> tuple[F64, F64]:
-        """Return the temperature offsets (7,) and force gains (7, 3) at trial ``trial``.
+        """Return the temperature offsets (c,) and force gains (c, 3) at trial ``trial``.
 
         The skin ages through a session: trial ``k`` is recorded in the ``k``-th round, after
         ``k`` rounds of drift from the calibration at trial 0. The drift is linear in the
@@ -140,11 +206,11 @@ class SkinHardware:
         return offset, gain
 
     def force_sensor_positions(self) -> F64:
-        """Return the force sensors' positions in the patch frame, shape (7, 3, 2), m."""
+        """Return the force sensors' positions in the patch frame, shape (c, 3, 2), m."""
         local = np.deg2rad(90.0 + 120.0 * np.arange(FORCE_SENSORS))
         angles = self.cell_angle[:, None] + local[None, :]
         offsets = FORCE_SENSOR_RADIUS_M * np.stack([np.cos(angles), np.sin(angles)], -1)
-        return cell_centres()[:, None, :] + offsets
+        return self.centres[:, None, :] + offsets
 
 
 def quantize(values: F64, step: float) -> F64:
@@ -161,15 +227,15 @@ def measure_force(force: F64, times_s: F64, gain: F64, rng: np.random.Generator)
     """Turn true normal forces into force-sensor readings.
 
     Args:
-        force: True forces, shape (n, 7, 3), N.
+        force: True forces, shape (n, c, 3), N.
         times_s: Sample times, shape (n,), s.
-        gain: Gain of each sensor during this execution, shape (7, 3).
+        gain: Gain of each sensor during this execution, shape (c, 3).
         rng: Random generator of this execution.
 
     Returns:
-        Readings, shape (n, 7, 3), N: gain error, residual offset and drift, noise, 1 mN steps.
+        Readings, shape (n, c, 3), N: gain error, residual offset and drift, noise, 1 mN steps.
     """
-    shape = (N_CELLS, FORCE_SENSORS)
+    shape = gain.shape
     offset = FORCE_OFFSET_N * rng.standard_normal(shape)
     rate = FORCE_DRIFT_N_S * rng.standard_normal(shape)
     noise = FORCE_NOISE_N * rng.standard_normal(force.shape)
@@ -183,15 +249,15 @@ def measure_temperature(
     """Turn true sensor temperatures into LM71 readings.
 
     Args:
-        temperature: True temperatures of the sensors, shape (n, 7), C.
+        temperature: True temperatures of the sensors, shape (n, c), C.
         times_s: Sample times, shape (n,), s.
-        offset: Offset of each sensor during this execution (aged), shape (7,), C.
+        offset: Offset of each sensor during this execution (aged), shape (c,), C.
         rng: Random generator of this execution.
 
     Returns:
-        Readings, shape (n, 7), C: offset, drift, noise, 0.03125 C steps.
+        Readings, shape (n, c), C: offset, drift, noise, 0.03125 C steps.
     """
-    rate = TEMP_DRIFT_C_S * rng.standard_normal(N_CELLS)
+    rate = TEMP_DRIFT_C_S * rng.standard_normal(offset.shape)
     noise = TEMP_NOISE_C * rng.standard_normal(temperature.shape)
     reading = temperature + offset + drift(times_s, rate) + noise
     return quantize(reading, TEMP_LSB_C)
@@ -203,12 +269,12 @@ def measure_acceleration(
     """Turn the cells' specific force (in the patch frame) into BMA250 readings.
 
     Args:
-        specific_force: Acceleration minus gravity, patch frame, shape (n, 7, 3), m/s^2.
+        specific_force: Acceleration minus gravity, patch frame, shape (n, c, 3), m/s^2.
         hardware: The patch.
         rng: Random generator of this execution.
 
     Returns:
-        Readings in each cell's own axes, shape (n, 7, 3), m/s^2: bias, noise, 10-bit
+        Readings in each cell's own axes, shape (n, c, 3), m/s^2: bias, noise, 10-bit
         quantization and clipping at +-2 g.
     """
     c, s = np.cos(hardware.cell_angle), np.sin(hardware.cell_angle)
@@ -236,13 +302,13 @@ def measure_proximity(
     surfaces read farther. Readings beyond the range report the range.
 
     Args:
-        distance: True distances from each cell to the surface below it, shape (n, 7), m.
+        distance: True distances from each cell to the surface below it, shape (n, c), m.
         reflectance: Reflectance of the surface.
         hardware: The patch.
         rng: Random generator of this execution.
 
     Returns:
-        Distances, shape (n, 7), m, in [0, 0.2].
+        Distances, shape (n, c), m, in [0, 0.2].
     """
     d = np.maximum(distance, 0.0)
     scale = PROXIMITY_FULL_SCALE * reflectance * hardware.proximity_gain

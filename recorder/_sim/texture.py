@@ -168,7 +168,7 @@ def ridge_relief(obj: ObjectPhysics, slide: F64, points: F64, conditions: SlideC
 def _ridge_acceleration(
     obj: ObjectPhysics, slide: F64, cells: F64, conditions: SlideConditions
 ) -> F64:
-    """Return the normal acceleration the ridges cause at each cell, shape (m, 7)."""
+    """Return the normal acceleration the ridges cause at each cell, shape (m, cells)."""
     speed = np.gradient(slide, DT_S)
     accel = np.gradient(speed, DT_S)
     theta = _ridge_coordinate(obj, slide, cells, conditions.ridge_angle)
@@ -185,22 +185,24 @@ def _ridge_acceleration(
     return obj.anisotropy * followed_relief(obj) * out
 
 
-def _random_acceleration(obj: ObjectPhysics, slide: F64, rng: np.random.Generator) -> F64:
-    """Return the normal acceleration of an isotropic random relief, per cell, shape (m, 7).
+def _random_acceleration(
+    obj: ObjectPhysics, slide: F64, cells: int, rng: np.random.Generator
+) -> F64:
+    """Return the normal acceleration of an isotropic random relief, per cell, shape (m, cells).
 
     The relief is a Gaussian process along each cell's path with a log-normal band around the
     texture's wavenumber; its RMS is that of the ridges' fundamental.
     """
     amplitude = (1.0 - obj.anisotropy) * followed_relief(obj)
     if amplitude <= 0:
-        return np.zeros((slide.shape[0], 7))
+        return np.zeros((slide.shape[0], cells))
     step = obj.texture_period_m / 16.0
     length = float(slide.max() - slide.min()) + 4.0 * obj.texture_period_m
     n = int(2 ** np.ceil(np.log2(max(64.0, length / step))))
     k = 2.0 * np.pi * np.fft.rfftfreq(n, step)
     k0 = 2.0 * np.pi / obj.texture_period_m
     band = np.exp(-0.5 * (np.log(np.maximum(k, 1e-9) / k0) / 0.35) ** 2)
-    white = np.fft.rfft(rng.standard_normal((n, 7)), axis=0) * band[:, None]
+    white = np.fft.rfft(rng.standard_normal((n, cells)), axis=0) * band[:, None]
     rms = np.sqrt(2.0 * (np.abs(white[1:]) ** 2).sum(axis=0)) / n
     white *= amplitude / np.sqrt(2.0) / np.maximum(rms, 1e-30) * _smoothing(k)[:, None]
     second = np.fft.irfft(-(k**2)[:, None] * white, n, axis=0)
@@ -208,8 +210,8 @@ def _random_acceleration(obj: ObjectPhysics, slide: F64, rng: np.random.Generato
     grid = slide.min() - 2.0 * obj.texture_period_m + step * np.arange(n)
     speed = np.gradient(slide, DT_S)
     accel = np.gradient(speed, DT_S)
-    out = np.empty((slide.shape[0], 7))
-    for cell in range(7):
+    out = np.empty((slide.shape[0], cells))
+    for cell in range(cells):
         out[:, cell] = speed**2 * np.interp(slide, grid, second[:, cell]) + accel * np.interp(
             slide, grid, first[:, cell]
         )
@@ -255,20 +257,20 @@ def sliding_vibration(
         obj: The object.
         law: The sensors' contact law on it.
         slide: Distance slid over the window, shape (m,), m.
-        cell_force: Normal force on each cell, shape (m, 7), N.
-        cells: Cell centres in the patch frame, shape (7, 2), m.
+        cell_force: Normal force on each cell, shape (m, c), N.
+        cells: Cell centres in the patch frame, shape (c, 2), m (7 for the thesis's patch).
         conditions: The slide's conditions.
         rng: Random generator of this execution.
 
     Returns:
-        Accelerations, shape (m, 7, 3), m/s^2 (x: sliding direction, z: into the object).
+        Accelerations, shape (m, c, 3), m/s^2 (x: sliding direction, z: into the object).
     """
     m = slide.shape[0]
     resonance = Resonance.on(obj, law)
     speed = np.abs(np.gradient(slide, DT_S))
     contact = cell_force / (cell_force + CONTACT_SCALE_N)
     ridges = _ridge_acceleration(obj, slide, cells, conditions)
-    normal = ridges + _random_acceleration(obj, slide, rng)
+    normal = ridges + _random_acceleration(obj, slide, cells.shape[0], rng)
     scale = (
         FRICTION_NOISE_GAIN
         * obj.friction_kinetic
@@ -276,10 +278,10 @@ def sliding_vibration(
         * np.sqrt(speed / 0.01)[:, None]
         * np.sqrt(np.maximum(cell_force, 0.0) / 0.03)
     )
-    noise = rng.standard_normal((m, 7, 3)) * scale[..., None]
+    noise = rng.standard_normal((m, cells.shape[0], 3)) * scale[..., None]
     slips = _slip_train(obj, slide, cell_force.sum(axis=1), rng) / PATCH_MASS_KG
     slips *= resonance.impulse_scale()
-    source = np.empty((m, 7, 3))
+    source = np.empty((m, cells.shape[0], 3))
     angle = conditions.ridge_angle
     source[..., 0] = (
         RIDGE_PUSH * np.cos(angle) * ridges + obj.friction_kinetic * normal + noise[..., 0]

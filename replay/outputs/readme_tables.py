@@ -123,8 +123,19 @@ def borrow_block(frame: pl.DataFrame, seed: int) -> str:
 
     Per target action: the headline accuracies of the baseline, ``within`` and the borrowed
     priors, then each paired difference (borrowed - baseline, within - baseline, borrowed -
-    within) with its 95 % interval over prior groups, as in the study's summary.
+    within) with its 95 % interval over prior groups, as in the study's summary. Where the
+    results have ``rho``, the note says how often relatedness let the borrowed priors in.
+
+    Raises:
+        ReplayError: The results lack a column the table needs.
     """
+    needed = {"actions", "source", "method", "group", "step", "accuracy"}
+    if missing := sorted(needed - set(frame.columns)):
+        msg = (
+            f"cross-action/cross-rig results lack {', '.join(missing)}; run "
+            "'atikt-replay study cross-action' or 'cross-rig' again"
+        )
+        raise ReplayError(msg)
     budget = int(frame["step"].max())  # type: ignore[arg-type]
     methods = set(frame["method"].to_list())
     borrowed = CROSS_RIG if CROSS_RIG in methods else CROSS_ACTION
@@ -153,8 +164,33 @@ def borrow_block(frame: pl.DataFrame, seed: int) -> str:
     note = (
         "Differences in percentage points on the same splits; interval: "
         f"{RESAMPLES} paired bootstrap resamples of the {groups} prior groups (seed {seed})."
+        + _admitted(frame, borrowed)
     )
     return f"{_markdown(header, rows)}\n\n{note}"
+
+
+def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
+    """Return how often the borrowed priors were used, as a sentence (empty without ``rho``).
+
+    Per target action: the share of the borrowed learner's steps 1..budget whose update
+    transferred observations (``rho > 0``: relatedness admitted an old object of the source).
+    The results do not say when metric transfer used the old objects' kernel.
+    """
+    if "rho" not in frame.columns:
+        return ""
+    shares = (
+        frame.filter((pl.col("method") == borrowed) & (pl.col("step") > 0))
+        .group_by("actions")
+        .agg((pl.col("rho").fill_null(0.0) > 0).mean().alias("share"))
+        .sort("actions")
+    )
+    if shares.is_empty():
+        return ""
+    parts = ", ".join(f"{a} {100 * v:.0f} %" for a, v in shares.iter_rows())
+    return (
+        f" Steps of `{borrowed}` that transferred a borrowed object's observations (rho > 0; "
+        f"metric transfer of the old objects' kernel is not counted): {parts}."
+    )
 
 
 def fusion_block(frame: pl.DataFrame) -> str:

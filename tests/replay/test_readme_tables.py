@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from replay.errors import ReplayError
 from replay.outputs.readme_tables import gain_intervals, main, rewrite
+from replay.studies._stats import HEADLINES, gain_cells, paired_gains
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -178,3 +180,74 @@ def test_a_vs_block_is_one_fusion_studys_multi_modal_minus_anothers(project: Pat
             0,
             real=project / "studies-real",
         )
+
+
+def _borrow(gains: dict[str, float], groups: int = 4) -> pl.DataFrame:
+    """Results of a cross-action or cross-rig study: gains over the baseline per method."""
+    rng = np.random.default_rng(5)
+    rows = []
+    for action, source in (("C1", "P1"), ("P2", "P1")):
+        for group, trial, step in itertools.product(range(groups), range(2), range(4)):
+            base = float(rng.uniform(0.4, 0.8))
+            for method, gain in {"baseline": 0.0, **gains}.items():
+                used = method != "baseline" and step > 0 and (action == "C1" or method == "within")
+                rows.append(
+                    {"actions": action, "source": source, "method": method, "group": group}
+                    | {"trial": trial, "step": step, "accuracy": base + gain}
+                    | {"rho": 0.6 if used else 0.0}
+                )
+    return pl.DataFrame(rows)
+
+
+@pytest.mark.parametrize("borrowed", ["cross-rig", "cross-action"])
+def test_a_borrow_block_gives_each_target_actions_accuracies_and_paired_differences(
+    tmp_path: Path, borrowed: str
+) -> None:
+    frame = _borrow({"within": 0.02, borrowed: 0.05})
+    (tmp_path / "studies" / borrowed).mkdir(parents=True)
+    frame.write_parquet(tmp_path / "studies" / borrowed / "results.parquet")
+    text = f"<!-- results:{borrowed} -->\nold\n<!-- /results:{borrowed} -->\n"
+    block = rewrite(text, tmp_path / "studies", 0)
+    assert "| action <- source | method | initial | mean 1..3 | final |" in block
+    for action in ("C1 <- P1", "P2 <- P1"):
+        for method in ("baseline", "within", borrowed):
+            assert f"| {action} | {method} | " in block
+        # constant gains: the paired differences and their intervals are exact
+        assert f"| {action} | {borrowed} - baseline | +5.0 [+5.0, +5.0] |" in block
+        assert f"| {action} | within - baseline | +2.0 [+2.0, +2.0] |" in block
+        assert f"| {action} | {borrowed} - within | +3.0 [+3.0, +3.0] |" in block
+    assert "4000 paired bootstrap resamples of the 4 prior groups (seed 0)" in block
+    # relatedness admitted the borrowed priors at every step of C1 and never for P2
+    assert f"Steps of `{borrowed}` that transferred a borrowed object's observations" in block
+    assert "is not counted): C1 100 %, P2 0 %." in block
+    assert rewrite(block, tmp_path / "studies", 0) == block
+
+
+def test_a_borrow_blocks_interval_is_the_summarys(tmp_path: Path) -> None:
+    frame = _borrow({"within": 0.0, "cross-rig": 0.0}, groups=6)
+    noisy = frame.with_columns(
+        pl.when(pl.col("method") == "cross-rig")
+        .then(pl.col("accuracy") + 0.01 * pl.col("group") - 0.02)
+        .otherwise(pl.col("accuracy"))
+    )
+    (tmp_path / "cross-rig").mkdir()
+    noisy.write_parquet(tmp_path / "cross-rig" / "results.parquet")
+    block = rewrite("<!-- results:cross-rig -->\n<!-- /results:cross-rig -->", tmp_path, 7)
+    # the study's summary: all target actions in one call (``report_borrow``)
+    summary = paired_gains(
+        noisy, ["actions"], "group", 3, methods=("cross-rig", "baseline"), seed=7
+    )
+    gains = summary.filter(pl.col("actions") == "C1").row(0, named=True)
+    cells = " | ".join(gain_cells(gains, h).replace(" pts", "") for h in HEADLINES)
+    assert f"| C1 <- P1 | cross-rig - baseline | {cells} |" in block
+    assert gains["low_mean"] < gains["gain_mean"] < gains["high_mean"]
+
+
+def test_borrow_results_without_their_columns_are_refused_in_one_line(tmp_path: Path) -> None:
+    (tmp_path / "cross-rig").mkdir()
+    _borrow({"cross-rig": 0.1}).drop("group").write_parquet(
+        tmp_path / "cross-rig" / "results.parquet"
+    )
+    # without ``group`` the results look like no study's; with ``source`` they are a borrow's
+    with pytest.raises(ReplayError, match=r"lack group; run 'atikt-replay study cross-action'"):
+        rewrite("<!-- results:cross-rig -->\n<!-- /results:cross-rig -->", tmp_path, 0)
