@@ -328,17 +328,23 @@ def rewrite(
     seed: int,
     readme: Path = Path("README.md"),
     real: Path = Path("studies-real"),
+    *,
+    only: Sequence[str] = (),
 ) -> str:
-    """Return ``text`` with every results block rewritten from the studies' results.
+    """Return ``text`` with every results block (or those named in ``only``) rewritten.
 
     Raises:
-        ReplayError: No markers, an unclosed marker, or a missing results file.
+        ReplayError: No markers, an unclosed marker, a name of ``only`` without a marker, or
+            a missing results file.
     """
     names = [match["name"] for match in _MARKER.finditer(text)]
     if not names:
         msg = f"{readme}: no '<!-- results:NAME -->' markers; put them around each result table"
         raise ReplayError(msg)
-    for name in names:
+    if unknown := sorted(set(only) - set(names)):
+        msg = f"--only {','.join(unknown)}: {readme} has no such block; it has {', '.join(names)}"
+        raise ReplayError(msg)
+    for name in [n for n in names if n in only] if only else names:
         start, end = f"<!-- results:{name} -->", f"<!-- /results:{name} -->"
         head, _, rest = text.partition(start)
         if end not in rest:
@@ -364,10 +370,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--seed", type=cli.seed, default=0, help="seed of the bootstrap")
     parser.add_argument("--check", action="store_true", help="exit 1 if the README differs")
+    parser.add_argument(
+        "--only",
+        default="",
+        metavar="NAME,..",
+        help="rewrite (or check) only these blocks, e.g. after running one study",
+    )
     args = parser.parse_args(argv)
+    only = [n for n in args.only.split(",") if n]
     try:
         text = args.readme.read_text("utf-8")
-        new = rewrite(text, args.studies, args.seed, args.readme, args.real_studies)
+        new = rewrite(text, args.studies, args.seed, args.readme, args.real_studies, only=only)
         if new != text and not args.check:
             args.readme.write_text(new, "utf-8")
     except OSError as err:

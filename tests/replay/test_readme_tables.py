@@ -165,6 +165,18 @@ def test_rewrite_of_one_block(project: Path) -> None:
     assert rewrite(text, project / "studies", 0).startswith("<!-- results:fusion -->\n| action |")
 
 
+def test_only_the_named_blocks_are_rewritten(project: Path) -> None:
+    text = (
+        "<!-- results:fusion -->\nold\n<!-- /results:fusion -->\n"
+        "<!-- results:elsewhere -->\nkept\n<!-- /results:elsewhere -->\n"
+    )
+    block = rewrite(text, project / "studies", 0, only=["fusion"])
+    assert block.startswith("<!-- results:fusion -->\n| action |")
+    assert "<!-- results:elsewhere -->\nkept\n<!-- /results:elsewhere -->" in block
+    with pytest.raises(ReplayError, match=r"--only nothing: .* has no such block"):
+        rewrite(text, project / "studies", 0, only=["nothing"])
+
+
 def test_a_vs_block_is_one_fusion_studys_multi_modal_minus_anothers(project: Path) -> None:
     name = "real-fusion-vs-fusion-session"
     text = f"<!-- results:{name} -->\n<!-- /results:{name} -->"
