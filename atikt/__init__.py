@@ -6,7 +6,7 @@ Pure numpy/scipy: takes arrays, never files (Feng, Kaboli & Cheng, TUM 2017).
 from atikt.active import ActiveLearner, StepRecord, entropy
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import (
-    MODALITIES,
+    FEATURE_BLOCKS,
     FeatureTransformer,
     RawFeatures,
     extract_features,
@@ -53,7 +53,7 @@ from atikt.transfer import (
 )
 
 __all__ = [
-    "MODALITIES",
+    "FEATURE_BLOCKS",
     "ActiveLearner",
     "AtiktError",
     "BinaryGPC",

@@ -13,7 +13,7 @@ feedbacks, features", following Kaboli et al.'s robust tactile descriptors:
 
 Which blocks an observation has is the caller's choice (the recording contract assigns them
 to action kinds: the thesis gives pressing and static contact force + thermal, sliding texture
-+ thermal); an observation carries any subset of :data:`MODALITIES`, and every function here
++ thermal); an observation carries any subset of :data:`FEATURE_BLOCKS`, and every function here
 works with the blocks present. All functions take numpy arrays and never see a file.
 """
 
@@ -31,11 +31,11 @@ import scipy.linalg
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
 FloatArray = npt.NDArray[np.float64]
 
-MODALITIES: Final = ("force", "texture", "thermal")
+FEATURE_BLOCKS: Final = ("force", "texture", "thermal")
 """Feature blocks atikt computes (one function each), in the column order of every matrix."""
 
 SEQUENCE_MODALITIES: Final = frozenset({"thermal"})
@@ -229,7 +229,7 @@ class RawFeatures:
 
     Attributes:
         kind: Label of the observations that can be stacked together (the action's kind).
-        blocks: Feature block name (one of :data:`MODALITIES`) -> vector; the blocks the
+        blocks: Feature block name (one of :data:`FEATURE_BLOCKS`) -> vector; the blocks the
             observation has, e.g. ``force`` shape (1,), ``texture`` (12,), ``thermal``
             (2 * n_points,).
     """
@@ -239,8 +239,8 @@ class RawFeatures:
 
     @property
     def modalities(self) -> tuple[str, ...]:
-        """Return the blocks the observation has, in :data:`MODALITIES` order."""
-        return tuple(m for m in MODALITIES if m in self.blocks)
+        """Return the blocks the observation has, in :data:`FEATURE_BLOCKS` order."""
+        return tuple(m for m in FEATURE_BLOCKS if m in self.blocks)
 
     def modality(self, name: str) -> FloatArray:
         """Return the vector of one block.
@@ -270,6 +270,41 @@ def _frozen(array: FloatArray) -> FloatArray:
     return array
 
 
+def _force_block(data: npt.ArrayLike, _rate_hz: float, **_: Any) -> FloatArray:  # noqa: ANN401
+    """The stiffness block of a force signal."""
+    return stiffness(data)
+
+
+def _texture_block(
+    data: npt.ArrayLike,
+    _rate_hz: float,
+    *,
+    texture_per_axis: bool,
+    **_: Any,  # noqa: ANN401
+) -> FloatArray:
+    """The texture block of an acceleration signal."""
+    return texture(data, per_axis=texture_per_axis)
+
+
+def _thermal_block(
+    data: npt.ArrayLike,
+    rate_hz: float,
+    *,
+    n_thermal_points: int,
+    **_: Any,  # noqa: ANN401
+) -> FloatArray:
+    """The thermal block of a temperature signal (cells and sensors flattened)."""
+    array = np.asarray(data, dtype=np.float64)
+    flat = array.reshape(array.shape[0], -1) if array.ndim == 3 else array  # noqa: PLR2004
+    return thermal_sequence(flat, n_points=n_thermal_points, rate_hz=rate_hz)
+
+
+#: Feature block -> its extractor ``(samples, rate_hz, **options) -> vector``.
+_EXTRACTORS: Final[Mapping[str, Callable[..., FloatArray]]] = MappingProxyType(
+    {"force": _force_block, "texture": _texture_block, "thermal": _thermal_block}
+)
+
+
 def extract_features(
     kind: str,
     signals: Mapping[str, tuple[npt.ArrayLike, float]],
@@ -294,24 +329,15 @@ def extract_features(
     Raises:
         AtiktError: No signals, an unknown block, or a malformed array.
     """
-    if not signals or set(signals) - set(MODALITIES):
-        msg = f"signals {sorted(signals)}: give a non-empty subset of {MODALITIES}"
+    if not signals or set(signals) - set(FEATURE_BLOCKS):
+        msg = f"signals {sorted(signals)}: give a non-empty subset of {FEATURE_BLOCKS}"
         raise AtiktError(msg)
-    blocks: dict[str, FloatArray] = {}
-    for name in MODALITIES:
-        if name not in signals:
-            continue
-        data, rate_hz = signals[name]
-        if name == "force":
-            blocks[name] = _frozen(stiffness(data))
-        elif name == "texture":
-            blocks[name] = _frozen(texture(data, per_axis=texture_per_axis))
-        else:
-            array = np.asarray(data, dtype=np.float64)
-            flat = array.reshape(array.shape[0], -1) if array.ndim == 3 else array  # noqa: PLR2004
-            blocks[name] = _frozen(
-                thermal_sequence(flat, n_points=n_thermal_points, rate_hz=rate_hz)
-            )
+    options = {"texture_per_axis": texture_per_axis, "n_thermal_points": n_thermal_points}
+    blocks = {
+        name: _frozen(_EXTRACTORS[name](*signals[name], **options))
+        for name in FEATURE_BLOCKS
+        if name in signals
+    }
     return RawFeatures(kind, MappingProxyType(blocks))
 
 
@@ -419,7 +445,7 @@ class FeatureTransformer:
 
     Args:
         modalities: Modalities to keep, in any order (output order follows
-            :data:`MODALITIES`); None keeps every block the training observations have.
+            :data:`FEATURE_BLOCKS`); None keeps every block the training observations have.
         n_thermal_components: Principal components of the thermal sequence (thesis: 10).
         min_std: A standard deviation below ``min_std`` times the magnitude of the column's
             mean counts as zero: the column is constant and is only centred. Relative, so that
@@ -463,7 +489,7 @@ class FeatureTransformer:
                 f"choose a non-empty subset of {available}"
             )
             raise AtiktError(msg)
-        return tuple(m for m in MODALITIES if m in self.modalities)
+        return tuple(m for m in FEATURE_BLOCKS if m in self.modalities)
 
     def fit(self, observations: Sequence[RawFeatures]) -> Self:
         """Learn the statistics from training observations of one action.
@@ -485,7 +511,7 @@ class FeatureTransformer:
             msg = f"n_thermal_components={self.n_thermal_components}; use at least 1"
             raise AtiktError(msg)
         self.kind_ = stacked.kind
-        held = tuple(m for m in MODALITIES if m in stacked.blocks)
+        held = tuple(m for m in FEATURE_BLOCKS if m in stacked.blocks)
         self.modalities_ = self._resolve_modalities(self.kind_, held)
         self.means_: dict[str, FloatArray] = {}
         self.scales_: dict[str, FloatArray] = {}

@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from atikt import MODALITIES, AtiktError, LearnerOptions
+from atikt import FEATURE_BLOCKS, AtiktError, LearnerOptions
 from atikt.kernels import PART_KERNELS
 from atikt.options import METRIC_CHECKS
 from atikt.strategies import strategy_options
@@ -62,10 +62,10 @@ def parse_parts(text: str, option: str) -> tuple[tuple[str, str], ...]:
     pairs = []
     for item in filter(None, (p.strip() for p in text.split(","))):
         block, _, kind = item.partition("=")
-        if block not in MODALITIES or kind not in PART_KERNELS:
+        if block not in FEATURE_BLOCKS or kind not in PART_KERNELS:
             msg = (
                 f"{option} {text!r}: {item!r} is not BLOCK=KERNEL with a block of "
-                f"{', '.join(MODALITIES)} and a kernel of {', '.join(PART_KERNELS)}"
+                f"{', '.join(FEATURE_BLOCKS)} and a kernel of {', '.join(PART_KERNELS)}"
             )
             raise ReplayError(msg)
         pairs.append((block, kind))

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import polars as pl
 
-from atikt import MODALITIES, MultiModalGPC
+from atikt import FEATURE_BLOCKS, MultiModalGPC
 from atikt.kernels import fusion_kernel
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup
@@ -135,9 +135,9 @@ def kernel_names(
 ) -> tuple[str, ...]:
     """Return the hyperparameter names of the fused kernel of ``action`` (its modalities).
 
-    In the order ``atikt.FeatureTransformer`` stacks the modalities (``atikt.MODALITIES``).
+    In the order ``atikt.FeatureTransformer`` stacks the modalities (``atikt.FEATURE_BLOCKS``).
     """
-    held = [m for m in MODALITIES if m in lookup.blocks[action]]
+    held = [m for m in FEATURE_BLOCKS if m in lookup.blocks[action]]
     options = dict(kernel)
     return fusion_kernel(
         {m: slice(i, i + 1) for i, m in enumerate(held)},

@@ -8,7 +8,8 @@ atikt/README.
 
 Run: ``python tests/bench/run_study.py NAME --recordings DIR --out OUT [--prior-recordings
 DIR2] [--new a,b] [--priors c,d] [--actions C1,P1] [--groups 10] [--trials 2] [--budget 40]
-[--group-size 3] [--transfer prediction] [--metric-sd 1|none] [--workers 2]``.
+[--group-size 3] [--transfer prediction] [--metric-sd 1|none] [--kernel-parts BLOCK=KERNEL,..]
+[--workers 2]``.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
+from replay.cli._options import parse_parts
 from replay.learning._datasets import dataset_roles
 from replay.learning._features import build_features
 from replay.learning._session import DEFAULT_LEARNER
@@ -58,6 +60,7 @@ def main() -> int:
     parser.add_argument("--group-size", type=int, default=3)
     parser.add_argument("--transfer", default="prediction")
     parser.add_argument("--metric-sd", type=_optional, default=1.0)
+    parser.add_argument("--kernel-parts", default="", help="BLOCK=KERNEL,.. of the learners")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
@@ -76,7 +79,10 @@ def main() -> int:
         trials=args.trials,
         workers=args.workers,
         learner=DEFAULT_LEARNER.replace(
-            budget=args.budget, transfer=args.transfer, metric_sd=args.metric_sd
+            budget=args.budget,
+            transfer=args.transfer,
+            metric_sd=args.metric_sd,
+            kernel_parts=parse_parts(args.kernel_parts, "--kernel-parts"),
         ),
         new=roles.new,
         old=roles.old,
