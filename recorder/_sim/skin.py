@@ -21,6 +21,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas import VOCABULARY
+
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
 
@@ -37,8 +39,9 @@ ACC_LSB_M_S2: Final = GRAVITY_M_S2 / 256.0
 """BMA250 resolution at +-2 g: 256 LSB/g."""
 ACC_MIN_LSB: Final = -512
 ACC_MAX_LSB: Final = 511
-ACC_NOISE_M_S2: Final = 0.04
-"""Accelerometer noise, about one LSB RMS at 1 kHz bandwidth."""
+ACC_NOISE_M_S2: Final = VOCABULARY.modalities["acceleration"].noise
+"""Accelerometer noise, about one LSB RMS at 1 kHz bandwidth: the contract's declared noise, so
+that the fusion study's noise prior and the simulated skin cannot disagree."""
 ACC_BIAS_M_S2: Final = 0.2
 """Spread of the accelerometers' zero-g offsets."""
 
@@ -48,7 +51,8 @@ TEMP_ACCURACY_C: Final = 1.5
 """LM71 accuracy: bound of the per-sensor offsets."""
 TEMP_OFFSET_C: Final = 0.4
 """Spread of the per-sensor offsets (typical, inside the accuracy bound)."""
-TEMP_NOISE_C: Final = 0.012
+TEMP_NOISE_C: Final = VOCABULARY.modalities["temperature"].noise
+"""Temperature noise of one sample: the contract's declared noise."""
 TEMP_DRIFT_C_S: Final = 0.002
 """Spread of a temperature sensor's drift rate during one execution."""
 TEMP_AGEING_C: Final = 0.003
@@ -62,7 +66,8 @@ FORCE_GAIN_SPREAD: Final = 0.03
 """Spread of the force sensors' gain errors (the 0.05 N accuracy at about 1.5 N per sensor)."""
 FORCE_GAIN_DRIFT: Final = 0.02
 """Spread of the common gain change between executions (the sensors' temperature drift)."""
-FORCE_NOISE_N: Final = 0.002
+FORCE_NOISE_N: Final = VOCABULARY.modalities["force"].noise
+"""Force noise of one sample: the contract's declared noise."""
 FORCE_OFFSET_N: Final = 0.002
 """Spread of the residual offsets left after the driver tares the sensors."""
 FORCE_DRIFT_N_S: Final = 0.0005

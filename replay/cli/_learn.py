@@ -47,6 +47,7 @@ from replay.studies._fusion_prior import (
     FUSION_PRIORS,
     HYPERPARAMETERS,
     action_parameter_names,
+    kernel_record,
     load_hyperparameters,
 )
 from replay.studies._registry import STUDIES
@@ -552,7 +553,8 @@ def _study_command(args: argparse.Namespace) -> int:
     parts = parse_parts(args.fusion_parts, "--fusion-parts")  # refused before any work
     learner = learner_from_args(args)
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
-        load_hyperparameters(Path(args.fusion_prior))  # a bad file is refused before any work
+        # a bad file is refused before any work
+        load_hyperparameters(Path(args.fusion_prior), kernel_record(args.fusion_kernel, parts))
     targets = {name: _study_output(args, name) for name in names}  # refused before any work
     prior = None if args.fusion_prior in FUSION_PRIORS else Path(args.fusion_prior)
     for target in targets.values():

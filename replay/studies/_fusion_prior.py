@@ -23,7 +23,7 @@ from replay.studies._running import REFERENCE_SAMPLES, dataset_actions, derive_s
 from schemas import VOCABULARY, atomic_write_text
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
     from pathlib import Path
 
     import numpy as np
@@ -156,6 +156,22 @@ def kernel_options(config: StudyConfig) -> tuple[tuple[str, Any], ...]:
     return tuple(options)
 
 
+def kernel_record(
+    combination: str = "sum", parts: Sequence[tuple[str, str]] = ()
+) -> dict[str, Any]:
+    """Return the multi-modal kernel's form as ``hyperparameters.json`` records it.
+
+    The hyperparameter names do not tell an RBF part from a Matern part, so the form is
+    written out: a file fitted with one form is refused as the prior of another.
+    """
+    return {"combination": combination, "parts": dict(sorted(parts))}
+
+
+def _kernel_text(kernel: Mapping[str, Any]) -> str:
+    parts = ", ".join(f"{k}={v}" for k, v in kernel["parts"].items()) or "RBF parts"
+    return f"--fusion-kernel {kernel['combination']} ({parts})"
+
+
 def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
     """Write the fused kernel's hyperparameters of every action, fitted on all its objects.
 
@@ -187,6 +203,7 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
         "format": _HYPERPARAMETERS_FORMAT,
         "version": 1,
         "features": config.features,
+        "kernel": kernel_record(config.fusion_kernel, config.fusion_parts),
         "seed": config.seed,
         "use": "atikt-replay study fusion --fusion-prior THIS_FILE (log hyperparameters of the "
         "multi-modal kernel, the prior's centre)",
@@ -197,8 +214,13 @@ def write_hyperparameters(features: pl.DataFrame, config: StudyConfig) -> Path:
     return path
 
 
-def load_hyperparameters(path: Path) -> dict[str, tuple[tuple[str, ...], tuple[float, ...]]]:
+def load_hyperparameters(
+    path: Path, kernel: Mapping[str, Any] | None = None
+) -> dict[str, tuple[tuple[str, ...], tuple[float, ...]]]:
     """Read a fusion study's ``hyperparameters.json``: per action, names and log values.
+
+    ``kernel``: the form of the multi-modal kernel they are to centre (``kernel_record``); a
+    file that records another form is refused (files without the record are taken as they are).
 
     Raises:
         ReplayError: The file is unreadable or not such a file, in one line naming the fix.
@@ -215,6 +237,14 @@ def load_hyperparameters(path: Path) -> dict[str, tuple[tuple[str, ...], tuple[f
         raise ReplayError(msg) from err
     if not isinstance(document, dict) or document.get("format") != _HYPERPARAMETERS_FORMAT:
         msg = f"--fusion-prior {path}: not a fusion study's hyperparameters file; {fix}"
+        raise ReplayError(msg)
+    recorded = document.get("kernel")
+    if kernel is not None and recorded is not None and recorded != kernel:
+        shown = _kernel_text(recorded) if _is_kernel_record(recorded) else repr(recorded)
+        msg = (
+            f"--fusion-prior {path}: it was fitted with {shown}, this study uses "
+            f"{_kernel_text(kernel)}; run both with the same --fusion-kernel and --fusion-parts"
+        )
         raise ReplayError(msg)
     saved = {}
     for action, entry in (document.get("actions") or {}).items():
@@ -236,6 +266,14 @@ def load_hyperparameters(path: Path) -> dict[str, tuple[tuple[str, ...], tuple[f
     return saved
 
 
+def _is_kernel_record(value: object) -> bool:
+    return (
+        isinstance(value, dict)
+        and isinstance(value.get("combination"), str)
+        and isinstance(value.get("parts"), dict)
+    )
+
+
 def saved_thetas(
     frame: pl.DataFrame, config: StudyConfig, path: Path
 ) -> dict[str, tuple[float, ...]]:
@@ -244,7 +282,7 @@ def saved_thetas(
     Raises:
         ReplayError: The file lacks an action, or its kernel has other modalities.
     """
-    saved = load_hyperparameters(path)
+    saved = load_hyperparameters(path, kernel_record(config.fusion_kernel, config.fusion_parts))
     lookup = FeatureLookup(frame.filter(pl.col("action_id").is_in(config.actions)), config.features)
     thetas = {}
     for action in config.actions:

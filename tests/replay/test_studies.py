@@ -211,6 +211,7 @@ def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
     saved = first.summary.parent / HYPERPARAMETERS
     document = json.loads(saved.read_text())
     assert set(document["actions"]) == set(ACTIONS)
+    assert document["kernel"] == {"combination": "sum", "parts": {}}
     for entry in document["actions"].values():
         assert len(entry["names"]) == len(entry["theta"]) > 0
         assert sorted(entry["objects"]) == sorted({*NEW, *OLD})
@@ -250,6 +251,12 @@ _HEAD = '{"format": "atikt fusion hyperparameters", "actions": '
         (
             '{"format": "atikt fusion hyperparameters", "actions": {ACTIONS}}',
             "was saved for the kernel a, this dataset's is",
+        ),
+        (
+            '{"format": "atikt fusion hyperparameters", "kernel": {"combination": "sum", '
+            '"parts": {"thermal": "matern32"}}, "actions": {ACTIONS}}',
+            r"fitted with --fusion-kernel sum \(thermal=matern32\), this study uses "
+            r"--fusion-kernel sum \(RBF parts\); run both with the same --fusion-kernel",
         ),
     ],
 )
