@@ -231,6 +231,10 @@ def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
 
 
 _HEAD = '{"format": "atikt fusion hyperparameters", "actions": '
+_OTHER_KERNEL = (
+    r"fitted with --fusion-kernel sum \(thermal=matern32\), this study uses "
+    r"--fusion-kernel sum \(RBF parts\); run both with the same --fusion-kernel"
+)
 
 
 @pytest.mark.parametrize(
@@ -253,10 +257,12 @@ _HEAD = '{"format": "atikt fusion hyperparameters", "actions": '
             "was saved for the kernel a, this dataset's is",
         ),
         (
-            '{"format": "atikt fusion hyperparameters", "kernel": {"combination": "sum", '
-            '"parts": {"thermal": "matern32"}}, "actions": {ACTIONS}}',
-            r"fitted with --fusion-kernel sum \(thermal=matern32\), this study uses "
-            r"--fusion-kernel sum \(RBF parts\); run both with the same --fusion-kernel",
+            _HEAD.replace(
+                '"actions"',
+                '"kernel": {"combination": "sum", "parts": {"thermal": "matern32"}}, "actions"',
+            )
+            + "{ACTIONS}}",
+            _OTHER_KERNEL,
         ),
     ],
 )
