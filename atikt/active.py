@@ -151,6 +151,8 @@ class StepRecord:
         candidates: Old-object labels.
         priors: Transferred old object of every new object's classifier of the action.
         rhos: Transfer coefficient of every new object's classifier of the action.
+        metrics: Whether every new object's classifier of the action was fitted under a
+            hyperprior centred on the old objects' kernel (metric transfer).
         modalities: Modality names, in the order of ``weights``.
         weights: Modality weights of the explored object's classifier.
         signal_variance: Its signal variance (1 for the thesis kernel).
@@ -170,6 +172,7 @@ class StepRecord:
     candidates: tuple[int, ...]
     priors: tuple[int | None, ...]
     rhos: tuple[float, ...]
+    metrics: tuple[bool, ...]
     modalities: tuple[str, ...]
     weights: tuple[float, ...]
     signal_variance: float
@@ -191,6 +194,7 @@ class StepRecord:
             "candidates": list(self.candidates),
             "priors": [-1 if p is None else p for p in self.priors],
             "rhos": list(self.rhos),
+            "metrics": list(self.metrics),
             "modalities": list(self.modalities),
             "weights": list(self.weights),
             "signal_variance": self.signal_variance,
@@ -214,6 +218,8 @@ class ActionState:
         choices: Transfer choice per new object.
         thetas: Warm-start hyperparameters (base kernel) per new object.
         rhos: Warm-start learned rho per new object and old object (model optimisation).
+        metrics: Per new object, whether its classifier's hyperprior is centred on the old
+            objects' kernel (metric transfer) in the current update.
         uncertainty: ``UNC`` per new object, shape (n_new,).
         prior_stacks: The prior observations of each old object, stacked on first use.
         prior_probabilities: The old objects' one-vs-all probabilities of each observation
@@ -231,6 +237,7 @@ class ActionState:
     choices: list[PriorChoice] = field(default_factory=list)
     thetas: list[FloatArray | None] = field(default_factory=list)
     rhos: list[dict[int, float]] = field(default_factory=list)
+    metrics: list[bool] = field(default_factory=list)
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
     prior_stacks: dict[int, StackedFeatures] | None = None
     prior_probabilities: FloatArray | None = None
@@ -474,6 +481,7 @@ class ActiveLearner:
             candidates=choice.candidates,
             priors=tuple(c.source for c in state.choices),
             rhos=tuple(c.rho for c in state.choices),
+            metrics=tuple(state.metrics),
             modalities=kernel.modalities,
             weights=tuple(float(w) for w in kernel.weights),
             signal_variance=kernel.signal_variance,
@@ -504,6 +512,7 @@ class ActiveLearner:
             n = self.n_new_objects
             state.models, state.choices = [], [NO_CHOICE] * n
             state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
+            state.metrics = [False] * n
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         probabilities = self._prior_probabilities(state)
         models = []
@@ -547,6 +556,7 @@ class ActiveLearner:
             )
             state.choices[obj] = choice
             state.thetas[obj] = model.base_kernel_.theta
+            state.metrics[obj] = centre is not base
             models.append(model)
         state.transformer, state.X, state.models = transformer, X, models
         state.uncertainty = self._uncertainty(state)
@@ -717,6 +727,16 @@ class ActiveLearner:
             predicted = self.predict(action, observations)
             scores[action] = float(np.mean(predicted == np.asarray(labels).reshape(-1)))
         return scores
+
+    def metric_share(self) -> float:
+        """Share of the new objects' classifiers (all actions) fitted under metric transfer.
+
+        The classifiers whose hyperprior is centred on the old objects' kernel in the latest
+        update of their action, in [0, 1]; 0 without priors or with ``metric_sd=None``.
+        """
+        self._check_initialised()
+        used = [m for state in self.states_.values() for m in state.metrics]
+        return sum(used) / len(used) if used else 0.0
 
     def score(self, test: Mapping[str, tuple[Sequence[RawFeatures], npt.ArrayLike]]) -> float:
         """Accuracy of all actions together: the mean over actions of per-action accuracy."""

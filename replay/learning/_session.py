@@ -274,10 +274,16 @@ def _named(spec: RunSpec, row: dict[str, Any]) -> dict[str, Any]:
 
 
 def _scores(learner: ActiveLearner, test: TestSet) -> dict[str, float]:
-    """Return the accuracy of all actions together and of each action."""
+    """Return the accuracy of all actions together and of each action, and the metric share.
+
+    ``metric_share``: the share of the new objects' classifiers fitted under metric transfer
+    (``ActiveLearner.metric_share``), which transfers the old objects' kernel, not their
+    observations (``rho`` says when observations are transferred).
+    """
     per_action = learner.score_per_action(test)
     overall = sum(per_action.values()) / len(per_action)
-    return {"accuracy": overall} | {f"accuracy_{a}": v for a, v in per_action.items()}
+    accuracies = {"accuracy": overall} | {f"accuracy_{a}": v for a, v in per_action.items()}
+    return accuracies | {"metric_share": learner.metric_share()}
 
 
 def run_learning(

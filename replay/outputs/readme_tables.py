@@ -173,13 +173,16 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     """Return how often the borrowed priors were used, as a sentence (empty without ``rho``).
 
     Per target action: the share of the borrowed learner's steps 1..budget whose update
-    transferred observations (``rho > 0``: relatedness admitted an old object of the source).
-    The results do not say when metric transfer used the old objects' kernel.
+    transferred observations (``rho > 0``: relatedness admitted an old object of the source),
+    and, where the results have ``metric_share`` (the share of the new objects' classifiers
+    fitted under metric transfer, the old objects' kernel), its mean at step 0 and over
+    1..budget.
     """
     if "rho" not in frame.columns:
         return ""
+    runs = frame.filter(pl.col("method") == borrowed)
     shares = (
-        frame.filter((pl.col("method") == borrowed) & (pl.col("step") > 0))
+        runs.filter(pl.col("step") > 0)
         .group_by("actions")
         .agg((pl.col("rho").fill_null(0.0) > 0).mean().alias("share"))
         .sort("actions")
@@ -187,9 +190,24 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     if shares.is_empty():
         return ""
     parts = ", ".join(f"{a} {100 * v:.0f} %" for a, v in shares.iter_rows())
+    text = (
+        f" Steps of `{borrowed}` that transferred a borrowed object's observations "
+        f"(rho > 0): {parts}."
+    )
+    if "metric_share" not in frame.columns:
+        return text + " (These results do not say how often metric transfer was used.)"
+    metric = (
+        runs.group_by("actions")
+        .agg(
+            pl.col("metric_share").filter(pl.col("step") == 0).mean().alias("initial"),
+            pl.col("metric_share").filter(pl.col("step") > 0).mean().alias("later"),
+        )
+        .sort("actions")
+    )
+    parts = ", ".join(f"{a} {100 * i:.0f} / {100 * m:.0f} %" for a, i, m in metric.iter_rows())
     return (
-        f" Steps of `{borrowed}` that transferred a borrowed object's observations (rho > 0; "
-        f"metric transfer of the old objects' kernel is not counted): {parts}."
+        f"{text} Classifiers fitted under metric transfer (the old objects' kernel as the "
+        f"centre of their hyperprior), step 0 / steps 1..budget: {parts}."
     )
 
 

@@ -211,7 +211,8 @@ def prior_groups(old: Sequence[str], size: int, count: int, seed: int) -> list[t
 def rows(frame: pl.DataFrame, labels: dict[str, Any]) -> pl.DataFrame:
     """Return the columns of a run kept in study results, with the run's labels."""
     keep = [c for c in frame.columns if c.startswith("accuracy")]
-    keep += [c for c in ("step", "object", "action", "explored", "prior", "rho") if c in frame]
+    kept = ("step", "object", "action", "explored", "prior", "rho", "metric_share")
+    keep += [c for c in kept if c in frame]
     return frame.select(keep).with_columns(
         *(pl.lit(value).alias(name) for name, value in labels.items())
     )

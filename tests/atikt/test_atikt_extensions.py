@@ -490,6 +490,7 @@ def test_the_metric_check_keeps_the_old_kernel_only_when_it_passes(
         }[check]
         thetas = [m.base_kernel_.theta for m in state.models]
         baseline = [m.base_kernel_.theta for m in plain.states_[action].models]
+        assert state.metrics == [bool(passed)] * len(NEW_OBJECTS)
         if passed:
             assert all(np.abs(t - centre).max() < 0.1 for t in thetas)
         else:  # the baseline's fits exactly
@@ -530,7 +531,15 @@ def test_metric_until_hands_a_well_observed_object_back_to_its_own_data(
             expected = 3.0 if own else 0.5
             assert model.prior_sd == expected
             assert np.allclose(model.prior_mean, centre) != own
+            assert state.metrics[obj] != own
+            assert always.states_[action].metrics[obj]
     assert seen == {True, False}
+    # the records and the share say the same: per action, then over all classifiers
+    last = {r.action: r.metrics for r in held.history_}
+    assert all(list(last[a]) == held.states_[a].metrics for a in last)
+    flags = [m for a in ACTIONS for m in held.states_[a].metrics]
+    assert 0.0 < held.metric_share() == sum(flags) / len(flags) < 1.0
+    assert always.metric_share() == 1.0
     with pytest.raises(AtiktError, match="metric_until=0 must be None or >= 1"):
         ActiveLearner(ACTIONS, 2, observe=PoolObserver({}), metric_until=0)
 
@@ -585,6 +594,8 @@ def test_metric_transfer_needs_two_old_objects_and_leaves_the_baseline_alone(
     baseline = run(train, transfer="none")
     with_metric = run(train, transfer="none", priors=priors, metric_sd=0.01)
     assert [r.as_row() for r in with_metric.history_] == [r.as_row() for r in baseline.history_]
+    assert with_metric.metric_share() == 0.0
+    assert not any(any(r.metrics) for r in with_metric.history_)
     # a single old object has no one-vs-all model: the optimisation approach runs without
     one = {a: {k: v for k, v in groups.items() if k == min(groups)} for a, groups in priors.items()}
     single = run(train, priors=one, transfer="optimization", metric_sd=0.01, budget=1)

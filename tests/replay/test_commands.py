@@ -230,6 +230,25 @@ def test_learn_records_its_metric_transfer_settings(
     assert (chosen["metric_check"], chosen["metric_until"]) == ("separation", None)
 
 
+def test_the_history_says_how_many_classifiers_used_the_old_objects_kernel(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = _learn(small_dataset, "--actions", "P1", "--budget", "2")
+    always = ["--metric-check", "none", "--metric-until", "none"]
+    transfer = [*argv, "--transfer", "prediction"]
+    assert main([*transfer, *always, "--out", str(tmp_path / "always")]) == 0
+    assert main([*transfer, "--metric-sd", "none", "--out", str(tmp_path / "thesis")]) == 0
+    assert main([*argv, *always, "--out", str(tmp_path / "none")]) == 0
+    capsys.readouterr()
+    shares = {
+        name: pl.read_parquet(tmp_path / name / HISTORY_NAME)["metric_share"].to_list()
+        for name in ("always", "thesis", "none")
+    }
+    assert shares == {"always": [1.0] * 3, "thesis": [0.0] * 3, "none": [0.0] * 3}
+    metrics = pl.read_parquet(tmp_path / "always" / HISTORY_NAME)["metrics"].to_list()
+    assert metrics[1:] == [[True] * len(NEW)] * 2
+
+
 def test_a_run_repeats_from_its_run_json(
     small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -207,6 +207,7 @@ def _borrow(gains: dict[str, float], groups: int = 4) -> pl.DataFrame:
                     {"actions": action, "source": source, "method": method, "group": group}
                     | {"trial": trial, "step": step, "accuracy": base + gain}
                     | {"rho": 0.6 if used else 0.0}
+                    | {"metric_share": 0.0 if method == "baseline" else 1.0 if step == 0 else 0.5}
                 )
     return pl.DataFrame(rows)
 
@@ -231,8 +232,15 @@ def test_a_borrow_block_gives_each_target_actions_accuracies_and_paired_differen
     assert "4000 paired bootstrap resamples of the 4 prior groups (seed 0)" in block
     # relatedness admitted the borrowed priors at every step of C1 and never for P2
     assert f"Steps of `{borrowed}` that transferred a borrowed object's observations" in block
-    assert "is not counted): C1 100 %, P2 0 %." in block
+    assert "(rho > 0): C1 100 %, P2 0 %." in block
+    # the share of classifiers under metric transfer at step 0 / over the later steps
+    assert "step 0 / steps 1..budget: C1 100 / 50 %, P2 100 / 50 %." in block
     assert rewrite(block, tmp_path / "studies", 0) == block
+    # results written before metric_share was recorded say so
+    frame.drop("metric_share").write_parquet(tmp_path / "studies" / borrowed / "results.parquet")
+    older = rewrite(text, tmp_path / "studies", 0)
+    assert "do not say how often metric transfer was used" in older
+    assert "Classifiers fitted under metric transfer" not in older
 
 
 def test_a_borrow_blocks_interval_is_the_summarys(tmp_path: Path) -> None:
