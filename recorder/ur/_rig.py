@@ -41,7 +41,7 @@ from recorder.ur._script import (
     stop_program,
     tool_axis,
 )
-from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
+from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
@@ -509,9 +509,18 @@ class URRig:
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
         while True:
-            yield from self._pump()
+            # every force sample that arrived counts, not only the latest: a short touch
+            # between two checks (a light contact on a soft object) is not missed
+            peak: float | None = None
+            for item in self._pump():
+                yield item
+                if isinstance(item, SkinBlock) and item.modality == "force" and len(item.data):
+                    most = float(item.data.reshape(len(item.data), -1).sum(axis=1).max())
+                    peak = most if peak is None else max(peak, most)
             total = skin.total_force()
-            if total is not None and total - zero > motion.contact_force_n:
+            if total is not None:
+                peak = total if peak is None else max(peak, total)
+            if peak is not None and peak - zero > motion.contact_force_n:
                 break
             if self._clock.now_ns() > give_up_ns:
                 reason = (

@@ -8,6 +8,13 @@ simulation runs ``1 / time_scale`` times faster than the real clock when ``time_
 (tests), so the servers keep their real rates while an action takes a fraction of its time.
 A protective or emergency stop freezes the arm where it is and ends the playback.
 
+Each execution is simulated on its own, with its own force offsets and drift; a real skin's
+readings go on from one action to the next. So the force readings of a new execution continue
+from where the previous one left them (its first sample is moved onto the previous execution's
+reading at the start, a constant shift per execution): the rig's tare in free air before an
+approach, taken on the previous execution's readings, is the zero of the new one, as at a
+real skin.
+
 The motion is the simulator's plan for the announced action (approach until the skin's light
 contact, the action, the retract); the URScript the rig sends is checked, not executed step by
 step (see the URScript server).
@@ -168,6 +175,7 @@ class VirtualWorld:
     _frozen_ns: int | None = field(default=None, init=False)
     _safety: int = field(default=SAFETY_NORMAL, init=False)
     _cache: dict[tuple[str, str, int], _Execution] = field(default_factory=dict, init=False)
+    _carry: dict[str, NDArray[np.float64]] = field(default_factory=dict, init=False)
 
     def __post_init__(self) -> None:
         """Start the controller's clock."""
@@ -210,8 +218,15 @@ class VirtualWorld:
             if self._safety != SAFETY_NORMAL:
                 msg = "the arm is stopped (protective or emergency stop): unlock it first"
                 raise RigError(msg)
-            self._playing = self._cache.pop((object_id, action_id, trial))
-            self._start_ns = self.controller_ns()
+            now = self.controller_ns()
+            previous, held = self._execution(), self._sim_ns(now)
+            new = self._cache.pop((object_id, action_id, trial))
+            carry: dict[str, NDArray[np.float64]] = {}
+            if previous is not None and "force" in previous.skin and "force" in new.skin:
+                reading = previous.skin["force"].at(held) + self._carry.get("force", 0.0)
+                carry["force"] = reading - new.skin["force"].values[0]
+            self._playing, self._carry = new, carry
+            self._start_ns = now
             self._frozen_ns = None
 
     def busy_locked(self) -> bool:
@@ -258,11 +273,14 @@ class VirtualWorld:
         """Return the arm's state at a controller time."""
         with self._lock:
             run, sim_ns, safety = self._execution(), self._sim_ns(controller_ns), self._safety
+            carry = self._carry.get("force")
         if run is None:
             home = np.zeros(6)
             return RobotState(home, home, home, home, ROBOT_MODE_RUNNING, safety)
         moving = self._frozen_ns is None and 0 <= sim_ns < run.end_ns
         wrench = run.force.at(sim_ns) if run.force is not None else np.zeros(6)
+        if carry is not None:  # the skin's readings go on from the previous execution
+            wrench = wrench + np.array([0.0, 0.0, float(carry.sum()), 0.0, 0.0, 0.0])
         qd = run.qd.at(sim_ns) if moving else np.zeros_like(run.qd.values[0])
         return RobotState(
             run.q.at(sim_ns),
@@ -278,9 +296,11 @@ class VirtualWorld:
         """Return the skin's latest sample of ``modality`` (cells, values); None: no such."""
         with self._lock:
             run, sim_ns = self._execution(), self._sim_ns(controller_ns)
+            carry = self._carry.get(modality)
         if run is None or modality not in run.skin:
             return None
-        return run.skin[modality].at(sim_ns)
+        value = run.skin[modality].at(sim_ns)
+        return value if carry is None else value + carry
 
     def phase_at(self, controller_ns: int) -> str | None:
         """Return the simulated phase at a controller time (None: no action yet)."""

@@ -2,7 +2,10 @@
 
 ``atikt-replay learn`` writes one row per step: step 0 is the state after the initial
 observations, every later row one decision (object, action, explored, prior, rho, modality
-weights, the entropy map before the decision, accuracies after the update). The entropy map is
+weights, the entropy map before the decision, accuracies after the update, and
+``metric_share``: the share of all new objects' classifiers fitted under metric transfer, the
+old objects' kernel as their hyperprior's centre; ``metrics`` per new object of the action).
+The entropy map is
 a list of lists, actions x objects, in the learner's order; the history does not store that
 order, so it is recovered from the history itself:
 

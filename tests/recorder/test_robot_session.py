@@ -61,6 +61,7 @@ def _serve_sim(*options: str, scale: str = TIME_SCALE) -> Iterator[subprocess.Po
     process = subprocess.Popen(  # noqa: S603 (this project's command)
         [*command, *options], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
+    failed = True
     try:
         assert process.stdout is not None
         assert process.stderr is not None
@@ -68,9 +69,12 @@ def _serve_sim(*options: str, scale: str = TIME_SCALE) -> Iterator[subprocess.Po
         assert line.startswith("virtual lab listening"), line + process.stderr.read()
         assert "127.0.0.1" in line
         yield process
+        failed = False
     finally:
         process.send_signal(signal.SIGINT)
         out, err = process.communicate(timeout=20)
+        if failed:  # the controller's log (refused programs, faults) beside the failure
+            sys.stderr.write(f"virtual lab's log:\n{err}")
     assert process.returncode == 0, err
     assert out.strip() == "virtual lab stopped"
 

@@ -3,21 +3,24 @@
 import socket
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from ur_lab import POSE, config, virtual_lab
+from ur_lab import POSE, WorldSkin, config, virtual_lab
 
 from recorder import (
     ActionStoppedError,
     RecorderError,
     RigError,
+    SimulatedRig,
     load_actions,
     load_objects,
     record_action,
 )
 from recorder.live import SOURCES_RECORD, parse_source_stats
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
+from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._command import parse_faults, rtde_faults
 from recorder.virtuallab._rtde_server import RtdeFaults
 from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs
@@ -110,6 +113,48 @@ def test_a_new_program_replaces_the_playing_action() -> None:
         lab.world.start_action("wood", "C1", 1)
         lab.world.start_action("foam_block", "P1", 1)  # a controller runs the newest program
         assert lab.world.playing() == ("foam_block", "P1", 1)
+
+
+def test_the_light_contact_counts_every_force_sample_not_only_the_latest(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the latest reading never shows the touch (every check falls between two samples of it):
+    # the samples that arrived between the checks do
+    monkeypatch.setattr(WorldSkin, "total_force", lambda _self: 0.0)
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "C1", 1)
+        reason = ""
+        try:
+            _record(lab.rig({"wood": POSE}), "C1", tmp_path / "001.mcap")
+        except ActionStoppedError as stop:
+            reason = stop.reason
+    # found from 0.1 s blocks, the contact comes late and the virtual lab's plan (which does
+    # not wait for the rig) may have pressed on: a later phase may stop, not the approach
+    assert "no light contact" not in reason, reason
+
+
+def test_the_skins_force_goes_on_from_one_execution_to_the_next() -> None:
+    now = [0]
+    with SimulatedRig(0) as sim:
+        world = VirtualWorld(sim, OBJECTS, ACTIONS, time_scale=0.1, clock=lambda: now[0])
+        world.start_action("foam_block", "P1", 1)
+        now[0] = 3_000_000_000  # the press's tail: its readings have drifted
+        held = world.skin_at("force", world.controller_ns())
+        world.prepare("foam_block", "S1", 1)
+        fresh = world._cache[("foam_block", "S1", 1)].skin["force"]
+        assert held is not None
+        assert not np.allclose(fresh.values[0], held)  # each execution has its own offsets
+        world.start_action("foam_block", "S1", 1)
+        first = world.skin_at("force", world.controller_ns())
+        assert first is not None
+        assert np.array_equal(first, held)
+        now[0] += 500_000_000  # later samples keep their own course, shifted
+        later = world.skin_at("force", world.controller_ns())
+        raw = fresh.at(5_000_000_000)
+        assert later is not None
+        assert np.allclose(later - held, raw - fresh.values[0])
+        wrench = world.robot_at(world.controller_ns()).tcp_force[2]
+        assert np.isclose(wrench, float(later.sum()), atol=1e-6)
 
 
 def test_silent_rtde_stops_the_action(tmp_path: Path) -> None:
