@@ -509,17 +509,7 @@ class URRig:
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
         while True:
-            # every force sample that arrived counts, not only the latest: a short touch
-            # between two checks (a light contact on a soft object) is not missed
-            peak: float | None = None
-            for item in self._pump():
-                yield item
-                if isinstance(item, SkinBlock) and item.modality == "force" and len(item.data):
-                    most = float(item.data.reshape(len(item.data), -1).sum(axis=1).max())
-                    peak = most if peak is None else max(peak, most)
-            total = skin.total_force()
-            if total is not None:
-                peak = total if peak is None else max(peak, total)
+            peak = yield from self._pump_force(since_ns=sent_ns)
             if peak is not None and peak - zero > motion.contact_force_n:
                 break
             if self._clock.now_ns() > give_up_ns:
@@ -543,6 +533,24 @@ class URRig:
         self._send(stop_program(said, "contact", motion))
         yield self._event("contact")
         return self._arm.pose.copy()
+
+    def _pump_force(self, *, since_ns: int) -> Generator[StreamItem, None, float | None]:
+        """Pump once; return the largest total skin force since ``since_ns`` (None: none).
+
+        Every force sample that arrived counts, not only the latest: a short touch between two
+        checks (a light contact on a soft object) is not missed.
+        """
+        peak: float | None = None
+        for item in self._pump():
+            yield item
+            if isinstance(item, SkinBlock) and item.modality == "force":
+                most = _peak_total(item, since_ns=since_ns)
+                if most is not None:
+                    peak = most if peak is None else max(peak, most)
+        total = self._live_skin().total_force()
+        if total is not None:
+            peak = total if peak is None else max(peak, total)
+        return peak
 
     def _execute(
         self, said: Announcement, action: ActionSpec, contact: NDArray[np.float64]
@@ -765,3 +773,15 @@ def build_ur_rig(seed: int, config: Any) -> URRig:  # noqa: ANN401 (a RigConfig)
             raise RigError(msg)
         poses[object_id] = [float(v) for v in pose]
     return URRig(options, limits, skin, poses, where=where)
+
+
+def _peak_total(block: SkinBlock, *, since_ns: int) -> float | None:
+    """Return the largest total force of a force block's samples taken at or after ``since_ns``.
+
+    Samples from before (a block may begin before the approach, in the tare) are not counted:
+    a jolt while the arm moved to the object must not read as its contact.
+    """
+    totals = block.data.reshape(len(block.data), -1).sum(axis=1)
+    stamps = block.stamp_ns + block.period_ns * np.arange(len(totals))
+    after = totals[stamps >= since_ns]
+    return float(after.max()) if after.size else None

@@ -20,10 +20,12 @@ from recorder import (
 )
 from recorder.live import SOURCES_RECORD, parse_source_stats
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
+from recorder.ur._rig import _peak_total
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._command import parse_faults, rtde_faults
 from recorder.virtuallab._rtde_server import RtdeFaults
 from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs
+from recorder.writing._stream import SkinBlock
 from replay import read_recording
 from replay.cli._main import main as replay_main
 
@@ -131,6 +133,16 @@ def test_the_light_contact_counts_every_force_sample_not_only_the_latest(
     # found from 0.1 s blocks, the contact comes late and the virtual lab's plan (which does
     # not wait for the rig) may have pressed on: a later phase may stop, not the approach
     assert "no light contact" not in reason, reason
+
+
+def test_a_force_block_counts_for_the_contact_only_from_the_approach_on() -> None:
+    data = np.zeros((4, 7, 3), dtype=np.float32)
+    data[0] = 1.0  # a jolt in the tare, before the approach program went out
+    data[3] = 0.01
+    block = SkinBlock("force", stamp_ns=1_000, period_ns=10, receive_ns=2_000, data=data)
+    assert _peak_total(block, since_ns=1_010) == pytest.approx(0.21)
+    assert _peak_total(block, since_ns=1_000) == pytest.approx(21.0)
+    assert _peak_total(block, since_ns=1_031) is None
 
 
 def test_the_skins_force_goes_on_from_one_execution_to_the_next() -> None:
