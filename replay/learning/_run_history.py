@@ -5,9 +5,8 @@ observations, every later row one decision (object, action, explored, prior, rho
 weights, the entropy map before the decision, accuracies after the update, and
 ``metric_share``: the share of all new objects' classifiers fitted under metric transfer, the
 old objects' kernel as their hyperprior's centre; ``metrics`` per new object of the action).
-The entropy map is
-a list of lists, actions x objects, in the learner's order; the history does not store that
-order, so it is recovered from the history itself:
+The entropy map is a list of lists, actions x objects, in the learner's order; the history
+does not store that order, so it is recovered from the history itself:
 
 - actions: the order of the ``accuracy_<action>`` columns (the run scores its actions in the
   learner's order);
