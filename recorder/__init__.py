@@ -45,6 +45,7 @@ from recorder.errors import (
     RecorderError,
     RigError,
 )
+from recorder.runner._record import record_action
 from recorder.writing._stream import (
     JointSample,
     Modality,
@@ -58,7 +59,6 @@ from recorder.writing._writer import (
     RecordingInfo,
     RecordingWriter,
     WrittenRecording,
-    record_action,
 )
 from schemas import software_version
 

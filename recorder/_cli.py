@@ -36,7 +36,7 @@ from recorder._dataset import (
     recordings,
     write_index,
 )
-from recorder._rig import rig_hook
+from recorder._rig import Presenting
 from recorder._rigconfig import (
     RigFactory,
     is_exclusive,
@@ -45,7 +45,7 @@ from recorder._rigconfig import (
     rig_names,
 )
 from recorder.errors import RecorderError
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from schemas import SET_ASIDE_DIR, ContractError, cli, software_version
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ DEFAULT_RIG = "sim"
 COMMAND_MODULES: tuple[str, ...] = (
     "recorder.bagimport._command",
     "recorder.bagimport._listen",
-    "recorder._session",
+    "recorder._session_command",
     "recorder.virtuallab._command",
 )
 
@@ -147,9 +147,8 @@ def _action(args: argparse.Namespace) -> int:
     factory = _rig(args)
     check_configuration(args.out, args.seed, factory)
     with factory(args.seed) as rig:
-        can_present, present = rig_hook(rig, "can_present"), rig_hook(rig, "present")
-        if can_present is not None and present is not None and can_present(task.obj):
-            present(task.obj)  # the rig's configuration has the object's pose: go there
+        if isinstance(rig, Presenting) and rig.can_present(task.obj):
+            rig.present(task.obj)  # the rig's configuration has the object's pose: go there
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
     Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")

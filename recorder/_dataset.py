@@ -37,7 +37,8 @@ from threadpoolctl import threadpool_limits
 
 from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
-from recorder.writing._writer import METADATA_NAME, record_action
+from recorder.runner._record import record_action
+from recorder.writing._writer import FACT_PREFIX, METADATA_NAME
 from schemas import (
     CHANNELS,
     PART_SUFFIX,
@@ -365,6 +366,15 @@ def _first_metadata(root: Path) -> tuple[Path, RecordingMetadata] | None:
     return None
 
 
+def _configuration(rig: Mapping[str, object]) -> dict[str, object]:
+    """Return a rig description without what the rig learned on connecting (``fact:...``).
+
+    The rig's identity in a dataset is its configuration; a controller's version is recorded
+    in every file but is not known before connecting, so it is never compared.
+    """
+    return {k: v for k, v in check_rig(rig).items() if not k.startswith(FACT_PREFIX)}
+
+
 def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
     """Refuse to record into a dataset whose recordings have another seed or rig configuration.
 
@@ -374,7 +384,7 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
     Raises:
         RecorderError: The seeds or rig descriptions differ; the message names both and the fix.
     """
-    rig = dict(check_rig(factory(seed).describe()))  # a bad rig option fails before any worker
+    rig = _configuration(factory(seed).describe())  # a bad rig option fails before any worker
     found = _first_metadata(root)
     if found is None:
         return
@@ -386,8 +396,9 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
             f"{meta.seed} to resume it"
         )
         raise RecorderError(msg)
-    if differ := sorted(k for k in {*rig, *meta.rig} if rig.get(k) != meta.rig.get(k)):
-        theirs = ", ".join(f"{k}={meta.rig.get(k)!r}" for k in differ)
+    theirs_rig = _configuration(meta.rig)
+    if differ := sorted(k for k in {*rig, *theirs_rig} if rig.get(k) != theirs_rig.get(k)):
+        theirs = ", ".join(f"{k}={theirs_rig.get(k)!r}" for k in differ)
         wanted = ", ".join(f"{k}={rig.get(k)!r}" for k in differ)
         msg = (
             f"{root}: holds recordings of another rig configuration ({theirs}; this run: "

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Protocol, Self, runtime_checkable
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator, Mapping
+    from collections.abc import Iterator, Mapping
     from types import TracebackType
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.writing._stream import StreamItem
+    from schemas import SourceStats
 
 
 class Rig(Protocol):
@@ -47,12 +48,42 @@ class Rig(Protocol):
         ...
 
 
-def rig_hook(rig: Rig, name: str) -> Callable[[ObjectSpec], Any] | None:
-    """Return a rig's optional method ``name`` (``present``, ``can_present``), if it has one.
+@runtime_checkable
+class Presenting(Protocol):
+    """A rig that can bring an object under its skin (an arm visiting the object's pose)."""
 
-    ``present(obj) -> bool`` brings the object under the skin when the rig's configuration has
-    its pose (False: a person must place it); ``can_present(obj) -> bool`` says whether it
-    could, before anything moves.
-    """
-    method: Callable[[ObjectSpec], Any] | None = getattr(rig, name, None)
-    return method
+    def can_present(self, obj: ObjectSpec) -> bool:
+        """Return whether the rig could present ``obj`` (checked before anything moves)."""
+        ...
+
+    def present(self, obj: ObjectSpec) -> bool:
+        """Bring ``obj`` under the skin; False: a person must place it (no pose)."""
+        ...
+
+
+@runtime_checkable
+class Accounting(Protocol):
+    """A live rig that counts what its sources delivered in the last action."""
+
+    def source_stats(self) -> list[SourceStats]:
+        """Return the accounting of the last action, one entry per source."""
+        ...
+
+
+@runtime_checkable
+class Connecting(Protocol):
+    """A rig that learns facts when it connects (a controller's version): recorded only."""
+
+    def facts(self) -> Mapping[str, str]:
+        """Return what was learned on connecting (never compared between runs)."""
+        ...
+
+
+def facts(rig: Rig) -> Mapping[str, str]:
+    """Return what ``rig`` learned on connecting (empty for rigs that learn nothing)."""
+    return rig.facts() if isinstance(rig, Connecting) else {}
+
+
+def source_stats(rig: Rig) -> list[SourceStats]:
+    """Return the accounting of ``rig``'s last action (empty for rigs without live sources)."""
+    return rig.source_stats() if isinstance(rig, Accounting) else []

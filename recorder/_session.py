@@ -2,14 +2,16 @@
 
 A session records every (action, trial) of one object, then of the next, into the dataset
 layout ``<out>/<object>/<action>/<trial>.mcap`` with the dataset's index and object
-declarations. Before an object's recordings the rig presents it: a rig may implement
-``present(obj) -> bool`` (it moves the object under the skin when its configuration has a pose
-for it and returns True; False when a person must place it, and the session asks on the
-terminal) and ``can_present(obj) -> bool`` (whether it could, checked before anything moves for
-an unattended ``--yes`` run). A rig without them (the simulator) needs nobody.
+declarations. Before an object's recordings the rig presents it: a rig that is
+:class:`recorder.Presenting` moves the object under the skin when its configuration has a pose
+for it (False: a person must place it, and the session asks on the terminal) and says before
+anything moves whether it could (an unattended ``--yes`` run). Other rigs (the simulator) need
+nobody.
 
-An interrupted session resumes: recordings on disk are kept and skipped, as ``dataset`` does,
-and a directory of another seed or rig configuration is refused.
+An interrupted session -- Ctrl-C, SIGTERM, SIGKILL, a lost connection, a protective stop --
+resumes: recordings on disk are kept and skipped, as ``dataset`` does, unfinished files of dead
+recorders are set aside with a line, and a directory of another seed or rig configuration
+(the rig's identity is its configuration, not what it learns on connecting) is refused.
 """
 
 from __future__ import annotations
@@ -19,22 +21,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rich.console import Console
-
-from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, _names, _rig, _rig_arguments, arg, command
 from recorder._dataset import (
     check_configuration,
     declare_objects,
-    plan_dataset,
+    set_aside_stale_parts,
     write_index,
 )
-from recorder._rig import rig_hook
+from recorder._rig import Presenting
 from recorder.errors import RecorderError
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 
 if TYPE_CHECKING:
-    import argparse
     from collections.abc import Callable, Sequence
 
     from recorder._catalog import ObjectSpec
@@ -67,10 +64,9 @@ def refuse_unpresentable(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
     Raises:
         RecorderError: Objects without a pose; one line naming them and the fix.
     """
-    can_present = rig_hook(rig, "can_present")
-    if can_present is None:
+    if not isinstance(rig, Presenting):
         return
-    if missing := [obj.id for obj in objects if not can_present(obj)]:
+    if missing := [obj.id for obj in objects if not rig.can_present(obj)]:
         msg = (
             f"--yes: the rig has no pose for {', '.join(missing)}; give them a pose in the rig "
             "configuration, or run without --yes to place them by hand"
@@ -87,8 +83,7 @@ def present(
         RecorderError: Unattended and the rig cannot present it, or the prompt ended (EOF,
             Ctrl-C); the message says that recordings are kept and how to resume.
     """
-    hook = rig_hook(rig, "present")
-    if hook is None or hook(obj):
+    if not isinstance(rig, Presenting) or rig.present(obj):
         return
     if unattended:
         msg = f"--yes: the rig could not present {obj.id}; give it a pose or run without --yes"
@@ -118,6 +113,7 @@ def run_session(
     unattended: bool = False,
     ask: Callable[[str], str] = input,
     on_recorded: Callable[[RecordingTask, WrittenRecording], Any] | None = None,
+    on_set_aside: Callable[[Path], Any] | None = None,
 ) -> SessionReport:
     """Record ``tasks`` object by object with one rig, skipping recordings on disk.
 
@@ -129,6 +125,7 @@ def run_session(
         unattended: Never ask a person: every object must be presentable by the rig.
         ask: Shows a prompt and waits for Enter (``input``).
         on_recorded: Called after every recording.
+        on_set_aside: Called with each unfinished file of a dead recorder that was set aside.
 
     Returns:
         What was written and kept, and the index.
@@ -140,6 +137,9 @@ def run_session(
     """
     root = Path(root)
     check_configuration(root, seed, factory)
+    for moved in set_aside_stale_parts(root):
+        if on_set_aside is not None:
+            on_set_aside(moved)
     pending = [task for task in tasks if not task.path(root).exists()]
     by_object: dict[str, list[RecordingTask]] = {}
     for task in pending:
@@ -161,54 +161,3 @@ def run_session(
             _finish(root, tasks)
         raise
     return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
-
-
-@command(
-    "session",
-    "record actions at a rig object by object (objects presented by the rig or placed by "
-    "hand); an interrupted session resumes",
-    arg("--objects", type=_names, required=True, help="comma-separated object ids, in order"),
-    arg("--actions", type=_names, required=True, help="comma-separated action ids"),
-    arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
-    arg("--out", type=Path, required=True, help="dataset directory (resumed if it exists)"),
-    arg(
-        "--yes",
-        action="store_true",
-        help="unattended: ask nobody; every object needs a pose in the rig configuration",
-    ),
-    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
-    *_rig_arguments(),
-    *_CATALOGS,
-)
-def _session(args: argparse.Namespace) -> int:
-    objects = load_objects(args.objects_catalog)
-    tasks = plan_dataset(
-        objects,
-        load_actions(args.actions_catalog),
-        object_ids=args.objects,
-        action_ids=args.actions,
-        trials=args.trials,
-    )
-    order = {object_id: position for position, object_id in enumerate(args.objects)}
-    tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
-    console = Console(soft_wrap=True, highlight=False)
-
-    def recorded(task: RecordingTask, written: WrittenRecording) -> None:
-        seconds = (written.end_ns - written.start_ns) / 1e9
-        console.print(
-            f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
-        )
-
-    report = run_session(
-        tasks,
-        args.out,
-        _rig(args),
-        seed=args.seed,
-        unattended=args.yes,
-        on_recorded=recorded,
-    )
-    console.print(
-        f"session {report.root}: {report.written} recordings written, {report.kept} kept "
-        f"(existed); index {report.index}"
-    )
-    return 0

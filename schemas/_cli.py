@@ -44,6 +44,12 @@ if TYPE_CHECKING:
 ERROR_STATUS, USAGE_STATUS = 1, 2
 #: Exit status after Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED_STATUS = 130
+#: Exit status after SIGTERM (128 + 15, as a shell reports a process ended by it).
+TERMINATED_STATUS = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM ended the run: unwound like Ctrl-C (files kept, one line), exit status 143."""
 
 
 class CliError(Exception):
@@ -185,10 +191,18 @@ def run(
             raise
         print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
+    except Terminated:
+        print(f"{parser.prog}: terminated (SIGTERM); {_after(interrupted)}", file=sys.stderr)  # noqa: T201
+        return TERMINATED_STATUS
     except KeyboardInterrupt:
         print(f"{parser.prog}: {interrupted}", file=sys.stderr)  # noqa: T201
         return INTERRUPTED_STATUS
     return status
+
+
+def _after(interrupted: str) -> str:
+    """Return what an interruption message says after its first word (``interrupted; ...``)."""
+    return interrupted.partition("; ")[2] or interrupted
 
 
 @contextlib.contextmanager
@@ -289,9 +303,12 @@ def progress(console: Console, *columns: str | ProgressColumn) -> Progress:
 
 
 def _interrupt(signum: int, frame: object) -> None:
-    """Raise KeyboardInterrupt once; ignore every further Ctrl-C (the run is unwinding)."""
-    del signum, frame
+    """Raise KeyboardInterrupt (SIGTERM: Terminated) once; ignore further ones (unwinding)."""
+    del frame
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if signum == signal.SIGTERM:
+        raise Terminated
     raise KeyboardInterrupt
 
 
@@ -303,14 +320,19 @@ def _quiet_interrupts() -> Iterator[None]:
     traceback from inside the clean-up and leave the files; the first one already stops.
     """
     try:
-        previous = signal.signal(signal.SIGINT, _interrupt)
+        previous = {number: signal.signal(number, _interrupt) for number in _ENDING}
     except ValueError:  # not the main thread: signals are not ours to handle
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+#: The signals that end a run cleanly: Ctrl-C and a plain ``kill`` (SIGTERM).
+_ENDING = (signal.SIGINT, signal.SIGTERM)
 
 
 def workers(text: str) -> int:
@@ -522,6 +544,8 @@ __all__ = [
     "Command",
     "PlainProgress",
     "Registry",
+    "TERMINATED_STATUS",
+    "Terminated",
     "arg",
     "build_parser",
     "check_new_file",

@@ -30,7 +30,7 @@ from recorder import (
     rig_factory,
 )
 from recorder._catalog import ObjectSpec
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from schemas import CHANNELS, VOCABULARY
 
 if TYPE_CHECKING:

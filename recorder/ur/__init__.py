@@ -1,14 +1,17 @@
 """A Universal Robots arm over its real interfaces: RTDE state, URScript motion, a live skin.
 
-``URRig`` reads every RTDE data package (port 30004; 125 Hz on CB3, 500 Hz on e-Series),
-moves the arm with URScript programs (port 30002) and reads the skin the rig configuration's
-``[skin]`` table describes; limits (``[limits]``) are checked before anything moves.
+The UR driver (:class:`URArm`) reads every RTDE data package (port 30004; 125 Hz on CB3,
+500 Hz on e-Series) and moves the arm with URScript programs (port 30002); the action runner
+(:class:`recorder.runner.ArmRig`) drives it with the skin the rig configuration's ``[skin]``
+table describes; limits (``[limits]``) are checked before anything moves and on every sample.
 """
 
 from recorder._rigconfig import RigPlugin
-from recorder.ur._rig import JOINT_NAMES, RTDE_VARIABLES, UROptions, URRig, build_ur_rig
+from recorder.runner import Limits, Motion
+from recorder.ur._arm import JOINT_NAMES, RTDE_VARIABLES, Connection, URArm
+from recorder.ur._rig import UROptions, URRig, build_ur_rig
 from recorder.ur._rtde import Recipe, RtdeClient, RtdeError, TextMessage
-from recorder.ur._script import Announcement, Limits, Motion
+from recorder.ur._script import Announcement
 
 #: The UR rig as a plug-in: exclusive hardware (one action at a time, in the main process).
 PLUGIN = RigPlugin(
@@ -22,12 +25,14 @@ __all__ = [
     "PLUGIN",
     "RTDE_VARIABLES",
     "Announcement",
+    "Connection",
     "Limits",
     "Motion",
     "Recipe",
     "RtdeClient",
     "RtdeError",
     "TextMessage",
+    "URArm",
     "UROptions",
     "URRig",
     "build_ur_rig",

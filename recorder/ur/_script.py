@@ -1,4 +1,4 @@
-"""URScript programs for the exploratory actions, and the limits checked before any is sent.
+"""URScript programs: how the UR driver carries out the runner's commands.
 
 The arm moves by URScript programs sent to the controller's secondary interface (port 30002):
 each program replaces the one running, so the rig steers an action phase by phase. As in the
@@ -10,33 +10,19 @@ until RTDE's ``actual_TCP_pose`` is within 1 mm of the target, then holds); a sl
 
 Every program starts with ``textmsg("atikt: object=<id> action=<id> trial=<n> phase=<phase>")``:
 on a real controller it only goes to its log; the virtual lab reads it to know what to play.
-
-Limits (``[limits]`` of the rig configuration) are checked before a program is made: a value
-outside them is refused in one line naming the file, the value and the limit.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any
-
-import numpy as np
-from scipy.spatial.transform import Rotation
-
-from recorder.errors import RigError
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Sequence
 
+    import numpy as np
     from numpy.typing import NDArray
 
-    from recorder._catalog import ActionSpec
-
-#: Light contact of the catalog (recorder/data/actions.toml): total normal force, N.
-LIGHT_CONTACT_N = 0.05
-#: How close a ``movel`` target counts as reached (the thesis: 1 mm).
-REACHED_M = 0.001
 #: URScript functions the programs use (the virtual lab accepts these).
 FUNCTIONS = frozenset(
     {
@@ -50,199 +36,6 @@ FUNCTIONS = frozenset(
         "sleep",
     }
 )
-
-
-@dataclass(frozen=True, slots=True)
-class Limits:
-    """What the arm may do, from the rig configuration's ``[limits]`` table.
-
-    Attributes:
-        max_tcp_speed_m_s: Fastest TCP speed of any motion, m/s.
-        max_force_n: Largest normal force the arm may press or slide with, N.
-        max_acceleration_m_s2: Largest TCP acceleration, m/s^2.
-        workspace_min_m: Lowest corner (x, y, z) of the box the TCP stays in, base frame, m.
-        workspace_max_m: Highest corner (x, y, z) of that box, m.
-    """
-
-    max_tcp_speed_m_s: float = 0.1
-    max_force_n: float = 20.0
-    max_acceleration_m_s2: float = 1.0
-    workspace_min_m: tuple[float, float, float] = (-1.0, -1.0, 0.0)
-    workspace_max_m: tuple[float, float, float] = (1.0, 1.0, 1.0)
-
-    @classmethod
-    def from_section(cls, section: Mapping[str, Any], where: str) -> Limits:
-        """Read a ``[limits]`` table (missing keys keep their defaults).
-
-        Raises:
-            RigError: An unknown key, a value that is not a positive number, or a box
-                whose corners are not 3 numbers with min < max.
-        """
-        known = {f.name for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in section.items():
-            if key not in known:
-                msg = f"{where}: [limits] {key}: unknown; the limits are {', '.join(sorted(known))}"
-                raise RigError(msg)
-            if key.startswith("workspace"):
-                values[key] = _corner(value, f"{where}: [limits] {key}")
-            elif isinstance(value, bool) or not isinstance(value, int | float) or value <= 0:
-                msg = f"{where}: [limits] {key} = {value!r}: give a positive number"
-                raise RigError(msg)
-            else:
-                values[key] = float(value)
-        limits = cls(**values)
-        if not all(
-            lo < hi for lo, hi in zip(limits.workspace_min_m, limits.workspace_max_m, strict=False)
-        ):
-            msg = (
-                f"{where}: [limits] workspace_min_m {list(limits.workspace_min_m)} must be "
-                f"below workspace_max_m {list(limits.workspace_max_m)} on every axis"
-            )
-            raise RigError(msg)
-        return limits
-
-    def inside(self, position: Sequence[float] | NDArray[np.float64]) -> bool:
-        """Return whether a TCP position (x, y, z) lies in the workspace box."""
-        return all(
-            lo <= float(v) <= hi
-            for v, lo, hi in zip(position, self.workspace_min_m, self.workspace_max_m, strict=True)
-        )
-
-
-def _corner(value: object, what: str) -> tuple[float, float, float]:
-    """Return a workspace corner (3 finite numbers).
-
-    Raises:
-        RigError: Not a list of 3 numbers.
-    """
-    if (
-        not isinstance(value, list | tuple)
-        or len(value) != 3  # noqa: PLR2004 (x, y, z)
-        or not all(isinstance(v, int | float) and math.isfinite(v) for v in value)
-    ):
-        msg = f"{what} = {value!r}: give [x, y, z] in metres"
-        raise RigError(msg)
-    x, y, z = (float(v) for v in value)
-    return x, y, z
-
-
-@dataclass(frozen=True, slots=True)
-class Motion:
-    """How the rig moves the arm (rig options).
-
-    Attributes:
-        approach_max_m_s: Approach speed far from the object, m/s.
-        approach_min_m_s: Approach speed at the object (and without proximity sensing), m/s.
-        approach_gain_1_s: Approach speed per metre of proximity distance, 1/s.
-        approach_limit_m: Longest approach before the rig gives up, m.
-        press_m_s: Speed of the press ``movel``, m/s.
-        retract_m: How far the retract moves back from the contact, m.
-        retract_m_s: Speed of the retract and of ``movel`` between objects, m/s.
-        acceleration_m_s2: TCP acceleration of every motion, m/s^2.
-        contact_force_n: Total skin force that counts as the light contact, N.
-    """
-
-    approach_max_m_s: float = 0.02
-    approach_min_m_s: float = 0.002
-    approach_gain_1_s: float = 0.5
-    approach_limit_m: float = 0.2
-    press_m_s: float = 0.005
-    retract_m: float = 0.02
-    retract_m_s: float = 0.02
-    acceleration_m_s2: float = 0.5
-    contact_force_n: float = LIGHT_CONTACT_N
-
-    def approach_speed(self, distance_m: float | None) -> float:
-        """Return the approach speed at a proximity distance (None: no proximity, slowest)."""
-        if distance_m is None or not math.isfinite(distance_m):
-            return self.approach_min_m_s
-        speed = self.approach_gain_1_s * max(distance_m, 0.0)
-        return min(max(speed, self.approach_min_m_s), self.approach_max_m_s)
-
-
-def _refuse(  # noqa: PLR0917 (one message from its six parts)
-    where: str, what: str, value: float, limit: str, bound: float, fix: str
-) -> RigError:
-    return RigError(f"{where}: {what} = {value:g} exceeds [limits] {limit} = {bound:g}; {fix}")
-
-
-def check_motion(motion: Motion, limits: Limits, where: str) -> None:
-    """Check the rig's own motion settings against the limits.
-
-    Raises:
-        RigError: A speed, acceleration or force above its limit.
-    """
-    speeds = {
-        "approach_max_m_s": motion.approach_max_m_s,
-        "press_m_s": motion.press_m_s,
-        "retract_m_s": motion.retract_m_s,
-    }
-    for name, speed in speeds.items():
-        if speed > limits.max_tcp_speed_m_s:
-            fix = f"lower the rig option {name} or raise the limit"
-            raise _refuse(where, name, speed, "max_tcp_speed_m_s", limits.max_tcp_speed_m_s, fix)
-    if motion.acceleration_m_s2 > limits.max_acceleration_m_s2:
-        fix = "lower the rig option acceleration_m_s2 or raise the limit"
-        raise _refuse(
-            where,
-            "acceleration_m_s2",
-            motion.acceleration_m_s2,
-            "max_acceleration_m_s2",
-            limits.max_acceleration_m_s2,
-            fix,
-        )
-
-
-def check_action(action: ActionSpec, limits: Limits, where: str) -> None:
-    """Check an action's parameters against the limits (before anything moves).
-
-    Raises:
-        RigError: The action's speed or force is above its limit; names the file and value.
-    """
-    fix = f"change action {action.id} in the action catalog or raise the limit"
-    if action.speed_m_s > limits.max_tcp_speed_m_s:
-        raise _refuse(
-            where,
-            f"action {action.id} speed_m_s",
-            action.speed_m_s,
-            "max_tcp_speed_m_s",
-            limits.max_tcp_speed_m_s,
-            fix,
-        )
-    if action.force_n > limits.max_force_n:
-        raise _refuse(
-            where,
-            f"action {action.id} force_n",
-            action.force_n,
-            "max_force_n",
-            limits.max_force_n,
-            fix,
-        )
-
-
-def check_pose(
-    object_id: str, pose: Sequence[float] | NDArray[np.float64], limits: Limits, where: str
-) -> None:
-    """Check an object's pose (where the arm visits it) against the workspace box.
-
-    Raises:
-        RigError: The position is outside the box; names the object, the value and the box.
-    """
-    if not limits.inside(pose[:3]):
-        msg = (
-            f"{where}: [objects.{object_id}] pose position {[float(v) for v in pose[:3]]} lies "
-            f"outside [limits] workspace_min_m {list(limits.workspace_min_m)} .. "
-            f"workspace_max_m {list(limits.workspace_max_m)}; fix the pose or the workspace"
-        )
-        raise RigError(msg)
-
-
-def tool_axis(pose: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
-    """Return a TCP axis (0: x, 1: y, 2: z) in the base frame from a pose's rotation vector."""
-    matrix = Rotation.from_rotvec(np.asarray(pose[3:6], dtype=np.float64)).as_matrix()
-    column: NDArray[np.float64] = matrix[:, axis]
-    return column
 
 
 def _vector(values: Sequence[float] | NDArray[np.float64]) -> str:
@@ -281,55 +74,61 @@ def program(name: str, lines: Sequence[str]) -> str:
     return f"def {name}():\n{body}end\n"
 
 
-def approach_program(
-    said: Announcement, direction: NDArray[np.float64], speed: float, motion: Motion
+def speed_program(
+    said: Announcement | None,
+    phase: str,
+    velocity: NDArray[np.float64],
+    acceleration: float,
+    seconds: float,
 ) -> str:
-    """Return the approach: ``speedl`` along ``direction`` (the tool's z axis) at ``speed``."""
-    seconds = motion.approach_limit_m / max(speed, 1e-6)
-    velocity = np.concatenate([direction * speed, np.zeros(3)])
-    return program(
-        "atikt_approach",
-        [
-            said.line("approach"),
-            f"speedl({_vector(velocity)}, {motion.acceleration_m_s2:g}, {seconds:.3f})",
-        ],
-    )
+    """Return a ``speedl`` at ``velocity`` (vx, vy, vz, wx, wy, wz) for ``seconds`` at most."""
+    head = [said.line(phase)] if said is not None else []
+    line = f"speedl({_vector(velocity)}, {acceleration:g}, {seconds:.3f})"
+    return program("atikt_approach" if phase == "approach" else "atikt_speed", [*head, line])
 
 
-def stop_program(said: Announcement | None, phase: str, motion: Motion) -> str:
+def stop_program(said: Announcement | None, phase: str, acceleration: float) -> str:
     """Return a program that stops the arm (``stopl``)."""
     head = [said.line(phase)] if said is not None else []
-    return program("atikt_stop", [*head, f"stopl({motion.acceleration_m_s2:g})"])
+    return program("atikt_stop", [*head, f"stopl({acceleration:g})"])
 
 
 def move_program(
-    said: Announcement | None, phase: str, target: NDArray[np.float64], speed: float, motion: Motion
+    said: Announcement | None,
+    phase: str,
+    target: NDArray[np.float64],
+    speed: float,
+    acceleration: float,
 ) -> str:
     """Return a ``movel`` to ``target`` (a pose: x, y, z, rx, ry, rz)."""
     head = [said.line(phase)] if said is not None else []
-    line = f"movel({_pose(target)}, a={motion.acceleration_m_s2:g}, v={speed:g})"
+    line = f"movel({_pose(target)}, a={acceleration:g}, v={speed:g})"
     return program("atikt_move", [*head, line])
 
 
-def slide_program(
-    said: Announcement, action: ActionSpec, direction: NDArray[np.float64], motion: Motion
+def slide_program(  # noqa: PLR0917 (the force mode's own parameters)
+    said: Announcement,
+    phase: str,
+    force_n: float,
+    velocity: NDArray[np.float64],
+    seconds: float,
+    acceleration: float,
 ) -> str:
-    """Return the slide: ``force_mode`` at the action's force, ``speedl`` along ``direction``."""
-    velocity = np.concatenate([direction * action.speed_m_s, np.zeros(3)])
-    wrench = [0.0, 0.0, action.force_n, 0.0, 0.0, 0.0]
+    """Return the slide: ``force_mode`` at ``force_n`` along the tool's z, ``speedl`` along."""
+    wrench = [0.0, 0.0, force_n, 0.0, 0.0, 0.0]
     # Compliant along the tool's z axis only; the other axes follow speedl. Limits of the
     # compliant axis: the largest speed it may take to keep the force (m/s, rad/s).
     limits = [0.1, 0.1, 0.01, 0.3, 0.3, 0.3]
     return program(
         "atikt_slide",
         [
-            said.line("execute"),
+            said.line(phase),
             (
                 f"force_mode(get_actual_tcp_pose(), [0, 0, 1, 0, 0, 0], {_vector(wrench)}, 2, "
                 f"{_vector(limits)})"
             ),
-            f"speedl({_vector(velocity)}, {motion.acceleration_m_s2:g}, {action.duration_s:g})",
+            f"speedl({_vector(velocity)}, {acceleration:g}, {seconds:g})",
             "end_force_mode()",
-            f"stopl({motion.acceleration_m_s2:g})",
+            f"stopl({acceleration:g})",
         ],
     )

@@ -25,7 +25,8 @@ from typing import IO, TYPE_CHECKING, Any, Self
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from recorder.errors import ActionStoppedError, OutputExistsError, RecorderError
+from recorder._rig import facts
+from recorder.errors import OutputExistsError, RecorderError
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 from schemas import (
     INCOMPLETE_RECORD,
@@ -38,6 +39,7 @@ from schemas import (
     SourceStats,
     build_typestore,
     check_rig,
+    cli,
     encode_source_stats,
     software_version,
 )
@@ -61,6 +63,18 @@ PROFILE = "ros2"
 FLUSH_INTERVAL_NS = 350_000_000
 
 _NS_PER_S = 1_000_000_000
+
+
+#: Prefix of the rig description's keys that a rig learned on connecting (a controller's
+#: version): recorded in every file, never compared when a dataset is resumed.
+FACT_PREFIX = "fact:"
+
+
+def _identity(rig: Rig) -> dict[str, object]:
+    """Return the rig's configuration and, prefixed, what it learned on connecting."""
+    described: dict[str, object] = dict(rig.describe())
+    described.update({f"{FACT_PREFIX}{key}": value for key, value in facts(rig).items()})
+    return described
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,13 +107,13 @@ class RecordingInfo:
             action_kind=str(action.kind),
             action_parameters=action.parameters(),
             trial=trial,
-            rig=check_rig(rig.describe()),
+            rig=check_rig(_identity(rig)),
             seed=seed,
             source="recorder",
             software_version=software_version(),
             schema_version=SCHEMA_VERSION,
         )
-        return cls(metadata, tuple(getattr(rig, "joint_names", ())))
+        return cls(metadata, tuple(rig.joint_names))
 
     def to_metadata(self) -> dict[str, str]:
         """Return the metadata record's key-value pairs (deterministic, no wall-clock time)."""
@@ -400,8 +414,7 @@ def _fix(err: OSError) -> str:
 def _write_error(final: Path, err: OSError) -> RecorderError:
     """Return the error for a failed write (disk full, file system gone, ...)."""
     return RecorderError(
-        f"{final}: writing the recording failed ({err.strerror or err}); {_fix(err)}; "
-        "no file was left under this name"
+        f"{final}: writing the recording failed ({err.strerror or err}); {_fix(err)}"
     )
 
 
@@ -624,11 +637,29 @@ class RecordingWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Finish and publish the file, or remove it if the block failed."""
+        """Finish and publish the file; after an error, keep what was written as incomplete.
+
+        A file that holds messages is never deleted: it is finished as incomplete with the
+        error as its reason, or, when even that fails (a full disk), left as its ``.part``
+        for ``atikt-replay check FILE --recover``. A file without messages is removed.
+        """
         if exc_type is None:
             self._finish()
-        else:
+        elif not self.written or issubclass(exc_type, OutputExistsError):
             self._discard()
+        else:
+            if self._incomplete is None:
+                reason = (
+                    cli.one_line(str(exc)) if exc is not None and str(exc) else exc_type.__name__
+                )
+                self._incomplete = (reason, 0)
+            with contextlib.suppress(RecorderError):  # the first error is the one to report
+                self._finish()
+
+    @property
+    def written(self) -> int:
+        """Return how many messages were written so far."""
+        return sum(self._sequences.values())
 
     def _finish(self) -> None:
         """Write the summary, sync, close and link the file to its final name."""
@@ -646,6 +677,11 @@ class RecordingWriter:
             final = self._publish(self._temporary)
             _sync_directory(self.path.parent)
         except BaseException as err:
+            if self.written and not isinstance(err, OutputExistsError):
+                kept = self._keep_part(err)
+                if isinstance(err, OSError):
+                    raise kept from err
+                raise
             self._discard()
             if isinstance(err, OSError):
                 raise _write_error(self.path, err) from err
@@ -675,6 +711,19 @@ class RecordingWriter:
             return target
         raise _exists_error(incomplete_path(self.path, MAX_INCOMPLETE))
 
+    def _keep_part(self, err: BaseException) -> RecorderError:
+        """Close the temporary file and keep it (it holds recorded messages); say where."""
+        self._writer = None
+        with contextlib.suppress(OSError):
+            if self._stream is not None:
+                self._stream.close()
+        part = self._temporary
+        why = f"{err.strerror or err}); {_fix(err)}" if isinstance(err, OSError) else f"{err})"
+        return RecorderError(
+            f"{self.path}: writing the recording failed ({cli.one_line(why)}; what was written "
+            f"is kept in {part}: salvage it with 'atikt-replay check {part} --recover'"
+        )
+
     def _discard(self) -> None:
         """Close and delete the temporary file (whatever closing it says: the disk may be full)."""
         self._writer = None
@@ -687,56 +736,3 @@ class RecordingWriter:
             if self._temporary is not None:
                 with contextlib.suppress(OSError):  # a leftover .part is never read as complete
                     self._temporary.unlink(missing_ok=True)
-
-
-def record_action(
-    rig: Rig,
-    obj: ObjectSpec,
-    action: ActionSpec,
-    trial: int,
-    path: Path,
-    *,
-    seed: int,
-) -> WrittenRecording:
-    """Perform ``action`` on ``obj`` with a connected ``rig`` and record it to ``path``.
-
-    Args:
-        rig: A rig inside its ``with`` block.
-        obj: The object to explore.
-        action: The exploratory action.
-        trial: Trial number of this (object, action).
-        path: Final path of the recording; it must not exist.
-        seed: Seed the rig was created with (for the metadata record).
-
-    Returns:
-        What was written.
-
-    Raises:
-        OutputExistsError: ``path`` exists.
-        ActionStoppedError: A stop ended the action early; what arrived is kept in the
-            incomplete file the error names (``<trial>.incomplete.mcap``).
-        RecorderError: The rig or the file failed; no file is left under ``path``.
-    """
-    info = RecordingInfo.create(obj, action, trial, rig, seed)
-    stopped: ActionStoppedError | None = None
-    with RecordingWriter(path, info) as writer:
-        try:
-            for item in rig.perform(obj, action, trial):
-                writer.write(item)
-        except ActionStoppedError as stop:
-            writer.mark_incomplete(stop.reason, stop.at_ns)
-            stopped = stop
-        if (sources := _source_stats(rig)) is not None:
-            writer.add_sources(sources)
-    if writer.result is None:  # pragma: no cover (the 'with' block always sets it)
-        msg = f"{path}: the recording was not finished"
-        raise RecorderError(msg)
-    if stopped is not None:
-        raise ActionStoppedError(stopped.reason, stopped.at_ns, writer.result.path) from stopped
-    return writer.result
-
-
-def _source_stats(rig: Rig) -> Sequence[SourceStats] | None:
-    """Return the accounting of a live rig's last action (``rig.source_stats()``), if any."""
-    method = getattr(rig, "source_stats", None)
-    return None if method is None else tuple(method())

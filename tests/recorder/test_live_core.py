@@ -26,7 +26,7 @@ from recorder.live import (
     parse_source_stats,
 )
 from recorder.live._accounting import encode_source_stats
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from schemas import INCOMPLETE_RECORD, dataset_recordings, is_incomplete, is_recording
 
 MS = 1_000_000

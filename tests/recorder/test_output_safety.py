@@ -19,7 +19,8 @@ from conftest import FakeRig, fake_objects
 from recorder import OutputExistsError, RecorderError, load_actions, write_index
 from recorder import _rigconfig as rigconfig
 from recorder._cli import main as record_main
-from recorder.writing._writer import RecordingInfo, RecordingWriter, record_action
+from recorder.runner._record import record_action
+from recorder.writing._writer import RecordingInfo, RecordingWriter
 from replay import read_recording
 from schemas import PART_SUFFIX
 
@@ -42,27 +43,34 @@ def _fail(err: int) -> Any:
     return raising
 
 
+def _kept_not_published(root: Path, final: Path) -> None:
+    """Nothing under the final name; what was written is kept (incomplete, or its .part)."""
+    left = _files(root)
+    assert final not in left
+    assert all(p.name.endswith((".incomplete.mcap", PART_SUFFIX)) for p in left)
+
+
 @pytest.mark.parametrize(
     "where",
     ["mcap.writer.Writer.add_message", "mcap.writer.Writer.flush", "mcap.writer.Writer.finish"],
 )
-def test_disk_full_at_any_stage_is_named_and_leaves_nothing(
+def test_disk_full_at_any_stage_is_named_and_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str
 ) -> None:
     monkeypatch.setattr(where, _fail(errno.ENOSPC))
     path = tmp_path / "wood" / "P1" / "001.mcap"
     with pytest.raises(RecorderError, match=r"001\.mcap: writing .*No space left.*disk is full"):
         _record(path)
-    assert _files(tmp_path) == []
+    _kept_not_published(tmp_path, path)
 
 
-def test_disk_full_when_syncing_leaves_nothing(
+def test_disk_full_when_syncing_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr("recorder.writing._writer.os.fsync", _fail(errno.ENOSPC))
-    with pytest.raises(RecorderError, match="disk is full"):
+    with pytest.raises(RecorderError, match=r"disk is full.*kept in .*\.part.*--recover"):
         _record(tmp_path / "001.mcap")
-    assert _files(tmp_path) == []
+    _kept_not_published(tmp_path, tmp_path / "001.mcap")
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
@@ -78,7 +86,7 @@ def test_a_real_full_device_is_a_recorder_error(
     monkeypatch.setattr("recorder.writing._writer._open_exclusive", full)
     with pytest.raises(RecorderError, match=r"001\.mcap: .*No space left on device.*disk is full"):
         _record(tmp_path / "001.mcap")
-    assert _files(tmp_path) == []
+    _kept_not_published(tmp_path, tmp_path / "001.mcap")
 
 
 @pytest.mark.parametrize(

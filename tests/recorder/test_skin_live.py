@@ -14,7 +14,7 @@ from recorder.live import RecorderClock, SourceStats
 from recorder.live._frames import FrameSkin, serial_skin, udp_skin
 from recorder.virtuallab._skin_server import SkinFaults, serve_skin
 from recorder.writing._stream import PhaseEvent
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from replay import read_recording
 
 if TYPE_CHECKING:

@@ -1,6 +1,7 @@
 """The UR rig against the virtual lab: full actions, limits, stops, accounting."""
 
 import socket
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from ur_lab import POSE, WorldSkin, config, virtual_lab
 
+import recorder
 from recorder import (
     ActionStoppedError,
     RecorderError,
@@ -19,8 +21,8 @@ from recorder import (
     record_action,
 )
 from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
-from recorder.ur._rig import _peak_total
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._command import parse_faults, rtde_faults
 from recorder.virtuallab._rtde_server import RtdeFaults
@@ -91,7 +93,7 @@ def test_protective_stop_keeps_an_incomplete_file(tmp_path: Path) -> None:
 def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
     with virtual_lab(rtde_faults=RtdeFaults(disconnect_after_s=0.6)) as lab:
         lab.world.prepare("wood", "C1", 1)
-        with pytest.raises(ActionStoppedError, match="RTDE connection lost") as info:
+        with pytest.raises(ActionStoppedError, match=r"arm connection lost \(RTDE") as info:
             _record(lab.rig({"wood": POSE}), "C1", tmp_path / "001.mcap")
         assert lab.rtde.injected.disconnects == 1
     assert info.value.path is not None
@@ -172,7 +174,7 @@ def test_the_skins_force_goes_on_from_one_execution_to_the_next() -> None:
 def test_silent_rtde_stops_the_action(tmp_path: Path) -> None:
     with virtual_lab(rtde_faults=RtdeFaults(stall_s=1.0, after=70)) as lab:
         lab.world.prepare("wood", "C1", 1)
-        with pytest.raises(ActionStoppedError, match="RTDE silent for") as info:
+        with pytest.raises(ActionStoppedError, match="arm state silent for") as info:
             _record(lab.rig({"wood": POSE}, silence_s=0.3), "C1", tmp_path / "001.mcap")
     assert info.value.path is not None
 
@@ -210,9 +212,10 @@ def test_limits_are_refused_before_any_byte_is_sent() -> None:
 
 
 def test_builder_checks_options_limits_and_poses() -> None:
-    skin = {"transport": "udp"}
+    example = Path(recorder.__file__).parent / "data" / "skin_udp.example.toml"
+    skin = tomllib.loads(example.read_text())["skin"]
     rig = build_ur_rig(0, config({"host": "10.0.0.2", "frequency": 500}, {"skin": skin}))
-    assert rig.options.host == "10.0.0.2"
+    assert rig.options_ur.host == "10.0.0.2"
     assert rig.describe()["rtde_frequency_hz"] == "500"
     assert "time_scale" not in rig.describe()
     assert rig.joint_names[0] == "shoulder_pan_joint"
@@ -229,6 +232,8 @@ def test_builder_checks_options_limits_and_poses() -> None:
         build_ur_rig(0, config({"approach_max_m_s": 0.5}, {"skin": skin}))
     with pytest.raises(RigError, match=r"needs a \[skin\] table"):
         build_ur_rig(0, config({}, {}))
+    with pytest.raises(RigError, match=r"\[skin\] cells = 'missing': this key is required"):
+        build_ur_rig(0, config({}, {"skin": {"transport": "udp"}}))  # before any connection
     placed = build_ur_rig(0, config({}, {"skin": skin, "objects": {"wood": {"pose": POSE}}}))
     assert placed.can_present(OBJECTS["wood"])
     assert not placed.can_present(OBJECTS["glass_plate"])

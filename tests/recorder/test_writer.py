@@ -23,14 +23,15 @@ from recorder import (
     StreamItem,
 )
 from recorder._catalog import ObjectSpec
+from recorder.runner._record import record_action
 from recorder.writing._writer import (
     METADATA_NAME,
     RecordingInfo,
     RecordingWriter,
     WrittenRecording,
     _Encoder,
-    record_action,
 )
+from replay.errors import RecordingError
 from replay.recording._reader import read_recording
 from schemas import (
     CHANNELS,
@@ -201,11 +202,17 @@ def test_recording_that_appears_while_writing_is_kept(
     assert list(tmp_path.iterdir()) == [path]
 
 
-def test_failed_action_leaves_no_file(tmp_path: Path, objects: Objects, actions: Actions) -> None:
+def test_failed_action_keeps_what_arrived_as_incomplete(
+    tmp_path: Path, objects: Objects, actions: Actions
+) -> None:
     path = tmp_path / "o" / "P1" / "001.mcap"
     with pytest.raises(RuntimeError, match="fake rig failure"), FakeRig(fail_after=50) as rig:
         record_action(rig, objects["wood"], actions["P1"], 1, path, seed=0)
-    assert list(path.parent.iterdir()) == []
+    assert [p.name for p in path.parent.iterdir()] == ["001.incomplete.mcap"]
+    with pytest.raises(RecordingError, match=r"incomplete recording \(the action was stopped: fake"):
+        read_recording(path.parent / "001.incomplete.mcap")  # kept for inspection, not learned
+    with (path.parent / "001.incomplete.mcap").open("rb") as stream:
+        assert sum(1 for _ in make_reader(stream).iter_messages()) > 10  # the samples before
 
 
 def test_malformed_items_are_rejected(tmp_path: Path, objects: Objects, actions: Actions) -> None:
@@ -293,7 +300,7 @@ def test_fixed_layout_messages_match_rosbags_serialization(
         assert encoder.encode(pose)[2] == encoder._pose_message(stamp, position, orientation)
 
 
-def test_full_disk_is_a_recorder_error_and_leaves_no_file(
+def test_full_disk_is_a_recorder_error_and_keeps_what_was_written(
     tmp_path: Path, objects: Objects, actions: Actions, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     calls = []
@@ -309,4 +316,6 @@ def test_full_disk_is_a_recorder_error_and_leaves_no_file(
         FakeRig() as rig,
     ):
         record_action(rig, objects["wood"], actions["P1"], 1, tmp_path / "001.mcap", seed=0)
-    assert list(tmp_path.iterdir()) == []
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert "001.mcap" not in left  # never published as complete
+    assert left == ["001.incomplete.mcap"]  # what was written before the disk filled is kept

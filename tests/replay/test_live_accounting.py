@@ -8,7 +8,7 @@ from conftest import FakeRig
 
 from recorder import ActionSpec, ActionStoppedError, StreamItem
 from recorder._catalog import ObjectSpec
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from replay import RecordingError, read_recording
 from replay.cli._main import main
 from schemas import SourceStats

@@ -21,7 +21,8 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
 from recorder import load_actions
-from recorder.writing._writer import FLUSH_INTERVAL_NS, RecordingInfo, _Encoder, record_action
+from recorder.runner._record import record_action
+from recorder.writing._writer import FLUSH_INTERVAL_NS, RecordingInfo, _Encoder
 from replay import MODALITIES, RecordingError, read_recording
 from replay.cli._main import main
 from replay.recording._salvage import RECOVERY_NAME, recovered_path, salvage

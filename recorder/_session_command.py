@@ -1,0 +1,74 @@
+"""``atikt-record session``: the command (the session itself is ``recorder._session``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rich.console import Console
+
+from recorder._catalog import load_actions, load_objects
+from recorder._cli import _CATALOGS, _names, _rig, _rig_arguments, arg, command
+from recorder._dataset import plan_dataset
+from recorder._session import run_session
+
+if TYPE_CHECKING:
+    import argparse
+
+    from recorder._dataset import RecordingTask
+    from recorder.writing._writer import WrittenRecording
+
+
+@command(
+    "session",
+    "record actions at a rig object by object (objects presented by the rig or placed by "
+    "hand); an interrupted session resumes",
+    arg("--objects", type=_names, required=True, help="comma-separated object ids, in order"),
+    arg("--actions", type=_names, required=True, help="comma-separated action ids"),
+    arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
+    arg("--out", type=Path, required=True, help="dataset directory (resumed if it exists)"),
+    arg(
+        "--yes",
+        action="store_true",
+        help="unattended: ask nobody; every object needs a pose in the rig configuration",
+    ),
+    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    *_rig_arguments(),
+    *_CATALOGS,
+)
+def _session(args: argparse.Namespace) -> int:
+    objects = load_objects(args.objects_catalog)
+    tasks = plan_dataset(
+        objects,
+        load_actions(args.actions_catalog),
+        object_ids=args.objects,
+        action_ids=args.actions,
+        trials=args.trials,
+    )
+    order = {object_id: position for position, object_id in enumerate(args.objects)}
+    tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
+    console = Console(soft_wrap=True, highlight=False)
+
+    def recorded(task: RecordingTask, written: WrittenRecording) -> None:
+        seconds = (written.end_ns - written.start_ns) / 1e9
+        console.print(
+            f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
+        )
+
+    def set_aside(path: Path) -> None:
+        console.print(f"unfinished recording of a stopped recorder set aside: {path}")
+
+    report = run_session(
+        tasks,
+        args.out,
+        _rig(args),
+        seed=args.seed,
+        unattended=args.yes,
+        on_recorded=recorded,
+        on_set_aside=set_aside,
+    )
+    console.print(
+        f"session {report.root}: {report.written} recordings written, {report.kept} kept "
+        f"(existed); index {report.index}"
+    )
+    return 0

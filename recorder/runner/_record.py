@@ -1,0 +1,145 @@
+"""Recording one action: the runner's loop here, the writer in its own thread, nothing lost.
+
+:func:`record_action` is the one way an action is recorded, for every rig: the simulator
+(whose physics plans the whole execution), a lab's plug-in rig, and an arm under the runner
+(:class:`recorder.runner.ArmRig`). The items go to the writer through a bounded queue; a
+signal, a writer that failed or fell behind, or a stop of the rig ends the action (an arm gets
+its stop first) and what arrived is kept as ``<trial>.incomplete.mcap``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Generator
+from typing import TYPE_CHECKING
+
+from recorder._rig import source_stats
+from recorder.errors import ActionStoppedError, RecorderError
+from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
+from recorder.runner._runner import ArmRig, Stop
+from recorder.runner._sink import WriterThread
+from recorder.writing._writer import RecordingInfo, RecordingWriter
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder._rig import Rig
+    from recorder.writing._stream import StreamItem
+    from recorder.writing._writer import WrittenRecording
+
+
+class _Watch:
+    """What ends an action besides the rig: a deferred signal, a writer in trouble."""
+
+    def __init__(self, flag: InterruptFlag, sink: WriterThread) -> None:
+        self.flag, self.sink = flag, sink
+
+    def problem(self) -> str:
+        if self.flag.signum is not None:
+            return self.flag.reason
+        return self.sink.problem
+
+
+def record_action(
+    rig: Rig,
+    obj: ObjectSpec,
+    action: ActionSpec,
+    trial: int,
+    path: Path,
+    *,
+    seed: int,
+    observe: Callable[[StreamItem], None] | None = None,
+) -> WrittenRecording:
+    """Perform ``action`` on ``obj`` with a connected ``rig`` and record it to ``path``.
+
+    Args:
+        rig: A rig inside its ``with`` block.
+        obj: The object to explore.
+        action: The exploratory action.
+        trial: Trial number of this (object, action).
+        path: Final path of the recording; it must not exist.
+        seed: Seed the rig was created with (for the metadata record).
+        observe: Also gets every item (a live view); it must never block.
+
+    Returns:
+        What was written.
+
+    Raises:
+        OutputExistsError: ``path`` exists.
+        ActionStoppedError: A stop ended the action early; what arrived is kept in the
+            incomplete file the error names (``<trial>.incomplete.mcap``).
+        KeyboardInterrupt: Ctrl-C (``schemas.cli.Terminated``: SIGTERM) during the action,
+            after the arm's stop and after what arrived was kept (the message names the file).
+        RecorderError: The rig or the file failed; what arrived is kept (incomplete).
+    """
+    info = RecordingInfo.create(obj, action, trial, rig, seed)
+    with deferred_interrupts() as flag:
+        with RecordingWriter(path, info) as writer:
+            sink = WriterThread(writer)
+            with sink:
+                put = sink.put if observe is None else _both(sink.put, observe)
+                stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
+            if sink.failure is not None:
+                raise _failed(path, sink.failure) from sink.failure
+            if stop is not None:
+                writer.mark_incomplete(stop.reason, stop.at_ns)
+            if stats := source_stats(rig):
+                writer.add_sources(stats)
+        written = writer.result
+    if written is None:  # pragma: no cover (the 'with' block always sets it)
+        msg = f"{path}: the recording was not finished"
+        raise RecorderError(msg)
+    if flag.signum is not None:
+        try:
+            raise_interrupt(flag.signum)
+        except KeyboardInterrupt as err:
+            err.args = (f"{flag.reason}: the arm was stopped; what arrived is in {written.path}",)
+            raise
+    if stop is not None:
+        raise ActionStoppedError(stop.reason, stop.at_ns, written.path)
+    return written
+
+
+def _both(
+    first: Callable[[StreamItem], None], second: Callable[[StreamItem], None]
+) -> Callable[[StreamItem], None]:
+    def put(item: StreamItem) -> None:
+        first(item)
+        second(item)
+
+    return put
+
+
+def _run(
+    rig: Rig,
+    obj: ObjectSpec,
+    action: ActionSpec,
+    trial: int,
+    *,
+    put: Callable[[StreamItem], None],
+    watch: _Watch,
+) -> Stop | None:
+    """Run the action; return the stop that ended it early (None: a normal end)."""
+    if isinstance(rig, ArmRig):
+        return rig.run(obj, action, trial, put, watch)
+    items = rig.perform(obj, action, trial)
+    try:
+        for item in items:
+            put(item)
+            if problem := watch.problem():
+                return Stop(problem, 0)
+    except ActionStoppedError as stop:  # a rig that performs itself stopped (its own reason)
+        return Stop(stop.reason, stop.at_ns)
+    finally:
+        if isinstance(items, Generator):  # its own stop (a finally, GeneratorExit) runs now
+            with contextlib.suppress(Exception):
+                items.close()
+    return None
+
+
+def _failed(path: Path, failure: BaseException) -> RecorderError:
+    if isinstance(failure, RecorderError):
+        return failure
+    return RecorderError(f"{path}: writing the recording failed ({failure})")

@@ -1,0 +1,577 @@
+"""The action runner: one robot loop for every arm.
+
+:class:`ArmRig` performs an exploratory action with any :class:`ArmDriver` and any live skin:
+the tare (the skin's zero in free air), the approach with a speed from proximity until the
+light contact, the action itself (a press to depth and a hold, or a slide at a set force),
+and the retract; it presents objects (moves to their pose) and checks the limits and the
+sources' silence on every state sample as it arrives, in its own loop. A slow writer or viewer
+never delays a check: items go to a non-blocking sink (:class:`recorder.runner.WriterThread`).
+
+Any end of an action other than its normal end -- a limit, a protective stop, a lost or silent
+source, Ctrl-C or SIGTERM (a flag, see ``_interrupts``), a writer that failed or fell behind,
+any exception -- sends the stop first, then hands over what arrived; the recorder keeps it as
+``<trial>.incomplete.mcap``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol, Self
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from recorder.errors import RigError
+from recorder.live import RecorderClock, SourceLostError
+from recorder.runner._arm import Context
+from recorder.runner._limits import (
+    REACHED_M,
+    Limits,
+    Motion,
+    check_action,
+    check_motion,
+    check_pose,
+)
+from recorder.runner._limits import tool_axis as _tool_axis
+from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
+    from types import TracebackType
+
+    from numpy.typing import NDArray
+
+    from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder.live import LiveSkin, SourceStats
+    from recorder.runner._arm import ArmDriver, ArmSample
+    from recorder.writing._stream import StreamItem
+
+_NS = 1_000_000_000
+#: Joint speed below which the arm counts as still, rad/s.
+STILL_RAD_S = 1e-3
+#: How long the arm must be still (after the retract started) to end the action, s.
+SETTLE_S = 0.25
+#: How long the skin is read in free air before each approach to find its zero, ns.
+TARE_NS = 30_000_000
+#: Longest wait for a state sample in one cycle, s (a cycle also ends when one arrives).
+CYCLE_WAIT_S = 0.002
+
+
+class Watch(Protocol):
+    """What else may end an action: a deferred signal, a writer in trouble."""
+
+    def problem(self) -> str:
+        """Return why the action must end now (empty: it may go on)."""
+        ...
+
+
+class _Never:
+    def problem(self) -> str:
+        return ""
+
+
+@dataclass(frozen=True, slots=True)
+class RunnerOptions:
+    """How the runner drives an arm (rig options shared by every arm).
+
+    Attributes:
+        time_scale: Real seconds per action second; < 1 only against the virtual lab, which
+            plays actions faster (the runner then holds and slides that much shorter).
+        silence_s: A source silent this long ends the action, s.
+        motion: How the arm moves.
+    """
+
+    time_scale: float = 1.0
+    silence_s: float = 0.5
+    motion: Motion = field(default_factory=Motion)
+
+
+class Stop(Exception):  # noqa: N818 (control flow inside the runner, never escapes it)
+    """A stop condition met inside the runner."""
+
+    def __init__(self, reason: str, at_ns: int) -> None:
+        """Keep the reason (one line) and when it was met (recorder clock, ns)."""
+        super().__init__(reason)
+        self.reason = reason
+        self.at_ns = at_ns
+
+
+@dataclass(slots=True)
+class _State:
+    """The latest state of the arm."""
+
+    sample: ArmSample | None = None
+    receive_ns: int = 0
+
+    @property
+    def pose(self) -> NDArray[np.float64] | None:
+        return None if self.sample is None else self.sample.tcp_pose
+
+    @property
+    def still(self) -> bool:
+        return self.sample is None or bool(np.all(np.abs(self.sample.qd) < STILL_RAD_S))
+
+
+class ArmRig:
+    """An arm driver and a live skin driven by the runner (a :class:`recorder.Rig`)."""
+
+    def __init__(
+        self,
+        arm: ArmDriver,
+        skin: LiveSkin,
+        limits: Limits,
+        options: RunnerOptions,
+        poses: Mapping[str, Sequence[float]],
+        *,
+        kind: str,
+        skin_transport: str = "",
+        where: str = "<rig options>",
+        clock: RecorderClock | None = None,
+    ) -> None:
+        """Check the motion settings and the objects' poses against the limits.
+
+        Raises:
+            RigError: A setting or a pose outside the limits (one line naming the file).
+        """
+        self.arm, self.skin, self.limits, self.options = arm, skin, limits, options
+        self.kind, self.where, self.skin_transport = kind, where, skin_transport
+        check_motion(options.motion, limits, where)
+        for object_id, pose in poses.items():
+            if len(pose) != 6:  # noqa: PLR2004 (x, y, z, rx, ry, rz)
+                msg = (
+                    f"{where}: [objects.{object_id}] pose = {list(pose)}: "
+                    "give [x, y, z, rx, ry, rz]"
+                )
+                raise RigError(msg)
+            check_pose(object_id, pose, limits, where)
+        self._poses = {k: np.asarray(v, dtype=np.float64) for k, v in poses.items()}
+        self.clock = clock or RecorderClock()
+        self._stack: contextlib.ExitStack | None = None
+        self._state = _State()
+        self._begun_ns = 0
+        self._last_event_ns = 0
+        self._watch: Watch = _Never()
+        self.stops_sent: list[tuple[int, str]] = []
+
+    # -- connection -----------------------------------------------------------------------
+
+    def __enter__(self) -> Self:
+        """Connect the arm, then the skin."""
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(self.arm)
+            stack.enter_context(self.skin)
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Disconnect the skin and the arm, whatever happened."""
+        stack, self._stack = self._stack, None
+        if stack is not None:
+            stack.close()
+
+    def _connected(self) -> None:
+        if self._stack is None:
+            msg = f"{self.where}: the rig is used outside its with block; use `with rig:`"
+            raise RigError(msg)
+
+    # -- what the recorder asks -----------------------------------------------------------
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Return the arm's joint names."""
+        return self.arm.joint_names
+
+    def describe(self) -> Mapping[str, str]:
+        """Return the rig's configuration (its identity in a dataset), flat."""
+        described = {"kind": self.kind, **self.arm.describe()}
+        described["skin_transport"] = self.skin_transport
+        described["silence_s"] = f"{self.options.silence_s:g}"
+        if self.options.time_scale != 1:
+            described["time_scale"] = f"{self.options.time_scale:g}"
+        return described
+
+    def facts(self) -> Mapping[str, str]:
+        """Return what the arm said on connecting (recorded, never compared)."""
+        return self.arm.facts()
+
+    def source_stats(self) -> list[SourceStats]:
+        """Return the accounting of the last action: the arm's and the skin's sources."""
+        return [*self.arm.stats(), *self.skin.stats()]
+
+    def can_present(self, obj: ObjectSpec) -> bool:
+        """Return whether the arm can visit ``obj`` by itself (it has a pose)."""
+        return obj.id in self._poses
+
+    def present(self, obj: ObjectSpec, watch: Watch | None = None) -> bool:
+        """Move the arm to ``obj``'s pose, until within 1 mm; limits checked on every sample.
+
+        Returns:
+            True when the arm is there; False when ``obj`` has no pose (a person places it).
+
+        Raises:
+            RigError: The arm stopped, a source was lost or it did not arrive in time (the
+                stop was sent first).
+        """
+        self._connected()
+        target = self._poses.get(obj.id)
+        if target is None:
+            return False
+        motion = self.options.motion
+        self._watch = watch or _Never()
+        self._begin()
+        try:
+            while self._state.pose is None:
+                self._pump_quietly()
+            distance = float(np.linalg.norm(self._state.pose[:3] - target[:3]))
+            seconds = (5 + 3 * distance / motion.retract_m_s) * self.options.time_scale + 5
+            limit_ns = self.clock.now_ns() + round(seconds * _NS)
+            self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
+            self._until_reached(target, limit_ns, obj.id)
+        except (Stop, SourceLostError) as stop:
+            self._send_stop(None, str(stop))
+            msg = f"{self.where}: moving to {obj.id}: {stop}; check the arm, then retry"
+            raise RigError(msg) from None
+        except BaseException:
+            self._send_stop(None, "error")
+            raise
+        finally:
+            self._watch = _Never()
+        return True
+
+    def _until_reached(self, target: NDArray[np.float64], limit_ns: int, what: str) -> None:
+        """Read the arm's state (recording nothing) until within 1 mm of ``target``.
+
+        Raises:
+            Stop: A stop condition, or the deadline passed.
+        """
+        while not self._reached(target):
+            self._pump_quietly()
+            if self.clock.now_ns() > limit_ns:
+                msg = f"the arm did not reach the pose of {what} within 1 mm"
+                raise Stop(msg, self.clock.now_ns())
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        """Perform ``action`` on ``obj``; yield every item as it arrives.
+
+        The generator returns the reason of a stop (empty after a normal end); use
+        :meth:`run` to hand items to a sink.
+
+        Raises:
+            RigError: The action is outside the limits (nothing moved) or the rig is not
+                connected.
+        """
+        check_action(action, self.limits, self.where)
+        if obj.id in self._poses:
+            check_pose(obj.id, self._poses[obj.id], self.limits, self.where)
+        self._connected()
+        return self._perform(obj, action, trial)
+
+    def run(
+        self,
+        obj: ObjectSpec,
+        action: ActionSpec,
+        trial: int,
+        put: Callable[[StreamItem], None],
+        watch: Watch | None = None,
+    ) -> Stop | None:
+        """Perform ``action`` on ``obj``, handing every item to ``put`` (never blocking).
+
+        Returns:
+            The stop that ended the action early (None: it ended normally).
+        """
+        actions = self.perform(obj, action, trial)
+        self._watch = watch or _Never()
+        try:
+            while True:
+                put(next(actions))
+        except StopIteration as done:
+            stop: Stop | None = done.value
+            return stop
+        finally:
+            self._watch = _Never()
+
+    # -- the action -----------------------------------------------------------------------
+
+    def _perform(
+        self, obj: ObjectSpec, action: ActionSpec, trial: int
+    ) -> Generator[StreamItem, None, Stop | None]:
+        at = Context(obj.id, action.id, trial, "approach")
+        self._begin()
+        self.skin.begin()
+        try:
+            yield from self._pump(0.0)
+            yield self._event("approach")
+            contact = yield from self._approach(at)
+            yield from self._execute(at, action, contact)
+            yield from self._retract(at, contact)
+        except (Stop, SourceLostError) as ended:
+            stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
+            self._send_stop(at, stop.reason)
+            yield from self._rest()
+            return stop
+        except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
+            self._send_stop(at, "error")
+            raise
+        yield from self._rest()
+        yield self._event("end")
+        return None
+
+    def _send_stop(self, at: Context | None, why: str) -> None:
+        """Send the stop (first thing on every abnormal end); remember when."""
+        context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
+        with contextlib.suppress(Exception):  # a lost connection: the driver did what it could
+            self.arm.stop(self.options.motion.acceleration_m_s2, context)
+        self.stops_sent.append((self.clock.now_ns(), why))
+
+    def _tare(self) -> Generator[StreamItem, None, float]:
+        """Return the skin's total force in free air before the approach (its zero).
+
+        A skin's offsets drift between actions (temperature, ageing of the cover): the light
+        contact is the total force rising above this zero by the threshold, as labs tare
+        their skins before each touch.
+        """
+        readings: list[float] = []
+        deadline = self.clock.now_ns() + TARE_NS
+        while self.clock.now_ns() < deadline or not readings:
+            yield from self._pump()
+            total = self.skin.total_force()
+            if total is not None:
+                readings.append(total)
+            if self.clock.now_ns() > deadline + 100 * TARE_NS:
+                return 0.0  # no force sensing: nothing to tare
+        return float(np.median(readings))
+
+    def _approach(self, at: Context) -> Generator[StreamItem, None, NDArray[np.float64]]:
+        """Approach with speed from proximity until the light contact; return the contact pose."""
+        motion = self.options.motion
+        while self._state.pose is None:
+            yield from self._pump()
+        zero = yield from self._tare()
+        start = self._state.pose.copy()
+        direction = _tool_axis(start, 2)
+        speed = motion.approach_speed(self.skin.nearest())
+        self._speed(direction, speed, at)
+        sent_ns = self.clock.now_ns()
+        # the slowest approach over the whole distance, twice: an arm that does not move
+        # (a program the controller refused) must not keep the action waiting forever
+        limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
+        give_up_ns = sent_ns + round(limit_s * _NS)
+        while True:
+            peak = yield from self._pump_force(since_ns=sent_ns)
+            if peak is not None and peak - zero > motion.contact_force_n:
+                break
+            now = self.clock.now_ns()
+            if now > give_up_ns:
+                reason = (
+                    f"no light contact within {limit_s:.1f} s of approach: the arm did not "
+                    "reach the object (check the controller's log for a refused program)"
+                )
+                raise Stop(reason, now)
+            travelled = float(np.linalg.norm(self._state.pose[:3] - start[:3]))
+            if travelled > motion.approach_limit_m:
+                reason = (
+                    f"no light contact (total skin force above {motion.contact_force_n:g} N) "
+                    f"within approach_limit_m = {motion.approach_limit_m:g} m"
+                )
+                raise Stop(reason, now)
+            wanted = motion.approach_speed(self.skin.nearest())
+            if abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10:
+                speed, sent_ns = wanted, now
+                self._speed(direction, speed, at)
+        self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
+        yield self._event("contact")
+        return self._state.pose.copy()
+
+    def _speed(self, direction: NDArray[np.float64], speed: float, at: Context) -> None:
+        motion = self.options.motion
+        velocity = np.concatenate([direction * speed, np.zeros(3)])
+        seconds = motion.approach_limit_m / max(speed, 1e-6)
+        self.arm.speed(velocity, motion.acceleration_m_s2, seconds, at)
+
+    def _pump_force(self, *, since_ns: int) -> Generator[StreamItem, None, float | None]:
+        """Pump once; return the largest total skin force since ``since_ns`` (None: none).
+
+        Every force sample that arrived counts, not only the latest: a short touch between two
+        checks (a light contact on a soft object) is not missed.
+        """
+        peak: float | None = None
+        for item in self._pump():
+            yield item
+            if isinstance(item, SkinBlock) and item.modality == "force":
+                most = peak_total(item, since_ns=since_ns)
+                if most is not None:
+                    peak = most if peak is None else max(peak, most)
+        total = self.skin.total_force()
+        if total is not None:
+            peak = total if peak is None else max(peak, total)
+        return peak
+
+    def _execute(
+        self, at: Context, action: ActionSpec, contact: NDArray[np.float64]
+    ) -> Iterator[StreamItem]:
+        """Press to depth and hold, or slide at force and speed, for the action's duration."""
+        motion, scale = self.options.motion, self.options.time_scale
+        hold_ns = round(action.duration_s * scale * _NS)
+        here = _phase(at, "execute")
+        yield self._event("execute")
+        if action.kind == "slide":
+            velocity = np.concatenate([_tool_axis(contact, 0) * action.speed_m_s, np.zeros(3)])
+            self.arm.force_slide(
+                action.force_n, velocity, action.duration_s, motion.acceleration_m_s2, here
+            )
+            start = self.clock.now_ns()
+        else:
+            target = contact.copy()
+            target[:3] += _tool_axis(contact, 2) * action.depth_m
+            self.arm.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
+            travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 1.0
+            limit = self.clock.now_ns() + round(travel_s * _NS)
+            while not self._reached(target):
+                yield from self._pump()
+                if self.clock.now_ns() > limit:
+                    reason = f"the press did not reach its depth {action.depth_m:g} m within 1 mm"
+                    raise Stop(reason, self.clock.now_ns())
+            start = self.clock.now_ns()
+        while self.clock.now_ns() - start < hold_ns:
+            yield from self._pump()
+
+    def _retract(self, at: Context, contact: NDArray[np.float64]) -> Iterator[StreamItem]:
+        """Move back from the contact until there (within 1 mm) or at rest."""
+        motion = self.options.motion
+        target = contact.copy()
+        target[:3] -= _tool_axis(contact, 2) * motion.retract_m
+        self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, _phase(at, "retract"))
+        yield self._event("retract")
+        start = self.clock.now_ns()
+        still_since: int | None = None
+        settle = round(SETTLE_S * _NS)
+        limit = start + round((3 * motion.retract_m / motion.retract_m_s + 2) * _NS)
+        while not self._reached(target):
+            yield from self._pump()
+            now = self.clock.now_ns()
+            still_since = (still_since or now) if self._state.still else None
+            if still_since is not None and now - still_since > settle and now - start > settle:
+                break
+            if now > limit:
+                msg = "the retract did not end within its time"
+                raise Stop(msg, now)
+
+    # -- receiving and checking -----------------------------------------------------------
+
+    def _begin(self) -> None:
+        """Forget what queued before (between actions), keeping the arm's latest state."""
+        self.arm.begin()
+        self._begun_ns = self.clock.now_ns()
+
+    def _pump(self, wait_s: float = CYCLE_WAIT_S) -> Iterator[StreamItem]:
+        """Yield what arrived (state samples, skin blocks) in receive order; check for stops.
+
+        Every state sample is checked against the limits as it is taken in; the samples that
+        arrived with the offending one are still handed over (valid data, kept).
+        """
+        try:
+            samples = self.arm.poll(wait_s)
+        except SourceLostError as err:
+            msg = f"arm connection lost ({err.__cause__ or err})"
+            raise Stop(msg, self.clock.now_ns()) from None
+        items: list[StreamItem] = []
+        violation = ""
+        for sample in samples:
+            self._state.sample, self._state.receive_ns = sample, sample.receive_ns
+            violation = violation or self._violation(sample)
+            items.extend(_items(sample))
+        try:
+            items.extend(self.skin.poll())
+        except SourceLostError as err:
+            violation = violation or f"skin connection lost ({err})"
+        items.sort(key=lambda item: item.receive_ns)
+        yield from items
+        self._check(violation)
+
+    def _pump_quietly(self) -> None:
+        """Pump without recording (between actions); the checks still run."""
+        for _ in self._pump():
+            pass
+
+    def _violation(self, sample: ArmSample) -> str:
+        """Return why this state sample ends the action (empty: it does not)."""
+        if sample.stopped:
+            return f"{sample.stopped} from the controller"
+        limits = self.limits
+        force = float(np.linalg.norm(sample.tcp_force[:3]))
+        if force > limits.max_force_n:
+            return f"TCP force {force:.2f} N above [limits] max_force_n = {limits.max_force_n:g}"
+        if not limits.inside(sample.tcp_pose[:3]):
+            where = [round(float(v), 4) for v in sample.tcp_pose[:3]]
+            return f"TCP at {where} left the [limits] workspace"
+        return ""
+
+    def _check(self, violation: str) -> None:
+        """Raise a stop for a limit, a signal, a writer in trouble or a silent source.
+
+        Raises:
+            Stop: The reason, one line.
+        """
+        now = self.clock.now_ns()
+        reason = violation or self._watch.problem()
+        if not reason:
+            silence = round(self.options.silence_s * _NS)
+            last_arm = max(self._state.receive_ns, self._begun_ns)
+            last_skin = max(self.skin.last_receive_ns() or 0, self._begun_ns)
+            if now - last_arm > silence:
+                reason = f"arm state silent for {(now - last_arm) / _NS:.2f} s"
+            elif now - last_skin > silence:
+                reason = f"skin silent for {(now - last_skin) / _NS:.2f} s"
+        if reason:
+            raise Stop(reason, now)
+
+    def _rest(self) -> Iterator[StreamItem]:
+        """Yield what is still queued: state samples and the skin's open blocks."""
+        items: list[StreamItem] = []
+        with contextlib.suppress(SourceLostError):
+            for sample in self.arm.poll(0.0):
+                items.extend(_items(sample))
+        with contextlib.suppress(SourceLostError):
+            items.extend(self.skin.finish())
+        items.sort(key=lambda item: item.receive_ns)
+        yield from items
+
+    def _event(self, phase: str) -> PhaseEvent:
+        now = max(self.clock.now_ns(), self._last_event_ns + 1)
+        self._last_event_ns = now
+        return PhaseEvent(now, now, phase)
+
+    def _reached(self, target: NDArray[np.float64]) -> bool:
+        pose = self._state.pose
+        return pose is not None and float(np.linalg.norm(pose[:3] - target[:3])) <= REACHED_M
+
+
+def _phase(at: Context, phase: str) -> Context:
+    return Context(at.object_id, at.action_id, at.trial, phase)
+
+
+def _items(sample: ArmSample) -> list[StreamItem]:
+    """Return the joint state and the TCP pose of one state sample."""
+    quat = Rotation.from_rotvec(sample.tcp_pose[3:6]).as_quat()
+    return [
+        JointSample(sample.stamp_ns, sample.receive_ns, sample.q, sample.qd, sample.effort),
+        PoseSample(sample.stamp_ns, sample.receive_ns, sample.tcp_pose[:3].copy(), quat),
+    ]
+
+
+def peak_total(block: SkinBlock, *, since_ns: int) -> float | None:
+    """Return the largest total force of a force block's samples taken at or after ``since_ns``.
+
+    Samples from before (a block may begin before the approach, in the tare) are not counted:
+    a jolt while the arm moved to the object must not read as its contact.
+    """
+    totals = block.data.reshape(len(block.data), -1).sum(axis=1)
+    stamps = block.stamp_ns + block.period_ns * np.arange(len(totals))
+    after = totals[stamps >= since_ns]
+    return float(after.max()) if after.size else None

@@ -1,0 +1,83 @@
+"""The writer's own thread: the runner hands items over and never waits for the disk.
+
+urcl reads RTDE in a background thread into a bounded queue and says when it overflows; here
+the other way round: the safety loop produces, the writer consumes from a bounded queue in its
+own thread. A slow disk shows as a queue that fills (the runner then ends the action, the stop
+first); a failed write (a full disk) is kept and reported to the runner, which also stops.
+A plain ``queue.Queue`` and a thread do this; no library adds anything for one consumer.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from typing import TYPE_CHECKING, Self
+
+if TYPE_CHECKING:
+    from types import TracebackType
+
+    from recorder.writing._stream import StreamItem
+    from recorder.writing._writer import RecordingWriter
+
+#: Items the writer may fall behind by: about a minute of a 500 Hz arm and a 1 kHz skin.
+CAPACITY = 65_536
+_END = object()
+
+
+class WriterThread:
+    """Writes items to a :class:`RecordingWriter` from a bounded queue, in its own thread."""
+
+    def __init__(self, writer: RecordingWriter, capacity: int = CAPACITY) -> None:
+        """Prepare the thread (started by ``__enter__``)."""
+        self.writer = writer
+        self._queue: queue.Queue[object] = queue.Queue(maxsize=capacity)
+        self._thread = threading.Thread(target=self._run, name="atikt-writer", daemon=True)
+        self.failure: BaseException | None = None
+        self.behind = False
+
+    def __enter__(self) -> Self:
+        """Start writing."""
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Write what is queued, then end the thread."""
+        self.close()
+
+    def put(self, item: StreamItem) -> None:
+        """Queue one item; never blocks (a full queue sets :attr:`behind`)."""
+        if self.failure is not None or self.behind:
+            return
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.behind = True
+
+    @property
+    def problem(self) -> str:
+        """Return why the writer cannot keep the action going (empty: it can)."""
+        if self.failure is not None:
+            return f"writing failed: {self.failure}"
+        if self.behind:
+            return f"the disk fell {self._queue.maxsize} items behind the arm and the skin"
+        return ""
+
+    def close(self) -> None:
+        """Write what is queued and end the thread (idempotent)."""
+        if self._thread.is_alive():
+            self._queue.put(_END)
+            self._thread.join()
+
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not _END:
+            if self.failure is not None:
+                continue  # drain: the runner stops and saves what the file holds
+            try:
+                self.writer.write(item)  # type: ignore[arg-type]
+            except BaseException as err:  # noqa: BLE001 (kept and reported to the runner)
+                self.failure = err

@@ -1,0 +1,390 @@
+"""The UR driver: a Universal Robots arm's state over RTDE, its motion as URScript.
+
+The driver reads every RTDE data package in a reader thread (bounded queue, overflow counted),
+counts it by the controller's ``timestamp`` and turns each new, in-order package into an
+:class:`recorder.runner.ArmSample`; each command of the runner is one URScript program sent
+to the secondary interface (it replaces the running one; see ``_script``). It decides nothing:
+phases, limits and the stop belong to the runner.
+
+A package the recipe cannot parse (another recipe id, a wrong size) or with a non-finite value
+is counted as malformed and skipped: it never ends the action and never reaches the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import socket
+from typing import TYPE_CHECKING, Any, Self
+
+import numpy as np
+
+from recorder.errors import RigError
+from recorder.live import RecorderClock, SourceCounter, SourceLostError, SourceReader
+from recorder.runner._arm import ArmSample
+from recorder.ur._rtde import MAX_FREQUENCY, RtdeClient, RtdeError
+from recorder.ur._script import (
+    Announcement,
+    move_program,
+    slide_program,
+    speed_program,
+    stop_program,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+    from types import TracebackType
+
+    from numpy.typing import NDArray
+
+    from recorder.live import Received, SourceStats
+    from recorder.runner._arm import Context
+
+#: The UR arms' joint names, in RTDE's order (the one place they are written).
+JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+#: The RTDE outputs the driver asks for (``target_moment``: the joint torques it records).
+RTDE_VARIABLES = (
+    "timestamp",
+    "actual_q",
+    "actual_qd",
+    "target_moment",
+    "actual_TCP_pose",
+    "actual_TCP_force",
+    "robot_mode",
+    "safety_status",
+)
+#: RTDE ``safety_status`` values under which the arm may move (normal, reduced).
+SAFE_STATUS = frozenset({1, 2})
+#: Names of the other safety states, for messages.
+SAFETY_NAMES = {
+    3: "protective stop",
+    4: "recovery",
+    5: "safeguard stop",
+    6: "system emergency stop",
+    7: "robot emergency stop",
+    8: "violation",
+    9: "fault",
+}
+#: RTDE samples read when connecting to estimate the controller's clock offset.
+OFFSET_SAMPLES = 10
+_NS = 1_000_000_000
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Connection:
+    """Where the controller is.
+
+    Attributes:
+        host: The controller's address.
+        rtde_port: RTDE port.
+        script_port: Secondary interface port for URScript.
+        frequency: RTDE packages per second: 125 (CB3) or 500 (e-Series).
+    """
+
+    host: str
+    rtde_port: int
+    script_port: int
+    frequency: int
+
+
+class URArm:
+    """A UR arm over RTDE and URScript (an :class:`recorder.runner.ArmDriver`)."""
+
+    def __init__(
+        self, connection: Connection, clock: RecorderClock, where: str = "<rig options>"
+    ) -> None:
+        """Prepare the driver (nothing is opened before ``__enter__``)."""
+        self.connection, self.where = connection, where
+        self._clock = clock
+        self._stack: contextlib.ExitStack | None = None
+        self._rtde: RtdeClient | None = None
+        self._reader: SourceReader | None = None
+        self._script: socket.socket | None = None
+        self._version = ""
+        self._offset_ns = 0
+        self._newest_ns = -1
+        self._counter = SourceCounter("rtde", period_ns=self.period_ns)
+        self._overflow_base = 0
+        self.malformed = 0
+        self.last_error = ""
+
+    # -- connection -----------------------------------------------------------------------
+
+    def __enter__(self) -> Self:
+        """Connect to RTDE and the script port; estimate the controller's clock offset.
+
+        Raises:
+            RigError: A connection failed or the controller cannot stream at the frequency.
+        """
+        with contextlib.ExitStack() as stack:
+            link = self.connection
+            rtde = RtdeClient(link.host, link.rtde_port, clock=self._clock.now_ns)
+            rtde.connect()
+            stack.callback(rtde.close)
+            major, minor, bugfix, build = rtde.controller_version()
+            self._version = f"{major}.{minor}.{bugfix}.{build}"
+            if link.frequency > MAX_FREQUENCY.get(major, 500.0):
+                msg = (
+                    f"{self.where}: rig option frequency = {link.frequency}, but controller "
+                    f"{self._version} streams RTDE at {MAX_FREQUENCY[major]:g} Hz at most; "
+                    "give frequency = 125"
+                )
+                raise RigError(msg)
+            rtde.setup_outputs(RTDE_VARIABLES, link.frequency)
+            rtde.start()
+            reader = SourceReader("rtde", rtde.receive)
+            reader.start()
+            stack.callback(_stop_rtde, rtde, reader)
+            self._rtde, self._reader = rtde, reader
+            self._script = self._open_script()
+            stack.callback(self._close_script)
+            self._offset_ns = self._estimate_offset()
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Disconnect, whatever happened."""
+        stack, self._stack = self._stack, None
+        if stack is not None:
+            stack.close()
+        self._rtde = self._reader = self._script = None
+
+    def _open_script(self) -> socket.socket:
+        link = self.connection
+        try:
+            sock = socket.create_connection((link.host, link.script_port), timeout=2.0)
+        except OSError as err:
+            msg = (
+                f"URScript {link.host}:{link.script_port}: cannot connect ({err}); check the "
+                "rig options host and script_port, and that the controller is in remote control"
+            )
+            raise RigError(msg) from err
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a stop leaves at once
+        return sock
+
+    def _close_script(self) -> None:
+        sock, self._script = self._script, None
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.close()
+
+    def _estimate_offset(self) -> int:
+        """Return recorder time minus controller time from the first packages (lowest latency)."""
+        reader = self._parts()
+        warmup = SourceCounter("rtde", period_ns=self.period_ns)
+        deadline = self._clock.now_ns() + 2 * _NS
+        while warmup.stats().received < OFFSET_SAMPLES and self._clock.now_ns() < deadline:
+            item = reader.get(0.05)
+            if item is None:
+                reader.check()
+                continue
+            values = self._parse(item)
+            if values is not None:
+                warmup.observe(None, _stamp(values), item.receive_ns)
+        if warmup.clock_offset_ns is None:
+            rtde = self._rtde
+            where = rtde.where if rtde is not None else self.connection.host
+            msg = f"RTDE {where}: no data package within 2 s after start; check the controller"
+            raise RigError(msg)
+        return warmup.clock_offset_ns
+
+    def _parts(self) -> SourceReader:
+        if self._reader is None or self._rtde is None:
+            msg = f"{self.where}: the UR driver is used before it connected; use `with rig:`"
+            raise RigError(msg)
+        return self._reader
+
+    # -- the driver interface -------------------------------------------------------------
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Return the UR joint names."""
+        return JOINT_NAMES
+
+    @property
+    def period_ns(self) -> int:
+        """Return one controller cycle, ns."""
+        return round(_NS / self.connection.frequency)
+
+    def describe(self) -> Mapping[str, str]:
+        """Return the connection settings (the rig's identity; the version is a fact)."""
+        link = self.connection
+        return {
+            "host": link.host,
+            "rtde_port": str(link.rtde_port),
+            "script_port": str(link.script_port),
+            "rtde_frequency_hz": str(link.frequency),
+        }
+
+    def facts(self) -> Mapping[str, str]:
+        """Return the controller's version, as it said on connecting."""
+        return {"controller_version": self._version} if self._version else {}
+
+    def begin(self) -> None:
+        """Take what queued between actions as the arm's state; count afresh from here."""
+        reader = self._parts()
+        with contextlib.suppress(SourceLostError):
+            for item in reader.drain():
+                values = self._parse(item, count=False)
+                if values is not None:
+                    self._newest_ns = max(self._newest_ns, _stamp(values))
+        self._overflow_base = reader.overflowed
+        self._counter = SourceCounter("rtde", period_ns=self.period_ns)
+        self.malformed = 0
+
+    def poll(self, wait_s: float) -> list[ArmSample]:
+        """Return the new in-order state samples, waiting up to ``wait_s`` for the first.
+
+        Raises:
+            SourceLostError: The RTDE connection was lost.
+        """
+        reader = self._parts()
+        first = reader.get(wait_s) if wait_s > 0 else None
+        packages = ([first] if first is not None else []) + reader.drain()
+        samples = []
+        for package in packages:
+            sample = self._sample(package)
+            if sample is not None:
+                samples.append(sample)
+        return samples
+
+    def _parse(self, package: Received, *, count: bool = True) -> dict[str, Any] | None:
+        """Return a package's values; None (counted as malformed) when it cannot be used."""
+        recipe = self._rtde.recipe if self._rtde is not None else None
+        if recipe is None:
+            return None
+        try:
+            values = recipe.parse(package.payload)
+        except (RtdeError, ValueError) as err:
+            self.malformed += count
+            self.last_error = str(err)
+            return None
+        if not all(_finite(value) for value in values.values()):
+            self.malformed += count
+            self.last_error = "RTDE data package with a non-finite value"
+            return None
+        return values
+
+    def _sample(self, package: Received) -> ArmSample | None:
+        """Count one package; return its state if it is new and in order.
+
+        A duplicate or a package older than the newest one is counted, not returned (the
+        recording's stamps strictly increase).
+        """
+        values = self._parse(package)
+        if values is None:
+            return None
+        stamp = _stamp(values)
+        if not self._counter.observe(None, stamp, package.receive_ns) or stamp <= self._newest_ns:
+            return None
+        self._newest_ns = stamp
+        safety = int(values["safety_status"])
+        stopped = ""
+        if safety not in SAFE_STATUS:
+            name = SAFETY_NAMES.get(safety, "unsafe state")
+            stopped = f"{name} (RTDE safety_status {safety})"
+        return ArmSample(
+            stamp_ns=stamp + self._offset_ns,
+            receive_ns=package.receive_ns,
+            q=np.asarray(values["actual_q"], dtype=np.float64),
+            qd=np.asarray(values["actual_qd"], dtype=np.float64),
+            effort=np.asarray(values["target_moment"], dtype=np.float64),
+            tcp_pose=np.asarray(values["actual_TCP_pose"], dtype=np.float64),
+            tcp_force=np.asarray(values["actual_TCP_force"], dtype=np.float64),
+            stopped=stopped,
+        )
+
+    def speed(
+        self, velocity: NDArray[np.float64], acceleration: float, duration_s: float, at: Context
+    ) -> None:
+        """Send ``speedl``."""
+        self._send(speed_program(_said(at), at.phase, velocity, acceleration, duration_s))
+
+    def move(
+        self, pose: NDArray[np.float64], speed: float, acceleration: float, at: Context | None
+    ) -> None:
+        """Send ``movel``."""
+        phase = "present" if at is None else at.phase
+        self._send(move_program(_said(at), phase, pose, speed, acceleration))
+
+    def force_slide(
+        self,
+        force_n: float,
+        velocity: NDArray[np.float64],
+        duration_s: float,
+        acceleration: float,
+        at: Context,
+    ) -> None:
+        """Send ``force_mode`` with ``speedl``, then ``end_force_mode`` and ``stopl``."""
+        said = Announcement(at.object_id, at.action_id, at.trial)
+        program = slide_program(said, at.phase, force_n, velocity, duration_s, acceleration)
+        self._send(program)
+
+    def stop(self, acceleration: float, at: Context | None) -> None:
+        """Send ``stopl`` (raises when the script connection is gone)."""
+        phase = "stop" if at is None else at.phase
+        self._send(stop_program(_said(at), phase, acceleration))
+
+    def stats(self) -> list[SourceStats]:
+        """Return the RTDE stream's accounting since :meth:`begin`."""
+        reader = self._reader
+        if reader is not None:
+            missed = reader.overflowed - self._overflow_base
+            if missed:
+                self._counter.overflow(missed)
+                self._overflow_base = reader.overflowed
+        stats = self._counter.stats()
+        if self.malformed:
+            stats = dataclasses.replace(stats, malformed=stats.malformed + self.malformed)
+        return [stats]
+
+    def _send(self, text: str) -> None:
+        """Send a URScript program (it replaces the running one).
+
+        Raises:
+            SourceLostError: The script connection is closed or lost.
+        """
+        sock = self._script
+        link = self.connection
+        where = f"{link.host}:{link.script_port}"
+        if sock is None:
+            msg = f"URScript connection to {where} is closed"
+            raise SourceLostError(msg)
+        try:
+            sock.sendall(text.encode())
+        except OSError as err:
+            msg = f"URScript connection to {where} lost ({err})"
+            raise SourceLostError(msg) from None
+
+
+def _stop_rtde(rtde: RtdeClient, reader: SourceReader) -> None:
+    with contextlib.suppress(RtdeError):
+        rtde.pause(timeout_s=0.2)
+    reader.stop()
+
+
+def _said(at: Context | None) -> Announcement | None:
+    return None if at is None else Announcement(at.object_id, at.action_id, at.trial)
+
+
+def _stamp(values: Mapping[str, Any]) -> int:
+    return round(float(values["timestamp"]) * _NS)
+
+
+def _finite(value: object) -> bool:
+    if isinstance(value, np.ndarray):
+        return bool(np.all(np.isfinite(value)))
+    return not isinstance(value, float) or math.isfinite(value)
