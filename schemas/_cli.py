@@ -191,12 +191,14 @@ def run(
             raise
         print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
-    except Terminated:
-        print(f"{parser.prog}: terminated (SIGTERM); {_after(interrupted)}", file=sys.stderr)  # noqa: T201
-        return TERMINATED_STATUS
-    except KeyboardInterrupt:
-        print(f"{parser.prog}: {interrupted}", file=sys.stderr)  # noqa: T201
-        return INTERRUPTED_STATUS
+    except KeyboardInterrupt as err:  # Terminated too (SIGTERM)
+        terminated = isinstance(err, Terminated)
+        said = str(err.args[0]) if err.args else ""
+        line = f"{said}; {_after(interrupted)}" if said else interrupted
+        if terminated and not said:
+            line = f"terminated (SIGTERM); {_after(interrupted)}"
+        print(f"{parser.prog}: {one_line(line)}", file=sys.stderr)  # noqa: T201
+        return TERMINATED_STATUS if terminated else INTERRUPTED_STATUS
     return status
 
 
@@ -539,12 +541,12 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
 
 __all__ = [
     "PROGRESS_INTERVAL_S",
+    "TERMINATED_STATUS",
     "Argument",
     "CliError",
     "Command",
     "PlainProgress",
     "Registry",
-    "TERMINATED_STATUS",
     "Terminated",
     "arg",
     "build_parser",

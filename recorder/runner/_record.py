@@ -95,7 +95,9 @@ def record_action(
         try:
             raise_interrupt(flag.signum)
         except KeyboardInterrupt as err:
-            err.args = (f"{flag.reason}: the arm was stopped; what arrived is in {written.path}",)
+            err.args = (
+                f"{flag.reason}: the arm was stopped; what arrived is kept in {written.path}",
+            )
             raise
     if stop is not None:
         raise ActionStoppedError(stop.reason, stop.at_ns, written.path)

@@ -12,9 +12,9 @@ from skinframes import RampWorld, example, poll_until, received_past, serial_exa
 
 from recorder.live import RecorderClock, SourceStats
 from recorder.live._frames import FrameSkin, serial_skin, udp_skin
+from recorder.runner._record import record_action
 from recorder.virtuallab._skin_server import SkinFaults, serve_skin
 from recorder.writing._stream import PhaseEvent
-from recorder.runner._record import record_action
 from replay import read_recording
 
 if TYPE_CHECKING:

@@ -209,7 +209,9 @@ def test_failed_action_keeps_what_arrived_as_incomplete(
     with pytest.raises(RuntimeError, match="fake rig failure"), FakeRig(fail_after=50) as rig:
         record_action(rig, objects["wood"], actions["P1"], 1, path, seed=0)
     assert [p.name for p in path.parent.iterdir()] == ["001.incomplete.mcap"]
-    with pytest.raises(RecordingError, match=r"incomplete recording \(the action was stopped: fake"):
+    with pytest.raises(
+        RecordingError, match=r"incomplete recording \(the action was stopped: fake"
+    ):
         read_recording(path.parent / "001.incomplete.mcap")  # kept for inspection, not learned
     with (path.parent / "001.incomplete.mcap").open("rb") as stream:
         assert sum(1 for _ in make_reader(stream).iter_messages()) > 10  # the samples before

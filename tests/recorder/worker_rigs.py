@@ -22,20 +22,23 @@ def _full(*_args: object, **_kwargs: object) -> None:
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 
+_FLUSH: Any = mcap.writer.Writer.flush
+
+
 class FullDiskOnTrialOne(FakeRig):
-    """Trial 1 meets a full disk at once; the other trials stream slowly (still writing)."""
+    """Trial 1 meets a full disk at once; the other trials stream slowly (still writing).
+
+    The disk stays full in the worker of trial 1 until that worker's next action starts (the
+    writer writes in its own thread, also after the rig's last item).
+    """
 
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
-        original: Any = mcap.writer.Writer.flush
-        if trial == 1:
-            mcap.writer.Writer.flush = _full  # type: ignore[method-assign]
-        try:
-            for item in super().perform(obj, action, trial):
-                if trial != 1:
-                    time.sleep(0.002)
-                yield item
-        finally:
-            mcap.writer.Writer.flush = original  # type: ignore[method-assign]
+        full = trial == 1
+        mcap.writer.Writer.flush = _full if full else _FLUSH  # type: ignore[method-assign]
+        for item in super().perform(obj, action, trial):
+            if not full:
+                time.sleep(0.002)
+            yield item
 
 
 class SleepingRig(FakeRig):

@@ -1,0 +1,170 @@
+"""Every way an action ends other than its normal end sends the stop first, then keeps the data.
+
+The runner drives a scripted arm (``fake_arm``, a mock of hardware) on the real clock; for each
+cause the arm records the controller cycle of the cause and of the stop: the stop must come
+within 2 cycles, and what arrived must be kept as ``<trial>.incomplete.mcap``.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import threading
+from typing import TYPE_CHECKING
+
+import pytest
+from fake_arm import FakeArm, fake_rig
+from mcap.reader import make_reader
+
+from recorder import ActionStoppedError, RecorderError, load_actions, load_objects
+from recorder.runner._record import record_action
+from recorder.writing._writer import RecordingWriter
+from schemas import INCOMPLETE_RECORD, cli
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from recorder.runner import ArmRig
+
+OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
+#: The largest delay from a cause to the stop, in controller cycles.
+MOST_CYCLES = 2
+
+
+def _kept(path: Path, reason: str) -> None:
+    """The action's file is the incomplete one, with messages and the stop's reason."""
+    assert not path.exists()
+    kept = path.with_name("001.incomplete.mcap")
+    with kept.open("rb") as stream:
+        reader = make_reader(stream)
+        messages = sum(1 for _ in reader.iter_messages())
+        summary = reader.get_summary()
+        assert summary is not None
+        records = {r.name: r.metadata for r in reader.iter_metadata()}
+    assert messages > 50
+    assert reason in records[INCOMPLETE_RECORD]["reason"]
+
+
+def _stopped_in_time(arm: FakeArm, cause_cycle: int | None) -> None:
+    assert cause_cycle is not None
+    assert arm.stop_cycle is not None, arm.commands
+    assert 0 <= arm.stop_cycle - cause_cycle <= MOST_CYCLES, (cause_cycle, arm.stop_cycle)
+
+
+@pytest.mark.parametrize(
+    ("cause", "reason"),
+    [
+        ("force", "TCP force 100.00 N above [limits] max_force_n"),
+        ("workspace", "left the [limits] workspace"),
+        ("protective", "protective stop (fake) from the controller"),
+        ("lost", "arm connection lost"),
+    ],
+)
+def test_a_limit_or_a_controller_stop_sends_the_stop_first(
+    tmp_path: Path, cause: str, reason: str
+) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig(cause)
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig, pytest.raises(ActionStoppedError, match=r"kept in .*001\.incomplete\.mcap"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    _stopped_in_time(arm, arm.cause_cycle)
+    _kept(path, reason)
+
+
+def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig("silence")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig, pytest.raises(ActionStoppedError, match="arm state silent"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    assert arm.cause_cycle is not None
+    assert arm.stop_cycle is not None
+    # the last sample came a cycle before the cause; the threshold is silence_s after it
+    threshold = arm.cause_cycle - 1 + rig.options.silence_s * 1e9 / arm.period_ns
+    assert threshold - 1 <= arm.stop_cycle <= threshold + MOST_CYCLES
+    _kept(path, "silent")
+
+
+def _after_contact(rig: ArmRig, then: object) -> dict[str, int]:
+    """Call ``then()`` from a thread 5 cycles after the contact; return the cycle it did."""
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    seen: dict[str, int] = {}
+
+    def watch() -> None:
+        while arm._contact_cycle is None or arm._cycle < arm._contact_cycle + 5:
+            threading.Event().wait(0.001)
+        seen["cycle"] = arm._cycle
+        then()  # type: ignore[operator]
+
+    threading.Thread(target=watch, daemon=True).start()
+    return seen
+
+
+@pytest.mark.parametrize(
+    ("signum", "raised", "name"),
+    [
+        (signal.SIGINT, KeyboardInterrupt, "Ctrl-C"),
+        (signal.SIGTERM, cli.Terminated, "SIGTERM"),
+    ],
+)
+def test_a_signal_stops_the_arm_keeps_the_data_then_ends_the_run(
+    tmp_path: Path, signum: int, raised: type[BaseException], name: str
+) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    seen = _after_contact(rig, lambda: os.kill(os.getpid(), signum))
+    with rig, pytest.raises(raised, match=f"interrupted by {name}.*kept in .*incomplete"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    _stopped_in_time(arm, seen["cycle"])
+    _kept(path, f"interrupted by {name}")
+
+
+def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    failed: dict[str, int] = {}
+    write = RecordingWriter.write
+
+    def full_after_contact(self: RecordingWriter, item: object) -> None:
+        if arm._contact_cycle is not None and arm._cycle > arm._contact_cycle + 5:
+            failed.setdefault("cycle", arm._cycle)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        write(self, item)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(RecordingWriter, "write", full_after_contact)
+    with rig, pytest.raises(RecorderError, match="No space left on device"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    _stopped_in_time(arm, failed["cycle"])
+    _kept(path, "No space left on device")
+
+
+def test_any_exception_stops_the_arm_first(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    seen = _after_contact(rig, lambda: setattr(rig.skin, "fail", True))
+    with rig, pytest.raises(RuntimeError, match="fake skin: a bug"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    _stopped_in_time(arm, seen["cycle"])
+    _kept(path, "fake skin: a bug")
+
+
+def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> None:
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig:
+        written = record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    assert written.path == tmp_path / "001.mcap"
+    assert arm.stop_cycle is None
+    assert [c for _, c in arm.commands] == [
+        "speed approach",
+        "stop contact",
+        "move execute",
+        "move retract",
+    ]
