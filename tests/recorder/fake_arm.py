@@ -234,7 +234,7 @@ def fake_rig(cause: str = "", *, period_ns: int = 8_000_000) -> ArmRig:
         arm,
         FakeSkin(arm, clock),
         Limits(),
-        options,  # type: ignore[arg-type]
+        options,
         {"wood": START.tolist()},
         kind="fake",
         where="fake.toml",
