@@ -18,7 +18,7 @@ from recorder._dataset import (
     recording_path,
     write_index,
 )
-from recorder._rig import Rig
+from recorder._rig import Accounting, Connecting, Presenting, Rig
 from recorder._rigconfig import (
     ENTRY_POINT_GROUP,
     SIM_RIG,
@@ -45,6 +45,7 @@ from recorder.errors import (
     RecorderError,
     RigError,
 )
+from recorder.runner import ArmDriver, ArmRig, ArmSample, RunnerOptions
 from recorder.runner._record import record_action
 from recorder.writing._stream import (
     JointSample,
@@ -85,12 +86,17 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "SIMULATOR_VERSION",
     "SIM_RIG",
+    "Accounting",
     "ActionKind",
     "ActionSpec",
     "ActionStoppedError",
+    "ArmDriver",
+    "ArmRig",
+    "ArmSample",
     "BagImportError",
     "CatalogError",
     "ConfiguredRig",
+    "Connecting",
     "FrozenTable",
     "ImportReport",
     "JointSample",
@@ -101,6 +107,7 @@ __all__ = [
     "Phase",
     "PhaseEvent",
     "PoseSample",
+    "Presenting",
     "RecorderError",
     "RecordingInfo",
     "RecordingTask",
@@ -109,6 +116,7 @@ __all__ = [
     "RigConfig",
     "RigError",
     "RigPlugin",
+    "RunnerOptions",
     "SimConfig",
     "SimulatedRig",
     "SkinBlock",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -35,11 +36,14 @@ from replay.learning._session import (
 from replay.live import (
     LiveView,
     check_rig,
+    claim_live_run,
     configured_rig,
     default_dataset_dir,
     default_dataset_ready,
     ensure_default_dataset,
+    free_file,
     learn_live,
+    live_output,
 )
 from replay.outputs._plots import plot_learning_curves
 from replay.outputs._study_report import run_study
@@ -340,7 +344,10 @@ def _learn_command(args: argparse.Namespace) -> int:
         raise ReplayError(msg)
     if args.view:
         cli.check_new_file(Path(args.view), force=args.force, option="--view")
-    target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
+    if args.rig is not None:  # live: recordings go straight into the run; it resumes
+        target = live_output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
+    else:
+        target = _output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     inputs = [_dataset_input(args.recordings), ("--session", args.session)]
     cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
@@ -376,8 +383,12 @@ def _learn_command(args: argparse.Namespace) -> int:
         seed=args.seed,
         features=args.features,
     )
-    with cli.publish_directory(target, force=args.force) as out:
-        _learn_into(args, table, spec, prior_root, out, other=other)
+    if args.rig is not None:
+        claim_live_run(target, _live_settings(args, spec))
+        _learn_into(args, table, spec, prior_root, target, other=other)
+    else:
+        with cli.publish_directory(target, force=args.force) as out:
+            _learn_into(args, table, spec, prior_root, out, other=other)
     print(f"history -> {target / HISTORY_NAME}, plot -> {target / 'learning_curve.png'}")  # noqa: T201
     return 0
 
@@ -501,10 +512,36 @@ def _learn_live(
             config, spec, models, session, test_trials=args.test_trials, on_step=on_step
         )
     save = Path(args.view) if args.view else None
-    with LiveView(f"live run on {config.name}", save) as view:
-        return learn_live(
+    view = LiveView(f"live run on {config.name}", save, fallback=free_file(out / "live.rrd"))
+    if view.note:
+        print(view.note, file=sys.stderr, flush=True)  # noqa: T201 (one line; the run goes on)
+    with view:
+        frame = learn_live(
             config, spec, models, session, test_trials=args.test_trials, on_step=on_step, view=view
         )
+    if view.sink.dropped:
+        print(  # noqa: T201
+            f"--view: the viewer fell behind; {view.sink.dropped} items were not shown "
+            "(the recordings hold everything)",
+            file=sys.stderr,
+        )
+    return frame
+
+
+def _live_settings(args: argparse.Namespace, spec: RunSpec) -> dict[str, Any]:
+    """Return what identifies a live run, so that a rerun resumes only the same run."""
+    return {
+        "new_objects": list(spec.new_objects),
+        "prior_objects": list(spec.prior_objects),
+        "actions": list(spec.actions),
+        "seed": spec.seed,
+        "features": spec.features,
+        "learner": spec.learner.as_dict(),
+        "test_trials": args.test_trials,
+        "rig": args.rig,
+        "rig_config": str(args.rig_config) if args.rig_config is not None else None,
+        "rig_options": list(args.rig_option),
+    }
 
 
 @command(

@@ -9,15 +9,20 @@ only, and a test keeps it that way.
 
 from replay.live._default import default_dataset_dir, default_dataset_ready, ensure_default_dataset
 from replay.live._executor import LiveExecutor
+from replay.live._outputs import LIVE_NAME, claim_live_run, free_file, live_output
 from replay.live._run import LiveView, check_rig, configured_rig, learn_live
 
 __all__ = [
+    "LIVE_NAME",
     "LiveExecutor",
     "LiveView",
     "check_rig",
+    "claim_live_run",
     "configured_rig",
     "default_dataset_dir",
     "default_dataset_ready",
     "ensure_default_dataset",
+    "free_file",
     "learn_live",
+    "live_output",
 ]

@@ -1,33 +1,58 @@
-"""The live executor: performs each requested action on a rig, records it, reads it back."""
+"""The live executor: performs each requested action on a rig, records it, reads it back.
+
+Recordings go straight into the run's session directory (``<session>/<object>/<action>/
+<trial>.mcap``) as they are made and are never deleted by the program, whatever happens: a run
+that ends early (Ctrl-C, a stop, a lost connection) leaves them for the next run, which
+resumes: the learner's decisions are a function of the seed and of the observations, so the
+same command asks for the same recordings in the same order, and every one already on disk is
+read instead of performed again. ``session.parquet`` lists the recordings in the order they
+were used, with their role (``test`` or ``pool``), so that an offline run over the session
+(``Split.from_session``) serves exactly the same files.
+
+Objects are presented as ``atikt-record session`` presents them: a rig that can move to an
+object's pose goes there before the first recording of that object after another one; a rig
+that could not present a new object is refused before anything moves.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self
 
 import polars as pl
 
-from recorder import record_action, recording_path
+from recorder import Presenting, record_action, recording_path
 from replay.errors import ReplayError
 from replay.learning._executors import SESSION_NAME, Pair, TestSet
 from replay.learning._features import file_features
 from schemas import atomic_write
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping, Sequence
+    from collections.abc import Mapping, Sequence
     from types import TracebackType
 
     from atikt import RawFeatures
-    from recorder import ActionSpec, ObjectSpec, Rig
+    from recorder import ActionSpec, ObjectSpec, Rig, StreamItem
+
+
+class Watcher(Protocol):
+    """A live view: gets items as they arrive and each recording once written; never blocks."""
+
+    def begin(self, prefix: str, joint_names: tuple[str, ...]) -> None:
+        """Show the next items under ``prefix`` (``<object>/<action>/<trial>``)."""
+        ...
+
+    def offer(self, item: StreamItem) -> None:
+        """Take one item (dropped, never waited for, when the view is behind)."""
+        ...
+
+    def recorded(self, path: Path) -> None:
+        """Take a finished recording."""
+        ...
 
 
 class LiveExecutor:
-    """Performs each requested action on a rig, records it, and reads the file back.
-
-    Recordings go to ``<session>/<object>/<action>/<trial>.mcap``; ``session.parquet`` lists
-    them in the order they were made, with their role (``test`` or ``pool``), so that an
-    offline run over the session (``Split.from_session``) serves exactly the same files.
-    """
+    """Performs each requested action on a rig (or reuses its recording), and reads it back."""
 
     def __init__(
         self,
@@ -37,7 +62,7 @@ class LiveExecutor:
         session: Path,
         *,
         seed: int,
-        on_recorded: Callable[[Path], Any] | None = None,
+        view: Watcher | None = None,
     ) -> None:
         """Store the rig and where to record; nothing is performed before ``__enter__``.
 
@@ -45,23 +70,40 @@ class LiveExecutor:
             rig: The rig, not yet connected.
             objects: The new objects, in the learner's index order.
             actions: The action catalog.
-            session: Where the recordings and ``session.parquet`` go (must hold none).
+            session: Where the recordings and ``session.parquet`` go (resumed if it has some).
             seed: The rig's seed, written to every recording.
-            on_recorded: Called with each recording's path once it is written (a live view).
+            view: Shows every item as it arrives and each recording once written (a live
+                view; it must never block).
         """
         self.rig = rig
         self.objects = list(objects)
         self.actions = dict(actions)
         self.session = Path(session)
         self.seed = seed
-        self.on_recorded = on_recorded
+        self.view = view
         self.made: list[dict[str, Any]] = []
+        self.reused = 0
         self._trials: dict[Pair, int] = {}
+        self._presented: str | None = None
 
     def __enter__(self) -> Self:
-        """Connect the rig; refuse a session directory that already holds recordings."""
-        if (self.session / SESSION_NAME).exists() or any(self.session.rglob("*.mcap")):
-            msg = f"{self.session}: already holds a session; choose a new --session directory"
+        """Refuse objects the rig cannot present (before anything moves), then connect.
+
+        Raises:
+            ReplayError: The rig has no pose for a new object (one line naming them).
+        """
+        rig = self.rig
+        missing = (
+            [o.id for o in self.objects if not rig.can_present(o)]
+            if isinstance(rig, Presenting)
+            else []
+        )
+        if missing:
+            msg = (
+                f"the rig has no pose for {', '.join(missing)}: live learning presents "
+                "every new object by itself; give each a pose ([objects.<id>] pose in the "
+                "rig configuration)"
+            )
             raise ReplayError(msg)
         self.session.mkdir(parents=True, exist_ok=True)
         self.rig.__enter__()
@@ -73,7 +115,7 @@ class LiveExecutor:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Disconnect the rig and write the manifest of what was recorded."""
+        """Disconnect the rig and write the manifest of what was used."""
         try:
             self.rig.__exit__(exc_type, exc, tb)
         finally:
@@ -85,20 +127,38 @@ class LiveExecutor:
         return None
 
     def _perform(self, obj: ObjectSpec, action_id: str, role: str) -> Path:
-        """Record one more trial of (obj, action) and return its file."""
+        """Record one more trial of (obj, action), or reuse it from an earlier run; its file."""
         pair = (obj.id, action_id)
         trial = self._trials.get(pair, 0) + 1
         self._trials[pair] = trial
         path = recording_path(self.session, obj.id, action_id, trial)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        record_action(self.rig, obj, self.actions[action_id], trial, path, seed=self.seed)
-        if self.on_recorded is not None:
-            self.on_recorded(path)
+        if path.exists():
+            self.reused += 1
+        else:
+            self._present(obj)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            action = self.actions[action_id]
+            view = self.view
+            if view is not None:
+                view.begin(f"{obj.id}/{action_id}/{trial:03d}", tuple(self.rig.joint_names))
+            observe = None if view is None else view.offer
+            record_action(self.rig, obj, action, trial, path, seed=self.seed, observe=observe)
+            if view is not None:
+                view.recorded(path)
         self.made.append(
             {"order": len(self.made), "object_id": obj.id, "action_id": action_id}
             | {"trial": trial, "role": role, "path": path.relative_to(self.session).as_posix()}
         )
         return path
+
+    def _present(self, obj: ObjectSpec) -> None:
+        """Bring ``obj`` under the skin when another object was there (rigs that can)."""
+        if self._presented == obj.id:
+            return
+        if isinstance(self.rig, Presenting) and not self.rig.present(obj):
+            msg = f"the rig could not present {obj.id}; give it a pose in the rig configuration"
+            raise ReplayError(msg)
+        self._presented = obj.id
 
     def __call__(self, obj: int, action: str) -> RawFeatures:
         """Perform, record and read back one observation."""
@@ -117,7 +177,7 @@ class LiveExecutor:
         return test
 
     def _write_manifest(self) -> None:
-        """Write ``session.parquet`` (the recordings made so far, in order)."""
+        """Write ``session.parquet`` (the recordings used so far, in order)."""
         schema = {
             "order": pl.Int64,
             "object_id": pl.String,

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import socket
+import subprocess
+import sys
 from typing import TYPE_CHECKING, Any, Self
 
 from recorder import RecorderError, find_rig, load_actions, load_objects, load_rig_config
@@ -9,7 +14,7 @@ from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
 from replay.learning._session import run_learning
 from replay.live._executor import LiveExecutor
-from replay.live._stream import StreamingRig
+from replay.live._stream import CLOSE_S, ViewSink
 from replay.outputs._view import (
     ViewedRecording,
     log_recording,
@@ -55,42 +60,66 @@ def check_rig(name: str) -> None:
         raise ReplayError(cli.one_line(str(err))) from err
 
 
+def has_display() -> bool:
+    """Return whether a viewer window can open here (a display on Linux; always elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 class LiveView:
     """Shows a live run in rerun: the signals as they arrive, and each file once written.
 
-    While the rig records, its items are streamed (:class:`replay.live._stream.StreamingRig`,
-    under ``live/...``); each finished file is then read with the replay's reader and logged
-    with the rerun view's code (``atikt-replay view``), so the viewer also shows the same
-    signals as a view of the session later.
+    While the rig records, its items go through a bounded, non-blocking sink
+    (:class:`replay.live._stream.ViewSink`): a slow or blocked viewer drops frames (counted),
+    it never delays the robot. Each finished file is then read with the replay's reader and
+    logged with the rerun view's code (``atikt-replay view``), so the viewer also shows the
+    same signals as a view of the session later.
+
+    Where it goes: ``--view FILE.rrd`` writes a file; ``--view`` opens a viewer that listens on
+    127.0.0.1 only; without a display (a server, ssh, CI) one line says so and the stream is
+    written to ``fallback`` instead, so the run goes on.
     """
 
-    def __init__(self, name: str, save: Path | None = None) -> None:
-        """Open a rerun stream into ``save`` (an ``.rrd`` file), else a spawned viewer.
+    def __init__(self, name: str, save: Path | None = None, *, fallback: Path) -> None:
+        """Open a rerun stream into ``save``, a loopback viewer, or ``fallback`` (headless).
 
         Raises:
             ReplayError: rerun cannot start the viewer or write the file.
         """
         self.stream = new_stream(name)
         self.viewed: list[ViewedRecording] = []
+        self.note = ""
+        self._viewer: subprocess.Popen[bytes] | None = None
+        target = save
+        if save is None and not has_display():
+            target = fallback
+            self.note = (
+                f"--view: no display here; the live view is written to {fallback} "
+                f"(open it with: rerun {fallback})"
+            )
         try:
-            if save is not None:
-                self.stream.save(save)
+            if target is not None:
+                self.stream.save(target)
             else:
-                self.stream.spawn()
+                self._viewer = _spawn_loopback_viewer(self.stream)
         except (OSError, RuntimeError, ValueError) as err:
             how = f"--view {save}" if save is not None else "--view"
             msg = f"{how}: rerun could not start ({err}); give --view FILE.rrd to write a file"
             raise ReplayError(msg) from err
+        to_file = target is not None  # a file never blocks: everything is written
+        self.sink = ViewSink(self.stream, self._log_file, close_s=None if to_file else CLOSE_S)
 
-    def __call__(self, path: Path) -> None:
-        """Log one finished recording under its own key."""
+    def _log_file(self, path: Path) -> None:
+        """Log one finished recording under its own key (in the sink's thread)."""
         recording = read_recording(path)
         key = unique_key(recording, {item.key for item in self.viewed})
         log_recording(self.stream, recording, key)
         self.viewed.append(ViewedRecording(key, recording.path, recording.metadata))
 
     def __enter__(self) -> Self:
-        """Return the view."""
+        """Start the sink's thread."""
+        self.sink.__enter__()
         return self
 
     def __exit__(
@@ -99,10 +128,29 @@ class LiveView:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Send the recordings' properties and flush the stream."""
-        if self.viewed:
-            send_properties(self.stream, self.viewed)
-        self.stream.flush()
+        """Send the recordings' properties and flush, waiting a bounded time for the viewer."""
+        self.sink.__exit__(exc_type, exc, tb)
+        with contextlib.suppress(Exception):  # the viewer's trouble never fails the run
+            if self.viewed:
+                send_properties(self.stream, self.viewed)
+            self.stream.flush(timeout_sec=CLOSE_S if self._viewer is not None else 1e38)
+        if self._viewer is not None:
+            self.stream.disconnect()
+
+
+def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN401 (rerun's)
+    """Start a rerun viewer that listens on 127.0.0.1 only and connect ``stream`` to it.
+
+    Written by hand: rerun's own ``spawn`` starts the viewer listening on every interface
+    (0.0.0.0) and has no option to say otherwise; its command line has ``--bind``.
+    """
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = int(probe.getsockname()[1])
+    command = [sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(port)]
+    viewer = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)  # noqa: S603
+    stream.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy")
+    return viewer
 
 
 def learn_live(
@@ -144,12 +192,12 @@ def learn_live(
             raise ReplayError(msg)
         rig = make_factory(config)(spec.seed)
         executor = LiveExecutor(
-            rig if view is None else StreamingRig(rig, view.stream),
+            rig,
             [objects[o] for o in spec.new_objects],
             load_actions(),
             session,
             seed=spec.seed,
-            on_recorded=view,
+            view=None if view is None else view.sink,
         )
         with executor:
             test = executor.record_test_set(spec.actions, test_trials)

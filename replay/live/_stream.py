@@ -1,16 +1,19 @@
 """Live signals streamed to rerun while the rig records (``learn --rig ... --view``).
 
-A :class:`StreamingRig` wraps a live rig: every item its ``perform`` yields goes on to the
-recorder unchanged and is also logged to rerun as it arrives, under ``live/<object>/<action>/
-<trial>``: skin blocks as they come (a block is 0.1 s), joint states in batches of about
-0.1 s, phase events at once. The same recording is logged again from its file once it is
-written (:class:`replay.live.LiveView`), so the viewer holds both the live stream and the
-file as the reader sees it.
+A :class:`ViewSink` takes every item the recorder hands it without ever waiting: items go into
+a bounded queue (what does not fit is counted as dropped, never waited for) and a thread of its
+own logs them to rerun under ``live/<object>/<action>/<trial>``: skin blocks as they come (a
+block is 0.1 s), joint states in batches of about 0.1 s, phase events at once. A viewer that
+is slow, blocked or gone therefore never delays the robot's loop. Each finished recording is
+then logged again from its file, in the same thread, with the rerun view's code.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Self
+import contextlib
+import queue
+import threading
+from typing import TYPE_CHECKING, Self
 
 import numpy as np
 import rerun as rr
@@ -20,13 +23,18 @@ from replay.outputs._view import TIMELINE, log_joints, log_skin
 from replay.recording._reader import JointStates, SkinSeries
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable
+    from pathlib import Path
     from types import TracebackType
 
-    from recorder import ActionSpec, ObjectSpec, Rig, StreamItem
+    from recorder import StreamItem
 
 #: Joint samples logged together (0.1 s at RTDE's 500 Hz).
 JOINT_BATCH = 50
+#: Items the view may fall behind by before it drops (about 20 s of a 500 Hz arm and a skin).
+CAPACITY = 20_000
+#: Longest wait for the viewer's thread when the run ends, s (a blocked viewer is left).
+CLOSE_S = 2.0
 
 
 def _series(block: SkinBlock) -> SkinSeries:
@@ -37,23 +45,46 @@ def _series(block: SkinBlock) -> SkinSeries:
     return SkinSeries(block.modality, stamps, data, cells, block.period_ns)
 
 
-class StreamingRig:
-    """A rig whose items are also logged to a rerun stream as they arrive."""
+class _File:
+    """A finished recording to log from its file."""
 
-    def __init__(self, rig: Rig, stream: rr.RecordingStream) -> None:
-        """Wrap ``rig``; log to ``stream``."""
-        self._rig = rig
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+
+_END = object()
+
+
+class ViewSink:
+    """A bounded, non-blocking path from the recorder to a rerun stream (its own thread)."""
+
+    def __init__(
+        self,
+        stream: rr.RecordingStream,
+        log_file: Callable[[Path], None],
+        capacity: int = CAPACITY,
+        *,
+        close_s: float | None = CLOSE_S,
+    ) -> None:
+        """Log items to ``stream``; finished files with ``log_file`` (both in the thread).
+
+        ``close_s``: longest wait for the thread at the end (None: until it is done, for a
+        file, which never blocks).
+        """
         self._stream = stream
+        self._log_file = log_file
+        self._queue: queue.Queue[object] = queue.Queue(maxsize=capacity)
+        self._thread = threading.Thread(target=self._run, name="atikt-view", daemon=True)
         self._joints: list[JointSample] = []
         self._prefix = "live"
-
-    def __getattr__(self, name: str) -> Any:  # noqa: ANN401 (the wrapped rig's own attributes)
-        """Forward everything else (joint_names, describe, present, source_stats...)."""
-        return getattr(self._rig, name)
+        self._names: tuple[str, ...] = ()
+        self.dropped = 0
+        self.failure = ""
+        self._close_s = close_s
 
     def __enter__(self) -> Self:
-        """Connect the wrapped rig."""
-        self._rig.__enter__()
+        """Start the thread."""
+        self._thread.start()
         return self
 
     def __exit__(
@@ -62,22 +93,48 @@ class StreamingRig:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Disconnect the wrapped rig."""
-        self._rig.__exit__(exc_type, exc, tb)
+        """Let the thread log what is queued (a viewer: waiting :data:`CLOSE_S` at most)."""
+        if self._close_s is None:
+            self._queue.put(_END)
+        else:
+            self._offer(_END)
+        self._thread.join(self._close_s)
 
-    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
-        """Perform with the wrapped rig; log every item before handing it on."""
-        self._prefix = f"live/{obj.id}/{action.id}/{trial:03d}"
+    def begin(self, prefix: str, joint_names: tuple[str, ...]) -> None:
+        """Log the next items under ``live/<prefix>``."""
+        self._offer(("begin", prefix, joint_names))
+
+    def offer(self, item: StreamItem) -> None:
+        """Queue one item; never blocks (a full queue counts it as dropped)."""
+        self._offer(item)
+
+    def recorded(self, path: Path) -> None:
+        """Queue a finished recording, to be logged from its file."""
+        self._offer(_File(path))
+
+    def _offer(self, item: object) -> None:
         try:
-            for item in self._rig.perform(obj, action, trial):
-                self._log(item)
-                yield item
-        finally:
-            self._flush_joints()
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
 
-    def _log(self, item: StreamItem) -> None:
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not _END:
+            try:
+                self._log(item)
+            except Exception as err:  # noqa: BLE001 (a viewer's trouble never reaches the robot)
+                self.failure = self.failure or str(err)
+
+    def _log(self, item: object) -> None:
         """Log one item (joint states are batched)."""
-        if isinstance(item, SkinBlock):
+        if isinstance(item, tuple):
+            self._flush_joints()
+            _, prefix, names = item
+            self._prefix, self._names = f"live/{prefix}", names
+        elif isinstance(item, _File):
+            self._flush_joints()
+            self._log_file(item.path)
+        elif isinstance(item, SkinBlock):
             log_skin(self._stream, _series(item), self._prefix)
         elif isinstance(item, JointSample):
             self._joints.append(item)
@@ -92,9 +149,7 @@ class StreamingRig:
         if not self._joints:
             return
         samples, self._joints = self._joints, []
-        names = tuple(getattr(self._rig, "joint_names", ())) or tuple(
-            f"joint_{i}" for i in range(len(samples[0].position))
-        )
+        names = self._names or tuple(f"joint_{i}" for i in range(len(samples[0].position)))
         joints = JointStates(
             names,
             np.array([s.stamp_ns for s in samples], dtype=np.int64),
@@ -102,4 +157,5 @@ class StreamingRig:
             np.array([s.velocity for s in samples]),
             np.array([s.effort for s in samples]),
         )
-        log_joints(self._stream, joints, self._prefix)
+        with contextlib.suppress(ValueError):  # a rig whose joint count changed: not shown
+            log_joints(self._stream, joints, self._prefix)

@@ -1,10 +1,19 @@
+from collections.abc import Iterator
 from pathlib import Path
 
 import polars as pl
 import pytest
 from conftest import ACTIONS, NEW, OLD, TRIALS
 
-from recorder import SimulatedRig, load_actions, load_objects
+from recorder import (
+    ActionSpec,
+    ObjectSpec,
+    RigError,
+    SimulatedRig,
+    StreamItem,
+    load_actions,
+    load_objects,
+)
 from replay.errors import ReplayError
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
 from replay.learning._features import build_features
@@ -107,16 +116,51 @@ def test_live_run_then_offline_replay_of_its_session_agree(
     assert served == [(r["object_id"], r["action_id"]) for r in live.made if r["role"] == "pool"]
 
 
-def test_live_session_refuses_a_directory_with_recordings(
-    features: pl.DataFrame, small_dataset: Path
+class _FailingRig(SimulatedRig):
+    """The simulator, failing at its ``fail_at``-th action (a rig that lost its connection)."""
+
+    def __init__(self, seed: int, fail_at: int) -> None:
+        super().__init__(seed=seed)
+        self.fail_at, self.performed = fail_at, 0
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        self.performed += 1
+        if self.performed == self.fail_at:
+            msg = "connection lost"
+            raise RigError(msg)
+        return super().perform(obj, action, trial)
+
+
+def test_an_interrupted_live_session_resumes_with_the_same_decisions(
+    features: pl.DataFrame, tmp_path: Path
 ) -> None:
-    objects = load_objects()
-    live = LiveExecutor(
-        SimulatedRig(seed=0), [objects[o] for o in NEW], load_actions(), small_dataset, seed=0
+    spec = RunSpec(
+        new_objects=NEW,
+        prior_objects=OLD,
+        actions=ACTIONS,
+        learner=learner_options("prediction", budget=4),
+        seed=9,
     )
-    with pytest.raises(ReplayError, match="already holds a session"), live:
-        pass
-    assert features.height > 0
+    models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=2)
+    objects, actions = [load_objects()[o] for o in NEW], load_actions()
+
+    def run(rig: SimulatedRig, session: Path) -> tuple[pl.DataFrame, LiveExecutor]:
+        live = LiveExecutor(rig, objects, actions, session, seed=9)
+        with live:
+            test = live.record_test_set(ACTIONS, trials=1)
+            return run_learning(spec, live, test, models).frame(), live
+
+    whole, _ = run(SimulatedRig(seed=9), tmp_path / "whole")
+    session = tmp_path / "interrupted"
+    with pytest.raises(RigError, match="connection lost"):
+        run(_FailingRig(9, fail_at=6), session)
+    made = sorted(session.rglob("*.mcap"))
+    assert len(made) == 5  # every recording made before the failure is kept
+    resumed, live = run(SimulatedRig(seed=9), session)
+    assert resumed.equals(whole)
+    assert live.reused == 5
+    assert set(made) <= set(session.rglob("*.mcap"))
+    assert Split.from_session(session) == Split.from_session(tmp_path / "whole")
 
 
 def test_spec_refuses_an_object_that_is_new_and_prior() -> None:

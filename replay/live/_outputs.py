@@ -1,0 +1,90 @@
+"""Where a live run writes: its own directory, made at once, resumed, never replaced.
+
+A live run's recordings are made at a robot: they go straight into ``<out>/session/`` as they
+are recorded (no temporary directory that an error would remove). ``<out>/live.json`` names
+the run (objects, actions, seed, learner, rig) when it starts; running the same command again
+resumes it (the recordings on disk are reused), and a run of other settings is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from replay.errors import ReplayError
+from replay.learning._run_history import HISTORY_NAME
+from schemas import cli
+
+#: The file naming a live run's settings (written when it starts).
+LIVE_NAME = "live.json"
+
+
+def live_output(out: Path | None, default: Path, *, force: bool) -> Path:
+    """Return a live run's directory: ``--out`` (resumed if it is this run's), or a new one.
+
+    Raises:
+        ReplayError: ``--out`` holds something else, or ``--force`` would replace recordings.
+    """
+    if out is None:
+        return cli.numbered_directory(default)
+    out = Path(out)
+    if not out.exists():
+        return out
+    if (out / LIVE_NAME).exists():
+        if force:
+            msg = (
+                f"--force {out}: a live run's recordings are never deleted; run the same "
+                "command without --force to resume it, or give another --out"
+            )
+            raise ReplayError(msg)
+        return out
+    if out.is_dir() and not any(out.iterdir()):
+        return out
+    msg = f"--out {out}: exists and is not a live run; give a new directory"
+    raise ReplayError(msg)
+
+
+def claim_live_run(target: Path, settings: dict[str, Any]) -> bool:
+    """Start the live run in ``target``, or resume it; return True when resuming.
+
+    The settings file is created exclusively: two runs never share a directory.
+
+    Raises:
+        ReplayError: The directory holds a finished run or a run of other settings.
+    """
+    target.mkdir(parents=True, exist_ok=True)
+    path = target / LIVE_NAME
+    text = json.dumps(settings, indent=1, sort_keys=True) + "\n"
+    try:
+        with path.open("x", encoding="utf-8") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+    except FileExistsError:
+        pass
+    else:
+        return False
+    try:
+        theirs = json.loads(path.read_text("utf-8"))
+    except (OSError, ValueError) as err:
+        msg = f"{path}: unreadable ({err}); give another --out"
+        raise ReplayError(msg) from err
+    if differ := sorted(k for k in {*settings, *theirs} if settings.get(k) != theirs.get(k)):
+        shown = ", ".join(f"{k}={theirs.get(k)!r} (now {settings.get(k)!r})" for k in differ)
+        msg = f"{target}: holds a live run of other settings ({shown}); give another --out"
+        raise ReplayError(msg)
+    if (target / HISTORY_NAME).exists():
+        msg = f"{target}: this live run is finished ({HISTORY_NAME}); give another --out"
+        raise ReplayError(msg)
+    return True
+
+
+def free_file(path: Path) -> Path:
+    """Return ``path``, or the first free of ``<stem>-2<suffix>``, ``<stem>-3<suffix>``..."""
+    candidate, number = path, 1
+    while candidate.exists():
+        number += 1
+        candidate = path.with_name(f"{path.stem}-{number}{path.suffix}")
+    return candidate
