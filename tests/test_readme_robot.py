@@ -1,0 +1,159 @@
+"""README's "Record at the robot", run as printed against the virtual lab, command by command.
+
+The walk-through's commands run in their order in a fresh directory, against `serve-sim` on
+free loopback ports and ten times faster than real time (the only changes to what is
+printed): the session is interrupted with Ctrl-C in the middle of an action (the arm stops,
+what arrived is kept), resumed, extended with more trials; the dataset passes `check`; live
+learning runs headless with `--view` and its replay offline gives the same decisions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text("utf-8")
+_START = README.index("## Record at the robot")
+SECTION = README[_START : README.index("\n## ", _START + 5)]
+BLOCKS = re.findall(r"```bash\n(.*?)```", SECTION, flags=re.DOTALL)
+EXAMPLE = "recorder/data/ur_rig.example.toml"
+SCALE = "0.1"
+PROGRAMS = {"atikt-record": "recorder", "atikt-replay": "replay"}
+
+
+def _steps(block: str) -> list[tuple[str, str]]:
+    """Return a block's commands with their comments (continuations joined)."""
+    joined = re.sub(r"\\\n\s*", " ", block)
+    steps = []
+    for line in joined.splitlines():
+        command, _, comment = line.partition("#")
+        if command.strip():
+            steps.append((command.strip(), comment.strip()))
+    return steps
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+class _Lab:
+    """The example configuration on this test's ports, and how commands name it."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.rtde = _free_port(socket.SOCK_STREAM)
+        self.script = _free_port(socket.SOCK_STREAM)
+        self.udp = _free_port(socket.SOCK_DGRAM)
+        text = (ROOT / EXAMPLE).read_text("utf-8")
+        text = text.replace("rtde_port = 30004", f"rtde_port = {self.rtde}")
+        text = text.replace("script_port = 30002", f"script_port = {self.script}")
+        text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
+        text = text.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{self.udp}"')
+        self.config = tmp / "lab.toml"
+        self.config.write_text(text, "utf-8")
+
+    def argv(self, command: str) -> list[str]:
+        """Return a printed command as this test runs it (its ports, its copy of the file)."""
+        command = command.replace(EXAMPLE, str(self.config))
+        command = command.replace("udp://127.0.0.1:5005", f"udp://127.0.0.1:{self.udp}")
+        program, *argv = shlex.split(command)
+        if argv[0] == "serve-sim":
+            argv += ["--rtde-port", str(self.rtde), "--script-port", str(self.script)]
+            argv += ["--time-scale", SCALE]
+        return [sys.executable, "-m", PROGRAMS[program], *argv]
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in {"DISPLAY", "WAYLAND_DISPLAY"}}
+    return env | {"PYTHONPATH": str(ROOT)}
+
+
+@contextlib.contextmanager
+def _serving(argv: list[str], cwd: Path) -> Iterator[subprocess.Popen[str]]:
+    lab = subprocess.Popen(  # noqa: S603 (this project's command)
+        argv, cwd=cwd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert lab.stdout is not None
+        line = lab.stdout.readline()
+        assert line.startswith("virtual lab listening"), line + (lab.stderr.read() or "")
+        yield lab
+    finally:
+        lab.send_signal(signal.SIGINT)
+        lab.communicate(timeout=30)
+
+
+def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, str]:
+    """Run a session; Ctrl-C it once its second recording is being written."""
+    run = subprocess.Popen(  # noqa: S603 (this project's command)
+        argv, cwd=cwd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and run.poll() is None:
+        done = list(out.rglob("*.mcap")) if out.exists() else []
+        if done and list(out.rglob("*.mcap.part")):
+            time.sleep(0.2)  # inside the action
+            run.send_signal(signal.SIGINT)
+            break
+        time.sleep(0.02)
+    _, err = run.communicate(timeout=60)
+    return run.returncode, err
+
+
+def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
+    (serve,) = [command for command, _ in _steps(BLOCKS[0]) if " serve-sim " in f" {command} "]
+    steps = _steps(BLOCKS[1])
+    lab = _Lab(tmp_path)
+    outputs: dict[str, str] = {}
+    with _serving(lab.argv(serve), tmp_path):
+        for command, comment in steps:
+            argv = lab.argv(command)
+            if "Ctrl-C" in comment:
+                status, err = _interrupt_mid_action(argv, tmp_path, tmp_path / "data" / "lab")
+                assert status == 130, err
+                assert "interrupted by Ctrl-C (SIGINT): the arm was stopped" in err, err
+                assert "incomplete.mcap" in err
+                continue
+            done = subprocess.run(  # noqa: S603 (this project's command)
+                argv,
+                cwd=tmp_path,
+                env=_env(),
+                capture_output=True,
+                text=True,
+                timeout=600,
+                check=False,
+            )
+            assert done.returncode == 0, f"{command}\n{done.stderr}"
+            outputs[command] = done.stdout + done.stderr
+    lab_dir = tmp_path / "data" / "lab"
+    made = sorted(p.relative_to(lab_dir).as_posix() for p in lab_dir.rglob("???.mcap"))
+    assert made == [
+        f"{o}/{a}/{t:03d}.mcap"
+        for o in ("foam_block", "wood")
+        for a in ("P1", "S1")
+        for t in (1, 2, 3)
+    ]
+    assert list(lab_dir.rglob("*.incomplete.mcap"))  # the interrupted action's data, kept
+    printed = "\n".join(outputs.values())
+    assert "no display here; the live view is written to" in printed
+    assert (tmp_path / "runs" / "live" / "live.rrd").stat().st_size > 0
+    live, offline = (
+        [line for line in text.splitlines() if line.startswith("step")]
+        for text in (outputs[steps[-2][0]], outputs[steps[-1][0]])
+    )
+    assert live
+    assert live == offline
