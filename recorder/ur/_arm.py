@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 
+from recorder._sim.ur10 import JOINT_NAMES  # the UR arms' joints, in RTDE's order
 from recorder.errors import RigError
 from recorder.live import RecorderClock, SourceCounter, SourceLostError, SourceReader
 from recorder.runner._arm import ArmSample
@@ -41,15 +42,6 @@ if TYPE_CHECKING:
     from recorder.live import Received, SourceStats
     from recorder.runner._arm import Context
 
-#: The UR arms' joint names, in RTDE's order (the one place they are written).
-JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 #: The RTDE outputs the driver asks for (``target_moment``: the joint torques it records).
 RTDE_VARIABLES = (
     "timestamp",
