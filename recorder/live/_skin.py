@@ -10,6 +10,7 @@ does not use DDS never imports it).
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 from typing import TYPE_CHECKING, Any, Protocol, Self
 
 from recorder.errors import RigError
@@ -81,12 +82,23 @@ class LiveSkin(Protocol):
         ...
 
 
-#: ``build(section, clock, where) -> LiveSkin`` of each transport, by import string.
+#: ``build(section, clock, where) -> LiveSkin`` of the project's transports, by import string.
 SKIN_TRANSPORTS: dict[str, str] = {
     "udp": "recorder.live._frames:udp_skin",
     "serial": "recorder.live._frames:serial_skin",
     "ros2": "recorder.live._dds:ros2_skin",
 }
+#: Entry point group of skin transports: a lab's package adds its own skin by name
+#: (``[project.entry-points."atikt.skins"] myskin = "mypkg:build"``), as rigs in ``atikt.rigs``.
+SKIN_ENTRY_POINTS = "atikt.skins"
+
+
+def skin_transports() -> dict[str, str]:
+    """Return every skin transport by name: the project's, then installed plug-ins."""
+    found = dict(SKIN_TRANSPORTS)
+    for entry in importlib.metadata.entry_points(group=SKIN_ENTRY_POINTS):
+        found.setdefault(entry.name, entry.value)
+    return found
 
 
 def open_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> LiveSkin:
@@ -101,9 +113,10 @@ def open_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> L
         RigError: No or an unknown transport, or the transport refuses the table.
     """
     transport = section.get("transport")
-    target = SKIN_TRANSPORTS.get(str(transport))
+    transports = skin_transports()
+    target = transports.get(str(transport))
     if target is None:
-        known = ", ".join(SKIN_TRANSPORTS)
+        known = ", ".join(transports)
         msg = f"{where}: [skin] transport = {transport!r}: give one of {known}"
         raise RigError(msg)
     module, _, name = target.partition(":")
@@ -112,10 +125,11 @@ def open_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> L
             importlib.import_module(module), name
         )
     except (ImportError, AttributeError) as err:
-        extra = "ros2" if transport == "ros2" else "serial"
-        msg = (
-            f"{where}: the {transport} skin transport is not available ({err}); "
-            f"install it with pip install 'atikt[{extra}]'"
-        )
+        if transport in SKIN_TRANSPORTS:
+            extra = "ros2" if transport == "ros2" else "serial"
+            fix = f"install it with pip install 'atikt[{extra}]'"
+        else:
+            fix = f"reinstall or fix the package that provides the {transport!r} skin"
+        msg = f"{where}: the {transport} skin transport is not available ({err}); {fix}"
         raise RigError(msg) from err
     return build(section, clock, where)
