@@ -212,3 +212,63 @@ def test_live_learning_at_the_virtual_robot_replays_offline(
     replayed = capsys.readouterr()
     assert again == 0, replayed.err
     assert [line for line in replayed.out.splitlines() if line.startswith("step")] == steps
+
+
+_STOPPED = {"SIGTERM": 143, "SIGKILL": -signal.SIGKILL, "disconnect": 1, "protective": 1}
+_FAULTS = {
+    "disconnect": ["--fault", "rtde.disconnect=1"],
+    "protective": ["--fault", "script.protective_stop=0.5"],
+}
+
+
+def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, str]:
+    """Run a session in its own process; send it ``cause``'s signal during its second action."""
+    command = [sys.executable, "-m", "recorder", *argv]
+    run = subprocess.Popen(  # noqa: S603 (this project's command)
+        command, env=os.environ | {"PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True
+    )
+    number = {"SIGTERM": signal.SIGTERM, "SIGKILL": signal.SIGKILL}.get(cause)
+    deadline = time.monotonic() + 120
+    while number is not None and time.monotonic() < deadline and run.poll() is None:
+        if list(out.rglob("???.mcap")) and list(out.rglob("*.mcap.part")):
+            time.sleep(0.2)
+            run.send_signal(number)
+            break
+        time.sleep(0.02)
+    _, err = run.communicate(timeout=120)
+    return run.returncode, err
+
+
+@pytest.mark.parametrize("cause", ["SIGTERM", "SIGKILL", "disconnect", "protective"])
+def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], cause: str
+) -> None:
+    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    udp = _free_port(socket.SOCK_DGRAM)
+    skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
+    skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
+    lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
+    out = tmp_path / "session"
+    served = ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
+    served += ["--skin", f"udp://127.0.0.1:{udp}"]
+    argv = ["session", "--rig-config", str(lab), "--objects", "wood,foam_block"]
+    argv += ["--actions", "S1", "--out", str(out), "--yes", "--trials"]
+    with _serve_sim(*served, *_FAULTS.get(cause, [])):
+        status, err = _interrupted_session([*argv, "1"], out, cause)
+    assert status == _STOPPED[cause], err
+    if cause == "SIGTERM":
+        assert "interrupted by SIGTERM: the arm was stopped" in err
+    if cause == "protective":
+        assert "action stopped: protective stop" in err
+        assert "incomplete.mcap" in err
+    if cause == "disconnect":  # in an action or while moving to an object: one line either way
+        assert "connection lost" in err
+        assert err.count("\n") == 1
+    with _serve_sim(*served):  # a fresh lab: after a protective stop the arm waits for the pendant
+        assert record([*argv, "2"]) == 0
+    printed = capsys.readouterr()
+    if cause == "SIGKILL":
+        assert "unfinished recording of a stopped recorder set aside" in printed.out
+    files = [f.relative_to(out).as_posix() for f in dataset_recordings(out)]
+    assert files == [f"{o}/S1/{t:03d}.mcap" for o in ("foam_block", "wood") for t in (1, 2)]
+    assert replay(["check", str(out), "--workers", "1"]) == 0, capsys.readouterr().err
