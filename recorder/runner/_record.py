@@ -17,7 +17,7 @@ from recorder._rig import source_stats
 from recorder.errors import ActionStoppedError, RecorderError
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
 from recorder.runner._runner import ArmRig, Stop
-from recorder.runner._sink import WriterThread
+from recorder.runner._sink import InlineSink, WriterThread
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 
 if TYPE_CHECKING:
@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 class _Watch:
     """What ends an action besides the rig: a deferred signal, a writer in trouble."""
 
-    def __init__(self, flag: InterruptFlag, sink: WriterThread) -> None:
+    def __init__(self, flag: InterruptFlag, sink: WriterThread | InlineSink) -> None:
         self.flag, self.sink = flag, sink
 
     def problem(self) -> str:
@@ -77,7 +77,8 @@ def record_action(
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     with deferred_interrupts() as flag:
         with RecordingWriter(path, info) as writer:
-            sink = WriterThread(writer)
+            # an arm's loop must never wait for the disk: its writer has a thread of its own
+            sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
             with sink:
                 put = sink.put if observe is None else _both(sink.put, observe)
                 stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))

@@ -93,3 +93,37 @@ class WriterThread:
                     self.writer.write(item)
             except BaseException as err:  # noqa: BLE001 (kept and reported to the runner)
                 self.failure = err
+
+
+class InlineSink:
+    """Writes each item at once, in the caller's thread (rigs that compute, not hardware).
+
+    The simulator plans a whole execution and streams it as fast as it can be written: a
+    thread between them would only add its hand-overs. Same interface as :class:`WriterThread`.
+    """
+
+    def __init__(self, writer: RecordingWriter) -> None:
+        """Write to ``writer``."""
+        self.writer = writer
+        self.failure: BaseException | None = None
+
+    def __enter__(self) -> Self:
+        """Nothing to start."""
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        """Nothing to stop."""
+
+    def put(self, item: StreamItem) -> None:
+        """Write one item; a failure is kept (the caller ends the action)."""
+        if self.failure is not None:
+            return
+        try:
+            self.writer.write(item)
+        except BaseException as err:  # noqa: BLE001 (kept and reported like the thread's)
+            self.failure = err
+
+    @property
+    def problem(self) -> str:
+        """Return why the action cannot go on (empty: it can)."""
+        return "" if self.failure is None else f"writing failed: {self.failure}"
