@@ -47,6 +47,8 @@ from recorder.errors import (
 )
 from recorder.runner import ArmDriver, ArmRig, ArmSample, RunnerOptions
 from recorder.runner._record import record_action
+from recorder.runner._viewer import Viewer
+from recorder.writing._foxglove import FoxgloveView
 from recorder.writing._stream import (
     JointSample,
     Modality,
@@ -97,6 +99,7 @@ __all__ = [
     "CatalogError",
     "ConfiguredRig",
     "Connecting",
+    "FoxgloveView",
     "FrozenTable",
     "ImportReport",
     "JointSample",
@@ -122,6 +125,7 @@ __all__ = [
     "SkinBlock",
     "StreamItem",
     "TopicMap",
+    "Viewer",
     "WrittenRecording",
     "declare_objects",
     "find_rig",

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from recorder._dataset import RecordingTask
     from recorder._rig import Rig
     from recorder._rigconfig import RigFactory
+    from recorder.runner._viewer import Viewer
     from recorder.writing._writer import WrittenRecording
 
 
@@ -114,6 +115,7 @@ def run_session(
     ask: Callable[[str], str] = input,
     on_recorded: Callable[[RecordingTask, WrittenRecording], Any] | None = None,
     on_set_aside: Callable[[Path], Any] | None = None,
+    viewers: Sequence[Viewer] = (),
 ) -> SessionReport:
     """Record ``tasks`` object by object with one rig, skipping recordings on disk.
 
@@ -126,6 +128,7 @@ def run_session(
         ask: Shows a prompt and waits for Enter (``input``).
         on_recorded: Called after every recording.
         on_set_aside: Called with each unfinished file of a dead recorder that was set aside.
+        viewers: Live views of every action (they never block).
 
     Returns:
         What was written and kept, and the index.
@@ -153,7 +156,9 @@ def run_session(
                 present(rig, group[0].obj, unattended=unattended, ask=ask, root=root)
                 for task in group:
                     path = task.path(root)
-                    written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
+                    written = record_action(
+                        rig, task.obj, task.action, task.trial, path, seed=seed, viewers=viewers
+                    )
                     if on_recorded is not None:
                         on_recorded(task, written)
     except BaseException:

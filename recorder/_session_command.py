@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -11,6 +12,7 @@ from recorder._catalog import load_actions, load_objects
 from recorder._cli import _CATALOGS, _names, _rig, _rig_arguments, arg, command
 from recorder._dataset import plan_dataset
 from recorder._session import run_session
+from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
 
 if TYPE_CHECKING:
     import argparse
@@ -33,6 +35,14 @@ if TYPE_CHECKING:
         help="unattended: ask nobody; every object needs a pose in the rig configuration",
     ),
     arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    arg(
+        "--foxglove",
+        nargs="?",
+        const=DEFAULT_ADDRESS,
+        default=None,
+        metavar="HOST:PORT",
+        help=f"serve the signals live to Foxglove (WebSocket, default {DEFAULT_ADDRESS})",
+    ),
     *_rig_arguments(),
     *_CATALOGS,
 )
@@ -58,15 +68,24 @@ def _session(args: argparse.Namespace) -> int:
     def set_aside(path: Path) -> None:
         console.print(f"unfinished recording of a stopped recorder set aside: {path}")
 
-    report = run_session(
-        tasks,
-        args.out,
-        _rig(args),
-        seed=args.seed,
-        unattended=args.yes,
-        on_recorded=recorded,
-        on_set_aside=set_aside,
-    )
+    with contextlib.ExitStack() as stack:
+        viewers = []
+        if args.foxglove is not None:
+            view = stack.enter_context(FoxgloveView(args.foxglove))
+            console.print(f"foxglove: live on {view.url} (Foxglove: open connection, WebSocket)")
+            viewers.append(view)
+        report = run_session(
+            tasks,
+            args.out,
+            _rig(args),
+            seed=args.seed,
+            unattended=args.yes,
+            on_recorded=recorded,
+            on_set_aside=set_aside,
+            viewers=viewers,
+        )
+        if args.foxglove is not None and view.dropped:
+            console.print(f"foxglove: the client fell behind; {view.dropped} items not shown")
     console.print(
         f"session {report.root}: {report.written} recordings written, {report.kept} kept "
         f"(existed); index {report.index}"

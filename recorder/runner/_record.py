@@ -21,11 +21,12 @@ from recorder.runner._sink import InlineSink, WriterThread
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
     from pathlib import Path
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._rig import Rig
+    from recorder.runner._viewer import Viewer
     from recorder.writing._stream import StreamItem
     from recorder.writing._writer import WrittenRecording
 
@@ -50,7 +51,7 @@ def record_action(
     path: Path,
     *,
     seed: int,
-    observe: Callable[[StreamItem], None] | None = None,
+    viewers: Sequence[Viewer] = (),
 ) -> WrittenRecording:
     """Perform ``action`` on ``obj`` with a connected ``rig`` and record it to ``path``.
 
@@ -61,7 +62,8 @@ def record_action(
         trial: Trial number of this (object, action).
         path: Final path of the recording; it must not exist.
         seed: Seed the rig was created with (for the metadata record).
-        observe: Also gets every item (a live view); it must never block.
+        viewers: Live views: each gets every item as it arrives and the file once written;
+            none may block (``recorder.runner.Viewer``).
 
     Returns:
         What was written.
@@ -75,12 +77,14 @@ def record_action(
         RecorderError: The rig or the file failed; what arrived is kept (incomplete).
     """
     info = RecordingInfo.create(obj, action, trial, rig, seed)
+    for viewer in viewers:
+        viewer.begin(info)
     with deferred_interrupts() as flag:
         with RecordingWriter(path, info) as writer:
             # an arm's loop must never wait for the disk: its writer has a thread of its own
             sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
             with sink:
-                put = sink.put if observe is None else _both(sink.put, observe)
+                put = _fan_out(sink.put, [viewer.offer for viewer in viewers])
                 stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
             if sink.failure is not None:
                 raise _failed(path, sink.failure) from sink.failure
@@ -92,6 +96,8 @@ def record_action(
     if written is None:  # pragma: no cover (the 'with' block always sets it)
         msg = f"{path}: the recording was not finished"
         raise RecorderError(msg)
+    for viewer in viewers:
+        viewer.recorded(written.path)
     if flag.signum is not None:
         try:
             raise_interrupt(flag.signum)
@@ -105,12 +111,16 @@ def record_action(
     return written
 
 
-def _both(
-    first: Callable[[StreamItem], None], second: Callable[[StreamItem], None]
+def _fan_out(
+    first: Callable[[StreamItem], None], others: Sequence[Callable[[StreamItem], None]]
 ) -> Callable[[StreamItem], None]:
+    if not others:
+        return first
+
     def put(item: StreamItem) -> None:
         first(item)
-        second(item)
+        for other in others:
+            other(item)
 
     return put
 

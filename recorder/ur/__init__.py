@@ -7,8 +7,9 @@ table describes; limits (``[limits]``) are checked before anything moves and on 
 """
 
 from recorder._rigconfig import RigPlugin
+from recorder._sim.ur10 import JOINT_NAMES
 from recorder.runner import Limits, Motion
-from recorder.ur._arm import JOINT_NAMES, RTDE_VARIABLES, Connection, URArm
+from recorder.ur._arm import RTDE_VARIABLES, Connection, URArm
 from recorder.ur._rig import UROptions, URRig, build_ur_rig
 from recorder.ur._rtde import Recipe, RtdeClient, RtdeError, TextMessage
 from recorder.ur._script import Announcement

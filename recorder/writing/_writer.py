@@ -342,7 +342,7 @@ class _Encoder:
 
 _JOINTS = VOCABULARY.robot["joint_states"]
 _POSES = VOCABULARY.robot["tcp_pose"]
-_TYPE_OF_TOPIC = {
+TYPE_OF_TOPIC = {
     **{spec.topic: spec.msgtype for spec in VOCABULARY.robot.values()},
     **{spec.topic: spec.msgtype for spec in VOCABULARY.modalities.values()},
     VOCABULARY.events.topic: VOCABULARY.events.msgtype,
@@ -586,7 +586,7 @@ class RecordingWriter:
 
     def _register(self, writer: Writer, topic: str) -> int:
         """Register a topic's schema and channel (on its first message: absent ones stay out)."""
-        msgtype = _TYPE_OF_TOPIC[topic]
+        msgtype = TYPE_OF_TOPIC[topic]
         text, _ = self._encoder.store.generate_msgdef(msgtype, ros_version=2)
         schema_id = writer.register_schema(msgtype, "ros2msg", text.encode())
         channel_id = writer.register_channel(topic, "cdr", schema_id)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ from replay.live import (
     default_dataset_dir,
     default_dataset_ready,
     ensure_default_dataset,
+    foxglove_view,
     free_file,
     learn_live,
     live_output,
@@ -322,6 +324,15 @@ def _step_line(row: dict[str, Any]) -> str:
         "write a file instead)",
     ),
     arg(
+        "--foxglove",
+        nargs="?",
+        const="127.0.0.1:8765",
+        default=None,
+        metavar="HOST:PORT",
+        help="live: serve the signals to Foxglove as they arrive (WebSocket, default "
+        "127.0.0.1:8765)",
+    ),
+    arg(
         "--out",
         type=Path,
         default=None,
@@ -507,24 +518,42 @@ def _learn_live(
     """Run live: record test trials first, then every requested observation."""
     config = configured_rig(args.rig_config, args.rig, args.rig_option)
     session = out / "session"
-    if args.view is None:
-        return learn_live(
-            config, spec, models, session, test_trials=args.test_trials, on_step=on_step
-        )
-    save = Path(args.view) if args.view else None
-    view = LiveView(f"live run on {config.name}", save, fallback=free_file(out / "live.rrd"))
-    if view.note:
-        print(view.note, file=sys.stderr, flush=True)  # noqa: T201 (one line; the run goes on)
-    with view:
+    with contextlib.ExitStack() as stack:
+        viewers: list[Any] = []
+        view = None
+        if args.view is not None:
+            save = Path(args.view) if args.view else None
+            view = LiveView(
+                f"live run on {config.name}", save, fallback=free_file(out / "live.rrd")
+            )
+            if view.note:
+                print(view.note, file=sys.stderr, flush=True)  # noqa: T201 (the run goes on)
+            viewers.append(stack.enter_context(view).sink)
+        fox = None
+        if args.foxglove is not None:
+            fox = foxglove_view(args.foxglove)
+            stack.callback(fox.__exit__, None, None, None)
+            print(f"foxglove: live on {fox.url}", file=sys.stderr, flush=True)  # noqa: T201
+            viewers.append(fox)
         frame = learn_live(
-            config, spec, models, session, test_trials=args.test_trials, on_step=on_step, view=view
+            config,
+            spec,
+            models,
+            session,
+            test_trials=args.test_trials,
+            on_step=on_step,
+            viewers=viewers,
         )
-    if view.sink.dropped:
-        print(  # noqa: T201
-            f"--view: the viewer fell behind; {view.sink.dropped} items were not shown "
-            "(the recordings hold everything)",
-            file=sys.stderr,
-        )
+    for name, dropped in (
+        ("--view", view and view.sink.dropped),
+        ("--foxglove", fox and fox.dropped),
+    ):
+        if dropped:
+            print(  # noqa: T201
+                f"{name}: the viewer fell behind; {dropped} items were not shown "
+                "(the recordings hold everything)",
+                file=sys.stderr,
+            )
     return frame
 
 

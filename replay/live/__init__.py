@@ -10,7 +10,7 @@ only, and a test keeps it that way.
 from replay.live._default import default_dataset_dir, default_dataset_ready, ensure_default_dataset
 from replay.live._executor import LiveExecutor
 from replay.live._outputs import LIVE_NAME, claim_live_run, free_file, live_output
-from replay.live._run import LiveView, check_rig, configured_rig, learn_live
+from replay.live._run import LiveView, check_rig, configured_rig, foxglove_view, learn_live
 
 __all__ = [
     "LIVE_NAME",
@@ -22,6 +22,7 @@ __all__ = [
     "default_dataset_dir",
     "default_dataset_ready",
     "ensure_default_dataset",
+    "foxglove_view",
     "free_file",
     "learn_live",
     "live_output",

@@ -17,7 +17,7 @@ that could not present a new object is refused before anything moves.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Self
 
 import polars as pl
 
@@ -32,23 +32,7 @@ if TYPE_CHECKING:
     from types import TracebackType
 
     from atikt import RawFeatures
-    from recorder import ActionSpec, ObjectSpec, Rig, StreamItem
-
-
-class Watcher(Protocol):
-    """A live view: gets items as they arrive and each recording once written; never blocks."""
-
-    def begin(self, prefix: str, joint_names: tuple[str, ...]) -> None:
-        """Show the next items under ``prefix`` (``<object>/<action>/<trial>``)."""
-        ...
-
-    def offer(self, item: StreamItem) -> None:
-        """Take one item (dropped, never waited for, when the view is behind)."""
-        ...
-
-    def recorded(self, path: Path) -> None:
-        """Take a finished recording."""
-        ...
+    from recorder import ActionSpec, ObjectSpec, Rig, Viewer
 
 
 class LiveExecutor:
@@ -62,7 +46,7 @@ class LiveExecutor:
         session: Path,
         *,
         seed: int,
-        view: Watcher | None = None,
+        viewers: Sequence[Viewer] = (),
     ) -> None:
         """Store the rig and where to record; nothing is performed before ``__enter__``.
 
@@ -72,15 +56,15 @@ class LiveExecutor:
             actions: The action catalog.
             session: Where the recordings and ``session.parquet`` go (resumed if it has some).
             seed: The rig's seed, written to every recording.
-            view: Shows every item as it arrives and each recording once written (a live
-                view; it must never block).
+            viewers: Live views: every item as it arrives, each recording once written (none
+                may block).
         """
         self.rig = rig
         self.objects = list(objects)
         self.actions = dict(actions)
         self.session = Path(session)
         self.seed = seed
-        self.view = view
+        self.viewers = tuple(viewers)
         self.made: list[dict[str, Any]] = []
         self.reused = 0
         self._trials: dict[Pair, int] = {}
@@ -138,13 +122,7 @@ class LiveExecutor:
             self._present(obj)
             path.parent.mkdir(parents=True, exist_ok=True)
             action = self.actions[action_id]
-            view = self.view
-            if view is not None:
-                view.begin(f"{obj.id}/{action_id}/{trial:03d}", tuple(self.rig.joint_names))
-            observe = None if view is None else view.offer
-            record_action(self.rig, obj, action, trial, path, seed=self.seed, observe=observe)
-            if view is not None:
-                view.recorded(path)
+            record_action(self.rig, obj, action, trial, path, seed=self.seed, viewers=self.viewers)
         self.made.append(
             {"order": len(self.made), "object_id": obj.id, "action_id": action_id}
             | {"trial": trial, "role": role, "path": path.relative_to(self.session).as_posix()}

@@ -9,7 +9,14 @@ import subprocess
 import sys
 from typing import TYPE_CHECKING, Any, Self
 
-from recorder import RecorderError, find_rig, load_actions, load_objects, load_rig_config
+from recorder import (
+    FoxgloveView,
+    RecorderError,
+    find_rig,
+    load_actions,
+    load_objects,
+    load_rig_config,
+)
 from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
 from replay.learning._session import run_learning
@@ -32,7 +39,7 @@ if TYPE_CHECKING:
 
     import polars as pl
 
-    from recorder import RigConfig
+    from recorder import RigConfig, Viewer
     from replay.learning._session import RunSpec
 
 
@@ -57,6 +64,18 @@ def check_rig(name: str) -> None:
     try:
         find_rig(name)
     except RecorderError as err:
+        raise ReplayError(cli.one_line(str(err))) from err
+
+
+def foxglove_view(address: str) -> FoxgloveView:
+    """Return a started Foxglove view on ``address`` (``HOST:PORT``).
+
+    Raises:
+        ReplayError: The address is malformed or cannot be bound, or foxglove-sdk is missing.
+    """
+    try:
+        return FoxgloveView(address).__enter__()
+    except RecorderError as err:  # the recorder's error, at the edge of the replay
         raise ReplayError(cli.one_line(str(err))) from err
 
 
@@ -161,7 +180,7 @@ def learn_live(
     *,
     test_trials: int,
     on_step: Callable[[dict[str, Any]], Any],
-    view: LiveView | None = None,
+    viewers: Sequence[Viewer] = (),
 ) -> pl.DataFrame:
     """Run live: record the test trials, then every observation the learner asks for.
 
@@ -174,7 +193,7 @@ def learn_live(
         session: Where the recordings and ``session.parquet`` go.
         test_trials: Held-out trials per (new object, action).
         on_step: Called with each step's row.
-        view: Shows each recording once written.
+        viewers: Live views (rerun, Foxglove): every item as it arrives (never blocking).
 
     Returns:
         The run's history.
@@ -197,7 +216,7 @@ def learn_live(
             load_actions(),
             session,
             seed=spec.seed,
-            view=None if view is None else view.sink,
+            viewers=viewers,
         )
         with executor:
             test = executor.record_test_set(spec.actions, test_trials)

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from pathlib import Path
     from types import TracebackType
 
-    from recorder import StreamItem
+    from recorder import RecordingInfo, StreamItem
 
 #: Joint samples logged together (0.1 s at RTDE's 500 Hz).
 JOINT_BATCH = 50
@@ -100,9 +100,11 @@ class ViewSink:
             self._offer(_END)
         self._thread.join(self._close_s)
 
-    def begin(self, prefix: str, joint_names: tuple[str, ...]) -> None:
-        """Log the next items under ``live/<prefix>``."""
-        self._offer(("begin", prefix, joint_names))
+    def begin(self, info: RecordingInfo) -> None:
+        """Log the next items under ``live/<object>/<action>/<trial>``."""
+        meta = info.metadata
+        prefix = f"{meta.object_id}/{meta.action_id}/{meta.trial:03d}"
+        self._offer(("begin", prefix, info.joint_names))
 
     def offer(self, item: StreamItem) -> None:
         """Queue one item; never blocks (a full queue counts it as dropped)."""

@@ -1,0 +1,148 @@
+"""Foxglove, live: what is being recorded, served over the Foxglove WebSocket protocol.
+
+:class:`FoxgloveView` is a live viewer (``recorder.runner.Viewer``) behind ``--foxglove``: a
+Foxglove WebSocket server (the ``foxglove-sdk`` package) on 127.0.0.1 by default, with one
+channel per topic carrying the recordings' own ROS 2 schemas (``ros2msg``) and CDR messages,
+encoded by the writer's own encoder: what Foxglove shows live is what the file holds, byte for
+byte. Items reach it through a bounded queue and a thread of its own: a slow or absent client
+never delays the robot; what the queue could not take is counted as dropped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+from typing import TYPE_CHECKING, Any, Self
+
+from recorder.errors import RecorderError
+from recorder.writing._writer import TYPE_OF_TOPIC, _Encoder
+
+if TYPE_CHECKING:
+    from pathlib import Path
+    from types import TracebackType
+
+    from recorder.writing._stream import StreamItem
+    from recorder.writing._writer import RecordingInfo
+
+#: Where the server listens unless told otherwise (loopback only).
+DEFAULT_ADDRESS = "127.0.0.1:8765"
+#: Items the view may fall behind by before it drops.
+CAPACITY = 20_000
+#: Longest wait for the thread when the run ends, s.
+CLOSE_S = 2.0
+_END = object()
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """Return ``(host, port)`` of ``HOST:PORT`` (or ``PORT``; host 127.0.0.1).
+
+    Raises:
+        RecorderError: Not a port in 0..65535.
+    """
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:  # noqa: PLR2004 (the largest port)
+        msg = f"--foxglove {text!r}: give HOST:PORT, e.g. {DEFAULT_ADDRESS} (0: any free port)"
+        raise RecorderError(msg)
+    return host or "127.0.0.1", number
+
+
+class FoxgloveView:
+    """Serves every recorded item to Foxglove clients as it arrives (a context manager)."""
+
+    def __init__(self, address: str = DEFAULT_ADDRESS, capacity: int = CAPACITY) -> None:
+        """Prepare the server (it listens from ``__enter__``)."""
+        self.host, self.port = parse_address(address)
+        self._queue: queue.Queue[object] = queue.Queue(maxsize=capacity)
+        self._thread = threading.Thread(target=self._run, name="atikt-foxglove", daemon=True)
+        self._server: Any = None
+        self._channels: dict[str, Any] = {}
+        self._encoder: _Encoder | None = None
+        self.dropped = 0
+        self.failure = ""
+
+    def __enter__(self) -> Self:
+        """Start the WebSocket server and the thread.
+
+        Raises:
+            RecorderError: ``foxglove-sdk`` is missing or the address cannot be bound.
+        """
+        try:
+            import foxglove  # noqa: PLC0415 (optional: only with --foxglove)
+        except ImportError as err:
+            msg = f"--foxglove needs the foxglove-sdk package ({err}): pip install foxglove-sdk"
+            raise RecorderError(msg) from err
+        try:
+            self._server = foxglove.start_server(name="atikt", host=self.host, port=self.port)
+        except Exception as err:  # the SDK's own error types
+            msg = f"--foxglove {self.host}:{self.port}: cannot listen ({err}); choose another port"
+            raise RecorderError(msg) from err
+        self.port = int(self._server.port)
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Serve what is queued (waiting :data:`CLOSE_S` at most), then stop the server."""
+        self._offer(_END)
+        self._thread.join(CLOSE_S)
+        if self._server is not None:
+            with contextlib.suppress(Exception):
+                self._server.stop()
+
+    @property
+    def url(self) -> str:
+        """Return the address Foxglove connects to."""
+        return f"ws://{self.host}:{self.port}"
+
+    def begin(self, info: RecordingInfo) -> None:
+        """Encode the next items as ``info``'s recording does."""
+        self._offer(info)
+
+    def offer(self, item: StreamItem) -> None:
+        """Queue one item; never blocks (a full queue counts it as dropped)."""
+        self._offer(item)
+
+    def recorded(self, path: Path) -> None:
+        """Nothing to do: the items were served as they arrived."""
+
+    def _offer(self, item: object) -> None:
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not _END:
+            try:
+                self._serve(item)
+            except Exception as err:  # noqa: BLE001 (a client's trouble never reaches the robot)
+                self.failure = self.failure or str(err)
+
+    def _serve(self, item: object) -> None:
+        import foxglove  # noqa: PLC0415 (imported in __enter__)
+
+        from recorder.writing._writer import RecordingInfo  # noqa: PLC0415
+
+        if isinstance(item, RecordingInfo):
+            self._encoder = _Encoder(item)
+            return
+        if self._encoder is None:
+            return
+        topic, _stamp, payload = self._encoder.encode(item)  # type: ignore[arg-type]
+        channel = self._channels.get(topic)
+        if channel is None:
+            msgtype = TYPE_OF_TOPIC[topic]
+            text, _ = self._encoder.store.generate_msgdef(msgtype, ros_version=2)
+            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=text.encode())
+            channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr")
+            self._channels[topic] = channel
+        channel.log(payload, log_time=item.receive_ns)  # type: ignore[attr-defined]

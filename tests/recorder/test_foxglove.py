@@ -1,0 +1,99 @@
+"""Foxglove, live: a protocol client subscribes to the WebSocket server while an action is
+recorded and receives the file's own messages, byte for byte (foxglove.sdk.v1, the Foxglove WebSocket protocol)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+from typing import TYPE_CHECKING, Any
+
+import pytest
+from mcap.reader import make_reader
+
+from recorder import SimulatedRig, load_actions, load_objects, record_action
+from recorder.errors import RecorderError
+from recorder.writing._foxglove import FoxgloveView, parse_address
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+websockets = pytest.importorskip("websockets.sync.client")
+pytest.importorskip("foxglove")
+
+_MESSAGE_DATA = 0x01  # server -> client binary opcode: subscription id, receive time, payload
+
+
+class _Client:
+    """Subscribes to every channel the server advertises; keeps what arrives per topic."""
+
+    def __init__(self, url: str) -> None:
+        self.socket = websockets.connect(url, subprotocols=["foxglove.sdk.v1"])
+        self.topics: dict[int, str] = {}
+        self.received: dict[str, list[bytes]] = {}
+        self.schemas: dict[str, tuple[str, str]] = {}
+        self._next = 1
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame: Any = self.socket.recv(timeout=0.1)
+            except TimeoutError:
+                continue
+            except Exception:  # noqa: BLE001 (the server went away: the test is over)
+                return
+            if isinstance(frame, bytes):
+                if frame[0] == _MESSAGE_DATA:
+                    subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                    topic = self.topics[subscription]
+                    self.received.setdefault(topic, []).append(frame[13:])
+                continue
+            message = json.loads(frame)
+            if message["op"] == "advertise":
+                subscriptions = []
+                for channel in message["channels"]:
+                    self.topics[self._next] = channel["topic"]
+                    encoding = (channel["encoding"], channel["schemaEncoding"])
+                    self.schemas[channel["topic"]] = encoding
+                    subscriptions.append({"id": self._next, "channelId": channel["id"]})
+                    self._next += 1
+                self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(2)
+        self.socket.close()
+
+
+def test_foxglove_clients_get_the_files_own_messages_live(tmp_path: Path) -> None:
+    obj, action = load_objects()["wood"], load_actions()["S2"]
+    with FoxgloveView("127.0.0.1:0") as view, SimulatedRig(3) as rig:
+        assert view.url.startswith("ws://127.0.0.1:")
+        client = _Client(view.url)
+        written = record_action(rig, obj, action, 1, tmp_path / "001.mcap", seed=3, viewers=[view])
+        threading.Event().wait(1.0)  # the thread serves what is queued
+        client.close()
+    assert view.dropped == 0
+    assert view.failure == ""
+    with written.path.open("rb") as stream:
+        in_file: dict[str, list[bytes]] = {}
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            in_file.setdefault(channel.topic, []).append(bytes(message.data))
+    assert set(client.received) == set(in_file)
+    for topic, payloads in client.received.items():
+        assert client.schemas[topic] == ("cdr", "ros2msg")
+        whole = in_file[topic]
+        # a channel is advertised with its first message: what was sent before the client
+        # subscribed is not seen; everything after is the file's messages, in order
+        assert whole[len(whole) - len(payloads) :] == payloads, topic
+        assert len(payloads) >= len(whole) // 2, topic
+
+
+def test_foxglove_binds_loopback_unless_told_and_refuses_a_bad_address() -> None:
+    assert parse_address("8765") == ("127.0.0.1", 8765)
+    assert parse_address("0.0.0.0:9000") == ("0.0.0.0", 9000)  # noqa: S104 (asked for)
+    with pytest.raises(RecorderError, match="give HOST:PORT"):
+        parse_address("here:port")
