@@ -1,5 +1,6 @@
 """Foxglove, live: a protocol client subscribes to the WebSocket server while an action is
-recorded and receives the file's own messages, byte for byte (foxglove.sdk.v1, the Foxglove WebSocket protocol)."""
+recorded and receives the file's own messages, byte for byte (the Foxglove WebSocket
+protocol, subprotocol foxglove.sdk.v1), and the shipped layout names the contract's topics."""
 
 from __future__ import annotations
 
@@ -97,3 +98,21 @@ def test_foxglove_binds_loopback_unless_told_and_refuses_a_bad_address() -> None
     assert parse_address("0.0.0.0:9000") == ("0.0.0.0", 9000)  # noqa: S104 (asked for)
     with pytest.raises(RecorderError, match="give HOST:PORT"):
         parse_address("here:port")
+
+
+def test_the_shipped_layout_names_only_the_contracts_topics() -> None:
+    import re  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    import recorder  # noqa: PLC0415
+    from schemas import CHANNELS  # noqa: PLC0415
+
+    layout = Path(recorder.__file__).parent / "data" / "foxglove_layout.json"
+    text = layout.read_text("utf-8")
+    config = json.loads(text)
+    assert set(config["configById"]) == set(
+        re.findall(r'"([A-Za-z0-9]+![a-z]+)"', json.dumps(config["layout"]))
+    )
+    topics = set(re.findall(r'"(/[a-z_]+/[a-z_]+)', text))
+    assert topics
+    assert topics <= {channel.topic for channel in CHANNELS}
