@@ -60,14 +60,15 @@ def rotation_vector(matrix: F64) -> F64:
     angle = math.acos(cosine)
     if angle < 1e-6:  # noqa: PLR2004 (sin(t) ~ t)
         return 0.5 * skew
-    if angle < math.pi - 1e-3:  # noqa: PLR2004
+    if angle < math.pi - 1e-3:
         return skew * (angle / (2.0 * math.sin(angle)))
     outer = (0.5 * (m + m.T) - cosine * np.eye(3)) / (1.0 - cosine)
     pivot = int(np.argmax(np.diag(outer)))
     axis = outer[:, pivot] / math.sqrt(outer[pivot, pivot])
     if float(axis @ skew) < 0:
         axis = -axis
-    return axis * angle
+    vector: F64 = axis * angle
+    return vector
 
 
 def pose_matrix(pose: F64) -> F64:

@@ -119,7 +119,7 @@ def ros2_faults(cls: Any, faults: dict[str, float], topic_map: Path) -> Any:  # 
     """
     values = dict(faults)
     count = values.pop("drop", None)
-    made = typed_faults(cls, values, "ros2")
+    made = typed_faults(cls, values, "ros2", ("drop",))
     if count is None:
         return made
     from recorder.bagimport._source import extractors  # noqa: PLC0415 (with --ros2 only)
@@ -145,24 +145,29 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     return ScriptFaults(faults.get("protective_stop", 0.0))
 
 
-def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noqa: ANN401
+def typed_faults(
+    cls: Any,  # noqa: ANN401
+    faults: dict[str, float],
+    server: str,
+    extra: tuple[str, ...] = (),
+) -> Any:  # noqa: ANN401
     """Return a server's fault dataclass from ``--fault server.name=number`` values.
 
     ``name`` is a field of ``cls`` or a field without its ``_s`` suffix (``stall`` ->
-    ``stall_s``); integer fields get integers.
+    ``stall_s``); integer fields get integers. ``extra``: faults handled by the caller, named
+    in the message.
 
     Raises:
         RecorderError: No such numeric field.
     """
     known = {f.name: f for f in dataclasses.fields(cls)}
-    if server == "ros2":
-        known["drop"] = dataclasses.field(default=0)  # counted per topic: see ros2_faults
     values: dict[str, Any] = {}
     for name, value in faults.items():
         field = known.get(name) or known.get(f"{name}_s")
         default = getattr(field, "default", None)
         if field is None or isinstance(default, bool) or not isinstance(default, int | float):
             numeric = [n for n, f in known.items() if isinstance(f.default, int | float)]
+            numeric = [*extra, *numeric]
             msg = f"--fault {server}.{name}: the {server} faults are {', '.join(numeric)}"
             raise RecorderError(msg)
         values[field.name] = int(value) if isinstance(default, int) else value
@@ -185,8 +190,10 @@ def _poses(sections: Mapping[str, Any]) -> dict[str, list[float]]:
     poses: dict[str, list[float]] = {}
     for object_id, entry in (sections.get("objects") or {}).items():
         pose = entry.get("pose") if isinstance(entry, dict) else None
-        if isinstance(pose, list) and len(pose) == 6 and all(  # noqa: PLR2004 (x..rz)
-            isinstance(v, int | float) for v in pose
+        if (
+            isinstance(pose, list)
+            and len(pose) == 6  # noqa: PLR2004 (x, y, z, rx, ry, rz)
+            and all(isinstance(v, int | float) for v in pose)
         ):
             poses[object_id] = [float(v) for v in pose]
     return poses

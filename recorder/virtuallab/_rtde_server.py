@@ -282,7 +282,8 @@ class RtdeServer(TcpServer):
                 continue
             started_ns = self._armed(started_ns, due)
             armed = started_ns is not None
-            if armed and faults.disconnect_after_s and due - started_ns >= faults.disconnect_after_s * 1e9:
+            late = armed and due - (started_ns or 0) >= faults.disconnect_after_s * 1e9
+            if faults.disconnect_after_s and late:
                 self._count(disconnects=1)
                 self._event(due, "disconnect")
                 return False

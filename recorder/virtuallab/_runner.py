@@ -171,9 +171,7 @@ class ProgramRunner:
         elif call.name == "end_force_mode":
             self.force_mode = None
 
-    def _motion(
-        self, call: Call, arm: KinematicArm, twist: F64, dt: float
-    ) -> tuple[F64, bool]:
+    def _motion(self, call: Call, arm: KinematicArm, twist: F64, dt: float) -> tuple[F64, bool]:
         """Advance a motion call by one cycle; return the twist and whether it returned."""
         self._elapsed += dt
         if call.name == "speedl":
@@ -247,4 +245,3 @@ class ProgramRunner:
 
 def _goal(value: Pose | tuple[float, ...]) -> tuple[float, ...]:
     return value.values if isinstance(value, Pose) else value
-

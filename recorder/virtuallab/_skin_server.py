@@ -240,7 +240,7 @@ class _Link:
 class SkinServer:
     """Sends a simulated skin's frames from a thread; see :func:`serve_skin`."""
 
-    def __init__(  # noqa: PLR0913, PLR0917 (the sender and its two optional hooks)
+    def __init__(  # noqa: PLR0917 (the sender and its two optional hooks)
         self,
         world: SkinWorld,
         link: _Link,
@@ -353,9 +353,7 @@ class SkinServer:
         t = self._origin + number * frame.period_ns
         return self._stall[0] <= t < self._stall[1]
 
-    def _fault(
-        self, frames: list[bytes], out: list[bytes], number: int, encoder: _Encoder
-    ) -> None:
+    def _fault(self, frames: list[bytes], out: list[bytes], number: int, encoder: _Encoder) -> None:
         """Send (into ``out``) the frames of one sample, with the planned faults."""
         names = {"duplicate": "duplicated", "truncate": "truncated", "drop": "dropped"}
         relative = self._relative(encoder, number)

@@ -36,8 +36,10 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 from recorder._sim import contact, skin, texture, thermal
+from recorder._sim.motion import RATE_HZ
 from recorder._sim.rig import Conditions, sensor_offsets
 
 if TYPE_CHECKING:
@@ -243,23 +245,25 @@ class SkinModel:
 
     def _forces(self, touch: Touch, depth: F64, slid: F64, dt_s: float) -> F64:
         """Return every force sensor's true force at the samples, (m, c, 3), N."""
-        points = self._points
-        relief = texture.ridge_relief(touch.obj, slid, points, touch.conditions.slide)
+        decay = float(np.exp(-dt_s / touch.law.relaxation_s))
+        shape = (depth.shape[0], *touch.offsets.shape)
+        if float(depth.max()) < float(touch.depths[0]) - touch.obj.texture_amplitude_m:
+            self._memory = self._memory * decay ** depth.shape[0]  # out of contact
+            return np.zeros(shape)
+        relief = texture.ridge_relief(touch.obj, slid, self._points, touch.conditions.slide)
         local = depth[:, None, None] + np.nan_to_num(touch.offsets, nan=-1.0) + relief
         elastic = touch.law.elastic(local)
-        decay = float(np.exp(-dt_s / touch.law.relaxation_s))
-        memory = np.empty_like(elastic)
-        state = self._memory
-        for index in range(elastic.shape[0]):
-            state = decay * state + (1.0 - decay) * elastic[index]
-            memory[index] = state
-        self._memory = state
+        # the relaxation's low-pass, continued from the last cycle (its state: the memory)
+        memory, _ = lfilter(
+            [1.0 - decay], [1.0, -decay], elastic, axis=0, zi=(decay * self._memory)[None]
+        )
+        self._memory = memory[-1]
         force: F64 = np.maximum(elastic - touch.law.relaxation * memory, 0.0)
         return force
 
     def _sliding(self, touch: Touch, slid: F64, cell_force: F64, dt_s: float) -> F64:
         """Return the vibration source at 1 kHz of world time while sliding, (n, c, 3)."""
-        count = max(2, round(dt_s * texture.RATE_HZ))
+        count = max(2, round(dt_s * RATE_HZ))
         start = float(slid[0]) - (float(slid[-1]) - float(slid[0])) / max(slid.shape[0], 1)
         path = np.linspace(start, float(slid[-1]), count + 1)[1:]
         force = np.repeat(cell_force[-1:], count, axis=0)
@@ -313,9 +317,8 @@ class SkinModel:
         set_point = self.sim.config.skin_c
         surface = np.full(self.cells, set_point)
         touching = cell_force > thermal.CONTACT_FORCE_N
-        self._touching_since = np.where(
-            touching, np.where(np.isnan(self._touching_since), world_s, self._touching_since), np.nan
-        )
+        began = np.where(np.isnan(self._touching_since), world_s, self._touching_since)
+        self._touching_since = np.where(touching, began, np.nan)
         if touch is not None and touching.any():
             since = np.nan_to_num(world_s - self._touching_since, nan=0.0)
             effusivity = thermal.effusivity_over_time(touch.obj, since)

@@ -85,7 +85,7 @@ class Program:
     announced: dict[str, str] = field(default_factory=dict)
 
 
-class _Refused(ValueError):
+class _RefusedError(ValueError):
     """An argument the lab cannot read."""
 
 
@@ -93,7 +93,7 @@ def _value(node: ast.expr) -> Value:
     """Return a literal argument.
 
     Raises:
-        _Refused: Not a literal the subset has.
+        _RefusedError: Not a literal the subset has.
     """
     if isinstance(node, ast.Constant) and isinstance(node.value, int | float | str | bool):
         return node.value if isinstance(node.value, str | bool) else float(node.value)
@@ -103,19 +103,23 @@ def _value(node: ast.expr) -> Value:
             return -inner if isinstance(node.op, ast.USub) else inner
     if isinstance(node, ast.List):
         return _numbers(node.elts)
-    if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and node.value.id == "p":
+    if isinstance(node, ast.Subscript) and _is_name(node.value, "p"):
         elements = node.slice.elts if isinstance(node.slice, ast.Tuple) else [node.slice]
         return Pose(_numbers(elements))
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
-        if node.func.id == "get_actual_tcp_pose" and not node.args:
-            return ActualPose()
-    raise _Refused(ast.unparse(node))
+    if isinstance(node, ast.Call) and _is_name(node.func, "get_actual_tcp_pose") and not node.args:
+        return ActualPose()
+    raise _RefusedError(ast.unparse(node))
+
+
+def _is_name(node: ast.expr, name: str) -> bool:
+    return isinstance(node, ast.Name) and node.id == name
 
 
 def _numbers(nodes: Sequence[ast.expr]) -> tuple[float, ...]:
     values = [_value(node) for node in nodes]
     if not all(isinstance(v, float) for v in values):
-        raise _Refused("a list of numbers")
+        msg = "a list of numbers"
+        raise _RefusedError(msg)
     return tuple(float(v) for v in values)  # type: ignore[arg-type]
 
 
@@ -133,7 +137,7 @@ def parse_call(line: str, number: int) -> Call | str:
     try:
         args = tuple(_value(arg) for arg in tree.args)
         kwargs = tuple((kw.arg or "", _value(kw.value)) for kw in tree.keywords)
-    except _Refused as err:
+    except _RefusedError as err:
         return f"line {number}: {name}(): argument {err} is not a literal the virtual lab runs"
     return Call(name, args, kwargs, number)
 

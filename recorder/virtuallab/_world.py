@@ -25,6 +25,7 @@ What happened is recorded with both clocks (``_events``; ``events()``).
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
@@ -52,6 +53,7 @@ if TYPE_CHECKING:
 
     F64 = NDArray[np.float64]
 
+_log = logging.getLogger("atikt.virtuallab")
 #: RTDE ``robot_mode`` of a running arm (ROBOT_MODE_RUNNING).
 ROBOT_MODE_RUNNING = 7
 #: RTDE ``safety_status`` values (the controller's SafetyStatus enumeration).
@@ -229,9 +231,11 @@ class VirtualWorld:
                     span = due
                     self.overruns += due - 1
                     if self.overruns == due - 1:
-                        self.note(
-                            f"virtual controller behind its clock by {due} cycles: they are "
-                            "computed as one (the machine is too loaded for the cycle rate)"
+                        _log.warning(
+                            "virtual controller behind its clock by %d cycles: they are "
+                            "computed as one (the machine is too loaded for the cycle rate); "
+                            "VirtualWorld.overruns counts them",
+                            due,
                         )
                 self._cycles.append(self._cycle(last, last + span * self._period_ns))
 
@@ -529,4 +533,3 @@ def _name(text: str) -> str:
     """Return a program's ``def`` name (empty for a one-line program)."""
     first = text.lstrip().split("\n", 1)[0]
     return first[4:].split("(", 1)[0].strip() if first.startswith("def ") else ""
-

@@ -13,7 +13,6 @@ from recorder import (
     ActionStoppedError,
     RecorderError,
     RigError,
-    SimulatedRig,
     load_actions,
     load_objects,
     record_action,
@@ -21,7 +20,6 @@ from recorder import (
 from recorder.live import SOURCES_RECORD, parse_source_stats
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
 from recorder.ur._rig import _peak_total
-from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._command import parse_faults, rtde_faults
 from recorder.virtuallab._rtde_server import RtdeFaults
 from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs

@@ -24,8 +24,13 @@ from recorder._sim import ur10
 from recorder._sim.rig import TOOL
 from recorder.virtuallab._command import check_served, parse_faults, ros2_faults
 from recorder.virtuallab._rtde_server import VARIABLES
-from recorder.virtuallab._urscript import MAX_PROGRAM_BYTES, ProgramSplitter, parse_program
-from recorder.virtuallab._world import VirtualWorld
+from recorder.virtuallab._urscript import (
+    MAX_PROGRAM_BYTES,
+    Program,
+    ProgramSplitter,
+    parse_program,
+)
+from recorder.virtuallab._world import RobotState, VirtualWorld
 from replay import read_recording
 from replay.cli._main import main as replay_main
 from replay.learning._features import file_features
@@ -48,12 +53,17 @@ class Clock:
 def _world(clock: Clock, scale: float = 1.0, frequency: int = 125) -> VirtualWorld:
     sim = SimulatedRig(0).__enter__()
     return VirtualWorld(
-        sim, OBJECTS, ACTIONS, time_scale=scale, clock=clock, frequency=frequency,
+        sim,
+        OBJECTS,
+        ACTIONS,
+        time_scale=scale,
+        clock=clock,
+        frequency=frequency,
         poses={"wood": POSE},
     )
 
 
-def _cycles(world: VirtualWorld, clock: Clock, count: int) -> list[object]:
+def _cycles(world: VirtualWorld, clock: Clock, count: int) -> list[RobotState]:
     states = []
     for _ in range(count):
         clock.now += world.period_ns
@@ -61,8 +71,14 @@ def _cycles(world: VirtualWorld, clock: Clock, count: int) -> list[object]:
     return states
 
 
-def _program(*lines: str) -> object:
+def _program(*lines: str) -> Program:
     return parse_program("def t():\n" + "".join(f"  {line}\n" for line in lines) + "end\n")
+
+
+def _skin(world: VirtualWorld, modality: str, at_ns: int) -> np.ndarray:
+    found = world.skin_at(modality, at_ns)
+    assert found is not None
+    return found
 
 
 def _fk(q: np.ndarray) -> np.ndarray:
@@ -111,7 +127,7 @@ def test_a_press_on_the_rigid_block_reads_the_contact_model() -> None:
     touched = None
     for _ in range(2000):
         clock.now += PERIOD
-        if float(world.skin_at("force", clock.now).sum()) > 0.05:
+        if float(_skin(world, "force", clock.now).sum()) > 0.05:
             touched = world.robot_at(clock.now).tcp_pose[2]
             break
     assert touched is not None
@@ -120,10 +136,10 @@ def test_a_press_on_the_rigid_block_reads_the_contact_model() -> None:
     _cycles(world, clock, 10)
     force = world.robot_at(clock.now).tcp_force
     assert force[2] > 0  # the block pushes the tool up
-    cells = world.skin_at("force", clock.now)
+    cells = _skin(world, "force", clock.now)
     assert cells.shape == (7, 3)
-    assert world.skin_at("temperature", clock.now).shape == (7, 1)
-    assert world.skin_at("proximity", clock.now).max() < 0.01
+    assert _skin(world, "temperature", clock.now).shape == (7, 1)
+    assert _skin(world, "proximity", clock.now).max() < 0.01
 
 
 def test_force_mode_slides_at_its_force_and_vibrates() -> None:
@@ -132,7 +148,7 @@ def test_force_mode_slides_at_its_force_and_vibrates() -> None:
     world.place(np.array(POSE))
     said = 'textmsg("atikt: object=wood action=S3 trial=1 phase=approach")'
     world.run(_program(said, "speedl([0.0, 0.0, -0.005, 0.0, 0.0, 0.0], 0.5, 30.0)"))
-    while float(world.skin_at("force", clock.now).sum()) < 0.05:
+    while float(_skin(world, "force", clock.now).sum()) < 0.05:
         _cycles(world, clock, 1)
     world.run(
         _program(
@@ -149,7 +165,7 @@ def test_force_mode_slides_at_its_force_and_vibrates() -> None:
         clock.now += PERIOD
         world.robot_at(clock.now)
         forces.append(world.robot_at(clock.now).tcp_force[2])
-        vibration.append(world.skin_at("acceleration", clock.now)[:, 0])
+        vibration.append(_skin(world, "acceleration", clock.now)[:, 0])
     assert abs(np.median(forces) - 0.2) < 0.05
     assert np.std(vibration) > 0.05  # the texture's ridges, m/s^2
 
@@ -221,7 +237,10 @@ def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_fir
 ) -> None:
     obj = OBJECTS["wood"]
     with virtual_lab(poses={"wood": POSE}) as lab:
-        rig = lab.rig({"wood": POSE}, approach_max_m_s=0.005)
+        # the light contact at 2 mm/s: a hiccup of the loaded test machine (the rig's loop
+        # latency counts 1 / time_scale times over in world motion) stays well within 1 mm
+        # silence 2 s: the test machine may be loaded, and silence is not what is tested here
+        rig = lab.rig({"wood": POSE}, approach_max_m_s=0.002, silence_s=2.0)
         starts = []
         with rig:
             assert rig.present(obj)
@@ -303,15 +322,16 @@ def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     assert process.stdout.readline().startswith("virtual lab listening")
     with socket.create_connection(("127.0.0.1", ports[1])) as sock:
         said = 'textmsg("atikt: object=wood action=P1 trial=1 phase=approach")'
-        sock.sendall(f"def a():\n  {said}\n  speedl([0, 0, -0.002, 0, 0, 0], 0.5, 5)\nend\n".encode())
+        move = "speedl([0, 0, -0.002, 0, 0, 0], 0.5, 5)"
+        sock.sendall(f"def a():\n  {said}\n  {move}\nend\n".encode())
         time.sleep(0.5)
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=30)
     assert process.returncode == 0, err
     lines = out.strip().splitlines()
-    assert [line for line in lines if line.startswith("fault: ")][0].startswith(
-        "fault: script.protective_stop at controller"
-    ), out
+    faults = [line for line in lines if line.startswith("fault: ")]
+    assert len(faults) == 1, out
+    assert faults[0].startswith("fault: script.protective_stop at controller"), out
     assert json.loads(summary.read_text("utf-8")) == {"faults": {"script": {"protective_stop": 1}}}
     records = [json.loads(line) for line in events.read_text("utf-8").splitlines()]
     kinds = [record["event"] for record in records]
@@ -319,11 +339,17 @@ def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     assert {"action", "fault", "stop", "summary"} <= set(kinds)
     program = records[0]
     assert program["received_monotonic_ns"] <= program["monotonic_ns"]
-    refused = subprocess.run(  # noqa: S603 (this project's command)
+    refused = subprocess.run(
         [sys.executable, "-m", "recorder", "serve-sim", "--fault", "ros2.drop=3"],
-        env=env, capture_output=True, text=True, timeout=60, check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
     )
     assert refused.returncode != 0
-    assert refused.stderr.strip().splitlines()[-1].endswith(
-        "--fault ros2.*: the ros2 server is not served; add --ros2 or drop the fault"
+    assert (
+        refused.stderr.strip()
+        .splitlines()[-1]
+        .endswith("--fault ros2.*: the ros2 server is not served; add --ros2 or drop the fault")
     )
