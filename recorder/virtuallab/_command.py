@@ -28,6 +28,7 @@ from recorder._cli import _CATALOGS, arg, command
 from recorder._rigconfig import load_rig_config, thaw
 from recorder.errors import RecorderError
 from recorder.virtuallab._controller import VirtualController
+from recorder.virtuallab._dashboard import DashboardServer
 from recorder.virtuallab._events import Event, EventLog
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
@@ -282,7 +283,19 @@ def _wait_for_a_stop() -> None:
         default=125,
         help="controller generation: 125 (CB3) or 500 Hz (e-Series) (default: 125)",
     ),
-    arg("--rig-config", type=Path, default=None, help="the lab's rig configuration (its [skin])"),
+    arg(
+        "--dashboard-port",
+        type=int,
+        default=None,
+        help="also serve the dashboard subset (robotmode, safetymode, stop, play, unlock "
+        "protective stop) on this port (a UR's: 29999)",
+    ),
+    arg(
+        "--rig-config",
+        type=Path,
+        default=None,
+        help="the lab's rig configuration (its [skin], and the [objects] poses)",
+    ),
     arg(
         "--time-scale",
         type=float,
@@ -381,13 +394,21 @@ def _serve_arm(
     script = ScriptServer(
         controller, args.host, args.script_port, faults=script_faults(faults.get("script", {}))
     )
+    dashboard = None
+    if args.dashboard_port is not None:
+        dashboard = DashboardServer(controller, args.host, args.dashboard_port)
     try:
         stack.enter_context(rtde)
         stack.enter_context(script)
+        if dashboard is not None:
+            stack.enter_context(dashboard)
     except OSError as err:
         msg = f"serve-sim: cannot listen on {args.host} ({err}); choose other ports"
         raise RecorderError(msg) from err
-    return [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
+    where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
+    if dashboard is not None:
+        where.append(f"dashboard {dashboard.address[1]}")
+    return where
 
 
 def _serve_skin(

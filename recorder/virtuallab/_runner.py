@@ -120,6 +120,11 @@ class ProgramRunner:
         self.program, self.force_mode = program, None
         self._pc, self._elapsed, self._began, self._braking = 0, 0.0, False, False
 
+    def finish(self) -> None:
+        """End the program now: force mode ends, the arm brakes at the last acceleration."""
+        if self.program is not None:
+            self.program, self.force_mode, self._braking = None, None, True
+
     def abort(self) -> None:
         """Drop the program (a protective stop): nothing runs until the next program."""
         self.program, self.force_mode, self._braking = None, None, False

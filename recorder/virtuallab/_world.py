@@ -68,7 +68,8 @@ HOME_POSE = (-0.6, -0.2, 0.2, 0.0, np.pi, 0.0)
 HISTORY_S = 4
 #: Lines of the controller's log kept (a ring: the oldest go first).
 LOG_LINES = 1000
-#: Cycles the world may fall behind its clock before it computes the backlog as one cycle.
+#: Cycles the world may fall behind its clock before it computes the backlog as one cycle
+#: (moving the world by one cycle only: the world slows down, it never jumps).
 MAX_BACKLOG = 3
 
 
@@ -160,6 +161,7 @@ class VirtualWorld:
         default_factory=list, init=False
     )
     _first_action_ns: int | None = field(default=None, init=False)
+    _world_s: float = field(default=0.0, init=False)
     _ticker: threading.Thread | None = field(default=None, init=False)
     _stopping: threading.Event = field(default_factory=threading.Event, init=False)
 
@@ -232,16 +234,21 @@ class VirtualWorld:
                     self.overruns += due - 1
                     if self.overruns == due - 1:
                         _log.warning(
-                            "virtual controller behind its clock by %d cycles: they are "
-                            "computed as one (the machine is too loaded for the cycle rate); "
-                            "VirtualWorld.overruns counts them",
+                            "virtual controller behind its clock by %d cycles: computed as "
+                            "one, the world slows down (the machine is too loaded for the "
+                            "cycle rate); VirtualWorld.overruns counts them",
                             due,
                         )
                 self._cycles.append(self._cycle(last, last + span * self._period_ns))
 
     def _cycle(self, start_ns: int, end_ns: int) -> _Cycle:
-        """Run one controller cycle (with the lock held)."""
-        dt = (end_ns - start_ns) / 1e9 / self.time_scale
+        """Run one controller cycle (with the lock held).
+
+        A cycle spanning more than one period (the world fell behind its clock) still moves
+        the world by one period: the world slows down rather than jump (no motion larger
+        than a cycle's between two states).
+        """
+        dt = min(end_ns - start_ns, self._period_ns) / 1e9 / self.time_scale
         if self._pending is not None:
             self._runner.load(self._pending)
             self._pending = None
@@ -252,7 +259,8 @@ class VirtualWorld:
         count = max(1, (end_ns - start_ns) // SUB_NS)
         share = np.arange(1, count + 1) / count
         positions = before + share[:, None] * (after - before)
-        world_s = (start_ns + share * (end_ns - start_ns)) / 1e9 / self.time_scale
+        world_s = self._world_s + share * dt
+        self._world_s += dt
         surface = self._surfaces.get(self._action[0]) if self._action else None
         skin = self._skin.sample(surface, positions, world_s, dt)
         state = self._state(surface)
@@ -350,7 +358,7 @@ class VirtualWorld:
             return
         now_ns = self._cycles[-1].end_ns + self._period_ns
         try:
-            self._skin.begin(obj, action, key[2], now_ns / 1e9 / self.time_scale)
+            self._skin.begin(obj, action, key[2], self._world_s)
         except ValueError as err:
             self.note(f"textmsg announcement {dict(pairs)}: {err}")
             return
@@ -392,6 +400,18 @@ class VirtualWorld:
             self._pending = None
             self._arm.halt()
             self.events_log.add("stop", self.controller_ns(), kind=kind)
+
+    @property
+    def safety(self) -> int:
+        """Return the RTDE safety status now."""
+        with self._lock:
+            return self._safety
+
+    def halt_program(self) -> None:
+        """End the running program (the dashboard's ``stop``): the arm brakes as at its end."""
+        with self._lock:
+            self._pending = None
+            self._runner.finish()
 
     def unlock(self) -> None:
         """Release a stop (the pendant's "unlock protective stop")."""

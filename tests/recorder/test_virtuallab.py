@@ -237,10 +237,12 @@ def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_fir
 ) -> None:
     obj = OBJECTS["wood"]
     with virtual_lab(poses={"wood": POSE}) as lab:
-        # the light contact at 2 mm/s: a hiccup of the loaded test machine (the rig's loop
-        # latency counts 1 / time_scale times over in world motion) stays well within 1 mm
-        # silence 2 s: the test machine may be loaded, and silence is not what is tested here
-        rig = lab.rig({"wood": POSE}, approach_max_m_s=0.002, silence_s=2.0)
+        # The skin's 21 force sensors sum their noise (sd 0.009 N) and drift (0.002 N/s): over
+        # a long approach the peak of single samples crosses the catalog's 0.05 N before the
+        # touch (a false light contact, the start then lies higher). A lab raises the
+        # threshold: 0.15 N. Contact speed at most 5 mm/s; silence 2 s: the test machine may
+        # be loaded, and silence is not what is tested here.
+        rig = lab.rig({"wood": POSE}, approach_max_m_s=0.005, contact_force_n=0.15, silence_s=2.0)
         starts = []
         with rig:
             assert rig.present(obj)
@@ -353,3 +355,29 @@ def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
         .splitlines()[-1]
         .endswith("--fault ros2.*: the ros2 server is not served; add --ros2 or drop the fault")
     )
+
+
+def test_the_dashboard_releases_a_protective_stop() -> None:
+    from recorder.virtuallab._dashboard import DashboardServer  # noqa: PLC0415
+
+    with virtual_lab() as lab, DashboardServer(lab.controller, "127.0.0.1", 0) as dashboard:
+        lab.world.stop("protective")
+        with socket.create_connection(("127.0.0.1", dashboard.address[1]), timeout=5) as sock:
+            reader = sock.makefile("r")
+            assert reader.readline().startswith("Connected: Universal Robots Dashboard")
+
+            def ask(command: str) -> str:
+                sock.sendall(f"{command}\n".encode())
+                return reader.readline().strip()
+
+            assert ask("robotmode") == "Robotmode: RUNNING"
+            assert ask("safetymode") == "Safetymode: PROTECTIVE_STOP"
+            assert ask("unlock protective stop") == "Protective stop releasing"
+            assert ask("safetymode") == "Safetymode: NORMAL"
+            lab.script.run("speedl([0.0, 0.0, 0.01, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+            time.sleep(0.2)
+            assert ask("stop") == "Stopped"
+            assert ask("explode") == "could not understand: 'explode'"
+        time.sleep(0.3)
+        state = lab.world.robot_at(lab.world.controller_ns())
+        assert np.all(state.target_tcp_speed == 0)
