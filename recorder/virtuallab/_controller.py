@@ -38,7 +38,8 @@ class VirtualController:
         return self.world.controller_ns()
 
     def state_at(self, controller_ns: int) -> RobotState:
-        """Return the arm's state at a controller time."""
+        """Return the arm's state at a controller time (computing the cycles due first)."""
+        self.world.advance_to(controller_ns)
         return self.world.robot_at(controller_ns)
 
     def execute(self, program: Program) -> bool:

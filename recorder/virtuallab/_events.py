@@ -2,8 +2,14 @@
 
 Every event carries the controller's clock (``controller_ns``: ns since the lab started, the
 clock of RTDE's ``timestamp``) and the raw ``time.monotonic_ns()`` of this machine when the
-lab saw it (comparable with a recorder's monotonic clock on the same machine). Kinds:
+lab computed it (comparable with a recorder's monotonic clock on the same machine). Events of
+a cycle (a program's first call, a speed reaching zero) carry the cycle's end as their
+controller time and are computed when a server or the lab's ticking thread reaches that
+cycle: on time within a cycle, unless the machine is too loaded (``VirtualWorld.overruns``).
+The controller's clock is the monotonic clock shifted: ``monotonic = origin_monotonic_ns +
+controller_ns`` (``origin_monotonic_ns`` is in the first event). Kinds:
 
+- ``start``: the lab started (``origin_monotonic_ns``, ``frequency``, ``time_scale``);
 - ``program``: a program's first function call ran (``received_monotonic_ns``: when its text
   arrived on the URScript port; ``name``: its ``def`` name; ``calls``; ``announced``: the
   ``atikt:`` message's pairs);

@@ -66,6 +66,8 @@ _STOPS = {"protective": SAFETY_PROTECTIVE_STOP, "emergency": SAFETY_EMERGENCY_ST
 HOME_POSE = (-0.6, -0.2, 0.2, 0.0, np.pi, 0.0)
 #: Seconds of cycles kept for readers.
 HISTORY_S = 4
+#: Newest cycles readers search without the lock.
+RECENT = 32
 #: Lines of the controller's log kept (a ring: the oldest go first).
 LOG_LINES = 1000
 #: Cycles the world may fall behind its clock before it computes the backlog as one cycle
@@ -162,6 +164,7 @@ class VirtualWorld:
     )
     _first_action_ns: int | None = field(default=None, init=False)
     _world_s: float = field(default=0.0, init=False)
+    _recent: tuple[_Cycle, ...] = field(default=(), init=False)
     _ticker: threading.Thread | None = field(default=None, init=False)
     _stopping: threading.Event = field(default_factory=threading.Event, init=False)
 
@@ -184,6 +187,14 @@ class VirtualWorld:
         self._runner = ProgramRunner(self)
         self._cycles = deque(maxlen=HISTORY_S * self.frequency)
         self._cycles.append(self._cycle(-self._period_ns, 0))
+        self._recent = (self._cycles[-1],)
+        self.events_log.add(
+            "start",
+            0,
+            origin_monotonic_ns=self._origin_ns,
+            frequency=self.frequency,
+            time_scale=self.time_scale,
+        )
 
     # -- the clock and the stepping -------------------------------------------------------
 
@@ -240,6 +251,7 @@ class VirtualWorld:
                             due,
                         )
                 self._cycles.append(self._cycle(last, last + span * self._period_ns))
+                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
 
     def _cycle(self, start_ns: int, end_ns: int) -> _Cycle:
         """Run one controller cycle (with the lock held).
@@ -437,14 +449,35 @@ class VirtualWorld:
 
     # -- what the servers read ------------------------------------------------------------
 
-    def _at(self, controller_ns: int) -> _Cycle:
-        """Return the latest cycle ending at or before ``controller_ns`` (the oldest kept)."""
-        self.advance_to(controller_ns)
+    def _catch_up(self, controller_ns: int) -> None:
+        """Compute the cycles due, unless the ticking thread does (readers never wait then).
+
+        While ticking (``with world:``) a reader gets the latest cycle computed, at most one
+        cycle late; the RTDE server calls :meth:`advance_to` itself so that every package is
+        the state of its own instant.
+        """
+        if self._ticker is None:
+            self.advance_to(controller_ns)
+
+    def _find(self, test: Callable[[_Cycle], bool]) -> _Cycle:
+        """Return the newest cycle passing ``test`` (the oldest kept when none does).
+
+        The newest cycles are searched without the lock (an immutable snapshot, replaced
+        whole each cycle), so a reader never waits for a cycle being computed.
+        """
+        for cycle in reversed(self._recent):
+            if test(cycle):
+                return cycle
         with self._lock:
             for cycle in reversed(self._cycles):
-                if cycle.end_ns <= controller_ns:
+                if test(cycle):
                     return cycle
             return self._cycles[0]
+
+    def _at(self, controller_ns: int) -> _Cycle:
+        """Return the latest cycle ending at or before ``controller_ns`` (the oldest kept)."""
+        self._catch_up(controller_ns)
+        return self._find(lambda cycle: cycle.end_ns <= controller_ns)
 
     def robot_at(self, controller_ns: int) -> RobotState:
         """Return the arm's state at a controller time."""
@@ -458,13 +491,8 @@ class VirtualWorld:
         Force and acceleration are sampled every ms inside a cycle (at ``start + 1 ms``, ...,
         its end), temperature and proximity once a cycle.
         """
-        self.advance_to(controller_ns)
-        with self._lock:
-            found = self._cycles[0]
-            for cycle in reversed(self._cycles):
-                if cycle.start_ns + SUB_NS <= controller_ns:
-                    found = cycle
-                    break
+        self._catch_up(controller_ns)
+        found = self._find(lambda cycle: cycle.start_ns + SUB_NS <= controller_ns)
         values = found.skin.get(modality)
         if values is None or values.ndim == 2:  # noqa: PLR2004 (cells, values): once a cycle
             return values
@@ -526,6 +554,7 @@ class VirtualWorld:
             if self._pending is not None:  # the clock stands still (tests): run it now
                 last = self._cycles[-1].end_ns
                 self._cycles.append(self._cycle(last, last + self._period_ns))
+                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
 
     def playing(self) -> tuple[str, str, int] | None:
         """Return the announced (object, action, trial) (None: none yet)."""
