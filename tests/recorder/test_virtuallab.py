@@ -241,9 +241,8 @@ def _free_port(kind: int) -> int:
         return int(probe.getsockname()[1])
 
 
-def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_first_did(
-    tmp_path: Path,
-) -> None:
+def _fifty_lab(tmp_path: Path) -> tuple[Path, list[str]]:
+    """Return the fifty-action test's rig configuration and its serve-sim command."""
     # serve-sim in its own process (as at a robot: the lab never competes with the rig for
     # this interpreter), the UR rig with the example configuration and a UDP skin here.
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
@@ -267,6 +266,13 @@ def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_fir
     command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", "0.2"]
     command += ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
     command += ["--skin", f"udp://127.0.0.1:{udp}", "--events", str(tmp_path / "events.jsonl")]
+    return lab, command
+
+
+def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_first_did(
+    tmp_path: Path,
+) -> None:
+    lab, command = _fifty_lab(tmp_path)
     env = os.environ | {"PYTHONPATH": str(ROOT)}
     served = subprocess.Popen(  # noqa: S603 (this project's command)
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
