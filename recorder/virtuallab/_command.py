@@ -1,7 +1,15 @@
-"""``atikt-record serve-sim``: the virtual lab, the simulator served over a real rig's protocols.
+"""``atikt-record serve-sim``: the virtual lab, a virtual UR10 served over a real rig's protocols.
 
 RTDE and the URScript port are served here; ``--skin`` and ``--ros2`` start the skin's frame
 server and the ROS 2 publisher when they are installed (imported only when asked for).
+
+Objects: the faces of the objects with an ``[objects.X] pose`` in ``--rig-config`` lie 20 mm
+below that pose; others are placed under the arm where their first action is announced
+(``_skinmodel``). Faults (``--fault SERVER.NAME=VALUE``) are refused in one line for a server
+that is not served; each fault injected is printed as one line (``fault: ...``); at exit a
+JSON summary (``{"faults": {source: {fault: count}}}``) goes to ``--fault-summary FILE`` and,
+as the last line, to ``--events FILE``, which receives every event as a JSON line as it
+happens (programs, faults, stops, speeds reaching zero: see ``_events``).
 """
 
 from __future__ import annotations
@@ -9,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import json
 import signal
 import threading
 from pathlib import Path
@@ -19,13 +28,16 @@ from recorder._cli import _CATALOGS, arg, command
 from recorder._rigconfig import load_rig_config, thaw
 from recorder.errors import RecorderError
 from recorder.virtuallab._controller import VirtualController
+from recorder.virtuallab._dashboard import DashboardServer
+from recorder.virtuallab._events import Event, EventLog
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
 from recorder.virtuallab._world import VirtualWorld
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Callable, Mapping, Sequence
+    from collections.abc import Callable, Iterator, Mapping, Sequence
+    from typing import TextIO
 
 #: Faults of the RTDE and URScript servers (``--fault rtde.drop=3``...); others go to the
 #: skin and ROS 2 servers by their prefix.
@@ -36,7 +48,10 @@ _RTDE_FAULTS = {
     "after": "after",
     "stall": "stall_s",
     "disconnect": "disconnect_after_s",
+    "at_action": "at_action_s",
 }
+#: The servers faults can be injected into, and the option that serves each.
+SERVERS = {"rtde": "", "script": "", "skin": "--skin URL", "ros2": "--ros2"}
 
 
 def parse_faults(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -79,6 +94,45 @@ def rtde_faults(faults: dict[str, float]) -> RtdeFaults:
     return RtdeFaults(**values)
 
 
+def check_served(faults: Mapping[str, object], served: Mapping[str, bool]) -> None:
+    """Refuse faults for a server that is unknown or not served, in one line.
+
+    Raises:
+        RecorderError: The first such server, and how to serve it.
+    """
+    for server in faults:
+        if server not in SERVERS:
+            msg = f"--fault {server}.*: no such server; faults go to {', '.join(SERVERS)}"
+            raise RecorderError(msg)
+        if not served.get(server, True):
+            msg = (
+                f"--fault {server}.*: the {server} server is not served; add {SERVERS[server]} "
+                "or drop the fault"
+            )
+            raise RecorderError(msg)
+
+
+def ros2_faults(cls: Any, faults: dict[str, float], topic_map: Path) -> Any:  # noqa: ANN401
+    """Return the ROS 2 server's faults; ``drop=N`` drops N samples of every mapped topic.
+
+    Raises:
+        RecorderError: An unknown fault, or an unreadable topic map.
+    """
+    values = dict(faults)
+    count = values.pop("drop", None)
+    made = typed_faults(cls, values, "ros2", ("drop",))
+    if count is None:
+        return made
+    from recorder.bagimport._source import extractors  # noqa: PLC0415 (with --ros2 only)
+    from recorder.bagimport._topicmap import load_topic_map  # noqa: PLC0415
+
+    mapped = load_topic_map(topic_map)
+    topics = set(extractors(mapped))
+    if mapped.joints is not None:
+        topics.add(mapped.joints.topic)
+    return dataclasses.replace(made, drop=dict.fromkeys(sorted(topics), int(count)))
+
+
 def script_faults(faults: dict[str, float]) -> ScriptFaults:
     """Return the URScript server's faults.
 
@@ -92,11 +146,17 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     return ScriptFaults(faults.get("protective_stop", 0.0))
 
 
-def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noqa: ANN401
+def typed_faults(
+    cls: Any,  # noqa: ANN401
+    faults: dict[str, float],
+    server: str,
+    extra: tuple[str, ...] = (),
+) -> Any:  # noqa: ANN401
     """Return a server's fault dataclass from ``--fault server.name=number`` values.
 
     ``name`` is a field of ``cls`` or a field without its ``_s`` suffix (``stall`` ->
-    ``stall_s``); integer fields get integers.
+    ``stall_s``); integer fields get integers. ``extra``: faults handled by the caller, named
+    in the message.
 
     Raises:
         RecorderError: No such numeric field.
@@ -108,6 +168,7 @@ def typed_faults(cls: Any, faults: dict[str, float], server: str) -> Any:  # noq
         default = getattr(field, "default", None)
         if field is None or isinstance(default, bool) or not isinstance(default, int | float):
             numeric = [n for n, f in known.items() if isinstance(f.default, int | float)]
+            numeric = [*extra, *numeric]
             msg = f"--fault {server}.{name}: the {server} faults are {', '.join(numeric)}"
             raise RecorderError(msg)
         values[field.name] = int(value) if isinstance(default, int) else value
@@ -123,6 +184,60 @@ def _lab_sections(path: Path | None) -> Mapping[str, Any]:
         RecorderError: The file is unreadable, too large or malformed.
     """
     return {} if path is None else thaw(load_rig_config(path).sections)
+
+
+def _poses(sections: Mapping[str, Any]) -> dict[str, list[float]]:
+    """Return the objects' poses of the rig configuration (those given as 6 numbers)."""
+    poses: dict[str, list[float]] = {}
+    for object_id, entry in (sections.get("objects") or {}).items():
+        pose = entry.get("pose") if isinstance(entry, dict) else None
+        if (
+            isinstance(pose, list)
+            and len(pose) == 6  # noqa: PLR2004 (x, y, z, rx, ry, rz)
+            and all(isinstance(v, int | float) for v in pose)
+        ):
+            poses[object_id] = [float(v) for v in pose]
+    return poses
+
+
+def _print_fault(event: Event) -> None:
+    """Print one injected fault as one line."""
+    details = " ".join(
+        f"{key}={value}" for key, value in event.details.items() if key not in {"source", "fault"}
+    )
+    where = f"{event.details.get('source')}.{event.details.get('fault')}"
+    seconds = event.controller_ns / 1e9
+    print(f"fault: {where} at controller {seconds:.3f} s {details}".rstrip(), flush=True)  # noqa: T201
+
+
+@contextlib.contextmanager
+def _event_files(events: Path | None, summary: Path | None) -> Iterator[EventLog]:
+    """Open the events file (JSON lines) and write the fault summary at exit.
+
+    Raises:
+        RecorderError: A file cannot be written (one line naming it).
+    """
+    sink: TextIO | None = None
+    try:
+        if events is not None:
+            sink = events.open("x", encoding="utf-8")
+    except OSError as err:
+        msg = f"--events {events}: cannot create it ({err.strerror}); give a new file"
+        raise RecorderError(msg) from err
+    log = EventLog(sink, echo=_print_fault)
+    try:
+        yield log
+    finally:
+        record = json.dumps({"event": "summary", "faults": log.faults()})
+        if sink is not None:
+            sink.write(record + "\n")
+            sink.close()
+        if summary is not None:
+            try:
+                summary.write_text(json.dumps({"faults": log.faults()}) + "\n", "utf-8")
+            except OSError as err:
+                msg = f"--fault-summary {summary}: cannot write it ({err.strerror})"
+                raise RecorderError(msg) from err
 
 
 def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
@@ -168,8 +283,26 @@ def _wait_for_a_stop() -> None:
         default=125,
         help="controller generation: 125 (CB3) or 500 Hz (e-Series) (default: 125)",
     ),
-    arg("--rig-config", type=Path, default=None, help="the lab's rig configuration (its [skin])"),
-    arg("--time-scale", type=float, default=1.0, help="real s per simulated s (default: 1.0)"),
+    arg(
+        "--dashboard-port",
+        type=int,
+        default=None,
+        help="also serve the dashboard subset (robotmode, safetymode, stop, play, unlock "
+        "protective stop) on this port (a UR's: 29999)",
+    ),
+    arg(
+        "--rig-config",
+        type=Path,
+        default=None,
+        help="the lab's rig configuration (its [skin], and the [objects] poses)",
+    ),
+    arg(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="real s per world s: 0.1 runs the arm and the skin ten times faster than the "
+        "controller's clock (tests; the rig then sets time_scale = 0.1) (default: 1.0)",
+    ),
     arg(
         "--skin",
         default=None,
@@ -186,7 +319,15 @@ def _wait_for_a_stop() -> None:
         default=[],
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
-        "rtde.disconnect=S, script.protective_stop=S, skin.* and ros2.* for those servers",
+        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, skin.* and ros2.* "
+        "for those servers (skin.at_action=S: counted from S s after the first action)",
+    ),
+    arg("--events", type=Path, default=None, help="write every event as a JSON line (new file)"),
+    arg(
+        "--fault-summary",
+        type=Path,
+        default=None,
+        help="write what was injected as JSON at exit",
     ),
     *_CATALOGS,
 )
@@ -194,49 +335,113 @@ def _serve_sim(args: argparse.Namespace) -> int:
     from recorder._sim import SimulatedRig  # noqa: PLC0415 (loads scipy)
 
     faults = parse_faults(args.fault)
+    check_served(faults, {"skin": bool(args.skin), "ros2": bool(args.ros2)})
+    if args.ros2 and args.topic_map is None:
+        msg = "serve-sim --ros2 needs --topic-map MAP: the topics the rig reads"
+        raise RecorderError(msg)
     sections = _lab_sections(args.rig_config)
     with contextlib.ExitStack() as stack:
+        events = stack.enter_context(_event_files(args.events, args.fault_summary))
         sim = stack.enter_context(SimulatedRig(args.seed))
         world = VirtualWorld(
             sim,
             load_objects(args.objects_catalog),
             load_actions(args.actions_catalog),
             time_scale=args.time_scale,
-        )
-        controller = VirtualController(world)
-        rtde = RtdeServer(
-            controller,
-            args.host,
-            args.rtde_port,
             frequency=args.frequency,
-            faults=rtde_faults(faults.get("rtde", {})),
+            poses=_poses(sections),
+            seed=args.seed,
+            events_log=events,
         )
-        script = ScriptServer(
-            controller, args.host, args.script_port, faults=script_faults(faults.get("script", {}))
-        )
-        try:
-            stack.enter_context(rtde)
-            stack.enter_context(script)
-        except OSError as err:
-            msg = f"serve-sim: cannot listen on {args.host} ({err}); choose other ports"
-            raise RecorderError(msg) from err
-        where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
+        stack.enter_context(world)
+        where = _serve_arm(stack, world, args, faults)
         if args.skin:
-            serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
-            kind = _optional_server("recorder.virtuallab._skin_server", "SkinFaults", "skin")
-            skin_faults = typed_faults(kind, faults.get("skin", {}), "skin")
-            stack.enter_context(serve(world, args.skin, sections.get("skin", {}), skin_faults))
-            where.append(f"skin {args.skin}")
+            where.append(_serve_skin(stack, world, args, faults, sections))
         if args.ros2:
             serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")
             kind = _optional_server("recorder.virtuallab._ros2_server", "Ros2Faults", "ROS 2")
-            ros2_faults = typed_faults(kind, faults.get("ros2", {}), "ros2")
-            if args.topic_map is None:
-                msg = "serve-sim --ros2 needs --topic-map MAP: the topics the rig reads"
-                raise RecorderError(msg)
-            stack.enter_context(serve(world, args.topic_map, ros2_faults, domain_id=args.domain_id))
+            ros2 = ros2_faults(kind, faults.get("ros2", {}), args.topic_map)
+            server = stack.enter_context(
+                serve(world, args.topic_map, ros2, domain_id=args.domain_id)
+            )
+            stack.callback(_ros2_summary, events, world, server)
             where.append("ROS 2 topics")
         print(f"virtual lab listening: {', '.join(where)}; Ctrl-C stops it", flush=True)  # noqa: T201
         _wait_for_a_stop()
-        print("virtual lab stopped", flush=True)  # noqa: T201
+    print("virtual lab stopped", flush=True)  # noqa: T201
     return 0
+
+
+def _serve_arm(
+    stack: contextlib.ExitStack,
+    world: VirtualWorld,
+    args: argparse.Namespace,
+    faults: Mapping[str, dict[str, float]],
+) -> list[str]:
+    """Serve RTDE and the URScript port; return where they listen.
+
+    Raises:
+        RecorderError: A port cannot be bound.
+    """
+    controller = VirtualController(world)
+    rtde = RtdeServer(
+        controller,
+        args.host,
+        args.rtde_port,
+        frequency=args.frequency,
+        faults=rtde_faults(faults.get("rtde", {})),
+    )
+    script = ScriptServer(
+        controller, args.host, args.script_port, faults=script_faults(faults.get("script", {}))
+    )
+    dashboard = None
+    if args.dashboard_port is not None:
+        dashboard = DashboardServer(controller, args.host, args.dashboard_port)
+    try:
+        stack.enter_context(rtde)
+        stack.enter_context(script)
+        if dashboard is not None:
+            stack.enter_context(dashboard)
+    except OSError as err:
+        msg = f"serve-sim: cannot listen on {args.host} ({err}); choose other ports"
+        raise RecorderError(msg) from err
+    where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
+    if dashboard is not None:
+        where.append(f"dashboard {dashboard.address[1]}")
+    return where
+
+
+def _serve_skin(
+    stack: contextlib.ExitStack,
+    world: VirtualWorld,
+    args: argparse.Namespace,
+    faults: Mapping[str, dict[str, float]],
+    sections: Mapping[str, Any],
+) -> str:
+    """Serve the skin's frames; return where they go."""
+    serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
+    kind = _optional_server("recorder.virtuallab._skin_server", "SkinFaults", "skin")
+    skin_faults = typed_faults(kind, faults.get("skin", {}), "skin")
+
+    def report(fault: str, controller_ns: int, **details: object) -> None:
+        world.events_log.add("fault", controller_ns, source="skin", fault=fault, **details)
+
+    stack.enter_context(
+        serve(
+            world,
+            args.skin,
+            sections.get("skin", {}),
+            skin_faults,
+            action_start=lambda: world.first_action_ns,
+            on_fault=report,
+        )
+    )
+    return f"skin {args.skin}"
+
+
+def _ros2_summary(events: EventLog, world: VirtualWorld, server: Any) -> None:  # noqa: ANN401
+    """Record the ROS 2 server's drops (it counts them itself) as fault events."""
+    for topic, count in sorted(getattr(server, "dropped", {}).items()):
+        events.add(
+            "fault", world.controller_ns(), source="ros2", fault="drop", topic=topic, count=count
+        )

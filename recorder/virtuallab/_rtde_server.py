@@ -9,7 +9,11 @@ clock's exact grid, with the arm's state at that instant.
 For tests it injects faults into the stream and reports exactly what it injected: packages
 dropped, duplicated or swapped with their successor (each at its own package, ``after``
 packages into the stream and 4 apart), a stall (nothing sent for ``stall_s``, then the backlog)
-and a disconnect ``disconnect_after_s`` after the start.
+and a disconnect ``disconnect_after_s`` after the start. With ``at_action_s`` >= 0 the faults
+are placed relative to the first announced action instead: packages are counted (for
+``after``) and the disconnect timed from ``at_action_s`` seconds after that action began, so
+they hit a recording and not the connection's warm-up. Each fault injected is an event of the
+world's log (``source`` rtde; serve-sim prints one line each).
 """
 
 from __future__ import annotations
@@ -57,7 +61,9 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "target_qd": ("VECTOR6D", lambda s, _t: s.qd),
     "target_moment": ("VECTOR6D", lambda s, _t: s.effort),
     "actual_TCP_pose": ("VECTOR6D", lambda s, _t: s.tcp_pose),
-    "target_TCP_pose": ("VECTOR6D", lambda s, _t: s.tcp_pose),
+    "target_TCP_pose": ("VECTOR6D", lambda s, _t: _target(s)),
+    "actual_TCP_speed": ("VECTOR6D", lambda s, _t: s.tcp_speed),
+    "target_TCP_speed": ("VECTOR6D", lambda s, _t: s.target_tcp_speed),
     "actual_TCP_force": ("VECTOR6D", lambda s, _t: s.tcp_force),
     "robot_mode": ("INT32", lambda s, _t: s.robot_mode),
     "safety_status": ("INT32", lambda s, _t: s.safety_status),
@@ -65,6 +71,12 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "runtime_state": ("UINT32", lambda _s, _t: 2),
     "speed_scaling": ("DOUBLE", lambda _s, _t: 1.0),
 }
+
+
+def _target(state: RobotState) -> Any:  # noqa: ANN401 (a pose)
+    return state.tcp_pose if state.target_pose is None else state.target_pose
+
+
 #: Controller version reported for each highest frequency.
 VERSIONS = {125: (3, 15, 7, 0), 500: (5, 11, 0, 0)}
 #: Packages between two injected faults.
@@ -82,6 +94,8 @@ class RtdeFaults:
         after: Packages sent normally before the first fault (and before a stall).
         stall_s: Nothing sent for this long, then the backlog (0: no stall).
         disconnect_after_s: Close the connection this long after the start (0: never).
+        at_action_s: Count from this long after the first announced action began instead of
+            from the stream's start (negative: from the start).
     """
 
     drop: int = 0
@@ -90,6 +104,7 @@ class RtdeFaults:
     after: int = 50
     stall_s: float = 0.0
     disconnect_after_s: float = 0.0
+    at_action_s: float = -1.0
 
     def plan(self) -> dict[int, str]:
         """Return package index -> fault, each fault at its own package."""
@@ -257,7 +272,7 @@ class RtdeServer(TcpServer):
         clock = self.controller.controller_ns
         tick = -(-clock() // period)
         plan, faults = self.faults.plan(), self.faults
-        started_ns, index, held = clock(), 0, None
+        started_ns, index, held = None, 0, None
         while session.started and not self.stopping.is_set():
             due = tick * period
             wait = (due - clock()) / 1e9
@@ -265,20 +280,41 @@ class RtdeServer(TcpServer):
                 return False
             if not session.started or clock() < due:
                 continue
-            if (
-                faults.disconnect_after_s
-                and clock() - started_ns >= faults.disconnect_after_s * 1e9
-            ):
+            started_ns = self._armed(started_ns, due)
+            armed = started_ns is not None
+            late = armed and due - (started_ns or 0) >= faults.disconnect_after_s * 1e9
+            if faults.disconnect_after_s and late:
                 self._count(disconnects=1)
+                self._event(due, "disconnect")
                 return False
-            if faults.stall_s and index == faults.after:
+            if armed and faults.stall_s and index == faults.after:
                 self._count(stalls=1)
+                self._event(due, "stall", seconds=faults.stall_s)
                 time.sleep(faults.stall_s)
             package = self._package(recipe, due)
-            held = self._send(session.sock, package, plan.get(index), held)
-            index += 1
+            fault = plan.get(index) if armed else None
+            if fault is not None:
+                self._event(due, fault, package=index)
+            held = self._send(session.sock, package, fault, held)
+            index += 1 if armed else 0
             tick += 1
         return True
+
+    def _armed(self, started_ns: int | None, due: int) -> int | None:
+        """Return when the faults' counting began (None: not yet)."""
+        if started_ns is not None:
+            return started_ns
+        if self.faults.at_action_s < 0:
+            return due
+        first = self.controller.world.first_action_ns
+        if first is None or due < first + self.faults.at_action_s * 1e9:
+            return None
+        return due
+
+    def _event(self, controller_ns: int, fault: str, **details: Any) -> None:  # noqa: ANN401
+        self.controller.world.events_log.add(
+            "fault", controller_ns, source="rtde", fault=fault, **details
+        )
 
     def _send(
         self, sock: socket.socket, package: bytes, fault: str | None, held: bytes | None

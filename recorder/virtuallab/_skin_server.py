@@ -27,7 +27,7 @@ from recorder.errors import RigError
 from recorder.live._framelayout import FIELD_TYPES, FrameType, SkinLayout, parse_layout
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping
+    from collections.abc import Callable, Iterator, Mapping
 
     from numpy.typing import NDArray
 
@@ -66,6 +66,9 @@ class SkinFaults:
         stop_after_s: Nothing is sent after this long, s (0: never stop).
         start: Frame number of the first fault.
         spacing: Frames between two faults.
+        at_action_s: Number the frames (for ``start`` and the stall) from this long after the
+            first announced action began instead of from the sender's start, so that the
+            faults hit a recording (negative: from the start).
     """
 
     frame: str = ""
@@ -77,6 +80,7 @@ class SkinFaults:
     stop_after_s: float = 0.0
     start: int = 20
     spacing: int = 10
+    at_action_s: float = -1.0
 
     def check(self) -> None:
         """Refuse impossible faults.
@@ -236,10 +240,26 @@ class _Link:
 class SkinServer:
     """Sends a simulated skin's frames from a thread; see :func:`serve_skin`."""
 
-    def __init__(
-        self, world: SkinWorld, link: _Link, layout: SkinLayout, faults: SkinFaults
+    def __init__(  # noqa: PLR0917 (the sender and its two optional hooks)
+        self,
+        world: SkinWorld,
+        link: _Link,
+        layout: SkinLayout,
+        faults: SkinFaults,
+        action_start: Callable[[], int | None] | None = None,
+        on_fault: Callable[..., object] | None = None,
     ) -> None:
-        """Prepare; :meth:`start` starts sending."""
+        """Prepare; :meth:`start` starts sending.
+
+        Args:
+            world: What is sent.
+            link: Where.
+            layout: The frames' layout.
+            faults: Faults to inject.
+            action_start: Controller time the first action began (None: not yet), for
+                ``faults.at_action_s``.
+            on_fault: Called as ``on_fault(fault, controller_ns, **details)`` per fault.
+        """
         names = [frame.name for frame in layout.frames]
         if faults.frame and faults.frame not in names:
             msg = f"skin faults: frame {faults.frame!r} is no frame type; give one of {names}"
@@ -266,6 +286,9 @@ class SkinServer:
         self._thread = threading.Thread(target=self._run, name="atikt-skin-server", daemon=True)
         self._origin = 0
         self.error: BaseException | None = None
+        self._action_start = action_start
+        self._on_fault = on_fault
+        self._base: int | None = 0 if faults.at_action_s < 0 else None
 
     def start(self) -> None:
         """Start sending (sensor time and counters start at 0 now)."""
@@ -301,24 +324,43 @@ class SkinServer:
             out[item.modality] = rows
         return out
 
+    def _relative(self, encoder: _Encoder, number: int) -> int | None:
+        """Return a frame's number for the fault plan (None: faults not armed yet)."""
+        if self._base is None and encoder.frame.name == self._faulted:
+            began = self._action_start() if self._action_start is not None else None
+            at = self._origin + number * encoder.frame.period_ns
+            if began is not None and at >= began + self.faults.at_action_s * 1e9:
+                self._base = number
+        return None if self._base is None else number - self._base
+
+    def _report(self, fault: str, encoder: _Encoder, number: int, **details: object) -> None:
+        if self._on_fault is not None:
+            at = self._origin + number * encoder.frame.period_ns
+            self._on_fault(fault, at, frame=encoder.frame.name, number=number, **details)
+
     def _stalling(self, encoder: _Encoder, number: int) -> bool:
         """Whether frame ``number`` falls in the stall (which starts at its frame)."""
         faults, frame = self.faults, encoder.frame
         if faults.stall_s <= 0:
             return False
-        if self._stall is None and frame.name == self._faulted and number >= faults.stall_at:
+        relative = self._relative(encoder, number) if frame.name == self._faulted else None
+        if self._stall is None and relative is not None and relative >= faults.stall_at:
             start = self._origin + number * frame.period_ns
             self._stall = (start, start + round(faults.stall_s * 1e9))
+            self._report("stall", encoder, number, seconds=faults.stall_s)
         if self._stall is None:
             return False
         t = self._origin + number * frame.period_ns
         return self._stall[0] <= t < self._stall[1]
 
-    def _fault(self, frames: list[bytes], out: list[bytes], number: int) -> None:
+    def _fault(self, frames: list[bytes], out: list[bytes], number: int, encoder: _Encoder) -> None:
         """Send (into ``out``) the frames of one sample, with the planned faults."""
         names = {"duplicate": "duplicated", "truncate": "truncated", "drop": "dropped"}
+        relative = self._relative(encoder, number)
         for position, item in enumerate(frames):
-            kind = self._plan.get(number * len(frames) + position)
+            kind = None if relative is None else self._plan.get(relative * len(frames) + position)
+            if kind is not None:
+                self._report(kind, encoder, number, position=position)
             if kind is not None and kind != "reorder":
                 self._counts[names[kind]] += 1
             if kind == "drop":
@@ -352,7 +394,7 @@ class SkinServer:
             if self._stalling(encoder, number):
                 self._stalled[frame.name] += len(sample)
             elif frame.name == self._faulted and self._plan:
-                self._fault(sample, out, number)
+                self._fault(sample, out, number, encoder)
             else:
                 out += sample
         return out
@@ -393,6 +435,8 @@ def serve_skin(
     faults: SkinFaults | None = None,
     *,
     where: str = "the virtual lab's [skin] table",
+    action_start: Callable[[], int | None] | None = None,
+    on_fault: Callable[..., object] | None = None,
 ) -> Iterator[SkinServer]:
     """Send the world's skin as frames laid out as ``skin_section`` describes.
 
@@ -405,6 +449,8 @@ def serve_skin(
             ``url`` says where to send).
         faults: Faults to inject (None: none).
         where: The configuration file, for messages.
+        action_start: Controller time the first action began (``faults.at_action_s``).
+        on_fault: Called as ``on_fault(fault, controller_ns, **details)`` per fault injected.
 
     Yields:
         The running server (``injected``: what it did so far).
@@ -414,7 +460,7 @@ def serve_skin(
     """
     layout = parse_layout(skin_section, where)
     link = _Link(url, layout)
-    server = SkinServer(world, link, layout, faults or SkinFaults())
+    server = SkinServer(world, link, layout, faults or SkinFaults(), action_start, on_fault)
     try:
         server.start()
         yield server

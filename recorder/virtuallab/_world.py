@@ -1,47 +1,59 @@
-"""What the virtual lab's servers serve: a simulated execution played out in real time.
+"""The virtual lab's world: a kinematic UR10 running URScript over the simulator's objects.
 
-When a program announces an action (object, action, trial), the world asks the simulated rig
-for the whole execution (:meth:`recorder.SimulatedRig.perform`: the motion, the skin's signals
-and the arm's states) and plays it from that moment on: every server asks for the state at its
-own controller time and gets the latest sample at or before it (sample and hold). The
-simulation runs ``1 / time_scale`` times faster than the real clock when ``time_scale < 1``
-(tests), so the servers keep their real rates while an action takes a fraction of its time.
-A protective or emergency stop freezes the arm where it is and ends the playback.
+The world is a controller stepped one cycle at a time (125 Hz CB3 or 500 Hz e-Series) on its
+own clock (``controller_ns``: ns since the lab started, RTDE's ``timestamp``). Each cycle the
+program runner (``_runner``) advances the running URScript program and commands a TCP twist;
+the arm (``_arm``) follows it by resolved rate and its TCP is the forward kinematics of its
+joints; the skin (``_skinmodel``) samples the touched object's face at the arm's actual
+positions. Every server reads the world's state at its own instants: the latest cycle at or
+before (sample and hold; the skin on a 1 ms grid inside the cycle). A read or the world's own
+ticking thread (``with world:``) computes the cycles due; the world never runs ahead of its
+clock. The last seconds of cycles are kept for readers a little behind.
 
-Each execution is simulated on its own, with its own force offsets and drift; a real skin's
-readings go on from one action to the next. So the force readings of a new execution continue
-from where the previous one left them (its first sample is moved onto the previous execution's
-reading at the start, a constant shift per execution): the rig's tare in free air before an
-approach, taken on the previous execution's readings, is the zero of the new one, as at a
-real skin.
+Time scale: with ``time_scale`` S (0 < S <= 1) the controller's clock and cycles run in real
+time, and each cycle advances the world by ``period / S``: the arm moves, the skin heats and
+the programs' ``t``, ``sleep`` and speeds run 1/S times faster than the clock. Speeds and
+accelerations in programs, in ``actual_TCP_speed``, ``actual_qd`` and ``target_TCP_speed`` are
+world units (per world second); the pose's change over RTDE's ``timestamp`` is therefore 1/S
+times the reported speed. At S = 1 (a rehearsal at real time) both agree. A rig against a
+lab at S < 1 sets ``time_scale = S`` so that it holds and slides for S times the durations.
 
-The motion is the simulator's plan for the announced action (approach until the skin's light
-contact, the action, the retract); the URScript the rig sends is checked, not executed step by
-step (see the URScript server).
+A protective or emergency stop halts the arm at once and drops the program; programs are
+refused until ``unlock`` (the pendant's "unlock protective stop", or the dashboard server).
+What happened is recorded with both clocks (``_events``; ``events()``).
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Self
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from recorder.errors import RigError
-from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
+from recorder.virtuallab._arm import STILL, KinematicArm, matrix_pose, pose_matrix
+from recorder.virtuallab._events import Event, EventLog
+from recorder.virtuallab._runner import ProgramRunner
+from recorder.virtuallab._skinmodel import SUB_NS, SkinModel, Surface
+from recorder.virtuallab._urscript import Call, Program
 from schemas import VOCABULARY
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping
+    from collections.abc import Callable, Mapping, Sequence
+    from types import TracebackType
 
     from numpy.typing import NDArray
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._sim import SimulatedRig
 
+    F64 = NDArray[np.float64]
+
+_log = logging.getLogger("atikt.virtuallab")
 #: RTDE ``robot_mode`` of a running arm (ROBOT_MODE_RUNNING).
 ROBOT_MODE_RUNNING = 7
 #: RTDE ``safety_status`` values (the controller's SafetyStatus enumeration).
@@ -49,6 +61,18 @@ SAFETY_NORMAL = 1
 SAFETY_PROTECTIVE_STOP = 3
 SAFETY_EMERGENCY_STOP = 7  # SAFETY_STATUS_ROBOT_EMERGENCY_STOP
 _STOPS = {"protective": SAFETY_PROTECTIVE_STOP, "emergency": SAFETY_EMERGENCY_STOP}
+#: Where the virtual arm waits before anything moved it: above the simulator's workspace, the
+#: tool pointing down (x, y, z in m, rotation vector in rad).
+HOME_POSE = (-0.6, -0.2, 0.2, 0.0, np.pi, 0.0)
+#: Seconds of cycles kept for readers.
+HISTORY_S = 4
+#: Newest cycles readers search without the lock.
+RECENT = 32
+#: Lines of the controller's log kept (a ring: the oldest go first).
+LOG_LINES = 1000
+#: Cycles the world may fall behind its clock before it computes the backlog as one cycle
+#: (moving the world by one cycle only: the world slows down, it never jumps).
+MAX_BACKLOG = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,108 +82,57 @@ class RobotState:
     Attributes:
         q: Joint positions, rad, shape (joints,).
         qd: Joint velocities, rad/s, shape (joints,).
-        tcp_pose: TCP pose (x, y, z, rx, ry, rz): m and a rotation vector, rad.
-        tcp_force: Force and torque at the TCP (fx, fy, fz, tx, ty, tz), N and N m.
+        tcp_pose: TCP pose (x, y, z, rx, ry, rz): m and a rotation vector, rad; the forward
+            kinematics of ``q``.
+        tcp_force: Force and torque at the TCP (fx, fy, fz, tx, ty, tz), N and N m, base frame.
         robot_mode: RTDE robot mode (7: running).
         safety_status: RTDE safety status (1 normal, 3 protective stop, 7 emergency stop).
         effort: Joint torques, N m, shape (joints,) (RTDE ``target_moment``).
+        tcp_speed: Actual TCP twist (m/s, rad/s, base frame) over the last cycle.
+        target_tcp_speed: Commanded TCP twist.
+        target_pose: The pose the joints follow.
     """
 
-    q: NDArray[np.float64]
-    qd: NDArray[np.float64]
-    tcp_pose: NDArray[np.float64]
-    tcp_force: NDArray[np.float64]
+    q: F64
+    qd: F64
+    tcp_pose: F64
+    tcp_force: F64
     robot_mode: int
     safety_status: int
-    effort: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    effort: F64 = field(default_factory=lambda: np.zeros(6))
+    tcp_speed: F64 = field(default_factory=lambda: np.zeros(6))
+    target_tcp_speed: F64 = field(default_factory=lambda: np.zeros(6))
+    target_pose: F64 | None = None
 
 
 @dataclass(frozen=True, slots=True)
-class _Series:
-    """One signal of an execution: sorted stamps (ns from its start) and values."""
+class _Cycle:
+    """One controller cycle ``(start_ns, end_ns]``: the state at its end, the skin inside."""
 
-    stamps: NDArray[np.int64]
-    values: NDArray[np.float64]
-
-    def at(self, t_ns: int) -> NDArray[np.float64]:
-        """Return the latest value at or before ``t_ns`` (the first before the start)."""
-        index = int(np.searchsorted(self.stamps, t_ns, side="right")) - 1
-        value: NDArray[np.float64] = self.values[max(index, 0)]
-        return value
-
-
-def _skin_series(blocks: list[SkinBlock]) -> _Series:
-    stamps = np.concatenate(
-        [b.stamp_ns + b.period_ns * np.arange(b.data.shape[0], dtype=np.int64) for b in blocks]
-    )
-    values = np.concatenate([np.asarray(b.data, dtype=np.float64) for b in blocks])
-    return _Series(stamps, values)
-
-
-@dataclass(frozen=True, slots=True)
-class _Execution:
-    """One simulated execution, ready to be played."""
-
-    object_id: str
-    action_id: str
-    trial: int
-    skin: Mapping[str, _Series]
-    q: _Series
-    qd: _Series
-    effort: _Series
-    pose: _Series
-    force: _Series | None
-    phases: tuple[tuple[str, int], ...]
+    start_ns: int
     end_ns: int
-
-    @classmethod
-    def simulate(
-        cls, rig: SimulatedRig, obj: ObjectSpec, action: ActionSpec, trial: int
-    ) -> _Execution:
-        """Run the simulator for one execution and index its signals by time."""
-        items = list(rig.perform(obj, action, trial))
-        blocks: dict[str, list[SkinBlock]] = {}
-        joints = [item for item in items if isinstance(item, JointSample)]
-        poses = [item for item in items if isinstance(item, PoseSample)]
-        events = [item for item in items if isinstance(item, PhaseEvent)]
-        for item in items:
-            if isinstance(item, SkinBlock):
-                blocks.setdefault(item.modality, []).append(item)
-        skin = {name: _skin_series(found) for name, found in blocks.items()}
-        stamps = np.array([j.stamp_ns for j in joints], dtype=np.int64)
-        rotation = Rotation.from_quat([p.orientation for p in poses]).as_rotvec()
-        pose = np.column_stack([[p.position for p in poses], rotation])
-        force = None
-        if "force" in skin:
-            total = skin["force"].values.reshape(len(skin["force"].stamps), -1).sum(axis=1)
-            wrench = np.zeros((total.size, 6))
-            wrench[:, 2] = total  # the skin presses along the tool's z axis
-            force = _Series(skin["force"].stamps, wrench)
-        return cls(
-            obj.id,
-            action.id,
-            trial,
-            skin,
-            _Series(stamps, np.array([j.position for j in joints])),
-            _Series(stamps, np.array([j.velocity for j in joints])),
-            _Series(stamps, np.array([j.effort for j in joints])),
-            _Series(np.array([p.stamp_ns for p in poses], dtype=np.int64), pose),
-            force,
-            tuple((e.phase, e.stamp_ns) for e in events),
-            max(e.stamp_ns for e in events),
-        )
+    state: RobotState
+    skin: Mapping[str, F64]
+    phase: str | None
+    action: tuple[str, str, int] | None
 
 
 @dataclass
 class VirtualWorld:
-    """The simulated rig played in real time; thread-safe (servers read it from their threads).
+    """A virtual UR10 controller with a skin over the simulator's objects; thread-safe.
 
     Attributes:
-        rig: A connected simulated rig (inside its ``with`` block).
+        rig: A connected simulated rig (inside its ``with`` block): its skin and objects.
         objects: The objects a program may announce, by id.
         actions: The actions a program may announce, by id.
-        time_scale: Real seconds per simulated second (0.1: ten times faster; 1: real time).
-        clock: The controller's clock, ns (monotonic).
+        time_scale: Real seconds per world second (0.1: ten times faster; 1: real time).
+        clock: The machine's monotonic clock, ns.
+        frequency: Controller cycles per second: 125 (CB3) or 500 (e-Series).
+        poses: Object id -> pose where the rig presents it (its face lies below).
+        seed: Seed of the skin's noise.
+        events_log: What happened, with both clocks.
+        overruns: Cycles computed merged with the next because the world fell behind its
+            clock by more than ``MAX_BACKLOG`` cycles (0 on a machine fast enough).
     """
 
     rig: SimulatedRig
@@ -167,149 +140,432 @@ class VirtualWorld:
     actions: Mapping[str, ActionSpec]
     time_scale: float = 1.0
     clock: Callable[[], int] = time.monotonic_ns
-    _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
+    frequency: int = 125
+    poses: Mapping[str, Sequence[float]] = field(default_factory=dict)
+    seed: int = 0
+    events_log: EventLog = field(default_factory=EventLog)
+    overruns: int = field(default=0, init=False)
+    _lock: threading.RLock = field(default_factory=threading.RLock, init=False)
     _origin_ns: int = field(default=0, init=False)
-    _playing: _Execution | None = field(default=None, init=False)
-    _last: _Execution | None = field(default=None, init=False)
-    _start_ns: int = field(default=0, init=False)
-    _frozen_ns: int | None = field(default=None, init=False)
+    _period_ns: int = field(default=8_000_000, init=False)
+    _arm: KinematicArm = field(init=False)
+    _skin: SkinModel = field(init=False)
+    _runner: ProgramRunner = field(init=False)
+    _pending: Program | None = field(default=None, init=False)
+    _cycles: deque[_Cycle] = field(init=False)
+    _surfaces: dict[str, Surface] = field(default_factory=dict, init=False)
+    _action: tuple[str, str, int] | None = field(default=None, init=False)
+    _phase: str | None = field(default=None, init=False)
     _safety: int = field(default=SAFETY_NORMAL, init=False)
-    _cache: dict[tuple[str, str, int], _Execution] = field(default_factory=dict, init=False)
-    _carry: dict[str, NDArray[np.float64]] = field(default_factory=dict, init=False)
+    _moving: tuple[bool, bool] = field(default=(False, False), init=False)
+    _log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES), init=False)
+    _listeners: list[Callable[[tuple[str, str, int]], None]] = field(
+        default_factory=list, init=False
+    )
+    _first_action_ns: int | None = field(default=None, init=False)
+    _world_s: float = field(default=0.0, init=False)
+    _recent: tuple[_Cycle, ...] = field(default=(), init=False)
+    _ticker: threading.Thread | None = field(default=None, init=False)
+    _stopping: threading.Event = field(default_factory=threading.Event, init=False)
 
     def __post_init__(self) -> None:
-        """Start the controller's clock."""
+        """Start the controller's clock with the arm at rest at its home pose.
+
+        Raises:
+            RigError: A time scale outside (0, 1] or a frequency other than 125 or 500 Hz.
+        """
         if not 0 < self.time_scale <= 1:
             msg = f"time_scale = {self.time_scale} must be in (0, 1]; 1 is real time"
             raise RigError(msg)
+        if self.frequency not in {125, 500}:
+            msg = f"frequency = {self.frequency}: give 125 (CB3) or 500 (e-Series)"
+            raise RigError(msg)
+        self._period_ns = 1_000_000_000 // self.frequency
         self._origin_ns = self.clock()
+        self._arm = KinematicArm.at(np.array(HOME_POSE))
+        self._skin = SkinModel(self.rig, self.seed)
+        self._runner = ProgramRunner(self)
+        self._cycles = deque(maxlen=HISTORY_S * self.frequency)
+        self._cycles.append(self._cycle(-self._period_ns, 0))
+        self._recent = (self._cycles[-1],)
+        self.events_log.add(
+            "start",
+            0,
+            origin_monotonic_ns=self._origin_ns,
+            frequency=self.frequency,
+            time_scale=self.time_scale,
+        )
+
+    # -- the clock and the stepping -------------------------------------------------------
+
+    def __enter__(self) -> Self:
+        """Start ticking: cycles are computed on time even when nobody reads."""
+        self._stopping.clear()
+        self._ticker = threading.Thread(target=self._tick, name="atikt-vlab-world", daemon=True)
+        self._ticker.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Stop ticking."""
+        self._stopping.set()
+        if self._ticker is not None:
+            self._ticker.join(2.0)
+
+    def _tick(self) -> None:
+        while not self._stopping.is_set():
+            now = self.controller_ns()
+            self.advance_to(now)
+            due = (now // self._period_ns + 1) * self._period_ns
+            self._stopping.wait(max(due - self.controller_ns(), 0) / 1e9)
+
+    @property
+    def period_ns(self) -> int:
+        """Return the controller's cycle, ns."""
+        return self._period_ns
 
     def controller_ns(self) -> int:
         """Return the controller's time: ns since the virtual lab started."""
         return self.clock() - self._origin_ns
 
-    def prepare(self, object_id: str, action_id: str, trial: int) -> None:
-        """Simulate an execution ahead of time (so that starting it is instant).
+    def advance_to(self, controller_ns: int) -> None:
+        """Compute every cycle that ends at or before ``controller_ns`` (and not after now)."""
+        limit = min(controller_ns, self.controller_ns())
+        with self._lock:
+            while self._cycles[-1].end_ns + self._period_ns <= limit:
+                last = self._cycles[-1].end_ns
+                due = (limit - last) // self._period_ns
+                span = 1
+                if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
+                    span = due
+                    self.overruns += due - 1
+                    if self.overruns == due - 1:
+                        _log.warning(
+                            "virtual controller behind its clock by %d cycles: computed as "
+                            "one, the world slows down (the machine is too loaded for the "
+                            "cycle rate); VirtualWorld.overruns counts them",
+                            due,
+                        )
+                self._cycles.append(self._cycle(last, last + span * self._period_ns))
+                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
 
-        Raises:
-            RigError: Unknown object or action, or the simulator cannot perform it.
+    def _cycle(self, start_ns: int, end_ns: int) -> _Cycle:
+        """Run one controller cycle (with the lock held).
+
+        A cycle spanning more than one period (the world fell behind its clock) still moves
+        the world by one period: the world slows down rather than jump (no motion larger
+        than a cycle's between two states).
         """
-        key = (object_id, action_id, trial)
-        if key in self._cache:
+        dt = min(end_ns - start_ns, self._period_ns) / 1e9 / self.time_scale
+        if self._pending is not None:
+            self._runner.load(self._pending)
+            self._pending = None
+        before = self._arm.tcp()[:3, 3].copy()
+        twist = self._runner.step(self._arm, dt) if self._safety == SAFETY_NORMAL else np.zeros(6)
+        self._arm.step(twist, dt)
+        after = self._arm.tcp()[:3, 3]
+        count = max(1, (end_ns - start_ns) // SUB_NS)
+        share = np.arange(1, count + 1) / count
+        positions = before + share[:, None] * (after - before)
+        world_s = self._world_s + share * dt
+        self._world_s += dt
+        surface = self._surfaces.get(self._action[0]) if self._action else None
+        skin = self._skin.sample(surface, positions, world_s, dt)
+        state = self._state(surface)
+        self._note_zeros(end_ns, state)
+        return _Cycle(start_ns, end_ns, state, skin, self._phase, self._action)
+
+    def _state(self, surface: Surface | None) -> RobotState:
+        """Return the arm's state now (forces from the skin's true contact force)."""
+        arm = self._arm
+        wrench = np.zeros(6)
+        if surface is not None:
+            wrench[:3] = surface.normal * self._skin.total_force()
+        return RobotState(
+            arm.q.copy(),
+            arm.qd.copy(),
+            arm.pose(),
+            wrench,
+            ROBOT_MODE_RUNNING,
+            self._safety,
+            arm.torques(wrench[:3]),
+            arm.tcp_speed.copy(),
+            arm.twist.copy(),
+            matrix_pose(arm.target),
+        )
+
+    def _note_zeros(self, end_ns: int, state: RobotState) -> None:
+        """Record when the commanded and the actual TCP speed reach zero after moving."""
+        moving = (
+            bool(np.abs(state.target_tcp_speed).max() > STILL),
+            bool(np.abs(state.tcp_speed).max() > STILL),
+        )
+        for kind, was, now in zip(
+            ("commanded_zero", "actual_zero"), self._moving, moving, strict=True
+        ):
+            if was and not now:
+                self.events_log.add(kind, end_ns, program=self._program_name())
+        self._moving = moving
+
+    def _program_name(self) -> str:
+        program = self._runner.program
+        return _name(program.text) if program is not None else ""
+
+    # -- the runner's hooks ---------------------------------------------------------------
+
+    def started(self, program: Program) -> None:
+        """Record a program's first call (the runner calls this inside a cycle)."""
+        self.events_log.add(
+            "program",
+            self._cycles[-1].end_ns + self._period_ns,
+            received_monotonic_ns=program.received_ns,
+            name=_name(program.text),
+            calls=[call.name for call in program.calls],
+            announced=dict(program.announced),
+        )
+
+    def message(self, text: str) -> None:
+        """Handle a ``textmsg``: an ``atikt:`` announcement names the action and its phase."""
+        if not text.startswith("atikt:"):
             return
-        obj, action = self.objects.get(object_id), self.actions.get(action_id)
-        if obj is None or action is None:
-            what = f"object {object_id!r}" if obj is None else f"action {action_id!r}"
-            msg = f"the virtual lab has no {what}; give it the rig's catalogs"
-            raise RigError(msg)
-        self._cache[key] = _Execution.simulate(self.rig, obj, action, trial)
+        pairs = dict(item.partition("=")[::2] for item in text.removeprefix("atikt:").split())
+        self._announce(pairs)
 
-    def start_action(self, object_id: str, action_id: str, trial: int) -> None:
-        """Play the execution of ``action_id`` on ``object_id`` from now on.
+    def force_speed(self, axis: F64, force_n: float, limit_m_s: float, dt_s: float) -> float:
+        """Return the speed along ``axis`` that brings the contact force to ``force_n``.
 
-        As on a controller, a new program replaces the running one: an action announced while
-        the previous one still plays (its rest after the retract) starts at once.
-
-        Raises:
-            RigError: Unknown object or action, or the arm is stopped.
+        The controller knows the face's force curve: it moves half the way to the depth of
+        that force each cycle, at most at the limit; with nothing under the arm, at the limit.
         """
-        self.prepare(object_id, action_id, trial)
+        touch = self._skin.touch
+        surface = self._surfaces.get(self._action[0]) if self._action else None
+        if touch is None or surface is None:
+            return float(np.sign(force_n) * limit_m_s)
+        into = float(axis @ -surface.normal)
+        if abs(into) < 0.1:  # noqa: PLR2004 (an axis along the face: no force to servo)
+            return 0.0
+        depth = float(surface.depth(self._arm.tcp()[:3, 3]))
+        speed = 0.5 * (touch.depth_for(abs(force_n)) - depth) / dt_s / into
+        return float(np.clip(speed, -limit_m_s, limit_m_s))
+
+    def _announce(self, pairs: Mapping[str, str]) -> None:
+        """Take an announcement: a new (object, action, trial) at ``approach`` begins it."""
+        phase = pairs.get("phase", "approach")
+        try:
+            key = (pairs["object"], pairs["action"], int(pairs["trial"]))
+        except (KeyError, ValueError):
+            self.note(f"textmsg announcement {dict(pairs)} not understood")
+            return
+        self._phase = phase
+        if phase != "approach" or key == self._action:
+            return
+        obj, action = self.objects.get(key[0]), self.actions.get(key[1])
+        if obj is None or action is None:
+            what = f"object {key[0]!r}" if obj is None else f"action {key[1]!r}"
+            self.note(f"textmsg announcement {dict(pairs)}: the virtual lab has no {what}")
+            return
+        now_ns = self._cycles[-1].end_ns + self._period_ns
+        try:
+            self._skin.begin(obj, action, key[2], self._world_s)
+        except ValueError as err:
+            self.note(f"textmsg announcement {dict(pairs)}: {err}")
+            return
+        if key[0] not in self._surfaces:
+            pose = self.poses.get(key[0])
+            where = pose_matrix(np.asarray(pose, dtype=np.float64)) if pose else self._arm.tcp()
+            self._surfaces[key[0]] = Surface.below(where)
+        self._action = key
+        if self._first_action_ns is None:
+            self._first_action_ns = now_ns
+        self.events_log.add("action", now_ns, object=key[0], action=key[1], trial=key[2])
+        for listener in list(self._listeners):
+            listener(key)
+
+    # -- programs, stops ------------------------------------------------------------------
+
+    def run(self, program: Program) -> bool:
+        """Run ``program`` from the next cycle on (it replaces the running one).
+
+        Returns:
+            False when the arm is stopped (the program is refused, with a log line).
+        """
         with self._lock:
             if self._safety != SAFETY_NORMAL:
-                msg = "the arm is stopped (protective or emergency stop): unlock it first"
-                raise RigError(msg)
-            now = self.controller_ns()
-            previous, held = self._execution(), self._sim_ns(now)
-            new = self._cache.pop((object_id, action_id, trial))
-            carry: dict[str, NDArray[np.float64]] = {}
-            if previous is not None and "force" in previous.skin and "force" in new.skin:
-                reading = previous.skin["force"].at(held) + self._carry.get("force", 0.0)
-                carry["force"] = reading - new.skin["force"].values[0]
-            self._playing, self._carry = new, carry
-            self._start_ns = now
-            self._frozen_ns = None
-
-    def busy_locked(self) -> bool:
-        """Whether an action is playing (call with the lock held)."""
-        playing = self._playing
-        return playing is not None and self._sim_ns(self.controller_ns()) < playing.end_ns
-
-    def playing(self) -> tuple[str, str, int] | None:
-        """Return (object, action, trial) of the action playing now (None: none is)."""
-        with self._lock:
-            run = self._playing
-            if run is None or not self.busy_locked():
-                return None
-            return (run.object_id, run.action_id, run.trial)
-
-    @property
-    def busy(self) -> bool:
-        """Whether an action is playing."""
-        with self._lock:
-            return self.busy_locked()
+                self.note(
+                    "URScript program refused: the arm is in a protective or emergency stop; "
+                    "unlock it first"
+                )
+                return False
+            self._pending = program
+            return True
 
     def stop(self, kind: str = "protective") -> None:
-        """Stop the arm where it is (``protective`` or ``emergency``); the playback ends."""
+        """Stop the arm where it is (``protective`` or ``emergency``); the program ends."""
         with self._lock:
+            self.advance_to(self.controller_ns())
             self._safety = _STOPS[kind]
-            self._frozen_ns = self.controller_ns()
+            self._runner.abort()
+            self._pending = None
+            self._arm.halt()
+            self.events_log.add("stop", self.controller_ns(), kind=kind)
+
+    @property
+    def safety(self) -> int:
+        """Return the RTDE safety status now."""
+        with self._lock:
+            return self._safety
+
+    def halt_program(self) -> None:
+        """End the running program (the dashboard's ``stop``): the arm brakes as at its end."""
+        with self._lock:
+            self._pending = None
+            self._runner.finish()
 
     def unlock(self) -> None:
         """Release a stop (the pendant's "unlock protective stop")."""
         with self._lock:
             self._safety = SAFETY_NORMAL
-            if self._playing is not None:
-                self._last, self._playing = self._playing, None
+            self.events_log.add("unlock", self.controller_ns())
 
-    def _sim_ns(self, controller_ns: int) -> int:
-        """Return the simulated time of the playing execution at a controller time."""
-        held = controller_ns if self._frozen_ns is None else min(controller_ns, self._frozen_ns)
-        return round((held - self._start_ns) / self.time_scale)
+    def place(self, pose: Sequence[float] | F64) -> None:
+        """Put the arm at ``pose`` at once, at rest (tests; no controller can)."""
+        with self._lock:
+            self.advance_to(self.controller_ns())
+            self._runner.abort()
+            self._arm.place(np.asarray(pose, dtype=np.float64))
 
-    def _execution(self) -> _Execution | None:
-        return self._playing if self._playing is not None else self._last
+    def on_action(self, listener: Callable[[tuple[str, str, int]], None]) -> None:
+        """Call ``listener(object, action, trial)`` when an announced action begins."""
+        self._listeners.append(listener)
+
+    @property
+    def first_action_ns(self) -> int | None:
+        """Return the controller time the first announced action began (None: none yet)."""
+        return self._first_action_ns
+
+    # -- what the servers read ------------------------------------------------------------
+
+    def _catch_up(self, controller_ns: int) -> None:
+        """Compute the cycles due, unless the ticking thread does (readers never wait then).
+
+        While ticking (``with world:``) a reader gets the latest cycle computed, at most one
+        cycle late; the RTDE server calls :meth:`advance_to` itself so that every package is
+        the state of its own instant.
+        """
+        if self._ticker is None:
+            self.advance_to(controller_ns)
+
+    def _find(self, test: Callable[[_Cycle], bool]) -> _Cycle:
+        """Return the newest cycle passing ``test`` (the oldest kept when none does).
+
+        The newest cycles are searched without the lock (an immutable snapshot, replaced
+        whole each cycle), so a reader never waits for a cycle being computed.
+        """
+        for cycle in reversed(self._recent):
+            if test(cycle):
+                return cycle
+        with self._lock:
+            for cycle in reversed(self._cycles):
+                if test(cycle):
+                    return cycle
+            return self._cycles[0]
+
+    def _at(self, controller_ns: int) -> _Cycle:
+        """Return the latest cycle ending at or before ``controller_ns`` (the oldest kept)."""
+        self._catch_up(controller_ns)
+        return self._find(lambda cycle: cycle.end_ns <= controller_ns)
 
     def robot_at(self, controller_ns: int) -> RobotState:
         """Return the arm's state at a controller time."""
-        with self._lock:
-            run, sim_ns, safety = self._execution(), self._sim_ns(controller_ns), self._safety
-            carry = self._carry.get("force")
-        if run is None:
-            home = np.zeros(6)
-            return RobotState(home, home, home, home, ROBOT_MODE_RUNNING, safety)
-        moving = self._frozen_ns is None and 0 <= sim_ns < run.end_ns
-        wrench = run.force.at(sim_ns) if run.force is not None else np.zeros(6)
-        if carry is not None:  # the skin's readings go on from the previous execution
-            wrench = wrench + np.array([0.0, 0.0, float(carry.sum()), 0.0, 0.0, 0.0])
-        qd = run.qd.at(sim_ns) if moving else np.zeros_like(run.qd.values[0])
-        return RobotState(
-            run.q.at(sim_ns),
-            qd,
-            run.pose.at(sim_ns),
-            wrench,
-            ROBOT_MODE_RUNNING,
-            safety,
-            run.effort.at(sim_ns),
-        )
+        return self._at(controller_ns).state
 
-    def skin_at(self, modality: str, controller_ns: int) -> NDArray[np.float64] | None:
-        """Return the skin's latest sample of ``modality`` (cells, values); None: no such."""
-        with self._lock:
-            run, sim_ns = self._execution(), self._sim_ns(controller_ns)
-            carry = self._carry.get(modality)
-        if run is None or modality not in run.skin:
-            return None
-        value = run.skin[modality].at(sim_ns)
-        return value if carry is None else value + carry
+    state_at = robot_at
+
+    def skin_at(self, modality: str, controller_ns: int) -> F64 | None:
+        """Return the skin's latest sample of ``modality`` (cells, values); None: no such.
+
+        Force and acceleration are sampled every ms inside a cycle (at ``start + 1 ms``, ...,
+        its end), temperature and proximity once a cycle.
+        """
+        self._catch_up(controller_ns)
+        found = self._find(lambda cycle: cycle.start_ns + SUB_NS <= controller_ns)
+        values = found.skin.get(modality)
+        if values is None or values.ndim == 2:  # noqa: PLR2004 (cells, values): once a cycle
+            return values
+        index = (controller_ns - found.start_ns) // SUB_NS - 1
+        sample: F64 = values[min(max(index, 0), values.shape[0] - 1)]
+        return sample
 
     def phase_at(self, controller_ns: int) -> str | None:
-        """Return the simulated phase at a controller time (None: no action yet)."""
+        """Return the announced phase at a controller time (None: no action yet)."""
+        return self._at(controller_ns).phase
+
+    def action_at(self, controller_ns: int) -> tuple[str, str, int] | None:
+        """Return the announced (object, action, trial) at a controller time (None: none)."""
+        return self._at(controller_ns).action
+
+    def events(self, kind: str | None = None) -> tuple[Event, ...]:
+        """Return what happened so far (of one kind), with both clocks."""
+        return self.events_log.events(kind)
+
+    def note(self, line: str) -> None:
+        """Add a line to the controller's log (a ring of :data:`LOG_LINES`)."""
         with self._lock:
-            run, sim_ns = self._execution(), self._sim_ns(controller_ns)
-        if run is None:
-            return None
-        started = [name for name, stamp in run.phases if stamp <= sim_ns]
-        return started[-1] if started else run.phases[0][0]
+            self._log.append(line)
+
+    @property
+    def log(self) -> tuple[str, ...]:
+        """Return the controller's log lines kept."""
+        with self._lock:
+            return tuple(self._log)
+
+    # -- older seams, kept for tests and tools --------------------------------------------
+
+    def prepare(self, object_id: str, action_id: str, trial: int) -> None:
+        """Check that an action can be announced (kept from the playing lab; nothing to do).
+
+        Raises:
+            RigError: Unknown object or action.
+        """
+        del trial
+        obj, action = self.objects.get(object_id), self.actions.get(action_id)
+        if obj is None or action is None:
+            what = f"object {object_id!r}" if obj is None else f"action {action_id!r}"
+            msg = f"the virtual lab has no {what}; give it the rig's catalogs"
+            raise RigError(msg)
+
+    def start_action(self, object_id: str, action_id: str, trial: int) -> None:
+        """Announce an action as its approach program would (no motion).
+
+        Raises:
+            RigError: Unknown object or action, or the arm is stopped.
+        """
+        self.prepare(object_id, action_id, trial)
+        said = f"atikt: object={object_id} action={action_id} trial={trial} phase=approach"
+        if not self.run(Program(f'textmsg("{said}")', (Call("textmsg", (said,)),))):
+            msg = "the arm is stopped (protective or emergency stop): unlock it first"
+            raise RigError(msg)
+        self.advance_to(self.controller_ns() + 2 * self._period_ns)
+        with self._lock:
+            if self._pending is not None:  # the clock stands still (tests): run it now
+                last = self._cycles[-1].end_ns
+                self._cycles.append(self._cycle(last, last + self._period_ns))
+                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
+
+    def playing(self) -> tuple[str, str, int] | None:
+        """Return the announced (object, action, trial) (None: none yet)."""
+        with self._lock:
+            return self._action
+
+    @property
+    def busy(self) -> bool:
+        """Whether a program runs."""
+        with self._lock:
+            return self._runner.running
 
     @staticmethod
     def modalities() -> tuple[str, ...]:
@@ -320,3 +576,9 @@ class VirtualWorld:
     def wait(seconds: float) -> None:
         """Sleep (a seam for tests)."""
         time.sleep(seconds)
+
+
+def _name(text: str) -> str:
+    """Return a program's ``def`` name (empty for a one-line program)."""
+    first = text.lstrip().split("\n", 1)[0]
+    return first[4:].split("(", 1)[0].strip() if first.startswith("def ") else ""

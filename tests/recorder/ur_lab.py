@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
     from recorder.writing._stream import SkinBlock
 
-TIME_SCALE = 0.05
+TIME_SCALE = 0.2
 #: Where the tests present objects: above the simulator's workspace, tool pointing down.
 POSE = [-0.7, -0.2, 0.15, 0.0, 3.14159, 0.0]
 SHAPES = {"force": 3, "temperature": 1, "acceleration": 3, "proximity": 1}
@@ -167,14 +167,23 @@ def virtual_lab(
     rtde_faults: RtdeFaults | None = None,
     script_faults: ScriptFaults | None = None,
     seed: int = 0,
+    time_scale: float = TIME_SCALE,
+    poses: Mapping[str, Any] | None = None,
 ) -> Iterator[Lab]:
-    """Run a virtual lab on free loopback ports."""
+    """Run a virtual lab on free loopback ports (its objects' faces below ``poses``)."""
     with SimulatedRig(seed) as sim:
-        world = VirtualWorld(sim, load_objects(), load_actions(), time_scale=TIME_SCALE)
+        world = VirtualWorld(
+            sim,
+            load_objects(),
+            load_actions(),
+            time_scale=time_scale,
+            frequency=frequency,
+            poses=dict(poses or {}),
+        )
         controller = VirtualController(world)
         rtde = RtdeServer(controller, "127.0.0.1", 0, frequency=frequency, faults=rtde_faults)
         script = ScriptServer(controller, "127.0.0.1", 0, faults=script_faults)
-        with rtde, script:
+        with world, rtde, script:
             yield Lab(world, controller, rtde, script)
 
 
