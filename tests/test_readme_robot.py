@@ -82,6 +82,12 @@ def _env() -> dict[str, str]:
     return env | {"PYTHONPATH": str(ROOT)}
 
 
+class _Empty:
+    @staticmethod
+    def read() -> str:
+        return ""
+
+
 @contextlib.contextmanager
 def _serving(argv: list[str], cwd: Path) -> Iterator[subprocess.Popen[str]]:
     lab = subprocess.Popen(  # noqa: S603 (this project's command)
@@ -90,7 +96,7 @@ def _serving(argv: list[str], cwd: Path) -> Iterator[subprocess.Popen[str]]:
     try:
         assert lab.stdout is not None
         line = lab.stdout.readline()
-        assert line.startswith("virtual lab listening"), line + (lab.stderr.read() or "")
+        assert line.startswith("virtual lab listening"), line + (lab.stderr or _Empty()).read()
         yield lab
     finally:
         lab.send_signal(signal.SIGINT)

@@ -40,7 +40,8 @@ def test_an_installed_skin_is_found_by_name(
     _install(tmp_path / "site", monkeypatch, "test_skin_plugins:build_lab_skin")
     assert {"udp", "serial", "ros2", "labskin"} <= set(skin_transports())
     section = {"transport": "labskin", "port": 7}
-    assert open_skin(section, RecorderClock(), "lab.toml") == "a lab skin"
+    built: object = open_skin(section, RecorderClock(), "lab.toml")
+    assert built == "a lab skin"
     assert BUILT[-1] == section
 
 
