@@ -116,7 +116,7 @@ class _Arrivals:
             period = int(np.median(steps)) if steps.size else 0
         if period <= 0:
             return None
-        counter = SourceCounter(name, period_ns=period)
+        counter = SourceCounter(name, period_ns=period, gaps=True)
         for i in inside:
             counter.observe(None, self.stamps[i], self.receives[i])
         counter.overflow(overflowed - self.overflow_seen)

@@ -29,8 +29,8 @@ from schemas import SOURCES_RECORD, SourceStats, encode_source_stats, parse_sour
 __all__ = [
     "SOURCES_RECORD",
     "SourceCounter",
-    "Verdict",
     "SourceStats",
+    "Verdict",
     "encode_source_stats",
     "parse_source_stats",
 ]
@@ -57,7 +57,7 @@ COUNTER_RELATIVE = 0.1
 #: A step between stamps longer than this many periods (and than the period plus
 #: :data:`GAP_SLACK_NS`) is a gap of a source without a sequence.
 GAP_PERIODS = 2.5
-GAP_SLACK_NS = 20_000_000
+GAP_SLACK_NS = 5_000_000
 
 
 class Verdict(enum.Enum):
@@ -188,6 +188,11 @@ class SourceCounter:
             return Verdict.DUPLICATE
         if sequence is not None and self._counter_jumped(number, receive_ns):
             return self._new_run(sequence, sensor_ns, receive_ns)
+        return self._place(number, sensor_ns, receive_ns)
+
+    def _place(self, number: int, sensor_ns: int, receive_ns: int) -> Verdict:
+        """Count a new sample of the current run: the newest so far, or a late one."""
+        assert self._first is not None  # noqa: S101 (a run is open)
         if number > self._max:
             if self._gaps:
                 self._gap(number - self._max)

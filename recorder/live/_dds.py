@@ -446,7 +446,7 @@ class Ros2Skin:
             spec = extractor.fields[0]
             period = int(spec.period_ns * spec.samples_per_message) if spec.period_ns else 0
             self._counters[topic] = SourceCounter(
-                topic.lstrip("/").replace(".", "_"), period_ns=period
+                topic.lstrip("/").replace(".", "_"), period_ns=period, gaps=True
             )
             self._overflow0[topic] = reader.overflowed
             extractor.forget(2**62)

@@ -28,7 +28,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedCo
 from rich.table import Table
 
 from replay.errors import RecordingError, ReplayError
-from replay.recording._checks import index_problems
+from replay.recording._checks import check_gaps, index_problems, pauses_explained
 from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
     check_dataset_location,
@@ -113,7 +113,8 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
         return
     table = Table(
         "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
-        "overflow", "clock offset", "drift", "max latency", title="live sources",
+        "overflow", "malformed", "out of range", "resets", "gaps", "clock offset", "drift",
+        "max latency", title="live sources",
     )  # fmt: skip
     for item in sources:
         table.add_row(
@@ -122,6 +123,10 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
             *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
             str(item.out_of_order),
             str(item.overflowed),
+            str(item.malformed),
+            str(item.out_of_range),
+            str(item.counter_resets),
+            f"{item.gaps} ({item.gap_ns / 1e9:.3f} s)" if item.gaps else "0",
             _seconds(item.clock_offset_ns),
             f"{item.clock_drift_ns / 1e6:.3f} ms",
             f"{item.latency_max_ns / 1e6:.3f} ms",
@@ -234,9 +239,30 @@ def _check_one(path: Path) -> tuple[str | None, str | None]:
         check_dataset_location(recording)
     except ReplayError as err:
         return one_line(str(err)), None
-    lost = [f"{item.name}: {item.problems()}" for item in recording.sources if not item.complete]
-    warning = f"{path}: live sources lost samples ({'; '.join(lost)})" if lost else None
-    return None, warning
+    return _accounting_verdict(recording)
+
+
+def _accounting_verdict(recording: Any) -> tuple[str | None, str | None]:  # noqa: ANN401
+    """Return (an error on counted loss, a warning on what was counted without loss).
+
+    The check agrees with the file's accounting: samples a source sent that the file lacks
+    (missing, dropped by a full queue) fail it; samples counted and left out (duplicated,
+    out of order, malformed, stamped out of range, counter resets) and a publisher's pauses
+    (gaps) are warnings.
+    """
+    path = recording.path
+    lost = [f"{item.name}: {item.loss()}" for item in recording.sources if item.lost]
+    if lost:
+        error = (
+            f"{path}: live sources lost samples ({'; '.join(lost)}); the recording lacks data "
+            "its sources sent: record the action again"
+        )
+        return error, None
+    counted = pauses_explained(recording.sources)
+    if not counted:
+        return None, None
+    pause = check_gaps(path, recording.phase_range("execute"), recording.signals, counted)
+    return None, pause or f"{path}: live sources counted ({counted})"
 
 
 def _incomplete(root: Path) -> list[str]:

@@ -64,7 +64,7 @@ def _feed(skin: UdpSkin, payloads: list[bytes], receives: list[int]) -> list[Ski
     blocks: list[SkinBlock] = []
     items = [Received(r, p) for p, r in zip(payloads, receives, strict=True)]
     for at in range(0, len(items), 100):
-        blocks += skin._consume(items[at : at + 100])  # noqa: SLF001 (no socket needed)
+        blocks += skin._consume(items[at : at + 100])
     return blocks + skin.finish()
 
 
@@ -209,7 +209,7 @@ class _HostileController:
                 size, kind = HEADER.unpack_from(buffer)
                 while len(buffer) < size:
                     buffer += conn.recv(4096)
-                payload, buffer = buffer[HEADER.size : size], buffer[size:]
+                buffer = buffer[size:]
                 if kind == ord("V"):
                     conn.sendall(pack_package(kind, b"\x01"))
                 elif kind == ord("O"):
