@@ -586,6 +586,10 @@ def listen(
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
         listener.start()
+        listener._note(  # noqa: SLF001
+            f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
+            "(Ctrl-C or SIGTERM stops, keeping the open action as incomplete)"
+        )
         while not (stop is not None and stop.is_set()):
             if deadline is not None and time.monotonic() >= deadline:
                 break
