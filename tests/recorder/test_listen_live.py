@@ -221,9 +221,9 @@ def test_an_action_begun_before_the_topics_arrived_is_incomplete(tmp_path: Path)
 
     topic_map = load_topic_map(_map(tmp_path))
     listener = Listener(topic_map, tmp_path / "out", load_objects(None), load_actions(None))
-    listener._arrivals = {"/a": _Arrivals(4_000_000), "/b": _Arrivals(4_000_000)}  # noqa: SLF001
+    listener._arrivals = {"/a": _Arrivals(4_000_000), "/b": _Arrivals(4_000_000)}
     window = Window("wood", "S1", None, (("execute", 10**9), ("end", 3 * 10**9)))
-    listener._first_stamp = {"/a": 10**9 - 10**6, "/b": 10**9 + 8 * 10**6}  # noqa: SLF001
-    assert listener._joined(window) == ""  # noqa: SLF001 (b: 2 periods late, no loss)
-    listener._first_stamp["/b"] = 10**9 + 600 * 10**6  # noqa: SLF001
-    assert "joined part-way: /b begins 0.600 s after" in listener._joined(window)  # noqa: SLF001
+    listener._first_stamp = {"/a": 10**9 - 10**6, "/b": 10**9 + 8 * 10**6}
+    assert listener._joined(window) == ""
+    listener._first_stamp["/b"] = 10**9 + 600 * 10**6
+    assert "joined part-way: /b begins 0.600 s after" in listener._joined(window)
