@@ -35,6 +35,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from threadpoolctl import threadpool_limits
 
+from recorder._claim import claim_dataset
 from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.runner._record import record_action
@@ -291,6 +292,7 @@ def generate_dataset(
     """
     root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
+    claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
     set_aside = set_aside_stale_parts(root)
     before = set(incomplete_files(root))
     n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1

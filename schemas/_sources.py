@@ -26,8 +26,10 @@ class SourceStats:
 
     Attributes:
         name: The source (``rtde``, ``skin``, a topic...).
-        basis: What ``expected`` comes from: ``counter`` (sequence numbers) or ``clock``
-            (the source's timestamps and its nominal period).
+        basis: What ``expected`` comes from: ``counter`` (sequence numbers), ``clock``
+            (the source's timestamps and its nominal period: a controller's cycle clock), or
+            ``stamps`` (a source without a sequence: its pauses are measured as ``gaps``
+            against its period, and ``expected`` is what arrived).
         expected: Samples the source sent in the span from its first to its last received one.
         received: Samples that arrived (duplicates included).
         missing: Expected samples that never arrived (lost in transport or dropped by a full
@@ -44,8 +46,19 @@ class SourceStats:
             the first second (sensor stamp + offset = recorder time of the measurement).
         clock_drift_ns: How much that offset changed by the last second of the recording.
         latency_max_ns: Largest receive delay beyond the offset, ns.
-        malformed: Frames or packets that could not be parsed (wrong sync bytes, length or
-            type; a serial stream's sync losses); their samples are counted in ``missing``.
+        malformed: Frames or packets that could not be parsed (wrong sync bytes, length,
+            type or recipe; a serial stream's sync losses) or held a NaN or infinite value;
+            none of them is written, and where the source's counter covers them their
+            samples are counted in ``missing``.
+        out_of_range: Samples whose stamp left the source's plausible range (ahead of the
+            time they arrived, or far behind it, given the source's clock offset and drift so
+            far); never written, and they never shift or cut the series.
+        counter_resets: Times the source's counter or clock jumped or ran backwards and a new
+            run began (``expected`` is the sum over the runs).
+        gaps: Pauses of a source without a sequence (``basis`` ``stamps``): steps between
+            stamps longer than the period with its tolerance. A pause is the publisher's; it
+            is not counted as missing samples.
+        gap_ns: The pauses' total length beyond one period each, ns.
     """
 
     name: str
@@ -65,38 +78,58 @@ class SourceStats:
     clock_drift_ns: int = 0
     latency_max_ns: int = 0
     malformed: int = 0
+    out_of_range: int = 0
+    counter_resets: int = 0
+    gaps: int = 0
+    gap_ns: int = 0
 
     @property
     def complete(self) -> bool:
         """Whether every expected sample arrived exactly once and in order."""
-        return not (
-            self.missing
-            or self.duplicated
-            or self.out_of_order
-            or self.overflowed
-            or self.malformed
-        )
+        return not (self.lost or self.warnings())
 
-    def problems(self) -> str:
-        """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
+    @property
+    def lost(self) -> int:
+        """Samples the source sent that the recording lacks (counted loss)."""
+        return max(self.missing, self.overflowed)
+
+    def loss(self) -> str:
+        """Return the counted loss, e.g. ``3 of 7500 missing`` (empty: nothing lost)."""
         parts = []
         if self.missing:
             parts.append(f"{self.missing} of {self.expected} missing")
+        if self.overflowed:
+            parts.append(f"{self.overflowed} dropped by a full queue")
+        return ", ".join(parts)
+
+    def warnings(self) -> str:
+        """Return what was counted and left out, or paused, without loss (empty: nothing)."""
+        parts = []
         if self.duplicated:
             parts.append(f"{self.duplicated} duplicated")
         if self.out_of_order:
             parts.append(f"{self.out_of_order} out of order")
-        if self.overflowed:
-            parts.append(f"{self.overflowed} dropped by a full queue")
         if self.malformed:
             parts.append(f"{self.malformed} malformed")
+        if self.out_of_range:
+            parts.append(f"{self.out_of_range} stamped out of range")
+        if self.counter_resets:
+            parts.append(f"{self.counter_resets} counter resets")
+        if self.gaps:
+            parts.append(f"{self.gaps} gaps ({self.gap_ns / 1e9:.3f} s paused)")
         return ", ".join(parts)
+
+    def problems(self) -> str:
+        """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
+        return ", ".join(part for part in (self.loss(), self.warnings()) if part)
 
 
 _INT_FIELDS = tuple(
     f.name for f in dataclasses.fields(SourceStats) if f.name not in {"name", "basis"}
 )
-_BASES = ("counter", "clock")
+_BASES = ("counter", "clock", "stamps")
+#: Fields added after the first files were written: an older record lacks them (0).
+_LATER_FIELDS = frozenset({"out_of_range", "counter_resets", "gaps", "gap_ns"})
 
 
 def encode_source_stats(stats: Sequence[SourceStats]) -> dict[str, str]:
@@ -131,9 +164,10 @@ def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
         fields.setdefault(name, {})[field] = value
     out = []
     for name, values in sorted(fields.items()):
-        if values.get("basis") not in _BASES or set(values) != {*_INT_FIELDS, "basis"}:
+        lacking = {*_INT_FIELDS, "basis"} - set(values) - _LATER_FIELDS
+        if values.get("basis") not in _BASES or lacking:
             msg = f"source {name!r} in {SOURCES_RECORD!r} lacks fields or has an unknown basis"
             raise ValueError(msg)
-        numbers = {key: int(values[key]) for key in _INT_FIELDS}
+        numbers = {key: int(values.get(key, "0")) for key in _INT_FIELDS}
         out.append(SourceStats(name, values["basis"], **numbers))
     return tuple(out)

@@ -70,23 +70,28 @@ def _print_report(console: Console, report: ImportReport) -> None:
 
 
 def _print_timing(console: Console, report: ImportReport) -> None:
-    """Print, per topic stamped by rate, its runs, lost frames, stamp jitter and drift."""
+    """Print, per topic stamped by rate, its runs, gaps, lost frames, jitter and drift."""
     if not report.timing:
         return
     table = Table(
         "topic",
         "modality",
         "runs",
+        "gaps (s)",
         "lost frames",
         "stamp jitter max / sd (ms)",
         "drift (ppm)",
         title='stamped from the sensor\'s rate (timing = "rate")',
     )
+    for column in table.columns[:2]:
+        column.no_wrap = True
     for topic, modalities in report.timing.items():
         for modality, t in modalities.items():
             drift = "-" if t["drift_ppm"] is None else f"{t['drift_ppm']:+.1f}"
             jitter = f"{t['jitter_max_ms']:.3f} / {t['jitter_sd_ms']:.3f}"
-            table.add_row(topic, modality, str(t["runs"]), str(t["lost_frames"]), jitter, drift)
+            gaps = f"{t['gaps']} ({t.get('gap_s', 0.0):.3f})"
+            runs, lost = str(t["runs"]), str(t["lost_frames"])
+            table.add_row(topic, modality, runs, gaps, lost, jitter, drift)
     console.print(table)
 
 

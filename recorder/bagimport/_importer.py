@@ -93,6 +93,8 @@ class _Plan:
     path: Path
     obj: LabObject
     action: LabAction
+    #: Live: why the window is kept as an incomplete recording (empty: it is complete).
+    incomplete: str = ""
 
 
 # ------------------------------------------------------------------------- catalog entries
@@ -166,8 +168,12 @@ def plan_window(
     planned: tuple[Window, int, Path],
     topic_map: TopicMap,
     catalogs: tuple[Mapping[str, LabObject], Mapping[str, LabAction]],
+    incomplete: str = "",
 ) -> _Plan:
     """Resolve a window's object and action and check it (``planned``: from ``plan_paths``).
+
+    An incomplete window (live: its action was cut or joined part-way; ``incomplete`` says
+    why) is not checked against the action's duration: it is kept as what arrived.
 
     Raises:
         BagImportError: Unknown object or action, or a window the reader would refuse.
@@ -176,8 +182,9 @@ def plan_window(
     where = window.describe()
     obj = _entry("object", window.object_id, topic_map.objects, catalogs[0], where)
     action = _entry("action", window.action_id, topic_map.actions, catalogs[1], where)
-    _check_action(window, action, topic_map)
-    return _Plan(window, trial, path, obj, action)
+    if not incomplete:
+        _check_action(window, action, topic_map)
+    return _Plan(window, trial, path, obj, action, incomplete)
 
 
 def _plans(
@@ -497,13 +504,19 @@ class _Session:
         )
         names = joints.names if joints is not None else ()
         with RecordingWriter(plan.path, RecordingInfo(metadata, tuple(names))) as writer:
+            if plan.incomplete:
+                writer.mark_incomplete(plan.incomplete, plan.window.stop_ns)
             for item in items:
                 writer.write(item)
             if self.sources is not None:
                 writer.add_sources(self.sources(plan))
-        self.report.written.append(plan.path)
+        path = writer.result.path if writer.result is not None else plan.path
+        if plan.incomplete:
+            self.report.incomplete.append(path)
+        else:
+            self.report.written.append(path)
         if self.on_written is not None:
-            self.on_written(plan.path)
+            self.on_written(path)
 
 
 @dataclass(frozen=True, slots=True)

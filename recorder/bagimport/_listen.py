@@ -18,6 +18,7 @@ written; the one being annotated is dropped with a line saying so; nothing writt
 from __future__ import annotations
 
 import hashlib
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +55,7 @@ from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.bagimport._windows import (
     AnnotationGrouper,
     PathPlanner,
+    Window,
     parse_annotation,
     windows_from_csv,
 )
@@ -70,7 +72,6 @@ if TYPE_CHECKING:
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.bagimport._windows import Window
     from recorder.live._accounting import SourceStats
     from recorder.live._dds import DdsDomain, Publication
     from recorder.live._reader import Received, SourceReader
@@ -79,6 +80,11 @@ _NS_PER_S = 1_000_000_000
 #: How often idle windows are closed and old messages forgotten, s.
 _TICK_S = 0.05
 _HEADER = ("header", (1, "std_msgs/msg/Header"))
+#: An open action is cut (kept as incomplete, with a line) once it lasts its declared
+#: ``duration_s`` plus this, ns: a lost ``end`` never holds data without bound.
+OPEN_MARGIN_NS = 30 * _NS_PER_S
+#: How long an open action of an action without a declared duration may last, ns.
+OPEN_DEFAULT_NS = 300 * _NS_PER_S
 
 
 def _dds() -> Any:  # noqa: ANN401 (the module)
@@ -103,8 +109,11 @@ class _Arrivals:
     stamps: list[int] = field(default_factory=list)
     receives: list[int] = field(default_factory=list)
     overflow_seen: int = 0
+    oversize_seen: int = 0
 
-    def stats(self, name: str, lo: int, hi: int, overflowed: int) -> SourceStats | None:
+    def stats(
+        self, name: str, lo: int, hi: int, overflowed: int, oversize: int = 0
+    ) -> SourceStats | None:
         """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none)."""
         inside = [i for i, s in enumerate(self.stamps) if lo <= s < hi]
         if not inside:
@@ -116,11 +125,12 @@ class _Arrivals:
             period = int(np.median(steps)) if steps.size else 0
         if period <= 0:
             return None
-        counter = SourceCounter(name, period_ns=period)
+        counter = SourceCounter(name, period_ns=period, gaps=True)
         for i in inside:
             counter.observe(None, self.stamps[i], self.receives[i])
         counter.overflow(overflowed - self.overflow_seen)
-        self.overflow_seen = overflowed
+        counter.malformed(oversize - self.oversize_seen)
+        self.overflow_seen, self.oversize_seen = overflowed, oversize
         return counter.stats()
 
     def forget(self, before_ns: int) -> None:
@@ -155,6 +165,10 @@ class Listener:
     _planner: PathPlanner = field(init=False)
     _catalogs: Any = field(init=False)
     _store: Typestore = field(init=False)
+    _raw: dict[str, Any] = field(default_factory=dict, init=False)
+    _first_stamp: dict[str, int] = field(default_factory=dict, init=False)
+    _latest_stamp: int | None = field(default=None, init=False)
+    _noted: dict[str, int] = field(default_factory=dict, init=False)
 
     def __post_init__(self) -> None:
         """Prepare the report, the session and the windows (nothing is subscribed yet)."""
@@ -260,6 +274,8 @@ class Listener:
         for topic, (msgtype, reliable) in types.items():
             raw = domain.reader(topic, msgtype, reliable=reliable)
             raw.clock = self.clock.now_ns
+            raw.max_bytes = self.topic_map.max_message_bytes
+            self._raw[topic] = raw
             source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
             self._readers.append(source)
             self._overflow[topic] = source
@@ -281,7 +297,8 @@ class Listener:
         window = plan.window
         for topic, arrivals in self._arrivals.items():
             overflowed = self._overflow[topic].overflowed
-            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed)
+            oversize = self._raw[topic].oversize
+            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed, oversize)
             if stats is not None:
                 out.append(stats)
         return out
@@ -296,13 +313,30 @@ class Listener:
             text = str(self._store.deserialize_cdr(raw, ANNOTATION_TYPE).data)  # type: ignore[attr-defined]
             window = grouper.add(*parse_annotation(text, receive_ns, topic))
             if window is not None:
-                self._add(window)
+                self._add(window, self._joined(window))
         except RecorderError as err:
             self.report.skipped.append((f"topic {topic} at {receive_ns} ns", str(err)))
-            self._note(f"skipped: {err}")
 
-    def _add(self, window: Window) -> None:
-        """Plan a window (after every window known).
+    def _joined(self, window: Window) -> str:
+        """Return why a window began before this listener received its topics (empty: not)."""
+        late = {
+            topic: first - window.start_ns
+            for topic, first in self._first_stamp.items()
+            if first - window.start_ns > max(2 * self._arrivals[topic].period_ns, MARGIN_NS // 20)
+        }
+        if not late and len(self._first_stamp) == len(self._arrivals):
+            return ""
+        if not late:
+            silent = sorted(set(self._arrivals) - set(self._first_stamp))
+            return f"joined part-way: no message of {silent[0]} before the action ended"
+        topic = max(late, key=lambda t: late[t])
+        return (
+            f"joined part-way: {topic} begins {late[topic] / _NS_PER_S:.3f} s after the "
+            "action began"
+        )
+
+    def _add(self, window: Window, incomplete: str = "") -> None:
+        """Plan a window (after every window known); an incomplete one is kept as such.
 
         Raises:
             BagImportError: It overlaps the previous window, or cannot be planned.
@@ -311,7 +345,75 @@ class Listener:
         if plans and window.start_ns < plans[-1].window.stop_ns:
             msg = f"{window.describe()} overlaps {plans[-1].window.describe()}"
             raise BagImportError(msg)
-        self.session.add(plan_window(self._planner.plan(window), self.topic_map, self._catalogs))
+        planned = self._planner.plan(window)
+        self.session.add(plan_window(planned, self.topic_map, self._catalogs, incomplete))
+        if incomplete:
+            self._note(f"{window.describe()}: kept as incomplete ({incomplete})")
+
+    def _cut_open(self, reason: str) -> None:
+        """Keep the action being annotated as an incomplete recording, up to the latest data."""
+        grouper = self._grouper
+        opened = grouper.abandon() if grouper is not None else None
+        if opened is None:
+            return
+        key, events = opened
+        stop = max(self._latest_stamp or 0, events[-1][1]) + 1
+        window = Window(*key, (*events, ("end", stop)), f"topic {self._grouper_topic()}")
+        try:
+            self._add(window, reason)
+        except RecorderError as err:
+            self.report.skipped.append((window.describe(), str(err)))
+
+    def _grouper_topic(self) -> str:
+        return self._grouper.topic if self._grouper is not None else ""
+
+    def _bound_open(self) -> None:
+        """Cut an open action that outlasted its declared duration (its ``end`` was lost)."""
+        grouper = self._grouper
+        start = grouper.open_start_ns if grouper is not None else None
+        if start is None or self._latest_stamp is None:
+            return
+        action = grouper.open_action if grouper is not None else None
+        declared = self.session.topic_map.actions.get(action or "") or self._catalogs[1].get(
+            action or ""
+        )
+        limit = (
+            round(declared.duration_s * _NS_PER_S) + OPEN_MARGIN_NS
+            if declared is not None
+            else OPEN_DEFAULT_NS
+        )
+        if self._latest_stamp - start > limit:
+            self._cut_open(
+                f"no 'end' annotation within {limit / _NS_PER_S:g} s of its start "
+                "(declared duration + margin)"
+            )
+
+    def _notes(self) -> None:
+        """Print one line per window skipped, and for samples late or too large."""
+        report = self.report
+        for where, reason in report.skipped[self._noted.get("", 0) :]:
+            self._note(f"skipped {where}: {reason}")
+        self._noted[""] = len(report.skipped)
+        delay = self.topic_map.max_delay_ns / _NS_PER_S
+        for topic, count in report.late_samples.items():
+            new = count - self._noted.get(f"late {topic}", 0)
+            if new > 0:
+                self._note(
+                    f"{topic}: {new} samples arrived after their action was written (more than "
+                    f"[time] max_delay_s = {delay:g} s late) and are not in it; raise "
+                    "max_delay_s in the topic map"
+                )
+                self._noted[f"late {topic}"] = count
+        for topic, raw in self._raw.items():
+            new = raw.oversize - self._noted.get(f"size {topic}", 0)
+            if new > 0:
+                report.oversize[topic] = raw.oversize
+                self._note(
+                    f"{topic}: dropped {new} messages larger than [time] max_message_kib = "
+                    f"{self.topic_map.max_message_bytes >> 10} (the latest "
+                    f"{raw.oversize_bytes} bytes); counted as malformed"
+                )
+                self._noted[f"size {topic}"] = raw.oversize
 
     def _note(self, line: str) -> None:
         if self.on_note is not None:
@@ -338,13 +440,19 @@ class Listener:
             arrivals = self._arrivals.get(topic)
             if arrivals is not None and len(raw) >= 12:  # noqa: PLR2004 (CDR header + stamp)
                 sec, nanosec = _STAMP(raw, 4)
-                arrivals.stamps.append(sec * _NS_PER_S + nanosec)
+                stamp = sec * _NS_PER_S + nanosec
+                arrivals.stamps.append(stamp)
                 arrivals.receives.append(item.receive_ns)
+                self._first_stamp.setdefault(topic, stamp)
+                if self._latest_stamp is None or stamp > self._latest_stamp:
+                    self._latest_stamp = stamp
             data.append((route, item.receive_ns, raw))
         self._flush(data)
+        self._bound_open()
         now = self.clock.now_ns()
         self.session.advance(now)
         self._trim(now)
+        self._notes()
         return len(items)
 
     def _flush(self, data: list[tuple[Route, int, bytes]]) -> None:
@@ -372,12 +480,11 @@ class Listener:
     def finish(self) -> ImportReport:
         """Write the windows whose ``end`` arrived, then objects, index and report."""
         session = self.session
-        if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
-            line = f"dropped the action being recorded since {start} ns: no 'end' annotation"
-            self.report.skipped.append((f"topic {self._grouper.topic}", line))
-            self._note(line)
+        why = f"stopped by {self.report.interrupted}" if self.report.interrupted else "run ended"
+        self._cut_open(f"{why} before its 'end' annotation")
         while session.done < len(session.plans):
             session.finish_one()
+        self._notes()
         tally(session.found, self.report)
         self.report.messages = {
             self.report.bags[0].path.name: sum(r.received for r in self._readers)
@@ -422,6 +529,15 @@ def _period(extractor: Any) -> int:  # noqa: ANN401
         if spec.period_ns is not None:
             return round(spec.period_ns * spec.samples_per_message)
     return 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C: the run stops and keeps what arrived."""
+
+
+def _on_sigterm(_signum: int, _frame: object) -> None:
+    """Raise :class:`Terminated` in the main thread (``listen`` then ends as on Ctrl-C)."""
+    raise Terminated
 
 
 def listen(
@@ -470,12 +586,21 @@ def listen(
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
         listener.start()
+        listener._note(  # noqa: SLF001
+            f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
+            "(Ctrl-C or SIGTERM stops, keeping the open action as incomplete)"
+        )
         while not (stop is not None and stop.is_set()):
             if deadline is not None and time.monotonic() >= deadline:
                 break
             listener.step()
-    except KeyboardInterrupt:
-        listener._note("interrupted: writing the actions whose end arrived")  # noqa: SLF001
+    except KeyboardInterrupt as err:
+        signal_name = "SIGTERM" if isinstance(err, Terminated) else "SIGINT"
+        listener.report.interrupted = signal_name
+        listener._note(  # noqa: SLF001
+            f"interrupted ({signal_name}): writing the actions whose end arrived, the open "
+            "one as incomplete"
+        )
     finally:
         listener.stop()
     listener.step(0)
@@ -497,7 +622,24 @@ def _listen(args: argparse.Namespace) -> int:
     if args.windows is not None:
         topic_map = topic_map.with_csv(args.windows)
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
-    report = listen(
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        report = _listen_run(args, topic_map, objects, actions)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
+    print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
+    return {"SIGTERM": 143, "SIGINT": 130}.get(report.interrupted, 0)
+
+
+def _listen_run(
+    args: argparse.Namespace,
+    topic_map: TopicMap,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+) -> ImportReport:
+    """Run ``listen`` with the command line's options, printing a line per file and note."""
+    return listen(
         topic_map,
         args.out,
         objects=objects,
@@ -508,5 +650,3 @@ def _listen(args: argparse.Namespace) -> int:
         on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
         on_note=lambda line: print(line, flush=True),  # noqa: T201
     )
-    print(f"{len(report.written)} recordings -> {args.out}")  # noqa: T201
-    return 0

@@ -102,6 +102,11 @@ class ImportReport:
         already_imported: Bags skipped because ``out`` holds them already.
         repeated_stamps: Skin messages dropped because they repeat the previous stamp.
         late_samples: Live: samples per topic that arrived after their window was written.
+        incomplete: Live: actions kept as incomplete recordings (cut, joined part-way, or
+            open at the stop).
+        oversize: Live: messages per topic dropped for their size (``max_message_kib``).
+        interrupted: Live: the signal that stopped the run (``SIGINT``, ``SIGTERM``; empty:
+            it ran to its end).
         timing: Per topic and modality stamped by rate (``timing = "rate"``): runs, gaps,
             lost frames, the jitter of the message stamps around the fitted timeline (ms) and
             the drift of the sensor's rate against the stamps' clock (ppm).
@@ -122,6 +127,9 @@ class ImportReport:
     already_imported: dict[str, str] = field(default_factory=dict)
     repeated_stamps: int = 0
     late_samples: dict[str, int] = field(default_factory=dict)
+    incomplete: list[Path] = field(default_factory=list)
+    oversize: dict[str, int] = field(default_factory=dict)
+    interrupted: str = ""
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
 
     @property
@@ -153,6 +161,8 @@ class ImportReport:
             "max_jitter_ns": self.max_jitter_ns,
             "repeated_skin_stamps": self.repeated_stamps,
             **({"late_samples": self.late_samples} if self.late_samples else {}),
+            **({"incomplete": [str(p) for p in self.incomplete]} if self.incomplete else {}),
+            **({"oversize": self.oversize} if self.oversize else {}),
             **({"timing": self.timing} if self.timing else {}),
         }
 

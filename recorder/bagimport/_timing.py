@@ -13,12 +13,15 @@ delay measurements" (INFOCOM 1999): maximise the line at the mean sample index s
 the line lying below every stamp. Its slope is the period on the receive clock, so the drift
 between the sensor's crystal and the receive clock is measured (ppm), not assumed away.
 
-A frame that arrives more than half a frame period after the fitted line predicts means lost
-frames (a frame that is merely late arrives within the jitter): a new run starts there, so a
-lost frame stays a gap in the stamps, never a compressed time axis. With a frame counter
-(``counter``) the run goes on across lost frames, their samples skipped exactly, and a late
-frame is only late; a counter that goes back (or that the stamps contradict by more than half
-its ``counter_modulo``) starts a new run. Memory is bounded: the
+A frame that arrives more than half a frame period after the fitted line predicts means a gap
+(a frame that is merely late arrives within the jitter): a new run starts there, so a gap
+stays a gap in the stamps, never a compressed time axis. Without a counter a gap cannot tell
+lost frames from a pause of the driver (the time between two recordings of a session): it is
+reported as a gap with its length, and no frame is counted lost. With a frame counter
+(``counter``) the run goes on across lost frames, their samples skipped exactly and counted
+as lost frames (loss within a run), and a late frame is only late; a counter that goes back
+(or that the stamps contradict by more than half its ``counter_modulo``) starts a new run,
+and the frames between the runs are not counted as lost. Memory is bounded: the
 lines are fitted to the latest :data:`FIT_POINTS` messages (the fit follows a slowly wandering
 clock), refitted every :data:`REFIT_EVERY` messages and when a window is cut. Until those
 messages span :data:`SLOPE_SPAN_NS` the period is the last one fitted (or the nominal rate):
@@ -127,6 +130,7 @@ class Timeline:
     runs: int = 0
     next_first: int = 0
     lost_frames: int = 0
+    gap_ns: int = 0
     fresh: int = 0
     slope: float | None = None
     best: tuple[float, float] = (0.0, 0.0)
@@ -156,8 +160,7 @@ class Timeline:
                 late = bool(self.modulo) and excess > self.modulo / 2 * frame
             early = counter is not None and excess < -GAP_FRAMES * frame
             if skipped < 0 or late or early:
-                lost = max(skipped, 0) if counter is not None else max(1, round(excess / frame))
-                self.lost_frames += lost
+                self.gap_ns += max(round(excess), 0)  # between runs: a gap, not loss
                 run = -1
             else:
                 self.next_first += skipped * self.count
@@ -259,6 +262,9 @@ class Timeline:
     def summary(self) -> dict[str, Any]:
         """Return runs, gaps, lost frames, jitter (ms) and drift (ppm) for the import report.
 
+        Lost frames are those a frame counter shows missing inside a run; the gaps between
+        runs are reported as ``gaps`` and their length beyond the fitted line (``gap_s``).
+
         The jitter is how far message stamps lie above the fitted lines (their latency beyond
         the fastest frame's): the largest and the standard deviation. The drift is of the
         fit over the longest span: the sensor's period on the receive clock against
@@ -273,6 +279,7 @@ class Timeline:
             "runs": self.runs,
             "gaps": max(self.runs - 1, 0),
             "lost_frames": self.lost_frames,
+            "gap_s": self.gap_ns / 1e9,
             "jitter_max_ms": largest / _NS_PER_MS,
             "jitter_sd_ms": sd / _NS_PER_MS,
             "drift_ppm": self.best[1] * _PPM if self.best[0] else None,

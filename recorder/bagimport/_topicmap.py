@@ -232,6 +232,8 @@ class TopicMap:
         types: Message definitions by type name, for bags that lack them.
         objects: Objects declared in the map.
         actions: Actions declared in the map.
+        max_message_bytes: Largest message of a mapped topic ``listen`` takes; a larger one
+            is counted (malformed) and dropped at the reader.
     """
 
     path: Path
@@ -246,6 +248,7 @@ class TopicMap:
     types: Mapping[str, str]
     objects: Mapping[str, LabObject]
     actions: Mapping[str, LabAction]
+    max_message_bytes: int = 4 << 20
 
     def with_csv(self, csv: Path) -> TopicMap:
         """Return the map with its windows taken from ``csv`` (the ``--windows`` option)."""
@@ -555,7 +558,7 @@ def _read(path: Path) -> dict[str, Any]:
         raise BagImportError(msg) from err
 
 
-def _time(root: _Table) -> tuple[str, int]:
+def _time(root: _Table) -> tuple[str, int, int]:
     time = root.table("time") if root.has("time") else _Table(root.path, "time", {})
     stamps = time.get("stamps", str, "header")
     if stamps not in STAMP_CLOCKS:
@@ -563,8 +566,9 @@ def _time(root: _Table) -> tuple[str, int]:
     delay = time.exact("max_delay_s", Fraction(2))
     if delay < 0:
         time.fail(f"[time] max_delay_s = {delay} must be >= 0")
+    largest = time.integer("max_message_kib", 4096, 1)
     time.done()
-    return stamps, int(delay * _NS_PER_S)
+    return stamps, int(delay * _NS_PER_S), largest * 1024
 
 
 def load_topic_map(path: Path) -> TopicMap:
@@ -582,7 +586,7 @@ def load_topic_map(path: Path) -> TopicMap:
     """
     path = Path(path)
     root = _Table(path, "", _read(path))
-    stamps, delay = _time(root)
+    stamps, delay, largest = _time(root)
     cells, jitter, skin = _skin(root)
     topic_map = TopicMap(
         path=path,
@@ -597,6 +601,7 @@ def load_topic_map(path: Path) -> TopicMap:
         types=MappingProxyType(_types(root)),
         objects=MappingProxyType(_objects(root)),
         actions=MappingProxyType(_actions(root)),
+        max_message_bytes=largest,
     )
     root.done()
     return topic_map

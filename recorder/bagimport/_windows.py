@@ -184,6 +184,11 @@ class AnnotationGrouper:
         """Return the first stamp of the window being annotated (None: none is open)."""
         return self._current[0][1] if self._current else None
 
+    @property
+    def open_action(self) -> str | None:
+        """Return the action id of the window being annotated (None: none is open)."""
+        return self._key[1] if self._key is not None else None
+
     def add(self, key: _Key, phase: str, stamp: int) -> Window | None:
         """Add one parsed annotation; return the window it ends, if it is an ``end``.
 
@@ -205,6 +210,19 @@ class AnnotationGrouper:
             return None
         events, self._current, self._key = tuple(self._current), [], None
         return check_window(Window(*key, events, f"topic {self.topic}"))
+
+    def abandon(self) -> tuple[_Key, tuple[tuple[str, int], ...]] | None:
+        """Give up the window being annotated; return its key and phases (None: none open).
+
+        ``listen`` keeps what arrived of an action it cuts (its ``end`` is overdue, or the
+        run stops) as an incomplete recording; an ``end`` that comes later finds no open
+        window and is refused with a line.
+        """
+        if self._key is None:
+            return None
+        key, events = self._key, tuple(self._current)
+        self._current, self._key = [], None
+        return key, events
 
     def close(self) -> None:
         """Refuse an action without its ``end``.

@@ -1,5 +1,13 @@
 """Count every sample of a live source: expected, received, missing, duplicated, out of order.
 
+Every sample is checked where it enters: a stamp that leaves the source's plausible range
+(ahead of its arrival, or far behind it, given the lowest latency of its run so far and a
+generous drift) is counted *out of range* and never written; a counter that jumps or runs
+backwards against the time that passed, or a clock whose stamps jump and stay there, starts a
+new *run* (counted as a counter reset), so one bad frame never shifts or hides the series.
+A source without a sequence (``basis = "stamps"``: a ROS 2 topic's header stamps) has no
+notion of a missing sample; its pauses are counted as *gaps* against its period.
+
 What a source should have delivered comes from the source itself, not from what arrived:
 its sequence counter (skin frames, DDS sample counters) or its own clock and nominal period
 (RTDE's controller ``timestamp``). rosbag2 cannot say what it dropped; a recording here says,
@@ -10,8 +18,10 @@ arrived once, twice, late or never, and how the source's clock relates to the re
 
 from __future__ import annotations
 
+import enum
 import itertools
 from collections import deque
+from dataclasses import dataclass
 
 from recorder.errors import RecorderError
 from schemas import SOURCES_RECORD, SourceStats, encode_source_stats, parse_source_stats
@@ -20,6 +30,7 @@ __all__ = [
     "SOURCES_RECORD",
     "SourceCounter",
     "SourceStats",
+    "Verdict",
     "encode_source_stats",
     "parse_source_stats",
 ]
@@ -31,41 +42,94 @@ SEEN_WINDOW = 8192
 LEARN_SAMPLES = 16
 #: Span of sensor time over which the lowest transport latency is taken as the clock offset.
 OFFSET_WINDOW_NS = 1_000_000_000
+#: How much earlier than its run's lowest latency allows a sample may seem to arrive (its
+#: stamp ahead of the recorder's clock), ns; more is a stamp out of range.
+EARLY_TOLERANCE_NS = 100_000_000
+#: How much later than its run's lowest latency a sample may arrive, ns; more is out of range.
+LATE_TOLERANCE_NS = 5_000_000_000
+#: Drift allowed between the source's clock and the recorder's (1000 ppm: ten times a
+#: crystal's worst), on top of the tolerances, per ns since the run began.
+DRIFT_ALLOWED = 1e-3
+#: A counter's advance may differ from the time that passed by this much (plus
+#: :data:`COUNTER_RELATIVE` of it) before it counts as a reset, ns.
+COUNTER_TOLERANCE_NS = 1_000_000_000
+COUNTER_RELATIVE = 0.1
+#: A step between stamps longer than this many periods (and than the period plus
+#: :data:`GAP_SLACK_NS`) is a gap of a source without a sequence.
+GAP_PERIODS = 2.5
+GAP_SLACK_NS = 5_000_000
+
+
+class Verdict(enum.Enum):
+    """What a counted sample is (only ``NEW`` and ``NEW_RUN`` samples may be written)."""
+
+    NEW = "new"
+    NEW_RUN = "new run"
+    LATE = "late"
+    DUPLICATE = "duplicate"
+    OUT_OF_RANGE = "out of range"
+
+    @property
+    def fresh(self) -> bool:
+        """Whether the sample is new and in order (write it)."""
+        return self in {Verdict.NEW, Verdict.NEW_RUN}
+
+
+@dataclass(frozen=True, slots=True)
+class _Suspect:
+    """A sample out of range, kept to tell a one-off bad stamp from a clock that jumped."""
+
+    latency_ns: int
+    sensor_ns: int
 
 
 class SourceCounter:
     """Counts the samples of one source as they are consumed (not thread-safe: one consumer).
 
     Give each sample its sequence number (``sequence``) when the source has a counter, else
-    its sensor time: the number is then ``round((sensor - first) / period)``, so a missing
-    controller cycle is a missing sample. Without a known period (a ROS 2 topic whose map
-    gives no rate), the first :data:`LEARN_SAMPLES` samples are held until their median step
-    gives it. Counters that wrap (a 16-bit frame counter) are unwrapped with ``modulo``.
+    its sensor time: the number is then ``round((sensor - first) / period)`` (``basis
+    "clock"``: a controller's cycle clock, so a missing cycle is a missing sample), or, with
+    ``gaps=True``, the stamps only measure pauses (``basis "stamps"``: a publisher's header
+    stamps jitter, and a pause is not a lost sample). Without a known period the first
+    :data:`LEARN_SAMPLES` samples are held until their median step gives it. Counters that
+    wrap (a 16-bit frame counter) are unwrapped with ``modulo``.
     """
 
-    def __init__(self, name: str, *, period_ns: int = 0, modulo: int = 0) -> None:
+    def __init__(
+        self, name: str, *, period_ns: int = 0, modulo: int = 0, gaps: bool = False
+    ) -> None:
         """Start counting.
 
         Args:
             name: The source's name (unique in a recording, no dots).
             period_ns: Nominal sample period, ns; needed when samples carry no sequence.
             modulo: The counter wraps at this value (0: it never wraps).
+            gaps: Samples without a sequence number are counted by gaps (``stamps``).
         """
         self.name = name
         self._period_ns = period_ns
         self._modulo = modulo
+        self._gaps = gaps
         self._basis = "counter"
         self._first: int | None = None
         self._max = 0
         self._seen: set[int] = set()
         self._order: deque[int] = deque()
         self._received = self._unique = self._duplicated = self._late = self._overflowed = 0
+        self._malformed = self._out_of_range = self._resets = 0
+        self._gap_count = self._gap_ns = 0
+        self._closed = 0
         self._first_sensor = self._last_sensor = self._first_receive = self._last_receive = 0
+        self._run_sensor = self._run_receive = 0
+        self._run_latency: int | None = None
+        self._last_number = self._last_number_receive = 0
+        self._suspect: _Suspect | None = None
         self._offset_first: int | None = None
         self._offset_last: int | None = None
         self._last_window_start = 0
         self._latency_max = 0
         self._learning: list[tuple[int, int]] | None = None if period_ns > 0 else []
+        self.run = 0
 
     def _unwrap(self, raw: int) -> int:
         """Return the unwrapped sequence number nearest to the largest seen so far."""
@@ -82,41 +146,133 @@ class SourceCounter:
         if self._period_ns <= 0:
             msg = f"source {self.name}: a sample without a sequence number needs period_ns"
             raise RecorderError(msg)
+        if self._gaps:
+            self._basis = "stamps"
+            return sensor_ns
         self._basis = "clock"
-        origin = self._first_sensor if self._first is not None else sensor_ns
+        origin = self._run_sensor if self._first is not None else sensor_ns
         return round((sensor_ns - origin) / self._period_ns)
 
     def observe(self, sequence: int | None, sensor_ns: int, receive_ns: int) -> bool:
-        """Count one arrived sample; return whether it is new (not a duplicate).
+        """Count one arrived sample; return whether it is new (not a duplicate, in range).
 
         Args:
             sequence: The source's sequence number, or None to count by the sensor clock.
             sensor_ns: The sample's time on the source's clock, ns.
             receive_ns: The sample's receive time on the recorder's clock, ns.
         """
+        return self.count(sequence, sensor_ns, receive_ns) in {
+            Verdict.NEW,
+            Verdict.NEW_RUN,
+            Verdict.LATE,
+        }
+
+    def count(self, sequence: int | None, sensor_ns: int, receive_ns: int) -> Verdict:
+        """Count one arrived sample and return what it is (see :class:`Verdict`)."""
         if sequence is None and self._learning is not None:
             self._learning.append((sensor_ns, receive_ns))
             if len(self._learning) >= LEARN_SAMPLES:
                 self._settle()
-            return True
-        number = self._number(sequence, sensor_ns)
+            return Verdict.NEW
         self._received += 1
         if self._first is None:
-            self._first = self._max = number
+            number = self._number(sequence, sensor_ns)
+            self._start(number, sensor_ns, receive_ns, first=True)
+            return self._accept(number, sensor_ns, receive_ns, Verdict.NEW)
+        if not self._plausible(sensor_ns, receive_ns):
+            return self._stray(sequence, sensor_ns, receive_ns)
+        self._suspect = None
+        number = self._number(sequence, sensor_ns)
+        if number in self._seen:
+            self._duplicated += 1
+            return Verdict.DUPLICATE
+        if sequence is not None and self._counter_jumped(number, receive_ns):
+            return self._new_run(sequence, sensor_ns, receive_ns)
+        return self._place(number, sensor_ns, receive_ns)
+
+    def _place(self, number: int, sensor_ns: int, receive_ns: int) -> Verdict:
+        """Count a new sample of the current run: the newest so far, or a late one."""
+        assert self._first is not None  # noqa: S101 (a run is open)
+        if number > self._max:
+            if self._gaps:
+                self._gap(number - self._max)
+            self._max = number
+            return self._accept(number, sensor_ns, receive_ns, Verdict.NEW)
+        self._late += 1
+        self._first = min(self._first, number)
+        self._accept(number, sensor_ns, receive_ns, Verdict.LATE)
+        return Verdict.LATE
+
+    def _start(self, number: int, sensor_ns: int, receive_ns: int, *, first: bool) -> None:
+        """Begin a run at this sample."""
+        if first:
             self._first_sensor = sensor_ns
             self._first_receive = receive_ns
-        elif number in self._seen:
-            self._duplicated += 1
-            return False
-        elif number > self._max:
-            self._max = number
-        else:
-            self._late += 1
-            self._first = min(self._first, number)
+        self._first = self._max = number
+        self._run_sensor, self._run_receive = sensor_ns, receive_ns
+        self._run_latency = receive_ns - sensor_ns
+        self._seen.clear()
+        self._order.clear()
+
+    def _accept(self, number: int, sensor_ns: int, receive_ns: int, verdict: Verdict) -> Verdict:
+        """Remember an accepted sample and track the clocks."""
         self._remember(number)
         self._unique += 1
-        self._clock(sensor_ns, receive_ns)
-        return True
+        if verdict is not Verdict.LATE:
+            self._last_number, self._last_number_receive = number, receive_ns
+        latency = receive_ns - sensor_ns
+        if self._run_latency is None or latency < self._run_latency:
+            self._run_latency = latency
+        self._clock(sensor_ns, receive_ns, late=verdict is Verdict.LATE)
+        return verdict
+
+    def _plausible(self, sensor_ns: int, receive_ns: int) -> bool:
+        """Whether a stamp lies in its run's range (its latency near the run's lowest)."""
+        if self._run_latency is None:
+            return True
+        drift = round(DRIFT_ALLOWED * abs(receive_ns - self._run_receive))
+        deviation = receive_ns - sensor_ns - self._run_latency
+        return -EARLY_TOLERANCE_NS - drift <= deviation <= LATE_TOLERANCE_NS + drift
+
+    def _stray(self, sequence: int | None, sensor_ns: int, receive_ns: int) -> Verdict:
+        """Count a stamp out of range; the second in a row that agrees with it starts a run."""
+        latency = receive_ns - sensor_ns
+        suspect, self._suspect = self._suspect, _Suspect(latency, sensor_ns)
+        if (
+            suspect is not None
+            and sensor_ns > suspect.sensor_ns
+            and abs(latency - suspect.latency_ns) <= EARLY_TOLERANCE_NS
+        ):
+            self._suspect = None
+            return self._new_run(sequence, sensor_ns, receive_ns)
+        self._out_of_range += 1
+        return Verdict.OUT_OF_RANGE
+
+    def _counter_jumped(self, number: int, receive_ns: int) -> bool:
+        """Whether the counter moved unlike the time that passed (a reset or a jump)."""
+        if self._period_ns <= 0 or self._basis != "counter":
+            return False
+        passed = receive_ns - self._last_number_receive
+        moved = (number - self._last_number) * self._period_ns
+        return abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed)
+
+    def _new_run(self, sequence: int | None, sensor_ns: int, receive_ns: int) -> Verdict:
+        """Close the current run and start a new one at this sample."""
+        assert self._first is not None  # noqa: S101 (a run is open)
+        self._closed += self._max - self._first + 1
+        self._resets += 1
+        self.run += 1
+        self._first = None
+        number = self._number(sequence, sensor_ns)
+        self._start(number, sensor_ns, receive_ns, first=False)
+        return self._accept(number, sensor_ns, receive_ns, Verdict.NEW_RUN)
+
+    def _gap(self, step_ns: int) -> None:
+        """Count a pause of a source without a sequence."""
+        period = self._period_ns
+        if step_ns > max(GAP_PERIODS * period, period + GAP_SLACK_NS):
+            self._gap_count += 1
+            self._gap_ns += step_ns - period
 
     def _remember(self, number: int) -> None:
         """Keep the recent sequence numbers (a bounded window)."""
@@ -125,11 +281,16 @@ class SourceCounter:
         if len(self._order) > SEEN_WINDOW:
             self._seen.discard(self._order.popleft())
 
-    def _clock(self, sensor_ns: int, receive_ns: int) -> None:
-        """Track the clock offset (lowest latency of the first and of the latest second)."""
-        if sensor_ns >= self._last_sensor or self._unique == 1:
+    def _clock(self, sensor_ns: int, receive_ns: int, *, late: bool) -> None:
+        """Track the clock offset (lowest latency of the first and of the latest second).
+
+        The offset and its drift are those of the first run (a new run's clock is another).
+        """
+        if not late:
             self._last_sensor = sensor_ns
             self._last_receive = receive_ns
+        if self.run:
+            return
         offset = receive_ns - sensor_ns
         if sensor_ns - self._first_sensor < OFFSET_WINDOW_NS:
             self._offset_first = (
@@ -150,11 +311,20 @@ class SourceCounter:
         steps = [b - a for a, b in itertools.pairwise(stamps)]
         self._period_ns = sorted(steps)[len(steps) // 2] if steps else 1
         for sensor, receive in held:
-            self.observe(None, sensor, receive)
+            self.count(None, sensor, receive)
 
     def overflow(self, count: int = 1) -> None:
         """Count samples the reader's queue had to drop."""
         self._overflowed += count
+
+    def malformed(self, count: int = 1) -> None:
+        """Count packages or frames that could not be parsed or held non-finite values."""
+        self._malformed += count
+
+    @property
+    def period_ns(self) -> int:
+        """The nominal (or measured) period, ns (0: not known yet)."""
+        return self._period_ns
 
     @property
     def clock_offset_ns(self) -> int | None:
@@ -165,14 +335,19 @@ class SourceCounter:
         """Return the counts so far."""
         if self._learning:
             self._settle()
-        expected = 0 if self._first is None else self._max - self._first + 1
+        if self._gaps and self._basis == "stamps":
+            expected = self._unique
+            missing = self._overflowed
+        else:
+            expected = self._closed + (0 if self._first is None else self._max - self._first + 1)
+            missing = max(expected - self._unique, 0)
         offset = self._offset_first or 0
         return SourceStats(
             name=self.name,
             basis=self._basis,
             expected=expected,
             received=self._received,
-            missing=max(expected - self._unique, 0),
+            missing=missing,
             duplicated=self._duplicated,
             out_of_order=self._late,
             overflowed=self._overflowed,
@@ -184,4 +359,9 @@ class SourceCounter:
             clock_offset_ns=offset,
             clock_drift_ns=(self._offset_last or offset) - offset,
             latency_max_ns=self._latency_max,
+            malformed=self._malformed,
+            out_of_range=self._out_of_range,
+            counter_resets=self._resets,
+            gaps=self._gap_count,
+            gap_ns=self._gap_ns,
         )

@@ -313,14 +313,30 @@ class RawReader:
         self._waitset.attach(ReadCondition(self.reader, _ANY))
         self._pending: deque[tuple[int, bytes]] = deque()
         self.clock = time.time_ns
+        #: Largest message taken, bytes (0: no limit); a larger one is counted and dropped.
+        self.max_bytes = 0
+        #: Messages dropped for their size since the start (read by the consumer).
+        self.oversize = 0
+        #: Size of the latest message dropped for its size, bytes.
+        self.oversize_bytes = 0
 
     def take(self) -> list[bytes]:
-        """Return the valid samples waiting now, as bytes."""
+        """Return the valid samples waiting now, as bytes (too large ones counted, dropped)."""
         taken = ddspy_take(self.reader._ref, _ANY, 256)  # noqa: SLF001 (the binding's handle)
         if isinstance(taken, int):
             msg = f"topic {self.topic}: DDS read failed (code {taken})"
             raise DdsError(msg)
-        return [bytes(data) for data, info in taken if info.valid_data]
+        out = []
+        limit = self.max_bytes
+        for data, info in taken:
+            if not info.valid_data:
+                continue
+            if limit and len(data) > limit:
+                self.oversize += 1
+                self.oversize_bytes = len(data)
+                continue
+            out.append(bytes(data))
+        return out
 
     def receive(self) -> Received | None:
         """Return one sample ``(topic, bytes)`` with its receive time, waiting 20 ms at most.
@@ -446,7 +462,7 @@ class Ros2Skin:
             spec = extractor.fields[0]
             period = int(spec.period_ns * spec.samples_per_message) if spec.period_ns else 0
             self._counters[topic] = SourceCounter(
-                topic.lstrip("/").replace(".", "_"), period_ns=period
+                topic.lstrip("/").replace(".", "_"), period_ns=period, gaps=True
             )
             self._overflow0[topic] = reader.overflowed
             extractor.forget(2**62)

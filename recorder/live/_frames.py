@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Self
 import numpy as np
 
 from recorder.errors import RigError
-from recorder.live._accounting import SourceCounter, SourceStats
+from recorder.live._accounting import EARLY_TOLERANCE_NS, SourceCounter, SourceStats, Verdict
 from recorder.live._framelayout import FrameType, SkinLayout, block_samples, parse_layout
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceReader
@@ -92,12 +92,15 @@ class _Stream:
             for item in frame.modalities
         }
         self.origin: int | None = None
+        self.index_base = 0
+        self.zero = 0
         self.offset: int | None = None
         self.offset_hint: int | None = None
         self.last_index = -1
         self.pending: dict[int, _Pending] = {}
         self.latest: dict[str, NDArray[np.float32]] = {}
         self.malformed = 0
+        self.out_of_range = 0
 
     def times(self, frames: NDArray[np.void]) -> tuple[list[int], list[int | None]]:
         """Return each frame's sensor time, ns, and counter number (None: counted by time)."""
@@ -113,12 +116,17 @@ class _Stream:
         return sensor, sequences
 
     def consume(self, frames: NDArray[np.void], receives: list[int]) -> list[SkinBlock]:
-        """Count, time and pack a batch of frames of this type (in arrival order)."""
+        """Count, check, time and pack a batch of frames of this type (in arrival order).
+
+        A frame with a NaN or infinite value is counted malformed and left out; a frame whose
+        stamp is out of range is counted and left out (it never moves the time base); a
+        counter reset starts a new run, placed after the last sample on the time base.
+        """
         sensor, sequences = self.times(frames)
         decoded = self.frame.decode(frames, self.layout.cells)
+        finite = _finite(decoded, len(frames))
         if self.offset is None:
-            first = min(r - s for r, s in zip(receives, sensor, strict=True))
-            self.offset = first if self.offset_hint is None else min(first, self.offset_hint)
+            self.offset = _offset(receives, sensor, self.offset_hint)
         cells = frames["cell"].tolist() if self.frame.cell is not None else None
         blocks: list[SkinBlock] = []
         for i, (sensor_ns, number, receive_ns) in enumerate(
@@ -129,17 +137,38 @@ class _Stream:
                     self.malformed += 1
                     continue
                 number = (number or 0) * self.layout.cells + cells[i]  # noqa: PLW2901
-            if not self.counter.observe(number, sensor_ns, receive_ns):
+            if not finite[i]:
+                self.malformed += 1
                 continue
-            if self.origin is None:
-                self.origin = sensor_ns
-            index = round((sensor_ns - self.origin) / self.frame.period_ns)
+            verdict = self.counter.count(number, sensor_ns, receive_ns)
+            if not (verdict.fresh or (cells is not None and verdict is Verdict.LATE)):
+                continue
+            index = self._index(sensor_ns, receive_ns, new_run=verdict is Verdict.NEW_RUN)
             values = {name: rows[i] for name, rows in decoded.items()}
             if cells is None:
+                if index <= self.last_index:  # its stamp falls on a place already written
+                    self.out_of_range += 1
+                    continue
                 blocks += self._emit(index, values, receive_ns)
             else:
                 blocks += self._assemble(index, cells[i], values, receive_ns)
         return blocks
+
+    def _index(self, sensor_ns: int, receive_ns: int, *, new_run: bool) -> int:
+        """Return a sample's place on the recorder's time base (a new run goes after the last).
+
+        A new run (the skin's counter or clock was reset) is placed at its receive time, and
+        never before the last sample written.
+        """
+        period = self.frame.period_ns
+        if self.origin is None:
+            self.origin = sensor_ns
+            self.zero = sensor_ns + (self.offset or 0)
+        elif new_run:
+            self.origin = sensor_ns
+            self.index_base = max(self.last_index + 1, round((receive_ns - self.zero) / period))
+            self.pending.clear()
+        return self.index_base + round((sensor_ns - self.origin) / period)
 
     def _assemble(
         self, index: int, cell: int, values: dict[str, NDArray[np.float32]], receive_ns: int
@@ -171,10 +200,10 @@ class _Stream:
         self, index: int, values: Mapping[str, NDArray[np.float32]], receive_ns: int
     ) -> list[SkinBlock]:
         """Pack one whole sample (every cell) at its place on the recorder's time base."""
-        if index <= self.last_index or self.origin is None or self.offset is None:
+        if index <= self.last_index or self.origin is None:
             return []
         self.last_index = index
-        stamp = self.origin + self.offset + index * self.frame.period_ns
+        stamp = self.zero + index * self.frame.period_ns
         blocks: list[SkinBlock] = []
         for name, row in values.items():
             self.latest[name] = row
@@ -184,6 +213,28 @@ class _Stream:
     def flush(self) -> list[SkinBlock]:
         """Return every open block."""
         return [block for packer in self.packers.values() for block in packer.flush()]
+
+
+def _finite(decoded: Mapping[str, NDArray[np.float32]], count: int) -> NDArray[np.bool_]:
+    """Return, per frame, whether every decoded value is finite."""
+    ok = np.ones(count, dtype=bool)
+    for rows in decoded.values():
+        ok &= np.isfinite(rows).reshape(count, -1).all(axis=1)
+    return ok
+
+
+def _offset(receives: list[int], sensor: list[int], hint: int | None) -> int:
+    """Return a recording's clock offset: the lowest latency among the plausible frames.
+
+    A frame whose latency is far from the batch's median (a stamp that jumped) does not
+    count, nor does a hint (frames before the recording) that is far from it.
+    """
+    latencies = sorted(r - s for r, s in zip(receives, sensor, strict=True))
+    median = latencies[len(latencies) // 2]
+    lowest = min(x for x in latencies if abs(x - median) <= EARLY_TOLERANCE_NS)
+    if hint is not None and abs(hint - median) <= EARLY_TOLERANCE_NS:
+        return min(lowest, hint)
+    return lowest
 
 
 class ByteFramer:
@@ -434,13 +485,20 @@ class FrameSkin:
         out = []
         for position, stream in enumerate(self._streams):
             stats = stream.counter.stats()
-            malformed = stream.malformed
+            malformed = stream.malformed + stats.malformed
             overflowed = 0
             if position == 0:
                 malformed += self._framer_malformed() - self._framer_base
                 if self._reader is not None:
                     overflowed = self._reader.overflowed - self._overflow_base
-            out.append(dataclasses.replace(stats, overflowed=overflowed, malformed=malformed))
+            out.append(
+                dataclasses.replace(
+                    stats,
+                    overflowed=overflowed,
+                    malformed=malformed,
+                    out_of_range=stats.out_of_range + stream.out_of_range,
+                )
+            )
         return out
 
 

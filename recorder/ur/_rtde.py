@@ -16,6 +16,7 @@ arrives, for a :class:`recorder.live.SourceReader` thread.
 from __future__ import annotations
 
 import contextlib
+import math
 import socket
 import struct
 import threading
@@ -114,6 +115,22 @@ class Recipe:
         """Return the struct of a data package's payload (recipe id, then the values)."""
         return struct.Struct(">B" + "".join(f"{TYPES[t][1]}{TYPES[t][0]}" for t in self.types))
 
+    def fault(self, payload: bytes) -> str | None:
+        """Return why a data package cannot be taken (None: it is well formed and finite).
+
+        A package of another recipe, of the wrong size, or holding a NaN or infinite value
+        is malformed: counted at the source and never written.
+        """
+        layout = self.layout
+        if len(payload) != layout.size:
+            return f"{len(payload)} bytes, expected {layout.size}"
+        if payload[0] != self.recipe_id:
+            return f"recipe {payload[0]}, expected {self.recipe_id}"
+        values = layout.unpack(payload)
+        if not all(math.isfinite(v) for v in values if isinstance(v, float)):
+            return "a NaN or infinite value"
+        return None
+
     def parse(self, payload: bytes) -> dict[str, Any]:
         """Return a data package's values by name (vectors as float64/int arrays).
 
@@ -191,6 +208,11 @@ class RtdeClient:
         self._paused = threading.Event()
         self.recipe: Recipe | None = None
         self.messages: deque[TextMessage] = deque(maxlen=1000)
+        #: Data packages left out since the connection opened (another recipe, wrong size,
+        #: NaN or infinite values); the recorder adds those of an action to its accounting.
+        self.malformed = 0
+        #: Why the latest malformed package was left out (for the one-line report).
+        self.last_fault = ""
 
     @property
     def where(self) -> str:
@@ -375,8 +397,10 @@ class RtdeClient:
     def receive(self) -> Received | None:
         """Return the next data package (payload: its bytes), or None after the timeout.
 
-        Call it from one reader thread after :meth:`start`; every package is returned, in
-        the order it arrived.
+        Call it from one reader thread after :meth:`start`; every well-formed package is
+        returned, in the order it arrived. A malformed one (another recipe, the wrong size,
+        a NaN or infinite value) is counted in :attr:`malformed` and skipped: one bad package
+        never ends the stream.
 
         Raises:
             RtdeError: The connection was lost.
@@ -387,6 +411,11 @@ class RtdeClient:
         kind, payload = package
         receive_ns = self._clock()
         if kind == DATA_PACKAGE:
-            return Received(receive_ns, payload)
+            fault = None if self.recipe is None else self.recipe.fault(payload)
+            if fault is None:
+                return Received(receive_ns, payload)
+            self.malformed += 1
+            self.last_fault = fault
+            return None
         self._other(kind, payload)
         return None

@@ -4,13 +4,16 @@ A lab rehearses ``listen`` or a ``[skin] transport = "ros2"`` rig configuration 
 robot: :func:`serve_ros2` publishes, on the topics a topic map names, what a ROS 2 driver of
 the arm and of the skin would publish (``sensor_msgs/msg/JointState``, and one
 ``atikt_msgs/msg/SkinCell`` message per cell with the fields the map reads, in the map's raw
-units), stamped with the wall clock. Only those topics: annotations are the lab's own.
-Faults for tests: samples of a topic not published (counted exactly by the readers), and a
-stall of every topic.
+units), stamped with the wall clock, and, when the map cuts its windows from an annotation
+topic, the annotations a lab's system would publish: one JSON ``std_msgs/msg/String`` per
+phase the world's playing action enters (``{"object", "action", "trial", "phase",
+"stamp_ns"}``), so ``listen`` is rehearsed end to end. Faults for tests: samples of a topic
+not published (counted exactly by the readers), and a stall of every topic.
 """
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from contextlib import contextmanager
@@ -19,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from recorder.bagimport._source import JOINT_TYPE, SkinTopic, extractors, typestore
+from recorder.bagimport._source import ANNOTATION_TYPE, JOINT_TYPE, SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
 from recorder.live._dds import DdsDomain
@@ -79,6 +82,10 @@ class Ros2Server:
     _thread: threading.Thread | None = None
     _writers: dict[str, RawWriter] = field(default_factory=dict)
     _cells: dict[str, SkinTopic] = field(default_factory=dict)
+    _annotations: str | None = None
+    _announced: tuple[tuple[str, str, int], str] | None = None
+    #: The annotations published, as (stamp ns, JSON text).
+    annotated: list[tuple[int, str]] = field(default_factory=list)
 
     def start(self) -> None:
         """Create the writers and start publishing.
@@ -100,6 +107,10 @@ class Ros2Server:
         if self.topic_map.joints is not None:
             topic = self.topic_map.joints.topic
             self._writers[topic] = self.domain.writer(topic, JOINT_TYPE)
+        windows = self.topic_map.windows
+        if windows.source == "topic" and windows.topic:
+            self._annotations = windows.topic
+            self._writers[windows.topic] = self.domain.writer(windows.topic, ANNOTATION_TYPE)
         self._thread = threading.Thread(target=self._run, name="atikt-ros2-server", daemon=True)
         self._thread.start()
 
@@ -136,6 +147,7 @@ class Ros2Server:
                 stalled = True
                 time.sleep(self.faults.stall_s)
             controller = self.world.controller_ns()
+            self._annotate(store, due, controller)
             if due == next_joint and self.topic_map.joints is not None:
                 self._publish(self.topic_map.joints.topic, self._joint(store, due, controller))
                 next_joint += joint_period
@@ -143,6 +155,34 @@ class Ros2Server:
                 for topic, extractor in self._cells.items():
                     self._publish(topic, self._cell(store, extractor, due, controller))
                 next_cell += cell_period
+
+    def _annotate(self, store: Any, stamp: int, controller_ns: int) -> None:  # noqa: ANN401
+        """Publish an annotation when the playing action enters a phase, and its ``end``."""
+        if self._annotations is None:
+            return
+        playing = self.world.playing()
+        announced = self._announced
+        if announced is not None and announced[1] != "end" and announced[0] != playing:
+            self._say(store, announced[0], "end", stamp)
+            announced = (announced[0], "end")
+        if playing is None:
+            self._announced = None
+            return
+        phase = self.world.phase_at(controller_ns) or "approach"
+        if announced is None or announced[0] != playing or announced[1] not in {phase, "end"}:
+            self._say(store, playing, phase, stamp)
+            announced = (playing, phase)
+        self._announced = announced
+
+    def _say(self, store: Any, key: tuple[str, str, int], phase: str, stamp: int) -> None:  # noqa: ANN401
+        """Publish one annotation."""
+        assert self._annotations is not None  # noqa: S101 (checked by the caller)
+        text = json.dumps(
+            {"object": key[0], "action": key[1], "trial": key[2], "phase": phase, "stamp_ns": stamp}
+        )
+        message = store.types[ANNOTATION_TYPE](data=text)
+        self._writers[self._annotations].write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
+        self.annotated.append((stamp, text))
 
     def _joint(self, store: Any, stamp: int, controller_ns: int) -> bytes:  # noqa: ANN401
         """Return a JointState of the world's arm, serialized."""

@@ -28,7 +28,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedCo
 from rich.table import Table
 
 from replay.errors import RecordingError, ReplayError
-from replay.recording._checks import index_problems
+from replay.recording._checks import check_gaps, index_problems, pauses_explained
 from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
     check_dataset_location,
@@ -51,7 +51,7 @@ from schemas import (
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from replay.recording._container import ContainerSummary
     from replay.recording._reader import ActionRecording
@@ -113,7 +113,8 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
         return
     table = Table(
         "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
-        "overflow", "clock offset", "drift", "max latency", title="live sources",
+        "overflow", "malformed", "out of range", "resets", "gaps", "clock offset", "drift",
+        "max latency", title="live sources",
     )  # fmt: skip
     for item in sources:
         table.add_row(
@@ -122,6 +123,10 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
             *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
             str(item.out_of_order),
             str(item.overflowed),
+            str(item.malformed),
+            str(item.out_of_range),
+            str(item.counter_resets),
+            f"{item.gaps} ({item.gap_ns / 1e9:.3f} s)" if item.gaps else "0",
             _seconds(item.clock_offset_ns),
             f"{item.clock_drift_ns / 1e6:.3f} ms",
             f"{item.latency_max_ns / 1e6:.3f} ms",
@@ -227,16 +232,49 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_one(path: Path) -> tuple[str | None, str | None]:
-    """Return (the error message or None, a warning about lost samples or None)."""
+def _check_one(path: Path) -> tuple[str | None, str | None, int | None]:
+    """Return (the error or None, a warning or None, the recording's seed or None)."""
     try:
         recording = read_recording(path)
         check_dataset_location(recording)
     except ReplayError as err:
-        return one_line(str(err)), None
-    lost = [f"{item.name}: {item.problems()}" for item in recording.sources if not item.complete]
-    warning = f"{path}: live sources lost samples ({'; '.join(lost)})" if lost else None
-    return None, warning
+        return one_line(str(err)), None, None
+    return (*_accounting_verdict(recording), recording.metadata.seed)
+
+
+def _seed_problem(seeds: Mapping[int, Path]) -> list[str]:
+    """Return a problem when the checked recordings hold more than one seed (one dataset)."""
+    if len(seeds) < 2:  # noqa: PLR2004 (one seed is one dataset)
+        return []
+    shown = "; ".join(f"seed {seed} (e.g. {path})" for seed, path in sorted(seeds.items())[:2])
+    line = (
+        f"the recordings hold {len(seeds)} seeds ({shown}): two runs wrote into one dataset; "
+        "a dataset holds one seed: move the recordings of one seed to another directory"
+    )
+    return [line]
+
+
+def _accounting_verdict(recording: Any) -> tuple[str | None, str | None]:  # noqa: ANN401
+    """Return (an error on counted loss, a warning on what was counted without loss).
+
+    The check agrees with the file's accounting: samples a source sent that the file lacks
+    (missing, dropped by a full queue) fail it; samples counted and left out (duplicated,
+    out of order, malformed, stamped out of range, counter resets) and a publisher's pauses
+    (gaps) are warnings.
+    """
+    path = recording.path
+    lost = [f"{item.name}: {item.loss()}" for item in recording.sources if item.lost]
+    if lost:
+        error = (
+            f"{path}: live sources lost samples ({'; '.join(lost)}); the recording lacks data "
+            "its sources sent: record the action again"
+        )
+        return error, None
+    counted = pauses_explained(recording.sources)
+    if not counted:
+        return None, None
+    pause = check_gaps(path, recording.phase_range("execute"), recording.signals, counted)
+    return None, pause or f"{path}: live sources counted ({counted})"
 
 
 def _incomplete(root: Path) -> list[str]:
@@ -302,26 +340,30 @@ def progress_bar(console: Console) -> Progress:
     )
 
 
-def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str]]:
+def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str], dict[int, Path]]:
     """Check every file on ``workers`` processes with a progress bar.
 
     Returns:
-        The problems (files refused) and the warnings (files valid, but samples were lost).
+        The problems (files refused), the warnings (files valid, but something was counted),
+        and the seeds of the valid files (with a file of each).
     """
     bar = progress_bar(Console(stderr=True))
     task = bar.add_task("checking", total=len(files))
     problems: list[str] = []
     warnings: list[str] = []
+    seeds: dict[int, Path] = {}
     with bar:
         with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
             results = joblib.Parallel(
                 n_jobs=min(workers, max(len(files), 1)), return_as="generator"
             )(joblib.delayed(_check_one)(file) for file in files)
-        for problem, warning in results:
+        for file, (problem, warning, seed) in zip(files, results, strict=True):
             bar.advance(task)
             problems += [problem] if problem is not None else []
             warnings += [warning] if warning is not None else []
-    return problems, warnings
+            if seed is not None:
+                seeds.setdefault(seed, file)
+    return problems, warnings, seeds
 
 
 @command(
@@ -342,13 +384,14 @@ def _check(args: argparse.Namespace) -> int:
     if args.recover:
         return _recover(path, args.out)
     files = dataset_files(path) if path.is_dir() else [path]
-    bad, warnings = _check_all(files, cli.worker_count(args.workers))
+    bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
     console = Console(stderr=True)
     unfinished = _unfinished(path) if path.is_dir() else []
     try:
         index = index_problems(path, files) if path.is_dir() else []
     except RecordingError as err:
         index = [str(err)]
+    index += _seed_problem(seeds) if path.is_dir() else []
     for problem in bad + index + unfinished:
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
     for warning in warnings + (_incomplete(path) if path.is_dir() else []):

@@ -195,16 +195,30 @@ def check_phases(
         raise RecordingError(msg)
 
 
-def check_gaps(path: Path, execute: tuple[int, int], signals: Mapping[str, Any]) -> None:
+def check_gaps(
+    path: Path,
+    execute: tuple[int, int],
+    signals: Mapping[str, Any],
+    explained: str = "",
+) -> str | None:
     """Check that no skin channel pauses inside the execute phase.
+
+    A live recording's accounting may explain a pause without loss: the publisher paused
+    (``gaps``), or samples were counted and left out (malformed, stamped out of range, a
+    counter reset). Then the pause is returned as a warning, not refused.
 
     Args:
         path: The recording.
         execute: The execute phase, ``[start_ns, stop_ns)``.
         signals: Modality -> series with ``stamps_ns`` and ``period_ns``.
+        explained: What the accounting counted that explains a pause (empty: nothing).
+
+    Returns:
+        The longest explained pause, one line (None: no pause).
 
     Raises:
-        RecordingError: A pause longer than :data:`MAX_GAP_PERIODS` periods; names it.
+        RecordingError: A pause longer than :data:`MAX_GAP_PERIODS` periods that the
+            accounting does not explain; names it.
     """
     start, stop = execute
     for modality, series in signals.items():
@@ -215,6 +229,12 @@ def check_gaps(path: Path, execute: tuple[int, int], signals: Mapping[str, Any])
             continue
         steps = np.diff(inside)
         worst = int(np.argmax(steps))
+        if steps[worst] > MAX_GAP_PERIODS * series.period_ns and explained:
+            return (
+                f"{path}: {modality} pauses {steps[worst] / _NS_PER_S:.3f} s at "
+                f"{int(inside[worst])} ns inside the execute phase; the live sources counted "
+                f"it ({explained}), no sample was lost"
+            )
         if steps[worst] > MAX_GAP_PERIODS * series.period_ns:
             msg = (
                 f"{path}: {modality} pauses {steps[worst] / _NS_PER_S:.3f} s at "
@@ -223,6 +243,17 @@ def check_gaps(path: Path, execute: tuple[int, int], signals: Mapping[str, Any])
                 "driver and record the action again"
             )
             raise RecordingError(msg)
+    return None
+
+
+def pauses_explained(sources: Sequence[Any]) -> str:
+    """Return what a recording's live sources counted that explains a pause without loss.
+
+    Empty when a source lost samples (a pause is then loss) or nothing was counted.
+    """
+    if any(item.lost for item in sources):
+        return ""
+    return "; ".join(f"{item.name}: {item.warnings()}" for item in sources if item.warnings())
 
 
 def time_scale(path: Path, rig: Mapping[str, object]) -> float:

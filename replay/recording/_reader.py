@@ -28,6 +28,7 @@ from replay.recording._checks import (
     check_location,
     check_phases,
     check_stamps,
+    pauses_explained,
     time_scale,
 )
 from replay.recording._container import RawChannel, read_container
@@ -619,7 +620,7 @@ def _check_duration(recording: ActionRecording) -> None:
         coverage[VOCABULARY.modalities[modality].topic] = (first, last)
     execute = recording.phase_range("execute")
     check_duration(path, (meta.action_id, duration_s), execute, coverage)
-    check_gaps(path, execute, recording.signals)
+    check_gaps(path, execute, recording.signals, pauses_explained(recording.sources))
 
 
 def check_not_partial(recording: ActionRecording) -> None:

@@ -186,7 +186,10 @@ def test_receive_stamped_frames_are_stamped_from_the_rate(storage: str, tmp_path
             assert abs(gap - (lost + 1) * PERIOD * (1 + DRIFT)) < 0.1 * PERIOD
     assert gaps_seen == 3
     timing = report.timing["/tip/frames"]["acceleration"]
-    assert (timing["runs"], timing["gaps"], timing["lost_frames"]) == (4, 3, 4)
+    # without a counter a gap is not counted as lost frames (it may be a pause of the
+    # driver); its length is reported: the 4 lost frames' samples, ~10 ms each
+    assert (timing["runs"], timing["gaps"], timing["lost_frames"]) == (4, 3, 0)
+    assert timing["gap_s"] == pytest.approx(4 * 22 * PERIOD / 1e9, rel=0.5)
     assert timing["drift_ppm"] == pytest.approx(DRIFT * 1e6, abs=2.0)
     spread = np.ptp(frames.latencies) / 1e6  # the largest latency beyond the smallest
     assert timing["jitter_max_ms"] == pytest.approx(spread, abs=0.01)
@@ -458,9 +461,11 @@ def test_cli_prints_runs_jitter_and_drift(
     printed = capsys.readouterr().out
     row = next(line for line in printed.splitlines() if "/tip/frames" in line)
     cells = [cell.strip() for cell in row.split("│")[1:-1]]
-    assert cells[:4] == ["/tip/frames", "acceleration", "4", "4"]
-    assert cells[4].startswith("1.93")
-    assert cells[5] == "+40.2"
+    assert cells[:3] == ["/tip/frames", "acceleration", "4"]
+    assert cells[3].split()[0] == "3"  # gaps (s): without a counter, not lost frames
+    assert cells[4] == "0"
+    assert cells[5].startswith("1.93")
+    assert cells[6] == "+40.2"
 
 
 def test_the_documented_examples_parse(tmp_path: Path) -> None:
@@ -554,6 +559,22 @@ def test_without_jitter_the_samples_are_exactly_on_the_rate() -> None:
     truth = START + np.array([[int((22 * m + i) * period) for i in range(22)] for m in frames])
     assert np.abs(stamps - truth).max() <= 1
     summary = timeline.summary()
-    assert (summary["runs"], summary["lost_frames"]) == (4, 4)
+    assert (summary["runs"], summary["lost_frames"]) == (4, 0)
+    assert summary["gap_s"] == pytest.approx(len(LOST) * 22 * float(period) / 1e9, rel=0.2)
     assert summary["jitter_max_ms"] < 1e-6
     assert abs(summary["drift_ppm"]) < 0.01
+
+
+def test_the_pause_between_recordings_is_a_gap_not_lost_frames() -> None:
+    from fractions import Fraction  # noqa: PLC0415
+
+    from recorder.bagimport._timing import Timeline  # noqa: PLC0415
+
+    period = Fraction(NS, 2200)
+    timeline = Timeline("t", period, 22, 0)
+    pause = 600 * NS  # ten minutes between two slides
+    for m in range(2000):
+        timeline.push(START + int(22 * m * period) + (pause if m >= 1000 else 0))
+    summary = timeline.summary()
+    assert (summary["runs"], summary["gaps"], summary["lost_frames"]) == (2, 1, 0)
+    assert summary["gap_s"] == pytest.approx(600, abs=0.01)

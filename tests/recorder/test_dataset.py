@@ -14,6 +14,7 @@ from conftest import FakeRig
 
 from recorder import ActionSpec, RecorderError, load_objects
 from recorder._catalog import ObjectSpec
+from recorder._claim import CLAIM_NAME
 from recorder._dataset import (
     INDEX_NAME,
     OBJECTS_FILE,
@@ -75,7 +76,7 @@ def test_dataset_is_identical_whatever_the_worker_count(
     assert _files(tmp_path / "one") == _files(tmp_path / "two")
     assert sorted(_files(tmp_path / "one")) == sorted(
         [recording_path(Path(), t.obj.id, t.action.id, t.trial).as_posix() for t in tasks]
-        + [INDEX_NAME, OBJECTS_FILE]
+        + [INDEX_NAME, OBJECTS_FILE, CLAIM_NAME]
     )
 
 
@@ -89,7 +90,7 @@ def test_simulated_dataset_is_identical_whatever_the_worker_count(
     generate_dataset(tasks, tmp_path / "one", factory, seed=1, workers=1)
     generate_dataset(tasks, tmp_path / "two", factory, seed=1, workers=2)
     assert _files(tmp_path / "one") == _files(tmp_path / "two")
-    assert len(_files(tmp_path / "one")) == len(tasks) + 2  # the index and objects.toml
+    assert len(_files(tmp_path / "one")) == len(tasks) + 3  # index, objects.toml, claim
 
 
 def test_rerun_skips_existing_recordings_and_never_overwrites(
@@ -172,7 +173,7 @@ def test_a_full_disk_in_one_worker_keeps_what_it_wrote(
         )
     left = sorted(p.name for p in tmp_path.rglob("*") if p.is_file())
     assert "001.mcap" not in left  # never published as complete
-    finished = {"002.mcap", "003.mcap", "004.mcap"}
+    finished = {"002.mcap", "003.mcap", "004.mcap", CLAIM_NAME}  # and the directory's claim
     kept = [n for n in left if n not in finished]  # trial 1's messages: incomplete or .part
     assert all(n.startswith("001.") and n.endswith((".incomplete.mcap", ".part")) for n in kept)
     assert TaskStatus.FAILED in [r.status for r in results]

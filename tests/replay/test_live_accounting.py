@@ -44,7 +44,7 @@ def _record(rig: FakeRig, root: Path, obj: ObjectSpec, action: ActionSpec) -> Pa
         return record_action(rig, obj, action, 1, path, seed=0).path
 
 
-def test_sources_are_read_and_losses_warned(
+def test_sources_are_read_and_losses_refused(
     tmp_path: Path,
     objects: dict[str, ObjectSpec],
     actions: dict[str, ActionSpec],
@@ -56,11 +56,27 @@ def test_sources_are_read_and_losses_warned(
     shown = capsys.readouterr().out
     assert "live sources" in shown
     assert "skin" in shown
-    assert main(["check", str(tmp_path), "--workers", "1"]) == 0  # valid, with a warning
+    assert main(["check", str(tmp_path), "--workers", "1"]) != 0  # counted loss fails
+    captured = capsys.readouterr()
+    assert "0 of 1 recordings valid" in captured.out + captured.err
+    assert "live sources lost samples (skin: 2 of 100 missing)" in captured.out + captured.err
+
+
+def test_counted_without_loss_is_a_warning(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    counted = SourceStats(
+        "skin", "counter", expected=100, received=103, duplicated=1, malformed=2, gaps=1
+    )
+    _record(_LiveRig(counted), tmp_path, objects["wood"], actions["P1"])
+    assert main(["check", str(tmp_path), "--workers", "1"]) == 0
     captured = capsys.readouterr()
     assert "1 of 1 recordings valid" in captured.out
     assert "WARN" in captured.err
-    assert "2 of 100 missing, 1 duplicated" in captured.err
+    assert "1 duplicated, 2 malformed, 1 gaps" in captured.err
 
 
 def test_complete_sources_give_no_warning(
@@ -81,7 +97,8 @@ def test_a_stopped_action_is_shown_warned_and_never_learned_from(
     actions: dict[str, ActionSpec],
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    _record(_LiveRig(LOSSY), tmp_path, objects["wood"], actions["P1"])
+    whole = SourceStats("skin", "counter", expected=100, received=100)
+    _record(_LiveRig(whole), tmp_path, objects["wood"], actions["P1"])
     with pytest.raises(ActionStoppedError) as stopped:
         _record(_LiveRig(LOSSY, stop_at=0.5), tmp_path, objects["wood"], actions["S1"])
     incomplete = stopped.value.path

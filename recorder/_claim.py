@@ -1,0 +1,123 @@
+"""A dataset directory claimed by one seed and rig configuration, atomically.
+
+Two recorders started together into one empty directory both find no recording, so a check of
+the recordings (:func:`recorder._dataset.check_configuration`) lets both in, and the directory
+ends up holding two datasets. The first run into a directory therefore *claims* it: it writes
+``.atikt-dataset.json`` (the seed and the rig configuration) to a temporary file and links it
+to that name, which fails when the name exists (``os.link`` never replaces), so exactly one of
+two runs started together creates the claim, and the other reads a whole claim and is refused
+unless it has the same seed and configuration (a resumed run, or a second worker of the same
+dataset). The claim is never removed by the program; a directory without recordings can be
+reused with another seed by deleting it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from recorder.errors import RecorderError
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+__all__ = ["CLAIM_NAME", "claim_dataset"]
+
+#: The claim's file name, in the dataset directory.
+CLAIM_NAME = ".atikt-dataset.json"
+
+
+def _claim_text(seed: int, configuration: Mapping[str, Any]) -> str:
+    """Return the claim's JSON text (sorted keys: equal claims are equal bytes)."""
+    return json.dumps({"seed": seed, "rig": dict(configuration)}, sort_keys=True, default=str)
+
+
+def _publish(root: Path, text: str) -> bool:
+    """Link a new claim to its name; return False when a claim exists already.
+
+    Raises:
+        RecorderError: The directory cannot be written.
+    """
+    target = root / CLAIM_NAME
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        handle, name = tempfile.mkstemp(prefix=f"{CLAIM_NAME}.", suffix=".tmp", dir=root)
+        temporary = Path(name)
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        try:
+            os.link(temporary, target)  # atomic, and fails if the name exists
+        except FileExistsError:
+            return False
+        finally:
+            with contextlib.suppress(OSError):
+                temporary.unlink()
+    except OSError as err:
+        msg = f"{target}: cannot claim the dataset directory ({err.strerror}); check --out"
+        raise RecorderError(msg) from err
+    return True
+
+
+def _read_claim(path: Path) -> dict[str, Any]:
+    """Return a claim's seed and rig.
+
+    Raises:
+        RecorderError: The claim cannot be read or is not a claim.
+    """
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or not isinstance(data.get("rig"), dict):
+            msg = "not a claim"
+            raise TypeError(msg)  # noqa: TRY301 (one translation below)
+        int(data["seed"])
+    except (OSError, ValueError, TypeError, KeyError) as err:
+        msg = (
+            f"{path}: the dataset's claim cannot be read ({err}); it names the seed and rig "
+            "configuration of the directory's recordings: restore it or give another --out"
+        )
+        raise RecorderError(msg) from err
+    return data
+
+
+def claim_dataset(root: Path, seed: int, configuration: Mapping[str, Any]) -> None:
+    """Claim ``root`` for ``seed`` and ``configuration``, or accept an equal claim.
+
+    Args:
+        root: The dataset directory (created if needed).
+        seed: The run's dataset seed.
+        configuration: The rig's configuration as it describes itself before connecting
+            (its identity; facts learned on connection are recorded, not compared).
+
+    Raises:
+        RecorderError: Another run with another seed or configuration claimed the directory
+            (one line naming both and the fix), or the claim cannot be written or read.
+    """
+    root = Path(root)
+    text = _claim_text(seed, configuration)
+    if _publish(root, text):
+        return
+    claim = _read_claim(root / CLAIM_NAME)
+    ours = json.loads(text)
+    if claim["seed"] != seed:
+        msg = (
+            f"{root}: is claimed by a run with seed {claim['seed']} ({root / CLAIM_NAME}), "
+            f"this run has --seed {seed}; a dataset holds one seed: give another --out, or "
+            f"--seed {claim['seed']} to resume it"
+        )
+        raise RecorderError(msg)
+    if differ := sorted(
+        k for k in {*claim["rig"], *ours["rig"]} if claim["rig"].get(k) != ours["rig"].get(k)
+    ):
+        theirs = ", ".join(f"{k}={claim['rig'].get(k)!r}" for k in differ)
+        wanted = ", ".join(f"{k}={ours['rig'].get(k)!r}" for k in differ)
+        msg = (
+            f"{root}: is claimed by another rig configuration ({theirs}; this run: {wanted}; "
+            f"{root / CLAIM_NAME}); give another --out"
+        )
+        raise RecorderError(msg)

@@ -1,0 +1,98 @@
+"""Two recorders, one directory: an atomic claim lets exactly one seed in."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from recorder._claim import CLAIM_NAME, claim_dataset
+from recorder.errors import RecorderError
+from replay.cli._main import main as replay_main
+
+ROOT = Path(__file__).parents[2]
+
+
+def _race(root: Path, runs: int) -> tuple[list[int], list[str]]:
+    """Claim ``root`` from ``runs`` threads at once, each with its own seed."""
+    barrier = threading.Barrier(runs)
+    won: list[int] = []
+    refused: list[str] = []
+
+    def run(seed: int) -> None:
+        barrier.wait()
+        try:
+            claim_dataset(root, seed, {"rig": "sim"})
+            won.append(seed)
+        except RecorderError as err:
+            refused.append(str(err))
+
+    threads = [threading.Thread(target=run, args=(seed,)) for seed in range(runs)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return won, refused
+
+
+def test_one_of_many_runs_started_together_claims_the_directory(tmp_path: Path) -> None:
+    for round_ in range(20):
+        root = tmp_path / f"d{round_}"
+        won, refused = _race(root, 8)
+        assert len(won) == 1
+        assert len(refused) == 7
+        assert all(f"is claimed by a run with seed {won[0]}" in line for line in refused)
+        assert sorted(p.name for p in root.iterdir()) == [CLAIM_NAME]
+
+
+def test_the_same_seed_and_configuration_resume(tmp_path: Path) -> None:
+    claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.2"})
+    claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.2"})
+    with pytest.raises(RecorderError, match=r"another rig configuration \(host='10.0.0.2'"):
+        claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.9"})
+    (tmp_path / CLAIM_NAME).write_text("{", encoding="utf-8")
+    with pytest.raises(RecorderError, match="the dataset's claim cannot be read"):
+        claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.2"})
+
+
+def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:
+    command = [sys.executable, "-m", "recorder", "dataset", "--out", str(out)]
+    command += ["--objects", "wood", "--actions", "P1", "--trials", "1", "--seed", str(seed)]
+    command += ["--workers", "1"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def test_two_dataset_runs_started_together_never_mix(tmp_path: Path) -> None:
+    out = tmp_path / "data"
+    runs = [_dataset(out, 1), _dataset(out, 2)]
+    results = [(run.wait(300), *run.communicate()) for run in runs]
+    codes = sorted(code for code, _, _ in results)
+    assert codes == [0, 1], results
+    refused = next(err for code, _, err in results if code == 1)
+    assert "is claimed by a run with seed" in refused
+    assert len([line for line in refused.splitlines() if "error" in line]) == 1
+    assert replay_main(["check", str(out), "--workers", "1"]) == 0
+
+
+def test_check_reports_a_directory_of_two_seeds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    one, two = tmp_path / "one", tmp_path / "two"
+    for out, seed in ((one, 1), (two, 2)):
+        assert _dataset(out, seed).wait(300) == 0
+    moved = one / "wood" / "P1" / "002.mcap"
+    shutil.copy(two / "wood" / "P1" / "001.mcap", moved)
+    (one / "index.parquet").unlink()
+    capsys.readouterr()
+    assert replay_main(["check", str(one), "--workers", "1"]) == 1
+    captured = capsys.readouterr()
+    assert "the recordings hold 2 seeds (seed 1 (e.g." in captured.err
+    assert "2 of 2 recordings valid" in captured.out

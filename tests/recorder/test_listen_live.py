@@ -1,0 +1,229 @@
+"""``listen`` rehearsed against the virtual lab's ROS 2 side, and hostile DDS sources.
+
+serve-sim publishes the world's joint states, skin cells and the annotations of the action it
+plays; ``listen`` records them. Hostile cases: a message above the map's size, an action
+whose 'end' is lost, a listener that joins part-way, malformed annotations, SIGTERM.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+from recorder import SimulatedRig, load_actions, load_objects
+from recorder.bagimport._listen import listen
+from recorder.bagimport._source import ANNOTATION_TYPE, typestore
+from recorder.bagimport._topicmap import load_topic_map
+from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.live._dds import DdsDomain
+from recorder.virtuallab import VirtualWorld
+from recorder.virtuallab._ros2_server import serve_ros2
+from replay.cli._main import main as replay_main
+from schemas import is_incomplete
+
+if TYPE_CHECKING:
+    from recorder.bagimport._report import ImportReport
+
+EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.toml"
+
+
+def _map(root: Path, **time: str) -> Path:
+    """Return the example map without a tool pose (the virtual lab publishes none)."""
+    text = EXAMPLE.read_text(encoding="utf-8")
+    head, _, rest = text.partition("[tool_pose]")
+    rest = rest[rest.index("\n[skin]") :]
+    text = head + rest
+    text = text.replace("max_delay_s = 2.0", "max_delay_s = 0.3")
+    for key, value in time.items():
+        text = re.sub(rf"^{key} = .*$", f"{key} = {value}", text, count=1, flags=re.MULTILINE)
+    path = root / "map.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+class _Run:
+    """``listen`` in a thread while the virtual lab plays actions."""
+
+    def __init__(self, domain: int, root: Path, map_path: Path) -> None:
+        self.domain, self.root, self.map_path = domain, root, map_path
+        self.notes: list[str] = []
+        self.stop = threading.Event()
+        self.result: dict[str, ImportReport] = {}
+        self.thread = threading.Thread(target=self._listen)
+
+    def _listen(self) -> None:
+        self.result["report"] = listen(
+            load_topic_map(self.map_path),
+            self.root / "out",
+            objects=load_objects(None),
+            actions=load_actions(None),
+            domain_id=self.domain,
+            stop=self.stop,
+            discovery_s=5.0,
+            on_note=self.notes.append,
+        )
+
+    def finish(self) -> ImportReport:
+        self.stop.set()
+        self.thread.join(30)
+        return self.result["report"]
+
+
+def _play(world: VirtualWorld, action: str, trial: int, *, wait: bool = True) -> None:
+    world.prepare("wood", action, trial)
+    world.start_action("wood", action, trial)
+    while wait and world.playing() is not None:
+        time.sleep(0.05)
+
+
+def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> None:
+    map_path = _map(tmp_path)
+    with SimulatedRig(0) as rig:
+        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
+        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
+            run = _Run(dds_domain, tmp_path, map_path)
+            run.thread.start()
+            time.sleep(1.5)  # discovery
+            _play(world, "S1", 1)
+            time.sleep(1.8)  # max_delay_s + the import's margin
+            report = run.finish()
+    phases = [json.loads(text)["phase"] for _, text in server.annotated]
+    assert phases[-1] == "end"
+    assert "execute" in phases
+    assert len(report.written) == 1, run.notes
+    path = report.written[0]
+    assert replay_main(["check", str(path)]) == 0
+    stats = _stats(path)
+    assert all(s.lost == 0 for s in stats)
+
+
+def _stats(path: Path) -> list[Any]:
+    from mcap.reader import make_reader  # noqa: PLC0415
+
+    with path.open("rb") as handle:
+        for record in make_reader(handle).iter_metadata():
+            if record.name == SOURCES_RECORD:
+                return list(parse_source_stats(dict(record.metadata)))
+    return []
+
+
+def test_lost_end_is_kept_as_incomplete_with_a_line(dds_domain: int, tmp_path: Path) -> None:
+    map_path = _map(tmp_path)
+    with SimulatedRig(0) as rig:
+        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
+        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
+            run = _Run(dds_domain, tmp_path, map_path)
+            run.thread.start()
+            time.sleep(1.5)
+            _play(world, "S1", 2, wait=False)
+            deadline = time.monotonic() + 10
+            while not any("execute" in t for _, t in server.annotated):
+                assert time.monotonic() < deadline
+                time.sleep(0.02)
+            report = run.finish()  # stopped before the action's end
+    assert report.written == []
+    assert len(report.incomplete) == 1
+    assert is_incomplete(report.incomplete[0])
+    assert any("kept as incomplete" in line and "before its 'end'" in line for line in run.notes)
+
+
+def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    map_path = _map(tmp_path, max_message_kib="64")
+    topic_map = load_topic_map(map_path)
+    store = typestore(topic_map)
+    with SimulatedRig(0) as rig:
+        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
+        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250):
+            hostile = DdsDomain(dds_domain, store)
+            annotations = hostile.writer("/annotations", ANNOTATION_TYPE)
+            run = _Run(dds_domain, tmp_path, map_path)
+            run.thread.start()
+            time.sleep(1.5)
+            # the huge message: a JointState with 200,000 names on the joint topic
+            joints = hostile.writer("/joint_states", "sensor_msgs/msg/JointState")
+            header = store.types["std_msgs/msg/Header"](
+                stamp=store.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="x"
+            )
+            huge = store.types["sensor_msgs/msg/JointState"](
+                header=header,
+                name=["j"] * 200_000,
+                position=np.zeros(0),
+                velocity=np.zeros(0),
+                effort=np.zeros(0),
+            )
+            raw = bytes(store.serialize_cdr(huge, "sensor_msgs/msg/JointState"))
+            for _ in range(3):
+                joints.write(raw)
+            for text in ("not json", '{"object": "wood"}', '{"phase": "execute"}'):
+                message = store.types[ANNOTATION_TYPE](data=text)
+                annotations.write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
+            _play(world, "S1", 3)
+            time.sleep(1.8)
+            report = run.finish()
+    assert report.oversize == {"/joint_states": 3}
+    assert sum("larger than [time] max_message_kib = 64" in line for line in run.notes) >= 1
+    skipped = [line for line in run.notes if line.startswith("skipped topic /annotations")]
+    assert len(skipped) == 3, skipped
+    assert len(report.written) == 1, run.notes
+
+
+def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: Path) -> None:
+    import os  # noqa: PLC0415
+    import signal  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    map_path = _map(tmp_path)
+    root = Path(__file__).parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
+    command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain)]
+    with SimulatedRig(0) as rig:
+        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
+        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
+            process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+                command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+            assert process.stdout is not None
+            first = process.stdout.readline()  # once subscribed
+            assert first.startswith("listening on DDS domain"), first
+            _play(world, "S1", 4, wait=False)
+            deadline = time.monotonic() + 10
+            while not any("execute" in t for _, t in server.annotated):
+                assert time.monotonic() < deadline
+                time.sleep(0.02)
+            time.sleep(0.3)
+            process.send_signal(signal.SIGTERM)
+            out, err = process.communicate(timeout=30)
+    assert process.returncode == 143, err
+    assert "Traceback" not in err
+    lines = [first, *out.splitlines()]
+    assert sum("interrupted (SIGTERM)" in line for line in lines) == 1
+    kept = list((tmp_path / "out").rglob("*.incomplete.mcap"))
+    assert len(kept) == 1, out
+    assert lines[-1].endswith("1 kept as incomplete")
+
+
+def test_an_action_begun_before_the_topics_arrived_is_incomplete(tmp_path: Path) -> None:
+    from recorder.bagimport._listen import Listener, _Arrivals  # noqa: PLC0415
+    from recorder.bagimport._windows import Window  # noqa: PLC0415
+
+    topic_map = load_topic_map(_map(tmp_path))
+    listener = Listener(topic_map, tmp_path / "out", load_objects(None), load_actions(None))
+    listener._arrivals = {"/a": _Arrivals(4_000_000), "/b": _Arrivals(4_000_000)}
+    window = Window("wood", "S1", None, (("execute", 10**9), ("end", 3 * 10**9)))
+    listener._first_stamp = {"/a": 10**9 - 10**6, "/b": 10**9 + 8 * 10**6}
+    assert listener._joined(window) == ""
+    listener._first_stamp["/b"] = 10**9 + 600 * 10**6
+    assert "joined part-way: /b begins 0.600 s after" in listener._joined(window)
