@@ -105,6 +105,7 @@ class URArm:
         self._newest_ns = -1
         self._counter = SourceCounter("rtde", period_ns=self.period_ns)
         self._overflow_base = 0
+        self._client_malformed_base = 0
         self.malformed = 0
         self.last_error = ""
 
@@ -236,6 +237,7 @@ class URArm:
         self._overflow_base = reader.overflowed
         self._counter = SourceCounter("rtde", period_ns=self.period_ns)
         self.malformed = 0
+        self._client_malformed_base = self._rtde.malformed if self._rtde is not None else 0
 
     def poll(self, wait_s: float) -> list[ArmSample]:
         """Return the new in-order state samples, waiting up to ``wait_s`` for the first.
@@ -339,8 +341,11 @@ class URArm:
                 self._counter.overflow(missed)
                 self._overflow_base = reader.overflowed
         stats = self._counter.stats()
-        if self.malformed:
-            stats = dataclasses.replace(stats, malformed=stats.malformed + self.malformed)
+        # left out by the client (another recipe, the wrong size, NaN) or by the driver
+        rtde = self._rtde
+        client = rtde.malformed - self._client_malformed_base if rtde is not None else 0
+        if malformed := self.malformed + client:
+            stats = dataclasses.replace(stats, malformed=stats.malformed + malformed)
         return [stats]
 
     def _send(self, text: str) -> None:
