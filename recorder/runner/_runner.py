@@ -152,7 +152,9 @@ class ArmRig:
         self._begun_ns = 0
         self._last_event_ns = 0
         self._watch: Watch = _Never()
-        self.stops_sent: list[tuple[int, str]] = []
+        #: Every stop sent: (when its cause was met, when the stop was sent, why), recorder
+        #: clock (a state sample's cause: its receive time), ns; for latency measurements.
+        self.stops_sent: list[tuple[int, int, str]] = []
 
     # -- connection -----------------------------------------------------------------------
 
@@ -312,7 +314,7 @@ class ArmRig:
             yield from self._retract(at, contact)
         except (Stop, SourceLostError) as ended:
             stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
-            self._send_stop(at, stop.reason)
+            self._send_stop(at, stop.reason, stop.at_ns)
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
@@ -322,12 +324,13 @@ class ArmRig:
         yield self._event("end")
         return None
 
-    def _send_stop(self, at: Context | None, why: str) -> None:
+    def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> None:
         """Send the stop (first thing on every abnormal end); remember when."""
         context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
         with contextlib.suppress(Exception):  # a lost connection: the driver did what it could
             self.arm.stop(self.options.motion.acceleration_m_s2, context)
-        self.stops_sent.append((self.clock.now_ns(), why))
+        sent = self.clock.now_ns()
+        self.stops_sent.append((sent if cause_ns is None else cause_ns, sent, why))
 
     def _tare(self) -> Generator[StreamItem, None, float]:
         """Return the skin's total force in free air before the approach (its zero).
@@ -481,10 +484,11 @@ class ArmRig:
             msg = f"arm connection lost ({err.__cause__ or err})"
             raise Stop(msg, self.clock.now_ns()) from None
         items: list[StreamItem] = []
-        violation = ""
+        violation, violation_ns = "", 0
         for sample in samples:
             self._state.sample, self._state.receive_ns = sample, sample.receive_ns
-            violation = violation or self._violation(sample)
+            if not violation and (violation := self._violation(sample)):
+                violation_ns = sample.receive_ns
             items.extend(_items(sample))
         try:
             items.extend(self.skin.poll())
@@ -492,7 +496,7 @@ class ArmRig:
             violation = violation or f"skin connection lost ({err})"
         items.sort(key=lambda item: item.receive_ns)
         yield from items
-        self._check(violation)
+        self._check(violation, violation_ns)
 
     def _pump_quietly(self) -> None:
         """Pump without recording (between actions); the checks still run."""
@@ -512,13 +516,15 @@ class ArmRig:
             return f"TCP at {where} left the [limits] workspace"
         return ""
 
-    def _check(self, violation: str) -> None:
+    def _check(self, violation: str, violation_ns: int = 0) -> None:
         """Raise a stop for a limit, a signal, a writer in trouble or a silent source.
 
         Raises:
-            Stop: The reason, one line.
+            Stop: The reason, one line, and when the cause was met.
         """
         now = self.clock.now_ns()
+        if violation:
+            raise Stop(violation, violation_ns or now)
         reason = violation or self._watch.problem()
         if not reason:
             silence = round(self.options.silence_s * _NS)

@@ -1,0 +1,251 @@
+"""How fast the arm gets its stop: from each cause to the ``stopl`` at the controller.
+
+The virtual lab (``atikt-record serve-sim`` in its own process, as a controller is) executes
+the URScript it receives and writes what happened with both clocks (``--events``); the UR rig
+of this process records actions against it and meets one cause per action:
+
+* ``limit``: the TCP leaves the ``[limits]`` workspace during the approach (the cause: the
+  first state sample outside, as it arrived);
+* ``protective``: a protective stop injected by the lab after the action began (the cause: the
+  lab's stop);
+* ``silence``: the RTDE stream stalls (the cause: the moment it had been silent ``silence_s``);
+* ``sigint`` / ``sigterm``: Ctrl-C or SIGTERM sent to this process during the action;
+* ``write``: the file writer fails (a full disk) during the action;
+* ``error``: the skin raises an unexpected error during the action.
+
+For each: the time from the cause to the arrival of the stop program at the controller, in
+controller cycles and ms (p99 and median over the runs), and the time from that arrival to the
+arm's measured TCP speed at zero, beside the bound its deceleration gives (speed / a, plus a
+cycle). Printed as a table.
+
+    python tests/bench/bench_stop_latency.py --runs 20            # 125 and 500 Hz
+    python tests/bench/bench_stop_latency.py --quick              # one run of each cause
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import errno
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from recorder import load_actions, load_objects, record_action  # noqa: E402
+from recorder._rigconfig import load_rig_config  # noqa: E402
+from recorder.ur import build_ur_rig  # noqa: E402
+from recorder.writing._writer import RecordingWriter  # noqa: E402
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+
+    from recorder.runner import ArmRig
+
+CAUSES = ("limit", "protective", "silence", "sigint", "sigterm", "write", "error")
+SCALE = 0.2
+OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
+POSE_Z = 0.15  # the example configuration's pose of wood
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], Path]:
+    """Return the rig configuration, the serve-sim command and its events file."""
+    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    udp = _free_port(socket.SOCK_DGRAM)
+    text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
+    text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
+    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("frequency = 125", f"frequency = {frequency}")
+    text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
+    text = text.replace("contact_force_n = 0.05", "contact_force_n = 0.15")
+    text = text.replace("silence_s = 0.5", "silence_s = 1.0")  # a loaded machine's lab
+    if cause == "limit":  # 3 mm into the approach the TCP leaves the box
+        text = text.replace(
+            "workspace_min_m = [-0.9, -0.5, 0.0]",
+            f"workspace_min_m = [-0.9, -0.5, {POSE_Z - 0.003}]",
+        )
+    skin = (ROOT / "recorder/data/skin_udp.example.toml").read_text("utf-8")
+    skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
+    text = text[: text.index("\n[skin]\n") + 1] + skin[skin.index("\n[skin]\n") + 1 :]
+    lab = tmp / "lab.toml"
+    lab.write_text(text, "utf-8")
+    events = tmp / "events.jsonl"
+    command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", str(SCALE)]
+    command += [
+        "--frequency",
+        str(frequency),
+        "--rtde-port",
+        str(rtde),
+        "--script-port",
+        str(script),
+    ]
+    command += [
+        "--rig-config",
+        str(lab),
+        "--skin",
+        f"udp://127.0.0.1:{udp}",
+        "--events",
+        str(events),
+    ]
+    if cause == "protective":
+        command += ["--fault", "script.protective_stop=1.0"]
+    if cause == "silence":
+        command += ["--fault", "rtde.stall=3", "--fault", "rtde.at_action=1"]
+    return lab, command, events
+
+
+@contextlib.contextmanager
+def _serving(command: list[str]) -> Iterator[None]:
+    env = os.environ | {"PYTHONPATH": str(ROOT)}
+    lab = subprocess.Popen(
+        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )  # noqa: S603
+    try:
+        assert lab.stdout is not None
+        line = lab.stdout.readline()
+        if not line.startswith("virtual lab listening"):
+            raise RuntimeError(line + (lab.stderr.read() if lab.stderr else ""))
+        yield
+    finally:
+        lab.send_signal(signal.SIGINT)
+        lab.communicate(timeout=30)
+
+
+def _after(seconds: float, then: Callable[[], None]) -> dict[str, int]:
+    """Call ``then`` after ``seconds`` (a thread); return the monotonic time it did."""
+    seen: dict[str, int] = {}
+
+    def run() -> None:
+        time.sleep(seconds)
+        seen["ns"] = time.monotonic_ns()
+        then()
+
+    threading.Thread(target=run, daemon=True).start()
+    return seen
+
+
+def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
+    """Record one action meeting ``cause``; return its latencies (None: it did not stop)."""
+    lab, command, events_file = _lab_files(tmp, frequency, cause)
+    path = tmp / "out" / "001.mcap"
+    cause_ns: dict[str, int] = {}
+    with _serving(command), build_ur_rig(0, load_rig_config(lab)) as rig:
+        rig.present(OBJECT)
+        offset = rig.clock.now_ns() - time.monotonic_ns()
+        original = RecordingWriter.write
+        skin_poll = rig.skin.poll
+        if cause in {"sigint", "sigterm"}:
+            number = signal.SIGINT if cause == "sigint" else signal.SIGTERM
+            cause_ns = _after(2.0, lambda: os.kill(os.getpid(), number))
+        elif cause == "write":
+            start = time.monotonic_ns()
+
+            def full(self: RecordingWriter, item: Any) -> None:  # noqa: ANN401
+                if time.monotonic_ns() - start > 2e9:
+                    cause_ns.setdefault("ns", time.monotonic_ns())
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                original(self, item)
+
+            RecordingWriter.write = full  # type: ignore[method-assign]
+        elif cause == "error":
+            start = time.monotonic_ns()
+
+            def broken() -> Any:  # noqa: ANN401
+                if time.monotonic_ns() - start > 2e9:
+                    cause_ns.setdefault("ns", time.monotonic_ns())
+                    msg = "a bug in the skin"
+                    raise RuntimeError(msg)
+                return skin_poll()
+
+            rig.skin.poll = broken  # type: ignore[method-assign]
+        with contextlib.suppress(BaseException):
+            record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+        RecordingWriter.write = original  # type: ignore[method-assign]
+        stops = [s for s in rig.stops_sent if "error" != s[2] or cause == "error"]
+    if not stops:
+        return None
+    cause_rig, sent_rig, _why = stops[0]
+    events = [json.loads(line) for line in events_file.read_text().splitlines()]
+    period = 1e9 / frequency
+    if cause == "protective":
+        cause_mono = next(e["monotonic_ns"] for e in events if e["event"] == "stop")
+    elif "ns" in cause_ns:
+        cause_mono = cause_ns["ns"]
+    else:  # a state sample outside the limits, or the silence threshold: the rig's own
+        cause_mono = cause_rig - offset
+    sent_mono = sent_rig - offset
+    arrived = [  # the stop the rig sent (not the contact's stopl before it)
+        int(e["received_monotonic_ns"])
+        for e in events
+        if e["event"] == "program"
+        and e.get("name") == "atikt_stop"
+        and int(e.get("received_monotonic_ns", 0)) >= sent_mono - 1_000_000
+    ]
+    if cause == "protective":  # the stopped controller refuses programs: the rig's send time
+        arrived = [round(sent_mono)]
+    if not arrived:
+        return None
+    arrival = arrived[0]
+    zeros = [e for e in events if e["event"] == "actual_zero" and e["monotonic_ns"] >= arrival]
+    to_zero = (zeros[0]["monotonic_ns"] - arrival) / 1e6 if zeros else float("nan")
+    return {
+        "cycles": (arrival - cause_mono) / period,
+        "ms": (arrival - cause_mono) / 1e6,
+        "zero_ms": to_zero,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=10, help="actions per cause and frequency")
+    parser.add_argument("--quick", action="store_true", help="one run of each cause at 125 Hz")
+    args = parser.parse_args()
+    runs, frequencies = (1, (125,)) if args.quick else (args.runs, (125, 500))
+    print(f"load {os.getloadavg()[0]:.1f}; virtual lab time scale {SCALE}; {runs} runs each")
+    print(
+        f"{'cause':<11}{'Hz':>5}{'p99 cycles':>12}{'median':>8}{'p99 ms':>9}{'zero ms':>9}{'missed':>8}"
+    )
+    for frequency in frequencies:
+        for cause in CAUSES:
+            found = []
+            missed = 0
+            for _ in range(runs):
+                with tempfile.TemporaryDirectory() as tmp:
+                    result = _one(Path(tmp), frequency, cause)
+                if result is None:
+                    missed += 1
+                else:
+                    found.append(result)
+            if not found:
+                print(f"{cause:<11}{frequency:>5}{'-':>12}{'-':>8}{'-':>9}{'-':>9}{missed:>8}")
+                continue
+            cycles = np.array([r["cycles"] for r in found])
+            ms = np.array([r["ms"] for r in found])
+            zero = np.array([r["zero_ms"] for r in found])
+            print(
+                f"{cause:<11}{frequency:>5}{np.percentile(cycles, 99):>12.2f}"
+                f"{np.median(cycles):>8.2f}{np.percentile(ms, 99):>9.2f}"
+                f"{np.nanmedian(zero) if np.isfinite(zero).any() else float('nan'):>9.1f}{missed:>8}"
+            )
+
+
+if __name__ == "__main__":
+    main()
