@@ -52,7 +52,6 @@ from recorder.writing._writer import RecordingWriter  # noqa: E402
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
 
-    from recorder.runner import ArmRig
 
 CAUSES = ("limit", "protective", "silence", "sigint", "sigterm", "write", "error")
 SCALE = 0.2
@@ -115,9 +114,9 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
 @contextlib.contextmanager
 def _serving(command: list[str]) -> Iterator[None]:
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    lab = subprocess.Popen(
+    lab = subprocess.Popen(  # noqa: S603 (this project's command)
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )  # noqa: S603
+    )
     try:
         assert lab.stdout is not None
         line = lab.stdout.readline()
@@ -142,55 +141,61 @@ def _after(seconds: float, then: Callable[[], None]) -> dict[str, int]:
     return seen
 
 
+def _set_cause(rig: Any, cause: str) -> dict[str, int]:
+    """Arrange for ``cause`` to happen 2 s into the action; return where its time goes."""
+    cause_ns: dict[str, int] = {}
+    start = time.monotonic_ns()
+    if cause in {"sigint", "sigterm"}:
+        number = signal.SIGINT if cause == "sigint" else signal.SIGTERM
+        return _after(2.0, lambda: os.kill(os.getpid(), number))
+    if cause == "write":
+
+        def full(self: RecordingWriter, item: Any) -> None:
+            if time.monotonic_ns() - start > 2e9:
+                cause_ns.setdefault("ns", time.monotonic_ns())
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            WRITE(self, item)
+
+        RecordingWriter.write = full  # type: ignore[method-assign]
+    elif cause == "error":
+        poll = rig.skin.poll
+
+        def broken() -> Any:
+            if time.monotonic_ns() - start > 2e9:
+                cause_ns.setdefault("ns", time.monotonic_ns())
+                msg = "a bug in the skin"
+                raise RuntimeError(msg)
+            return poll()
+
+        rig.skin.poll = broken
+    return cause_ns
+
+
+WRITE = RecordingWriter.write
+
+
 def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     """Record one action meeting ``cause``; return its latencies (None: it did not stop)."""
     lab, command, events_file = _lab_files(tmp, frequency, cause)
-    path = tmp / "out" / "001.mcap"
-    cause_ns: dict[str, int] = {}
     with _serving(command), build_ur_rig(0, load_rig_config(lab)) as rig:
         rig.present(OBJECT)
         offset = rig.clock.now_ns() - time.monotonic_ns()
-        original = RecordingWriter.write
-        skin_poll = rig.skin.poll
-        if cause in {"sigint", "sigterm"}:
-            number = signal.SIGINT if cause == "sigint" else signal.SIGTERM
-            cause_ns = _after(2.0, lambda: os.kill(os.getpid(), number))
-        elif cause == "write":
-            start = time.monotonic_ns()
-
-            def full(self: RecordingWriter, item: Any) -> None:  # noqa: ANN401
-                if time.monotonic_ns() - start > 2e9:
-                    cause_ns.setdefault("ns", time.monotonic_ns())
-                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-                original(self, item)
-
-            RecordingWriter.write = full  # type: ignore[method-assign]
-        elif cause == "error":
-            start = time.monotonic_ns()
-
-            def broken() -> Any:  # noqa: ANN401
-                if time.monotonic_ns() - start > 2e9:
-                    cause_ns.setdefault("ns", time.monotonic_ns())
-                    msg = "a bug in the skin"
-                    raise RuntimeError(msg)
-                return skin_poll()
-
-            rig.skin.poll = broken  # type: ignore[method-assign]
-        with contextlib.suppress(BaseException):
-            record_action(rig, OBJECT, ACTION, 1, path, seed=0)
-        RecordingWriter.write = original  # type: ignore[method-assign]
-        stops = [s for s in rig.stops_sent if "error" != s[2] or cause == "error"]
+        cause_ns = _set_cause(rig, cause)
+        try:
+            record_action(rig, OBJECT, ACTION, 1, tmp / "out" / "001.mcap", seed=0)
+        except BaseException:  # noqa: BLE001, S110 (every cause ends the action: measured below)
+            pass
+        finally:
+            RecordingWriter.write = WRITE  # type: ignore[method-assign]
+        stops = list(rig.stops_sent)
     if not stops:
         return None
     cause_rig, sent_rig, _why = stops[0]
     events = [json.loads(line) for line in events_file.read_text().splitlines()]
-    period = 1e9 / frequency
     if cause == "protective":
         cause_mono = next(e["monotonic_ns"] for e in events if e["event"] == "stop")
-    elif "ns" in cause_ns:
-        cause_mono = cause_ns["ns"]
-    else:  # a state sample outside the limits, or the silence threshold: the rig's own
-        cause_mono = cause_rig - offset
+    else:  # a signal, a failed write, an error; or the rig's own: a sample, the silence
+        cause_mono = cause_ns.get("ns", cause_rig - offset)
     sent_mono = sent_rig - offset
     arrived = [  # the stop the rig sent (not the contact's stopl before it)
         int(e["received_monotonic_ns"])
@@ -203,30 +208,41 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
         arrived = [round(sent_mono)]
     if not arrived:
         return None
-    arrival = arrived[0]
+    arrival, period = arrived[0], 1e9 / frequency
     zeros = [e for e in events if e["event"] == "actual_zero" and e["monotonic_ns"] >= arrival]
-    to_zero = (zeros[0]["monotonic_ns"] - arrival) / 1e6 if zeros else float("nan")
     return {
         "cycles": (arrival - cause_mono) / period,
         "ms": (arrival - cause_mono) / 1e6,
-        "zero_ms": to_zero,
+        "zero_ms": (zeros[0]["monotonic_ns"] - arrival) / 1e6 if zeros else float("nan"),
     }
 
 
+def _row(cause: str, frequency: int, found: list[dict[str, float]], missed: int) -> str:
+    if not found:
+        return f"{cause:<11}{frequency:>5}{'-':>12}{'-':>8}{'-':>9}{'-':>9}{missed:>8}"
+    cycles = np.array([r["cycles"] for r in found])
+    ms = np.array([r["ms"] for r in found])
+    zero = np.array([r["zero_ms"] for r in found])
+    to_zero = float(np.nanmedian(zero)) if np.isfinite(zero).any() else float("nan")
+    return (
+        f"{cause:<11}{frequency:>5}{np.percentile(cycles, 99):>12.2f}{np.median(cycles):>8.2f}"
+        f"{np.percentile(ms, 99):>9.2f}{to_zero:>9.1f}{missed:>8}"
+    )
+
+
 def main() -> None:
+    """Run every cause, print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10, help="actions per cause and frequency")
     parser.add_argument("--quick", action="store_true", help="one run of each cause at 125 Hz")
     args = parser.parse_args()
     runs, frequencies = (1, (125,)) if args.quick else (args.runs, (125, 500))
     print(f"load {os.getloadavg()[0]:.1f}; virtual lab time scale {SCALE}; {runs} runs each")
-    print(
-        f"{'cause':<11}{'Hz':>5}{'p99 cycles':>12}{'median':>8}{'p99 ms':>9}{'zero ms':>9}{'missed':>8}"
-    )
+    head = ("cause", "Hz", "p99 cycles", "median", "p99 ms", "zero ms", "missed")
+    print(f"{head[0]:<11}{head[1]:>5}{head[2]:>12}{head[3]:>8}{head[4]:>9}{head[5]:>9}{head[6]:>8}")
     for frequency in frequencies:
         for cause in CAUSES:
-            found = []
-            missed = 0
+            found, missed = [], 0
             for _ in range(runs):
                 with tempfile.TemporaryDirectory() as tmp:
                     result = _one(Path(tmp), frequency, cause)
@@ -234,17 +250,7 @@ def main() -> None:
                     missed += 1
                 else:
                     found.append(result)
-            if not found:
-                print(f"{cause:<11}{frequency:>5}{'-':>12}{'-':>8}{'-':>9}{'-':>9}{missed:>8}")
-                continue
-            cycles = np.array([r["cycles"] for r in found])
-            ms = np.array([r["ms"] for r in found])
-            zero = np.array([r["zero_ms"] for r in found])
-            print(
-                f"{cause:<11}{frequency:>5}{np.percentile(cycles, 99):>12.2f}"
-                f"{np.median(cycles):>8.2f}{np.percentile(ms, 99):>9.2f}"
-                f"{np.nanmedian(zero) if np.isfinite(zero).any() else float('nan'):>9.1f}{missed:>8}"
-            )
+            print(_row(cause, frequency, found, missed), flush=True)
 
 
 if __name__ == "__main__":
