@@ -453,12 +453,14 @@ class ArmRig:
         yield self._event("retract")
         start = self.clock.now_ns()
         still_since: int | None = None
+        moved = False  # a retract that has not begun (its program late) is not over
         settle = round(SETTLE_S * _NS)
         limit = start + round((3 * motion.retract_m / motion.retract_m_s + 2) * _NS)
         while not self._reached(target):
             yield from self._pump()
             now = self.clock.now_ns()
-            still_since = (still_since or now) if self._state.still else None
+            moved = moved or not self._state.still
+            still_since = (still_since or now) if self._state.still and moved else None
             if still_since is not None and now - still_since > settle and now - start > settle:
                 break
             if now > limit:
