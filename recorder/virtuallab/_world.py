@@ -232,26 +232,42 @@ class VirtualWorld:
         """Return the controller's time: ns since the virtual lab started."""
         return self.clock() - self._origin_ns
 
-    def advance_to(self, controller_ns: int) -> None:
-        """Compute every cycle that ends at or before ``controller_ns`` (and not after now)."""
+    def advance_to(self, controller_ns: int, wait_s: float = -1.0) -> None:
+        """Compute every cycle that ends at or before ``controller_ns`` (and not after now).
+
+        Args:
+            controller_ns: The controller time to reach.
+            wait_s: How long to wait for another thread computing a cycle (negative: as long
+                as it takes); past it the caller reads what is there.
+        """
         limit = min(controller_ns, self.controller_ns())
-        with self._lock:
+        if self._cycles[-1].end_ns + self._period_ns > limit:
+            return
+        if not self._lock.acquire(timeout=wait_s):
+            return
+        try:
             while self._cycles[-1].end_ns + self._period_ns <= limit:
-                last = self._cycles[-1].end_ns
-                due = (limit - last) // self._period_ns
-                span = 1
-                if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
-                    span = due
-                    self.overruns += due - 1
-                    if self.overruns == due - 1:
-                        _log.warning(
-                            "virtual controller behind its clock by %d cycles: computed as "
-                            "one, the world slows down (the machine is too loaded for the "
-                            "cycle rate); VirtualWorld.overruns counts them",
-                            due,
-                        )
-                self._cycles.append(self._cycle(last, last + span * self._period_ns))
-                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
+                self._next_cycle(limit)
+        finally:
+            self._lock.release()
+
+    def _next_cycle(self, limit: int) -> None:
+        """Compute the next cycle (with the lock held); a backlog is computed as one."""
+        last = self._cycles[-1].end_ns
+        due = (limit - last) // self._period_ns
+        span = 1
+        if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
+            span = due
+            self.overruns += due - 1
+            if self.overruns == due - 1:
+                _log.warning(
+                    "virtual controller behind its clock by %d cycles: computed as one, the "
+                    "world slows down (the machine is too loaded for the cycle rate); "
+                    "VirtualWorld.overruns counts them",
+                    due,
+                )
+        self._cycles.append(self._cycle(last, last + span * self._period_ns))
+        self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
 
     def _cycle(self, start_ns: int, end_ns: int) -> _Cycle:
         """Run one controller cycle (with the lock held).
