@@ -428,3 +428,27 @@ def test_the_dashboard_releases_a_protective_stop() -> None:
         time.sleep(0.3)
         state = lab.world.robot_at(lab.world.controller_ns())
         assert np.all(state.target_tcp_speed == 0)
+
+
+def test_the_skins_readings_go_on_from_one_action_to_the_next() -> None:
+    clock = Clock()
+    world = _world(clock)
+
+    def mean_force(cycles: int) -> np.ndarray:
+        samples = []
+        for _ in range(cycles):
+            _cycles(world, clock, 1)
+            samples += [_skin(world, "force", clock.now - k * 1_000_000) for k in range(8)]
+        mean: np.ndarray = np.mean(samples, axis=0)
+        return mean
+
+    said = 'textmsg("atikt: object=foam_block action={} trial=1 phase=approach")'
+    world.run(_program(said.format("P1")))
+    _cycles(world, clock, 400)  # 3.2 s: the offsets drift
+    before = mean_force(20)
+    world.run(_program(said.format("S1")))  # a new execution: its own spot and gains
+    after = mean_force(20)
+    assert world.action_at(clock.now) == ("foam_block", "S1", 1)
+    # in free air a reading is offset, drift and noise: the offsets go on (redrawn, they would
+    # move by 0.003 N per sensor; the means of 160 samples differ by noise and drift only)
+    assert np.abs(after - before).max() < 0.0015
