@@ -2,14 +2,18 @@
 
 ``atikt-record serve-sim`` lets a lab rehearse its rig configuration and a whole session
 without the robot, and lets the tests exercise the real client code: the arm's RTDE state
-stream and URScript port, the skin's frames, ROS 2 topics. :class:`VirtualWorld` holds the
-simulated execution being played; each server reads the world's state at its own rate.
+stream and URScript port, the skin's frames, ROS 2 topics. :class:`VirtualWorld` is a
+virtual UR10 controller that executes the URScript it receives, cycle by cycle, over the
+simulator's objects; each server reads the world's state at its own rate, and
+:meth:`VirtualWorld.events` says what happened (programs, faults, stops) on both clocks.
 """
 
+from recorder.virtuallab._events import Event
 from recorder.virtuallab._skin_server import InjectedFaults, SkinFaults, SkinServer, serve_skin
 from recorder.virtuallab._world import RobotState, VirtualWorld
 
 __all__ = [
+    "Event",
     "InjectedFaults",
     "RobotState",
     "SkinFaults",

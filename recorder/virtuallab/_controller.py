@@ -38,8 +38,12 @@ class VirtualController:
         return self.world.controller_ns()
 
     def state_at(self, controller_ns: int) -> RobotState:
-        """Return the arm's state at a controller time (computing the cycles due first)."""
-        self.world.advance_to(controller_ns)
+        """Return the arm's state at a controller time (computing the cycles due first).
+
+        The server waits at most 2 ms for a cycle another thread computes (then sends the
+        state of the cycle before): its stream keeps its rate on a loaded machine.
+        """
+        self.world.advance_to(controller_ns, wait_s=0.002)
         return self.world.robot_at(controller_ns)
 
     def execute(self, program: Program) -> bool:

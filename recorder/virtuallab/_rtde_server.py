@@ -276,7 +276,8 @@ class RtdeServer(TcpServer):
         while session.started and not self.stopping.is_set():
             due = tick * period
             wait = (due - clock()) / 1e9
-            if wait > 0 and not self._handle_ready(session, wait):
+            # requests are answered even when the stream runs behind its clock (wait <= 0)
+            if not self._handle_ready(session, wait):
                 return False
             if not session.started or clock() < due:
                 continue

@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+import weakref
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Self
@@ -200,9 +201,7 @@ class VirtualWorld:
 
     def __enter__(self) -> Self:
         """Start ticking: cycles are computed on time even when nobody reads."""
-        self._stopping.clear()
-        self._ticker = threading.Thread(target=self._tick, name="atikt-vlab-world", daemon=True)
-        self._ticker.start()
+        self._start_ticking()
         return self
 
     def __exit__(
@@ -215,13 +214,17 @@ class VirtualWorld:
         self._stopping.set()
         if self._ticker is not None:
             self._ticker.join(2.0)
+            self._ticker = None
 
-    def _tick(self) -> None:
-        while not self._stopping.is_set():
-            now = self.controller_ns()
-            self.advance_to(now)
-            due = (now // self._period_ns + 1) * self._period_ns
-            self._stopping.wait(max(due - self.controller_ns(), 0) / 1e9)
+    def _start_ticking(self) -> None:
+        """Start the ticking thread (it ends with the world: it holds only a weak reference)."""
+        if self._ticker is not None:
+            return
+        self._stopping.clear()
+        self._ticker = threading.Thread(
+            target=_tick, args=(weakref.ref(self), self._stopping), name="atikt-vlab", daemon=True
+        )
+        self._ticker.start()
 
     @property
     def period_ns(self) -> int:
@@ -232,26 +235,42 @@ class VirtualWorld:
         """Return the controller's time: ns since the virtual lab started."""
         return self.clock() - self._origin_ns
 
-    def advance_to(self, controller_ns: int) -> None:
-        """Compute every cycle that ends at or before ``controller_ns`` (and not after now)."""
+    def advance_to(self, controller_ns: int, wait_s: float = -1.0) -> None:
+        """Compute every cycle that ends at or before ``controller_ns`` (and not after now).
+
+        Args:
+            controller_ns: The controller time to reach.
+            wait_s: How long to wait for another thread computing a cycle (negative: as long
+                as it takes); past it the caller reads what is there.
+        """
         limit = min(controller_ns, self.controller_ns())
-        with self._lock:
+        if self._cycles[-1].end_ns + self._period_ns > limit:
+            return
+        if not self._lock.acquire(timeout=wait_s):
+            return
+        try:
             while self._cycles[-1].end_ns + self._period_ns <= limit:
-                last = self._cycles[-1].end_ns
-                due = (limit - last) // self._period_ns
-                span = 1
-                if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
-                    span = due
-                    self.overruns += due - 1
-                    if self.overruns == due - 1:
-                        _log.warning(
-                            "virtual controller behind its clock by %d cycles: computed as "
-                            "one, the world slows down (the machine is too loaded for the "
-                            "cycle rate); VirtualWorld.overruns counts them",
-                            due,
-                        )
-                self._cycles.append(self._cycle(last, last + span * self._period_ns))
-                self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
+                self._next_cycle(limit)
+        finally:
+            self._lock.release()
+
+    def _next_cycle(self, limit: int) -> None:
+        """Compute the next cycle (with the lock held); a backlog is computed as one."""
+        last = self._cycles[-1].end_ns
+        due = (limit - last) // self._period_ns
+        span = 1
+        if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
+            span = due
+            self.overruns += due - 1
+            if self.overruns == due - 1:
+                _log.warning(
+                    "virtual controller behind its clock by %d cycles: computed as one, the "
+                    "world slows down (the machine is too loaded for the cycle rate); "
+                    "VirtualWorld.overruns counts them",
+                    due,
+                )
+        self._cycles.append(self._cycle(last, last + span * self._period_ns))
+        self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
 
     def _cycle(self, start_ns: int, end_ns: int) -> _Cycle:
         """Run one controller cycle (with the lock held).
@@ -456,8 +475,11 @@ class VirtualWorld:
         cycle late; the RTDE server calls :meth:`advance_to` itself so that every package is
         the state of its own instant.
         """
-        if self._ticker is None:
-            self.advance_to(controller_ns)
+        if self._ticker is not None:
+            return
+        if self.clock is time.monotonic_ns:  # a real clock: tick (a stopped one: tests step)
+            self._start_ticking()
+        self.advance_to(controller_ns)
 
     def _find(self, test: Callable[[_Cycle], bool]) -> _Cycle:
         """Return the newest cycle passing ``test`` (the oldest kept when none does).
@@ -576,6 +598,20 @@ class VirtualWorld:
     def wait(seconds: float) -> None:
         """Sleep (a seam for tests)."""
         time.sleep(seconds)
+
+
+def _tick(ref: weakref.ref[VirtualWorld], stopping: threading.Event) -> None:
+    """Compute each cycle at its end until stopped or the world is gone."""
+    while not stopping.is_set():
+        world = ref()
+        if world is None:
+            return
+        now = world.controller_ns()
+        world.advance_to(now)
+        period = world.period_ns
+        wait = ((now // period + 1) * period - world.controller_ns()) / 1e9
+        del world
+        stopping.wait(max(wait, 0.0))
 
 
 def _name(text: str) -> str:
