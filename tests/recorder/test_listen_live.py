@@ -279,3 +279,26 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     assert specific, bound
     assert all(a.startswith("127.0.0.1:") for a in specific), bound
     assert len(bound) - len(specific) <= 2, bound
+
+
+def test_the_soak_benchmark_runs_quick() -> None:
+    import os  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    root = Path(__file__).parents[2]
+    bench = root / "tests" / "bench" / "bench_listen_soak.py"
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    done = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+        [sys.executable, str(bench), "--quick"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    written = re.search(r"pass check (\d+) of (\d+)", done.stdout)
+    assert written is not None, done.stdout
+    assert written.group(1) == written.group(2) != "0"
+    assert "accounting: missing 0, queue overflow 0" in done.stdout
