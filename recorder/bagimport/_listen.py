@@ -151,6 +151,7 @@ class Listener:
     domain_id: int = 0
     discovery_s: float = 10.0
     capacity: int = 100_000
+    loopback: bool = False
     on_written: Callable[[Path], Any] | None = None
     on_note: Callable[[str], Any] | None = None
     clock: RecorderClock = field(default_factory=RecorderClock)
@@ -254,7 +255,9 @@ class Listener:
 
         self._store = typestore(self.topic_map)
         try:
-            self._domain = domain = dds.DdsDomain(self.domain_id, self._store)
+            self._domain = domain = dds.DdsDomain(
+                self.domain_id, self._store, loopback=self.loopback
+            )
         except dds.DdsError as err:
             raise BagImportError(str(err)) from err
         topics = [t for t, _ in required_types(self.topic_map)]
@@ -552,6 +555,7 @@ def listen(
     discovery_s: float = 10.0,
     on_written: Callable[[Path], Any] | None = None,
     on_note: Callable[[str], Any] | None = None,
+    loopback: bool = False,
 ) -> ImportReport:
     """Record a lab's ROS 2 topics live: one recording per action window, then the index.
 
@@ -566,6 +570,8 @@ def listen(
         discovery_s: How long to wait for the topics' publishers at the start.
         on_written: Called with every recording written.
         on_note: Called with one line per window skipped or dropped.
+        loopback: Join DDS on the loopback interface only (this process's configuration,
+            whatever ``CYCLONEDDS_URI`` says).
 
     Returns:
         What was written and skipped.
@@ -580,6 +586,7 @@ def listen(
         actions,
         domain_id,
         discovery_s,
+        loopback=loopback,
         on_written=on_written,
         on_note=on_note,
     )
@@ -615,6 +622,12 @@ def listen(
     arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
     arg("--domain-id", type=int, default=0, help="DDS domain id (ROS_DOMAIN_ID; default: 0)"),
     arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
+    arg(
+        "--loopback",
+        action="store_true",
+        help="join DDS on the loopback interface only (default: the interfaces Cyclone DDS "
+        "picks, or those CYCLONEDDS_URI names)",
+    ),
     *_CATALOGS,
 )
 def _listen(args: argparse.Namespace) -> int:
@@ -649,4 +662,5 @@ def _listen_run(
         discovery_s=10.0 if args.duration is None else min(10.0, args.duration),
         on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
         on_note=lambda line: print(line, flush=True),  # noqa: T201
+        loopback=args.loopback,
     )

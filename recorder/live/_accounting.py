@@ -54,10 +54,9 @@ DRIFT_ALLOWED = 1e-3
 #: :data:`COUNTER_RELATIVE` of it) before it counts as a reset, ns.
 COUNTER_TOLERANCE_NS = 1_000_000_000
 COUNTER_RELATIVE = 0.1
-#: A step between stamps longer than this many periods (and than the period plus
-#: :data:`GAP_SLACK_NS`) is a gap of a source without a sequence.
+#: A step between stamps longer than this many periods is a gap of a source without a
+#: sequence (below ``check``'s five periods: every pause ``check`` finds is counted).
 GAP_PERIODS = 2.5
-GAP_SLACK_NS = 5_000_000
 
 
 class Verdict(enum.Enum):
@@ -270,7 +269,7 @@ class SourceCounter:
     def _gap(self, step_ns: int) -> None:
         """Count a pause of a source without a sequence."""
         period = self._period_ns
-        if step_ns > max(GAP_PERIODS * period, period + GAP_SLACK_NS):
+        if step_ns > GAP_PERIODS * period:
             self._gap_count += 1
             self._gap_ns += step_ns - period
 

@@ -102,6 +102,34 @@ class DdsError(RecorderError):
     """DDS refused something (a domain id, a type, a topic)."""
 
 
+#: Cyclone DDS configuration that keeps a participant on the loopback interface: discovery and
+#: data over ``lo`` only, no multicast, the one peer 127.0.0.1. Cyclone DDS (0.11) still binds
+#: its two unicast *receive* sockets to 0.0.0.0 (its UDP transport always does, whatever the
+#: configuration), but advertises only 127.0.0.1 and sends from 127.0.0.1 only.
+LOOPBACK_CONFIG = (
+    '<CycloneDDS><Domain id="any"><General><Interfaces><NetworkInterface name="lo"/>'
+    "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
+    '<Peer address="127.0.0.1"/></Peers><ParticipantIndex>auto</ParticipantIndex>'
+    "</Discovery></Domain></CycloneDDS>"
+)
+
+
+def _confine(domain_id: int) -> Any:  # noqa: ANN401 (a cyclonedds Domain)
+    """Create the domain with :data:`LOOPBACK_CONFIG` (before any participant joins it).
+
+    Returns:
+        The domain, or None when this process has joined it already (a command line
+        process has not: its participant is the first; a program that publishes and
+        listens in one process shares the configuration of its first participant).
+    """
+    from cyclonedds.domain import Domain  # noqa: PLC0415
+
+    try:
+        return Domain(domain_id, LOOPBACK_CONFIG)
+    except DDSException:  # the domain exists in this process: join it as it is
+        return None
+
+
 def dds_topic(topic: str) -> str:
     """Return the DDS topic of a ROS 2 topic (``/joint_states`` -> ``rt/joint_states``)."""
     return "rt/" + topic.lstrip("/")
@@ -204,12 +232,23 @@ def _publication(sample: Any) -> Publication | None:  # noqa: ANN401 (a DcpsEndp
 class DdsDomain:
     """One DDS participant on a domain: discovery, raw readers and raw writers."""
 
-    def __init__(self, domain_id: int, store: Typestore) -> None:
-        """Join the domain.
+    #: Domains this process confined to loopback (kept alive: deleting one ends it).
+    _confined: dict[int, Any] = {}  # noqa: RUF012 (one registry per process)
+
+    def __init__(self, domain_id: int, store: Typestore, *, loopback: bool = False) -> None:
+        """Join the domain (on the loopback interface only, with ``loopback``).
+
+        Without ``loopback`` the participant joins the interfaces Cyclone DDS picks, or those
+        ``CYCLONEDDS_URI`` names; with it, this process's configuration confines it to ``lo``
+        whatever ``CYCLONEDDS_URI`` says.
 
         Raises:
             DdsError: DDS refuses the domain id (0..232) or its configuration.
         """
+        if loopback and DdsDomain._confined.get(domain_id) is None:
+            DdsDomain._confined[domain_id] = _confine(domain_id)
+        #: Whether this process confined the domain to loopback by its own configuration.
+        self.confined = DdsDomain._confined.get(domain_id) is not None
         try:
             self.participant = DomainParticipant(domain_id)
         except DDSException as err:

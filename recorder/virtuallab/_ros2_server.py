@@ -147,7 +147,8 @@ class Ros2Server:
                 stalled = True
                 time.sleep(self.faults.stall_s)
             controller = self.world.controller_ns()
-            self._annotate(store, due, controller)
+            # the phase at the sample time ``due`` (the loop may run behind it under load)
+            self._annotate(store, due, controller - max(time.time_ns() - due, 0))
             if due == next_joint and self.topic_map.joints is not None:
                 self._publish(self.topic_map.joints.topic, self._joint(store, due, controller))
                 next_joint += joint_period
@@ -157,21 +158,31 @@ class Ros2Server:
                 next_cell += cell_period
 
     def _annotate(self, store: Any, stamp: int, controller_ns: int) -> None:  # noqa: ANN401
-        """Publish an annotation when the playing action enters a phase, and its ``end``."""
+        """Publish an annotation when the action enters a phase at ``controller_ns``.
+
+        The phase is the world's at the sample time (``controller_ns``), which may lie behind
+        the world's present when the publishing loop runs late: the action announced is the
+        one playing, or, once it ended at present, the one announced until its ``end``.
+        """
         if self._annotations is None:
             return
         playing = self.world.playing()
         announced = self._announced
-        if announced is not None and announced[1] != "end" and announced[0] != playing:
+        key = playing if playing is not None else (announced[0] if announced else None)
+        if announced is not None and announced[0] != key and announced[1] != "end":
             self._say(store, announced[0], "end", stamp)
-            announced = (announced[0], "end")
-        if playing is None:
+            announced = None
+        phase = self.world.phase_at(controller_ns) if key is not None else None
+        if key is None or phase is None:
             self._announced = None
             return
-        phase = self.world.phase_at(controller_ns) or "approach"
-        if announced is None or announced[0] != playing or announced[1] not in {phase, "end"}:
-            self._say(store, playing, phase, stamp)
-            announced = (playing, phase)
+        if playing is None and announced is None:
+            return  # an action that ended before it was announced
+        if announced is None or announced[0] != key or announced[1] not in {phase, "end"}:
+            self._say(store, key, phase, stamp)
+            announced = (key, phase)
+        if playing is None and announced[1] == "end":
+            announced = None
         self._announced = announced
 
     def _say(self, store: Any, key: tuple[str, str, int], phase: str, stamp: int) -> None:  # noqa: ANN401
@@ -239,6 +250,7 @@ def serve_ros2(
     domain_id: int = 0,
     rate_hz: float = 250.0,
     joint_rate_hz: float = 500.0,
+    loopback: bool = True,
 ) -> Iterator[Ros2Server]:
     """Publish the world's joint states and skin on a topic map's topics while inside.
 
@@ -249,6 +261,9 @@ def serve_ros2(
         domain_id: The DDS domain (``ROS_DOMAIN_ID``).
         rate_hz: Messages per second of each skin cell topic.
         joint_rate_hz: Messages per second of the joint states.
+        loopback: Confine the publisher to the loopback interface by its own configuration
+            (the default: a rehearsal stays on this computer, whatever ``CYCLONEDDS_URI``
+            says); False joins the interfaces ``CYCLONEDDS_URI`` names.
 
     Yields:
         The running server (its ``sent`` and ``dropped`` counts per topic).
@@ -257,7 +272,7 @@ def serve_ros2(
         RigError: The map maps a skin field the cell message does not have.
     """
     topic_map = load_topic_map(topic_map_path)
-    domain = DdsDomain(domain_id, typestore(topic_map))
+    domain = DdsDomain(domain_id, typestore(topic_map), loopback=loopback)
     server = Ros2Server(world, topic_map, faults or Ros2Faults(), domain, rate_hz, joint_rate_hz)
     server.start()
     try:

@@ -78,10 +78,15 @@ class _Run:
         return self.result["report"]
 
 
-def _play(world: VirtualWorld, action: str, trial: int, *, wait: bool = True) -> None:
+def _play(world: VirtualWorld, action: str, trial: int, *, wait: Any = None) -> None:
+    """Play an action; with ``wait`` (the server), until the server announced its end."""
     world.prepare("wood", action, trial)
     world.start_action("wood", action, trial)
-    while wait and world.playing() is not None:
+    deadline = time.monotonic() + 60
+    while wait is not None and not (
+        wait.annotated and json.loads(wait.annotated[-1][1])["phase"] == "end"
+    ):
+        assert time.monotonic() < deadline, "the server announced no end"
         time.sleep(0.05)
 
 
@@ -93,7 +98,7 @@ def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> 
             run = _Run(dds_domain, tmp_path, map_path)
             run.thread.start()
             time.sleep(1.5)  # discovery
-            _play(world, "S1", 1)
+            _play(world, "S1", 1, wait=server)
             time.sleep(1.8)  # max_delay_s + the import's margin
             report = run.finish()
     phases = [json.loads(text)["phase"] for _, text in server.annotated]
@@ -124,7 +129,7 @@ def test_lost_end_is_kept_as_incomplete_with_a_line(dds_domain: int, tmp_path: P
             run = _Run(dds_domain, tmp_path, map_path)
             run.thread.start()
             time.sleep(1.5)
-            _play(world, "S1", 2, wait=False)
+            _play(world, "S1", 2)
             deadline = time.monotonic() + 10
             while not any("execute" in t for _, t in server.annotated):
                 assert time.monotonic() < deadline
@@ -144,7 +149,7 @@ def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
     store = typestore(topic_map)
     with SimulatedRig(0) as rig:
         world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250):
+        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
             hostile = DdsDomain(dds_domain, store)
             annotations = hostile.writer("/annotations", ANNOTATION_TYPE)
             run = _Run(dds_domain, tmp_path, map_path)
@@ -168,7 +173,7 @@ def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
             for text in ("not json", '{"object": "wood"}', '{"phase": "execute"}'):
                 message = store.types[ANNOTATION_TYPE](data=text)
                 annotations.write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
-            _play(world, "S1", 3)
+            _play(world, "S1", 3, wait=server)
             time.sleep(1.8)
             report = run.finish()
     assert report.oversize == {"/joint_states": 3}
@@ -198,7 +203,7 @@ def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: 
             assert process.stdout is not None
             first = process.stdout.readline()  # once subscribed
             assert first.startswith("listening on DDS domain"), first
-            _play(world, "S1", 4, wait=False)
+            _play(world, "S1", 4)
             deadline = time.monotonic() + 10
             while not any("execute" in t for _, t in server.annotated):
                 assert time.monotonic() < deadline
@@ -227,3 +232,73 @@ def test_an_action_begun_before_the_topics_arrived_is_incomplete(tmp_path: Path)
     assert listener._joined(window) == ""
     listener._first_stamp["/b"] = 10**9 + 600 * 10**6
     assert "joined part-way: /b begins 0.600 s after" in listener._joined(window)
+
+
+def _sockets(pid: int) -> list[str]:
+    """Return the local addresses of a process's UDP sockets (``ss -lunp``)."""
+    import subprocess  # noqa: PLC0415
+
+    out = subprocess.run(["ss", "-lunp"], capture_output=True, text=True, check=True).stdout  # noqa: S607
+    return [line.split()[3] for line in out.splitlines() if f"pid={pid}," in line]
+
+
+@pytest.mark.skipif(__import__("shutil").which("ss") is None, reason="needs ss (iproute2)")
+def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    import os  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    map_path = _map(tmp_path)
+    root = Path(__file__).parents[2]
+    wide = "<CycloneDDS><Domain><General><AllowMulticast>true</AllowMulticast></General>"
+    wide += "</Domain></CycloneDDS>"
+    env = {**os.environ, "PYTHONPATH": str(root), "CYCLONEDDS_URI": wide}
+    command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
+    command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain + 1)]
+    command += ["--loopback", "--duration", "30"]
+    with SimulatedRig(0) as rig:
+        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
+        with serve_ros2(world, map_path, domain_id=dds_domain + 1, rate_hz=50):
+            process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+                command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+            try:
+                assert process.stdout is not None
+                first = process.stdout.readline()
+                assert first.startswith("listening on DDS domain"), first
+                bound = _sockets(process.pid)
+            finally:
+                process.terminate()
+                process.communicate(timeout=30)
+    # what it sends from, it sends from 127.0.0.1; no multicast socket; Cyclone DDS 0.11 binds
+    # its two unicast receive sockets to 0.0.0.0 whatever its configuration (it advertises
+    # 127.0.0.1 only)
+    specific = [a for a in bound if not a.startswith("0.0.0.0:")]
+    assert specific, bound
+    assert all(a.startswith("127.0.0.1:") for a in specific), bound
+    assert len(bound) - len(specific) <= 2, bound
+
+
+def test_the_soak_benchmark_runs_quick() -> None:
+    import os  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    root = Path(__file__).parents[2]
+    bench = root / "tests" / "bench" / "bench_listen_soak.py"
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    done = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+        [sys.executable, str(bench), "--quick"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    written = re.search(r"pass check (\d+) of (\d+)", done.stdout)
+    assert written is not None, done.stdout
+    assert written.group(1) == written.group(2) != "0"
+    assert "accounting: missing 0, queue overflow 0" in done.stdout
