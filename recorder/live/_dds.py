@@ -48,6 +48,7 @@ from rosbags.typesys import get_types_from_msg
 
 from recorder.errors import RecorderError, RigError
 from recorder.live._reader import Received, SourceReader
+from recorder.live._skin import window_samples
 from schemas.cdr import compile_cdr
 
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
@@ -407,6 +408,7 @@ class _Modality:
     period_ns: int
     emitted_ns: int = -(2**63)
     latest: Any = None
+    recent: Any = None  # the last 20 ms of samples (total_force's mean)
 
 
 @dataclass
@@ -560,6 +562,8 @@ class Ros2Skin:
             out.extend(_shift(b, offset) for b in blocks)
             if len(blocks):
                 state.latest = np.asarray(blocks[-1].data[-1], dtype=np.float64)
+                count = window_samples(blocks[-1].period_ns)
+                state.recent = np.asarray(blocks[-1].data[-count:], dtype=np.float64)
         for extractor in self._found.values():
             keep = min((s.emitted_ns for s in self._modalities.values()), default=0)
             extractor.forget(keep - 2_000_000_000)
@@ -589,9 +593,12 @@ class Ros2Skin:
             return self._blocks(final=True)
 
     def total_force(self) -> float | None:
-        """Return the latest total force over every cell and sensor, N (None: none yet)."""
+        """Return the total force, mean of the last 20 ms of samples, N (None: none yet)."""
         state = self._modalities.get("force")
-        return None if state is None or state.latest is None else float(state.latest.sum())
+        if state is None or state.recent is None:
+            return None
+        totals = state.recent.reshape(len(state.recent), -1).sum(axis=1)
+        return float(totals.mean())
 
     def nearest(self) -> float | None:
         """Return the latest smallest proximity, m (None: no proximity sensing)."""

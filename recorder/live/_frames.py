@@ -31,6 +31,7 @@ from recorder.live._accounting import EARLY_TOLERANCE_NS, SourceCounter, SourceS
 from recorder.live._framelayout import FrameType, SkinLayout, block_samples, parse_layout
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceReader
+from recorder.live._skin import window_samples
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -99,6 +100,8 @@ class _Stream:
         self.last_index = -1
         self.pending: dict[int, _Pending] = {}
         self.latest: dict[str, NDArray[np.float32]] = {}
+        #: The latest totals of the force samples (the window of ``total_force``'s mean).
+        self.totals: deque[float] = deque(maxlen=window_samples(frame.period_ns))
         self.malformed = 0
         self.out_of_range = 0
 
@@ -207,6 +210,8 @@ class _Stream:
         blocks: list[SkinBlock] = []
         for name, row in values.items():
             self.latest[name] = row
+            if name == "force":
+                self.totals.append(float(row.sum()))
             blocks += self.packers[name].push(stamp, receive_ns, row)
         return blocks
 
@@ -463,9 +468,11 @@ class FrameSkin:
         return None
 
     def total_force(self) -> float | None:
-        """Return the latest total normal force over every cell and sensor, N (None: none)."""
-        latest = self._latest("force")
-        return None if latest is None else float(latest.sum())
+        """Return the total normal force, mean of the last 20 ms of samples, N (None: none)."""
+        for stream in self._streams:
+            if stream.totals:
+                return float(np.mean(stream.totals))
+        return None
 
     def nearest(self) -> float | None:
         """Return the latest smallest proximity reading, m (None: no proximity sensing)."""

@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from recorder.errors import RigError
 from recorder.live import RecorderClock, SourceLostError
+from recorder.live._skin import window_samples
 from recorder.runner._arm import Context
 from recorder.runner._limits import (
     REACHED_M,
@@ -352,7 +353,7 @@ class ArmRig:
 
     def _approach(self, at: Context) -> Generator[StreamItem, None, NDArray[np.float64]]:
         """Approach with speed from proximity until the light contact; return the contact pose."""
-        motion = self.options.motion
+        motion, scale = self.options.motion, self.options.time_scale
         while self._state.pose is None:
             yield from self._pump()
         zero = yield from self._tare()
@@ -384,7 +385,8 @@ class ArmRig:
                 )
                 raise Stop(reason, now)
             wanted = motion.approach_speed(self.skin.nearest())
-            if abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10:
+            # at most every 0.1 s of action time (a lab at time_scale S runs 1/S times faster)
+            if abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10 * scale:
                 speed, sent_ns = wanted, now
                 self._speed(direction, speed, at)
         self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
@@ -574,12 +576,19 @@ def _items(sample: ArmSample) -> list[StreamItem]:
 
 
 def peak_total(block: SkinBlock, *, since_ns: int) -> float | None:
-    """Return the largest total force of a force block's samples taken at or after ``since_ns``.
+    """Return the largest windowed total force of a block's samples at or after ``since_ns``.
 
-    Samples from before (a block may begin before the approach, in the tare) are not counted:
+    The total over every sensor, averaged over a sliding window of
+    ``recorder.live.FORCE_WINDOW_NS`` (the mean the skin's ``total_force`` gives): a single
+    sample's sum is too noisy for a light contact, the window's mean is not and still sees a
+    short touch. Samples from before ``since_ns`` (a block may begin in the tare) do not count:
     a jolt while the arm moved to the object must not read as its contact.
     """
-    totals = block.data.reshape(len(block.data), -1).sum(axis=1)
+    totals = block.data.reshape(len(block.data), -1).sum(axis=1).astype(np.float64)
     stamps = block.stamp_ns + block.period_ns * np.arange(len(totals))
     after = totals[stamps >= since_ns]
-    return float(after.max()) if after.size else None
+    if not after.size:
+        return None
+    width = min(window_samples(block.period_ns), after.size)
+    means = np.convolve(after, np.full(width, 1.0 / width), mode="valid")
+    return float(means.max())

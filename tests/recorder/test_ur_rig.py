@@ -141,13 +141,24 @@ def test_the_light_contact_counts_every_force_sample_not_only_the_latest(
 
 
 def test_a_force_block_counts_for_the_contact_only_from_the_approach_on() -> None:
-    data = np.zeros((4, 7, 3), dtype=np.float32)
+    ms = 1_000_000
+    data = np.zeros((60, 7, 3), dtype=np.float32)
     data[0] = 1.0  # a jolt in the tare, before the approach program went out
-    data[3] = 0.01
-    block = SkinBlock("force", stamp_ns=1_000, period_ns=10, receive_ns=2_000, data=data)
-    assert _peak_total(block, since_ns=1_010) == pytest.approx(0.21)
-    assert _peak_total(block, since_ns=1_000) == pytest.approx(21.0)
-    assert _peak_total(block, since_ns=1_031) is None
+    data[30:50] = 0.01  # a touch of 20 ms: total 0.21 N
+    block = SkinBlock("force", stamp_ns=0, period_ns=ms, receive_ns=70 * ms, data=data)
+    assert _peak_total(block, since_ns=ms) == pytest.approx(0.21, rel=1e-5)
+    assert _peak_total(block, since_ns=0) == pytest.approx(21.0 / 20, rel=1e-5)  # in the window
+    assert _peak_total(block, since_ns=61 * ms) is None
+
+
+def test_one_noisy_sample_is_not_a_light_contact() -> None:
+    ms = 1_000_000
+    data = np.zeros((60, 7, 3), dtype=np.float32)
+    data[40] = 0.01  # one sample's sum at 0.21 N: noise of 21 sensors, not a touch
+    block = SkinBlock("force", stamp_ns=0, period_ns=ms, receive_ns=70 * ms, data=data)
+    peak = _peak_total(block, since_ns=0)
+    assert peak is not None
+    assert peak < 0.05  # the catalog's light contact: not reached by one sample
 
 
 def test_silent_rtde_stops_the_action(tmp_path: Path) -> None:
