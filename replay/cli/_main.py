@@ -436,9 +436,10 @@ def _recover(path: Path, out: Path | None) -> int:
 def progress_line(task: Task) -> str:
     """Return a task's progress as one line for a log.
 
-    ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time
-    estimated from the mean time per unit so far, and the time elapsed. Without a total yet:
-    the count alone; nothing done yet: no estimate.
+    ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
+    the time elapsed. The remaining time is rich's estimate from the recent rate (the last 30
+    s: the start of worker processes does not weigh on it), else from the mean time per unit
+    so far. Without a total yet: the count alone; nothing done yet: no estimate.
     """
     unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
     elapsed = task.elapsed or 0.0
@@ -449,7 +450,9 @@ def progress_line(task: Task) -> str:
         return f"{done}, done ({elapsed:.0f} s)"
     if task.completed <= 0:
         return f"{done} ({elapsed:.0f} s)"
-    left = elapsed / task.completed * (task.total - task.completed)
+    left = task.time_remaining
+    if left is None:
+        left = elapsed / task.completed * (task.total - task.completed)
     return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
 
 

@@ -189,3 +189,14 @@ def test_a_study_reports_its_total_before_the_first_task_ends(tmp_path: Path) ->
 
 def _one_row(task: str) -> pl.DataFrame:
     return pl.DataFrame({"task": [task], "accuracy": [1.0]})
+
+
+def test_the_estimate_follows_the_recent_rate_not_a_slow_start() -> None:
+    now = [0.0]
+    progress = Progress(console=Console(file=None), disable=True, get_time=lambda: now[0])
+    task_id = progress.add_task("recording", total=100, unit="recordings")
+    for at, done in ((40.0, 10), (50.0, 20)):  # 40 s to start the workers, then 1 per s
+        now[0] = at
+        progress.update(task_id, completed=done)
+    line = progress_line(progress.tasks[task_id])
+    assert line == "recording: 20/100 recordings, ~80 s left (50 s)"
