@@ -50,6 +50,11 @@ LOOPBACK_URI = (
     "</Discovery></Domain></CycloneDDS>"
 )
 os.environ["CYCLONEDDS_URI"] = LOOPBACK_URI
+#: rich wraps what the commands print at the console width, 80 columns when the output is not
+#: a terminal; the temporary paths of pytest-xdist's workers (``.../popen-gw0/...``) are long
+#: enough to wrap a line a test looks for, so the tests' consoles (and their subprocesses') are
+#: wide.
+os.environ["COLUMNS"] = "400"
 
 NS = 1_000_000_000
 _CHANNELS_PER_CELL = {
