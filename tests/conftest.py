@@ -7,8 +7,11 @@ channels, with a short last block per channel so uneven blocks are exercised.
 
 from __future__ import annotations
 
+import fcntl
 import os
+import tempfile
 import zlib
+from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
 import numpy as np
@@ -34,8 +37,7 @@ from recorder.runner._record import record_action
 from schemas import CHANNELS, VOCABULARY
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping
-    from pathlib import Path
+    from collections.abc import Callable, Iterator, Mapping
     from types import TracebackType
 
 #: Cyclone DDS restricted to the loopback interface, no multicast, one peer: 127.0.0.1. Set
@@ -48,6 +50,11 @@ LOOPBACK_URI = (
     "</Discovery></Domain></CycloneDDS>"
 )
 os.environ["CYCLONEDDS_URI"] = LOOPBACK_URI
+#: rich wraps what the commands print at the console width, 80 columns when the output is not
+#: a terminal; the temporary paths of pytest-xdist's workers (``.../popen-gw0/...``) are long
+#: enough to wrap a line a test looks for, so the tests' consoles (and their subprocesses') are
+#: wide.
+os.environ["COLUMNS"] = "400"
 
 NS = 1_000_000_000
 _CHANNELS_PER_CELL = {
@@ -192,15 +199,42 @@ ACTIONS = ("P1", "S2")
 TRIALS = 5
 
 
-@pytest.fixture(scope="session")
-def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Record 6 objects x 2 actions x 5 trials with the simulated rig (seed 0)."""
-    root = tmp_path_factory.mktemp("small") / "dataset"
+def shared_directory(
+    tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], object]
+) -> Path:
+    """Return directory ``name``, built once per test run by ``build`` and shared read-only.
+
+    Under pytest-xdist every worker has its own session fixtures; the directory lies in the
+    run's temporary root, which the workers share, and the first worker to take its lock builds
+    it (into a scratch name, renamed when complete), so that the others wait and reuse it.
+    """
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    done = root / name
+    with (root / f"{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            scratch = Path(tempfile.mkdtemp(prefix=f"{name}-", dir=root))
+            build(scratch)
+            scratch.rename(done)
+    return done
+
+
+def _record_small_dataset(directory: Path) -> None:
+    """Record :data:`OLD` + :data:`NEW` x :data:`ACTIONS` x :data:`TRIALS` (sim rig, seed 0)."""
     tasks = plan_dataset(
         load_objects(), load_actions(), object_ids=[*OLD, *NEW], action_ids=ACTIONS, trials=TRIALS
     )
-    generate_dataset(tasks, root, rig_factory("sim"), seed=0, workers=1)
-    return root
+    generate_dataset(tasks, directory / "dataset", rig_factory("sim"), seed=0, workers=1)
+
+
+@pytest.fixture(scope="session")
+def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Record 6 objects x 2 actions x 5 trials with the simulated rig (seed 0), once per run.
+
+    Shared by every test (and xdist worker): tests must not change it (copy it first).
+    """
+    return shared_directory(tmp_path_factory, "small", _record_small_dataset) / "dataset"
 
 
 @pytest.fixture(scope="session")

@@ -70,10 +70,13 @@ if TYPE_CHECKING:
 _CONSOLE = Console(stderr=True)
 
 
-def _progress(description: str) -> tuple[Progress, Callable[[int, int], None]]:
-    """Return a rich progress bar on stderr and a ``(done, total)`` callback that drives it."""
+def _progress(description: str, unit: str = "") -> tuple[Progress, Callable[[int, int], None]]:
+    """Return a rich progress bar on stderr and a ``(done, total)`` callback that drives it.
+
+    ``unit``: what is counted (``recordings``, ``tasks``), printed after the count.
+    """
     bar = progress_bar(_CONSOLE)
-    task = bar.add_task(description, total=None)
+    task = bar.add_task(description, total=None, unit=unit)
 
     def update(done: int, total: int) -> None:
         bar.update(task, completed=done, total=total)
@@ -90,7 +93,7 @@ def _dataset(path: Path | None, workers: int) -> Path:
         return path
     if default_dataset_ready():
         return ensure_default_dataset(workers=workers)
-    bar, update = _progress("recording the default simulated dataset")
+    bar, update = _progress("recording the default simulated dataset", "recordings")
     with bar:
         return ensure_default_dataset(workers=workers, on_progress=update)
 
@@ -118,7 +121,7 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
 
 def _features(root: Path, workers: int) -> FeatureTable:
     """Build or update a dataset's feature cache with a progress bar."""
-    bar, update = _progress(f"features of {root}")
+    bar, update = _progress(f"features of {root}", "recordings")
     with bar:
         table = build_features(root, workers=workers, on_progress=update)
     if table.discarded:
@@ -660,7 +663,7 @@ def _study_command(args: argparse.Namespace) -> int:
                 prior_actions=tuple((args.prior_actions or {}).items()),
             )
             config = config.quick() if args.quick else config
-            bar, update = _progress(f"study {name}")
+            bar, update = _progress(f"study {name}", "tasks")
             with bar:
                 output = run_study(
                     name, table.frame, config, quarantined=table.quarantined, on_progress=update

@@ -16,7 +16,10 @@ traceback.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +27,14 @@ import joblib
 import polars as pl
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    Task,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from replay.errors import RecordingError, ReplayError
@@ -62,6 +72,8 @@ PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
 COMMAND_MODULES: tuple[str, ...] = ("replay.cli._learn", "replay.cli._view")
 _NS_PER_S = 1e9
+#: Console width when the output is not a terminal: wide enough for any table, uncut.
+_FILE_WIDTH = 10_000
 
 
 REGISTRY = cli.Registry()
@@ -93,6 +105,24 @@ def dataset_files(root: Path) -> list[Path]:
 
 def _seconds(ns: int) -> str:
     return f"{ns / _NS_PER_S:.3f} s"
+
+
+def output_console(*, stderr: bool = False) -> Console:
+    """Return a console for tables: the terminal's width, or unlimited when not a terminal.
+
+    rich fits tables to the console, 80 columns when the output is a file or a pipe, and cuts
+    cells with an ellipsis; a table written to a file is read whole, so it keeps every column
+    at its full width there.
+    """
+    console = Console(stderr=stderr)
+    if console.is_terminal:
+        return console
+    return Console(stderr=stderr, width=_FILE_WIDTH)
+
+
+def _print_json(value: object) -> None:
+    """Print ``value`` as JSON on stdout (``--json``)."""
+    print(json.dumps(value, indent=1))  # noqa: T201 (the command's output)
 
 
 def _about(path: Path, meta: RecordingMetadata) -> Table:
@@ -134,41 +164,106 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
     console.print(table)
 
 
+def _metadata_json(meta: RecordingMetadata) -> dict[str, Any]:
+    """Return a recording's metadata as JSON values (every field of the metadata record)."""
+    values = {f.name: getattr(meta, f.name) for f in dataclasses.fields(meta)}
+    return {k: dict(v) if isinstance(v, Mapping) else v for k, v in values.items()}
+
+
+def _sources_json(sources: Sequence[SourceStats]) -> list[dict[str, Any]]:
+    """Return every live source's accounting, every field (counts, ns)."""
+    return [dataclasses.asdict(item) for item in sources]
+
+
+def _incomplete_channels(path: Path) -> tuple[ContainerSummary, list[tuple[str, int]]]:
+    """Return the summary of an incomplete recording and its (topic, messages) per channel."""
+    summary = read_summary(path)
+    channels = [(t, c.message_count) for t, c in sorted(summary.channels.items())]
+    return summary, channels
+
+
 def _print_incomplete(console: Console, path: Path) -> None:
     """Print what a recording that a stop ended early holds (it is not decoded)."""
-    summary = read_summary(path)
+    summary, rows = _incomplete_channels(path)
     console.print(_about(path, parse_metadata(path, summary.metadata)))
     reason = stopped_reason(summary.metadata) or "unknown"
     console.print(f"[yellow]incomplete: the action was stopped ({reason})", highlight=False)
     channels = Table("channel", "messages", title="channels")
-    for topic, channel in sorted(summary.channels.items()):
-        channels.add_row(topic, str(channel.message_count))
+    for topic, count in rows:
+        channels.add_row(topic, str(count))
     console.print(channels)
     _print_sources(console, parse_sources(path, summary.metadata))
 
 
-def _print_recording(console: Console, recording: ActionRecording) -> None:
-    """Print what a recording holds: metadata, channels, phases, live sources."""
-    console.print(_about(recording.path, recording.metadata))
-    channels = Table("channel", "samples", "shape", "rate (Hz)", title="channels")
+def _incomplete_json(path: Path) -> dict[str, Any]:
+    """Return ``info --json`` of a recording a stop ended early."""
+    summary, rows = _incomplete_channels(path)
+    return {
+        "kind": "incomplete",
+        "path": str(path),
+        "stopped": stopped_reason(summary.metadata) or "unknown",
+        "metadata": _metadata_json(parse_metadata(path, summary.metadata)),
+        "channels": [{"name": topic, "messages": count} for topic, count in rows],
+        "sources": _sources_json(parse_sources(path, summary.metadata)),
+    }
+
+
+def _channels(recording: ActionRecording) -> list[tuple[str, int, tuple[int, ...], float]]:
+    """Return (name, samples, sample shape, rate in Hz) of every decoded series."""
     series = [(m, s.stamps_ns, s.data.shape) for m, s in recording.signals.items()]
     if recording.joints is not None:
         joints = recording.joints
         series += [("joint states", joints.stamps_ns, joints.position.shape)]
     if recording.tcp is not None:
         series += [("tcp pose", recording.tcp.stamps_ns, recording.tcp.position.shape)]
+    rows = []
     for name, stamps, shape in series:
         span = int(stamps[-1] - stamps[0]) if stamps.size > 1 else 0
         rate = (stamps.size - 1) / (span / _NS_PER_S) if span else 0.0
-        channels.add_row(name, str(stamps.size), str(shape[1:]), f"{rate:.1f}")
-    console.print(channels)
-    phases = Table("phase", "start", "duration", title="phases")
+        rows.append((name, int(stamps.size), tuple(int(n) for n in shape[1:]), rate))
+    return rows
+
+
+def _phases(recording: ActionRecording) -> list[tuple[str, int, int]]:
+    """Return (phase, start from the first phase, duration) of every phase, ns."""
     origin = recording.phases[0].start_ns if recording.phases else 0
+    rows = []
     for mark in recording.phases:
         start, stop = recording.phase_range(mark.phase)
-        phases.add_row(mark.phase, _seconds(start - origin), _seconds(stop - start))
+        rows.append((str(mark.phase), int(start - origin), int(stop - start)))
+    return rows
+
+
+def _print_recording(console: Console, recording: ActionRecording) -> None:
+    """Print what a recording holds: metadata, channels, phases, live sources."""
+    console.print(_about(recording.path, recording.metadata))
+    channels = Table("channel", "samples", "shape", "rate (Hz)", title="channels")
+    for name, samples, shape, rate in _channels(recording):
+        channels.add_row(name, str(samples), str(shape), f"{rate:.1f}")
+    console.print(channels)
+    phases = Table("phase", "start", "duration", title="phases")
+    for phase, start, duration in _phases(recording):
+        phases.add_row(phase, _seconds(start), _seconds(duration))
     console.print(phases)
     _print_sources(console, recording.sources)
+
+
+def _recording_json(recording: ActionRecording) -> dict[str, Any]:
+    """Return ``info --json`` of a recording."""
+    return {
+        "kind": "recording",
+        "path": str(recording.path),
+        "metadata": _metadata_json(recording.metadata),
+        "channels": [
+            {"name": name, "samples": samples, "shape": list(shape), "rate_hz": rate}
+            for name, samples, shape, rate in _channels(recording)
+        ],
+        "phases": [
+            {"phase": phase, "start_ns": start, "duration_ns": duration}
+            for phase, start, duration in _phases(recording)
+        ],
+        "sources": _sources_json(recording.sources),
+    }
 
 
 def _summaries(files: Sequence[Path]) -> pl.DataFrame:
@@ -190,15 +285,30 @@ def _summaries(files: Sequence[Path]) -> pl.DataFrame:
     return pl.DataFrame(rows, schema=schema)
 
 
-def _print_dataset(console: Console, root: Path) -> None:
-    """Print a dataset directory's recordings per object and action."""
+def _dataset_frame(root: Path) -> pl.DataFrame:
+    """Return the dataset's per-recording summaries.
+
+    Raises:
+        ReplayError: No recordings in ``root``.
+    """
     frame = _summaries(dataset_files(root))
     if frame.is_empty():
         msg = f"{root}: no recordings (*.mcap) in this directory; give a dataset directory"
         raise ReplayError(msg)
-    counts = frame.pivot(
+    return frame
+
+
+def _trials(frame: pl.DataFrame) -> pl.DataFrame:
+    """Return the recordings per object (rows) and action (columns)."""
+    return frame.pivot(
         on="action", index=["object"], values="size", aggregate_function="len"
     ).fill_null(0)
+
+
+def _print_dataset(console: Console, root: Path) -> None:
+    """Print a dataset directory's recordings per object and action."""
+    frame = _dataset_frame(root)
+    counts = _trials(frame)
     table = Table(*counts.columns, title=f"{root}", caption="trials per object and action")
     for row in counts.iter_rows():
         table.add_row(*(str(value) for value in row))
@@ -215,14 +325,48 @@ def _print_dataset(console: Console, root: Path) -> None:
     console.print(f"feature cache: {feature_cache_path(root)}", highlight=False, soft_wrap=True)
 
 
+def _dataset_json(root: Path) -> dict[str, Any]:
+    """Return ``info --json`` of a dataset directory."""
+    from replay.learning._cachedir import feature_cache_path  # noqa: PLC0415 (info on datasets)
+
+    frame = _dataset_frame(root)
+    counts = _trials(frame)
+    actions = [c for c in counts.columns if c != "object"]
+    return {
+        "kind": "dataset",
+        "path": str(root),
+        "recordings": frame.height,
+        "size_bytes": int(frame["size"].sum()),
+        "recorded_ns": int(frame["duration_ns"].sum()),
+        "trials": {
+            row["object"]: {a: int(row[a]) for a in actions} for row in counts.iter_rows(named=True)
+        },
+        "unfinished": len(sorted(root.rglob("*.mcap.part"))),
+        "feature_cache": str(feature_cache_path(root)),
+    }
+
+
+#: ``--json`` of ``info`` and ``check``.
+JSON = arg("--json", action="store_true", help="print JSON for scripts (fields: README)")
+
+
 @command(
     "info",
     "print a summary of a recording or of a dataset directory",
     arg("path", type=Path, help="a recording (.mcap) or a dataset directory"),
+    JSON,
 )
 def _info(args: argparse.Namespace) -> int:
     path = _existing(args.path)
-    console = Console()
+    if args.json:
+        if path.is_dir():
+            _print_json(_dataset_json(path))
+        elif is_incomplete(path):
+            _print_json(_incomplete_json(path))
+        else:
+            _print_json(_recording_json(read_recording(path)))
+        return 0
+    console = output_console()
     if path.is_dir():
         _print_dataset(console, path)
     elif is_incomplete(path):
@@ -326,17 +470,54 @@ def _recover(path: Path, out: Path | None) -> int:
     return 0
 
 
-def progress_bar(console: Console) -> Progress:
-    """Return a progress bar (description, bar, done of total, elapsed) on ``console``.
+def progress_line(task: Task) -> str:
+    """Return a task's progress as one line for a log.
 
-    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`schemas.cli.progress`).
+    ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
+    the time elapsed. The remaining time is rich's estimate from the recent rate (the last 30
+    s: the start of worker processes does not weigh on it), else from the mean time per unit
+    so far. Without a total yet: the count alone; nothing done yet: no estimate.
     """
+    unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
+    elapsed = task.elapsed or 0.0
+    if task.total is None:
+        return f"{task.description}: {task.completed:g}{unit} ({elapsed:.0f} s)"
+    done = f"{task.description}: {task.completed:g}/{task.total:g}{unit}"
+    if task.completed >= task.total:
+        return f"{done}, done ({elapsed:.0f} s)"
+    if task.completed <= 0:
+        return f"{done} ({elapsed:.0f} s)"
+    left = task.time_remaining
+    if left is None:
+        left = elapsed / task.completed * (task.total - task.completed)
+    return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
+
+
+class _LogProgress(cli.PlainProgress):
+    """Plain progress lines for a log or pipe, with totals and an estimate of the time left."""
+
+    def print_lines(self) -> None:
+        """Print one :func:`progress_line` per task."""
+        for task in self.tasks:
+            self.console.print(progress_line(task), highlight=False, soft_wrap=True)
+
+
+def progress_bar(console: Console) -> Progress:
+    """Return a progress bar (description, bar, done of total, elapsed, time left) on ``console``.
+
+    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`progress_line`).
+    A task's ``unit`` field (``add_task(..., unit="tasks")``) names what is counted.
+    """
+    if not console.is_terminal:
+        return _LogProgress(console)
     return cli.progress(
         console,
         "[progress.description]{task.description}",
         BarColumn(),
         MofNCompleteColumn(),
+        "{task.fields[unit]}",
         TimeElapsedColumn(),
+        TimeRemainingColumn(),
     )
 
 
@@ -348,7 +529,7 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
         and the seeds of the valid files (with a file of each).
     """
     bar = progress_bar(Console(stderr=True))
-    task = bar.add_task("checking", total=len(files))
+    task = bar.add_task("checking", total=len(files), unit="recordings")
     problems: list[str] = []
     warnings: list[str] = []
     seeds: dict[int, Path] = {}
@@ -378,6 +559,7 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
         help="copy every intact message of PATH into <name>.recovered.mcap (PATH is unchanged)",
     ),
     arg("--out", type=Path, help="with --recover: the salvaged file (must not exist)"),
+    JSON,
 )
 def _check(args: argparse.Namespace) -> int:
     path = _existing(args.path)
@@ -385,31 +567,58 @@ def _check(args: argparse.Namespace) -> int:
         return _recover(path, args.out)
     files = dataset_files(path) if path.is_dir() else [path]
     bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
-    console = Console(stderr=True)
     unfinished = _unfinished(path) if path.is_dir() else []
     try:
         index = index_problems(path, files) if path.is_dir() else []
     except RecordingError as err:
         index = [str(err)]
     index += _seed_problem(seeds) if path.is_dir() else []
+    warnings += _incomplete(path) if path.is_dir() else []
+    aside = sorted((path / SET_ASIDE_DIR).rglob(f"*{PART_SUFFIX}")) if path.is_dir() else []
+    if not files and not unfinished:
+        msg = f"{path}: no recordings (*.mcap) found"
+        raise ReplayError(msg)
+    if args.json:
+        _print_json(
+            {
+                "path": str(path),
+                "recordings": len(files),
+                "valid": len(files) - len(bad),
+                "failures": bad + index + unfinished,
+                "warnings": warnings,
+                "unfinished": len(unfinished),
+                "set_aside": [str(p) for p in aside],
+                "ok": not (bad or index or unfinished),
+            }
+        )
+    else:
+        _print_check(path, files, (bad, index, unfinished, warnings), aside)
+    return 1 if bad or index or unfinished else 0
+
+
+def _print_check(
+    path: Path,
+    files: Sequence[Path],
+    found: tuple[list[str], list[str], list[str], list[str]],
+    aside: Sequence[Path],
+) -> None:
+    """Print a check's failures and warnings (stderr) and its counts (stdout)."""
+    bad, index, unfinished, warnings = found
+    console = Console(stderr=True)
     for problem in bad + index + unfinished:
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
-    for warning in warnings + (_incomplete(path) if path.is_dir() else []):
+    for warning in warnings:
         console.print(f"[yellow]WARN[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
     Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
     if unfinished:
         Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})")
-    if path.is_dir() and (aside := sorted((path / SET_ASIDE_DIR).rglob(f"*{PART_SUFFIX}"))):
+    if aside:
         Console().print(
             f"{len(aside)} unfinished recordings of stopped recorders set aside in "
             f"{path / SET_ASIDE_DIR} (salvage one with {recover_command(aside[0])})",
             highlight=False,
             soft_wrap=True,
         )
-    if not files and not unfinished:
-        msg = f"{path}: no recordings (*.mcap) found"
-        raise ReplayError(msg)
-    return 1 if bad or index or unfinished else 0
 
 
 def build_parser() -> argparse.ArgumentParser:

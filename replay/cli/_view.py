@@ -12,9 +12,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, TimeElapsedColumn
 
-from replay.cli._main import arg, command, dataset_files
+from replay.cli._main import arg, command, dataset_files, progress_bar
 from replay.errors import ReplayError
 from replay.learning._run_history import LearnRun, is_run_directory
 from replay.outputs._export import FORMATS, LAYOUTS, export
@@ -232,14 +231,8 @@ def _log(
 def _export_command(args: argparse.Namespace) -> int:
     inputs = collect_inputs(args.paths, allow_runs=False)
     cli.refuse_overlap(args.out, _named(args.paths))
-    progress = cli.progress(
-        _CONSOLE,
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-    )
-    task = progress.add_task("exporting", total=len(inputs.recordings))
+    progress = progress_bar(_CONSOLE)
+    task = progress.add_task("exporting", total=len(inputs.recordings), unit="recordings")
     with progress:
         report = export(
             inputs.recordings,

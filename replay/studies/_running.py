@@ -241,6 +241,7 @@ def study_results(
         if on_progress is not None:
             on_progress(count, len(tasks))
 
+    done(0)  # the total is known before the first task ends (a progress line shows it)
     frames = run_tasks(
         study.run, tasks, workers=config.workers, scheduler=config.scheduler, on_done=done
     )

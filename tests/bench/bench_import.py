@@ -15,6 +15,7 @@ their throughputs, and the import process's peak resident memory: ``ru_maxrss`` 
 ``resource.getrusage(RUSAGE_CHILDREN)`` in a small launcher process, and the ``VmHWM`` the
 import process reports itself. With ``--ros2 sqlite3`` or ``--ros2 mcap`` the generator writes
 the same session as a ROS 2 bag (rosbags' ``rosbag2.Writer``, CDR messages, that storage).
+``--quick`` imports one bag of the shortest session (12 s; a check that the benchmark runs).
 """
 
 from __future__ import annotations
@@ -215,7 +216,12 @@ def main() -> None:
     parser.add_argument(
         "--ros2", choices=("sqlite3", "mcap"), help="write ROS 2 bags with this storage"
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="one bag of the shortest session (untimed)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.base_mb, args.factors = 0.1, "1"
     per_second = 100 * CELLS * 380 + 125 * 300  # bytes of one second of session, roughly
     results = []
     for factor in (int(f) for f in args.factors.split(",")):

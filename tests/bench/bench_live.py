@@ -15,6 +15,10 @@ Two runs, figures printed side by side:
   (15 k messages/s); this process runs ``listen``'s listener on them.
 
     python tests/bench/bench_live.py --seconds 60
+
+``--quick`` records one C1 action with the virtual lab and the rig 10 times faster than real
+time and leaves out DDS, which ``bench_live_dds.py --quick`` runs (a check that the benchmark
+runs).
 """
 
 from __future__ import annotations
@@ -64,9 +68,13 @@ def _port(kind: int) -> int:
         return int(probe.getsockname()[1])
 
 
-def _lab(root: Path, rtde: int, script: int, udp: int) -> Path:
-    """The example UR configuration at 500 Hz with the example UDP skin, on this run's ports."""
+def _lab(root: Path, rtde: int, script: int, udp: int, scale: float) -> Path:
+    """The example UR configuration at 500 Hz with the example UDP skin, on this run's ports,
+    at ``scale`` real seconds per action second.
+    """
     text = (DATA / "ur_rig.example.toml").read_text("utf-8")
+    if scale != 1:
+        text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
     text = text.replace("script_port = 30002", f"script_port = {script}")
     text = text.replace("frequency = 125", "frequency = 500")
@@ -85,16 +93,21 @@ def _latencies(item: Any, now: int) -> np.ndarray:
     return np.array([now - item.stamp_ns])
 
 
-def udp_case(seconds: float) -> dict[str, Any]:
-    """Record C1 actions with the UR rig against serve-sim for ``seconds``; return figures."""
+def udp_case(seconds: float, scale: float = 1.0) -> dict[str, Any]:
+    """Record C1 actions with the UR rig against serve-sim for ``seconds``; return figures.
+
+    ``scale``: real seconds per simulated second (< 1: the virtual lab and the rig run faster
+    than real time, ``--quick``).
+    """
     root = Path(tempfile.mkdtemp(prefix="bench-live-"))
     rtde, script, udp = (
         _port(socket.SOCK_STREAM),
         _port(socket.SOCK_STREAM),
         _port(socket.SOCK_DGRAM),
     )
-    lab = _lab(root, rtde, script, udp)
+    lab = _lab(root, rtde, script, udp, scale)
     command = [sys.executable, "-m", "recorder", "serve-sim", "--frequency", "500"]
+    command += ["--time-scale", str(scale)]
     command += ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
     command += ["--skin", f"udp://127.0.0.1:{udp}"]
     lab_process = subprocess.Popen(  # noqa: S603 (this project's command)
@@ -146,9 +159,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--domain", type=int, default=1 + os.getpid() % 200)
+    parser.add_argument(
+        "--quick", action="store_true", help="one C1 action 10x faster, no DDS (untimed)"
+    )
     args = parser.parse_args()
+    scale = 0.1 if args.quick else 1.0
+    if args.quick:
+        args.seconds = 1.0
     print(f"UDP: UR rig (RTDE 500 Hz) + 7-cell UDP skin -> MCAP files, {args.seconds:g} s")
-    udp = udp_case(args.seconds)
+    udp = udp_case(args.seconds, scale)
     for name, (expected, received, missing, overflowed) in sorted(udp["totals"].items()):
         print(
             f"  {name:17s} expected {expected:7d}  received {received:7d}  missing {missing}"
@@ -161,6 +180,8 @@ def main() -> None:
         f"  p99 {udp['p99']:.1f} ms (skin blocks hold 0.1 s)"
     )
     print(f"  recorder CPU: {udp['cpu']:.2f} s per s")
+    if args.quick:  # the DDS part is bench_live_dds.py's, whose own --quick runs it
+        return
     print(f"DDS: JointState 500 Hz + 7-cell skin topics -> listen, {args.seconds:g} s")
     with tempfile.TemporaryDirectory() as root:
         bench_live_dds.record(bench_live_dds.write_map(Path(root)), args.domain, args.seconds)

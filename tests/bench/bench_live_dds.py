@@ -9,6 +9,8 @@ missing, the p99 latency from a sample's stamp to its hand-off by the reader que
 conversion, and the recorder's CPU time per second. DDS stays on loopback.
 
     python tests/bench/bench_live_dds.py --seconds 10
+
+``--quick`` publishes for one second (a check that the benchmark runs).
 """
 
 from __future__ import annotations
@@ -208,7 +210,10 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--domain", type=int, default=1 + os.getpid() % 200)
     parser.add_argument("--publish", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--quick", action="store_true", help="one second (untimed)")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = 1.0
     if args.publish is not None:
         publish(args.publish, args.domain, args.seconds)
         return

@@ -9,6 +9,8 @@ a sample's sensor time (on the recorder's time base) to its block being handed t
 second of recording.
 
     python tests/bench/bench_live_skin.py --seconds 60
+
+``--quick`` records one second (a check that the benchmark runs).
 """
 
 from __future__ import annotations
@@ -66,7 +68,10 @@ def main() -> None:
     """Run the benchmark and print its figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--quick", action="store_true", help="one second (untimed)")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = 1.0
     clock = RecorderClock()
     skin = udp_skin(_section(0), clock, str(EXAMPLE))
     per_sample: list[np.ndarray] = []

@@ -8,6 +8,8 @@ Prints medians and ratios measured side by side in one run:
    iteration over the same files without decoding (target >= 0.5);
 3. with ``--full``: the whole dataset generated on ``--workers`` cores (target <= 5 minutes
    on 2 cores) and its size on disk (target <= 1.5 GB).
+
+``--quick`` runs 1 and 2 on one object once (a check that the benchmark runs, no figures).
 """
 
 from __future__ import annotations
@@ -121,7 +123,12 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="also generate the whole dataset")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, help="keep the full dataset here (default: temp)")
+    parser.add_argument(
+        "--quick", action="store_true", help="one object, one repetition, no --full (untimed)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.objects, args.repeat, args.full = "wood", 1, False
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         paths = bench_recording(args.rig, args.objects.split(","), root / "speed", args.repeat)

@@ -12,7 +12,9 @@ Printed, measured in one run:
 
 The dataset is recorded into the cache on first use (see ``atikt-replay study``).
 
-Run: ``python tests/bench/bench_replay.py [--workers 2] [--skip-study] [--skip-one-worker]``.
+Run: ``python tests/bench/bench_replay.py [--workers 2] [--skip-study] [--skip-one-worker]``;
+``--quick``: the extraction of 4 recordings, a study of one group and trial and a run, budget 2
+each, on the committed recordings and one process (a check that the benchmark runs).
 """
 
 from __future__ import annotations
@@ -28,10 +30,12 @@ import sys
 import tempfile
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _quick import RECORDINGS, small_dataset
 from bench_atikt import TimedLearner, print_quality, sklearn_old_models
 
 from replay.learning._datasets import dataset_roles
@@ -58,8 +62,8 @@ def extraction(root: Path, workers: int, *, one_worker: bool) -> None:
     print(f"  against the 60 s target: {times[workers] / 60:.2f} of the budget")
 
 
-def study(root: Path, workers: int) -> None:
-    """Time the full transfer study with cached features."""
+def study(root: Path, workers: int, *, quick: bool = False) -> None:
+    """Time the full transfer study with cached features (``quick``: its reduced design)."""
     frame = build_features(root, workers=workers).frame
     with tempfile.TemporaryDirectory() as scratch:
         roles = dataset_roles(root, frame["object_id"].to_list())
@@ -70,14 +74,17 @@ def study(root: Path, workers: int) -> None:
             old=roles.old,
             actions=dataset_actions(frame),
         )
+        if quick:
+            config = replace(config, groups=1, trials=1, learner=config.learner.replace(budget=2))
         start = time.perf_counter()
         run_study("transfer", frame, config)
         elapsed = time.perf_counter() - start
-    print(f"transfer study (100 runs of 40 steps), {workers} workers: {elapsed:.1f} s")
+    runs = f"{2 * config.groups * config.trials} runs of {config.budget} steps"
+    print(f"transfer study ({runs}), {workers} workers: {elapsed:.1f} s")
     print(f"  against the 3 min target: {elapsed / 180:.2f} of the budget")
 
 
-def one_run(root: Path) -> None:
+def one_run(root: Path, budget: int = 40) -> None:
     """Time every update of one ATIKT run next to the scikit-learn reference's."""
     frame = build_features(root).frame
     roles = dataset_roles(root, frame["object_id"].to_list())
@@ -94,7 +101,7 @@ def one_run(root: Path) -> None:
         observe=executor,
         capacity=executor.capacity,
         priors=priors,
-        budget=40,
+        budget=budget,
         random_state=0,
         reference=sklearn_old_models(priors),
     )
@@ -112,14 +119,28 @@ def one_run(root: Path) -> None:
     print_quality(learner)
 
 
+def quick() -> None:
+    """Run every part on the committed recordings, reduced to a few steps, on one process."""
+    with tempfile.TemporaryDirectory() as scratch:
+        extraction(small_dataset(Path(scratch)), 1, one_worker=False)
+    study(RECORDINGS, 1, quick=True)
+    one_run(RECORDINGS, budget=2)
+
+
 def main() -> None:
     """Parse options and run the measurements."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-study", action="store_true")
     parser.add_argument("--skip-one-worker", action="store_true")
+    parser.add_argument(
+        "--quick", action="store_true", help="tiny parts of the committed recordings (a check)"
+    )
     args = parser.parse_args()
     warnings.simplefilter("ignore")
+    if args.quick:
+        quick()
+        return
     root = ensure_default_dataset(workers=args.workers)
     print(f"dataset: {root}")
     extraction(root, args.workers, one_worker=not args.skip_one_worker)

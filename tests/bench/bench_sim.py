@@ -50,13 +50,21 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from recorder import ActionSpec, StreamItem
+    from recorder._catalog import ObjectSpec
 
 
-def _time_action(rig: SimulatedRig, action: ActionSpec, repeats: int) -> tuple[float, float]:
+def _objects(count: int | None) -> list[ObjectSpec]:
+    """Return the catalog's objects, the first ``count`` of them if given (``--quick``)."""
+    return list(load_objects().values())[:count]
+
+
+def _time_action(
+    rig: SimulatedRig, action: ActionSpec, repeats: int, count: int | None
+) -> tuple[float, float]:
     """Return the median wall time of one execution and the median simulated duration, s."""
     walls, durations = [], []
     for trial in range(repeats):
-        for obj in load_objects().values():
+        for obj in _objects(count):
             start = time.perf_counter()
             items = list(rig.perform(obj, action, trial))
             walls.append(time.perf_counter() - start)
@@ -64,8 +72,8 @@ def _time_action(rig: SimulatedRig, action: ActionSpec, repeats: int) -> tuple[f
     return statistics.median(walls), statistics.median(durations)
 
 
-def bench_speed(repeats: int) -> None:
-    """Print the speed table and the dataset projection."""
+def bench_speed(repeats: int, count: int | None = None) -> None:
+    """Print the speed table and the dataset projection (over ``count`` objects if given)."""
     actions = load_actions()
     n_objects = len(load_objects())
     total_wall = total_real = 0.0
@@ -73,7 +81,7 @@ def bench_speed(repeats: int) -> None:
     with SimulatedRig(0) as rig:
         list(rig.perform(next(iter(load_objects().values())), actions["P1"], 0))  # warm up
         for action in actions.values():
-            wall, duration = _time_action(rig, action, repeats)
+            wall, duration = _time_action(rig, action, repeats, count)
             print(f"{action.id:8s} {wall * 1e3:10.1f} ms {duration:8.1f}s {duration / wall:11.0f}x")
             total_wall += wall * action.trials * n_objects
             total_real += duration * action.trials * n_objects
@@ -94,17 +102,17 @@ def _window(items: list[StreamItem], modality: Modality) -> np.ndarray:
     return result
 
 
-def bench_separability(trials: int = 20) -> None:
+def bench_separability(trials: int = 20, count: int | None = None) -> None:
     """Print the per-action and stacked 15-class accuracy of simple classifiers."""
     from sklearn.neighbors import KNeighborsClassifier  # noqa: PLC0415
     from sklearn.svm import SVC  # noqa: PLC0415
 
     from atikt.features import FeatureTransformer, RawFeatures  # noqa: PLC0415
 
-    objects, actions = load_objects(), load_actions()
+    objects, actions = _objects(count), load_actions()
     features: dict[str, list[RawFeatures]] = {action_id: [] for action_id in actions}
     with SimulatedRig(0) as rig:
-        for obj in objects.values():
+        for obj in objects:
             for action in actions.values():
                 for trial in range(trials):
                     items = list(rig.perform(obj, action, trial))
@@ -120,7 +128,7 @@ def bench_separability(trials: int = 20) -> None:
     train = np.tile(np.arange(trials) < trials // 2, len(objects))
     models: dict[str, Callable[[], Any]] = {
         "SVC": lambda: SVC(C=10.0, gamma="scale"),
-        "3-NN": lambda: KNeighborsClassifier(3),
+        "3-NN": lambda: KNeighborsClassifier(min(3, trials // 2)),
     }
     stacked: list[tuple[np.ndarray, np.ndarray]] = []
     for action_id, observations in features.items():
@@ -210,7 +218,15 @@ def main() -> None:
     parser.add_argument("--separability", action="store_true", help="also classify objects")
     parser.add_argument("--spread", type=int, default=0, help="C1 trials of the spread table")
     parser.add_argument("--seed", type=int, default=0, help="rig seed of the spread table")
+    parser.add_argument(
+        "--quick", action="store_true", help="every table on 2 objects and 2 trials (untimed)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        bench_speed(1, count=2)
+        bench_separability(trials=2, count=2)
+        bench_spread(2, args.seed)
+        return
     if args.spread:
         bench_spread(args.spread, args.seed)
         return

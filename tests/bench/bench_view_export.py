@@ -8,6 +8,8 @@ Prints medians measured side by side in one run:
 2. export of a recording to parquet and CSV (long layout) against reading it;
 3. import of a lab-shaped ROS 1 bag (7 cells at 250 Hz, joint states and poses at 125 Hz):
    bag messages per second.
+
+``--quick`` runs each part once on the shortest bag (a check that the benchmark runs).
 """
 
 from __future__ import annotations
@@ -54,12 +56,14 @@ def _stream() -> rr.RecordingStream:
     return stream
 
 
-def bench_logging(repeat: int) -> None:
-    """Columnar against row-wise logging, and a whole recording against reading it."""
+def bench_logging(repeat: int, samples: int | None = None) -> None:
+    """Columnar against row-wise logging (of the first ``samples`` if given), and a whole
+    recording against reading it.
+    """
     recording = read_recording(RECORDING)
     series = recording.skin("acceleration")
-    stamps = series.stamps_ns.view("datetime64[ns]")
-    values = np.ascontiguousarray(series.data[:, 0, :])
+    stamps = series.stamps_ns[:samples].view("datetime64[ns]")
+    values = np.ascontiguousarray(series.data[:samples, 0, :])
 
     def columnar() -> None:
         stream = _stream()
@@ -72,7 +76,7 @@ def bench_logging(repeat: int) -> None:
 
     def row_wise() -> None:
         stream = _stream()
-        for stamp, row in zip(series.stamps_ns, values, strict=True):
+        for stamp, row in zip(series.stamps_ns[:samples], values, strict=True):
             stream.set_time("log_time", timestamp=np.datetime64(int(stamp), "ns"))
             stream.log("acc", rr.Scalars(row))
         stream.flush()
@@ -140,10 +144,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeat", type=int, default=5, help="repetitions (median)")
     parser.add_argument("--bag-seconds", type=float, default=20.0, help="length of the lab bag")
+    parser.add_argument(
+        "--quick", action="store_true", help="one repetition, the shortest bag (untimed)"
+    )
     args = parser.parse_args()
+    if args.quick:  # the bag's one annotated C1 action ends at 16 s
+        args.repeat, args.bag_seconds = 1, 17.0
     with tempfile.TemporaryDirectory() as directory:
         work = Path(directory)
-        bench_logging(args.repeat)
+        bench_logging(args.repeat, 500 if args.quick else None)
         bench_export(args.repeat, work)
         bench_import(work, args.bag_seconds)
 

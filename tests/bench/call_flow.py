@@ -45,6 +45,9 @@ Run (from the checkout to measure; its packages must come first on the path)::
 
     PYTHONPATH=$PWD python tests/bench/call_flow.py [--budget 4] [--trials 1] [--json FILE]
 
+``--quick`` traces a budget of 2 on the committed recordings (``recordings/data``) instead of
+the default dataset: a check that the script runs.
+
 The entry points are given by dotted names so the script survives code moving between
 modules: ``--tasks`` (a function ``(frame, config) -> list of tasks``), ``--run`` (a function
 ``(task) -> table``), ``--config`` (the study options class, built with ``out``, ``groups``,
@@ -259,8 +262,14 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, Any, Any]:
     from replay.learning._features import build_features  # noqa: PLC0415
     from replay.live import ensure_default_dataset  # noqa: PLC0415
 
-    root = ensure_default_dataset()
-    frame = build_features(root).frame
+    if args.quick:  # the committed recordings instead of the default dataset
+        import polars as pl  # noqa: PLC0415
+        from _quick import RECORDINGS, quick_features  # noqa: PLC0415
+
+        root, frame = RECORDINGS, pl.read_parquet(quick_features())
+    else:
+        root = ensure_default_dataset()
+        frame = build_features(root).frame
     roles = dataset_roles(root, frame["object_id"].to_list())
     new, old = roles.new[: args.new], roles.old[: args.old]
     actions = tuple(args.actions.split(","))
@@ -305,7 +314,12 @@ def main() -> int:
     )
     parser.add_argument("--distinct", action="store_true", help="list distinct transitions")
     parser.add_argument("--json", type=Path, default=None, help="write the counts here")
+    parser.add_argument(
+        "--quick", action="store_true", help="the committed recordings, budget 2 (a check)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.budget = min(args.budget, 2)
     frame, config, spec = _inputs(args)
     task = _load(args.tasks)(frame, config)[0]
     packages = tuple(args.packages.split(","))

@@ -18,7 +18,9 @@ Printed: per action and training size the mean accuracy of every candidate and o
 modality, the candidate minus the best single modality (points) with a paired 95 % bootstrap
 interval over groups, and the fit time per candidate.
 
-Run: ``python tests/bench/fusion_candidates.py --data real`` or ``--data sim [--groups 10]``.
+Run: ``python tests/bench/fusion_candidates.py --data real`` or ``--data sim [--groups 10]``;
+``--quick``: one group of 3 objects, one repetition, P1, on the committed recordings (a check
+that the script runs).
 """
 
 from __future__ import annotations
@@ -272,6 +274,7 @@ def main() -> None:
     parser.add_argument("--features", type=Path, default=SIM)
     parser.add_argument("--groups", type=int, default=10)
     parser.add_argument("--repetitions", type=int, default=10)
+    parser.add_argument("--objects", type=int, default=5, help="objects per group (sim)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--actions", nargs="*", default=None)
     parser.add_argument("--candidates", nargs="*", default=list(CANDIDATES))
@@ -279,7 +282,17 @@ def main() -> None:
     parser.add_argument(
         "--rows", type=Path, default=None, help="report rows written before, or a study's results"
     )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="one group and repetition of one action on the committed recordings (a check)",
+    )
     args = parser.parse_args()
+    if args.quick:
+        from _quick import quick_features  # noqa: PLC0415
+
+        args.data, args.features, args.groups, args.repetitions = "sim", quick_features(), 1, 1
+        args.workers, args.actions, args.objects = 1, args.actions or ["P1"], 3
     names = list(args.candidates)
     if args.rows is not None:
         rows = pl.read_parquet(args.rows)
@@ -298,6 +311,7 @@ def main() -> None:
             out=Path(),
             fusion_groups=args.groups,
             fusion_repetitions=args.repetitions,
+            fusion_objects=args.objects,
             new=objects,
             actions=dataset_actions(frame),
         )

@@ -11,6 +11,9 @@ the priors are fixed), computed by the studies' own ``paired_gains``::
     atikt-replay study transfer --kernel-parts texture=matern32,thermal=matern32 --out A
     atikt-replay study transfer --out B
     python tests/bench/paired_studies.py A B
+
+``--quick`` pairs a short transfer study on the committed recordings with itself (a check that
+the script runs; every difference is 0).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import polars as pl
@@ -40,9 +44,29 @@ def _arm(results: pl.DataFrame, method: str, label: str) -> pl.DataFrame:
 def main() -> None:
     """Print the paired differences A minus B of both arms."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("a", type=Path, help="study output directory A")
-    parser.add_argument("b", type=Path, help="study output directory B (the reference)")
+    parser.add_argument("a", type=Path, nargs="?", help="study output directory A")
+    parser.add_argument("b", type=Path, nargs="?", help="study output directory B (the reference)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="pair a short transfer study on the committed recordings with itself (a check)",
+    )
     args = parser.parse_args()
+    if args.quick:
+        from _quick import quick_study  # noqa: PLC0415
+
+        with tempfile.TemporaryDirectory() as scratch:
+            args.a = args.b = quick_study("transfer", Path(scratch) / "study")
+            _print(args.a, args.b)
+        return
+    if args.a is None or args.b is None:
+        parser.error("A and B are required (unless --quick)")
+    _print(args.a, args.b)
+
+
+def _print(a: Path, b: Path) -> None:
+    """Print the paired differences of study outputs ``a`` minus ``b``."""
+    args = argparse.Namespace(a=a, b=b)
     first, second = (pl.read_parquet(d / "results.parquet") for d in (args.a, args.b))
     options = json.loads((args.a / "study.json").read_text("utf-8"))
     budget, seed = int(options["learner"]["budget"]), int(options["seed"])

@@ -6,12 +6,15 @@ split and priors), this counts how many of those related old objects are among t
 priors and prints the mean gain over observations 1..40 (ATIKT minus baseline, points) per
 count, and the mean count per number of priors.
 
-Run: ``python tests/bench/priors_counterparts.py studies/priors/results.parquet``.
+Run: ``python tests/bench/priors_counterparts.py studies/priors/results.parquet``;
+``--quick``: a short priors study on the committed recordings, analysed (a check that the
+script runs).
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
 import polars as pl
@@ -22,8 +25,28 @@ from recorder._catalog import load_objects
 def main() -> None:
     """Print the gain by the number of related old objects among the priors."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("results", type=Path, help="results.parquet of a priors study")
+    parser.add_argument("results", type=Path, nargs="?", help="results.parquet of a priors study")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="analyse a short priors study on the committed recordings (a check)",
+    )
     args = parser.parse_args()
+    if args.quick:
+        from _quick import quick_study  # noqa: PLC0415
+
+        with tempfile.TemporaryDirectory() as scratch:
+            out = quick_study("priors", Path(scratch) / "study", prior_counts=(3,))
+            _print(out / "results.parquet")
+        return
+    if args.results is None:
+        parser.error("RESULTS is required (unless --quick)")
+    _print(args.results)
+
+
+def _print(results: Path) -> None:
+    """Print the gain by related old objects among the priors of a priors study's results."""
+    args = argparse.Namespace(results=results)
     related = {o.related_to for o in load_objects().values() if o.related_to}
     table = pl.read_parquet(args.results)
     runs = (

@@ -20,6 +20,8 @@ Run: ``python tests/bench/relatedness_candidates.py --modes prediction density d
 [--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once;
 ``@name=value``: a learner option, e.g. ``density@eps_density=0.05``; ``@hyper_sd=none``:
 maximum likelihood learners, as in the thesis, instead of the tool's default hyperprior).
+``--quick``: the first mode, one group and trial of budget 2 on the committed recordings (a
+check that the script runs).
 """
 
 from __future__ import annotations
@@ -195,7 +197,15 @@ def main() -> None:
     parser.add_argument(
         "--compare", nargs=2, metavar=("FIRST", "SECOND"), help="modes whose rows --out holds"
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="one run of budget 2 on the committed recordings"
+    )
     args = parser.parse_args()
+    if args.quick:
+        from _quick import quick_features  # noqa: PLC0415
+
+        args.features, args.groups, args.trials, args.budget = quick_features(), 1, 1, 2
+        args.workers, args.modes = 1, args.modes[:1]
     if args.compare:
         first, second = args.compare
         compare(args.out, first, second, args.budget)

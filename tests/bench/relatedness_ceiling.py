@@ -23,7 +23,8 @@ The counterpart hit rate of the nearest object (``loglik``) bounds what any scor
 similarity can reach on this dataset.
 
 Run: ``python tests/bench/relatedness_ceiling.py [--groups 3] [--reps 2] [--rho 0.9]``
-(about 2 minutes on one core).
+(about 2 minutes on one core); ``--quick``: one group of 3 priors and m = 1 on the committed
+recordings (a check that the script runs).
 """
 
 from __future__ import annotations
@@ -84,14 +85,15 @@ def evidence_gains(Xn: Any, y: Any, aux: dict[int, Any], slices: Any, rho: float
 def measure(args: argparse.Namespace) -> pl.DataFrame:
     """One row per (group, action, repetition, m, new object, score)."""
     frame = pl.read_parquet(args.features)
-    related = counterparts()
+    present = set(frame["object_id"].unique().to_list())
+    related = {o: c for o, c in counterparts().items() if o in present}
     new = sorted(related)
-    old = sorted(set(frame["object_id"].unique().to_list()) - set(new))
+    old = sorted(present - set(new))
     actions = sorted(frame["action_id"].unique().to_list())
     lookup = FeatureLookup(frame, "thesis")
     rng = np.random.default_rng(args.seed)
     rows = []
-    for size in (3, 5, 10):
+    for size in args.sizes:
         for number, group in enumerate(prior_groups(old, size, args.groups, args.seed)):
             models = fit_priors(prior_data(lookup, group, actions), args.seed + number)
             for action in actions:
@@ -109,7 +111,7 @@ def measure(args: argparse.Namespace) -> pl.DataFrame:
                     )
                     for o in range(size)
                 }
-                for rep, m in ((r, m) for r in range(args.reps) for m in (1, 2, 5)):
+                for rep, m in ((r, m) for r in range(args.reps) for m in args.m):
                     observations, owners = [], []
                     for j, obj in enumerate(new):
                         trials = lookup.trials(obj, action)
@@ -163,7 +165,16 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=2, help="draws of the new observations")
     parser.add_argument("--rho", type=float, default=0.9, help="rho of the evidence gain")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--quick", action="store_true", help="one group of 3 priors, m = 1, the committed data"
+    )
     args = parser.parse_args()
+    args.sizes, args.m = (3, 5, 10), (1, 2, 5)
+    if args.quick:
+        from _quick import quick_features  # noqa: PLC0415
+
+        args.features, args.groups, args.reps = quick_features(), 1, 1
+        args.sizes, args.m = (3,), (1,)
     rows = measure(args)
     pl.Config.set_tbl_rows(200)
     pl.Config.set_tbl_hide_dataframe_shape(True)

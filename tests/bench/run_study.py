@@ -9,7 +9,8 @@ atikt/README.
 Run: ``python tests/bench/run_study.py NAME --recordings DIR --out OUT [--prior-recordings
 DIR2] [--new a,b] [--priors c,d] [--actions C1,P1] [--groups 10] [--trials 2] [--budget 40]
 [--group-size 3] [--transfer prediction] [--metric-sd 1|none] [--kernel-parts BLOCK=KERNEL,..]
-[--workers 2]``.
+[--workers 2]``; ``--quick``: one run of budget 2 of ``transfer`` (or NAME) on the committed
+recordings into a temporary directory (a check that the script runs).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
@@ -31,6 +33,8 @@ from replay.learning._features import build_features
 from replay.learning._session import DEFAULT_LEARNER
 from replay.outputs._study_report import run_study
 from replay.studies._running import StudyConfig, dataset_actions
+
+RECORDINGS = Path(__file__).resolve().parents[2] / "recordings" / "data"
 
 
 def _optional(text: str) -> float | None:
@@ -46,9 +50,9 @@ def _split(text: str | None) -> list[str] | None:
 def main() -> int:
     """Run the study and print its summary."""
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("name")
-    parser.add_argument("--recordings", type=Path, required=True)
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("name", nargs="?", help="the study (--quick: transfer)")
+    parser.add_argument("--recordings", type=Path, help="the dataset (required unless --quick)")
+    parser.add_argument("--out", type=Path, help="output directory (required unless --quick)")
     parser.add_argument("--prior-recordings", type=Path, default=None)
     parser.add_argument("--prior-actions", default=None, help="T=S,... pairs")
     parser.add_argument("--new", default=None)
@@ -63,7 +67,25 @@ def main() -> int:
     parser.add_argument("--kernel-parts", default="", help="BLOCK=KERNEL,.. of the learners")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="one run of budget 2 on the committed recordings into a temporary directory",
+    )
     args = parser.parse_args()
+    if args.quick:
+        with tempfile.TemporaryDirectory() as scratch:
+            args.name, args.recordings = args.name or "transfer", args.recordings or RECORDINGS
+            args.out = args.out or Path(scratch) / "study"
+            args.groups, args.trials, args.budget, args.workers = 1, 1, 2, 1
+            return _run(args)
+    if args.name is None or args.recordings is None or args.out is None:
+        parser.error("NAME, --recordings and --out are required (unless --quick)")
+    return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the study the options describe and print its summary."""
     frame = build_features(args.recordings, workers=args.workers).frame
     roles = dataset_roles(
         args.recordings, frame["object_id"].to_list(), _split(args.new), _split(args.priors)

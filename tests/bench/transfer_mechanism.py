@@ -7,7 +7,8 @@ from the old object of the largest evidence gain (``transfer="evidence"``,
 observation per new object and action), the signal variance every new object's classifier
 fitted (median, min, max over objects, actions and runs) and the accuracy at step 0.
 
-Run: ``python tests/bench/transfer_mechanism.py [--runs 3] [--rho 0.9]`` (about 20 s).
+Run: ``python tests/bench/transfer_mechanism.py [--runs 3] [--rho 0.9]`` (about 20 s);
+``--quick``: one run on the committed recordings (a check that the script runs).
 """
 
 from __future__ import annotations
@@ -66,7 +67,14 @@ def main() -> None:
     parser.add_argument("--features", type=Path, default=SIM)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--rho", type=float, default=0.9)
+    parser.add_argument(
+        "--quick", action="store_true", help="one run on the committed recordings (a check)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        from _quick import quick_features  # noqa: PLC0415
+
+        args.features, args.runs = quick_features(), 1
     frame = pl.read_parquet(args.features)
     roles = dataset_roles(args.features.parent, sorted(set(frame["object_id"])))
     config = StudyConfig(

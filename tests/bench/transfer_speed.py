@@ -7,7 +7,9 @@ ratio, and whether every repetition of a mode wrote the same decisions and accur
 
 Run: ``python tests/bench/transfer_speed.py --recordings DIR --new wood,aluminium --priors
 cold_wood [--transfer optimization] [--repeats 5]`` (DIR: the 270 heated-probe recordings,
-``python recordings/thermal_probe/convert.py --source ... --all --out DIR``).
+``python recordings/thermal_probe/convert.py --source ... --all --out DIR``). ``--quick``: each
+mode once with budget 2 on two new and two prior objects of the committed recordings (a check
+that the script runs).
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ def _learn(args: argparse.Namespace, mode: str, out: Path) -> tuple[float, pl.Da
     command = [sys.executable, "-m", "replay", "learn", "--recordings", str(args.recordings)]
     command += ["--new", args.new, "--priors", args.priors, "--transfer", mode, "--workers", "1"]
     command += ["--seed", str(args.seed), "--out", str(out), "--force"]
+    if args.budget is not None:
+        command += ["--budget", str(args.budget)]
     env = os.environ | {"PYTHONPATH": str(ROOT)}
     start = time.perf_counter()
     subprocess.run(command, check=True, capture_output=True, env=env, cwd=ROOT)  # noqa: S603
@@ -43,16 +47,26 @@ def _learn(args: argparse.Namespace, mode: str, out: Path) -> tuple[float, pl.Da
 def main() -> int:
     """Time both modes and print medians and their ratio."""
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--recordings", type=Path, required=True)
-    parser.add_argument("--new", required=True)
-    parser.add_argument("--priors", required=True)
+    parser.add_argument("--recordings", type=Path, help="the dataset (required unless --quick)")
+    parser.add_argument("--new", help="new objects (required unless --quick)")
+    parser.add_argument("--priors", help="prior objects (required unless --quick)")
     parser.add_argument("--transfer", default="optimization")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--budget", type=int, default=None, help="learn's --budget (its default)")
+    parser.add_argument(
+        "--quick", action="store_true", help="once each, budget 2, the committed recordings"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.recordings, args.repeats, args.budget = ROOT / "recordings" / "data", 1, 2
+        args.new, args.priors = "aluminium_plate,foam_block", "metal_toolbox,soft_sponge"
+    if args.recordings is None or args.new is None or args.priors is None:
+        parser.error("--recordings, --new and --priors are required (unless --quick)")
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    features = [sys.executable, "-m", "replay", "features", str(args.recordings)]
-    subprocess.run(features, check=True, capture_output=True, env=env, cwd=ROOT)  # noqa: S603
+    if not args.quick:  # the cache is built before the timed runs (untimed with --quick)
+        features = [sys.executable, "-m", "replay", "features", str(args.recordings)]
+        subprocess.run(features, check=True, capture_output=True, env=env, cwd=ROOT)  # noqa: S603
     modes = ("none", args.transfer)
     times: dict[str, list[float]] = {mode: [] for mode in modes}
     first: dict[str, pl.DataFrame] = {}

@@ -132,9 +132,9 @@ def test_a_complete_default_dataset_prints_no_recording_progress(
     shown: list[str] = []
     progress = _learn._progress
 
-    def spy(description: str) -> Any:
+    def spy(description: str, unit: str = "") -> Any:
         shown.append(description)
-        return progress(description)
+        return progress(description, unit)
 
     monkeypatch.setattr(_learn, "_progress", spy)
     monkeypatch.setattr(_learn, "default_dataset_ready", lambda: True)

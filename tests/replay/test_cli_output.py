@@ -1,0 +1,202 @@
+"""Output for people and for files: full-width tables when piped, ``--json``, progress lines."""
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import FakeRig
+from rich.console import Console
+from rich.progress import Progress
+
+from recorder import ActionSpec
+from recorder._catalog import ObjectSpec
+from recorder.writing._writer import record_action
+from replay.cli._main import main, progress_line
+from replay.studies._registry import STUDIES
+from replay.studies._running import StudyConfig, study_results
+from schemas import SourceStats
+
+ROOT = Path(__file__).resolve().parents[2]
+RECORDING = ROOT / "recordings" / "data" / "wood" / "C1" / "001.mcap"
+#: Every accounting count of a live source, each a different value so a column mix-up shows.
+STATS = SourceStats(
+    "skin-temperature-and-proximity",
+    "counter",
+    expected=1000,
+    received=991,
+    missing=13,
+    duplicated=2,
+    out_of_order=3,
+    overflowed=4,
+    malformed=5,
+)
+
+
+class _LiveRig(FakeRig):
+    """A fake rig reporting one live source's accounting."""
+
+    def source_stats(self) -> list[SourceStats]:
+        return [STATS]
+
+
+@pytest.fixture
+def live_recording(
+    tmp_path: Path, objects: dict[str, ObjectSpec], actions: dict[str, ActionSpec]
+) -> Path:
+    path = tmp_path / "data" / "wood" / "P1" / "001.mcap"
+    with _LiveRig(seed=0) as rig:
+        return record_action(rig, objects["wood"], actions["P1"], 1, path, seed=0).path
+
+
+def test_info_piped_prints_every_column_whole(
+    live_recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["info", str(live_recording)]) == 0
+    shown = capsys.readouterr().out
+    assert "…" not in shown
+    header = next(line for line in shown.splitlines() if "source" in line and "basis" in line)
+    for column in ("expected", "received", "missing", "duplicated", "out of order", "overflow"):
+        assert column in header
+    assert "malformed" in header
+    row = next(line for line in shown.splitlines() if STATS.name in line)
+    cells = [cell.strip() for cell in row.strip("│┃ ").split("│")]
+    assert cells[:9] == [STATS.name, "counter", "1000", "991", "13", "2", "3", "4", "5"]
+    assert str(live_recording) in shown
+
+
+def test_info_json_of_a_recording(live_recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--json", str(live_recording)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "recording"
+    assert info["path"] == str(live_recording)
+    assert info["metadata"]["object_id"] == "wood"
+    assert info["metadata"]["action_id"] == "P1"
+    assert info["metadata"]["trial"] == 1
+    assert info["metadata"]["action_parameters"]["duration_s"] > 0
+    channels = {c["name"]: c for c in info["channels"]}
+    assert channels["force"]["samples"] > 0
+    assert channels["force"]["shape"] == [7, 3]
+    assert channels["force"]["rate_hz"] > 0
+    assert [p["phase"] for p in info["phases"]][:2] == ["approach", "contact"]
+    assert info["phases"][0]["start_ns"] == 0
+    assert all(p["duration_ns"] >= 0 for p in info["phases"])
+    (source,) = info["sources"]
+    assert source["name"] == STATS.name
+    assert (source["missing"], source["malformed"], source["overflowed"]) == (13, 5, 4)
+
+
+def test_info_json_of_a_committed_recording_matches_its_table(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["info", "--json", str(RECORDING)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert main(["info", str(RECORDING)]) == 0
+    table = capsys.readouterr().out
+    for channel in info["channels"]:
+        line = next(x for x in table.splitlines() if f" {channel['name']} " in x)
+        assert f" {channel['samples']} " in line
+    assert info["sources"] == []
+
+
+def test_info_json_of_a_dataset(capsys: pytest.CaptureFixture[str]) -> None:
+    data = RECORDING.parents[2]
+    assert main(["info", "--json", str(data)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    files = sorted(data.rglob("*.mcap"))
+    assert info["kind"] == "dataset"
+    assert info["recordings"] == len(files)
+    assert info["size_bytes"] == sum(f.stat().st_size for f in files)
+    assert info["recorded_ns"] > 0
+    assert info["trials"]["wood"]["C1"] == len(list((data / "wood" / "C1").glob("*.mcap")))
+    assert sum(sum(per.values()) for per in info["trials"].values()) == len(files)
+    assert info["unfinished"] == 0
+    assert info["feature_cache"].endswith("features.parquet")
+
+
+def test_check_json_of_a_valid_and_of_a_broken_dataset(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = tmp_path / "data"
+    shutil.copytree(RECORDING.parent, data / "wood" / "C1")
+    assert main(["check", "--json", "--workers", "1", str(data)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result == {
+        "path": str(data),
+        "recordings": 2,
+        "valid": 2,
+        "failures": [],
+        "warnings": [],
+        "unfinished": 0,
+        "set_aside": [],
+        "ok": True,
+    }
+    broken = data / "wood" / "C1" / "002.mcap"
+    broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    assert main(["check", "--json", "--workers", "1", str(data)]) == 1
+    result = json.loads(capsys.readouterr().out)
+    assert (result["recordings"], result["valid"], result["ok"]) == (2, 1, False)
+    assert len(result["failures"]) == 1
+    assert "002.mcap" in result["failures"][0]
+
+
+def test_check_json_counts_lost_samples_as_warnings(
+    live_recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["check", "--json", "--workers", "1", str(live_recording)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["ok"] is True
+    (warning,) = result["warnings"]
+    assert "lost samples" in warning
+
+
+def _task(total: float | None, completed: float, elapsed_s: float, unit: str = "tasks") -> str:
+    progress = Progress(console=Console(file=None), disable=True)
+    task_id = progress.add_task("study transfer", total=total, unit=unit)
+    task = progress.tasks[task_id]
+    task.start_time = time.monotonic() - elapsed_s  # what rich sets when the task starts
+    task.completed = completed
+    return progress_line(task)
+
+
+def test_progress_lines_give_totals_and_an_estimate_of_the_time_left() -> None:
+    assert _task(None, 0, 5.2) == "study transfer: 0 tasks (5 s)"
+    assert _task(100, 0, 5.2) == "study transfer: 0/100 tasks (5 s)"
+    assert _task(100, 12, 6.0) == "study transfer: 12/100 tasks, ~44 s left (6 s)"
+    assert _task(100, 100, 50.0) == "study transfer: 100/100 tasks, done (50 s)"
+    assert _task(4, 1, 2.0, unit="") == "study transfer: 1/4, ~6 s left (2 s)"
+
+
+def test_a_study_reports_its_total_before_the_first_task_ends(tmp_path: Path) -> None:
+    calls: list[tuple[int, int]] = []
+    study = STUDIES["transfer"]
+    config = StudyConfig(out=tmp_path)
+    tasks = ["a", "b", "c"]
+    fake = type(study)(
+        name="fake",
+        title="fake",
+        tasks=lambda _frame, _config: tasks,
+        run=_one_row,
+        labels=("task",),
+        report=study.report,
+    )
+    study_results(fake, None, config, on_progress=lambda d, t: calls.append((d, t)))  # type: ignore[arg-type]
+    assert calls[0] == (0, 3)
+    assert calls[-1] == (3, 3)
+
+
+def _one_row(task: str) -> pl.DataFrame:
+    return pl.DataFrame({"task": [task], "accuracy": [1.0]})
+
+
+def test_the_estimate_follows_the_recent_rate_not_a_slow_start() -> None:
+    now = [0.0]
+    progress = Progress(console=Console(file=None), disable=True, get_time=lambda: now[0])
+    task_id = progress.add_task("recording", total=100, unit="recordings")
+    for at, done in ((40.0, 10), (50.0, 20)):  # 40 s to start the workers, then 1 per s
+        now[0] = at
+        progress.update(task_id, completed=done)
+    line = progress_line(progress.tasks[task_id])
+    assert line == "recording: 20/100 recordings, ~80 s left (50 s)"
