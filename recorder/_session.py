@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from recorder._claim import claim_dataset
 from recorder._dataset import (
     check_configuration,
     declare_objects,
@@ -30,6 +31,7 @@ from recorder._dataset import (
 from recorder._rig import Presenting
 from recorder.errors import RecorderError
 from recorder.runner._record import record_action
+from schemas import check_rig
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -140,6 +142,7 @@ def run_session(
     """
     root = Path(root)
     check_configuration(root, seed, factory)
+    claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
     for moved in set_aside_stale_parts(root):
         if on_set_aside is not None:
             on_set_aside(moved)
