@@ -61,7 +61,7 @@ from schemas import (
 
 if TYPE_CHECKING:
     import argparse
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Sequence
 
     from replay.recording._container import ContainerSummary
     from replay.recording._reader import ActionRecording

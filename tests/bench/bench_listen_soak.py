@@ -99,17 +99,21 @@ def _template(store: Any, msgtype: str, value: Any) -> bytearray:
 def _writers(domain: Any, store: Any) -> list[tuple[int, Any, bytearray, str]]:
     """Return (period ns, writer, template, topic) of every data topic."""
     joint = "sensor_msgs/msg/JointState"
-    plan = [
-        (NS // JOINT_HZ, domain.writer("/joint_states", joint), None, "/joint_states"),
+    plan: list[tuple[int, Any, bytearray, str]] = [
+        (
+            NS // JOINT_HZ,
+            domain.writer("/joint_states", joint),
+            _template(store, joint, np.zeros(6)),
+            "/joint_states",
+        )
     ]
-    plan[0] = (plan[0][0], plan[0][1], _template(store, joint, np.zeros(6)), plan[0][3])
     for topic, msgtype, rate in SKIN.values():
         value: Any = np.zeros(3, np.float32) if msgtype.endswith("Vec3") else 0.0
         for cell in range(CELLS):
             name = topic.format(cell=cell)
             writer = domain.writer(name, msgtype)
             plan.append((NS // rate, writer, _template(store, msgtype, value), name))
-    return plan  # type: ignore[return-value]
+    return plan
 
 
 def publish(map_path: Path, domain_id: int, seconds: float) -> None:

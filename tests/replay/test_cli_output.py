@@ -13,7 +13,7 @@ from rich.progress import Progress
 
 from recorder import ActionSpec
 from recorder._catalog import ObjectSpec
-from recorder.writing._writer import record_action
+from recorder.runner._record import record_action
 from replay.cli._main import main, progress_line
 from replay.studies._registry import STUDIES
 from replay.studies._running import StudyConfig, study_results
@@ -48,7 +48,8 @@ def live_recording(
 ) -> Path:
     path = tmp_path / "data" / "wood" / "P1" / "001.mcap"
     with _LiveRig(seed=0) as rig:
-        return record_action(rig, objects["wood"], actions["P1"], 1, path, seed=0).path
+        written: Path = record_action(rig, objects["wood"], actions["P1"], 1, path, seed=0).path
+        return written
 
 
 def test_info_piped_prints_every_column_whole(
