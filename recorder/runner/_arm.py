@@ -140,6 +140,10 @@ class ArmDriver(Protocol):
         """Press along the tool's z axis with ``force_n`` while moving at ``velocity``."""
         ...
 
+    def announce(self, at: Context) -> None:
+        """Mark a phase without motion (a UR writes it into its log; a lab reads it)."""
+        ...
+
     def stop(self, acceleration: float, at: Context | None) -> None:
         """Stop the arm now, decelerating at ``acceleration`` (m/s^2)."""
         ...

@@ -322,6 +322,8 @@ class ArmRig:
             self._send_stop(at, "error")
             raise
         yield from self._rest()
+        with contextlib.suppress(SourceLostError):  # the action is over: a log line at most
+            self.arm.announce(_phase(at, "end"))
         yield self._event("end")
         return None
 

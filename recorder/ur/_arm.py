@@ -28,6 +28,7 @@ from recorder.ur._rtde import MAX_FREQUENCY, RtdeClient, RtdeError
 from recorder.ur._script import (
     Announcement,
     move_program,
+    program,
     slide_program,
     speed_program,
     stop_program,
@@ -326,6 +327,14 @@ class URArm:
         said = Announcement(at.object_id, at.action_id, at.trial)
         program = slide_program(said, at.phase, force_n, velocity, duration_s, acceleration)
         self._send(program)
+
+    def announce(self, at: Context) -> None:
+        """Send a program that only writes the phase into the controller's log."""
+        self._send(
+            program(
+                "atikt_mark", [Announcement(at.object_id, at.action_id, at.trial).line(at.phase)]
+            )
+        )
 
     def stop(self, acceleration: float, at: Context | None) -> None:
         """Send ``stopl`` (raises when the script connection is gone)."""

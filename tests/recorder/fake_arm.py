@@ -159,6 +159,9 @@ class FakeArm:
         self.commands.append((self._cycle, f"slide {at.phase}"))
         self.target, self.velocity = None, np.asarray(velocity, dtype=np.float64).copy()
 
+    def announce(self, at: Context) -> None:
+        self.commands.append((self._cycle, f"announce {at.phase}"))
+
     def stop(self, acceleration: float, at: Context | None) -> None:
         phase = "stop" if at is None else at.phase
         self.commands.append((self._cycle, f"stop {phase}"))

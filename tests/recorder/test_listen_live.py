@@ -27,6 +27,7 @@ from recorder.live import SOURCES_RECORD, parse_source_stats
 from recorder.live._dds import DdsDomain
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._ros2_server import serve_ros2
+from recorder.virtuallab._urscript import Call, Program
 from replay.cli._main import main as replay_main
 from schemas import is_incomplete
 
@@ -78,10 +79,29 @@ class _Run:
         return self.result["report"]
 
 
+def _announce(world: VirtualWorld, action: str, trial: int, phase: str) -> None:
+    """Announce a phase as the UR driver's programs do (a ``textmsg`` the lab executes)."""
+    said = f"atikt: object=wood action={action} trial={trial} phase={phase}"
+    world.run(Program(f'textmsg("{said}")', (Call("textmsg", (said,)),)))
+
+
 def _play(world: VirtualWorld, action: str, trial: int, *, wait: Any = None) -> None:
-    """Play an action; with ``wait`` (the server), until the server announced its end."""
+    """Announce an action's phases in time (a thread); with ``wait``, until its end is said.
+
+    The virtual lab executes programs: an action's phases are what its programs announce, as
+    a driver announces them (approach, contact, execute for the action's duration, retract,
+    end).
+    """
     world.prepare("wood", action, trial)
-    world.start_action("wood", action, trial)
+    duration = load_actions(None)[action].duration_s
+    plan = [("approach", 0.3), ("contact", 0.1), ("execute", duration), ("retract", 0.3)]
+
+    def run() -> None:
+        for phase, hold in [*plan, ("end", 0.0)]:
+            _announce(world, action, trial, phase)
+            time.sleep(hold)
+
+    threading.Thread(target=run, daemon=True).start()
     deadline = time.monotonic() + 60
     while wait is not None and not (
         wait.annotated and json.loads(wait.annotated[-1][1])["phase"] == "end"

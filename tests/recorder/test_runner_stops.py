@@ -167,4 +167,5 @@ def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> No
         "stop contact",
         "move execute",
         "move retract",
+        "announce end",
     ]
