@@ -259,9 +259,9 @@ def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     assert status == _STOPPED[cause], err
     if cause == "SIGTERM":
         assert "interrupted by SIGTERM: the arm was stopped" in err
-    if cause == "protective":
-        assert "action stopped: protective stop" in err
-        assert "incomplete.mcap" in err
+    if cause == "protective":  # in an action, or while moving to the next object
+        assert "protective stop" in err
+        assert err.count("\n") == 1
     if cause == "disconnect":  # in an action or while moving to an object: one line either way
         assert "connection lost" in err
         assert err.count("\n") == 1

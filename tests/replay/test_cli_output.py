@@ -143,14 +143,14 @@ def test_check_json_of_a_valid_and_of_a_broken_dataset(
     assert "002.mcap" in result["failures"][0]
 
 
-def test_check_json_counts_lost_samples_as_warnings(
+def test_check_json_counts_lost_samples_as_failures(
     live_recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["check", "--json", "--workers", "1", str(live_recording)]) == 0
+    assert main(["check", "--json", "--workers", "1", str(live_recording)]) == 1
     result = json.loads(capsys.readouterr().out)
-    assert result["ok"] is True
-    (warning,) = result["warnings"]
-    assert "lost samples" in warning
+    assert result["ok"] is False  # counted loss: check agrees with the accounting
+    (failure,) = result["failures"]
+    assert "lost samples" in failure
 
 
 def _task(total: float | None, completed: float, elapsed_s: float, unit: str = "tasks") -> str:

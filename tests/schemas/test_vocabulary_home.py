@@ -15,7 +15,8 @@ from schemas import VOCABULARY
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("atikt", "replay", "recorder", "schemas")
-HOMES = ("schemas/", "recorder/_sim/", "atikt/features.py")
+# the simulator and the virtual lab's skin model each model every modality's physics
+HOMES = ("schemas/", "recorder/_sim/", "recorder/virtuallab/_skinmodel.py", "atikt/features.py")
 NAMES = {
     *VOCABULARY.modalities,
     *VOCABULARY.features,
