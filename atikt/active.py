@@ -40,6 +40,8 @@ from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, sta
 from atikt.gpc import (
     BinaryGPC,
     RandomState,
+    add_to_diagonal,
+    laplace_mode,
     normalise,
     predictive_probability,
     spawn_seeds,
@@ -595,9 +597,20 @@ class ActiveLearner:
         return (metric, options.metric_sd) if passed else (initial, options.hyper_sd)
 
     def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
-        """Sum over the new objects of their one-vs-all log evidence at ``kernel``."""
+        """Sum over the new objects of their one-vs-all log evidence at ``kernel``.
+
+        The covariance is the same for every object (only the labels differ): computed once,
+        as :class:`BinaryGPC` with ``optimize=False`` would compute it for each.
+        """
+        gpc = BinaryGPC(kernel, optimize=False)
+        K = add_to_diagonal(kernel(X), gpc.jitter)
         return sum(
-            BinaryGPC(kernel, optimize=False).fit(X, labels == obj).log_marginal_likelihood_value_
+            laplace_mode(
+                K,
+                (labels == obj).astype(np.float64),
+                max_iter=gpc.newton_max_iter,
+                tol=gpc.newton_tol,
+            ).log_marginal_likelihood
             for obj in range(self.n_new_objects)
         )
 

@@ -34,6 +34,7 @@ from atikt.transfer import (
     choose_by_optimization,
     choose_by_relatedness,
     evidence_gains,
+    held_out_threshold,
 )
 
 if TYPE_CHECKING:
@@ -178,6 +179,11 @@ class Prediction(TransferStrategy):
         eps_neg1: Smallest mean probability for a transfer, in (0.5, 1].
         max_sources: Most old objects transferred to one classifier at once (the most related
             ones passing the threshold, one ``rho`` each); 1 is the thesis's single source.
+        held_out_quantile: With three or more old objects, the threshold after ``n``
+            observations is raised to this quantile of the scores the old objects, each left
+            out, give the others they are unrelated to from ``n`` of their observations
+            (:func:`atikt.transfer.held_out_threshold`); None: ``eps_neg1`` always (the
+            thesis).
     """
 
     name: ClassVar[str] = "prediction"
@@ -185,11 +191,16 @@ class Prediction(TransferStrategy):
     min_old_objects: ClassVar[int] = 2  # one-vs-all models of the old objects
     eps_neg1: float = 0.6
     max_sources: int = 1
+    held_out_quantile: float | None = None
 
     def __post_init__(self) -> None:
         """Check the options (one error naming the option)."""
         check_threshold("eps_neg1", self.eps_neg1)
         _check_sources(self.max_sources)
+        q = self.held_out_quantile
+        if q is not None and not 0.0 < q < 1.0:
+            msg = f"held_out_quantile={q} must be None or lie in (0, 1)"
+            raise AtiktError(msg)
 
     def check_prior(self, action: str, prior: PriorModel) -> None:
         """Refuse a prior of a single old object (no one-vs-all model).
@@ -216,7 +227,11 @@ class Prediction(TransferStrategy):
         if prior.model is None:
             return NO_CHOICE
         scores = fit.related.mean(axis=0)
-        return choose_by_relatedness(scores, prior.model.classes_, self.eps_neg1, self.max_sources)
+        eps = self.eps_neg1
+        if self.held_out_quantile is not None and prior.held_out:
+            n = fit.related.shape[0]
+            eps = held_out_threshold(prior.held_out, eps, n, self.held_out_quantile)
+        return choose_by_relatedness(scores, prior.model.classes_, eps, self.max_sources)
 
 
 @dataclass(frozen=True, slots=True)
