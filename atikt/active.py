@@ -245,6 +245,14 @@ class ActionState:
     prior_probabilities: FloatArray | None = None
 
 
+def _rivals(probabilities: FloatArray | None, labels: IntArray, obj: int) -> tuple[FloatArray, ...]:
+    """The old models' mean score of each other new object's observations (object order)."""
+    if probabilities is None:
+        return ()
+    others = [o for o in np.unique(labels).tolist() if o != obj]
+    return tuple(probabilities[labels == o].mean(axis=0) for o in others)
+
+
 class ActiveLearner:
     """ATIKT active learner of new objects, optionally transferring old objects' observations.
 
@@ -539,13 +547,14 @@ class ActiveLearner:
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            keep = changed is not None and obj != changed and self.strategy.keeps_choice
+            keep = changed is not None and obj != changed and self.strategy.keeps()
             choice, model = self._fit_object(
                 kernel,
                 X,
                 y,
                 known=state.choices[obj] if keep else None,
                 related=None if probabilities is None else probabilities[labels == obj],
+                rivals=_rivals(probabilities, labels, obj),
                 prior=prior,
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
@@ -658,6 +667,7 @@ class ActiveLearner:
         prior: PriorModel | None,
         auxiliary: Mapping[int, FloatArray],
         rho_starts: dict[int, float],
+        rivals: tuple[FloatArray, ...],
         previous: TransferGPC | None,
         centre: FloatArray,
         prior_sd: float | None,
@@ -675,7 +685,7 @@ class ActiveLearner:
             "random_state": seed,
         }
         fit = ObjectFit(
-            kernel, X, y, prior, auxiliary, known, related, rho_starts, previous, search
+            kernel, X, y, prior, auxiliary, known, related, rho_starts, previous, search, rivals
         )
         return self.strategy.fit(fit)
 

@@ -65,6 +65,8 @@ class ObjectFit:
         previous: The object's classifier of the previous update (warm start).
         search: Options of every hyperparameter search (``n_restarts``, ``max_iter``,
             ``prior_sd``, ``prior_mean``, ``random_state``).
+        rivals: The same scores' mean over each other new object's observations of the
+            action, shape (n_old,) each (strategies that keep a source to one new object).
     """
 
     kernel: ModalityKernel
@@ -77,6 +79,7 @@ class ObjectFit:
     rho_starts: dict[int, float] = field(default_factory=dict)
     previous: TransferGPC | None = None
     search: dict[str, Any] = field(default_factory=dict)
+    rivals: tuple[FloatArray, ...] = ()
 
     def fit_with(self, choice: PriorChoice) -> TransferGPC:
         """Fit the classifier transferring from ``choice``'s sources (plain without)."""
@@ -107,6 +110,13 @@ class TransferStrategy:
     transfers: ClassVar[bool] = True
     keeps_choice: ClassVar[bool] = False
     min_old_objects: ClassVar[int] = 1
+
+    def keeps(self) -> bool:
+        """Whether a new object's choice is kept while only other objects' observations change.
+
+        ``keeps_choice``, unless the strategy's options make a choice depend on the others.
+        """
+        return self.keeps_choice
 
     def options(self) -> dict[str, Any]:
         """The strategy's own options by name (as given to :func:`transfer_strategy`)."""
@@ -184,6 +194,11 @@ class Prediction(TransferStrategy):
             out, give the others they are unrelated to from ``n`` of their observations
             (:func:`atikt.transfer.held_out_threshold`); None: ``eps_neg1`` always (the
             thesis).
+        exclusive: An old object chosen by several new objects of an action is the source of
+            the one it is most related to only (ties: each keeps it); the others do without it.
+            Its observations, borrowed as positives by several new objects' classifiers,
+            would make each claim the others' observations. False: each new object chooses
+            alone (the thesis).
     """
 
     name: ClassVar[str] = "prediction"
@@ -192,6 +207,11 @@ class Prediction(TransferStrategy):
     eps_neg1: float = 0.6
     max_sources: int = 1
     held_out_quantile: float | None = None
+    exclusive: bool = False
+
+    def keeps(self) -> bool:
+        """Exclusive sources depend on the other new objects' observations: chosen again."""
+        return not self.exclusive
 
     def __post_init__(self) -> None:
         """Check the options (one error naming the option)."""
@@ -231,7 +251,14 @@ class Prediction(TransferStrategy):
         if self.held_out_quantile is not None and prior.held_out:
             n = fit.related.shape[0]
             eps = held_out_threshold(prior.held_out, eps, n, self.held_out_quantile)
-        return choose_by_relatedness(scores, prior.model.classes_, eps, self.max_sources)
+        choice = choose_by_relatedness(scores, prior.model.classes_, eps, self.max_sources)
+        if self.exclusive and choice.source is not None:
+            column = prior.model.classes_.tolist().index(choice.source)
+            mine = float(scores[column])
+            for rival in fit.rivals:
+                if int(np.argmax(rival)) == column and rival[column] > mine:
+                    return PriorChoice(None, 0.0, choice.candidates, choice.scores)
+        return choice
 
 
 @dataclass(frozen=True, slots=True)

@@ -221,3 +221,25 @@ def test_prediction_with_held_out_quantile_refuses_a_chance_score_at_one_observa
     assert calibrated.choose(fit).source == model.old_objects[1]
     with pytest.raises(AtiktError, match=r"held_out_quantile=1.5"):
         transfer_strategy("prediction", held_out_quantile=1.5)
+
+
+def test_exclusive_prediction_leaves_a_shared_source_to_its_most_related_new_object() -> None:
+    model = fit_prior_models(pool(OLD_OBJECTS, ["P1"], n_trials=6, seed=2), random_state=0)["P1"]
+    source = model.old_objects[1]
+    fit = ObjectFit(
+        modality_kernel(SLICES),
+        np.zeros((2, 3)),
+        np.array([1.0, 0.0]),
+        model,
+        {},
+        related=np.array([[0.2, 0.8, 0.1]]),
+        rivals=(np.array([0.1, 0.9, 0.2]),),  # another new object, more related to it
+    )
+    plain = transfer_strategy("prediction")
+    exclusive = transfer_strategy("prediction", exclusive=True)
+    assert plain.choose(fit).source == source
+    assert exclusive.choose(fit).source is None
+    assert plain.keeps()
+    assert not exclusive.keeps()  # the choice depends on the other objects' observations
+    fit.rivals = (np.array([0.1, 0.7, 0.2]), np.array([0.9, 0.3, 0.2]))  # less related / other
+    assert exclusive.choose(fit).source == source
