@@ -199,6 +199,11 @@ class Prediction(TransferStrategy):
             Its observations, borrowed as positives by several new objects' classifiers,
             would make each claim the others' observations. False: each new object chooses
             alone (the thesis).
+        min_tail: Open-set gate: an old object is admitted only where the new object's
+            observations lie within its feature distribution, their mean tail probability
+            under it (``transfer="density"``'s score) at least ``min_tail``. A one-vs-all
+            classifier extrapolates: an observation far from every old object can score 0.9
+            for the one it is least far from. None: no gate (the thesis).
     """
 
     name: ClassVar[str] = "prediction"
@@ -208,6 +213,7 @@ class Prediction(TransferStrategy):
     max_sources: int = 1
     held_out_quantile: float | None = None
     exclusive: bool = False
+    min_tail: float | None = None
 
     def keeps(self) -> bool:
         """Exclusive sources depend on the other new objects' observations: chosen again."""
@@ -220,6 +226,9 @@ class Prediction(TransferStrategy):
         q = self.held_out_quantile
         if q is not None and not 0.0 < q < 1.0:
             msg = f"held_out_quantile={q} must be None or lie in (0, 1)"
+            raise AtiktError(msg)
+        if self.min_tail is not None and not 0.0 <= self.min_tail < 1.0:
+            msg = f"min_tail={self.min_tail} must be None or lie in [0, 1)"
             raise AtiktError(msg)
 
     def check_prior(self, action: str, prior: PriorModel) -> None:
@@ -236,8 +245,13 @@ class Prediction(TransferStrategy):
             raise AtiktError(msg)
 
     def scorer(self, prior: PriorModel) -> Scorer | None:
-        """The old models' one-vs-all probabilities."""
-        return None if prior.model is None else prior.model.predict_binary
+        """The old models' one-vs-all probabilities (then, with ``min_tail``, the tails)."""
+        model, densities = prior.model, prior.densities
+        if model is None:
+            return None
+        if self.min_tail is None or densities is None:
+            return model.predict_binary
+        return lambda X: np.hstack([model.predict_binary(X), densities.tail_probabilities(X)])
 
     def choose(self, fit: ObjectFit) -> PriorChoice:
         """The old objects of the largest mean probability of the object's observations."""
@@ -246,7 +260,11 @@ class Prediction(TransferStrategy):
             return NO_CHOICE
         if prior.model is None:
             return NO_CHOICE
-        scores = fit.related.mean(axis=0)
+        k = len(prior.old_objects)
+        means = fit.related.mean(axis=0)
+        scores = means[:k]
+        if means.shape[0] == 2 * k and self.min_tail is not None:  # the open-set gate
+            scores = np.where(means[k:] >= self.min_tail, scores, 0.0)
         eps = self.eps_neg1
         if self.held_out_quantile is not None and prior.held_out:
             n = fit.related.shape[0]
@@ -256,7 +274,7 @@ class Prediction(TransferStrategy):
             column = prior.model.classes_.tolist().index(choice.source)
             mine = float(scores[column])
             for rival in fit.rivals:
-                if int(np.argmax(rival)) == column and rival[column] > mine:
+                if int(np.argmax(rival[:k])) == column and rival[column] > mine:
                     return PriorChoice(None, 0.0, choice.candidates, choice.scores)
         return choice
 

@@ -243,3 +243,26 @@ def test_exclusive_prediction_leaves_a_shared_source_to_its_most_related_new_obj
     assert not exclusive.keeps()  # the choice depends on the other objects' observations
     fit.rivals = (np.array([0.1, 0.7, 0.2]), np.array([0.9, 0.3, 0.2]))  # less related / other
     assert exclusive.choose(fit).source == source
+
+
+def test_prediction_with_min_tail_admits_only_within_the_old_objects_distribution() -> None:
+    model = fit_prior_models(pool(OLD_OBJECTS, ["P1"], n_trials=6, seed=2), random_state=0)["P1"]
+    gated = transfer_strategy("prediction", min_tail=0.05)
+    scorer = gated.scorer(model)
+    assert scorer is not None
+    inside = model.transformer.transform(list(model.observations[:1]))
+    assert scorer(inside).shape == (1, 6)  # probabilities, then tail probabilities
+    fit = ObjectFit(
+        modality_kernel(SLICES),
+        np.zeros((2, 3)),
+        np.array([1.0, 0.0]),
+        model,
+        {},
+        related=np.array([[0.2, 0.9, 0.1, 0.5, 0.01, 0.5]]),  # 0.9, but far out in its tail
+    )
+    assert transfer_strategy("prediction").choose(fit).source == model.old_objects[1]
+    assert gated.choose(fit).source is None
+    fit.related = np.array([[0.2, 0.9, 0.1, 0.5, 0.3, 0.5]])
+    assert gated.choose(fit).source == model.old_objects[1]
+    with pytest.raises(AtiktError, match=r"min_tail=1.0"):
+        transfer_strategy("prediction", min_tail=1.0)
