@@ -86,7 +86,7 @@ def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFra
 
     Returns:
         Columns ``step`` (str: a number, or ``mean 1..budget``), ``tasks``, ``gain``, ``low``,
-        ``high`` (fractions), ``verdict``.
+        ``high`` (fractions), ``verdict``; a step no run reached is left out.
     """
     per = frame.group_by(["group", "method", "step"]).agg(pl.col("accuracy").mean())
     wide = per.pivot(on="method", index=["group", "step"], values="accuracy").sort(
@@ -100,13 +100,15 @@ def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFra
     for name, where in selections:
         gains = wide.filter(where).group_by("group").agg(pl.col("gain").mean()).sort("group")
         values = gains["gain"].to_numpy().astype(np.float64)
+        if values.size == 0:  # no run reached this step (the recordings ran out first)
+            continue
         rng = np.random.default_rng([seed, values.size, len(rows)])
         low, high = _interval(values, rng)
         rows.append(
             {
                 "step": name,
                 "tasks": int(values.size),
-                "gain": float(values.mean()) if values.size else float("nan"),
+                "gain": float(values.mean()),
                 "low": low,
                 "high": high,
                 "verdict": verdict(low, high),
