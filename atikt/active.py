@@ -40,6 +40,8 @@ from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, sta
 from atikt.gpc import (
     BinaryGPC,
     RandomState,
+    add_to_diagonal,
+    laplace_mode,
     normalise,
     predictive_probability,
     spawn_seeds,
@@ -241,6 +243,14 @@ class ActionState:
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
     prior_stacks: dict[int, StackedFeatures] | None = None
     prior_probabilities: FloatArray | None = None
+
+
+def _rivals(probabilities: FloatArray | None, labels: IntArray, obj: int) -> tuple[FloatArray, ...]:
+    """The old models' mean score of each other new object's observations (object order)."""
+    if probabilities is None:
+        return ()
+    others = [o for o in np.unique(labels).tolist() if o != obj]
+    return tuple(probabilities[labels == o].mean(axis=0) for o in others)
 
 
 class ActiveLearner:
@@ -537,13 +547,14 @@ class ActiveLearner:
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
-            keep = changed is not None and obj != changed and self.strategy.keeps_choice
+            keep = changed is not None and obj != changed and self.strategy.keeps()
             choice, model = self._fit_object(
                 kernel,
                 X,
                 y,
                 known=state.choices[obj] if keep else None,
                 related=None if probabilities is None else probabilities[labels == obj],
+                rivals=_rivals(probabilities, labels, obj),
                 prior=prior,
                 auxiliary=auxiliary,
                 rho_starts=state.rhos[obj],
@@ -595,9 +606,20 @@ class ActiveLearner:
         return (metric, options.metric_sd) if passed else (initial, options.hyper_sd)
 
     def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
-        """Sum over the new objects of their one-vs-all log evidence at ``kernel``."""
+        """Sum over the new objects of their one-vs-all log evidence at ``kernel``.
+
+        The covariance is the same for every object (only the labels differ): computed once,
+        as :class:`BinaryGPC` with ``optimize=False`` would compute it for each.
+        """
+        gpc = BinaryGPC(kernel, optimize=False)
+        K = add_to_diagonal(kernel(X), gpc.jitter)
         return sum(
-            BinaryGPC(kernel, optimize=False).fit(X, labels == obj).log_marginal_likelihood_value_
+            laplace_mode(
+                K,
+                (labels == obj).astype(np.float64),
+                max_iter=gpc.newton_max_iter,
+                tol=gpc.newton_tol,
+            ).log_marginal_likelihood
             for obj in range(self.n_new_objects)
         )
 
@@ -645,6 +667,7 @@ class ActiveLearner:
         prior: PriorModel | None,
         auxiliary: Mapping[int, FloatArray],
         rho_starts: dict[int, float],
+        rivals: tuple[FloatArray, ...],
         previous: TransferGPC | None,
         centre: FloatArray,
         prior_sd: float | None,
@@ -662,7 +685,7 @@ class ActiveLearner:
             "random_state": seed,
         }
         fit = ObjectFit(
-            kernel, X, y, prior, auxiliary, known, related, rho_starts, previous, search
+            kernel, X, y, prior, auxiliary, known, related, rho_starts, previous, search, rivals
         )
         return self.strategy.fit(fit)
 

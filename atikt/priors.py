@@ -14,11 +14,12 @@ import numpy as np
 import numpy.typing as npt
 
 from atikt.features import FeatureTransformer, RawFeatures
-from atikt.gpc import OneVsAllGPC, RandomState, spawn_seeds
+from atikt.gpc import BinaryGPC, OneVsAllGPC, RandomState, spawn_seeds
 from atikt.kernels import modality_kernel
 from atikt.transfer import ObjectDensities
 
 IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -33,6 +34,13 @@ class PriorModel:
             single old object: the model prediction approach then cannot be used).
         densities: Each old object's feature distribution in the transformer's space (the
             open-set relatedness of ``transfer="density"``).
+        held_out: With three or more old objects, per old object (in :attr:`old_objects`
+            order): its observations' one-vs-all probabilities under the *other* old objects'
+            classifiers (fitted without it, at the hyperparameters of ``model``), shape
+            (m_o, n_old - 1). Each old object, left out, is a new object whose relatedness to
+            the rest is known from all its observations: what a few of them would have
+            claimed is the calibration of :func:`atikt.transfer.held_out_threshold`. Empty
+            with fewer old objects.
     """
 
     observations: tuple[RawFeatures, ...]
@@ -40,6 +48,7 @@ class PriorModel:
     transformer: FeatureTransformer
     model: OneVsAllGPC | None
     densities: ObjectDensities | None = None
+    held_out: tuple[FloatArray, ...] = ()
 
     @property
     def old_objects(self) -> tuple[int, ...]:
@@ -95,7 +104,42 @@ def fit_prior_model(
             kernel, n_restarts=n_restarts, max_iter=max_iter, random_state=random_state
         ).fit(X, labels)
     densities = ObjectDensities.fit(X, labels)
-    return PriorModel(tuple(observations), labels, transformer, model, densities)
+    held_out = () if model is None else held_out_probabilities(X, labels, model)
+    return PriorModel(tuple(observations), labels, transformer, model, densities, held_out)
+
+
+def held_out_probabilities(
+    X: FloatArray, labels: IntArray, model: OneVsAllGPC
+) -> tuple[FloatArray, ...]:
+    """Each old object's probabilities under the others' one-vs-all classifiers.
+
+    The classifiers of the other old objects are refitted without the left-out object's
+    observations at the hyperparameters ``model`` found (a Laplace fit each, no search).
+
+    Args:
+        X: The old objects' observations in the prior's feature space, shape (n, d).
+        labels: Their old-object labels, shape (n,).
+        model: The one-vs-all model fitted on all of them.
+
+    Returns:
+        Per old object (``model.classes_`` order), shape (m_o, n_old - 1); empty with fewer
+        than three old objects (one left out leaves no one-vs-all pair).
+    """
+    classes = [int(c) for c in model.classes_]
+    if len(classes) < 3:  # noqa: PLR2004
+        return ()
+    out = []
+    for left in classes:
+        own, rest = labels == left, labels != left
+        columns = [
+            BinaryGPC(estimator.kernel_, optimize=False)
+            .fit(X[rest], labels[rest] == other)
+            .predict_positive(X[own])
+            for other, estimator in zip(classes, model.estimators_, strict=True)
+            if other != left
+        ]
+        out.append(np.column_stack(columns))
+    return tuple(out)
 
 
 def fit_prior_models(

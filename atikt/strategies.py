@@ -34,6 +34,7 @@ from atikt.transfer import (
     choose_by_optimization,
     choose_by_relatedness,
     evidence_gains,
+    held_out_threshold,
 )
 
 if TYPE_CHECKING:
@@ -64,6 +65,8 @@ class ObjectFit:
         previous: The object's classifier of the previous update (warm start).
         search: Options of every hyperparameter search (``n_restarts``, ``max_iter``,
             ``prior_sd``, ``prior_mean``, ``random_state``).
+        rivals: The same scores' mean over each other new object's observations of the
+            action, shape (n_old,) each (strategies that keep a source to one new object).
     """
 
     kernel: ModalityKernel
@@ -76,6 +79,7 @@ class ObjectFit:
     rho_starts: dict[int, float] = field(default_factory=dict)
     previous: TransferGPC | None = None
     search: dict[str, Any] = field(default_factory=dict)
+    rivals: tuple[FloatArray, ...] = ()
 
     def fit_with(self, choice: PriorChoice) -> TransferGPC:
         """Fit the classifier transferring from ``choice``'s sources (plain without)."""
@@ -106,6 +110,13 @@ class TransferStrategy:
     transfers: ClassVar[bool] = True
     keeps_choice: ClassVar[bool] = False
     min_old_objects: ClassVar[int] = 1
+
+    def keeps(self) -> bool:
+        """Whether a new object's choice is kept while only other objects' observations change.
+
+        ``keeps_choice``, unless the strategy's options make a choice depend on the others.
+        """
+        return self.keeps_choice
 
     def options(self) -> dict[str, Any]:
         """The strategy's own options by name (as given to :func:`transfer_strategy`)."""
@@ -178,6 +189,21 @@ class Prediction(TransferStrategy):
         eps_neg1: Smallest mean probability for a transfer, in (0.5, 1].
         max_sources: Most old objects transferred to one classifier at once (the most related
             ones passing the threshold, one ``rho`` each); 1 is the thesis's single source.
+        held_out_quantile: With three or more old objects, the threshold after ``n``
+            observations is raised to this quantile of the scores the old objects, each left
+            out, give the others they are unrelated to from ``n`` of their observations
+            (:func:`atikt.transfer.held_out_threshold`); None: ``eps_neg1`` always (the
+            thesis).
+        exclusive: An old object chosen by several new objects of an action is the source of
+            the one it is most related to only (ties: each keeps it); the others do without it.
+            Its observations, borrowed as positives by several new objects' classifiers,
+            would make each claim the others' observations. False: each new object chooses
+            alone (the thesis).
+        min_tail: Open-set gate: an old object is admitted only where the new object's
+            observations lie within its feature distribution, their mean tail probability
+            under it (``transfer="density"``'s score) at least ``min_tail``. A one-vs-all
+            classifier extrapolates: an observation far from every old object can score 0.9
+            for the one it is least far from. None: no gate (the thesis).
     """
 
     name: ClassVar[str] = "prediction"
@@ -185,11 +211,25 @@ class Prediction(TransferStrategy):
     min_old_objects: ClassVar[int] = 2  # one-vs-all models of the old objects
     eps_neg1: float = 0.6
     max_sources: int = 1
+    held_out_quantile: float | None = None
+    exclusive: bool = False
+    min_tail: float | None = None
+
+    def keeps(self) -> bool:
+        """Exclusive sources depend on the other new objects' observations: chosen again."""
+        return not self.exclusive
 
     def __post_init__(self) -> None:
         """Check the options (one error naming the option)."""
         check_threshold("eps_neg1", self.eps_neg1)
         _check_sources(self.max_sources)
+        q = self.held_out_quantile
+        if q is not None and not 0.0 < q < 1.0:
+            msg = f"held_out_quantile={q} must be None or lie in (0, 1)"
+            raise AtiktError(msg)
+        if self.min_tail is not None and not 0.0 <= self.min_tail < 1.0:
+            msg = f"min_tail={self.min_tail} must be None or lie in [0, 1)"
+            raise AtiktError(msg)
 
     def check_prior(self, action: str, prior: PriorModel) -> None:
         """Refuse a prior of a single old object (no one-vs-all model).
@@ -205,8 +245,13 @@ class Prediction(TransferStrategy):
             raise AtiktError(msg)
 
     def scorer(self, prior: PriorModel) -> Scorer | None:
-        """The old models' one-vs-all probabilities."""
-        return None if prior.model is None else prior.model.predict_binary
+        """The old models' one-vs-all probabilities (then, with ``min_tail``, the tails)."""
+        model, densities = prior.model, prior.densities
+        if model is None:
+            return None
+        if self.min_tail is None or densities is None:
+            return model.predict_binary
+        return lambda X: np.hstack([model.predict_binary(X), densities.tail_probabilities(X)])
 
     def choose(self, fit: ObjectFit) -> PriorChoice:
         """The old objects of the largest mean probability of the object's observations."""
@@ -215,8 +260,23 @@ class Prediction(TransferStrategy):
             return NO_CHOICE
         if prior.model is None:
             return NO_CHOICE
-        scores = fit.related.mean(axis=0)
-        return choose_by_relatedness(scores, prior.model.classes_, self.eps_neg1, self.max_sources)
+        k = len(prior.old_objects)
+        means = fit.related.mean(axis=0)
+        scores = means[:k]
+        if means.shape[0] == 2 * k and self.min_tail is not None:  # the open-set gate
+            scores = np.where(means[k:] >= self.min_tail, scores, 0.0)
+        eps = self.eps_neg1
+        if self.held_out_quantile is not None and prior.held_out:
+            n = fit.related.shape[0]
+            eps = held_out_threshold(prior.held_out, eps, n, self.held_out_quantile)
+        choice = choose_by_relatedness(scores, prior.model.classes_, eps, self.max_sources)
+        if self.exclusive and choice.source is not None:
+            column = prior.model.classes_.tolist().index(choice.source)
+            mine = float(scores[column])
+            for rival in fit.rivals:
+                if int(np.argmax(rival[:k])) == column and rival[column] > mine:
+                    return PriorChoice(None, 0.0, choice.candidates, choice.scores)
+        return choice
 
 
 @dataclass(frozen=True, slots=True)

@@ -423,6 +423,44 @@ def choose_by_prediction(
     return choose_by_relatedness(relatedness(old_model, X), old_model.classes_, eps_neg1)
 
 
+def held_out_threshold(
+    held_out: Sequence[FloatArray], eps: float, n: int, quantile: float
+) -> float:
+    """The relatedness a new object needs after ``n`` observations, calibrated on the old ones.
+
+    One observation says little about relatedness: a one-vs-all classifier can give an object
+    it has never seen 0.6-0.9 (its one-vs-all probabilities are not normalised). The old
+    objects show how much: each old object left out (``held_out``, see
+    :class:`atikt.priors.PriorModel`) is unrelated to the others whose mean probability over
+    all its observations is below ``eps``; the scores those others reach from ``n`` of its
+    observations (disjoint runs of ``n``) are what an unrelated prior scores by chance. A
+    prior is admitted only above their ``quantile`` (and above ``eps``): with few
+    observations, only when its score is one that unrelated known objects rarely reach.
+
+    Args:
+        held_out: Per old object, its observations' probabilities under the others' models.
+        eps: The threshold by all observations (``eps_neg1``).
+        n: The new object's observations of the action.
+        quantile: Quantile of the chance scores, in (0, 1).
+
+    Returns:
+        The threshold, in [eps, 1]; ``eps`` when no old object is unrelated to the others.
+    """
+    chance: list[float] = []
+    for probabilities in held_out:
+        m = probabilities.shape[0]
+        width = max(1, min(n, m))
+        unrelated = probabilities.mean(axis=0) < eps
+        if m == 0 or not unrelated.any():
+            continue
+        for start in range(0, m - width + 1, width):
+            window = probabilities[start : start + width].mean(axis=0)
+            chance.append(float(window[unrelated].max()))
+    if not chance:
+        return eps
+    return min(1.0, max(eps, float(np.quantile(chance, quantile))))
+
+
 def choose_by_relatedness(
     scores: npt.ArrayLike, classes: npt.ArrayLike, eps_neg1: float = 0.6, max_sources: int = 1
 ) -> PriorChoice:

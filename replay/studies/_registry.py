@@ -16,6 +16,7 @@ from replay.studies._fusion import FUSION
 from replay.studies._negative import NEGATIVE
 from replay.studies._priors import PRIORS
 from replay.studies._transfer import SINGLE_ACTION, TRANSFER
+from replay.studies._transfer_check import TRANSFER_CHECK
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -34,6 +35,7 @@ STUDIES: Mapping[str, Study] = MappingProxyType(
             NEGATIVE,
             CROSS_ACTION_STUDY,
             CROSS_RIG_STUDY,
+            TRANSFER_CHECK,
         )
     }
 )

@@ -9,6 +9,7 @@ probabilities agree with atikt's to 1e-6 (tests/atikt/test_atikt_reference.py); 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -228,12 +229,46 @@ def to_reference_theta(ours: ModalityKernel | DependentKernel) -> FloatArray:
     return theta
 
 
-def lbfgs(max_iter: int) -> Any:
-    """A scikit-learn ``optimizer`` callable: L-BFGS-B with an iteration limit."""
+def reference_order(ours: ModalityKernel | DependentKernel, values: FloatArray) -> FloatArray:
+    """``values`` given per atikt hyperparameter (theta order) in the reference kernel's order."""
+    base = ours.base if isinstance(ours, DependentKernel) else ours
+    assert isinstance(base, ModalityKernel)
+    values = np.broadcast_to(np.asarray(values, dtype=np.float64), ours.theta.shape)
+    n = base.theta.shape[0]
+    head = values[:n]
+    if base.variance is not None:
+        head = np.concatenate([head[-1:], head[:-1]])
+    return np.concatenate([head, values[n:]])
+
+
+def log_hyperprior(theta: FloatArray, sd: FloatArray | None, mean: FloatArray | None) -> float:
+    """``-sum((theta - mean)^2 / (2 sd^2))`` (constants dropped; 0 without a prior)."""
+    if sd is None or mean is None:
+        return 0.0
+    return float(-0.5 * np.sum(((theta - mean) / sd) ** 2))
+
+
+def lbfgs(max_iter: int, sd: FloatArray | None = None, mean: FloatArray | None = None) -> Any:
+    """A scikit-learn ``optimizer`` callable: L-BFGS-B with an iteration limit.
+
+    With ``sd`` and ``mean`` (reference order) it maximises the log marginal likelihood plus
+    the log density of a Gaussian hyperprior, the objective atikt's searches maximise.
+    """
+
+    def penalised(obj_func: Any) -> Any:
+        if sd is None or mean is None:
+            return obj_func
+
+        def objective(theta: FloatArray) -> tuple[float, FloatArray]:
+            value, grad = obj_func(theta)
+            z = (theta - mean) / sd
+            return value + 0.5 * float(z @ z), grad + z / sd
+
+        return objective
 
     def optimizer(obj_func: Any, initial_theta: FloatArray, bounds: FloatArray) -> Any:
         result = scipy.optimize.minimize(
-            obj_func,
+            penalised(obj_func),
             initial_theta,
             method="L-BFGS-B",
             jac=True,
@@ -250,6 +285,19 @@ def fixed_gpc(kernel: SkKernel, X: FloatArray, y: npt.ArrayLike) -> GaussianProc
     return GaussianProcessClassifier(kernel=kernel, optimizer=None).fit(X, y)
 
 
+@dataclass(frozen=True)
+class ObjectSearch:
+    """What one new object's classifier was searched with: source, rho, hyperprior (atikt order).
+
+    ``sd`` None: no hyperprior (maximum likelihood).
+    """
+
+    source: int | None
+    rho: float
+    sd: float | FloatArray | None
+    mean: FloatArray | None
+
+
 def reference_update(
     state: ActionState,
     *,
@@ -261,11 +309,12 @@ def reference_update(
     old_model: Sequence[GaussianProcessClassifier] | None,
     changed: int | None = None,
     warm_start: bool = True,
+    fits: Sequence[ObjectSearch] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """One action update of the model prediction approach with scikit-learn.
 
-    Returns UNC per new object and the log marginal likelihood each new object's classifier
-    reached.
+    Returns UNC per new object and the objective each new object's classifier reached: its
+    log marginal likelihood plus the log density of its hyperprior (0 without one).
 
     Mirrors :meth:`atikt.ActiveLearner._update`: features fitted on the collected observations
     (prior observations mapped into that space), relatedness by the old objects' binary
@@ -277,6 +326,9 @@ def reference_update(
     the mean entropy of each
     object's own observations. As in atikt, only the ``changed`` object's relatedness is
     recomputed (the others' depends on unchanged observations and fixed prior models).
+    ``fits``: per new object, the source, rho and hyperprior atikt's update used; given, the
+    reference searches the same objective from the same choices (a comparison of the searches
+    alone).
     """
     prior = state.prior
     transformer = FeatureTransformer(n_thermal_components=n_thermal_components)
@@ -285,6 +337,7 @@ def reference_update(
     groups = prior.by_object() if prior is not None else {}
     auxiliary = {old: transformer.transform(obs) for old, obs in groups.items()}
     models: list[tuple[GaussianProcessClassifier, bool]] = []
+    values: list[float] = []
     for obj in range(n_new_objects):
         kernel = modality_kernel(transformer.slices_, amplitude=amplitude)
         theta = state.thetas[obj]
@@ -292,7 +345,13 @@ def reference_update(
             kernel = kernel.with_theta(theta)
         y = (labels == obj).astype(np.float64)
         source, rho = None, 0.0
-        if changed is not None and obj != changed:
+        sd, mean = None, None
+        if fits is not None:
+            source, rho = fits[obj].source, fits[obj].rho
+            if fits[obj].sd is not None and fits[obj].mean is not None:
+                sd = reference_order(kernel, np.asarray(fits[obj].sd, dtype=np.float64))
+                mean = reference_order(kernel, np.asarray(fits[obj].mean, dtype=np.float64))
+        elif changed is not None and obj != changed:
             source, rho = state.choices[obj].source, state.choices[obj].rho
         elif prior is not None and old_model is not None:
             mine = [
@@ -307,7 +366,7 @@ def reference_update(
         if source is not None:
             sk_kernel = DomainKernel(sk_kernel, rho, "fixed")
         gpc = GaussianProcessClassifier(
-            kernel=sk_kernel, optimizer=lbfgs(max_iter), warm_start=warm_start
+            kernel=sk_kernel, optimizer=lbfgs(max_iter, sd, mean), warm_start=warm_start
         )
         if source is None:
             models.append((gpc.fit(X, y), False))
@@ -316,12 +375,15 @@ def reference_update(
             X_all = np.vstack([aux, with_domain(X, 1.0)])
             y_all = np.concatenate([np.ones(aux.shape[0]), y])
             models.append((gpc.fit(X_all, y_all), True))
+        # scikit-learn keeps the optimiser's best value: with a hyperprior, the log marginal
+        # likelihood plus the log hyperprior density already
+        values.append(models[-1][0].log_marginal_likelihood_value_)
     columns = [
         m.predict_proba(with_domain(X, 1.0) if flagged else X)[:, 1] for m, flagged in models
     ]
     entropies = entropy(normalise(np.column_stack(columns)))
     unc = np.array([entropies[labels == obj].mean() for obj in range(n_new_objects)])
-    return unc, np.array([m.log_marginal_likelihood_value_ for m, _ in models])
+    return unc, np.array(values)
 
 
 def reference_old_model(

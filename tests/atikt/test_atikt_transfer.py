@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import MappingProxyType
 
 import numpy as np
 import pytest
+from atikt_synthetic import OLD_OBJECTS, pool
 
 from atikt import (
     AtiktError,
@@ -16,10 +18,14 @@ from atikt import (
     TransferGPC,
     choose_by_optimization,
     choose_by_prediction,
+    fit_prior_models,
     modality_kernel,
     relatedness,
     shared_observations,
+    transfer_strategy,
 )
+from atikt.strategies import ObjectFit
+from atikt.transfer import held_out_threshold
 
 SLICES = {"force": slice(0, 1), "thermal": slice(1, 3)}
 CENTRES = np.array([[0.0, 0.0, 0.0], [3.0, 3.0, 0.0], [-3.0, 0.0, 3.0]])
@@ -173,3 +179,90 @@ def test_shared_observations_keep_the_named_blocks_under_the_new_kind() -> None:
     assert np.array_equal(static.blocks["thermal"], press.blocks["thermal"])
     with pytest.raises(AtiktError, match=r"no \['texture'\] features"):
         shared_observations([press], "slide", ["texture", "thermal"])
+
+
+def test_held_out_threshold_rises_to_what_unrelated_known_objects_reach_by_chance() -> None:
+    # old object A, left out: unrelated to both others by all its observations (means < 0.6),
+    # but single observations reach 0.9 under one of them
+    a = np.array([[0.9, 0.1], [0.2, 0.1], [0.1, 0.2], [0.2, 0.1]])
+    # old object B: related to the first other (mean >= 0.6), unrelated to the second, which
+    # also reaches 0.9 from one observation by chance
+    b = np.array([[0.95, 0.9], [0.9, 0.1], [0.9, 0.2], [0.95, 0.1]])
+    assert held_out_threshold([b[:, :1]], 0.6, 1, 0.9) == 0.6  # no unrelated known object
+    one = held_out_threshold([a, b], 0.6, 1, 0.9)
+    chance = [0.9, 0.2, 0.2, 0.2, 0.9, 0.1, 0.2, 0.1]  # best unrelated score per observation
+    assert one == pytest.approx(np.quantile(chance, 0.9))
+    assert one > 0.6
+    # from 2 observations, runs of 2 average the chance away: the threshold is eps again
+    assert held_out_threshold([a, b], 0.6, 2, 0.9) == 0.6
+    assert held_out_threshold([a], 0.95, 1, 0.5) == 0.95  # never below eps
+
+
+def test_prediction_with_held_out_quantile_refuses_a_chance_score_at_one_observation() -> None:
+    model = fit_prior_models(pool(OLD_OBJECTS, ["P1"], n_trials=6, seed=2), random_state=0)["P1"]
+    assert len(model.held_out) == 3  # one per old object, left out
+    assert all(p.shape == (6, 2) for p in model.held_out)
+    # the old objects, each left out, reach 0.9 by chance from one observation (not from two)
+    chance = np.array([[0.9, 0.1], [0.1, 0.2], [0.95, 0.1], [0.2, 0.1], [0.2, 0.1], [0.1, 0.1]])
+    model = dataclasses.replace(model, held_out=(chance, chance, chance))
+    plain = transfer_strategy("prediction")
+    calibrated = transfer_strategy("prediction", held_out_quantile=0.9)
+    fit = ObjectFit(
+        modality_kernel(SLICES),
+        np.zeros((2, 3)),
+        np.array([1.0, 0.0]),
+        model,
+        {},
+        related=np.array([[0.2, 0.85, 0.1]]),  # one observation scoring 0.85
+    )
+    assert plain.choose(fit).source == model.old_objects[1]
+    assert calibrated.choose(fit).source is None
+    fit.related = np.array([[0.2, 0.85, 0.1], [0.2, 0.8, 0.1]])  # two: chance is 0.55 at most
+    assert calibrated.choose(fit).source == model.old_objects[1]
+    with pytest.raises(AtiktError, match=r"held_out_quantile=1.5"):
+        transfer_strategy("prediction", held_out_quantile=1.5)
+
+
+def test_exclusive_prediction_leaves_a_shared_source_to_its_most_related_new_object() -> None:
+    model = fit_prior_models(pool(OLD_OBJECTS, ["P1"], n_trials=6, seed=2), random_state=0)["P1"]
+    source = model.old_objects[1]
+    fit = ObjectFit(
+        modality_kernel(SLICES),
+        np.zeros((2, 3)),
+        np.array([1.0, 0.0]),
+        model,
+        {},
+        related=np.array([[0.2, 0.8, 0.1]]),
+        rivals=(np.array([0.1, 0.9, 0.2]),),  # another new object, more related to it
+    )
+    plain = transfer_strategy("prediction")
+    exclusive = transfer_strategy("prediction", exclusive=True)
+    assert plain.choose(fit).source == source
+    assert exclusive.choose(fit).source is None
+    assert plain.keeps()
+    assert not exclusive.keeps()  # the choice depends on the other objects' observations
+    fit.rivals = (np.array([0.1, 0.7, 0.2]), np.array([0.9, 0.3, 0.2]))  # less related / other
+    assert exclusive.choose(fit).source == source
+
+
+def test_prediction_with_min_tail_admits_only_within_the_old_objects_distribution() -> None:
+    model = fit_prior_models(pool(OLD_OBJECTS, ["P1"], n_trials=6, seed=2), random_state=0)["P1"]
+    gated = transfer_strategy("prediction", min_tail=0.05)
+    scorer = gated.scorer(model)
+    assert scorer is not None
+    inside = model.transformer.transform(list(model.observations[:1]))
+    assert scorer(inside).shape == (1, 6)  # probabilities, then tail probabilities
+    fit = ObjectFit(
+        modality_kernel(SLICES),
+        np.zeros((2, 3)),
+        np.array([1.0, 0.0]),
+        model,
+        {},
+        related=np.array([[0.2, 0.9, 0.1, 0.5, 0.01, 0.5]]),  # 0.9, but far out in its tail
+    )
+    assert transfer_strategy("prediction").choose(fit).source == model.old_objects[1]
+    assert gated.choose(fit).source is None
+    fit.related = np.array([[0.2, 0.9, 0.1, 0.5, 0.3, 0.5]])
+    assert gated.choose(fit).source == model.old_objects[1]
+    with pytest.raises(AtiktError, match=r"min_tail=1.0"):
+        transfer_strategy("prediction", min_tail=1.0)
