@@ -71,8 +71,15 @@ def main(argv: list[str] | None = None) -> int:
     """Print the table for one dataset."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--recordings", type=Path, default=None)
+    parser.add_argument(
+        "--quick", action="store_true", help="the committed recordings, a few steps (tests)"
+    )
     parser.add_argument("--quantile", type=float, default=0.9)
     args = parser.parse_args(argv)
+    if args.quick:
+        args.recordings = (
+            args.recordings or Path(__file__).resolve().parents[2] / "recordings" / "data"
+        )
     root = args.recordings or ensure_default_dataset()
     frame = build_features(root).frame
     roles = dataset_roles(root, sorted(set(frame["object_id"].to_list())))

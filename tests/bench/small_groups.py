@@ -91,15 +91,30 @@ def _interval(values: np.ndarray, rng: np.random.Generator) -> str:
     return f"{100 * values.mean():+.1f} [{100 * low:+.1f}, {100 * high:+.1f}]"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Print the comparison for one dataset."""
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    """Parse the command line (``--quick``: one small group of the committed recordings)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--recordings", type=Path, default=None)
+    parser.add_argument(
+        "--quick", action="store_true", help="the committed recordings, a few steps (tests)"
+    )
     parser.add_argument("--objects", type=int, default=5)
     parser.add_argument("--groups", type=int, default=10)
     parser.add_argument("--splits", type=int, default=2)
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)))
     args = parser.parse_args(argv)
+    if args.quick:
+        args.recordings = (
+            args.recordings or Path(__file__).resolve().parents[2] / "recordings" / "data"
+        )
+    if args.quick:  # one small group, one size
+        args.groups, args.splits, args.sizes, args.objects = 1, 1, "1", 3
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the comparison for one dataset."""
+    args = _arguments(argv)
     warnings.simplefilter("ignore")
     root = args.recordings or ensure_default_dataset()
     lookup = FeatureLookup(build_features(root).frame, "thesis")
