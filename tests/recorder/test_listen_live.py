@@ -32,6 +32,8 @@ from replay.cli._main import main as replay_main
 from schemas import is_incomplete
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from recorder.bagimport._report import ImportReport
 
 EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.toml"
@@ -51,6 +53,19 @@ def _map(root: Path, **time: str) -> Path:
     return path
 
 
+_RUNNING: list[_Run] = []
+
+
+@pytest.fixture(autouse=True)
+def _stop_listeners() -> Iterator[None]:
+    """Stop every listener a test started, also when it failed (none outlives its test)."""
+    yield
+    while _RUNNING:
+        run = _RUNNING.pop()
+        run.stop.set()
+        run.thread.join(30)
+
+
 class _Run:
     """``listen`` in a thread while the virtual lab plays actions."""
 
@@ -59,7 +74,8 @@ class _Run:
         self.notes: list[str] = []
         self.stop = threading.Event()
         self.result: dict[str, ImportReport] = {}
-        self.thread = threading.Thread(target=self._listen)
+        self.thread = threading.Thread(target=self._listen, daemon=True)
+        _RUNNING.append(self)
 
     def _listen(self) -> None:
         self.result["report"] = listen(
