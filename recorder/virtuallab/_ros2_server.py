@@ -147,8 +147,8 @@ class Ros2Server:
                 stalled = True
                 time.sleep(self.faults.stall_s)
             controller = self.world.controller_ns()
-            # the phase at the sample time ``due`` (the loop may run behind it under load)
-            self._annotate(store, due, controller - max(time.time_ns() - due, 0))
+            if due == next_cell:  # the phase at the sample time (the loop may run late)
+                self._annotate(store, due, controller - max(time.time_ns() - due, 0))
             if due == next_joint and self.topic_map.joints is not None:
                 self._publish(self.topic_map.joints.topic, self._joint(store, due, controller))
                 next_joint += joint_period
