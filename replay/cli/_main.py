@@ -143,10 +143,9 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
         return
     table = Table(
         "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
-        "overflow", "malformed / out of range / resets", "gaps", "clock offset", "drift",
+        "overflow", "malformed", "out of range", "resets", "gaps", "clock offset", "drift",
         "max latency", title="live sources",
     )  # fmt: skip
-    table.columns[0].no_wrap = True
     for item in sources:
         table.add_row(
             item.name,
@@ -154,7 +153,9 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
             *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
             str(item.out_of_order),
             str(item.overflowed),
-            f"{item.malformed} / {item.out_of_range} / {item.counter_resets}",
+            str(item.malformed),
+            str(item.out_of_range),
+            str(item.counter_resets),
             f"{item.gaps} ({item.gap_ns / 1e9:.3f} s)" if item.gaps else "0",
             _seconds(item.clock_offset_ns),
             f"{item.clock_drift_ns / 1e6:.3f} ms",
