@@ -53,6 +53,8 @@ _NS = 1_000_000_000
 STILL_RAD_S = 1e-3
 #: How long the arm must be still (after the retract started) to end the action, s.
 SETTLE_S = 0.25
+#: How far from the home pose an approach may begin and still return there, m.
+_HOME_M = 0.002
 #: How long the skin is read in free air before each approach to find its zero, ns.
 TARE_NS = 30_000_000
 #: Longest wait for a state sample in one cycle, s (a cycle also ends when one arrives).
@@ -152,6 +154,9 @@ class ArmRig:
         self._state = _State()
         self._begun_ns = 0
         self._last_event_ns = 0
+        #: Where the approaches begin (the object's pose once presented, else the first
+        #: approach's start); retracts return there, so actions never creep toward the object.
+        self._home: NDArray[np.float64] | None = None
         self._watch: Watch = _Never()
         #: Every stop sent: (when its cause was met, when the stop was sent, why), recorder
         #: clock (a state sample's cause: its receive time), ns; for latency measurements.
@@ -236,6 +241,7 @@ class ArmRig:
             limit_ns = self.clock.now_ns() + round(seconds * _NS)
             self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
             self._until_reached(target, limit_ns, obj.id)
+            self._home = target.copy()
         except (Stop, SourceLostError) as stop:
             self._send_stop(None, str(stop))
             msg = f"{self.where}: moving to {obj.id}: {stop}; check the arm, then retry"
@@ -360,6 +366,8 @@ class ArmRig:
             yield from self._pump()
         zero = yield from self._tare()
         start = self._state.pose.copy()
+        if self._home is None or np.linalg.norm(start[:3] - self._home[:3]) > _HOME_M:
+            self._home = start.copy()  # the first approach, or the arm was moved by hand
         direction = _tool_axis(start, 2)
         speed = motion.approach_speed(self.skin.nearest())
         self._speed(direction, speed, at)
@@ -449,18 +457,22 @@ class ArmRig:
             yield from self._pump()
 
     def _retract(self, at: Context, contact: NDArray[np.float64]) -> Iterator[StreamItem]:
-        """Move back from the contact until there (within 1 mm) or at rest."""
+        """Move back to where the approach began (at least ``retract_m`` from the contact).
+
+        The action ends when the arm is there (within 1 mm) and still, or, when something
+        holds it, still for :data:`SETTLE_S` after it moved.
+        """
         motion = self.options.motion
-        target = contact.copy()
-        target[:3] -= _tool_axis(contact, 2) * motion.retract_m
+        target = self._retract_target(contact)
         self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, _phase(at, "retract"))
         yield self._event("retract")
         start = self.clock.now_ns()
         still_since: int | None = None
         moved = False  # a retract that has not begun (its program late) is not over
         settle = round(SETTLE_S * _NS)
-        limit = start + round((3 * motion.retract_m / motion.retract_m_s + 2) * _NS)
-        while not self._reached(target):
+        distance = float(np.linalg.norm(target[:3] - contact[:3]))
+        limit = start + round((3 * distance / motion.retract_m_s + 2) * _NS)
+        while not (moved and self._state.still and self._reached(target)):
             yield from self._pump()
             now = self.clock.now_ns()
             moved = moved or not self._state.still
@@ -470,6 +482,29 @@ class ArmRig:
             if now > limit:
                 msg = "the retract did not end within its time"
                 raise Stop(msg, now)
+
+    def _retract_target(self, contact: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Return where the approach began when it is behind the contact along the tool axis.
+
+        Anchored there (not at a fixed distance from a contact detected a cycle late), every
+        action on an object starts from the same pose; ``retract_m`` back from the contact is
+        the fallback (an approach that began sideways of the contact, or too close to it).
+        """
+        motion = self.options.motion
+        axis = _tool_axis(contact, 2)
+        fallback = contact.copy()
+        fallback[:3] -= axis * motion.retract_m
+        home = self._home
+        if home is None:
+            return fallback
+        offset = home[:3] - contact[:3]
+        back = -float(offset @ axis)  # how far the home lies behind the contact
+        sideways = float(np.linalg.norm(offset + back * axis))
+        if back < motion.retract_m or sideways > _HOME_M:
+            return fallback
+        target = contact.copy()
+        target[:3] = home[:3]
+        return target
 
     # -- receiving and checking -----------------------------------------------------------
 

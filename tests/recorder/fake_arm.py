@@ -87,6 +87,8 @@ class FakeArm:
             step = min(distance, self.target_speed * dt)
             if distance > 0:
                 self.pose[:3] += delta / distance * step
+            else:  # there: a real arm's program ends and its joints stand still
+                self.target = None
         else:
             self.pose[:3] += self.velocity[:3] * dt
             self.pose[2] = max(self.pose[2], SURFACE_Z - 0.003)  # the object stops the arm
