@@ -8,8 +8,10 @@ channels, with a short last block per channel so uneven blocks are exercised.
 from __future__ import annotations
 
 import fcntl
+import gc
 import os
 import tempfile
+import threading
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
@@ -242,3 +244,21 @@ def dds_domain() -> int:
     """Return this run's DDS domain id (from the process id: parallel runs do not meet)."""
     assert os.environ["CYCLONEDDS_URI"] == LOOPBACK_URI
     return 1 + os.getpid() % 200
+
+
+@pytest.fixture(autouse=True)
+def _no_virtual_lab_left_ticking() -> Iterator[None]:
+    """Fail a test that leaves a virtual lab's world ticking (``with world:`` ends it).
+
+    A world left ticking computes 125-500 controller cycles a second for the rest of the run
+    and starves the real-time tests that come after it.
+    """
+    yield
+    ticking = [t for t in threading.enumerate() if t.name == "atikt-vlab"]
+    if not ticking:
+        return
+    gc.collect()  # a world only in a reference cycle: its thread ends at its next tick
+    for thread in ticking:
+        thread.join(1.0)
+    left = [t for t in ticking if t.is_alive()]
+    assert not left, f"{len(left)} virtual lab world(s) left ticking: use `with world:`"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 
@@ -27,8 +28,8 @@ def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
     faults = Ros2Faults(drop={"/skin/cell_3": DROPPED}, drop_after=60)
     section = {"transport": "ros2", "topic_map": str(EXAMPLE), "domain_id": dds_domain}
     blocks = []
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, objects, actions, time_scale=0.5)
+    with SimulatedRig(0) as rig, contextlib.ExitStack() as stack:
+        world = stack.enter_context(VirtualWorld(rig, objects, actions, time_scale=0.5))
         world.start_action("wood", "P1", 1)
         with serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100) as server:
             skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))

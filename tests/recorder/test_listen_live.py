@@ -7,6 +7,7 @@ whose 'end' is lost, a listener that joins part-way, malformed annotations, SIGT
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import threading
@@ -126,17 +127,26 @@ def _play(world: VirtualWorld, action: str, trial: int, *, wait: Any = None) -> 
         time.sleep(0.05)
 
 
+@contextlib.contextmanager
+def _served(map_path: Path, domain_id: int, rate_hz: int) -> Iterator[tuple[VirtualWorld, Any]]:
+    """Serve the virtual lab's topics (its world ticking until the block ends)."""
+    with (
+        SimulatedRig(0) as rig,
+        VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0) as world,
+        serve_ros2(world, map_path, domain_id=domain_id, rate_hz=rate_hz) as server,
+    ):
+        yield world, server
+
+
 def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> None:
     map_path = _map(tmp_path)
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
-            run = _Run(dds_domain, tmp_path, map_path)
-            run.thread.start()
-            time.sleep(1.5)  # discovery
-            _play(world, "S1", 1, wait=server)
-            time.sleep(1.8)  # max_delay_s + the import's margin
-            report = run.finish()
+    with _served(map_path, dds_domain, 250) as (world, server):
+        run = _Run(dds_domain, tmp_path, map_path)
+        run.thread.start()
+        time.sleep(1.5)  # discovery
+        _play(world, "S1", 1, wait=server)
+        time.sleep(1.8)  # max_delay_s + the import's margin
+        report = run.finish()
     phases = [json.loads(text)["phase"] for _, text in server.annotated]
     assert phases[-1] == "end"
     assert "execute" in phases
@@ -159,18 +169,16 @@ def _stats(path: Path) -> list[Any]:
 
 def test_lost_end_is_kept_as_incomplete_with_a_line(dds_domain: int, tmp_path: Path) -> None:
     map_path = _map(tmp_path)
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
-            run = _Run(dds_domain, tmp_path, map_path)
-            run.thread.start()
-            time.sleep(1.5)
-            _play(world, "S1", 2)
-            deadline = time.monotonic() + 10
-            while not any("execute" in t for _, t in server.annotated):
-                assert time.monotonic() < deadline
-                time.sleep(0.02)
-            report = run.finish()  # stopped before the action's end
+    with _served(map_path, dds_domain, 250) as (world, server):
+        run = _Run(dds_domain, tmp_path, map_path)
+        run.thread.start()
+        time.sleep(1.5)
+        _play(world, "S1", 2)
+        deadline = time.monotonic() + 10
+        while not any("execute" in t for _, t in server.annotated):
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        report = run.finish()  # stopped before the action's end
     assert report.written == []
     assert len(report.incomplete) == 1
     assert is_incomplete(report.incomplete[0])
@@ -183,35 +191,33 @@ def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
     map_path = _map(tmp_path, max_message_kib="64")
     topic_map = load_topic_map(map_path)
     store = typestore(topic_map)
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
-            hostile = DdsDomain(dds_domain, store)
-            annotations = hostile.writer("/annotations", ANNOTATION_TYPE)
-            run = _Run(dds_domain, tmp_path, map_path)
-            run.thread.start()
-            time.sleep(1.5)
-            # the huge message: a JointState with 200,000 names on the joint topic
-            joints = hostile.writer("/joint_states", "sensor_msgs/msg/JointState")
-            header = store.types["std_msgs/msg/Header"](
-                stamp=store.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="x"
-            )
-            huge = store.types["sensor_msgs/msg/JointState"](
-                header=header,
-                name=["j"] * 200_000,
-                position=np.zeros(0),
-                velocity=np.zeros(0),
-                effort=np.zeros(0),
-            )
-            raw = bytes(store.serialize_cdr(huge, "sensor_msgs/msg/JointState"))
-            for _ in range(3):
-                joints.write(raw)
-            for text in ("not json", '{"object": "wood"}', '{"phase": "execute"}'):
-                message = store.types[ANNOTATION_TYPE](data=text)
-                annotations.write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
-            _play(world, "S1", 3, wait=server)
-            time.sleep(1.8)
-            report = run.finish()
+    with _served(map_path, dds_domain, 250) as (world, server):
+        hostile = DdsDomain(dds_domain, store)
+        annotations = hostile.writer("/annotations", ANNOTATION_TYPE)
+        run = _Run(dds_domain, tmp_path, map_path)
+        run.thread.start()
+        time.sleep(1.5)
+        # the huge message: a JointState with 200,000 names on the joint topic
+        joints = hostile.writer("/joint_states", "sensor_msgs/msg/JointState")
+        header = store.types["std_msgs/msg/Header"](
+            stamp=store.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="x"
+        )
+        huge = store.types["sensor_msgs/msg/JointState"](
+            header=header,
+            name=["j"] * 200_000,
+            position=np.zeros(0),
+            velocity=np.zeros(0),
+            effort=np.zeros(0),
+        )
+        raw = bytes(store.serialize_cdr(huge, "sensor_msgs/msg/JointState"))
+        for _ in range(3):
+            joints.write(raw)
+        for text in ("not json", '{"object": "wood"}', '{"phase": "execute"}'):
+            message = store.types[ANNOTATION_TYPE](data=text)
+            annotations.write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
+        _play(world, "S1", 3, wait=server)
+        time.sleep(1.8)
+        report = run.finish()
     assert report.oversize == {"/joint_states": 3}
     assert sum("larger than [time] max_message_kib = 64" in line for line in run.notes) >= 1
     skipped = [line for line in run.notes if line.startswith("skipped topic /annotations")]
@@ -230,23 +236,21 @@ def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: 
     env = {**os.environ, "PYTHONPATH": str(root)}
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain)]
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain, rate_hz=250) as server:
-            process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
-                command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-            )
-            assert process.stdout is not None
-            first = process.stdout.readline()  # once subscribed
-            assert first.startswith("listening on DDS domain"), first
-            _play(world, "S1", 4)
-            deadline = time.monotonic() + 10
-            while not any("execute" in t for _, t in server.annotated):
-                assert time.monotonic() < deadline
-                time.sleep(0.02)
-            time.sleep(0.3)
-            process.send_signal(signal.SIGTERM)
-            out, err = process.communicate(timeout=30)
+    with _served(map_path, dds_domain, 250) as (world, server):
+        process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+            command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        assert process.stdout is not None
+        first = process.stdout.readline()  # once subscribed
+        assert first.startswith("listening on DDS domain"), first
+        _play(world, "S1", 4)
+        deadline = time.monotonic() + 10
+        while not any("execute" in t for _, t in server.annotated):
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        time.sleep(0.3)
+        process.send_signal(signal.SIGTERM)
+        out, err = process.communicate(timeout=30)
     assert process.returncode == 143, err
     assert "Traceback" not in err
     lines = [first, *out.splitlines()]
@@ -294,20 +298,18 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain + 1)]
     command += ["--loopback", "--duration", "30"]
-    with SimulatedRig(0) as rig:
-        world = VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0)
-        with serve_ros2(world, map_path, domain_id=dds_domain + 1, rate_hz=50):
-            process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
-                command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-            )
-            try:
-                assert process.stdout is not None
-                first = process.stdout.readline()
-                assert first.startswith("listening on DDS domain"), first
-                bound = _sockets(process.pid)
-            finally:
-                process.terminate()
-                process.communicate(timeout=30)
+    with _served(map_path, dds_domain + 1, 50):
+        process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+            command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        try:
+            assert process.stdout is not None
+            first = process.stdout.readline()
+            assert first.startswith("listening on DDS domain"), first
+            bound = _sockets(process.pid)
+        finally:
+            process.terminate()
+            process.communicate(timeout=30)
     # what it sends from, it sends from 127.0.0.1; no multicast socket; Cyclone DDS 0.11 binds
     # its two unicast receive sockets to 0.0.0.0 whatever its configuration (it advertises
     # 127.0.0.1 only)
