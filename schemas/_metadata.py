@@ -13,6 +13,7 @@ priors, now chosen per run) must be a JSON boolean and is dropped.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -269,6 +270,7 @@ def parse_metadata(
     )
 
 
+@functools.cache  # the distribution's metadata is read from disk: once per process
 def software_version() -> str:
     """Return the installed version of the project's distribution ("unknown" if not installed)."""
     try:
