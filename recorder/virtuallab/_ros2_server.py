@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from recorder._sim.ur10 import JOINT_NAMES
 from recorder.bagimport._source import ANNOTATION_TYPE, JOINT_TYPE, SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
@@ -38,14 +39,6 @@ if TYPE_CHECKING:
 CELL_TYPE = "atikt_msgs/msg/SkinCell"
 #: Field of the cell message -> (modality, values per cell).
 CELL_FIELDS = {"force": 3, "acc": 3, "temp": 1, "prox": 1}
-JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 _NS_PER_S = 1_000_000_000
 
 
