@@ -71,7 +71,7 @@ if TYPE_CHECKING:
     from recorder._catalog import ActionSpec
     from recorder.bagimport._source import Extractor
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live._accounting import SourceStats
+    from recorder.live import SourceStats
     from recorder.writing._stream import StreamItem
 
 #: Samples kept around a window: the skin's last sample before it, and alignment neighbours.

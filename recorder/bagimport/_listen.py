@@ -1,7 +1,7 @@
 """``atikt-record listen``: a lab's ROS 2 topics recorded live, one file per action.
 
 The lab's own system drives the robot and publishes; this subscribes over DDS (Cyclone DDS,
-no ROS installation: :mod:`recorder.live._dds`) to the topics of a topic map and cuts one
+no ROS installation: :mod:`recorder.live.dds`) to the topics of a topic map and cuts one
 recording per action window, exactly as ``import-bag`` cuts a bag of the same data: the
 samples are the same CDR bytes and go through the same conversion (:func:`feed` of the
 import's streaming session: decoders, extractors, alignment, packing, checks, file names).
@@ -60,21 +60,20 @@ from recorder.bagimport._windows import (
     windows_from_csv,
 )
 from recorder.errors import BagImportError, RecorderError
-from recorder.live._accounting import SourceCounter
-from recorder.live._clock import RecorderClock
+from recorder.live import RecorderClock, SourceCounter, SourceReader
 
 if TYPE_CHECKING:
     import argparse
     import threading
     from collections.abc import Callable, Mapping, Sequence
+    from types import ModuleType
 
     from rosbags.typesys.store import Typestore
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live._accounting import SourceStats
-    from recorder.live._dds import DdsDomain, Publication
-    from recorder.live._reader import Received, SourceReader
+    from recorder.live import Received, SourceStats
+    from recorder.live.dds import DdsDomain, Publication
 
 _NS_PER_S = 1_000_000_000
 #: How often idle windows are closed and old messages forgotten, s.
@@ -87,18 +86,18 @@ OPEN_MARGIN_NS = 30 * _NS_PER_S
 OPEN_DEFAULT_NS = 300 * _NS_PER_S
 
 
-def _dds() -> Any:  # noqa: ANN401 (the module)
-    """Return :mod:`recorder.live._dds` (Cyclone DDS's binding is an optional extra).
+def _dds() -> ModuleType:
+    """Return :mod:`recorder.live.dds` (Cyclone DDS's binding is an optional extra).
 
     Raises:
         BagImportError: The binding is not installed.
     """
     try:
-        from recorder.live import _dds  # noqa: PLC0415 (optional dependency)
+        from recorder.live import dds  # noqa: PLC0415 (optional dependency)
     except ImportError as err:
         msg = f"listen needs Cyclone DDS ({err}); install it with pip install 'atikt[ros2]'"
         raise BagImportError(msg) from err
-    return _dds
+    return dds
 
 
 @dataclass(slots=True)
@@ -251,7 +250,6 @@ class Listener:
             BagImportError: DDS is not installed, or a topic cannot be mapped.
         """
         dds = _dds()
-        from recorder.live._reader import SourceReader  # noqa: PLC0415
 
         self._store = typestore(self.topic_map)
         try:

@@ -5,6 +5,10 @@ DDS) is read by one :class:`SourceReader` thread into a bounded queue that count
 could not hold; the consumer counts every sample with a :class:`SourceCounter` (expected from
 the source's sequence counter or clock, received, missing, duplicated, out of order, clock
 offset), and the counts of each recording are written into its file (:class:`SourceStats`).
+
+The DDS transport (Cyclone DDS, an optional extra) is the public submodule
+:mod:`recorder.live.dds`, imported only by what uses it. This package imports nothing of
+:mod:`recorder.bagimport`, which builds on it (``listen`` and the ROS 2 live skin).
 """
 
 from recorder.live._accounting import (
@@ -14,16 +18,28 @@ from recorder.live._accounting import (
     parse_source_stats,
 )
 from recorder.live._clock import RecorderClock
-from recorder.live._framelayout import SkinLayout, parse_layout
+from recorder.live._framelayout import FIELD_TYPES, FrameType, SkinLayout, parse_layout
 from recorder.live._frames import SerialSkin, UdpSkin
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceLostError, SourceReader
-from recorder.live._skin import SKIN_TRANSPORTS, LiveSkin, open_skin
+from recorder.live._skin import (
+    FORCE_WINDOW_NS,
+    SKIN_ENTRY_POINTS,
+    SKIN_TRANSPORTS,
+    LiveSkin,
+    open_skin,
+    skin_transports,
+    window_samples,
+)
 
 __all__ = [
+    "FIELD_TYPES",
+    "FORCE_WINDOW_NS",
+    "SKIN_ENTRY_POINTS",
     "SKIN_TRANSPORTS",
     "SOURCES_RECORD",
     "BlockPacker",
+    "FrameType",
     "LiveSkin",
     "Received",
     "RecorderClock",
@@ -37,4 +53,6 @@ __all__ = [
     "open_skin",
     "parse_layout",
     "parse_source_stats",
+    "skin_transports",
+    "window_samples",
 ]

@@ -13,19 +13,19 @@ Quality of service follows the publishers: a reader is reliable when every publi
 topic is (ROS 2's default profile), else best effort (the sensor-data profile), so it matches
 both; durability is volatile (matches volatile and transient-local publishers).
 
-The live skin of a rig configuration (``[skin] transport = "ros2"``) is :func:`ros2_skin`.
+This is the transport only (public as :mod:`recorder.live.dds`); what reads a topic map's
+topics through it (``listen``, the ``[skin] transport = "ros2"`` live skin) is
+:mod:`recorder.bagimport`'s, next to the import whose conversion it shares.
 """
 
 from __future__ import annotations
 
 import importlib
-import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Self
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
 from cyclonedds.core import (
     DDSException,
@@ -46,10 +46,8 @@ from cyclonedds.topic import Topic
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_types_from_msg
 
-from recorder.errors import RecorderError, RigError
+from recorder.errors import RecorderError
 from recorder.live._reader import Received, SourceReader
-from recorder.live._skin import window_samples
-from schemas.cdr import compile_cdr
 
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
 # bytes (its compiled decoders read them), so samples are taken and written as bytes with the
@@ -59,8 +57,7 @@ ddspy_take = _CLAYER.ddspy_take
 ddspy_write = _CLAYER.ddspy_write
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping, Sequence
-    from types import TracebackType
+    from collections.abc import Iterable, Sequence
 
     from rosbags.typesys.store import Typestore
 
@@ -395,272 +392,6 @@ class RawReader:
                 return None
         receive_ns, raw = self._pending.popleft()
         return Received(receive_ns, (self.topic, raw))
-
-
-# ------------------------------------------------------------------------------ live skin
-
-
-@dataclass(slots=True)
-class _Modality:
-    """One skin modality's packing state."""
-
-    spec: Any
-    period_ns: int
-    emitted_ns: int = -(2**63)
-    latest: Any = None
-    recent: Any = None  # the last 20 ms of samples (total_force's mean)
-
-
-@dataclass
-class Ros2Skin:
-    """A live skin read from the ROS 2 topics of a topic map (a :class:`LiveSkin`).
-
-    The samples go through the import's own extractors (:class:`SkinTopic`: fields, scales,
-    batching, widths) and cell alignment (:func:`align_rows`); blocks are cut where every
-    cell has samples, shifted onto the recorder's time base by each source's clock offset.
-    """
-
-    topic_map: Any
-    clock: Any
-    domain_id: int = 0
-    discovery_s: float = 10.0
-    capacity: int = 10_000
-    _domain: DdsDomain | None = field(default=None, init=False)
-    _readers: dict[str, SourceReader] = field(default_factory=dict, init=False)
-    _found: dict[str, Any] = field(default_factory=dict, init=False)
-    _decoders: dict[str, Any] = field(default_factory=dict, init=False)
-    _counters: dict[str, Any] = field(default_factory=dict, init=False)
-    _overflow0: dict[str, int] = field(default_factory=dict, init=False)
-    _modalities: dict[str, _Modality] = field(default_factory=dict, init=False)
-    _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
-    _last_receive: int | None = field(default=None, init=False)
-
-    def __enter__(self) -> Self:
-        """Join the domain, find the skin topics' types and start one reader per topic.
-
-        Raises:
-            RigError: A skin topic has no publisher within ``discovery_s``.
-        """
-        from recorder.bagimport._source import SkinTopic, extractors, typestore  # noqa: PLC0415
-
-        store = typestore(self.topic_map)
-        self._domain = DdsDomain(self.domain_id, store)
-        self._found = {
-            t: e for t, e in extractors(self.topic_map).items() if isinstance(e, SkinTopic)
-        }
-        seen = self._domain.wait_for(self._found, self.discovery_s)
-        if missing := sorted(set(self._found) - set(seen)):
-            msg = (
-                f"{self.topic_map.path}: no publisher of skin topic {missing[0]} on DDS domain "
-                f"{self.domain_id} within {self.discovery_s:g} s; start the skin's driver or fix "
-                "the topic map or domain_id"
-            )
-            raise RigError(msg)
-        for topic, extractor in self._found.items():
-            publications = seen[topic]
-            msgtype = publications[0].msgtype
-            reliable = all(p.reliable for p in publications)
-            fields = list(extractor.paths)
-            decoder = compile_cdr(store, msgtype, fields, stamped=True)
-            if decoder is None:
-                msg = f"topic {topic} ({msgtype}): its layout cannot be read live; map plain fields"
-                raise RigError(msg)
-            extractor.dtypes = decoder.dtypes
-            self._decoders[topic] = decoder.decode
-            raw = self._domain.reader(topic, msgtype, reliable=reliable)
-            raw.clock = self.clock.now_ns
-            reader = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
-            self._readers[topic] = reader
-            reader.start()
-        for modality, spec in self.topic_map.skin.items():
-            period = int(spec.period_ns) if spec.period_ns is not None else 0
-            self._modalities[modality] = _Modality(spec, period)
-        self.begin()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        """Stop the reader threads."""
-        for reader in self._readers.values():
-            reader.stop()
-
-    @property
-    def cells(self) -> int:
-        """Return the number of cells."""
-        return len(self.topic_map.cells)
-
-    def begin(self) -> None:
-        """Start a new recording: fresh accounting, forget what was received before."""
-        from recorder.live._accounting import SourceCounter  # noqa: PLC0415
-
-        for topic, reader in self._readers.items():
-            reader.drain()
-            extractor = self._found[topic]
-            spec = extractor.fields[0]
-            period = int(spec.period_ns * spec.samples_per_message) if spec.period_ns else 0
-            self._counters[topic] = SourceCounter(
-                topic.lstrip("/").replace(".", "_"), period_ns=period, gaps=True
-            )
-            self._overflow0[topic] = reader.overflowed
-            extractor.forget(2**62)
-        for state in self._modalities.values():
-            state.emitted_ns = -(2**63)
-
-    def _ingest(self) -> None:
-        """Move every queued sample into the extractors, counting it."""
-        for topic, reader in self._readers.items():
-            extractor, decode, counter = (
-                self._found[topic],
-                self._decoders[topic],
-                self._counters[topic],
-            )
-            for item in reader.drain():
-                fields = decode(item.payload[1])
-                if fields is None:
-                    continue
-                stamp = fields[0] * 1_000_000_000 + fields[1]
-                self._observe(counter, extractor, stamp, item.receive_ns)
-                if extractor.buffer.last is None or stamp > extractor.buffer.last:
-                    extractor.push_fields(fields, stamp, item.receive_ns)
-                self._last_receive = item.receive_ns
-
-    @staticmethod
-    def _observe(counter: Any, extractor: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
-        """Count a message (a counter without the map's rate measures the period itself)."""
-        del extractor
-        counter.observe(None, stamp, receive_ns)
-
-    def _blocks(self, *, final: bool) -> list[Any]:
-        """Return the blocks of every modality that all cells have samples for."""
-        from recorder.bagimport._pack import align_rows, block_period, skin_blocks  # noqa: PLC0415
-
-        out: list[Any] = []
-        for modality, state in self._modalities.items():
-            mine = [e for e in self._found.values() if modality in e.offsets]
-            if any(e.size() < 2 for e in mine):  # noqa: PLR2004 (a period needs two)
-                continue
-            cells = [c for e in mine for c in e.take_cells(-(2**62), 2**62)[modality]]
-            series = [s for _, s in sorted(cells, key=lambda cell: cell[0])]
-            if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
-                continue
-            exact = state.spec.period_ns if state.spec.timing == "message" else None
-            period = block_period(exact, series[0].stamps)
-            if period <= 0:
-                continue
-            hi = min(int(s.stamps[-1]) for s in series) + (1 if final else -period)
-            lo = max(state.emitted_ns, int(series[0].stamps[0]))
-            if hi <= lo:
-                continue
-            rows = align_rows(series, lo, hi, period)
-            blocks, _, _ = skin_blocks(modality, rows, period, self.topic_map.max_jitter)
-            state.emitted_ns = hi
-            offset = self._offset(modality)
-            out.extend(_shift(b, offset) for b in blocks)
-            if len(blocks):
-                state.latest = np.asarray(blocks[-1].data[-1], dtype=np.float64)
-                count = window_samples(blocks[-1].period_ns)
-                state.recent = np.asarray(blocks[-1].data[-count:], dtype=np.float64)
-        for extractor in self._found.values():
-            keep = min((s.emitted_ns for s in self._modalities.values()), default=0)
-            extractor.forget(keep - 2_000_000_000)
-        return out
-
-    def _offset(self, modality: str) -> int:
-        """Return the clock offset of the first cell's topic of a modality."""
-        for topic, extractor in self._found.items():
-            if modality in extractor.offsets:
-                return int(self._counters[topic].clock_offset_ns or 0)
-        return 0
-
-    def poll(self) -> list[Any]:
-        """Return the blocks completed since the last poll.
-
-        Raises:
-            SourceLostError: A reader thread failed.
-        """
-        with self._lock:
-            self._ingest()
-            return self._blocks(final=False)
-
-    def finish(self) -> list[Any]:
-        """Return everything received (the end of a recording)."""
-        with self._lock:
-            self._ingest()
-            return self._blocks(final=True)
-
-    def total_force(self) -> float | None:
-        """Return the total force, mean of the last 20 ms of samples, N (None: none yet)."""
-        state = self._modalities.get("force")
-        if state is None or state.recent is None:
-            return None
-        totals = state.recent.reshape(len(state.recent), -1).sum(axis=1)
-        return float(totals.mean())
-
-    def nearest(self) -> float | None:
-        """Return the latest smallest proximity, m (None: no proximity sensing)."""
-        state = self._modalities.get("proximity")
-        return None if state is None or state.latest is None else float(state.latest.min())
-
-    def last_receive_ns(self) -> int | None:
-        """Return the receive time of the latest sample (None: nothing yet)."""
-        return self._last_receive
-
-    def stats(self) -> list[Any]:
-        """Return each topic's accounting since :meth:`begin` (overflow included)."""
-        out = []
-        for topic, counter in self._counters.items():
-            overflowed = self._readers[topic].overflowed
-            counter.overflow(overflowed - self._overflow0[topic])
-            self._overflow0[topic] = overflowed
-            out.append(counter.stats())
-        return out
-
-
-def _shift(block: Any, offset_ns: int) -> Any:  # noqa: ANN401
-    """Return a block with its stamp moved onto the recorder's time base."""
-    from dataclasses import replace  # noqa: PLC0415
-
-    return replace(block, stamp_ns=block.stamp_ns + offset_ns)
-
-
-def ros2_skin(section: Mapping[str, Any], clock: Any, where: str) -> Ros2Skin:  # noqa: ANN401
-    """Build the live skin of a rig configuration's ``[skin]`` table (``transport = "ros2"``).
-
-    Keys: ``topic_map`` (path of the topic map, relative to the configuration), optional
-    ``domain_id`` (default 0) and ``discovery_s`` (default 10).
-
-    Raises:
-        RigError: A key is missing, unknown or wrong, or the map does not load.
-    """
-    from pathlib import Path  # noqa: PLC0415
-
-    from recorder.bagimport._topicmap import load_topic_map  # noqa: PLC0415
-
-    known = {"transport", "topic_map", "domain_id", "discovery_s"}
-    if unknown := sorted(set(section) - known):
-        msg = (
-            f"{where}: [skin] key {unknown[0]!r} is unknown for transport ros2; use {sorted(known)}"
-        )
-        raise RigError(msg)
-    path = section.get("topic_map")
-    if not isinstance(path, str):
-        msg = f'{where}: [skin] transport = "ros2" needs topic_map = "path/to/topic_map.toml"'
-        raise RigError(msg)
-    domain = section.get("domain_id", 0)
-    if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:  # noqa: PLR2004
-        msg = f"{where}: [skin] domain_id = {domain!r}: give a DDS domain id 0..232"
-        raise RigError(msg)
-    base = Path(where).parent if where else Path()
-    try:
-        topic_map = load_topic_map(base / path)
-    except RecorderError as err:
-        raise RigError(str(err)) from err
-    discovery = float(section.get("discovery_s", 10.0))
-    return Ros2Skin(topic_map, clock, domain, discovery)
 
 
 def merge_received(readers: Sequence[SourceReader]) -> list[Received]:

@@ -96,11 +96,14 @@ def window_samples(period_ns: int) -> int:
     return max(1, round(FORCE_WINDOW_NS / max(period_ns, 1)))
 
 
-#: ``build(section, clock, where) -> LiveSkin`` of the project's transports, by import string.
+#: ``build(section, clock, where) -> LiveSkin`` of the project's transports, by import string
+#: (the same as pyproject.toml's ``atikt.skins`` entry points; these win over an installed entry
+#: point of the same name). The ROS 2 skin converts a topic map's topics as the bag import does,
+#: so it is :mod:`recorder.bagimport`'s, named here and imported only when a rig uses it.
 SKIN_TRANSPORTS: dict[str, str] = {
     "udp": "recorder.live._frames:udp_skin",
     "serial": "recorder.live._frames:serial_skin",
-    "ros2": "recorder.live._dds:ros2_skin",
+    "ros2": "recorder.bagimport._ros2skin:ros2_skin",
 }
 #: Entry point group of skin transports: a lab's package adds its own skin by name
 #: (``[project.entry-points."atikt.skins"] myskin = "mypkg:build"``), as rigs in ``atikt.rigs``.

@@ -26,14 +26,14 @@ from recorder._sim.ur10 import JOINT_NAMES
 from recorder.bagimport._source import ANNOTATION_TYPE, JOINT_TYPE, SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
-from recorder.live._dds import DdsDomain
+from recorder.live.dds import DdsDomain
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
     from pathlib import Path
 
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live._dds import RawWriter
+    from recorder.live.dds import RawWriter
     from recorder.virtuallab._world import VirtualWorld
 
 CELL_TYPE = "atikt_msgs/msg/SkinCell"

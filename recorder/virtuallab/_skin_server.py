@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from recorder.errors import RigError
-from recorder.live._framelayout import FIELD_TYPES, FrameType, SkinLayout, parse_layout
+from recorder.live import FIELD_TYPES, FrameType, SkinLayout, parse_layout
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping

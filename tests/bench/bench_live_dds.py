@@ -91,7 +91,7 @@ def publish(map_path: Path, domain_id: int, seconds: float) -> None:
 
     from recorder.bagimport._source import typestore  # noqa: PLC0415
     from recorder.bagimport._topicmap import load_topic_map  # noqa: PLC0415
-    from recorder.live._dds import DdsDomain  # noqa: PLC0415
+    from recorder.live.dds import DdsDomain  # noqa: PLC0415
 
     store = typestore(load_topic_map(map_path))
     domain = DdsDomain(domain_id, store)

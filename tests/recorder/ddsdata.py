@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from labbags import write_bag
 
-from recorder.live._dds import register_atikt_types
+from recorder.live.dds import register_atikt_types
 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from recorder.live._dds import DdsDomain
+    from recorder.live.dds import DdsDomain
 
 NS = 1_000_000_000
 CELL = "atikt_msgs/msg/SkinCell"

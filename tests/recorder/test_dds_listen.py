@@ -26,7 +26,7 @@ from recorder.bagimport._listen import listen
 from recorder.bagimport._source import typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.live import SOURCES_RECORD, parse_source_stats
-from recorder.live._dds import DdsDomain
+from recorder.live.dds import DdsDomain
 from replay.cli._main import main as replay_main
 
 if TYPE_CHECKING:

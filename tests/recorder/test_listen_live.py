@@ -25,7 +25,7 @@ from recorder.bagimport._listen import listen
 from recorder.bagimport._source import ANNOTATION_TYPE, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.live import SOURCES_RECORD, parse_source_stats
-from recorder.live._dds import DdsDomain
+from recorder.live.dds import DdsDomain
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._ros2_server import serve_ros2
 from recorder.virtuallab._urscript import Call, Program

@@ -8,8 +8,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 from recorder.errors import RigError
-from recorder.live import RecorderClock, open_skin
-from recorder.live._skin import skin_transports
+from recorder.live import RecorderClock, open_skin, skin_transports
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
