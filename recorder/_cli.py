@@ -59,7 +59,6 @@ DEFAULT_RIG = "sim"
 #: Modules whose import registers further subcommands (``import-bag``).
 COMMAND_MODULES: tuple[str, ...] = (
     "recorder.bagimport._command",
-    "recorder.bagimport._listen",
     "recorder._session_command",
     "recorder.virtuallab._command",
 )
@@ -72,18 +71,20 @@ arg = cli.arg
 command = REGISTRY.command
 
 
-def _names(text: str) -> list[str]:
+def catalog_ids(text: str) -> list[str]:
     """Parse a comma-separated list of catalog ids."""
     return [name.strip() for name in text.split(",") if name.strip()]
 
 
-_CATALOGS = (
+#: ``--objects-catalog`` and ``--actions-catalog`` (every command that reads the catalogs).
+CATALOG_ARGUMENTS = (
     arg("--objects-catalog", type=Path, help="object catalog TOML (default: the packaged one)"),
     arg("--actions-catalog", type=Path, help="action catalog TOML (default: the packaged one)"),
 )
 
 
-def _rig_arguments() -> tuple[cli.Argument, ...]:
+def rig_arguments() -> tuple[cli.Argument, ...]:
+    """Return ``--rig``, ``--rig-config`` and ``--rig-option`` (every command that uses a rig)."""
     return (
         arg(
             "--rig",
@@ -116,7 +117,7 @@ def refuse_overlap(args: argparse.Namespace, *more: tuple[str, Path | None]) -> 
     cli.refuse_overlap(args.out, [*named, *more])
 
 
-def _rig(args: argparse.Namespace) -> RigFactory:
+def rig_from_args(args: argparse.Namespace) -> RigFactory:
     """Return the factory of the rig the options configure."""
     config = load_rig_config(args.rig_config, args.rig, args.rig_option)
     return rig_factory(config)
@@ -130,8 +131,8 @@ def _rig(args: argparse.Namespace) -> RigFactory:
     arg("--trial", type=int, default=1, help="trial number, from 1 (default: 1)"),
     arg("--out", type=Path, required=True, help="dataset directory"),
     arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
-    *_rig_arguments(),
-    *_CATALOGS,
+    *rig_arguments(),
+    *CATALOG_ARGUMENTS,
 )
 def _action(args: argparse.Namespace) -> int:
     if args.trial < 1:
@@ -144,7 +145,7 @@ def _action(args: argparse.Namespace) -> int:
         objects, actions, object_ids=[args.object], action_ids=[args.action], trials=1
     )
     path = recording_path(args.out, task.obj.id, task.action.id, args.trial)
-    factory = _rig(args)
+    factory = rig_from_args(args)
     check_configuration(args.out, args.seed, factory)
     with factory(args.seed) as rig:
         if isinstance(rig, Presenting) and rig.can_present(task.obj):
@@ -191,13 +192,13 @@ def _report(console: Console, report: DatasetReport) -> None:
     "dataset",
     "record the simulated thesis dataset (every object x action x trial) and its index",
     arg("--out", type=Path, required=True, help="dataset directory"),
-    arg("--objects", type=_names, help="comma-separated object ids (default: all)"),
-    arg("--actions", type=_names, help="comma-separated action ids (default: all)"),
+    arg("--objects", type=catalog_ids, help="comma-separated object ids (default: all)"),
+    arg("--actions", type=catalog_ids, help="comma-separated action ids (default: all)"),
     arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
     arg("--seed", type=int, default=0, help="dataset seed (default: 0)"),
     arg("--workers", type=cli.workers, help="worker processes (default: all cores)"),
-    *_rig_arguments(),
-    *_CATALOGS,
+    *rig_arguments(),
+    *CATALOG_ARGUMENTS,
 )
 def _dataset(args: argparse.Namespace) -> int:
     refuse_overlap(args)
@@ -208,7 +209,7 @@ def _dataset(args: argparse.Namespace) -> int:
         action_ids=args.actions,
         trials=args.trials,
     )
-    factory = _rig(args)
+    factory = rig_from_args(args)
     console = Console(stderr=True)
     if is_exclusive(factory) and (args.workers or 1) > 1:
         note = f"{PROG}: rig {factory.config.name} is exclusive hardware: one action at a time"
@@ -279,4 +280,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-__all__ = ["COMMANDS", "REGISTRY", "arg", "build_parser", "command", "main", "rig_names"]
+__all__ = [
+    "CATALOG_ARGUMENTS",
+    "COMMANDS",
+    "REGISTRY",
+    "arg",
+    "build_parser",
+    "catalog_ids",
+    "command",
+    "main",
+    "refuse_overlap",
+    "rig_arguments",
+    "rig_from_args",
+    "rig_names",
+]

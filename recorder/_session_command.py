@@ -9,7 +9,14 @@ from typing import TYPE_CHECKING
 from rich.console import Console
 
 from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, _names, _rig, _rig_arguments, arg, command
+from recorder._cli import (
+    CATALOG_ARGUMENTS,
+    arg,
+    catalog_ids,
+    command,
+    rig_arguments,
+    rig_from_args,
+)
 from recorder._dataset import plan_dataset
 from recorder._session import run_session
 from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
@@ -25,8 +32,8 @@ if TYPE_CHECKING:
     "session",
     "record actions at a rig object by object (objects presented by the rig or placed by "
     "hand); an interrupted session resumes",
-    arg("--objects", type=_names, required=True, help="comma-separated object ids, in order"),
-    arg("--actions", type=_names, required=True, help="comma-separated action ids"),
+    arg("--objects", type=catalog_ids, required=True, help="comma-separated object ids, in order"),
+    arg("--actions", type=catalog_ids, required=True, help="comma-separated action ids"),
     arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
     arg("--out", type=Path, required=True, help="dataset directory (resumed if it exists)"),
     arg(
@@ -43,8 +50,8 @@ if TYPE_CHECKING:
         metavar="HOST:PORT",
         help=f"serve the signals live to Foxglove (WebSocket, default {DEFAULT_ADDRESS})",
     ),
-    *_rig_arguments(),
-    *_CATALOGS,
+    *rig_arguments(),
+    *CATALOG_ARGUMENTS,
 )
 def _session(args: argparse.Namespace) -> int:
     objects = load_objects(args.objects_catalog)
@@ -77,7 +84,7 @@ def _session(args: argparse.Namespace) -> int:
         report = run_session(
             tasks,
             args.out,
-            _rig(args),
+            rig_from_args(args),
             seed=args.seed,
             unattended=args.yes,
             on_recorded=recorded,

@@ -1,7 +1,12 @@
-"""``atikt-record import-bag``: a lab's ROS 1 / ROS 2 bags -> per-action recordings + index."""
+"""``atikt-record import-bag`` and ``listen``: a lab's bags or live ROS 2 topics -> recordings.
+
+``import-bag`` cuts a lab's ROS 1 / ROS 2 bags into per-action recordings and the index;
+``listen`` does the same with the topics as they arrive over DDS (:mod:`._listen`).
+"""
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -11,8 +16,9 @@ from rich.table import Table
 from rich.text import Text
 
 from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, arg, command, refuse_overlap
+from recorder._cli import CATALOG_ARGUMENTS, arg, command, refuse_overlap
 from recorder.bagimport._importer import import_bag
+from recorder.bagimport._listen import listen, on_sigterm
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
@@ -20,10 +26,13 @@ from schemas import cli
 
 if TYPE_CHECKING:
     import argparse
+    from collections.abc import Mapping
 
     from rich.progress import Task, TaskID
 
+    from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.bagimport._report import ImportReport
+    from recorder.bagimport._topicmap import TopicMap
 
 _NS_PER_MS = 1e6
 
@@ -108,7 +117,7 @@ def _print_timing(console: Console, report: ImportReport) -> None:
     arg("--out", type=Path, help="dataset directory (existing recordings are kept)"),
     arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
     arg("--topics", action="store_true", help="list the bags' topics and types, then stop"),
-    *_CATALOGS,
+    *CATALOG_ARGUMENTS,
 )
 def _import_bag(args: argparse.Namespace) -> int:
     console = Console()
@@ -150,3 +159,55 @@ def _import_bag(args: argparse.Namespace) -> int:
         return 0
     _print_report(console, report)
     return 0
+
+
+@command(
+    "listen",
+    "record a lab's ROS 2 topics live over DDS: one file per annotated action, as import-bag",
+    arg("--topic-map", type=Path, required=True, help=f"topic map TOML (example: {EXAMPLE})"),
+    arg("--out", type=Path, required=True, help="dataset directory (existing recordings kept)"),
+    arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
+    arg("--domain-id", type=int, default=0, help="DDS domain id (ROS_DOMAIN_ID; default: 0)"),
+    arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
+    arg(
+        "--loopback",
+        action="store_true",
+        help="join DDS on the loopback interface only (default: the interfaces Cyclone DDS "
+        "picks, or those CYCLONEDDS_URI names)",
+    ),
+    *CATALOG_ARGUMENTS,
+)
+def _listen(args: argparse.Namespace) -> int:
+    topic_map = load_topic_map(args.topic_map)
+    if args.windows is not None:
+        topic_map = topic_map.with_csv(args.windows)
+    objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        report = _listen_run(args, topic_map, objects, actions)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
+    print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
+    return {"SIGTERM": 143, "SIGINT": 130}.get(report.interrupted, 0)
+
+
+def _listen_run(
+    args: argparse.Namespace,
+    topic_map: TopicMap,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+) -> ImportReport:
+    """Run ``listen`` with the command line's options, printing a line per file and note."""
+    return listen(
+        topic_map,
+        args.out,
+        objects=objects,
+        actions=actions,
+        domain_id=args.domain_id,
+        duration_s=args.duration,
+        discovery_s=10.0 if args.duration is None else min(10.0, args.duration),
+        on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
+        on_note=lambda line: print(line, flush=True),  # noqa: T201
+        loopback=args.loopback,
+    )

@@ -1,4 +1,4 @@
-"""``atikt-record listen``: a lab's ROS 2 topics recorded live, one file per action.
+"""A lab's ROS 2 topics recorded live, one file per action (the ``listen`` command's library).
 
 The lab's own system drives the robot and publishes; this subscribes over DDS (Cyclone DDS,
 no ROS installation: :mod:`recorder.live.dds`) to the topics of a topic map and cuts one
@@ -18,7 +18,6 @@ written; the one being annotated is dropped with a line saying so; nothing writt
 from __future__ import annotations
 
 import hashlib
-import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,8 +25,6 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, arg, command
 from recorder._dataset import declare_objects, write_index
 from recorder.bagimport._importer import (
     MARGIN_NS,
@@ -51,7 +48,6 @@ from recorder.bagimport._source import (
     required_types,
     typestore,
 )
-from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.bagimport._windows import (
     AnnotationGrouper,
     PathPlanner,
@@ -63,7 +59,6 @@ from recorder.errors import BagImportError, RecorderError
 from recorder.live import RecorderClock, SourceCounter, SourceReader
 
 if TYPE_CHECKING:
-    import argparse
     import threading
     from collections.abc import Callable, Mapping, Sequence
     from types import ModuleType
@@ -536,7 +531,7 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, handled as Ctrl-C: the run stops and keeps what arrived."""
 
 
-def _on_sigterm(_signum: int, _frame: object) -> None:
+def on_sigterm(_signum: int, _frame: object) -> None:
     """Raise :class:`Terminated` in the main thread (``listen`` then ends as on Ctrl-C)."""
     raise Terminated
 
@@ -610,55 +605,3 @@ def listen(
         listener.stop()
     listener.step(0)
     return listener.finish()
-
-
-@command(
-    "listen",
-    "record a lab's ROS 2 topics live over DDS: one file per annotated action, as import-bag",
-    arg("--topic-map", type=Path, required=True, help=f"topic map TOML (example: {EXAMPLE})"),
-    arg("--out", type=Path, required=True, help="dataset directory (existing recordings kept)"),
-    arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
-    arg("--domain-id", type=int, default=0, help="DDS domain id (ROS_DOMAIN_ID; default: 0)"),
-    arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
-    arg(
-        "--loopback",
-        action="store_true",
-        help="join DDS on the loopback interface only (default: the interfaces Cyclone DDS "
-        "picks, or those CYCLONEDDS_URI names)",
-    ),
-    *_CATALOGS,
-)
-def _listen(args: argparse.Namespace) -> int:
-    topic_map = load_topic_map(args.topic_map)
-    if args.windows is not None:
-        topic_map = topic_map.with_csv(args.windows)
-    objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
-        report = _listen_run(args, topic_map, objects, actions)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
-    print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
-    return {"SIGTERM": 143, "SIGINT": 130}.get(report.interrupted, 0)
-
-
-def _listen_run(
-    args: argparse.Namespace,
-    topic_map: TopicMap,
-    objects: Mapping[str, ObjectSpec],
-    actions: Mapping[str, ActionSpec],
-) -> ImportReport:
-    """Run ``listen`` with the command line's options, printing a line per file and note."""
-    return listen(
-        topic_map,
-        args.out,
-        objects=objects,
-        actions=actions,
-        domain_id=args.domain_id,
-        duration_s=args.duration,
-        discovery_s=10.0 if args.duration is None else min(10.0, args.duration),
-        on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
-        on_note=lambda line: print(line, flush=True),  # noqa: T201
-        loopback=args.loopback,
-    )

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from recorder._catalog import load_actions, load_objects
-from recorder._cli import _CATALOGS, arg, command
+from recorder._cli import CATALOG_ARGUMENTS, arg, command
 from recorder._rigconfig import load_rig_config, thaw
 from recorder.errors import RecorderError
 from recorder.virtuallab._controller import VirtualController
@@ -329,7 +329,7 @@ def _wait_for_a_stop() -> None:
         default=None,
         help="write what was injected as JSON at exit",
     ),
-    *_CATALOGS,
+    *CATALOG_ARGUMENTS,
 )
 def _serve_sim(args: argparse.Namespace) -> int:
     from recorder._sim import SimulatedRig  # noqa: PLC0415 (loads scipy)
