@@ -56,6 +56,14 @@ def _repo_target(base: Path, target: str) -> str | None:
     return path.relative_to(ROOT).as_posix()
 
 
+def _docs_target(base: Path, target: str, docs: Path) -> str | None:
+    """Return ``target`` (relative to ``base``) as a page of the manual, or None."""
+    if _SCHEME.match(target) or target.startswith("/"):
+        return None
+    path = Path(posixpath.normpath((base / target).as_posix()))
+    return path.relative_to(docs).as_posix() if path.is_relative_to(docs) else None
+
+
 def _page_of(rel: str) -> str:
     """Return the repository file a link to ``rel`` shows: the file, or a directory's page."""
     if not (ROOT / rel).is_dir():
@@ -118,9 +126,12 @@ def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, **_: objec
 
     def _site_link(match: re.Match[str]) -> str:
         rel = _repo_target(base, match["target"])
-        if rel is None:
+        if rel is not None:
+            uri = f"{PREFIX}/{_page_of(rel)}"
+        elif in_repo and (page_uri := _docs_target(base, match["target"], docs)) is not None:
+            uri = page_uri  # a repository file's link to one of the manual's pages
+        else:
             return match[0]
-        uri = f"{PREFIX}/{_page_of(rel)}"
         return f"{match['head']}{posixpath.relpath(uri, posixpath.dirname(src))}{match['tail']}"
 
     return _LINK.sub(_site_link, markdown)

@@ -44,8 +44,12 @@ def test_the_site_builds_strictly(tmp_path: Path) -> None:
     assert 'id="atikt.active"' not in reference  # its modules are not the public API
     getting_started = (site / "getting-started" / "index.html").read_text("utf-8")
     assert "python -m pytest -q" in re.sub(r"<[^>]+>", "", getting_started)  # README's set-up
-    # a repository file the pages link to is served with the site
+    # a repository file the pages link to is served with the site, a README as a page whose
+    # links lead back into the manual
     assert (site / "repo" / "recorder" / "data" / "ur_rig.example.toml").is_file()
+    contract = (site / "repo" / "schemas" / "index.html").read_text("utf-8")
+    assert 'href="../../your-rig/"' in contract
+    assert 'href="contract.toml"' in contract
 
 
 def test_readme_is_short_and_its_links_resolve() -> None:
