@@ -1,6 +1,7 @@
-"""README's commands, typed as printed: every `atikt-record` / `atikt-replay` line of its code
-blocks is accepted by the tools' own parsers, the set-up extras exist, and the "See your data"
-examples run on a copy of the committed recordings."""
+"""The documentation's commands, typed as printed: every `atikt-record` / `atikt-replay` line of
+the bash blocks of README.md and the manual's pages (docs/*.md) is accepted by the tools' own
+parsers, README's set-up extras exist, and the "See your data" examples run on a copy of the
+committed recordings."""
 
 from __future__ import annotations
 
@@ -18,7 +19,14 @@ from replay.cli._main import main as replay
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text("utf-8")
+#: README first, then the manual's pages.
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 BLOCKS = re.findall(r"```bash\n(.*?)```", README, flags=re.DOTALL)
+DOC_BLOCKS = [
+    block
+    for page in PAGES
+    for block in re.findall(r"```bash\n(.*?)```", page.read_text("utf-8"), flags=re.DOTALL)
+]
 
 
 def _lines(block: str) -> list[str]:
@@ -30,7 +38,7 @@ def _lines(block: str) -> list[str]:
 
 def _commands() -> list[str]:
     found = []
-    for block in BLOCKS:
+    for block in DOC_BLOCKS:
         for line in _lines(block):
             for part in line.split("&&"):
                 words = part.strip()
@@ -61,7 +69,7 @@ def test_every_readme_command_parses(command: str) -> None:
     try:
         parser.parse_args(argv)
     except SystemExit as exit_:  # argparse's way of refusing a command line
-        pytest.fail(f"README command refused by {program} ({exit_.code}): {command}")
+        pytest.fail(f"documented command refused by {program} ({exit_.code}): {command}")
 
 
 def test_readme_has_commands_for_every_tool() -> None:

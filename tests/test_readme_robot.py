@@ -1,4 +1,5 @@
-"""README's "Record at the robot", run as printed against the virtual lab, command by command.
+"""The manual's "Record at the robot" (docs/robot.md), run as printed against the virtual lab,
+command by command.
 
 The walk-through's commands run in their order in a fresh directory, against `serve-sim` on
 free loopback ports and ten times faster than real time (the only changes to what is
@@ -25,10 +26,8 @@ if TYPE_CHECKING:
     from collections.abc import Iterator
 
 ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text("utf-8")
-_START = README.index("## Record at the robot")
-SECTION = README[_START : README.index("\n## ", _START + 5)]
-BLOCKS = re.findall(r"```bash\n(.*?)```", SECTION, flags=re.DOTALL)
+PAGE = (ROOT / "docs" / "robot.md").read_text("utf-8")
+BLOCKS = re.findall(r"```bash\n(.*?)```", PAGE, flags=re.DOTALL)
 EXAMPLE = "recorder/data/ur_rig.example.toml"
 SCALE = "0.1"
 PROGRAMS = {"atikt-record": "recorder", "atikt-replay": "replay"}

@@ -1,12 +1,14 @@
-"""Write README.md's result tables from the studies' results, so that they cannot drift.
+"""Write the documentation's result tables from the studies' results, so that they cannot drift.
 
-``python -m replay.outputs.readme_tables`` reads ``studies/<name>/results.parquet`` for every
-block of README.md between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` and
-rewrites the block (running it twice changes nothing); ``--check`` only compares and exits 1
-when README.md differs (for CI). ``NAME`` is a study's output directory, or a fusion study's
-plus ``-margins`` (multi-modal minus best single modality), or two fusion studies'
-``A-vs-B`` (A's multi-modal kernel minus B's, paired per group: runs that differ only in
-``--fusion-prior``, ``--fusion-kernel`` or ``--fusion-parts``); ``real-NAME`` reads
+``python -m replay.outputs.readme_tables`` finds every block between ``<!-- results:NAME -->``
+and ``<!-- /results:NAME -->`` in README.md and the manual's pages (``docs/**/*.md``; or in the
+files given with ``--readme``), reads ``studies/<name>/results.parquet`` for each and rewrites
+the block (running it twice changes nothing); ``--check`` only compares and exits 1 when a file
+differs (for CI). A block may appear in several files (README's headline table is the results
+page's); each is written from the same results. ``NAME`` is a study's output directory, or a
+fusion study's plus ``-margins`` (multi-modal minus best single modality), or two fusion
+studies' ``A-vs-B`` (A's multi-modal kernel minus B's, paired per group: runs that differ only
+in ``--fusion-prior``, ``--fusion-kernel`` or ``--fusion-parts``); ``real-NAME`` reads
 ``studies-real/`` (``--real-studies``), the studies on the real data.
 
 The numbers are the studies' own, computed by the same functions as their summaries
@@ -43,7 +45,7 @@ from replay.studies._stats import (
     headline,
     paired_gains,
 )
-from schemas import VOCABULARY, cli
+from schemas import VOCABULARY, atomic_write_text, cli
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -373,12 +375,69 @@ def rewrite(
     return text
 
 
+#: Where the manual's pages live (searched for result blocks when no ``--readme`` is given).
+DOCS = Path("docs")
+
+
+def marked_files(readme: Path = Path("README.md"), docs: Path = DOCS) -> list[Path]:
+    """Return README.md and the manual's pages (``docs/**/*.md``) that hold a results block.
+
+    Raises:
+        ReplayError: None of them holds one.
+    """
+    candidates = [readme, *sorted(docs.rglob("*.md"))] if docs.is_dir() else [readme]
+    found = [p for p in candidates if p.is_file() and _MARKER.search(p.read_text("utf-8"))]
+    if not found:
+        msg = (
+            f"{readme}, {docs}/: no '<!-- results:NAME -->' markers; put them around each "
+            "result table"
+        )
+        raise ReplayError(msg)
+    return found
+
+
+def _rewrite_all(
+    files: Sequence[Path], args: argparse.Namespace, only: Sequence[str]
+) -> dict[Path, tuple[str, str]]:
+    """Return each file's text and its text with the result blocks rewritten.
+
+    With ``only``, a file holding none of those blocks is left out, and a name no file holds
+    is refused.
+
+    Raises:
+        ReplayError: As :func:`rewrite`, or a name of ``only`` that no file holds.
+        OSError: A file cannot be read.
+    """
+    texts = {path: path.read_text("utf-8") for path in files}
+    held = {path: {m["name"] for m in _MARKER.finditer(text)} for path, text in texts.items()}
+    if only and (unknown := sorted(set(only) - set().union(*held.values()))):
+        found = ", ".join(sorted(set().union(*held.values())))
+        names = ", ".join(str(p) for p in files)
+        msg = f"--only {','.join(unknown)}: {names} hold no such block; they hold {found}"
+        raise ReplayError(msg)
+    result = {}
+    for path, text in texts.items():
+        wanted = [n for n in only if n in held[path]]
+        if only and not wanted:
+            continue
+        new = rewrite(text, args.studies, args.seed, path, args.real_studies, only=wanted)
+        result[path] = (text, new)
+    return result
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Rewrite (or, with ``--check``, compare) README.md's result tables; return the status."""
+    """Rewrite (or, with ``--check``, compare) the result tables; return the exit status."""
     parser = argparse.ArgumentParser(
         prog="python -m replay.outputs.readme_tables", description=__doc__.split("\n")[0]
     )
-    parser.add_argument("--readme", type=Path, default=Path("README.md"), help="the README")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        action="append",
+        metavar="FILE",
+        help="a Markdown file with result blocks (repeat for several); default: README.md "
+        "and every page under docs/ that holds one",
+    )
     parser.add_argument("--studies", type=Path, default=Path("studies"), help="study outputs")
     parser.add_argument(
         "--real-studies",
@@ -387,7 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="study outputs on the real data (blocks named real-NAME)",
     )
     parser.add_argument("--seed", type=cli.seed, default=0, help="seed of the bootstrap")
-    parser.add_argument("--check", action="store_true", help="exit 1 if the README differs")
+    parser.add_argument("--check", action="store_true", help="exit 1 if a file differs")
     parser.add_argument(
         "--only",
         default="",
@@ -396,22 +455,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     only = [n for n in args.only.split(",") if n]
+    path = Path("README.md")
     try:
-        text = args.readme.read_text("utf-8")
-        new = rewrite(text, args.studies, args.seed, args.readme, args.real_studies, only=only)
-        if new != text and not args.check:
-            args.readme.write_text(new, "utf-8")
+        files = args.readme or marked_files()
+        texts = _rewrite_all(files, args, only)
+        if not args.check:
+            for path, (text, new) in texts.items():
+                if new != text:
+                    atomic_write_text(path, new)
     except OSError as err:
-        print(f"{parser.prog}: error: {args.readme}: {err.strerror}", file=sys.stderr)  # noqa: T201
+        print(f"{parser.prog}: error: {err.filename or path}: {err.strerror}", file=sys.stderr)  # noqa: T201
         return 1
     except ReplayError as err:
         print(f"{parser.prog}: error: {cli.one_line(str(err))}", file=sys.stderr)  # noqa: T201
         return 1
-    if args.check and new != text:
-        message = f"{args.readme}: result tables differ from {args.studies}; run {parser.prog}"
+    differ = [str(p) for p, (text, new) in texts.items() if new != text]
+    if args.check and differ:
+        message = (
+            f"{', '.join(differ)}: result tables differ from {args.studies}; run {parser.prog}"
+        )
         print(f"{parser.prog}: error: {message}", file=sys.stderr)  # noqa: T201
         return 1
-    print(f"{args.readme}: {'up to date' if new == text else 'result tables rewritten'}")  # noqa: T201
+    for path, (text, new) in texts.items():
+        print(f"{path}: {'up to date' if new == text else 'result tables rewritten'}")  # noqa: T201
     return 0
 
 

@@ -1,4 +1,4 @@
-"""README "Bring your own rig": its commands, typed as printed, run."""
+"""The manual's "Bring your own rig" (docs/your-rig.md): its commands, typed as printed, run."""
 
 import shlex
 from pathlib import Path
@@ -8,12 +8,12 @@ import pytest
 from recorder._cli import main as record
 from replay.cli._main import main as replay
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "your-rig.md"
 
 
 def _blocks(after: str) -> tuple[str, str]:
-    """Return the bash and the TOML block that follow ``after`` in README.md."""
-    text = README.read_text("utf-8")
+    """Return the bash and the TOML block that follow ``after`` in the page."""
+    text = PAGE.read_text("utf-8")
     rest = text[text.index(after) :]
     bash = rest[rest.index("```bash\n") + 8 :]
     toml = rest[rest.index("```toml\n") + 8 :]

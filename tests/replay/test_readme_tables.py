@@ -271,3 +271,68 @@ def test_borrow_results_without_their_columns_are_refused_in_one_line(tmp_path: 
     # without ``group`` the results look like no study's; with ``source`` they are a borrow's
     with pytest.raises(ReplayError, match=r"lack group; run 'atikt-replay study cross-action'"):
         rewrite("<!-- results:cross-rig -->\n<!-- /results:cross-rig -->", tmp_path, 0)
+
+
+def test_without_readme_every_marked_file_of_readme_and_the_manual_is_written(
+    project: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    docs = project / "docs"
+    (docs / "guide").mkdir(parents=True)
+    (docs / "results.md").write_text("# Results\n\n" + README)
+    (docs / "guide" / "deep.md").write_text("<!-- results:fusion -->\n<!-- /results:fusion -->\n")
+    (docs / "plain.md").write_text("# No tables here\n")
+    head = "<!-- results:transfer -->\n<!-- /results:transfer -->\n"
+    (project / "README.md").write_text(head)
+    monkeypatch.chdir(project)
+    args = ["--real-studies", "studies-real"]
+    assert main([*args, "--check"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    for name in ("README.md", "docs/results.md", "docs/guide/deep.md"):
+        assert name in err
+    assert "plain.md" not in err
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "docs/guide/deep.md: result tables rewritten" in out
+    assert (docs / "plain.md").read_text() == "# No tables here\n"
+    readme = (project / "README.md").read_text()
+    page = (docs / "results.md").read_text()
+    transfer = readme.split("<!-- results:transfer -->")[1].split("<!-- /results")[0]
+    assert "| ATIKT |" in transfer
+    assert transfer in page  # one study, one table, wherever it is shown
+    assert "| P1 | 90.0 % | 60.0 % | - |" in (docs / "guide" / "deep.md").read_text()
+    assert main([*args, "--check"]) == 0
+    # a hand edit in any of the files is found
+    (docs / "guide" / "deep.md").write_text((docs / "guide" / "deep.md").read_text() + "x\n")
+    (docs / "results.md").write_text(page.replace("90.0 %", "91.0 %"))
+    assert main([*args, "--check"]) == 1
+    assert "docs/results.md" in capsys.readouterr().err
+
+
+def test_only_rewrites_the_files_that_hold_the_named_blocks(
+    project: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (project / "docs").mkdir()
+    (project / "docs" / "fusion.md").write_text(
+        "<!-- results:fusion -->\nold\n<!-- /results:fusion -->\n"
+    )
+    monkeypatch.chdir(project)
+    readme = (project / "README.md").read_text()
+    assert main(["--real-studies", "studies-real", "--only", "fusion"]) == 0
+    assert (project / "docs" / "fusion.md").read_text().startswith("<!-- results:fusion -->\n| ")
+    fusion_only = (project / "README.md").read_text()
+    assert "an old table" in fusion_only  # transfer, not named, is kept
+    assert fusion_only != readme
+    assert main(["--only", "nothing"]) == 1
+    assert "--only nothing: " in capsys.readouterr().err
+
+
+def test_no_marked_file_is_refused_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "README.md").write_text("no tables\n")
+    monkeypatch.chdir(tmp_path)
+    assert main([]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "no '<!-- results:NAME -->' markers" in err
