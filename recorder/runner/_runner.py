@@ -23,8 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from recorder.errors import RigError
-from recorder.live import RecorderClock, SourceLostError
-from recorder.live._skin import window_samples
+from recorder.live import RecorderClock, SourceLostError, window_samples
 from recorder.runner._arm import Context
 from recorder.runner._limits import (
     REACHED_M,
