@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import signal
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,6 +23,7 @@ from recorder.bagimport._listen import listen, on_sigterm
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
+from recorder.writing._foxglove import DEFAULT_ADDRESS, TopicView
 from schemas import cli
 
 if TYPE_CHECKING:
@@ -175,6 +177,14 @@ def _import_bag(args: argparse.Namespace) -> int:
         help="join DDS on the loopback interface only (default: the interfaces Cyclone DDS "
         "picks, or those CYCLONEDDS_URI names)",
     ),
+    arg(
+        "--foxglove",
+        nargs="?",
+        const=DEFAULT_ADDRESS,
+        default=None,
+        metavar="HOST:PORT",
+        help=f"serve the topics to Foxglove as received (WebSocket, default {DEFAULT_ADDRESS})",
+    ),
     *CATALOG_ARGUMENTS,
 )
 def _listen(args: argparse.Namespace) -> int:
@@ -184,7 +194,14 @@ def _listen(args: argparse.Namespace) -> int:
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
-        report = _listen_run(args, topic_map, objects, actions)
+        with contextlib.ExitStack() as stack:
+            view = None
+            if args.foxglove is not None:
+                view = stack.enter_context(TopicView(args.foxglove))
+                print(f"foxglove: live on {view.url} (Foxglove: open connection, WebSocket)")  # noqa: T201
+            report = _listen_run(args, topic_map, objects, actions, view)
+            if view is not None and view.dropped:
+                print(f"foxglove: the client fell behind; {view.dropped} messages not shown")  # noqa: T201
     finally:
         signal.signal(signal.SIGTERM, previous)
     kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
@@ -197,6 +214,7 @@ def _listen_run(
     topic_map: TopicMap,
     objects: Mapping[str, ObjectSpec],
     actions: Mapping[str, ActionSpec],
+    view: TopicView | None,
 ) -> ImportReport:
     """Run ``listen`` with the command line's options, printing a line per file and note."""
     return listen(
@@ -210,4 +228,5 @@ def _listen_run(
         on_written=lambda path: print(path, flush=True),  # noqa: T201 (one line per file)
         on_note=lambda line: print(line, flush=True),  # noqa: T201
         loopback=args.loopback,
+        view=view,
     )

@@ -69,6 +69,7 @@ if TYPE_CHECKING:
     from recorder.bagimport._topicmap import TopicMap
     from recorder.live import Received, SourceStats
     from recorder.live.dds import DdsDomain, Publication
+    from recorder.writing._foxglove import TopicView
 
 _NS_PER_S = 1_000_000_000
 #: How often idle windows are closed and old messages forgotten, s.
@@ -148,6 +149,7 @@ class Listener:
     loopback: bool = False
     on_written: Callable[[Path], Any] | None = None
     on_note: Callable[[str], Any] | None = None
+    view: TopicView | None = None
     clock: RecorderClock = field(default_factory=RecorderClock)
     report: ImportReport = field(init=False)
     session: _Session = field(init=False)
@@ -268,6 +270,9 @@ class Listener:
         )
         self._routes = cast("dict[str, Route]", made)
         for topic, (msgtype, reliable) in types.items():
+            if self.view is not None:
+                text, _ = self._store.generate_msgdef(msgtype, ros_version=2)
+                self.view.declare(topic, msgtype, text)
             raw = domain.reader(topic, msgtype, reliable=reliable)
             raw.clock = self.clock.now_ns
             raw.max_bytes = self.topic_map.max_message_bytes
@@ -426,6 +431,8 @@ class Listener:
         annotation = self._grouper.topic if self._grouper is not None else None
         for item in items:
             topic, raw = item.payload
+            if self.view is not None:
+                self.view.offer_raw(topic, item.receive_ns, raw)
             if topic == annotation:
                 self._flush(data)
                 self._annotate(raw, item.receive_ns)
@@ -549,6 +556,7 @@ def listen(
     on_written: Callable[[Path], Any] | None = None,
     on_note: Callable[[str], Any] | None = None,
     loopback: bool = False,
+    view: TopicView | None = None,
 ) -> ImportReport:
     """Record a lab's ROS 2 topics live: one recording per action window, then the index.
 
@@ -565,6 +573,7 @@ def listen(
         on_note: Called with one line per window skipped or dropped.
         loopback: Join DDS on the loopback interface only (this process's configuration,
             whatever ``CYCLONEDDS_URI`` says).
+        view: A Foxglove server shown every message as received (``--foxglove``).
 
     Returns:
         What was written and skipped.
@@ -582,6 +591,7 @@ def listen(
         loopback=loopback,
         on_written=on_written,
         on_note=on_note,
+        view=view,
     )
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import queue
 import threading
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Self, cast
 
 from recorder.errors import RecorderError
 from recorder.writing._writer import TYPE_OF_TOPIC, _Encoder
@@ -51,8 +51,12 @@ def parse_address(text: str) -> tuple[str, int]:
     return host or "127.0.0.1", number
 
 
-class FoxgloveView:
-    """Serves every recorded item to Foxglove clients as it arrives (a context manager)."""
+class _Served:
+    """A Foxglove WebSocket server fed from a bounded queue by a thread of its own.
+
+    Subclasses say what an item is (:meth:`_serve`); offering never blocks: a full queue
+    counts the item as dropped.
+    """
 
     def __init__(self, address: str = DEFAULT_ADDRESS, capacity: int = CAPACITY) -> None:
         """Prepare the server (it listens from ``__enter__``)."""
@@ -61,7 +65,6 @@ class FoxgloveView:
         self._thread = threading.Thread(target=self._run, name="atikt-foxglove", daemon=True)
         self._server: Any = None
         self._channels: dict[str, Any] = {}
-        self._encoder: _Encoder | None = None
         self.dropped = 0
         self.failure = ""
 
@@ -103,17 +106,6 @@ class FoxgloveView:
         """Return the address Foxglove connects to."""
         return f"ws://{self.host}:{self.port}"
 
-    def begin(self, info: RecordingInfo) -> None:
-        """Encode the next items as ``info``'s recording does."""
-        self._offer(info)
-
-    def offer(self, item: StreamItem) -> None:
-        """Queue one item; never blocks (a full queue counts it as dropped)."""
-        self._offer(item)
-
-    def recorded(self, path: Path) -> None:
-        """Nothing to do: the items were served as they arrived."""
-
     def _offer(self, item: object) -> None:
         try:
             self._queue.put_nowait(item)
@@ -128,8 +120,40 @@ class FoxgloveView:
                 self.failure = self.failure or str(err)
 
     def _serve(self, item: object) -> None:
-        import foxglove  # noqa: PLC0415 (imported in __enter__)
+        raise NotImplementedError
 
+    def _channel(self, topic: str, msgtype: str, msgdef: str) -> Any:  # noqa: ANN401 (the SDK's)
+        """Return the topic's channel (made on first use: ROS 2 schema, CDR messages)."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            import foxglove  # noqa: PLC0415 (imported in __enter__)
+
+            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
+            channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr")
+            self._channels[topic] = channel
+        return channel
+
+
+class FoxgloveView(_Served):
+    """Serves every recorded item to Foxglove clients as it arrives (a context manager)."""
+
+    def __init__(self, address: str = DEFAULT_ADDRESS, capacity: int = CAPACITY) -> None:
+        """Prepare the server (it listens from ``__enter__``)."""
+        super().__init__(address, capacity)
+        self._encoder: _Encoder | None = None
+
+    def begin(self, info: RecordingInfo) -> None:
+        """Encode the next items as ``info``'s recording does."""
+        self._offer(info)
+
+    def offer(self, item: StreamItem) -> None:
+        """Queue one item; never blocks (a full queue counts it as dropped)."""
+        self._offer(item)
+
+    def recorded(self, path: Path) -> None:
+        """Nothing to do: the items were served as they arrived."""
+
+    def _serve(self, item: object) -> None:
         from recorder.writing._writer import RecordingInfo  # noqa: PLC0415
 
         if isinstance(item, RecordingInfo):
@@ -138,11 +162,31 @@ class FoxgloveView:
         if self._encoder is None:
             return
         topic, _stamp, payload = self._encoder.encode(item)  # type: ignore[arg-type]
-        channel = self._channels.get(topic)
-        if channel is None:
+        if topic not in self._channels:
             msgtype = TYPE_OF_TOPIC[topic]
             text, _ = self._encoder.store.generate_msgdef(msgtype, ros_version=2)
-            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=text.encode())
-            channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr")
-            self._channels[topic] = channel
-        channel.log(payload, log_time=item.receive_ns)  # type: ignore[attr-defined]
+            self._channel(topic, msgtype, text)
+        self._channels[topic].log(payload, log_time=item.receive_ns)  # type: ignore[attr-defined]
+
+
+class TopicView(_Served):
+    """Serves a lab's ROS 2 topics as they are received (``listen --foxglove``).
+
+    The messages are the CDR bytes that arrived, on the lab's own topics and types: what
+    Foxglove shows is what ``listen`` is recording from, before any conversion.
+    """
+
+    def declare(self, topic: str, msgtype: str, msgdef: str) -> None:
+        """Announce a topic (its type and ROS 2 message definition) before its messages."""
+        self._offer((topic, msgtype, msgdef))
+
+    def offer_raw(self, topic: str, receive_ns: int, raw: bytes) -> None:
+        """Queue one received message; never blocks (a full queue counts it as dropped)."""
+        self._offer((topic, receive_ns, raw))
+
+    def _serve(self, item: object) -> None:
+        topic, second, third = cast("tuple[str, Any, Any]", item)
+        if isinstance(second, str):
+            self._channel(topic, second, third)
+        elif topic in self._channels:
+            self._channels[topic].log(third, log_time=second)

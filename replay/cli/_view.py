@@ -17,6 +17,8 @@ from replay.cli._main import arg, command, dataset_files, progress_bar
 from replay.errors import ReplayError
 from replay.learning._run_history import LearnRun, is_run_directory
 from replay.outputs._export import FORMATS, LAYOUTS, export
+from replay.outputs._foxglove import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
+from replay.outputs._foxglove import serve_recordings
 from replay.outputs._serve import DEFAULT_HOST, Served, serve_viewer, wait_until_interrupted
 from schemas import cli
 
@@ -143,7 +145,7 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
 @command(
     "view",
     "show recordings and learn runs in rerun (a file with --save, a web viewer with --serve)",
-    arg("paths", nargs="+", type=Path, help="recordings (.mcap), dataset or learn --out dirs"),
+    arg("paths", nargs="*", type=Path, help="recordings (.mcap), dataset or learn --out dirs"),
     arg(
         "--save",
         type=Path,
@@ -166,14 +168,40 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
     arg("--grpc-port", type=int, default=GRPC_PORT, help="data port"),
     arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
     arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
+    arg(
+        "--foxglove",
+        nargs="?",
+        const=FOXGLOVE_ADDRESS,
+        default=None,
+        metavar="HOST:PORT",
+        help="play the recordings (a live run's too) to Foxglove over WebSocket, byte for byte "
+        f"(default {FOXGLOVE_ADDRESS}), until Ctrl-C",
+    ),
+    arg(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="--foxglove: times faster than recorded (0: at once; default 1)",
+    ),
 )
 def _view_command(args: argparse.Namespace) -> int:
     from replay.learning._run_history import load_run  # noqa: PLC0415
 
-    if args.save is not None and args.serve:
-        msg = "--save and --serve: choose one (a file, or a web viewer)"
+    chosen = [o for o, on in (("--save", args.save), ("--serve", args.serve)) if on]
+    if args.foxglove is not None:
+        chosen.append("--foxglove")
+    if len(chosen) > 1:
+        msg = f"{' and '.join(chosen)}: choose one (a file, a web viewer, or Foxglove)"
+        raise ReplayError(msg)
+    if args.foxglove is not None and Path(args.foxglove).exists():  # `--foxglove FILE`
+        args.paths.insert(0, Path(args.foxglove))
+        args.foxglove = FOXGLOVE_ADDRESS
+    if not args.paths:
+        msg = "view: give recordings (.mcap), dataset or learn --out directories to show"
         raise ReplayError(msg)
     inputs = collect_inputs(args.paths)
+    if args.foxglove is not None:
+        return _foxglove(args, inputs)
     _check_display(args)
     if args.save is not None:
         cli.refuse_overlap(args.save, _named(args.paths), option="--save")
@@ -188,6 +216,31 @@ def _view_command(args: argparse.Namespace) -> int:
         print(f"view -> {args.save}  (open it with: rerun {args.save})")  # noqa: T201
     if not args.no_figures:
         _figures(args, runs)
+    return 0
+
+
+def _foxglove(args: argparse.Namespace, inputs: Inputs) -> int:
+    """Play the recordings, and those a live run recorded, to Foxglove until Ctrl-C."""
+    recordings = list(inputs.recordings)
+    for run in inputs.runs:
+        recorded = dataset_files(run / "session") if (run / "session").is_dir() else []
+        if not recorded:
+            msg = (
+                f"{run}: an offline learn run holds no recordings to play; view it without "
+                "--foxglove (its figures), or give the recordings it learned from"
+            )
+            raise ReplayError(msg)
+        recordings.extend(recorded)
+    if args.speed < 0:
+        msg = f"--speed {args.speed:g}: give 0 (at once) or a positive factor"
+        raise ReplayError(msg)
+    serve_recordings(
+        recordings,
+        args.foxglove,
+        speed=args.speed,
+        say=lambda line: print(line, flush=True),  # noqa: T201
+    )
+    print("stopped serving", flush=True)  # noqa: T201
     return 0
 
 

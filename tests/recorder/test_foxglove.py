@@ -5,9 +5,8 @@ protocol, subprotocol foxglove.sdk.v1), and the shipped layout names the contrac
 from __future__ import annotations
 
 import json
-import struct
 import threading
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import pytest
 from mcap.reader import make_reader
@@ -19,54 +18,10 @@ from recorder.writing._foxglove import FoxgloveView, parse_address
 if TYPE_CHECKING:
     from pathlib import Path
 
-websockets = pytest.importorskip("websockets.sync.client")
+pytest.importorskip("websockets.sync.client")
 pytest.importorskip("foxglove")
 
-_MESSAGE_DATA = 0x01  # server -> client binary opcode: subscription id, receive time, payload
-
-
-class _Client:
-    """Subscribes to every channel the server advertises; keeps what arrives per topic."""
-
-    def __init__(self, url: str) -> None:
-        self.socket = websockets.connect(url, subprotocols=["foxglove.sdk.v1"])
-        self.topics: dict[int, str] = {}
-        self.received: dict[str, list[bytes]] = {}
-        self.schemas: dict[str, tuple[str, str]] = {}
-        self._next = 1
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                frame: Any = self.socket.recv(timeout=0.1)
-            except TimeoutError:
-                continue
-            except Exception:  # noqa: BLE001 (the server went away: the test is over)
-                return
-            if isinstance(frame, bytes):
-                if frame[0] == _MESSAGE_DATA:
-                    subscription, _ = struct.unpack_from("<IQ", frame, 1)
-                    topic = self.topics[subscription]
-                    self.received.setdefault(topic, []).append(frame[13:])
-                continue
-            message = json.loads(frame)
-            if message["op"] == "advertise":
-                subscriptions = []
-                for channel in message["channels"]:
-                    self.topics[self._next] = channel["topic"]
-                    encoding = (channel["encoding"], channel["schemaEncoding"])
-                    self.schemas[channel["topic"]] = encoding
-                    subscriptions.append({"id": self._next, "channelId": channel["id"]})
-                    self._next += 1
-                self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-
-    def close(self) -> None:
-        self._stop.set()
-        self.thread.join(2)
-        self.socket.close()
+from foxglove_client import FoxgloveClient as _Client
 
 
 def test_foxglove_clients_get_the_files_own_messages_live(tmp_path: Path) -> None:

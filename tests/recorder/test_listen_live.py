@@ -70,8 +70,8 @@ def _stop_listeners() -> Iterator[None]:
 class _Run:
     """``listen`` in a thread while the virtual lab plays actions."""
 
-    def __init__(self, domain: int, root: Path, map_path: Path) -> None:
-        self.domain, self.root, self.map_path = domain, root, map_path
+    def __init__(self, domain: int, root: Path, map_path: Path, view: Any = None) -> None:
+        self.domain, self.root, self.map_path, self.view = domain, root, map_path, view
         self.notes: list[str] = []
         self.stop = threading.Event()
         self.result: dict[str, ImportReport] = {}
@@ -88,6 +88,7 @@ class _Run:
             stop=self.stop,
             discovery_s=5.0,
             on_note=self.notes.append,
+            view=self.view,
         )
 
     def finish(self) -> ImportReport:
@@ -340,3 +341,42 @@ def test_the_soak_benchmark_runs_quick() -> None:
     assert written is not None, done.stdout
     assert written.group(1) == written.group(2) != "0"
     assert "accounting: missing 0, queue overflow 0" in done.stdout
+
+
+def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: Path) -> None:
+    pytest.importorskip("websockets.sync.client")
+    pytest.importorskip("foxglove")
+    from foxglove_client import FoxgloveClient  # noqa: PLC0415 (after the skips)
+
+    from recorder.writing._foxglove import TopicView  # noqa: PLC0415
+    from replay import read_recording  # noqa: PLC0415
+
+    map_path = _map(tmp_path)
+    store = typestore(load_topic_map(map_path))
+    with TopicView("127.0.0.1:0") as view, _served(map_path, dds_domain, 250) as (world, server):
+        assert view.url.startswith("ws://127.0.0.1:")
+        client = FoxgloveClient(view.url)
+        run = _Run(dds_domain, tmp_path, map_path, view)
+        run.thread.start()
+        time.sleep(1.5)  # discovery
+        _play(world, "S1", 1, wait=server)
+        time.sleep(1.8)  # max_delay_s + the import's margin
+        report = run.finish()
+        time.sleep(0.5)  # the view's thread serves what is queued
+        client.close()
+    assert view.dropped == 0
+    assert view.failure == ""
+    (path,) = report.written
+    # the lab's own topics and types, as received: the joint states Foxglove got are the
+    # lab's messages, and the recording's joint positions are among them, value for value
+    assert client.schemas["/joint_states"] == ("cdr", "ros2msg")
+    assert "/annotations" in client.received
+    shown = {
+        tuple(store.deserialize_cdr(raw, "sensor_msgs/msg/JointState").position)
+        for raw in client.received["/joint_states"]
+    }
+    joints = read_recording(path).joints
+    assert joints is not None
+    recorded = [tuple(row) for row in joints.position.tolist()]
+    assert recorded
+    assert set(recorded) <= shown

@@ -1,0 +1,82 @@
+"""``atikt-replay view --foxglove``: a Foxglove protocol client subscribes and receives every
+message of the recordings, byte for byte and in order, with the files' own schemas; the server
+binds 127.0.0.1 unless told otherwise and stops on Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from replay.cli._main import main as replay
+
+pytest.importorskip("websockets.sync.client")
+pytest.importorskip("foxglove")
+
+from foxglove_client import FoxgloveClient
+
+ROOT = Path(__file__).resolve().parents[2]
+RECORDINGS = [
+    ROOT / "recordings" / "data" / "soft_sponge" / "P1" / "001.mcap",
+    ROOT / "recordings" / "data" / "soft_sponge" / "S2" / "001.mcap",
+]
+
+
+def _in_files(paths: list[Path]) -> dict[str, list[bytes]]:
+    found: dict[str, list[bytes]] = {}
+    for path in paths:
+        with path.open("rb") as stream:
+            for _, channel, message in make_reader(stream).iter_messages(log_time_order=True):
+                found.setdefault(channel.topic, []).append(bytes(message.data))
+    return found
+
+
+def test_view_plays_the_files_own_messages_to_foxglove() -> None:
+    command = [sys.executable, "-m", "replay", "view", "--foxglove", "127.0.0.1:0"]
+    command += ["--speed", "0", *map(str, RECORDINGS)]
+    env = os.environ | {"PYTHONPATH": str(ROOT)}
+    served = subprocess.Popen(  # noqa: S603 (this project's command)
+        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert served.stdout is not None
+        line = served.stdout.readline()
+        assert line.startswith("foxglove on ws://127.0.0.1:"), line
+        url = line.split()[2].rstrip(":")
+        client = FoxgloveClient(url)
+        played = served.stdout.readline()
+        assert played.startswith("played "), played
+        time.sleep(0.5)  # the last frames on their way
+        client.close()
+    finally:
+        served.send_signal(signal.SIGINT)
+        out, err = served.communicate(timeout=30)
+    assert served.returncode == 0, err
+    assert "stopped serving" in out
+    in_files = _in_files(RECORDINGS)
+    assert int(played.split()[1]) == sum(len(v) for v in in_files.values())
+    assert set(client.received) == set(in_files)
+    for topic, payloads in in_files.items():
+        assert client.schemas[topic] == ("cdr", "ros2msg")
+        assert client.received[topic] == payloads, topic
+
+
+def test_view_refuses_two_outputs_and_an_offline_run_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["view", "--foxglove", "--serve", str(RECORDINGS[0])]
+    assert replay(argv) == 1
+    assert "--serve and --foxglove: choose one" in capsys.readouterr().err
+    assert replay(["view", "--foxglove", "127.0.0.1:x", str(RECORDINGS[0])]) == 1
+    assert "give HOST:PORT" in capsys.readouterr().err
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "history.parquet").write_bytes(b"")
+    assert replay(["view", "--foxglove", str(run)]) == 1
+    assert "an offline learn run holds no recordings to play" in capsys.readouterr().err
