@@ -13,6 +13,7 @@ import threading
 from typing import Any
 
 from websockets.sync.client import connect
+from websockets.typing import Subprotocol
 
 _MESSAGE_DATA = 0x01  # server -> client binary opcode: subscription id, receive time, payload
 
@@ -21,7 +22,7 @@ class FoxgloveClient:
     """Subscribes to every channel the server advertises; keeps what arrives per topic."""
 
     def __init__(self, url: str) -> None:
-        self.socket = connect(url, subprotocols=["foxglove.sdk.v1"])
+        self.socket = connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")])
         self.topics: dict[int, str] = {}
         self.received: dict[str, list[bytes]] = {}
         self.schemas: dict[str, tuple[str, str]] = {}

@@ -13,7 +13,7 @@ import re
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import pytest
@@ -372,7 +372,7 @@ def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: P
     assert client.schemas["/joint_states"] == ("cdr", "ros2msg")
     assert "/annotations" in client.received
     shown = {
-        tuple(store.deserialize_cdr(raw, "sensor_msgs/msg/JointState").position)
+        tuple(cast("Any", store.deserialize_cdr(raw, "sensor_msgs/msg/JointState")).position)
         for raw in client.received["/joint_states"]
     }
     joints = read_recording(path).joints
