@@ -215,7 +215,7 @@ def _dataset(args: argparse.Namespace) -> int:
         note = f"{PROG}: rig {factory.config.name} is exclusive hardware: one action at a time"
         print(f"{note} in this process (--workers {args.workers} not used)", file=sys.stderr)  # noqa: T201
     with _progress(console) as progress:
-        bar = progress.add_task("recording", total=len(tasks))
+        bar = progress.add_task("recording", total=len(tasks), unit="recordings")
 
         def advance(_result: TaskResult) -> None:
             progress.advance(bar)

@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from types import TracebackType
 
     from rich.console import Console
+    from rich.progress import Task
 
 #: Exit status of a refused input (a project error) and of a usage error.
 ERROR_STATUS, USAGE_STATUS = 1, 2
@@ -239,7 +240,7 @@ class PlainProgress(Progress):
     rich draws nothing when the console is not a terminal; a long phase then prints nothing
     for minutes. This keeps rich's task bookkeeping and prints, every
     :data:`PROGRESS_INTERVAL_S` (and once at the end of a phase that printed),
-    ``description: done/total (elapsed s)`` for every task (from a thread, so also while a
+    :func:`progress_line` for every task (from a thread, so also while a
     task makes no progress).
     """
 
@@ -287,14 +288,32 @@ class PlainProgress(Progress):
             self.print_lines()
 
     def print_lines(self) -> None:
-        """Print one line per task: description, done of total, elapsed seconds."""
+        """Print one :func:`progress_line` per task."""
         for task in self.tasks:
-            total = "" if task.total is None else f"/{task.total:g}"
-            self.console.print(
-                f"{task.description}: {task.completed:g}{total} ({task.elapsed or 0:.0f} s)",
-                highlight=False,
-                soft_wrap=True,
-            )
+            self.console.print(progress_line(task), highlight=False, soft_wrap=True)
+
+
+def progress_line(task: Task) -> str:
+    """Return a task's progress as one line for a log.
+
+    ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
+    the time elapsed. The remaining time is rich's estimate from the recent rate (the last 30
+    s: the start of worker processes does not weigh on it), else from the mean time per unit
+    so far. Without a total yet: the count alone; nothing done yet: no estimate.
+    """
+    unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
+    elapsed = task.elapsed or 0.0
+    if task.total is None:
+        return f"{task.description}: {task.completed:g}{unit} ({elapsed:.0f} s)"
+    done = f"{task.description}: {task.completed:g}/{task.total:g}{unit}"
+    if task.completed >= task.total:
+        return f"{done}, done ({elapsed:.0f} s)"
+    if task.completed <= 0:
+        return f"{done} ({elapsed:.0f} s)"
+    left = task.time_remaining
+    if left is None:
+        left = elapsed / task.completed * (task.total - task.completed)
+    return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
 
 
 def progress(console: Console, *columns: str | ProgressColumn) -> Progress:
@@ -554,6 +573,7 @@ __all__ = [
     "numbered_directory",
     "one_line",
     "progress",
+    "progress_line",
     "publish_directory",
     "publish_file",
     "refuse_existing",

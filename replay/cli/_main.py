@@ -31,7 +31,6 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
-    Task,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
@@ -470,46 +469,17 @@ def _recover(path: Path, out: Path | None) -> int:
     return 0
 
 
-def progress_line(task: Task) -> str:
-    """Return a task's progress as one line for a log.
-
-    ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
-    the time elapsed. The remaining time is rich's estimate from the recent rate (the last 30
-    s: the start of worker processes does not weigh on it), else from the mean time per unit
-    so far. Without a total yet: the count alone; nothing done yet: no estimate.
-    """
-    unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
-    elapsed = task.elapsed or 0.0
-    if task.total is None:
-        return f"{task.description}: {task.completed:g}{unit} ({elapsed:.0f} s)"
-    done = f"{task.description}: {task.completed:g}/{task.total:g}{unit}"
-    if task.completed >= task.total:
-        return f"{done}, done ({elapsed:.0f} s)"
-    if task.completed <= 0:
-        return f"{done} ({elapsed:.0f} s)"
-    left = task.time_remaining
-    if left is None:
-        left = elapsed / task.completed * (task.total - task.completed)
-    return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
-
-
-class _LogProgress(cli.PlainProgress):
-    """Plain progress lines for a log or pipe, with totals and an estimate of the time left."""
-
-    def print_lines(self) -> None:
-        """Print one :func:`progress_line` per task."""
-        for task in self.tasks:
-            self.console.print(progress_line(task), highlight=False, soft_wrap=True)
+progress_line = cli.progress_line  # a task's progress as one line for a log
 
 
 def progress_bar(console: Console) -> Progress:
     """Return a progress bar (description, bar, done of total, elapsed, time left) on ``console``.
 
-    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`progress_line`).
+    Not a terminal (a log, a pipe): a plain line every few seconds (:func:`cli.progress_line`).
     A task's ``unit`` field (``add_task(..., unit="tasks")``) names what is counted.
     """
     if not console.is_terminal:
-        return _LogProgress(console)
+        return cli.PlainProgress(console)
     return cli.progress(
         console,
         "[progress.description]{task.description}",

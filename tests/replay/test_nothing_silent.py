@@ -32,7 +32,7 @@ def test_without_a_terminal_progress_is_a_plain_line_every_interval() -> None:
     lines = stream.getvalue().splitlines()
     assert len(lines) >= 3, lines
     assert lines[0].startswith("extracting: 0/3 (")
-    assert lines[-1].startswith("extracting: 3/3 (")
+    assert lines[-1].startswith("extracting: 3/3, done (")
 
 
 def test_a_dataset_run_into_a_log_reports_progress(
@@ -42,7 +42,8 @@ def test_a_dataset_run_into_a_log_reports_progress(
     argv = ["dataset", "--out", str(tmp_path / "d"), "--objects", "wood", "--actions", "P1"]
     assert record([*argv, "--trials", "2", "--workers", "1"]) == 0
     err = " ".join(capsys.readouterr().err.split())
-    assert "recording: 2/2 (" in err
+    assert "recording: 2/2 recordings, done (" in err
+    assert "s left (" in err  # an estimate while it ran
 
 
 def test_an_unknown_rig_option_fails_before_any_recording(
