@@ -295,3 +295,53 @@ def test_rtde_ten_times_the_rate_is_counted() -> None:
     assert kept in {200, 201}  # cycles 0..200 (the last one begun)
     assert stats.duplicated == 2000 - kept
     assert not stats.complete
+
+
+def test_a_udp_flood_is_bounded_in_memory_and_keeps_only_valid_frames_once() -> None:
+    """100,000 datagrams as fast as loopback takes them (valid frames, garbage between them),
+    while the consumer polls as the runner does: memory stays bounded (the kernel's buffer and
+    the reader's queue drop), every frame written is a valid one, once, in order, and what was
+    not written is counted (the garbage as malformed; the frames whose 1 kHz stamps ran ahead
+    of the flood's real time as out of range, each such jump starting a new run)."""
+    import socket  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+    import time  # noqa: PLC0415
+    import tracemalloc  # noqa: PLC0415
+
+    count = 100_000
+    frames = _frames(count)
+    payloads = [frames[i : i + 1].tobytes() for i in range(count)]
+    garbage = b"\x00\x01garbage"
+    tracemalloc.start()
+    try:
+        with _skin() as skin:
+            sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            done = threading.Event()
+
+            def flood() -> None:
+                for i, payload in enumerate(payloads):
+                    sender.sendto(payload, skin.address)
+                    if i % 10 == 0:
+                        sender.sendto(garbage, skin.address)
+                done.set()
+
+            threading.Thread(target=flood, daemon=True).start()
+            blocks: list[SkinBlock] = []
+            while not done.is_set():
+                blocks += skin.poll()
+                time.sleep(0.002)
+            time.sleep(0.2)
+            blocks += skin.poll() + skin.finish()
+            stats = skin.stats()[0]
+            sender.close()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    stamps, values = _written(blocks)
+    refused = stats.out_of_range + stats.duplicated
+    assert stats.received - refused == len(values) > 0
+    assert np.all(np.diff(values) > 0)  # each valid frame once, in order, nothing invented
+    assert np.all(np.diff(stamps) > 0)
+    assert stats.malformed > 0  # the garbage, counted
+    assert stats.received < count + 1
+    assert peak < 300 * 2**20, f"peak {peak / 2**20:.0f} MiB of Python memory in the flood"
