@@ -181,7 +181,7 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
         "--speed",
         type=float,
         default=1.0,
-        help="--foxglove: times faster than recorded (0: at once; default 1)",
+        help="--foxglove: times faster than recorded, 0: at once (default: 1)",
     ),
 )
 def _view_command(args: argparse.Namespace) -> int:

@@ -112,7 +112,9 @@ def _play(world: VirtualWorld, action: str, trial: int, *, wait: Any = None) -> 
     """
     world.prepare("wood", action, trial)
     duration = load_actions(None)[action].duration_s
-    plan = [("approach", 0.3), ("contact", 0.1), ("execute", duration), ("retract", 0.3)]
+    # the execute phase held 0.3 s past the action's duration: the lab executes each
+    # announcement on its next cycle, later on a loaded machine, which shortens the phase
+    plan = [("approach", 0.3), ("contact", 0.1), ("execute", duration + 0.3), ("retract", 0.3)]
 
     def run() -> None:
         for phase, hold in [*plan, ("end", 0.0)]:
