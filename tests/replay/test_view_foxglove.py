@@ -67,6 +67,49 @@ def test_view_plays_the_files_own_messages_to_foxglove() -> None:
         assert client.received[topic] == payloads, topic
 
 
+def test_serving_in_process_plays_every_message_then_waits_for_the_stop() -> None:
+    import threading  # noqa: PLC0415
+
+    from replay.outputs._foxglove import serve_recordings  # noqa: PLC0415
+
+    said: list[str] = []
+    stop = threading.Event()
+    result: dict[str, int] = {}
+
+    def serve() -> None:
+        result["sent"] = serve_recordings(
+            RECORDINGS, "127.0.0.1:0", speed=50.0, say=said.append, stop=stop
+        )
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not said:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    client = FoxgloveClient(said[0].split()[2].rstrip(":"))
+    while len(said) < 2:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    time.sleep(0.3)
+    client.close()
+    stop.set()
+    thread.join(10)
+    in_files = _in_files(RECORDINGS)
+    assert result["sent"] == sum(len(v) for v in in_files.values())
+    assert client.received == in_files
+
+
+def test_a_damaged_file_is_one_line_before_anything_is_served(tmp_path: Path) -> None:
+    from replay.errors import ReplayError  # noqa: PLC0415
+    from replay.outputs._foxglove import serve_recordings  # noqa: PLC0415
+
+    damaged = tmp_path / "001.mcap"
+    damaged.write_bytes(RECORDINGS[0].read_bytes()[:5000])
+    with pytest.raises(ReplayError, match="check"):
+        serve_recordings([damaged], "127.0.0.1:0", say=lambda _: None)
+
+
 def test_view_refuses_two_outputs_and_an_offline_run_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
