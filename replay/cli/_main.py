@@ -346,7 +346,7 @@ def _dataset_json(root: Path) -> dict[str, Any]:
 
 
 #: ``--json`` of ``info`` and ``check``.
-JSON = arg("--json", action="store_true", help="print JSON for scripts (fields: README)")
+JSON = arg("--json", action="store_true", help="print JSON for scripts (fields: the manual)")
 
 
 @command(
