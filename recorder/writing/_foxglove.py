@@ -6,6 +6,10 @@ channel per topic carrying the recordings' own ROS 2 schemas (``ros2msg``) and C
 encoded by the writer's own encoder: what Foxglove shows live is what the file holds, byte for
 byte. Items reach it through a bounded queue and a thread of its own: a slow or absent client
 never delays the robot; what the queue could not take is counted as dropped.
+
+:class:`TopicView` serves a lab's ROS 2 topics as ``listen`` receives them (``listen
+--foxglove``): the lab's own types and CDR bytes, before any conversion. Both share one
+server-and-queue base.
 """
 
 from __future__ import annotations
