@@ -196,6 +196,8 @@ class Listener:
     _journal: JournalWriter | None = field(default=None, init=False)
     _serial: int = field(default=0, init=False)
     _journal_wrote: bool = field(default=False, init=False)
+    #: A journal that could not be written (it stays for a recovery unless the run ends well).
+    _dropped: Path | None = field(default=None, init=False)
     #: The messages journaled lately, for the next journal's prelude.
     _recent: deque[tuple[str, int, bytes]] = field(default_factory=deque, init=False)
 
@@ -634,6 +636,8 @@ class Listener:
             self.report.index = write_index(self.out)
             self.report.save()
         self._retire(reopen=False)  # every window it holds is written
+        if self._dropped is not None:  # what it holds, the run held and wrote: set it aside
+            _aside(self.out, self._dropped)
         return self.report
 
     def drop_journal(self, err: JournalError) -> None:
@@ -642,7 +646,7 @@ class Listener:
         self.report.interrupted = self.report.interrupted or "the journal's write error"
         if self._journal is not None:
             self._journal.abandon()
-            self._journal = None
+            self._dropped, self._journal = self._journal.path, None
         self._note(f"{err}")
 
 

@@ -245,6 +245,61 @@ def _written_steps(journal: Path, live: ImportReport) -> list[int]:
     return [found[p.relative_to(live.out).as_posix()] for p in live.written]
 
 
+def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_journal(
+    dds_domain: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno  # noqa: PLC0415
+
+    from recorder.bagimport import _journal  # noqa: PLC0415
+
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(ddsdata.TOPIC_MAP, encoding="utf-8")
+    topic_map = load_topic_map(map_path)
+    store = typestore(topic_map)
+    original = _journal.JournalWriter.messages
+    calls: list[int] = []
+
+    def full(self: Any, items: Any) -> None:
+        calls.append(len(items))
+        if sum(calls) > 400:  # inside the second action
+            err = OSError(errno.ENOSPC, "No space left on device")
+            raise _journal._disk_error(self.path, err) from err
+        original(self, items)
+
+    monkeypatch.setattr(_journal.JournalWriter, "messages", full)
+    notes: list[str] = []
+    result: dict[str, Any] = {}
+    out = tmp_path / "out"
+
+    def run() -> None:
+        result["report"] = listen(
+            topic_map,
+            out,
+            objects=load_objects(None),
+            actions=load_actions(None),
+            domain_id=dds_domain,
+            duration_s=20.0,
+            discovery_s=5.0,
+            on_note=notes.append,
+        )
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    ddsdata.publish(DdsDomain(dds_domain, store), ddsdata.script(store))
+    thread.join(20)
+    assert not thread.is_alive(), "the run went on after the journal failed"
+    report = result["report"]
+    errors = [line for line in notes if "cannot write the journal" in line]
+    assert len(errors) == 1, notes
+    assert "No space left on device" in errors[0]
+    assert report.interrupted == "the journal's write error"
+    # the run stopped in the second action: the first written, what came after not received
+    assert [p.relative_to(out).as_posix() for p in report.written] == ["wood/tap/001.mcap"]
+    # then the journal is set aside (never removed): all it holds is written
+    assert _journals(out) == []
+    assert len(list((out / JOURNAL_DIR / "recovered").glob(f"*{JOURNAL_SUFFIX}"))) == 1
+
+
 # ------------------------------------------------------------------- SIGKILL, virtual lab
 
 
@@ -311,9 +366,10 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
             assert Path(written).exists()
             _play_after(world, server, "S1", 2)  # its end arrives ...
             ended = time.monotonic()
+            time.sleep(0.2)  # the virtual lab announces an action once the previous one ended
             _play(world, "P1", 1)  # ... and the next action opens
             time.sleep(0.5)
-            assert time.monotonic() - ended < 1.3  # its window is not written yet
+            assert time.monotonic() - ended < 1.2  # its window is not written yet
             killed_ns = time.time_ns()
             process.send_signal(signal.SIGKILL)
             process.wait(10)
