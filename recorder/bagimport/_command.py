@@ -189,7 +189,10 @@ def _listen(args: argparse.Namespace) -> int:
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
     if args.recover:
         say = lambda line: print(line, flush=True)  # noqa: E731, T201 (one line per file, journal)
-        recover(topic_map, args.out, objects=objects, actions=actions, on_written=say, on_note=say)
+        if not recover(
+            topic_map, args.out, objects=objects, actions=actions, on_written=say, on_note=say
+        ):
+            print(f"{args.out}: no journal left by a stopped run")  # noqa: T201
         return 0
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:

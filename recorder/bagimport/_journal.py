@@ -17,7 +17,10 @@ The journal is a staging copy of what ``listen`` writes: when no action is open 
 window that ended is written, the run starts a new journal and removes the old one (all of
 whose windows are written). A new journal begins with a *prelude*: the messages of the last
 ``max_delay_s`` + 2 s again (what a window that begins next may reach back to) and the
-accounting so far, so that it replays alone as the run went on.
+accounting so far, so that it replays alone as the run went on. Memory: the chunks go to
+disk at every step; mcap's writer keeps only one index entry per chunk (for the summary) until
+the journal is finished, which the rotation after each action bounds (actions that follow each
+other without a pause of ``max_delay_s`` + 1 s grow it until the next pause).
 
 A running ``listen`` holds an exclusive lock on its journal (``fcntl.flock``); a journal
 nobody holds was left by a run that died, and the next ``listen`` on the directory (or

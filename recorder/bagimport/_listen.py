@@ -11,8 +11,13 @@ annotation came, and written once ``[time] max_delay_s`` has passed beyond its e
 import's one-second margin) or from a CSV (known up front). Each file also records, per topic,
 the samples expected (from the header stamps and the topic's period), received, missing,
 duplicated and out of order, and those its reader's queue could not hold
-(``atikt.sources``). At ``--duration`` or Ctrl-C the windows whose ``end`` arrived are
-written; the one being annotated is dropped with a line saying so; nothing written is lost.
+(``atikt.sources``). At ``--duration``, Ctrl-C or SIGTERM the windows whose ``end`` arrived
+are written and the one being annotated is kept as incomplete, with a line saying so.
+
+Every message is also journaled as it arrives (:mod:`._journal`), so a run killed before it
+could write its windows loses at most the step in flight: :func:`recover` (run first by
+:func:`listen`) replays the journals of runs that died into the recordings they would have
+written.
 """
 
 from __future__ import annotations

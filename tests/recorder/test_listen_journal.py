@@ -300,6 +300,18 @@ def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_journal(
     assert len(list((out / JOURNAL_DIR / "recovered").glob(f"*{JOURNAL_SUFFIX}"))) == 1
 
 
+def test_journals_are_not_recordings_of_the_dataset(tmp_path: Path) -> None:
+    recording = tmp_path / "wood" / "S1" / "001.mcap"
+    for path in (
+        recording,
+        tmp_path / JOURNAL_DIR / f"20260101T000000Z-1-0001{JOURNAL_SUFFIX}",
+        tmp_path / JOURNAL_DIR / "recovered" / f"20260101T000000Z-1-0001{JOURNAL_SUFFIX}",
+    ):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"")
+    assert dataset_recordings(tmp_path) == [recording]
+
+
 # ------------------------------------------------------------------- SIGKILL, virtual lab
 
 
