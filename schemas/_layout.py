@@ -46,9 +46,15 @@ def dataset_recordings(root: Path) -> list[Path]:
 
     Salvaged files (``*.recovered.mcap``), unfinished ones (``*.mcap.part``) and those a stop
     ended early (``*.incomplete.mcap``) are not recordings of the dataset: a salvaged file is
-    checked and moved into place by hand; an incomplete one is kept for inspection.
+    checked and moved into place by hand; an incomplete one is kept for inspection. Files
+    under a hidden directory (``.listen/``: ``listen``'s journals) are not part of the dataset.
     """
-    return sorted(p for p in Path(root).rglob(f"*{RECORDING_SUFFIX}") if is_recording(p))
+    root = Path(root)
+    return sorted(
+        p
+        for p in root.rglob(f"*{RECORDING_SUFFIX}")
+        if is_recording(p) and not any(d.startswith(".") for d in p.relative_to(root).parts[:-1])
+    )
 
 
 def check_inside(root: Path, path: Path) -> Path:

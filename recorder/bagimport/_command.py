@@ -19,7 +19,7 @@ from rich.text import Text
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import CATALOG_ARGUMENTS, arg, command, refuse_overlap
 from recorder.bagimport._importer import import_bag
-from recorder.bagimport._listen import listen, on_sigterm
+from recorder.bagimport._listen import listen, on_sigterm, recover
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
@@ -185,6 +185,11 @@ def _import_bag(args: argparse.Namespace) -> int:
         metavar="HOST:PORT",
         help=f"serve the topics to Foxglove as received (WebSocket, default {DEFAULT_ADDRESS})",
     ),
+    arg(
+        "--recover",
+        action="store_true",
+        help="only write what stopped runs left in --out's journals (listen does it first)",
+    ),
     *CATALOG_ARGUMENTS,
 )
 def _listen(args: argparse.Namespace) -> int:
@@ -192,6 +197,13 @@ def _listen(args: argparse.Namespace) -> int:
     if args.windows is not None:
         topic_map = topic_map.with_csv(args.windows)
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
+    if args.recover:
+        say = lambda line: print(line, flush=True)  # noqa: E731, T201 (one line per file, journal)
+        if not recover(
+            topic_map, args.out, objects=objects, actions=actions, on_written=say, on_note=say
+        ):
+            print(f"{args.out}: no journal left by a stopped run")  # noqa: T201
+        return 0
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         with contextlib.ExitStack() as stack:
@@ -206,7 +218,7 @@ def _listen(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, previous)
     kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
     print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
-    return {"SIGTERM": 143, "SIGINT": 130}.get(report.interrupted, 0)
+    return {"SIGTERM": 143, "SIGINT": 130, "": 0}.get(report.interrupted, 1)
 
 
 def _listen_run(

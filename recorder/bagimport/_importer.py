@@ -359,6 +359,10 @@ class _Session:
     live: bool = False
     #: Returns the per-source accounting written into a window's file (live recordings).
     sources: Callable[[_Plan], Sequence[SourceStats]] | None = None
+    #: Windows (by planned path) written before: a recovery replays them without writing.
+    skip: set[Path] = field(default_factory=set)
+    #: The windows of ``skip`` met so far.
+    already: list[Path] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         """Index the windows' reach ``[start - margin, stop + margin)``; read the version."""
@@ -481,6 +485,11 @@ class _Session:
         self._write(plan, items)
 
     def _write(self, plan: _Plan, items: Sequence[StreamItem]) -> None:
+        if plan.path in self.skip:  # written before the run was killed: never again
+            if self.sources is not None:
+                self.sources(plan)  # the accounting moves on as it did
+            self.already.append(plan.path)
+            return
         joints = next((e for e in self.found.values() if isinstance(e, JointTopic)), None)
         widths = {
             m: w

@@ -11,14 +11,20 @@ annotation came, and written once ``[time] max_delay_s`` has passed beyond its e
 import's one-second margin) or from a CSV (known up front). Each file also records, per topic,
 the samples expected (from the header stamps and the topic's period), received, missing,
 duplicated and out of order, and those its reader's queue could not hold
-(``atikt.sources``). At ``--duration`` or Ctrl-C the windows whose ``end`` arrived are
-written; the one being annotated is dropped with a line saying so; nothing written is lost.
+(``atikt.sources``). At ``--duration``, Ctrl-C or SIGTERM the windows whose ``end`` arrived
+are written and the one being annotated is kept as incomplete, with a line saying so.
+
+Every message is also journaled as it arrives (:mod:`._journal`), so a run killed before it
+could write its windows loses at most the step in flight: :func:`recover` (run first by
+:func:`listen`) replays the journals of runs that died into the recordings they would have
+written.
 """
 
 from __future__ import annotations
 
 import hashlib
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -31,13 +37,25 @@ from recorder.bagimport._importer import (
     Route,
     _object_spec,
     _Plan,
-    _plans,
     _Session,
     feed,
     lab_catalogs,
     plan_window,
     routes,
     tally,
+)
+from recorder.bagimport._journal import (
+    JOURNAL_DIR,
+    KEPT_DIR,
+    RECOVERED_DIR,
+    JournalContents,
+    JournalError,
+    JournalHead,
+    JournalStep,
+    JournalWriter,
+    held,
+    left_journals,
+    read_journal,
 )
 from recorder.bagimport._report import BagIdentity, ImportReport
 from recorder.bagimport._source import (
@@ -51,7 +69,9 @@ from recorder.bagimport._source import (
 from recorder.bagimport._windows import (
     AnnotationGrouper,
     PathPlanner,
+    ReplayPlanner,
     Window,
+    check_no_overlap,
     parse_annotation,
     windows_from_csv,
 )
@@ -149,8 +169,19 @@ class Listener:
     loopback: bool = False
     on_written: Callable[[Path], Any] | None = None
     on_note: Callable[[str], Any] | None = None
+    #: A Foxglove server shown every message as received (``--foxglove``).
     view: TopicView | None = None
     clock: RecorderClock = field(default_factory=RecorderClock)
+    #: Journal every message received (:mod:`._journal`); off: a SIGKILL loses what is held.
+    journal: bool = True
+    #: Move retired journals to ``.listen/kept/`` instead of removing them (a raw copy).
+    keep_journals: bool = False
+    #: The run's start, ns (a recovery gives its journal's: the same source name).
+    started_ns: int | None = None
+    #: Plans windows (a recovery gives one that plans as its run did).
+    planner: PathPlanner | None = None
+    #: Why the run stopped on its own (a journal that cannot be written); empty: it did not.
+    failed: str = field(default="", init=False)
     report: ImportReport = field(init=False)
     session: _Session = field(init=False)
     _domain: DdsDomain | None = field(default=None, init=False)
@@ -166,10 +197,21 @@ class Listener:
     _first_stamp: dict[str, int] = field(default_factory=dict, init=False)
     _latest_stamp: int | None = field(default=None, init=False)
     _noted: dict[str, int] = field(default_factory=dict, init=False)
+    _types: dict[str, str] = field(default_factory=dict, init=False)
+    #: Topic -> (queue overflows, oversize drops, latest oversize bytes) as of the step.
+    _counts: dict[str, tuple[int, int, int]] = field(default_factory=dict, init=False)
+    _taken: int = field(default=0, init=False)
+    _journal: JournalWriter | None = field(default=None, init=False)
+    _serial: int = field(default=0, init=False)
+    _journal_wrote: bool = field(default=False, init=False)
+    #: A journal that could not be written (it stays for a recovery unless the run ends well).
+    _dropped: Path | None = field(default=None, init=False)
+    #: The messages journaled lately, for the next journal's prelude.
+    _recent: deque[tuple[str, int, bytes]] = field(default_factory=deque, init=False)
 
     def __post_init__(self) -> None:
         """Prepare the report, the session and the windows (nothing is subscribed yet)."""
-        started = time.time_ns()
+        started = self.started_ns = self.started_ns or time.time_ns()
         topics = ",".join(sorted(t for t, _ in required_types(self.topic_map)))
         digest = hashlib.sha256(f"dds {self.domain_id} {started} {topics}".encode()).hexdigest()
         identity = BagIdentity(Path(f"dds-domain{self.domain_id}-{started}"), digest, 0)
@@ -181,11 +223,11 @@ class Listener:
             found,
             self.report.bags,
             self.report,
-            self.on_written,
+            self._wrote,
             live=True,
             sources=self._sources,
         )
-        self._planner = PathPlanner(self.out)
+        self._planner = self.planner or PathPlanner(self.out)
         self._catalogs = lab_catalogs(self.objects, self.actions)
         windows = self.topic_map.windows
         if windows.source == "topic":
@@ -208,11 +250,14 @@ class Listener:
             )
             raise BagImportError(msg)
         windows = windows_from_csv(source.csv, source.time_unit, 0)
-        return _plans(windows, self.topic_map, self.out, self.objects, self.actions)
+        return [
+            plan_window(self._planner.plan(w), self.topic_map, self._catalogs)
+            for w in check_no_overlap(windows)
+        ]
 
     # --------------------------------------------------------------------------- subscribe
 
-    def _types(self, seen: Mapping[str, Sequence[Publication]]) -> dict[str, tuple[str, bool]]:
+    def _find_types(self, seen: Mapping[str, Sequence[Publication]]) -> dict[str, tuple[str, bool]]:
         """Return topic -> (type, reliable) of every mapped topic, checked like a bag's.
 
         Raises:
@@ -256,19 +301,10 @@ class Listener:
         except dds.DdsError as err:
             raise BagImportError(str(err)) from err
         topics = [t for t, _ in required_types(self.topic_map)]
-        types = self._types(domain.wait_for(topics, self.discovery_s))
-        channels = [_Channel(t, msgtype) for t, (msgtype, _) in types.items()]
-        reader = cast("Any", _Store(self._store))
-        check_fields(reader, cast("Any", channels), self.topic_map)
-        found = self.session.found
-        made = routes(
-            self._store,
-            [(c.topic, c.topic, c.msgtype) for c in channels if c.topic in found],
-            found,
-            clock=self.topic_map.stamps,
-            deserialize=self._store.deserialize_cdr,
-        )
-        self._routes = cast("dict[str, Route]", made)
+        types = self._find_types(domain.wait_for(topics, self.discovery_s))
+        self.prepare({topic: msgtype for topic, (msgtype, _) in types.items()})
+        if self.journal:
+            self._open_journal()
         for topic, (msgtype, reliable) in types.items():
             if self.view is not None:
                 text, _ = self._store.generate_msgdef(msgtype, ros_version=2)
@@ -280,10 +316,95 @@ class Listener:
             source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
             self._readers.append(source)
             self._overflow[topic] = source
-            if topic in found and _has_header(self._store, msgtype):
-                self._arrivals[topic] = _Arrivals(_period(found[topic]))
         for source in self._readers:
             source.start()
+
+    def prepare(self, types: Mapping[str, str]) -> None:
+        """Check the topics' types and make their routes (live, or replaying a journal).
+
+        Raises:
+            BagImportError: A topic's fields are not what the map says.
+        """
+        if not hasattr(self, "_store"):  # a recovery: the store DDS would have made
+            self._store = _dds().register_atikt_types(typestore(self.topic_map))
+        self._types = dict(types)
+        channels = [_Channel(t, msgtype) for t, msgtype in types.items()]
+        reader = cast("Any", _Store(self._store))
+        check_fields(reader, cast("Any", channels), self.topic_map)
+        found = self.session.found
+        made = routes(
+            self._store,
+            [(c.topic, c.topic, c.msgtype) for c in channels if c.topic in found],
+            found,
+            clock=self.topic_map.stamps,
+            deserialize=self._store.deserialize_cdr,
+        )
+        self._routes = cast("dict[str, Route]", made)
+        for topic, msgtype in types.items():
+            self._counts[topic] = (0, 0, 0)
+            if topic in found and _has_header(self._store, msgtype):
+                self._arrivals[topic] = _Arrivals(_period(found[topic]))
+
+    # ----------------------------------------------------------------------------- journal
+
+    def head(self) -> JournalHead:
+        """Return what a journal of this run says of it (trial numbers as of now)."""
+        digest = hashlib.sha256(self.topic_map.path.read_bytes()).hexdigest()
+        return JournalHead(
+            self.started_ns or 0, self.domain_id, digest, self._types, self._planner.taken()
+        )
+
+    def _open_journal(self) -> None:
+        """Start the run's next journal.
+
+        Raises:
+            JournalError: It cannot be created.
+        """
+        self._serial += 1
+        self._journal = JournalWriter.create(self.out, self.head(), self._store, self._serial)
+        self._journal_wrote = False
+
+    def _retire(self, *, reopen: bool) -> None:
+        """Close the journal, all of whose windows are written, and remove it (or keep it)."""
+        journal = self._journal
+        if journal is None:
+            return
+        self._journal = None
+        kept = self.out / JOURNAL_DIR / KEPT_DIR if self.keep_journals else None
+        journal.close(kept)
+        if reopen:
+            self._open_journal()
+
+    def _rotate(self, now_ns: int) -> None:
+        """Start a new journal when nothing is open and every window that ended is written.
+
+        The new journal begins with the prelude: the recent messages again, and the
+        accounting so far (a window that begins next reaches back ``max_delay_s`` + 1 s).
+        """
+        recent = self._recent
+        keep = now_ns - self.topic_map.max_delay_ns - 2 * MARGIN_NS
+        while recent and recent[0][1] < keep:
+            recent.popleft()
+        grouper, session = self._grouper, self.session
+        idle = grouper is None or grouper.open_start_ns is None
+        if not (self._journal_wrote and idle and session.done == len(session.plans)):
+            return
+        self._retire(reopen=True)
+        if self._journal is not None:
+            seen = {t: (a.overflow_seen, a.oversize_seen) for t, a in self._arrivals.items()}
+            annotation = self._grouper_topic()  # those of windows written already
+            self._journal.messages([item for item in recent if item[0] != annotation])
+            self._journal.event(now_ns, prelude=now_ns, counts=self._counts, seen=seen)
+
+    def _wrote(self, path: Path) -> None:
+        """Journal a recording written (a recovery does not write it again); tell the caller."""
+        self._journal_wrote = True
+        if self._journal is not None:
+            plan = self.session.plans[self.session.done - 1]
+            relative = plan.path.relative_to(self.out).as_posix()
+            self._journal.event(self.clock.now_ns(), written=relative)
+        if self.on_written is not None:
+            self.on_written(path)
 
     def stop(self) -> None:
         """Stop the reader threads."""
@@ -297,8 +418,7 @@ class Listener:
         out = []
         window = plan.window
         for topic, arrivals in self._arrivals.items():
-            overflowed = self._overflow[topic].overflowed
-            oversize = self._raw[topic].oversize
+            overflowed, oversize, _ = self._counts[topic]
             stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed, oversize)
             if stats is not None:
                 out.append(stats)
@@ -405,37 +525,71 @@ class Listener:
                     "max_delay_s in the topic map"
                 )
                 self._noted[f"late {topic}"] = count
-        for topic, raw in self._raw.items():
-            new = raw.oversize - self._noted.get(f"size {topic}", 0)
+        for topic, (_, oversize, size) in self._counts.items():
+            new = oversize - self._noted.get(f"size {topic}", 0)
             if new > 0:
-                report.oversize[topic] = raw.oversize
+                report.oversize[topic] = oversize
                 self._note(
                     f"{topic}: dropped {new} messages larger than [time] max_message_kib = "
                     f"{self.topic_map.max_message_bytes >> 10} (the latest "
-                    f"{raw.oversize_bytes} bytes); counted as malformed"
+                    f"{size} bytes); counted as malformed"
                 )
-                self._noted[f"size {topic}"] = raw.oversize
+                self._noted[f"size {topic}"] = oversize
 
     def _note(self, line: str) -> None:
         if self.on_note is not None:
             self.on_note(line)
 
     def step(self, wait_s: float = _TICK_S) -> int:
-        """Feed what arrived since the last step; write the windows it completes.
+        """Journal and feed what arrived since the last step; write the windows it completes.
 
         Returns:
             The number of messages taken.
+
+        Raises:
+            JournalError: The journal cannot be written (the caller stops the run).
         """
-        items = self._take(wait_s)
+        taken = [(*item.payload, item.receive_ns) for item in self._take(wait_s)]
+        items = [(topic, receive_ns, raw) for topic, raw, receive_ns in taken]
+        now = self.clock.now_ns()
+        self._counts = {
+            topic: (self._overflow[topic].overflowed, raw.oversize, raw.oversize_bytes)
+            for topic, raw in self._raw.items()
+        }
+        if self._journal is not None:
+            self._journal.messages(items)
+            self._journal.event(now, now=now, counts=self._counts)
+            self._recent.extend(items)
+        if self.view is not None:
+            for topic, receive_ns, raw in items:
+                self.view.offer_raw(topic, receive_ns, raw)
+        self.replay(JournalStep(items, now, self._counts))
+        if self._journal is not None:
+            self._rotate(now)
+        return len(items)
+
+    def _account(self, step: JournalStep) -> None:
+        """Take a step's counters (a journal's prelude: the accounting of the files so far)."""
+        if step.counts:
+            self._counts = {**self._counts, **step.counts}
+        if step.seen is None:
+            self._taken += len(step.items)
+            return
+        for topic, (overflowed, oversize) in step.seen.items():  # processed by the run already
+            self._arrivals[topic].overflow_seen = overflowed
+            self._arrivals[topic].oversize_seen = oversize
+        for topic, (_, oversize, _) in self._counts.items():
+            self._noted[f"size {topic}"] = oversize
+
+    def replay(self, step: JournalStep) -> None:
+        """Feed one step's messages, then close windows and forget old data at its time."""
+        self._account(step)
         data: list[tuple[Route, int, bytes]] = []
         annotation = self._grouper.topic if self._grouper is not None else None
-        for item in items:
-            topic, raw = item.payload
-            if self.view is not None:
-                self.view.offer_raw(topic, item.receive_ns, raw)
+        for topic, receive_ns, raw in step.items:
             if topic == annotation:
                 self._flush(data)
-                self._annotate(raw, item.receive_ns)
+                self._annotate(raw, receive_ns)
                 continue
             route = self._routes.get(topic)
             if route is None:
@@ -445,18 +599,17 @@ class Listener:
                 sec, nanosec = _STAMP(raw, 4)
                 stamp = sec * _NS_PER_S + nanosec
                 arrivals.stamps.append(stamp)
-                arrivals.receives.append(item.receive_ns)
+                arrivals.receives.append(receive_ns)
                 self._first_stamp.setdefault(topic, stamp)
                 if self._latest_stamp is None or stamp > self._latest_stamp:
                     self._latest_stamp = stamp
-            data.append((route, item.receive_ns, raw))
+            data.append((route, receive_ns, raw))
         self._flush(data)
         self._bound_open()
-        now = self.clock.now_ns()
-        self.session.advance(now)
-        self._trim(now)
+        if step.now_ns is not None:
+            self.session.advance(step.now_ns)
+            self._trim(step.now_ns)
         self._notes()
-        return len(items)
 
     def _flush(self, data: list[tuple[Route, int, bytes]]) -> None:
         """Feed the data messages collected so far."""
@@ -489,16 +642,26 @@ class Listener:
             session.finish_one()
         self._notes()
         tally(session.found, self.report)
-        self.report.messages = {
-            self.report.bags[0].path.name: sum(r.received for r in self._readers)
-        }
+        self.report.messages = {self.report.bags[0].path.name: self._taken}
         if self.report.written:
             written = set(self.report.written)
             objects = [_object_spec(p.obj) for p in session.plans if p.path in written]
             declare_objects(self.out, objects)
             self.report.index = write_index(self.out)
             self.report.save()
+        self._retire(reopen=False)  # every window it holds is written
+        if self._dropped is not None:  # what it holds, the run held and wrote: set it aside
+            _aside(self.out, self._dropped)
         return self.report
+
+    def drop_journal(self, err: JournalError) -> None:
+        """Stop journaling after a write error: say so; the journal stays for a recovery."""
+        self.failed = str(err)
+        self.report.interrupted = self.report.interrupted or "the journal's write error"
+        if self._journal is not None:
+            self._journal.abandon()
+            self._dropped, self._journal = self._journal.path, None
+        self._note(f"{err}")
 
 
 _STAMP = __import__("struct").Struct("<iI").unpack_from
@@ -556,6 +719,7 @@ def listen(
     on_written: Callable[[Path], Any] | None = None,
     on_note: Callable[[str], Any] | None = None,
     loopback: bool = False,
+    keep_journals: bool = False,
     view: TopicView | None = None,
 ) -> ImportReport:
     """Record a lab's ROS 2 topics live: one recording per action window, then the index.
@@ -573,6 +737,8 @@ def listen(
         on_note: Called with one line per window skipped or dropped.
         loopback: Join DDS on the loopback interface only (this process's configuration,
             whatever ``CYCLONEDDS_URI`` says).
+        keep_journals: Keep retired journals in ``<out>/.listen/kept/`` (a raw copy of
+            the session) instead of removing them.
         view: A Foxglove server shown every message as received (``--foxglove``).
 
     Returns:
@@ -581,6 +747,14 @@ def listen(
     Raises:
         BagImportError: DDS is missing, or a topic or the map is wrong.
     """
+    recover(
+        topic_map,
+        Path(out),
+        objects=objects,
+        actions=actions,
+        on_written=on_written,
+        on_note=on_note,
+    )
     listener = Listener(
         topic_map,
         Path(out),
@@ -591,6 +765,7 @@ def listen(
         loopback=loopback,
         on_written=on_written,
         on_note=on_note,
+        keep_journals=keep_journals,
         view=view,
     )
     deadline = None if duration_s is None else time.monotonic() + duration_s
@@ -611,7 +786,154 @@ def listen(
             f"interrupted ({signal_name}): writing the actions whose end arrived, the open "
             "one as incomplete"
         )
+    except JournalError as err:
+        listener.drop_journal(err)
     finally:
         listener.stop()
-    listener.step(0)
+    try:
+        listener.step(0)
+    except JournalError as err:
+        listener.drop_journal(err)
+        listener.step(0)
     return listener.finish()
+
+
+@dataclass(frozen=True, slots=True)
+class Recovered:
+    """What a recovery made of one journal.
+
+    Attributes:
+        journal: Where the journal was moved (``.listen/recovered/``).
+        written: Recordings written from it.
+        incomplete: Actions whose ``end`` never came, kept as incomplete recordings.
+        already: Recordings its run had written (not written again).
+    """
+
+    journal: Path
+    written: tuple[Path, ...]
+    incomplete: tuple[Path, ...]
+    already: tuple[Path, ...]
+
+    def describe(self) -> str:
+        """Return the recovery's one line."""
+        return (
+            f"recovered {len(self.written)} actions from a stopped run's journal, "
+            f"{len(self.incomplete)} kept as incomplete ({len(self.already)} written before it "
+            f"stopped); journal moved to {self.journal}"
+        )
+
+
+def recover(
+    topic_map: TopicMap,
+    out: Path,
+    *,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    on_written: Callable[[Path], Any] | None = None,
+    on_note: Callable[[str], Any] | None = None,
+) -> list[Recovered]:
+    """Write the windows of the journals that runs which died left in ``out``.
+
+    Every journal in ``<out>/.listen/`` that no running ``listen`` holds is replayed as its run
+    processed it: the windows whose ``end`` it holds become the recordings the run would have
+    written (same names, same bytes where the same messages arrived), those written already
+    are not written again, an action whose ``end`` never came is kept as incomplete. Then the
+    journal moves to ``.listen/recovered/`` (never deleted).
+
+    Returns:
+        One entry per journal recovered (``on_note`` gets its line).
+
+    Raises:
+        BagImportError: A journal was recorded with another topic map, or a window cannot
+            be written.
+    """
+    done = []
+    for path in left_journals(out):
+        with held(path) as free:
+            if not free:
+                continue  # a running listen's
+            try:
+                contents = read_journal(path)
+            except JournalError as err:  # cut before its head: it holds no message
+                if on_note is not None:
+                    on_note(f"{err}; nothing to recover, moved to {_aside(out, path)}")
+                continue
+            recovered = _recover_one(
+                contents,
+                topic_map,
+                out,
+                objects=objects,
+                actions=actions,
+                on_written=on_written,
+                on_note=on_note,
+            )
+        done.append(recovered)
+        if on_note is not None:
+            on_note(f"{path}: {recovered.describe()}")
+    return done
+
+
+def _aside(out: Path, path: Path) -> Path:
+    """Move a recovered journal to ``.listen/recovered/`` and return its new path.
+
+    Raises:
+        BagImportError: It cannot be moved.
+    """
+    aside = out / JOURNAL_DIR / RECOVERED_DIR
+    try:
+        aside.mkdir(parents=True, exist_ok=True)
+        target = aside / path.name
+        path.rename(target)
+    except OSError as err:
+        msg = f"{path}: cannot move the recovered journal aside ({err.strerror}); move it by hand"
+        raise BagImportError(msg) from err
+    return target
+
+
+def _recover_one(
+    contents: JournalContents,
+    topic_map: TopicMap,
+    out: Path,
+    *,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    on_written: Callable[[Path], Any] | None,
+    on_note: Callable[[str], Any] | None,
+) -> Recovered:
+    """Replay one journal into ``out`` and move it aside.
+
+    Raises:
+        BagImportError: It was recorded with another topic map.
+    """
+    head, path = contents.head, contents.path
+    if hashlib.sha256(topic_map.path.read_bytes()).hexdigest() != head.map_sha256:
+        msg = (
+            f"{path}: recorded with another topic map than {topic_map.path}; recover it with "
+            "the run's map: atikt-record listen --recover --out OUT --topic-map THAT_MAP"
+        )
+        raise BagImportError(msg)
+    written = {out / relative for relative in contents.written}
+    listener = Listener(
+        topic_map,
+        out,
+        objects,
+        actions,
+        head.domain_id,
+        on_written=on_written,
+        on_note=on_note,
+        journal=False,
+        started_ns=head.started_ns,
+        planner=ReplayPlanner(out, dict(head.trials), written),
+    )
+    listener.session.skip = written
+    listener.prepare(head.types)
+    for step in contents.steps():
+        listener.replay(step)
+    listener.report.interrupted = "a kill (recovered from its journal)"
+    report = listener.finish()
+    return Recovered(
+        _aside(out, path),
+        tuple(report.written),
+        tuple(report.incomplete),
+        tuple(listener.session.already),
+    )

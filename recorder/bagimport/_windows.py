@@ -346,6 +346,26 @@ class PathPlanner:
         self._used: dict[tuple[str, str], int] = {}
         self._seen: set[Path] = set()
 
+    def _exists(self, path: Path) -> bool:
+        """Return whether a recording exists at ``path``."""
+        return path.exists()
+
+    def _baseline(self, pair: tuple[str, str]) -> int:
+        """Return the highest trial of (object, action) before this planner's first window."""
+        return _existing_trials(self.out, *pair)
+
+    def taken(self) -> dict[str, int]:
+        """Return ``object/action`` -> highest trial in ``out`` or planned (every pair)."""
+        found = {
+            f"{d.parent.name}/{d.name}": _existing_trials(self.out, d.parent.name, d.name)
+            for d in Path(self.out).glob("*/*")
+            if d.is_dir() and not d.parent.name.startswith(".")
+        }
+        for (obj, action), trial in self._used.items():
+            key = f"{obj}/{action}"
+            found[key] = max(found.get(key, 0), trial)
+        return {k: v for k, v in sorted(found.items()) if v}
+
     def plan(self, window: Window) -> tuple[Window, int, Path]:
         """Return the window with its trial and path.
 
@@ -355,13 +375,13 @@ class PathPlanner:
         used = self._used
         pair = (window.object_id, window.action_id)
         if pair not in used:
-            used[pair] = _existing_trials(self.out, *pair)
+            used[pair] = self._baseline(pair)
         trial = window.trial if window.trial is not None else used[pair] + 1
         if trial > MAX_TRIAL:
             msg = f"{window.describe()}: trial {trial} exceeds {MAX_TRIAL}; choose another --out"
             raise BagImportError(msg)
         path = recording_path(self.out, window.object_id, window.action_id, trial)
-        if path.exists() or path in self._seen:
+        if self._exists(path) or path in self._seen:
             msg = (
                 f"{path}: {window.describe()} would overwrite a recording; recordings are never "
                 "overwritten: remove its trial number to number it on, or choose another --out"
@@ -370,6 +390,26 @@ class PathPlanner:
         used[pair] = max(used[pair], trial)
         self._seen.add(path)
         return window, trial, path
+
+
+class ReplayPlanner(PathPlanner):
+    """Plans a journal's windows as its run did (a recovery): same trials, same paths.
+
+    The trials taken when the journal began stand for the directory (which now also holds
+    what the run wrote), and a path the run wrote is not an overwrite.
+    """
+
+    def __init__(self, out: Path, trials: dict[str, int], written: set[Path]) -> None:
+        """Plan into ``out`` from the journal's ``trials``; ``written``: the run's paths."""
+        super().__init__(out)
+        self._trials = trials
+        self._written = written
+
+    def _exists(self, path: Path) -> bool:
+        return path not in self._written and path.exists()
+
+    def _baseline(self, pair: tuple[str, str]) -> int:
+        return self._trials.get(f"{pair[0]}/{pair[1]}", 0)
 
 
 def plan_paths(windows: Sequence[Window], out: Path) -> list[tuple[Window, int, Path]]:

@@ -171,6 +171,8 @@ class Ros2Server:
             return
         if playing is None and announced is None:
             return  # an action that ended before it was announced
+        if phase == "end" and (announced is None or announced[0] != key):
+            return  # a new action whose first phase has not reached the sample time yet
         if announced is None or announced[0] != key or announced[1] not in {phase, "end"}:
             self._say(store, key, phase, stamp)
             announced = (key, phase)
