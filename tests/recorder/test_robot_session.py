@@ -32,7 +32,9 @@ DATA = ROOT / "recorder" / "data"
 #: rig's reaction time (UDP ~10 ms, DDS ~50 ms) counts 1 / TIME_SCALE times over in world
 #: motion; keep it large enough for the 1 mm press check.
 TIME_SCALE = "0.1"
-ROS2_TIME_SCALE = "0.25"
+#: The ROS 2 lab publishes its skin topics at their rates in world time: at 0.5 the DDS traffic
+#: is twice the real one, which a test machine running other tests beside this one still carries.
+ROS2_TIME_SCALE = "0.5"
 
 
 def _free_port(kind: int) -> int:
@@ -100,8 +102,9 @@ def _check_every_sample(out: Path, capsys: pytest.CaptureFixture[str], sources: 
         "wood/P1/001.mcap",
         "wood/S1/001.mcap",
     ]
-    assert replay(["check", str(out), "--workers", "1"]) == 0
+    status = replay(["check", str(out), "--workers", "1"])
     checked = capsys.readouterr()
+    assert status == 0, checked.out + checked.err
     assert "4 of 4 recordings valid" in checked.out
     assert "WARN" not in checked.err, checked.err
     for file in files:
