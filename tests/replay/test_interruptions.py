@@ -82,7 +82,9 @@ def _interrupt(argv: list[str], ready: Callable[[int], bool]) -> subprocess.Comp
 
 
 #: A plain progress line (printed every few seconds when stderr is not a terminal).
-_PROGRESS_LINE = re.compile(r"[^\n]+: [0-9.]+(/[0-9.]+)?( [a-z]+)?(, ~[0-9]+ s left|, done)? \([0-9]+ s\)")
+_PROGRESS_LINE = re.compile(
+    r"[^\n]+: [0-9.]+(/[0-9.]+)?( [a-z]+)?(, ~[0-9]+ s left|, done)? \([0-9]+ s\)"
+)
 
 
 def _interrupted_line(stderr: str) -> str:
