@@ -42,6 +42,10 @@ class _Modality:
     emitted_ns: int = -(2**63)
     latest: Any = None
     recent: Any = None  # the last 20 ms of samples (total_force's mean)
+    #: The clock offset this recording's blocks are shifted by, ns (taken with its first
+    #: block: the counter's estimate keeps improving, and a later, smaller one would move a
+    #: later block before an earlier one's samples).
+    offset_ns: int | None = None
 
 
 @dataclass
@@ -138,6 +142,7 @@ class Ros2Skin:
             extractor.forget(2**62)
         for state in self._modalities.values():
             state.emitted_ns = -(2**63)
+            state.offset_ns = None
 
     def _ingest(self) -> None:
         """Move every queued sample into the extractors, counting it."""
@@ -185,8 +190,9 @@ class Ros2Skin:
             rows = align_rows(series, lo, hi, period)
             blocks, _, _ = skin_blocks(modality, rows, period, self.topic_map.max_jitter)
             state.emitted_ns = hi
-            offset = self._offset(modality)
-            out.extend(_shift(b, offset) for b in blocks)
+            if state.offset_ns is None:
+                state.offset_ns = self._offset(modality)
+            out.extend(_shift(b, state.offset_ns) for b in blocks)
             if len(blocks):
                 state.latest = np.asarray(blocks[-1].data[-1], dtype=np.float64)
                 count = window_samples(blocks[-1].period_ns)

@@ -58,6 +58,10 @@ def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
         "proximity": (7, 1),
     }
     assert all(np.isfinite(b.data).all() for b in blocks)
+    for modality in widths:  # one time base per recording: no sample before an earlier one's
+        mine = [b for b in blocks if b.modality == modality]
+        stamps = np.concatenate([b.stamp_ns + np.arange(len(b.data)) * b.period_ns for b in mine])
+        assert np.all(np.diff(stamps) > 0), modality
     assert force is not None
 
 
