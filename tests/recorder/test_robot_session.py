@@ -32,8 +32,8 @@ DATA = ROOT / "recorder" / "data"
 #: rig's reaction time (UDP ~10 ms, DDS ~50 ms) counts 1 / TIME_SCALE times over in world
 #: motion; keep it large enough for the 1 mm press check.
 TIME_SCALE = "0.1"
-#: The ROS 2 lab publishes its skin topics at their rates in world time: at 0.5 the DDS traffic
-#: is twice the real one, which a test machine running other tests beside this one still carries.
+#: The ROS 2 lab (DDS latency ~50 ms) at 0.5: the rig's reaction time counts twice over in world
+#: motion, half as much as at 0.25, which a test machine running other tests beside it needs.
 ROS2_TIME_SCALE = "0.5"
 
 
