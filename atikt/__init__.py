@@ -4,6 +4,7 @@ Pure numpy/scipy: takes arrays, never files (Feng, Kaboli & Cheng, TUM 2017).
 """
 
 from atikt.active import ActiveLearner, StepRecord, entropy
+from atikt.check import CheckResult, transfer_check
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import (
     FEATURE_BLOCKS,
@@ -57,6 +58,7 @@ __all__ = [
     "ActiveLearner",
     "AtiktError",
     "BinaryGPC",
+    "CheckResult",
     "Density",
     "DependentKernel",
     "Evidence",
@@ -102,5 +104,6 @@ __all__ = [
     "strategy_names",
     "texture",
     "thermal_sequence",
+    "transfer_check",
     "transfer_strategy",
 ]

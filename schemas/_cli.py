@@ -297,9 +297,9 @@ def progress_line(task: Task) -> str:
     """Return a task's progress as one line for a log.
 
     ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
-    the time elapsed. The remaining time is rich's estimate from the recent rate (the last 30
-    s: the start of worker processes does not weigh on it), else from the mean time per unit
-    so far. Without a total yet: the count alone; nothing done yet: no estimate.
+    the time elapsed. The remaining time follows the recent rate (rich's samples of the last
+    30 s, up to now: the start of worker processes does not weigh on it), else the mean time
+    per unit so far. Without a total yet: the count alone; nothing done yet: no estimate.
     """
     unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
     elapsed = task.elapsed or 0.0
@@ -310,9 +310,17 @@ def progress_line(task: Task) -> str:
         return f"{done}, done ({elapsed:.0f} s)"
     if task.completed <= 0:
         return f"{done} ({elapsed:.0f} s)"
-    left = task.time_remaining
-    if left is None:
-        left = elapsed / task.completed * (task.total - task.completed)
+    left = elapsed / task.completed * (task.total - task.completed)
+    # rich's own estimate divides by the span of its samples alone: two tasks ending together
+    # on two workers read as a burst rate ("~1 s left" with most of the work to do); the
+    # recent rate here runs to now, so a pause lowers it
+    samples = list(task._progress)  # noqa: SLF001 - rich's last 30 s of advances, no public view
+    if len(samples) >= 2:  # noqa: PLR2004
+        span = task.get_time() - samples[0].timestamp
+        advanced = sum(sample.completed for sample in samples[1:])  # each sample: one advance
+        rate = advanced / span if span > 0 else 0.0
+        if rate > 0:
+            left = (task.total - task.completed) / rate
     return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
 
 
