@@ -4,7 +4,6 @@ Pure numpy/scipy: takes arrays, never files (Feng, Kaboli & Cheng, TUM 2017).
 """
 
 from atikt.active import ActiveLearner, StepRecord, entropy
-from atikt.check import CheckResult, transfer_check
 from atikt.errors import AtiktError, NotFittedError, NumericalError
 from atikt.features import (
     FEATURE_BLOCKS,
@@ -58,7 +57,6 @@ __all__ = [
     "ActiveLearner",
     "AtiktError",
     "BinaryGPC",
-    "CheckResult",
     "Density",
     "DependentKernel",
     "Evidence",
@@ -104,6 +102,5 @@ __all__ = [
     "strategy_names",
     "texture",
     "thermal_sequence",
-    "transfer_check",
     "transfer_strategy",
 ]

@@ -28,7 +28,6 @@ old objects' models are fitted once per learner (or once per study, see
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
@@ -36,7 +35,6 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from atikt.check import CheckResult, transfer_check
 from atikt.errors import AtiktError, NotFittedError
 from atikt.features import FeatureTransformer, RawFeatures, StackedFeatures, stack_features
 from atikt.gpc import (
@@ -229,10 +227,6 @@ class ActionState:
         prior_probabilities: The old objects' one-vs-all probabilities of each observation
             scored so far (model prediction approach; the old models never change, so each
             observation is scored once), shape (n_scored, n_old).
-        transfer_from: Observations of the action a new object needs before its classifier
-            borrows (``LearnerOptions.transfer_from``, or 1 where the held-out check showed
-            that transfer helps from the first).
-        check: The action's held-out check (None: not run).
     """
 
     kind: str
@@ -249,8 +243,6 @@ class ActionState:
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
     prior_stacks: dict[int, StackedFeatures] | None = None
     prior_probabilities: FloatArray | None = None
-    transfer_from: int = 1
-    check: CheckResult | None = None
 
 
 def _rivals(probabilities: FloatArray | None, labels: IntArray, obj: int) -> tuple[FloatArray, ...]:
@@ -406,27 +398,6 @@ class ActiveLearner:
             self.strategy.check_prior(action, prior)
         return models
 
-    def _gate(self, action: str, prior: PriorModel | None) -> tuple[int, CheckResult | None]:
-        """Observations a new object needs before it borrows, and the check behind it.
-
-        With ``check_repeats``, the known objects decide (:func:`atikt.check.transfer_check`,
-        cached on the shared prior model): where transfer helped them from one observation,
-        the action transfers from the first.
-        """
-        options = self.options
-        if prior is None or options.transfer_from <= 1 or options.check_repeats < 1:
-            return options.transfer_from, None
-        key = json.dumps(
-            [action, self.n_new_objects, options.as_dict() | {"budget": 0}], sort_keys=True
-        )
-        check = prior.checks.get(key)
-        if check is None:
-            check = transfer_check(
-                prior, action, self.n_new_objects, options, repeats=options.check_repeats
-            )
-            prior.checks[key] = check
-        return (1 if check.helps else options.transfer_from), check
-
     def _observe(self, obj: int, action: str) -> RawFeatures:
         """Call ``observe`` and check what it returns.
 
@@ -456,7 +427,6 @@ class ActiveLearner:
         if state is None:
             prior = priors.get(action)
             state = ActionState(kind=observation.kind, prior=prior)
-            state.transfer_from, state.check = self._gate(action, prior)
             self.states_[action] = state
         expected = state.kind if state.prior is None else state.prior.transformer.kind_
         if observation.kind != state.kind or state.kind != expected:
@@ -573,9 +543,7 @@ class ActiveLearner:
             centre, sd = initial, prior_sd
             if options.metric_until is not None and counts[obj] > options.metric_until:
                 centre, sd = base, base_sd  # enough own observations: the data decide
-            closed = counts[obj] < state.transfer_from  # too few to tell what is related
-            if closed:
-                centre, sd = base, base_sd
+            closed = counts[obj] < options.transfer_from  # too few to tell what is related
             kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
             if theta is not None and theta.shape == kernel.theta.shape:

@@ -68,14 +68,10 @@ class LearnerOptions:
             ``either`` or ``none`` (always); True / False mean evidence / none.
         metric_until: The old objects' kernel centres a new object's hyperprior while it has at
             most this many observations of the action; None: always.
-        transfer_from: A new object's classifier of an action borrows nothing (neither old
-            objects' observations nor their kernel) until the object has this many
-            observations of the action; 1: from the first (the thesis).
-        check_repeats: With ``transfer_from > 1``: splits of the held-out check
-            (:func:`atikt.check.transfer_check`): the known objects, learned as new from one
-            observation each, decide per action whether transfer helps from the first
-            observation; an action where it helped by more than its standard error transfers
-            from the first. 0: no check (the gate holds for every action).
+        transfer_from: A new object's classifier of an action borrows no old object's
+            observations until the object has this many observations of the action; 1: from
+            the first (the thesis). The old objects' kernel (metric transfer) follows
+            ``metric_*``.
         bias: Learn a constant ``b^2`` in the kernel (a bias of the latent function).
         patience: Stop after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None: run the whole budget.
@@ -97,7 +93,6 @@ class LearnerOptions:
     metric_check: MetricCheck = "either"
     metric_until: int | None = 2
     transfer_from: int = 1
-    check_repeats: int = 0
     bias: bool = False
     patience: int | None = None
     min_improvement: float = 1e-3
@@ -133,7 +128,6 @@ class LearnerOptions:
                 f"metric_until={self.metric_until} must be None or >= 1",
             ),
             (self.transfer_from >= 1, f"transfer_from={self.transfer_from} must be >= 1"),
-            (self.check_repeats >= 0, f"check_repeats={self.check_repeats} must be >= 0"),
             (
                 all(kind in PART_KERNELS for _, kind in self.kernel_parts),
                 f"kernel_parts={list(self.kernel_parts)}: kernels must be in {PART_KERNELS}",

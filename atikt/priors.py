@@ -8,8 +8,7 @@ from it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -42,9 +41,6 @@ class PriorModel:
             the rest is known from all its observations: what a few of them would have
             claimed is the calibration of :func:`atikt.transfer.held_out_threshold`. Empty
             with fewer old objects.
-        checks: Results of :func:`atikt.check.transfer_check` on these priors by the
-            learner options they were made with (filled by the learners that share the
-            model; a check is deterministic, so the cache changes no result).
     """
 
     observations: tuple[RawFeatures, ...]
@@ -53,7 +49,6 @@ class PriorModel:
     model: OneVsAllGPC | None
     densities: ObjectDensities | None = None
     held_out: tuple[FloatArray, ...] = ()
-    checks: dict[str, Any] = field(default_factory=dict)
 
     @property
     def old_objects(self) -> tuple[int, ...]:

@@ -147,6 +147,15 @@ def learner_args(*, baseline: bool) -> tuple[Argument, ...]:
             f"{_DEFAULT.metric_until})",
         ),
         arg(
+            "--transfer-from",
+            type=int,
+            default=argparse.SUPPRESS,
+            metavar="N",
+            help="a new object borrows no old object's observations until it has N "
+            "observations of the action; 1: from the first, as in the thesis (default: "
+            f"{_DEFAULT.transfer_from})",
+        ),
+        arg(
             "--kernel-parts",
             default=argparse.SUPPRESS,
             metavar="BLOCK=KERNEL,..",
@@ -165,6 +174,7 @@ _FLAGS = {
     "metric_sd": "--metric-sd",
     "metric_check": "--metric-check",
     "metric_until": "--metric-until",
+    "transfer_from": "--transfer-from",
     "kernel_parts": "--kernel-parts",
 }
 
@@ -181,6 +191,10 @@ def _check_flags(given: dict[str, Any]) -> None:
         raise ReplayError(msg)
     if sources is not None and sources < 1:
         msg = f"--max-sources {sources}: give 1 (the thesis) or more"
+        raise ReplayError(msg)
+    start = given.get("transfer_from")
+    if start is not None and start < 1:
+        msg = f"--transfer-from {start}: give 1 (from the first observation) or more"
         raise ReplayError(msg)
     for name in ("hyper_sd", "metric_sd"):
         value = given.get(name)

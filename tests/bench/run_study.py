@@ -9,6 +9,7 @@ atikt/README.
 Run: ``python tests/bench/run_study.py NAME --recordings DIR --out OUT [--prior-recordings
 DIR2] [--new a,b] [--priors c,d] [--actions C1,P1] [--groups 10] [--trials 2] [--budget 40]
 [--group-size 3] [--transfer prediction] [--metric-sd 1|none] [--kernel-parts BLOCK=KERNEL,..]
+[--option NAME=VALUE ...]
 [--workers 2]``; ``--quick``: one run of budget 2 of ``transfer`` (or NAME) on the committed
 recordings into a temporary directory (a check that the script runs).
 """
@@ -42,6 +43,14 @@ def _optional(text: str) -> float | None:
     return None if text.lower() == "none" else float(text)
 
 
+def _number(text: str) -> int | float:
+    """An option's value: an integer, else a float."""
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
+
+
 def _split(text: str | None) -> list[str] | None:
     """A comma-separated list, or None."""
     return None if text is None else [p for p in text.split(",") if p]
@@ -65,6 +74,13 @@ def main() -> int:
     parser.add_argument("--transfer", default="prediction")
     parser.add_argument("--metric-sd", type=_optional, default=1.0)
     parser.add_argument("--kernel-parts", default="", help="BLOCK=KERNEL,.. of the learners")
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="another learner option (a number), e.g. transfer_from=2; repeatable",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument(
@@ -105,6 +121,7 @@ def _run(args: argparse.Namespace) -> int:
             transfer=args.transfer,
             metric_sd=args.metric_sd,
             kernel_parts=parse_parts(args.kernel_parts, "--kernel-parts"),
+            **{k: _number(v) for k, v in (o.split("=", 1) for o in args.option)},
         ),
         new=roles.new,
         old=roles.old,

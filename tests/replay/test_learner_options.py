@@ -84,6 +84,7 @@ def test_a_bad_learner_file_is_refused_in_one_line_naming_it(
     [
         ({"budget": -1}, "--budget -1: give 0 or more observations"),
         ({"max_sources": 0}, r"--max-sources 0: give 1 \(the thesis\) or more"),
+        ({"transfer_from": 0}, r"--transfer-from 0: give 1 \(from the first observation\)"),
         ({"hyper_sd": math.inf}, "--hyper-sd inf: give a positive standard deviation"),
         ({"metric_sd": -2.0}, "--metric-sd -2.0: give a positive standard deviation"),
         ({"kernel_parts": "texture=cubic"}, "--kernel-parts 'texture=cubic': 'texture=cubic'"),
