@@ -222,6 +222,8 @@ class ActionState:
         rhos: Warm-start learned rho per new object and old object (model optimisation).
         metrics: Per new object, whether its classifier's hyperprior is centred on the old
             objects' kernel (metric transfer) in the current update.
+        gated: Per new object, whether the transfer gate (``transfer_from``,
+            ``borrow_initial``) kept its classifier from borrowing in the current update.
         uncertainty: ``UNC`` per new object, shape (n_new,).
         prior_stacks: The prior observations of each old object, stacked on first use.
         prior_probabilities: The old objects' one-vs-all probabilities of each observation
@@ -240,6 +242,7 @@ class ActionState:
     thetas: list[FloatArray | None] = field(default_factory=list)
     rhos: list[dict[int, float]] = field(default_factory=list)
     metrics: list[bool] = field(default_factory=list)
+    gated: list[bool] = field(default_factory=list)
     uncertainty: FloatArray = field(default_factory=lambda: np.zeros(0))
     prior_stacks: dict[int, StackedFeatures] | None = None
     prior_probabilities: FloatArray | None = None
@@ -524,6 +527,7 @@ class ActiveLearner:
             state.models, state.choices = [], [NO_CHOICE] * n
             state.thetas, state.rhos = [None] * n, [{} for _ in range(n)]
             state.metrics = [False] * n
+            state.gated = [False] * n
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         probabilities = self._prior_probabilities(state)
         models = []
@@ -543,13 +547,18 @@ class ActiveLearner:
             centre, sd = initial, prior_sd
             if options.metric_until is not None and counts[obj] > options.metric_until:
                 centre, sd = base, base_sd  # enough own observations: the data decide
-            closed = counts[obj] < options.transfer_from  # too few to tell what is related
+            # too few of its own observations to tell what is related; or the initial round,
+            # every object seen once, with borrow_initial off
+            closed = counts[obj] < options.transfer_from or (
+                not options.borrow_initial and counts.max() <= 1
+            )
             kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
             if theta is not None and theta.shape == kernel.theta.shape:
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
             keep = changed is not None and obj != changed and self.strategy.keeps()
+            keep = keep and not state.gated[obj]  # a choice the gate made is made again
             choice, model = self._fit_object(
                 kernel,
                 X,
@@ -570,6 +579,7 @@ class ActiveLearner:
             state.choices[obj] = choice
             state.thetas[obj] = model.base_kernel_.theta
             state.metrics[obj] = centre is not base
+            state.gated[obj] = closed
             models.append(model)
         state.transformer, state.X, state.models = transformer, X, models
         state.uncertainty = self._uncertainty(state)

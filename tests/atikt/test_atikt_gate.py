@@ -70,3 +70,23 @@ def test_a_closed_gate_borrows_no_observations_until_the_second(
 def test_gate_option_is_checked() -> None:
     with pytest.raises(AtiktError, match="transfer_from=0 must be >= 1"):
         LearnerOptions(transfer_from=0)
+
+
+def test_without_initial_borrowing_the_first_round_borrows_nothing_then_the_steps_do(
+    train: dict[str, dict[int, list[RawFeatures]]],
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    held = run(train, priors=priors, borrow_initial=False, budget=0)
+    never = run(train, priors=priors, eps_neg1=1.0, budget=0)
+    assert np.array_equal(held.uncertainty_, never.uncertainty_)
+    for action in ACTIONS:
+        assert all(c.source is None for c in held.states_[action].choices)
+    # after the first step every object may borrow, those seen once included
+    stepped = run(train, priors=priors, borrow_initial=False, budget=10)
+    once = [
+        choice.source
+        for action in ACTIONS
+        for obj, choice in enumerate(stepped.states_[action].choices)
+        if np.bincount(stepped.states_[action].labels, minlength=len(NEW_OBJECTS))[obj] == 1
+    ]
+    assert any(source is not None for source in once)
