@@ -129,11 +129,17 @@ class _Arrivals:
     def stats(
         self, name: str, lo: int, hi: int, overflowed: int, oversize: int = 0
     ) -> SourceStats | None:
-        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none)."""
+        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none).
+
+        A pause across an edge of the range (from the last arrival before it, to the first
+        after it) is counted as the range's: the file's skin reaches across its edges.
+        """
         inside = [i for i, s in enumerate(self.stamps) if lo <= s < hi]
         if not inside:
             return None
         stamps = [self.stamps[i] for i in inside]
+        before = max((s for s in self.stamps if s < lo), default=None)
+        after = min((s for s in self.stamps if s >= hi), default=None)
         period = self.period_ns
         if period <= 0:  # no rate in the map: the median step of the distinct stamps
             steps = np.diff(np.unique(np.asarray(stamps, dtype=np.int64)))
@@ -143,6 +149,10 @@ class _Arrivals:
         counter = SourceCounter(name, period_ns=period, gaps=True)
         for i in inside:
             counter.observe(None, self.stamps[i], self.receives[i])
+        if before is not None:
+            counter.pause(min(stamps) - before)
+        if after is not None:
+            counter.pause(after - max(stamps))
         counter.overflow(overflowed - self.overflow_seen)
         counter.malformed(oversize - self.oversize_seen)
         self.overflow_seen, self.oversize_seen = overflowed, oversize

@@ -343,10 +343,9 @@ def test_the_soak_benchmark_runs_quick() -> None:
     assert written is not None, done.stdout
     assert written.group(2) != "0"
     assert "accounting: missing 0, queue overflow 0" in done.stdout
-    if written.group(1) != written.group(2):
-        # a known defect, open: on a loaded machine a soak file now and then fails check
-        # (rows the import's alignment drops are not in the accounting); shown, not hidden
-        pytest.xfail(f"a soak file failed check: {done.stdout[-1500:]}")
+    # a publisher held up across an action's edge is a counted pause, not a failed file
+    # (test_listen_edges.py replays such streams deterministically)
+    assert written.group(1) == written.group(2), done.stdout[-1500:]
 
 
 def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: Path) -> None:
