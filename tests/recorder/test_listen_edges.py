@@ -4,9 +4,9 @@ A lab's publisher stamps each sample when it sends it; when it is held up (the s
 loaded computer, between two cells' writes or before a tick), the samples it owed before an
 edge of the action are stamped after it. The streams here are replayed through the listener
 offline (as a recovery replays a journal: the same code as live, no DDS traffic, the same
-result on every run): a cell sent late just before the execute phase, and a publisher paused
-across the action's end, give files that pass ``check`` with nothing missing; a cell that
-really stops before the end still fails it.
+result on every run): a cell sent late just before the execute phase, a publisher paused
+across the action's end, and a listener that reads its topics late give files that pass
+``check`` with nothing missing; a cell that really stops before the end still fails it.
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def _annotation(store: Typestore, phase: str, tick: int) -> bytes:
 
 
 def _session(
-    store: Typestore, stalls: Stalls, sends: Callable[[str, int], bool]
+    store: Typestore, stalls: Stalls, sends: Callable[[str, int], bool], length: int = LENGTH
 ) -> list[tuple[str, int, bytes]]:
     """Return the session's messages (topic, receive ns, CDR) as a publisher sends them.
 
@@ -104,7 +104,7 @@ def _session(
     """
     templates = {t: _template(store, m) for t, (m, _) in TOPICS.items()}
     now, out = WALL, []
-    for tick in range(LENGTH):
+    for tick in range(length):
         now = max(now, WALL + tick * MS)
         for phase, at in (("execute", EXECUTE), ("end", END)):
             if tick == at:
@@ -123,9 +123,20 @@ def _session(
 
 
 def _listen(
-    tmp_path: Path, stalls: Stalls, sends: Callable[[str, int], bool] = lambda _t, _k: True
+    tmp_path: Path,
+    stalls: Stalls,
+    sends: Callable[[str, int], bool] = lambda _t, _k: True,
+    *,
+    lag_ms: int = 0,
+    length: int = LENGTH,
+    before_finish: list[int] | None = None,
 ) -> ImportReport:
-    """Replay the session through ``listen``'s listener in 50 ms steps; return its report."""
+    """Replay the session through ``listen``'s listener in 50 ms steps; return its report.
+
+    With ``lag_ms``, the listener reads every message that much after it was received (a
+    listener held up: its steps' time runs ahead of what its readers took). The session
+    lasts ``length`` ms; ``before_finish`` gets the windows written before the run ended.
+    """
     topic_map = load_topic_map(_map(tmp_path))
     store = typestore(topic_map)
     listener = Listener(
@@ -140,12 +151,14 @@ def _listen(
     types |= {p.format(cell=c): m for p, (m, _) in TOPICS.items() for c in range(CELLS)}
     listener.prepare(types)
     counts = dict.fromkeys(types, (0, 0, 0))
-    items = _session(store, stalls, sends)
+    items = _session(store, stalls, sends, length)
     step = WALL
-    while step < WALL + (LENGTH + 2000) * MS:
-        taken = [item for item in items if step <= item[1] < step + 50 * MS]
+    while step < WALL + (length + 2000) * MS:
+        taken = [item for item in items if step <= item[1] + lag_ms * MS < step + 50 * MS]
         step += 50 * MS
         listener.replay(JournalStep(taken, step, counts))
+    if before_finish is not None:
+        before_finish.append(listener.session.done)
     return listener.finish()
 
 
@@ -214,3 +227,27 @@ def test_a_cell_that_starts_late_fails_check(tmp_path: Path) -> None:
     assert problem is not None
     assert "/skin/force begins 0.030 s after the 0.5 s execute phase of tap began" in problem
     assert "started late" in problem
+
+
+def test_a_listener_held_up_writes_each_window_once_its_samples_came(tmp_path: Path) -> None:
+    # every message is read 1.5 s after it arrived, longer than max_delay_s (0.2 s) and the
+    # import's margin (1 s) together: the time alone would write the window before the last
+    # 0.3 s of its samples were read
+    report = _listen(tmp_path, {}, lag_ms=1500)
+    assert report.late_samples == {}
+    assert _checked(report) == (None, None, 0, 0)
+
+
+def test_a_topic_that_stopped_does_not_hold_the_windows(tmp_path: Path) -> None:
+    # cell 1's temperature stops for good after the action; the others go on: its window is
+    # written while the listener runs (the others' stamps passed it), not only at its end
+    written: list[int] = []
+    report = _listen(
+        tmp_path,
+        {},
+        lambda topic, tick: topic != "/skin/temp_1" or tick < END + 100,
+        length=END + 15_000,
+        before_finish=written,
+    )
+    assert written == [1]
+    assert _checked(report)[0] is None
