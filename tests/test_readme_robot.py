@@ -18,9 +18,12 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from recorder import load_actions
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -29,7 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGE = (ROOT / "docs" / "robot.md").read_text("utf-8")
 BLOCKS = re.findall(r"```bash\n(.*?)```", PAGE, flags=re.DOTALL)
 EXAMPLE = "recorder/data/ur_rig.example.toml"
+TOPIC_MAP = "recorder/data/topic_map.example.toml"
 SCALE = "0.1"
+#: The listen rehearsal's: the virtual lab's ROS 2 announcements of a phase come up to tens of
+#: ms off on a loaded machine, and listen holds each action to its duration within 1 %.
+LISTEN_SCALE = "0.5"
 PROGRAMS = {"atikt-record": "recorder", "atikt-replay": "replay"}
 
 
@@ -53,14 +60,17 @@ def _free_port(kind: int) -> int:
 class _Lab:
     """The example configuration on this test's ports, and how commands name it."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, domain: int = 0, scale: str = SCALE) -> None:
         self.rtde = _free_port(socket.SOCK_STREAM)
         self.script = _free_port(socket.SOCK_STREAM)
         self.udp = _free_port(socket.SOCK_DGRAM)
+        self.domain, self.scale = domain, scale
+        self.topic_map = tmp / "topic_map.toml"
+        self.topic_map.write_text(_scaled_map(scale), "utf-8")
         text = (ROOT / EXAMPLE).read_text("utf-8")
         text = text.replace("rtde_port = 30004", f"rtde_port = {self.rtde}")
         text = text.replace("script_port = 30002", f"script_port = {self.script}")
-        text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
+        text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
         text = text.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{self.udp}"')
         self.config = tmp / "lab.toml"
         self.config.write_text(text, "utf-8")
@@ -68,12 +78,28 @@ class _Lab:
     def argv(self, command: str) -> list[str]:
         """Return a printed command as this test runs it (its ports, its copy of the file)."""
         command = command.replace(EXAMPLE, str(self.config))
+        command = command.replace(TOPIC_MAP, str(self.topic_map))
         command = command.replace("udp://127.0.0.1:5005", f"udp://127.0.0.1:{self.udp}")
+        command = command.replace("--domain-id 0", f"--domain-id {self.domain}")
         program, *argv = shlex.split(command)
         if argv[0] == "serve-sim":
             argv += ["--rtde-port", str(self.rtde), "--script-port", str(self.script)]
-            argv += ["--time-scale", SCALE]
+            argv += ["--time-scale", self.scale]
         return [sys.executable, "-m", PROGRAMS[program], *argv]
+
+
+def _scaled_map(scale: str) -> str:
+    """Return the example topic map with the catalog's actions at a time scale.
+
+    ``listen`` holds every announced action to its declared duration; in a virtual lab at
+    ``scale`` times real time the actions last ``scale`` times as long, so the map declares
+    them so (the rig configuration's ``time_scale`` does the same for the driven path).
+    """
+    lines = [(ROOT / TOPIC_MAP).read_text("utf-8")]
+    for action in load_actions().values():
+        lines += [f"[actions.{action.id}]", f'kind = "{action.kind}"']
+        lines.append(f"duration_s = {action.duration_s * float(scale):g}")
+    return "\n".join(lines) + "\n"
 
 
 def _env() -> dict[str, str]:
@@ -85,6 +111,13 @@ class _Empty:
     @staticmethod
     def read() -> str:
         return ""
+
+
+def _block(*words: str) -> str:
+    """Return the page's one bash block holding every word."""
+    found: list[str] = [block for block in BLOCKS if all(word in block for word in words)]
+    (block,) = found
+    return block
 
 
 @contextlib.contextmanager
@@ -162,3 +195,60 @@ def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
     )
     assert live
     assert live == offline
+
+
+def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(  # noqa: S603 (this project's command)
+        argv, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=600, check=False
+    )
+
+
+def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -> None:
+    (serve,) = [c for c, _ in _steps(_block("serve-sim", "--ros2")) if " serve-sim " in f" {c} "]
+    (listen, _), *steps = _steps(_block("atikt-record listen", "atikt-record session"))
+    assert " listen " in f" {listen} "
+    lab = _Lab(tmp_path, domain=dds_domain, scale=LISTEN_SCALE)
+    with _serving(lab.argv(serve), tmp_path):
+        recorder = subprocess.Popen(  # noqa: S603 (this project's command)
+            lab.argv(listen),
+            cwd=tmp_path,
+            env=_env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        lines: list[str] = []
+        reading = threading.Thread(target=lambda: lines.extend(recorder.stdout or ()))
+        try:
+            assert recorder.stdout is not None
+            first = recorder.stdout.readline()
+            if not first.startswith("listening on DDS domain"):
+                recorder.kill()
+                raise AssertionError(first + recorder.communicate(timeout=30)[1])
+            session, check = steps
+            reading.start()
+            done = _run(lab.argv(session[0]), tmp_path)
+            assert done.returncode == 0, f"{session[0]}\n{done.stderr}"
+            deadline = time.monotonic() + 60  # the lab's last 'end', then the window written
+            while sum(line.endswith(".mcap\n") for line in lines) < 2:
+                assert time.monotonic() < deadline, lines
+                time.sleep(0.1)
+        finally:
+            recorder.send_signal(signal.SIGINT)
+            recorder.wait(timeout=60)
+        reading.join(10)
+        out = "".join(lines)
+        err = recorder.stderr.read() if recorder.stderr is not None else ""
+    assert recorder.returncode == 130, err
+    assert "Traceback" not in err
+    listened = tmp_path / "data" / "listened"
+    made = sorted(p.relative_to(listened).as_posix() for p in listened.rglob("*.mcap"))
+    assert made == ["wood/P1/001.mcap", "wood/P1/002.mcap"], out + err
+    checked = _run(lab.argv(check[0]), tmp_path)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    from replay import read_recording  # noqa: PLC0415 (the test's own process reads)
+
+    recording = read_recording(listened / made[0])
+    assert recording.joints is not None
+    assert recording.tcp is not None  # the lab's tool pose, published by the virtual lab
+    assert recording.tcp.stamps_ns.size > 100

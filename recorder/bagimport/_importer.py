@@ -32,7 +32,7 @@ import numpy as np
 
 from recorder._catalog import ObjectSpec
 from recorder._dataset import declare_objects, write_index
-from recorder.bagimport._pack import Series, align_rows, block_period, skin_blocks
+from recorder.bagimport._pack import Series, block_period, skin_blocks, window_rows
 from recorder.bagimport._report import BagIdentity, ImportReport, bag_identity, imported_bags
 from recorder.bagimport._source import (
     READ_ERRORS,
@@ -74,7 +74,7 @@ if TYPE_CHECKING:
     from recorder.live import SourceStats
     from recorder.writing._stream import StreamItem
 
-#: Samples kept around a window: the skin's last sample before it, and alignment neighbours.
+#: Samples kept around a window: the skin's rows at its edges, and alignment neighbours.
 MARGIN_NS = 1_000_000_000
 #: Most message bytes held between two written windows (a hostile bag cannot exhaust memory).
 MAX_PENDING_BYTES = 160 * 1024 * 1024
@@ -301,7 +301,7 @@ def _window_items(
         period = block_period(exact, series[0].stamps)
         if period <= 0 or any(s.stamps.size == 0 for s in series):
             return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it"
-        rows = align_rows(series, window.start_ns, window.stop_ns, period)
+        rows = window_rows(series, window.start_ns, window.stop_ns, period)
         blocks, jitter, dropped = skin_blocks(modality, rows, period, topic_map.max_jitter)
         if not blocks:
             return [], f"no {modality} samples of {spec.topic} with every cell inside it"

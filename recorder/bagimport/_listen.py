@@ -8,7 +8,8 @@ import's streaming session: decoders, extractors, alignment, packing, checks, fi
 
 Windows come from the annotation topic as it arrives (a window is known when its ``end``
 annotation came, and written once ``[time] max_delay_s`` has passed beyond its end plus the
-import's one-second margin) or from a CSV (known up front). Each file also records, per topic,
+import's one-second margin and every topic still sending has sent a sample stamped beyond
+that) or from a CSV (known up front). Each file also records, per topic,
 the samples expected (from the header stamps and the topic's period), received, missing,
 duplicated and out of order, and those its reader's queue could not hold
 (``atikt.sources``). At ``--duration``, Ctrl-C or SIGTERM the windows whose ``end`` arrived
@@ -100,6 +101,11 @@ _HEADER = ("header", (1, "std_msgs/msg/Header"))
 OPEN_MARGIN_NS = 30 * _NS_PER_S
 #: How long an open action of an action without a declared duration may last, ns.
 OPEN_DEFAULT_NS = 300 * _NS_PER_S
+#: A topic whose latest stamp lies this far behind the newest of every topic has stopped: the
+#: windows no longer wait for it, ns.
+WAIT_NS = 10 * _NS_PER_S
+#: How long beyond ``[time] max_delay_s`` the windows wait when every topic stopped, ns.
+STOPPED_NS = 60 * _NS_PER_S
 
 
 def _dds() -> ModuleType:
@@ -123,17 +129,25 @@ class _Arrivals:
     period_ns: int
     stamps: list[int] = field(default_factory=list)
     receives: list[int] = field(default_factory=list)
+    #: The latest stamp received (None: nothing yet).
+    latest: int | None = None
     overflow_seen: int = 0
     oversize_seen: int = 0
 
     def stats(
         self, name: str, lo: int, hi: int, overflowed: int, oversize: int = 0
     ) -> SourceStats | None:
-        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none)."""
+        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none).
+
+        A pause across an edge of the range (from the last arrival before it, to the first
+        after it) is counted as the range's: the file's skin reaches across its edges.
+        """
         inside = [i for i, s in enumerate(self.stamps) if lo <= s < hi]
         if not inside:
             return None
         stamps = [self.stamps[i] for i in inside]
+        before = max((s for s in self.stamps if s < lo), default=None)
+        after = min((s for s in self.stamps if s >= hi), default=None)
         period = self.period_ns
         if period <= 0:  # no rate in the map: the median step of the distinct stamps
             steps = np.diff(np.unique(np.asarray(stamps, dtype=np.int64)))
@@ -143,6 +157,10 @@ class _Arrivals:
         counter = SourceCounter(name, period_ns=period, gaps=True)
         for i in inside:
             counter.observe(None, self.stamps[i], self.receives[i])
+        if before is not None:
+            counter.pause(min(stamps) - before)
+        if after is not None:
+            counter.pause(after - max(stamps))
         counter.overflow(overflowed - self.overflow_seen)
         counter.malformed(oversize - self.oversize_seen)
         self.overflow_seen, self.oversize_seen = overflowed, oversize
@@ -600,6 +618,7 @@ class Listener:
                 stamp = sec * _NS_PER_S + nanosec
                 arrivals.stamps.append(stamp)
                 arrivals.receives.append(receive_ns)
+                arrivals.latest = stamp if arrivals.latest is None else max(arrivals.latest, stamp)
                 self._first_stamp.setdefault(topic, stamp)
                 if self._latest_stamp is None or stamp > self._latest_stamp:
                     self._latest_stamp = stamp
@@ -607,9 +626,28 @@ class Listener:
         self._flush(data)
         self._bound_open()
         if step.now_ns is not None:
-            self.session.advance(step.now_ns)
-            self._trim(step.now_ns)
+            writable = self._writable(step.now_ns)
+            self.session.advance(writable)
+            self._trim(writable)
         self._notes()
+
+    def _writable(self, now_ns: int) -> int:
+        """Return the time up to which windows may be written, on the session's clock.
+
+        A window is written once ``max_delay_s`` has passed beyond its reach (its end and the
+        import's margin) and every topic that sent anything has sent a sample stamped beyond
+        it: a listener held up (a loaded computer) reads all its topics late, and the time
+        that passed alone would write a window before its last samples were read. A topic
+        whose stamps lag the others' by :data:`WAIT_NS` has stopped and is not waited for;
+        when every topic stopped, the windows wait :data:`STOPPED_NS` at most.
+        """
+        stamps = [a.latest for a in self._arrivals.values() if a.latest is not None]
+        if not stamps:
+            return now_ns
+        newest = max(stamps)
+        going = min(s for s in stamps if s >= newest - WAIT_NS)
+        delay = self.topic_map.max_delay_ns
+        return min(now_ns, max(going + delay, now_ns - STOPPED_NS))
 
     def _flush(self, data: list[tuple[Route, int, bytes]]) -> None:
         """Feed the data messages collected so far."""
@@ -625,7 +663,11 @@ class Listener:
         return items
 
     def _trim(self, now_ns: int) -> None:
-        """Forget what no window can need any more (no window started before then)."""
+        """Forget what no window can need any more (no window started before then).
+
+        ``now_ns`` is the time up to which windows may be written (:meth:`_writable`): a
+        listener held up keeps what its late windows need.
+        """
         bound = now_ns - self.topic_map.max_delay_ns - MARGIN_NS
         if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
             bound = min(bound, start - MARGIN_NS)

@@ -121,6 +121,33 @@ def align_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: 
     return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset)
 
 
+def window_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: int) -> Rows:
+    """Return the aligned rows of a window, from the row covering its start to its end.
+
+    The rows are the complete rows (every cell aligned, finite) stamped in
+    ``[start_ns, stop_ns)``, led by the last complete row at or before ``start_ns`` (the skin
+    covers the window's first instant) and, when those leave the window's last period
+    uncovered, followed by the first complete row at or after ``stop_ns``. A publisher that
+    paused across an edge of the window (its samples stamped when they were sent, later
+    than the lab's schedule) then shows a pause at that edge, not a channel that began late
+    or stopped early. The lead is the last *complete* row: one cell sent late (a jitter) drops
+    the row nearest the start from the alignment, never the window's first instant.
+    ``dropped`` counts the incomplete rows between the first row and the last.
+    """
+    # which rows are complete does not depend on the range aligned: find the two edge rows
+    # among all, then align the rows between them
+    stamps = align_rows(cells, -(2**63), 2**63 - 1, period_ns).stamps
+    lead = max(int(np.searchsorted(stamps, start_ns, side="right")) - 1, 0)
+    end = int(np.searchsorted(stamps, stop_ns, side="left"))
+    if lead < end < stamps.size and int(stamps[end - 1]) + period_ns < stop_ns:
+        end += 1  # the first row after the window closes the pause at its end
+    if end <= lead:  # no complete row before the window's end
+        width = cells[0].values.shape[1]
+        empty = np.zeros((0, len(cells), width))
+        return Rows(stamps[:0], stamps[:0], empty, 0, 0)
+    return align_rows(cells, int(stamps[lead]), int(stamps[end - 1]) + 1, period_ns)
+
+
 def _block_end(
     stamps: NDArray[np.int64], start: int, size: int, tolerance: int, period: int
 ) -> int:

@@ -266,6 +266,16 @@ class SourceCounter:
         self._start(number, sensor_ns, receive_ns, first=False)
         return self._accept(number, sensor_ns, receive_ns, Verdict.NEW_RUN)
 
+    def pause(self, step_ns: int) -> None:
+        """Count the step to a sample that is not counted here as a pause, if it is one.
+
+        A window of a publisher's stream counts the samples stamped inside it; the steps
+        from the last sample before it and to the first after it cross its edges, and a
+        pause there is the window's too (``gaps=True`` only; a counter counts loss).
+        """
+        if self._gaps and self._period_ns > 0:
+            self._gap(step_ns)
+
     def _gap(self, step_ns: int) -> None:
         """Count a pause of a source without a sequence."""
         period = self._period_ns

@@ -157,8 +157,9 @@ class ArmRig:
         #: approach's start); retracts return there, so actions never creep toward the object.
         self._home: NDArray[np.float64] | None = None
         self._watch: Watch = _Never()
-        #: Every stop sent: (when its cause was met, when the stop was sent, why), recorder
-        #: clock (a state sample's cause: its receive time), ns; for latency measurements.
+        #: Every stop sent: (when its cause was met, when the stop went to the driver, why),
+        #: recorder clock (a state sample's cause: its receive time), ns; for latency
+        #: measurements.
         self.stops_sent: list[tuple[int, int, str]] = []
 
     # -- connection -----------------------------------------------------------------------
@@ -333,11 +334,16 @@ class ArmRig:
         return None
 
     def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> None:
-        """Send the stop (first thing on every abnormal end); remember when."""
+        """Send the stop (first thing on every abnormal end); remember when it was sent.
+
+        The time is taken as the stop goes to the driver, not when its send returns: a loaded
+        machine can hold this thread after the stop's bytes left (another thread runs), and
+        the controller then has the stop before the send "happened".
+        """
         context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
+        sent = self.clock.now_ns()
         with contextlib.suppress(Exception):  # a lost connection: the driver did what it could
             self.arm.stop(self.options.motion.acceleration_m_s2, context)
-        sent = self.clock.now_ns()
         self.stops_sent.append((sent if cause_ns is None else cause_ns, sent, why))
 
     def _tare(self) -> Generator[StreamItem, None, float]:

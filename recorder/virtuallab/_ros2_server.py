@@ -1,8 +1,9 @@
-"""The virtual lab's ROS 2 side: the world's joint states and skin published over DDS.
+"""The virtual lab's ROS 2 side: the world's joint states, tool pose and skin over DDS.
 
 A lab rehearses ``listen`` or a ``[skin] transport = "ros2"`` rig configuration without the
 robot: :func:`serve_ros2` publishes, on the topics a topic map names, what a ROS 2 driver of
-the arm and of the skin would publish (``sensor_msgs/msg/JointState``, and one
+the arm and of the skin would publish (``sensor_msgs/msg/JointState``, the tool's
+``geometry_msgs/msg/PoseStamped`` where the map has a ``[tool_pose]``, and one
 ``atikt_msgs/msg/SkinCell`` message per cell with the fields the map reads, in the map's raw
 units), stamped with the wall clock, and, when the map cuts its windows from an annotation
 topic, the annotations a lab's system would publish: one JSON ``std_msgs/msg/String`` per
@@ -23,7 +24,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from recorder._sim.ur10 import JOINT_NAMES
-from recorder.bagimport._source import ANNOTATION_TYPE, JOINT_TYPE, SkinTopic, extractors, typestore
+from recorder.bagimport._source import (
+    ANNOTATION_TYPE,
+    JOINT_TYPE,
+    POSE_TYPE,
+    SkinTopic,
+    extractors,
+    typestore,
+)
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
 from recorder.live.dds import DdsDomain
@@ -100,6 +108,9 @@ class Ros2Server:
         if self.topic_map.joints is not None:
             topic = self.topic_map.joints.topic
             self._writers[topic] = self.domain.writer(topic, JOINT_TYPE)
+        if self.topic_map.pose is not None:
+            topic = self.topic_map.pose.topic
+            self._writers[topic] = self.domain.writer(topic, POSE_TYPE)
         windows = self.topic_map.windows
         if windows.source == "topic" and windows.topic:
             self._annotations = windows.topic
@@ -142,8 +153,8 @@ class Ros2Server:
             controller = self.world.controller_ns()
             if due == next_cell:  # the phase at the sample time (the loop may run late)
                 self._annotate(store, due, controller - max(time.time_ns() - due, 0))
-            if due == next_joint and self.topic_map.joints is not None:
-                self._publish(self.topic_map.joints.topic, self._joint(store, due, controller))
+            if due == next_joint:
+                self._robot(store, due, controller)
                 next_joint += joint_period
             if due == next_cell:
                 for topic, extractor in self._cells.items():
@@ -190,6 +201,30 @@ class Ros2Server:
         self._writers[self._annotations].write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
         self.annotated.append((stamp, text))
 
+    def _robot(self, store: Any, stamp: int, controller_ns: int) -> None:  # noqa: ANN401
+        """Publish the arm's joint state and tool pose, where the map has their topics."""
+        mapped = self.topic_map
+        if mapped.joints is not None:
+            self._publish(mapped.joints.topic, self._joint(store, stamp, controller_ns))
+        if mapped.pose is not None:
+            pose = self._pose(store, stamp, controller_ns, mapped.pose.position_scale)
+            self._publish(mapped.pose.topic, pose)
+
+    def _pose(self, store: Any, stamp: int, controller_ns: int, scale: float) -> bytes:  # noqa: ANN401
+        """Return a PoseStamped of the world's TCP (position in the map's raw units)."""
+        tcp = self.world.robot_at(controller_ns).tcp_pose
+        types = store.types
+        x, y, z = (float(v) / scale for v in tcp[:3])
+        qx, qy, qz, qw = _quaternion(np.asarray(tcp[3:6], dtype=np.float64))
+        message = types[POSE_TYPE](
+            header=_header(store, stamp),
+            pose=types["geometry_msgs/msg/Pose"](
+                position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+                orientation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+            ),
+        )
+        return bytes(store.serialize_cdr(message, POSE_TYPE))
+
     def _joint(self, store: Any, stamp: int, controller_ns: int) -> bytes:  # noqa: ANN401
         """Return a JointState of the world's arm, serialized."""
         state = self.world.robot_at(controller_ns)
@@ -228,6 +263,19 @@ class Ros2Server:
         return bytes(store.serialize_cdr(message, CELL_TYPE))
 
 
+def _quaternion(rotvec: np.ndarray[Any, Any]) -> tuple[float, float, float, float]:
+    """Return the unit quaternion (x, y, z, w) of a rotation vector.
+
+    By hand, as the virtual arm converts its rotations (scipy's Rotation costs more than the
+    message at 500 Hz).
+    """
+    angle = float(np.sqrt(rotvec @ rotvec))
+    if angle < 1e-12:  # noqa: PLR2004 (no rotation)
+        return 0.0, 0.0, 0.0, 1.0
+    x, y, z = (float(v) for v in rotvec / angle * np.sin(angle / 2))
+    return x, y, z, float(np.cos(angle / 2))
+
+
 def _header(store: Any, stamp: int) -> Any:  # noqa: ANN401
     """Return a std_msgs/Header at ``stamp``."""
     time_msg = store.types["builtin_interfaces/msg/Time"](
@@ -247,15 +295,16 @@ def serve_ros2(
     joint_rate_hz: float = 500.0,
     loopback: bool = True,
 ) -> Iterator[Ros2Server]:
-    """Publish the world's joint states and skin on a topic map's topics while inside.
+    """Publish the world's joint states, tool pose and skin on a topic map's topics while inside.
 
     Args:
         world: The simulated execution being played.
-        topic_map_path: The map whose ``[joint_states]`` and ``[skin]`` topics are published.
+        topic_map_path: The map whose ``[joint_states]``, ``[tool_pose]`` and ``[skin]`` topics
+            are published.
         faults: Faults to inject (default: none).
         domain_id: The DDS domain (``ROS_DOMAIN_ID``).
         rate_hz: Messages per second of each skin cell topic.
-        joint_rate_hz: Messages per second of the joint states.
+        joint_rate_hz: Messages per second of the joint states (and of the tool pose).
         loopback: Confine the publisher to the loopback interface by its own configuration
             (the default: a rehearsal stays on this computer, whatever ``CYCLONEDDS_URI``
             says); False joins the interfaces ``CYCLONEDDS_URI`` names.

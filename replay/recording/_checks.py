@@ -288,7 +288,7 @@ def check_duration(
         coverage: Per channel, ``[first stamp, last stamp + period)`` in ns.
 
     Raises:
-        RecordingError: The phase or a channel ends too early.
+        RecordingError: The phase or a channel ends too early, or a channel begins late.
     """
     action_id, duration_s = action
     needed = round(duration_s * (1 - DURATION_TOLERANCE) * _NS_PER_S) - _SLACK_NS
@@ -300,7 +300,14 @@ def check_duration(
         )
         raise RecordingError(msg)
     for topic, (first, end) in coverage.items():
-        if first > start or end - start < needed:
+        if first > start:
+            msg = (
+                f"{path}: {topic} begins {(first - start) / _NS_PER_S:.3f} s after the "
+                f"{duration_s:g} s execute phase of {action_id} began: the channel started "
+                "late; check the skin driver and record the action again"
+            )
+            raise RecordingError(msg)
+        if end - start < needed:
             msg = (
                 f"{path}: {topic} covers {(max(end - start, 0)) / _NS_PER_S:.3f} s of the "
                 f"{duration_s:g} s execute phase of {action_id}: the channel stopped early; "

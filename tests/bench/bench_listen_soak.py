@@ -12,6 +12,8 @@ counted gaps, the reader queues' overflow, and the recorder's resident memory ev
 
     python tests/bench/bench_listen_soak.py --seconds 600
     python tests/bench/bench_listen_soak.py --quick      # a few actions, no figures judged
+
+``--keep DIR`` keeps the recordings (else they go with a temporary directory).
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ TYPES = {
     "bench_msgs/msg/Scalar": "std_msgs/Header header\nfloat32 data\n",
 }
 MEMORY_EVERY_S = 30.0
+#: How long the listener waits for the publisher's topics (a loaded machine starts it slowly).
+DISCOVERY_S = 120.0
 
 
 def write_map(root: Path) -> Path:
@@ -126,7 +130,7 @@ def publish(map_path: Path, domain_id: int, seconds: float) -> None:
     domain = DdsDomain(domain_id, store)
     plan = _writers(domain, store)
     notes = domain.writer("/annotations", "std_msgs/msg/String")
-    deadline = time.monotonic() + 20
+    deadline = time.monotonic() + DISCOVERY_S
     while any(w.matched() == 0 for _, w, _, _ in plan) and time.monotonic() < deadline:
         time.sleep(0.01)
     time.sleep(0.5)
@@ -202,17 +206,22 @@ def _accounting(paths: list[Path]) -> dict[str, int]:
     return totals
 
 
-def soak(map_path: Path, domain_id: int, seconds: float) -> None:
+def soak(map_path: Path, out: Path, domain_id: int, seconds: float) -> None:
     """Run the listener while a publisher process sends; print the figures."""
     from recorder import load_actions, load_objects  # noqa: PLC0415
     from recorder.bagimport._listen import Listener  # noqa: PLC0415
     from recorder.bagimport._topicmap import load_topic_map  # noqa: PLC0415
 
     topic_map = load_topic_map(map_path)
-    out = Path(tempfile.mkdtemp(prefix="bench-soak-"))
     notes: list[str] = []
     listener = Listener(
-        topic_map, out, load_objects(None), load_actions(None), domain_id, on_note=notes.append
+        topic_map,
+        out,
+        load_objects(None),
+        load_actions(None),
+        domain_id,
+        discovery_s=DISCOVERY_S,
+        on_note=notes.append,
     )
     command = [sys.executable, __file__, "--publish", str(map_path), "--domain", str(domain_id)]
     publisher = subprocess.Popen(  # noqa: S603 (this script, fixed arguments)
@@ -221,7 +230,12 @@ def soak(map_path: Path, domain_id: int, seconds: float) -> None:
         text=True,
         env={**os.environ, "CYCLONEDDS_URI": LOOPBACK_URI},
     )
-    listener.start()
+    try:
+        listener.start()
+    except BaseException:  # the publisher would send on for --seconds, to nobody
+        publisher.kill()
+        publisher.wait()
+        raise
     memory = [(0.0, _rss_mb())]
     began = next_sample = time.monotonic()
     cpu0 = _cpu()
@@ -255,6 +269,8 @@ def soak(map_path: Path, domain_id: int, seconds: float) -> None:
     shown = ", ".join(f"{t:.0f} s {m:.0f}" for t, m in memory)
     print(f"resident memory MB: {shown} (largest {max(m for _, m in memory):.0f})")
     print(f"recorder CPU {cpu / wall:.2f} s per s")
+    dropped = ", ".join(f"{m} {n}" for m, n in sorted(report.dropped_rows.items()))
+    print(f"skin rows left out by the cell alignment: {dropped or 'none'}")
     for line in failures[:5] + [n for n in notes if not n.startswith("listening")][:5]:
         print("  " + line)
 
@@ -271,6 +287,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=600.0)
     parser.add_argument("--quick", action="store_true", help="a few actions (12 s)")
     parser.add_argument("--domain", type=int, default=1 + os.getpid() % 200)
+    parser.add_argument("--keep", type=Path, help="write the recordings here and keep them")
     parser.add_argument("--publish", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     seconds = 12.0 if args.quick else args.seconds
@@ -278,7 +295,8 @@ def main() -> None:
         publish(args.publish, args.domain, seconds)
         return
     with tempfile.TemporaryDirectory() as root:
-        soak(write_map(Path(root)), args.domain, seconds)
+        out = args.keep if args.keep is not None else Path(root) / "out"
+        soak(write_map(Path(root)), out, args.domain, seconds)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,10 @@ cycle). Printed as a table.
 
     python tests/bench/bench_stop_latency.py --runs 20            # 125 and 500 Hz
     python tests/bench/bench_stop_latency.py --quick              # one run of three causes
+    python tests/bench/bench_stop_latency.py --runs 20 --causes sigint,sigterm --frequencies 125
+
+A run that yields no figure is counted as missed, with one line on stderr saying why (the lab
+too loaded to present the object, no stop recorded, or no stop program in the lab's log).
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ from recorder.writing._writer import RecordingWriter  # noqa: E402
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
+
+    from recorder.live import RecorderClock
 
 
 CAUSES = ("limit", "protective", "silence", "sigint", "sigterm", "write", "error")
@@ -174,6 +180,16 @@ def _set_cause(rig: Any, cause: str) -> dict[str, int]:
 WRITE = RecordingWriter.write
 
 
+def _clock_offset(rig: Any) -> int:
+    """Return the rig's clock minus the monotonic clock, ns.
+
+    Each reading is at most the true offset (the monotonic clock is read after the rig's);
+    the largest of several is it, whatever thread ran in between.
+    """
+    clock: RecorderClock = rig.clock
+    return max(clock.now_ns() - time.monotonic_ns() for _ in range(20))
+
+
 def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     """Record one action meeting ``cause``; return its latencies (None: it did not stop)."""
     lab, command, events_file = _lab_files(tmp, frequency, cause)
@@ -183,7 +199,7 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
         except RecorderError as err:  # a lab too loaded to keep its cycle: not this run's
             print(f"  ({cause}: {err})", file=sys.stderr)
             return None
-        offset = rig.clock.now_ns() - time.monotonic_ns()
+        offset = _clock_offset(rig)
         cause_ns = _set_cause(rig, cause)
         try:
             record_action(rig, OBJECT, ACTION, 1, tmp / "out" / "001.mcap", seed=0)
@@ -193,6 +209,7 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
             RecordingWriter.write = WRITE  # type: ignore[method-assign]
         stops = list(rig.stops_sent)
     if not stops:
+        print(f"  ({cause}: the rig recorded no stop)", file=sys.stderr)
         return None
     cause_rig, sent_rig, _why = stops[0]
     events = [json.loads(line) for line in events_file.read_text().splitlines()]
@@ -211,6 +228,9 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     if cause == "protective":  # the stopped controller refuses programs: the rig's send time
         arrived = [round(sent_mono)]
     if not arrived:
+        print(
+            f"  ({cause}: no stop program reached the lab after the rig sent it)", file=sys.stderr
+        )
         return None
     arrival, period = arrived[0], 1e9 / frequency
     zeros = [e for e in events if e["event"] == "actual_zero" and e["monotonic_ns"] >= arrival]
@@ -239,9 +259,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10, help="actions per cause and frequency")
     parser.add_argument("--quick", action="store_true", help="one run of three causes, 125 Hz")
+    parser.add_argument("--causes", default=",".join(CAUSES), help="comma-separated causes")
+    parser.add_argument("--frequencies", default="125,500", help="comma-separated, Hz")
     args = parser.parse_args()
-    runs, frequencies = (1, (125,)) if args.quick else (args.runs, (125, 500))
-    causes = ("limit", "sigint", "write") if args.quick else CAUSES
+    chosen = tuple(c for c in args.causes.split(",") if c)
+    if unknown := sorted(set(chosen) - set(CAUSES)):
+        parser.error(f"unknown cause {unknown[0]!r}; use some of {', '.join(CAUSES)}")
+    rates = tuple(int(f) for f in args.frequencies.split(",") if f)
+    runs, frequencies = (1, (125,)) if args.quick else (args.runs, rates)
+    causes = ("limit", "sigint", "write") if args.quick else chosen
     print(f"load {os.getloadavg()[0]:.1f}; virtual lab time scale {SCALE}; {runs} runs each")
     head = ("cause", "Hz", "p99 cycles", "median", "p99 ms", "zero ms", "missed")
     print(f"{head[0]:<11}{head[1]:>5}{head[2]:>12}{head[3]:>8}{head[4]:>9}{head[5]:>9}{head[6]:>8}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 # ruff: noqa: ARG002 (a driver takes the interface's arguments; the fake uses few)
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Self
 
@@ -48,6 +49,10 @@ class FakeArm:
     commands: list[tuple[int, str]] = field(default_factory=list)
     cause_cycle: int | None = None
     stop_cycle: int | None = None
+    #: When the stop reached the arm (recorder clock, ns).
+    stop_ns: int | None = None
+    #: How long the caller's thread is held after a stop reached the arm (a loaded machine).
+    hold_after_stop_s: float = 0.0
     _next_ns: int = 0
     _cycle: int = 0
     _contact_cycle: int | None = None
@@ -171,7 +176,8 @@ class FakeArm:
         if phase == "contact":
             self._contact_cycle = self._cycle
         elif self.stop_cycle is None:
-            self.stop_cycle = self._cycle
+            self.stop_cycle, self.stop_ns = self._cycle, self.clock.now_ns()
+            time.sleep(self.hold_after_stop_s)
 
     def stats(self) -> list[SourceStats]:
         return [SourceCounter("fake-arm", period_ns=self.period_ns).stats()]

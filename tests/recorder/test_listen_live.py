@@ -41,7 +41,7 @@ EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.t
 
 
 def _map(root: Path, **time: str) -> Path:
-    """Return the example map without a tool pose (the virtual lab publishes none)."""
+    """Return the example map without a tool pose (fewer topics for the virtual lab)."""
     text = EXAMPLE.read_text(encoding="utf-8")
     head, _, rest = text.partition("[tool_pose]")
     rest = rest[rest.index("\n[skin]") :]
@@ -343,10 +343,9 @@ def test_the_soak_benchmark_runs_quick() -> None:
     assert written is not None, done.stdout
     assert written.group(2) != "0"
     assert "accounting: missing 0, queue overflow 0" in done.stdout
-    if written.group(1) != written.group(2):
-        # a known defect, open: on a loaded machine a soak file now and then fails check
-        # (rows the import's alignment drops are not in the accounting); shown, not hidden
-        pytest.xfail(f"a soak file failed check: {done.stdout[-1500:]}")
+    # a publisher held up across an action's edge is a counted pause, not a failed file
+    # (test_listen_edges.py replays such streams deterministically)
+    assert written.group(1) == written.group(2), done.stdout[-1500:]
 
 
 def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: Path) -> None:
@@ -386,3 +385,16 @@ def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: P
     recorded = [tuple(row) for row in joints.position.tolist()]
     assert recorded
     assert set(recorded) <= shown
+
+
+def test_the_virtual_lab_tool_pose_quaternion_is_scipys() -> None:
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
+    from recorder.virtuallab._ros2_server import _quaternion  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    rotvecs = [np.zeros(3), np.array([0.0, np.pi, 0.0]), *rng.uniform(-3, 3, (20, 3))]
+    for rotvec in rotvecs:
+        mine = np.array(_quaternion(rotvec))
+        theirs = Rotation.from_rotvec(rotvec).as_quat()  # x, y, z, w
+        assert np.allclose(mine, theirs) or np.allclose(mine, -theirs), rotvec

@@ -122,6 +122,22 @@ def test_a_signal_stops_the_arm_keeps_the_data_then_ends_the_run(
     _kept(path, f"interrupted by {name}")
 
 
+def test_the_stop_is_timed_when_it_goes_to_the_arm(tmp_path: Path) -> None:
+    # a loaded machine holds the recorder's thread after the stop left (another thread runs):
+    # the stop's recorded time is not after its arrival at the arm (a latency benchmark
+    # matches the controller's log against it)
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.hold_after_stop_s = 0.05
+    _after_contact(rig, lambda: os.kill(os.getpid(), signal.SIGINT))
+    with rig, pytest.raises(KeyboardInterrupt, match="interrupted by Ctrl-C"):
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    assert arm.stop_ns is not None
+    ((cause, sent, why),) = rig.stops_sent
+    assert why == "interrupted by Ctrl-C (SIGINT)"
+    assert cause <= sent <= arm.stop_ns
+
+
 def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -1,0 +1,253 @@
+"""``listen`` at the edges of an action: a publisher's jitter there is a pause, not a defect.
+
+A lab's publisher stamps each sample when it sends it; when it is held up (the scheduler of a
+loaded computer, between two cells' writes or before a tick), the samples it owed before an
+edge of the action are stamped after it. The streams here are replayed through the listener
+offline (as a recovery replays a journal: the same code as live, no DDS traffic, the same
+result on every run): a cell sent late just before the execute phase, a publisher paused
+across the action's end, and a listener that reads its topics late give files that pass
+``check`` with nothing missing; a cell that really stops before the end still fails it.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+from recorder import load_actions, load_objects
+from recorder.bagimport._journal import JournalStep
+from recorder.bagimport._listen import Listener
+from recorder.bagimport._source import typestore
+from recorder.bagimport._topicmap import load_topic_map
+from replay.cli._main import _check_one
+from replay.recording._reader import read_recording
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from rosbags.typesys.store import Typestore
+
+    from recorder.bagimport._report import ImportReport
+
+MS = 1_000_000
+#: The lab's clock at the session's first tick, ns.
+WALL = 1_700_000_000 * 1_000_000_000
+#: Ticks (ms) of the execute annotation and the end; the session's length.
+EXECUTE, END, LENGTH = 500, 1000, 1300
+CELLS = 2
+#: topic pattern -> (type, period in ms)
+TOPICS = {
+    "/skin/force_{cell}": ("edge_msgs/msg/Vec3", 1),
+    "/skin/temp_{cell}": ("edge_msgs/msg/Scalar", 50),
+}
+TYPES = {
+    "edge_msgs/msg/Vec3": "std_msgs/Header header\nfloat32[3] data\n",
+    "edge_msgs/msg/Scalar": "std_msgs/Header header\nfloat32 data\n",
+}
+_STAMP = struct.Struct("<iI").pack_into
+
+#: (tick ms, topic) -> how long the publisher is held up before it sends that message, ms
+Stalls = dict[tuple[int, str], int]
+
+
+def _map(root: Path) -> Path:
+    """Write the topic map: force at 1 kHz and temperature at 20 Hz per cell, one action."""
+    lines = ["[time]", 'stamps = "header"', "max_delay_s = 0.2", "", "[skin]"]
+    lines += [f"cells = {list(range(CELLS))}", ""]
+    modalities = ("force", "temperature")
+    for modality, (topic, (_, period)) in zip(modalities, TOPICS.items(), strict=True):
+        lines += [f"[skin.{modality}]", f'topic = "{topic}"', 'field = "data"']
+        lines += [f"rate_hz = {1000 // period}", ""]
+    lines += ["[windows]", 'source = "topic"', 'topic = "/annotations"', ""]
+    lines += ["[actions.tap]", 'kind = "static"', f"duration_s = {(END - EXECUTE) / 1000}", ""]
+    lines += ["[objects.wood]", 'name = "Wood"', "", "[types]"]
+    for name, text in TYPES.items():
+        (root / (name.rsplit("/", 1)[-1] + ".msg")).write_text(text, encoding="utf-8")
+        lines.append(f'"{name}" = "{name.rsplit("/", 1)[-1]}.msg"')
+    path = root / "map.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _template(store: Typestore, msgtype: str) -> bytearray:
+    """Return a message of ``msgtype`` whose stamp (CDR bytes 4..12) is patched per send."""
+    types = store.types
+    header = types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="edge"
+    )
+    value = np.ones(3, np.float32) if msgtype.endswith("Vec3") else 1.0
+    return bytearray(store.serialize_cdr(types[msgtype](header=header, data=value), msgtype))
+
+
+def _annotation(store: Typestore, phase: str, tick: int) -> bytes:
+    """Return the annotation of ``phase`` scheduled at ``tick`` (the lab's schedule)."""
+    text = {"object": "wood", "action": "tap", "phase": phase, "trial": 1}
+    text["stamp_ns"] = WALL + tick * MS
+    message = store.types["std_msgs/msg/String"](data=json.dumps(text))
+    return bytes(store.serialize_cdr(message, "std_msgs/msg/String"))
+
+
+def _session(
+    store: Typestore, stalls: Stalls, sends: Callable[[str, int], bool], length: int = LENGTH
+) -> list[tuple[str, int, bytes]]:
+    """Return the session's messages (topic, receive ns, CDR) as a publisher sends them.
+
+    Every tick's messages are sent in topic order and stamped when sent: 10 us apart, no
+    earlier than the tick, later after a stall (which holds up everything after it).
+    """
+    templates = {t: _template(store, m) for t, (m, _) in TOPICS.items()}
+    now, out = WALL, []
+    for tick in range(length):
+        now = max(now, WALL + tick * MS)
+        for phase, at in (("execute", EXECUTE), ("end", END)):
+            if tick == at:
+                out.append(("/annotations", now + MS, _annotation(store, phase, tick)))
+        for pattern, (_, period) in TOPICS.items():
+            for cell in range(CELLS):
+                topic = pattern.format(cell=cell)
+                if tick % period or not sends(topic, tick):
+                    continue
+                now += stalls.get((tick, topic), 0) * MS + 10_000
+                template = templates[pattern]
+                _STAMP(template, 4, now // 1_000_000_000, now % 1_000_000_000)
+                out.append((topic, now + MS // 5, bytes(template)))
+    out.sort(key=lambda item: item[1])
+    return out
+
+
+def _listen(
+    tmp_path: Path,
+    stalls: Stalls,
+    sends: Callable[[str, int], bool] = lambda _t, _k: True,
+    *,
+    lag_ms: int = 0,
+    length: int = LENGTH,
+    before_finish: list[int] | None = None,
+) -> ImportReport:
+    """Replay the session through ``listen``'s listener in 50 ms steps; return its report.
+
+    With ``lag_ms``, the listener reads every message that much after it was received (a
+    listener held up: its steps' time runs ahead of what its readers took). The session
+    lasts ``length`` ms; ``before_finish`` gets the windows written before the run ended.
+    """
+    topic_map = load_topic_map(_map(tmp_path))
+    store = typestore(topic_map)
+    listener = Listener(
+        topic_map,
+        tmp_path / "out",
+        load_objects(None),
+        load_actions(None),
+        journal=False,
+        started_ns=WALL,
+    )
+    types = {"/annotations": "std_msgs/msg/String"}
+    types |= {p.format(cell=c): m for p, (m, _) in TOPICS.items() for c in range(CELLS)}
+    listener.prepare(types)
+    counts = dict.fromkeys(types, (0, 0, 0))
+    items = _session(store, stalls, sends, length)
+    step = WALL
+    while step < WALL + (length + 2000) * MS:
+        taken = [item for item in items if step <= item[1] + lag_ms * MS < step + 50 * MS]
+        step += 50 * MS
+        listener.replay(JournalStep(taken, step, counts))
+    if before_finish is not None:
+        before_finish.append(listener.session.done)
+    return listener.finish()
+
+
+def _checked(report: ImportReport) -> tuple[str | None, str | None, int, int]:
+    """Return the one file's check problem and warning, its missing samples and gaps."""
+    assert len(report.written) == 1, (report.written, report.skipped)
+    path = report.written[0]
+    problem, warning, _ = _check_one(path)
+    if problem is not None:
+        return problem, warning, -1, -1
+    sources = read_recording(path).sources
+    return None, warning, sum(s.missing for s in sources), sum(s.gaps for s in sources)
+
+
+def test_a_steady_publisher_gives_a_file_without_warnings(tmp_path: Path) -> None:
+    assert _checked(_listen(tmp_path, {})) == (None, None, 0, 0)
+
+
+@pytest.mark.parametrize("late_ms", [1, 6, 20])
+def test_a_cell_sent_late_before_the_execute_phase_passes_check(
+    tmp_path: Path, late_ms: int
+) -> None:
+    # held up between cell 0's and cell 1's force of the tick before the execute phase: that
+    # tick's row has no cell 1 sample near it, and the ticks after it are stamped late
+    problem, _, missing, _ = _checked(_listen(tmp_path, {(EXECUTE - 1, "/skin/force_1"): late_ms}))
+    assert problem is None
+    assert missing == 0
+
+
+def test_a_publisher_paused_across_the_end_passes_check_with_a_gap(tmp_path: Path) -> None:
+    # held up for 60 ms 20 ticks before the end: every sample it owed before the end is
+    # stamped after it, and the force inside the window ends 21 ms early
+    problem, warning, missing, gaps = _checked(_listen(tmp_path, {(END - 20, "/skin/force_0"): 60}))
+    assert problem is None
+    assert warning is not None
+    assert "force pauses 0.06" in warning
+    assert missing == 0
+    assert gaps > 0
+
+
+def test_a_cell_that_stops_before_the_end_fails_check(tmp_path: Path) -> None:
+    report = _listen(tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick < END - 100)
+    problem, _, _, _ = _checked(report)
+    assert problem is not None
+    assert "/skin/force covers 0.400 s of the 0.5 s execute phase" in problem
+    assert "stopped early" in problem
+
+
+def test_a_publisher_paused_across_the_start_is_counted_as_a_gap(tmp_path: Path) -> None:
+    # 30 ms held up just before the execute phase: the pause crosses the window's start, and
+    # the window's accounting counts it (the file's skin reaches across the start)
+    problem, warning, missing, gaps = _checked(
+        _listen(tmp_path, {(EXECUTE - 5, "/skin/force_0"): 30})
+    )
+    assert problem is None
+    assert warning is not None
+    assert missing == 0
+    assert gaps > 0
+
+
+def test_a_cell_that_starts_late_fails_check(tmp_path: Path) -> None:
+    # cell 1 begins 30 ms into the execute phase (not late enough to count as a listener
+    # that joined part-way): no row has both cells before then
+    report = _listen(tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick >= 530)
+    problem, _, _, _ = _checked(report)
+    assert problem is not None
+    assert "/skin/force begins 0.030 s after the 0.5 s execute phase of tap began" in problem
+    assert "started late" in problem
+
+
+def test_a_listener_held_up_writes_each_window_once_its_samples_came(tmp_path: Path) -> None:
+    # every message is read 1.5 s after it arrived, longer than max_delay_s (0.2 s) and the
+    # import's margin (1 s) together: the time alone would write the window before the last
+    # 0.3 s of its samples were read
+    report = _listen(tmp_path, {}, lag_ms=1500)
+    assert report.late_samples == {}
+    assert _checked(report) == (None, None, 0, 0)
+
+
+def test_a_topic_that_stopped_does_not_hold_the_windows(tmp_path: Path) -> None:
+    # cell 1's temperature stops for good after the action; the others go on: its window is
+    # written while the listener runs (the others' stamps passed it), not only at its end
+    written: list[int] = []
+    report = _listen(
+        tmp_path,
+        {},
+        lambda topic, tick: topic != "/skin/temp_1" or tick < END + 100,
+        length=END + 15_000,
+        before_finish=written,
+    )
+    assert written == [1]
+    assert _checked(report)[0] is None
