@@ -154,8 +154,11 @@ class LearnerOptions:
         """A copy with some options changed (strategy options route to the strategy).
 
         ``transfer`` may be a name or a strategy; a strategy's own option (e.g. ``eps_neg1``)
-        changes the strategy.
+        changes the strategy. The name of the strategy in use keeps it with its options;
+        another name starts that strategy from its defaults.
         """
+        if changes.get("transfer") == self.transfer.name:
+            changes = {k: v for k, v in changes.items() if k != "transfer"}
         return LearnerOptions.from_dict({**self.as_dict(), **changes})
 
     def as_dict(self) -> dict[str, Any]:
