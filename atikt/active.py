@@ -222,8 +222,8 @@ class ActionState:
         rhos: Warm-start learned rho per new object and old object (model optimisation).
         metrics: Per new object, whether its classifier's hyperprior is centred on the old
             objects' kernel (metric transfer) in the current update.
-        gated: Per new object, whether the transfer gate (``transfer_from``,
-            ``borrow_initial``) kept its classifier from borrowing in the current update.
+        gated: Per new object, whether the transfer gate (``transfer_from``, the strategy's
+            ``borrows_initial``) kept its classifier from borrowing in the current update.
         uncertainty: ``UNC`` per new object, shape (n_new,).
         prior_stacks: The prior observations of each old object, stacked on first use.
         prior_probabilities: The old objects' one-vs-all probabilities of each observation
@@ -548,9 +548,9 @@ class ActiveLearner:
             if options.metric_until is not None and counts[obj] > options.metric_until:
                 centre, sd = base, base_sd  # enough own observations: the data decide
             # too few of its own observations to tell what is related; or the initial round,
-            # every object seen once, with borrow_initial off
+            # every object seen once, where the strategy does not borrow on it
             closed = counts[obj] < options.transfer_from or (
-                not options.borrow_initial and counts.max() <= 1
+                counts.max() <= 1 and not self.strategy.borrows_initial()
             )
             kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]

@@ -72,9 +72,6 @@ class LearnerOptions:
             observations until the object has this many observations of the action; 1: from
             the first (the thesis). The old objects' kernel (metric transfer) follows
             ``metric_*``.
-        borrow_initial: Whether the initial round (one observation of every new object of the
-            action) borrows old objects' observations; False: the initial fits borrow none,
-            the later ones as ``transfer_from`` and the strategy decide.
         bias: Learn a constant ``b^2`` in the kernel (a bias of the latent function).
         patience: Stop after this many steps without the mean ``UNC`` improving by
             ``min_improvement``; None: run the whole budget.
@@ -96,7 +93,6 @@ class LearnerOptions:
     metric_check: MetricCheck = "either"
     metric_until: int | None = 2
     transfer_from: int = 1
-    borrow_initial: bool = True
     bias: bool = False
     patience: int | None = None
     min_improvement: float = 1e-3
@@ -158,8 +154,11 @@ class LearnerOptions:
         """A copy with some options changed (strategy options route to the strategy).
 
         ``transfer`` may be a name or a strategy; a strategy's own option (e.g. ``eps_neg1``)
-        changes the strategy.
+        changes the strategy. The name of the strategy in use keeps it with its options;
+        another name starts that strategy from its defaults.
         """
+        if changes.get("transfer") == self.transfer.name:
+            changes = {k: v for k, v in changes.items() if k != "transfer"}
         return LearnerOptions.from_dict({**self.as_dict(), **changes})
 
     def as_dict(self) -> dict[str, Any]:

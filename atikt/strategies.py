@@ -118,6 +118,10 @@ class TransferStrategy:
         """
         return self.keeps_choice
 
+    def borrows_initial(self) -> bool:
+        """Whether the initial round (every new object seen once) may borrow observations."""
+        return True
+
     def options(self) -> dict[str, Any]:
         """The strategy's own options by name (as given to :func:`transfer_strategy`)."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -204,6 +208,13 @@ class Prediction(TransferStrategy):
             under it (``transfer="density"``'s score) at least ``min_tail``. A one-vs-all
             classifier extrapolates: an observation far from every old object can score 0.9
             for the one it is least far from. None: no gate (the thesis).
+        borrow_initial: Whether the initial round (one observation of every new object of the
+            action) borrows. The old models' probability of one observation does not tell a
+            related old object from chance (a dissimilar one scores 0.6-0.9 as readily), and
+            with every object seen once nothing else offsets a wrong borrowing; from the first
+            step on, objects seen more often than others are what the borrowed observations
+            balance. False: the initial fits borrow no observations (the old objects' kernel
+            as metric transfer decides); True: the thesis.
     """
 
     name: ClassVar[str] = "prediction"
@@ -214,6 +225,11 @@ class Prediction(TransferStrategy):
     held_out_quantile: float | None = None
     exclusive: bool = False
     min_tail: float | None = None
+    borrow_initial: bool = True
+
+    def borrows_initial(self) -> bool:
+        """``borrow_initial``."""
+        return self.borrow_initial
 
     def keeps(self) -> bool:
         """Exclusive sources depend on the other new objects' observations: chosen again."""

@@ -20,6 +20,7 @@ from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, headline, pa
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from atikt import LearnerOptions
     from replay.studies._running import Study
 
 #: One section of a summary: markdown from the study's results and options.
@@ -203,6 +204,21 @@ def notes(config: StudyConfig, *, learners: bool = True) -> str:
     return text
 
 
+def _gate_notes(learner: LearnerOptions) -> str:
+    """The note on when the ATIKT learners borrow old objects' observations (empty: always)."""
+    parts = []
+    if not learner.transfer.borrows_initial():
+        parts.append("not in the initial round, where every new object has one observation")
+    if learner.transfer_from > 1:
+        parts.append(
+            f"not before a new object has {learner.transfer_from} observations of the action "
+            "(`--transfer-from`)"
+        )
+    if not parts:
+        return ""
+    return f"ATIKT learners borrow old objects' observations {'; '.join(parts)}.\n"
+
+
 def _learner_notes(config: StudyConfig) -> str:
     """Return the notes on the learners' hyperparameter prior and metric transfer."""
     learner = config.learner
@@ -212,6 +228,7 @@ def _learner_notes(config: StudyConfig) -> str:
         else f"\nLearners: maximum a posteriori hyperparameters, a Gaussian prior of sd "
         f"{learner.hyper_sd:g} (log space) around the initial kernel (`--hyper-sd`).\n"
     )
+    text += _gate_notes(learner)
     if learner.metric_sd is None:
         return text + "ATIKT learners: no metric transfer (`--metric-sd none`).\n"
     until = (

@@ -63,7 +63,7 @@ def test_a_closed_gate_borrows_no_observations_until_the_second(
                 borrowed += 1
                 assert counts[obj] >= 2
     assert borrowed
-    records = [r for r in full.history_ if r.prior >= 0]
+    records = [r for r in full.history_ if r.prior is not None and r.prior >= 0]
     assert records  # the step records name the source once the gate opened
 
 
@@ -90,3 +90,11 @@ def test_without_initial_borrowing_the_first_round_borrows_nothing_then_the_step
         if np.bincount(stepped.states_[action].labels, minlength=len(NEW_OBJECTS))[obj] == 1
     ]
     assert any(source is not None for source in once)
+
+
+def test_naming_the_strategy_in_use_keeps_its_options() -> None:
+    options = LearnerOptions().replace(borrow_initial=False, eps_neg1=0.7)
+    assert options.replace(transfer="prediction").transfer == options.transfer
+    assert options.replace(transfer="density").transfer.name == "density"
+    again = options.replace(transfer="density").replace(transfer="prediction")
+    assert again.transfer == LearnerOptions().transfer  # the thesis's defaults
