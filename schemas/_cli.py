@@ -293,13 +293,18 @@ class PlainProgress(Progress):
             self.console.print(progress_line(task), highlight=False, soft_wrap=True)
 
 
+#: Seconds of recent progress the time-left estimate follows.
+RECENT_S = 30.0
+
+
 def progress_line(task: Task) -> str:
     """Return a task's progress as one line for a log.
 
     ``study transfer: 12/100 tasks, ~40 s left (9 s)``: done of total, the remaining time and
-    the time elapsed. The remaining time follows the recent rate (rich's samples of the last
-    30 s, up to now: the start of worker processes does not weigh on it), else the mean time
-    per unit so far. Without a total yet: the count alone; nothing done yet: no estimate.
+    the time elapsed. The remaining time follows the rate of the last 30 s (the start of
+    worker processes does not weigh on it, results arriving together count at their share of
+    the window), else the mean time per unit so far. Without a total yet: the count alone;
+    nothing done yet: no estimate.
     """
     unit = f" {task.fields['unit']}" if task.fields.get("unit") else ""
     elapsed = task.elapsed or 0.0
@@ -311,16 +316,16 @@ def progress_line(task: Task) -> str:
     if task.completed <= 0:
         return f"{done} ({elapsed:.0f} s)"
     left = elapsed / task.completed * (task.total - task.completed)
-    # rich's own estimate divides by the span of its samples alone: two tasks ending together
-    # on two workers read as a burst rate ("~1 s left" with most of the work to do); the
-    # recent rate here runs to now, so a pause lowers it
-    samples = list(task._progress)  # noqa: SLF001 - rich's last 30 s of advances, no public view
-    if len(samples) >= 2:  # noqa: PLR2004
-        span = task.get_time() - samples[0].timestamp
-        advanced = sum(sample.completed for sample in samples[1:])  # each sample: one advance
-        rate = advanced / span if span > 0 else 0.0
-        if rate > 0:
-            left = (task.total - task.completed) / rate
+    # rich's own estimate divides by the span of its samples: results that arrive together
+    # (two workers, or a pool returning finished tasks in order) read as a burst rate ("~1 s
+    # left" with half the work to do); here the advances of the last 30 s are divided by the
+    # whole 30 s (or the time so far), so a burst counts at its share of the window
+    window = min(RECENT_S, elapsed)
+    now = task.get_time()
+    samples = task._progress  # noqa: SLF001 - rich's last 30 s of advances, no public view
+    advanced = sum(sample.completed for sample in samples if sample.timestamp >= now - window)
+    if window > 0 and advanced > 0:
+        left = (task.total - task.completed) / (advanced / window)
     return f"{done}, ~{left:.0f} s left ({elapsed:.0f} s)"
 
 

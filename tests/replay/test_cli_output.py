@@ -200,10 +200,10 @@ def test_the_estimate_follows_the_recent_rate_not_a_slow_start() -> None:
         now[0] = at
         progress.update(task_id, completed=done)
     line = progress_line(progress.tasks[task_id])
-    assert line == "recording: 20/100 recordings, ~80 s left (50 s)"
+    assert line == "recording: 20/100 recordings, ~120 s left (50 s)"  # 20 in the last 30 s
 
 
-def test_two_tasks_ending_together_do_not_read_as_a_burst_rate() -> None:
+def test_results_arriving_together_do_not_read_as_a_burst_rate() -> None:
     now = [0.0]
     progress = Progress(console=Console(file=None), disable=True, get_time=lambda: now[0])
     task_id = progress.add_task("study transfer", total=10, unit="tasks")
@@ -212,4 +212,4 @@ def test_two_tasks_ending_together_do_not_read_as_a_burst_rate() -> None:
         progress.update(task_id, completed=done)
     now[0] = 145.0
     line = progress_line(progress.tasks[task_id])
-    assert line == "study transfer: 2/10 tasks, ~41 s left (145 s)"  # 8 at 1 per 5.1 s
+    assert line == "study transfer: 2/10 tasks, ~120 s left (145 s)"  # 8 at 2 per 30 s
