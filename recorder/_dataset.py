@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import functools
 import hashlib
 import io
 import os
@@ -33,7 +34,7 @@ import polars as pl
 import tomli_w
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from recorder._claim import claim_dataset
 from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
@@ -188,6 +189,17 @@ def watch_parent(parent: int, interval_s: float = WATCH_INTERVAL_S) -> None:
     threading.Thread(target=watch, name="atikt-parent-watch", daemon=True).start()
 
 
+@functools.cache
+def _blas() -> ThreadpoolController:
+    """Return this process's BLAS and OpenMP libraries, found once.
+
+    ``threadpool_limits`` looks for them among every loaded library on each call (a few ms, as
+    much as the writer spends on a recording's messages); the libraries a worker has do not
+    change between its recordings.
+    """
+    return ThreadpoolController()
+
+
 def run_task(
     task: RecordingTask, root: Path, factory: RigFactory, seed: int, parent: int | None = None
 ) -> TaskResult:
@@ -209,7 +221,7 @@ def run_task(
         watch_parent(parent)
     path = task.path(root)
     try:
-        with threadpool_limits(limits=1), factory(seed) as rig:
+        with _blas().limit(limits=1), factory(seed) as rig:
             written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
     except OutputExistsError:
         return TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size)

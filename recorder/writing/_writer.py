@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Self
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 
 from recorder._rig import facts
 from recorder.errors import OutputExistsError, RecorderError
+from recorder.writing._mcap import McapWriter
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 from schemas import (
     INCOMPLETE_RECORD,
@@ -154,36 +155,65 @@ class _Template:
     """A message whose layout never changes: serialised once, then stamp and numbers patched.
 
     Joint states and TCP poses (250 messages per second) have constant strings and sequence
-    lengths, so their CDR bytes differ only in the header stamp and the float64 values.
+    lengths, so their CDR bytes differ only in the header stamp and the float64 values. The
+    template keeps the constant bytes between those fields; a message is the join of the
+    pieces with the new stamp and values (rosbags' serialiser builds a message object per
+    sample and costs ten times as much).
     """
 
-    payload: bytes
-    offsets: tuple[int, ...]
+    pieces: tuple[bytes, ...]
 
     @classmethod
     def create(cls, payload: bytes, runs: Sequence[NDArray[np.float64]]) -> _Template:
-        """Locate each run of float64 values (distinct sentinels) in a serialised message."""
-        offsets = []
+        """Locate each run of float64 values (distinct sentinels, in payload order)."""
+        pieces, start = [payload[:_STAMP_OFFSET]], _STAMP_OFFSET + _STAMP.size
         for run in runs:
             pattern = run.astype("<f8").tobytes()
-            if payload.count(pattern) != 1:  # pragma: no cover (sentinels are unique)
-                msg = "template sentinel values are not unique in the payload"
-                raise RecorderError(msg)
-            offsets.append(payload.index(pattern))
-        return cls(payload, tuple(offsets))
+            if payload.count(pattern) != 1 or payload.index(pattern) < start:
+                msg = "template sentinel values are not unique in the payload"  # pragma: no cover
+                raise RecorderError(msg)  # pragma: no cover
+            offset = payload.index(pattern)
+            pieces.append(payload[start:offset])
+            start = offset + len(pattern)
+        pieces.append(payload[start:])
+        return cls(tuple(pieces))
 
     def fill(self, stamp_ns: int, runs: Sequence[NDArray[np.float64]]) -> bytes:
-        """Return the payload with ``header.stamp`` and the float64 runs replaced."""
-        buffer = bytearray(self.payload)
-        _STAMP.pack_into(buffer, _STAMP_OFFSET, *divmod(stamp_ns, _NS_PER_S))
-        for offset, run in zip(self.offsets, runs, strict=True):
-            data = run.astype("<f8").tobytes()
-            buffer[offset : offset + len(data)] = data
-        return bytes(buffer)
+        """Return the payload with ``header.stamp`` and the runs (``<f8`` arrays) replaced."""
+        pieces = self.pieces
+        parts = [pieces[0], _STAMP.pack(*divmod(stamp_ns, _NS_PER_S))]
+        for piece, run in zip(pieces[1:-1], runs, strict=True):
+            parts += (piece, run.tobytes())
+        parts.append(pieces[-1])
+        return b"".join(parts)
+
+
+@dataclass(frozen=True, slots=True)
+class _BlockTemplate:
+    """A skin block message of one shape: serialised once by rosbags, then patched.
+
+    For a given modality and (samples, cells, channels) every byte before the samples is fixed
+    but the header stamp and the sample period (the cell ids are ``0..cells-1``); the samples
+    are the message's last field. A block is that head, patched, and the samples' bytes: the
+    same bytes as rosbags' serialiser (``tests/recorder/test_writer.py`` compares them), which
+    costs ~140 us a block building the message object, against a few us here.
+    """
+
+    head: bytes
+    period_offset: int
+
+    def fill(self, stamp_ns: int, period_ns: int, data: NDArray[np.float32]) -> bytes:
+        """Return the message of a block with these stamp, period and samples."""
+        head = bytearray(self.head)
+        _STAMP.pack_into(head, _STAMP_OFFSET, *divmod(stamp_ns, _NS_PER_S))
+        _PERIOD.pack_into(head, self.period_offset, period_ns)
+        return b"".join((head, data.astype("<f4", copy=False).tobytes()))
 
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/msg/Time: int32 sec, uint32 nanosec
 _STAMP_OFFSET = 4  # header.stamp follows the 4-byte CDR encapsulation header
+_PERIOD = struct.Struct("<Q")  # sample_period_ns: uint64
+_PERIOD_SENTINEL = 0x0123_4567_89AB_CDEF  # locates sample_period_ns in a block template
 
 
 def _sentinels(size: int, seed: int) -> NDArray[np.float64]:
@@ -199,6 +229,7 @@ class _Encoder:
     store: Typestore = field(default_factory=build_typestore)
     _joints: _Template = field(init=False)
     _poses: _Template = field(init=False)
+    _templates: dict[tuple[object, ...], Any] = field(init=False)
     _dispatch: dict[type, Callable[[Any], tuple[str, bytes]]] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -209,10 +240,26 @@ class _Encoder:
             PoseSample: self._pose,
             PhaseEvent: self._event,
         }
+        # the templates depend only on the message types: those of the shared typestore are
+        # made once per process, not once per recording
+        self._templates = _SHARED_TEMPLATES if self.store is build_typestore() else {}
+        self._joints = self._template(("joints", self.info.joint_names), self._joint_template)
+        self._poses = self._template(("pose",), self._pose_template)
+
+    def _template(self, key: tuple[object, ...], make: Callable[[], Any]) -> Any:  # noqa: ANN401
+        """Return the template of ``key``, made by ``make`` the first time."""
+        template = self._templates.get(key)
+        if template is None:
+            template = self._templates[key] = make()
+        return template
+
+    def _joint_template(self) -> _Template:
         runs = [_sentinels(max(len(self.info.joint_names), 1), seed) for seed in range(3)]
-        self._joints = _Template.create(self._joint_message(0, *runs), runs)
+        return _Template.create(self._joint_message(0, *runs), runs)
+
+    def _pose_template(self) -> _Template:
         pose = _sentinels(7, 3)
-        self._poses = _Template.create(self._pose_message(0, pose[:3], pose[3:]), [pose])
+        return _Template.create(self._pose_message(0, pose[:3], pose[3:]), [pose[:3], pose[3:]])
 
     def encode(self, item: StreamItem) -> tuple[str, int, bytes]:
         """Return the topic, sensor stamp and CDR payload of one stream item.
@@ -248,19 +295,38 @@ class _Encoder:
             known = ", ".join(VOCABULARY.modalities)
             msg = f"rig yielded a block of modality {block.modality!r}; known: {known}"
             raise RecorderError(msg)
-        msgtype = spec.msgtype
+        template: _BlockTemplate = self._template(
+            (spec.msgtype, *data.shape), lambda: self._block_template(spec.msgtype, data.shape)
+        )
+        return spec.topic, template.fill(block.stamp_ns, block.period_ns, data)
+
+    def _block_message(
+        self, msgtype: str, stamp_ns: int, period_ns: int, data: NDArray[np.float32]
+    ) -> bytes:
+        """Serialise a skin block with rosbags (the reference encoding)."""
         n_samples, n_cells, n_channels = data.shape
         message = self.store.types[msgtype](
-            header=self._header(block.stamp_ns, "skin"),
+            header=self._header(stamp_ns, "skin"),
             schema_version=MESSAGE_VERSION,
-            sample_period_ns=block.period_ns,
+            sample_period_ns=period_ns,
             n_samples=n_samples,
             n_cells=n_cells,
             n_channels=n_channels,
             cell_ids=np.arange(n_cells, dtype=np.uint16),
             data=np.ascontiguousarray(data).reshape(-1),
         )
-        return spec.topic, self._serialize(message, msgtype)
+        return self._serialize(message, msgtype)
+
+    def _block_template(self, msgtype: str, shape: tuple[int, ...]) -> _BlockTemplate:
+        """Serialise a block of ``shape`` once and locate its sample period and samples."""
+        samples = np.zeros(shape, dtype=np.float32)
+        payload = self._block_message(msgtype, 0, _PERIOD_SENTINEL, samples)
+        period = _PERIOD.pack(_PERIOD_SENTINEL)
+        head = payload[: len(payload) - samples.nbytes]
+        if payload.count(period) != 1 or head.count(period) != 1:  # pragma: no cover
+            msg = f"{msgtype}: the sample period is not found once in its message"
+            raise RecorderError(msg)
+        return _BlockTemplate(head, head.index(period))
 
     def _joint_message(
         self,
@@ -308,13 +374,11 @@ class _Encoder:
         return self._serialize(message, msgtype)
 
     def _pose(self, sample: PoseSample) -> tuple[str, bytes]:
-        run = np.concatenate(
-            [
-                _vector(sample.position, 3, "TCP position"),
-                _vector(sample.orientation, 4, "TCP orientation"),
-            ]
+        runs = (
+            _vector(sample.position, 3, "TCP position"),
+            _vector(sample.orientation, 4, "TCP orientation"),
         )
-        return _POSES.topic, self._poses.fill(sample.stamp_ns, [run])
+        return _POSES.topic, self._poses.fill(sample.stamp_ns, runs)
 
     def _event(self, event: PhaseEvent) -> tuple[str, bytes]:
         if event.phase not in VOCABULARY.phases:
@@ -340,6 +404,8 @@ class _Encoder:
         return events.topic, self._serialize(message, events.msgtype)
 
 
+#: Templates of the shared typestore's messages, by message and layout (see ``_Encoder``).
+_SHARED_TEMPLATES: dict[tuple[object, ...], Any] = {}
 _JOINTS = VOCABULARY.robot["joint_states"]
 _POSES = VOCABULARY.robot["tcp_pose"]
 TYPE_OF_TOPIC = {
@@ -355,11 +421,16 @@ def _vector(values: Iterable[float], size: int, what: str) -> NDArray[np.float64
     Raises:
         RecorderError: The length is wrong.
     """
-    array = np.asarray(values, dtype=np.float64).reshape(-1)
+    if type(values) is np.ndarray and values.dtype == _F8 and values.shape == (size,):
+        return values  # the rigs' usual case, checked without a conversion
+    array = np.asarray(values, dtype=_F8).reshape(-1)
     if array.shape != (size,):
         msg = f"{what} has {array.size} values; the rig must give {size}"
         raise RecorderError(msg)
     return array
+
+
+_F8 = np.dtype("<f8")
 
 
 def _temporary_path(final: Path) -> Path:
@@ -508,7 +579,7 @@ class RecordingWriter:
         self._encoder = _Encoder(info)
         self._temporary: Path | None = None
         self._stream: IO[bytes] | None = None
-        self._writer: Writer | None = None
+        self._writer: McapWriter | None = None
         self._channel_ids: dict[str, int] = {}
         self._sequences: dict[str, int] = {}
         self._last_flush_ns: int | None = None
@@ -571,9 +642,9 @@ class RecordingWriter:
             raise
         return self
 
-    def _start(self, stream: IO[bytes]) -> Writer:
+    def _start(self, stream: IO[bytes]) -> McapWriter:
         """Start the MCAP file: header, metadata record, schemas and channels."""
-        writer = Writer(
+        writer = McapWriter(
             stream,
             chunk_size=self._chunk_size,
             compression=self._compression,
@@ -584,7 +655,7 @@ class RecordingWriter:
         self._register(writer, VOCABULARY.events.topic)
         return writer
 
-    def _register(self, writer: Writer, topic: str) -> int:
+    def _register(self, writer: McapWriter, topic: str) -> int:
         """Register a topic's schema and channel (on its first message: absent ones stay out)."""
         msgtype = TYPE_OF_TOPIC[topic]
         text, _ = self._encoder.store.generate_msgdef(msgtype, ros_version=2)
@@ -629,7 +700,7 @@ class RecordingWriter:
     def flush(self) -> None:
         """End the open chunk and hand everything written so far to the operating system."""
         if self._writer is not None:
-            self._writer.flush()  # type: ignore[no-untyped-call]
+            self._writer.flush()
 
     def __exit__(
         self,
@@ -670,7 +741,7 @@ class RecordingWriter:
                 reason, at_ns = self._incomplete
                 record = {"reason": reason, "stopped_ns": str(at_ns)}
                 self._writer.add_metadata(INCOMPLETE_RECORD, record)
-            self._writer.finish()  # type: ignore[no-untyped-call]
+            self._writer.finish()
             self._stream.flush()
             os.fsync(self._stream.fileno())
             self._stream.close()

@@ -82,9 +82,10 @@ class Split:
         """
         test: dict[Pair, tuple[int, ...]] = {}
         pool: dict[Pair, tuple[int, ...]] = {}
+        recorded = _recorded_trials(frame)
         for obj in objects:
             for action in actions:
-                trials = _trials(frame, obj, action)
+                trials = _trials(recorded, obj, action)
                 rng = np.random.default_rng([seed, _stable(obj), _stable(action)])
                 order = [trials[i] for i in rng.permutation(len(trials))]
                 n_test = min(max(1, round(test_fraction * len(trials))), len(trials) - 1)
@@ -116,14 +117,22 @@ class Split:
         )
 
 
-def _trials(frame: pl.DataFrame, obj: str, action: str) -> list[int]:
-    """Return the sorted trials of (obj, action) in a feature table.
+def _recorded_trials(frame: pl.DataFrame) -> dict[Pair, list[int]]:
+    """Return the trials of every (object, action) of a feature table, in one pass."""
+    recorded: dict[Pair, list[int]] = {}
+    columns = (frame[c].to_list() for c in ("object_id", "action_id", "trial"))
+    for obj, action, trial in zip(*columns, strict=True):
+        recorded.setdefault((obj, action), []).append(trial)
+    return recorded
+
+
+def _trials(recorded: Mapping[Pair, list[int]], obj: str, action: str) -> list[int]:
+    """Return the sorted trials of (obj, action) (``recorded``: :func:`_recorded_trials`).
 
     Raises:
         ReplayError: Fewer than two recordings.
     """
-    part = frame.filter((pl.col("object_id") == obj) & (pl.col("action_id") == action))
-    trials = sorted(part["trial"].to_list())
+    trials = sorted(recorded.get((obj, action), []))
     if len(trials) < 2:  # noqa: PLR2004
         msg = (
             f"object {obj!r}, action {action!r}: {len(trials)} usable recording(s); a run "

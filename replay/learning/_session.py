@@ -283,14 +283,50 @@ def _named(spec: RunSpec, row: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def _scores(learner: ActiveLearner, test: TestSet) -> dict[str, float]:
+@dataclass(slots=True)
+class _ActionScores:
+    """Test accuracy per action, computed again only for an action whose classifiers changed.
+
+    A step refits one action: ``ActiveLearner._update`` gives that action a new feature
+    transformer and a new list of classifiers and changes no other action, and predicting has
+    no side effects. So an action's accuracy is kept with the transformer and classifier list
+    it was computed with (held here: their identities cannot pass to new objects) and used
+    while they are still the action's own. Scoring every action after every step was a
+    quarter of a study's time; the accuracies are the same numbers.
+    """
+
+    test: TestSet
+    _known: dict[str, tuple[object, object, float]] = field(default_factory=dict)
+
+    def __call__(self, learner: ActiveLearner) -> dict[str, float]:
+        """Return the accuracy of each action of the test set, in its order."""
+        scores = {}
+        for action, observations in self.test.items():
+            state = learner.states_.get(action)
+            known = self._known.get(action)
+            if (
+                state is None
+                or known is None
+                or known[0] is not state.transformer
+                or known[1] is not state.models
+            ):
+                value = learner.score_per_action({action: observations})[action]
+                if state is not None:
+                    self._known[action] = (state.transformer, state.models, value)
+                scores[action] = value
+            else:
+                scores[action] = known[2]
+        return scores
+
+
+def _scores(learner: ActiveLearner, per_action_scores: _ActionScores) -> dict[str, float]:
     """Return the accuracy of all actions together and of each action, and the metric share.
 
     ``metric_share``: the share of the new objects' classifiers fitted under metric transfer
     (``ActiveLearner.metric_share``), which transfers the old objects' kernel, not their
     observations (``rho`` says when observations are transferred).
     """
-    per_action = learner.score_per_action(test)
+    per_action = per_action_scores(learner)
     overall = sum(per_action.values()) / len(per_action)
     accuracies = {"accuracy": overall} | {f"accuracy_{a}": v for a, v in per_action.items()}
     return accuracies | {"metric_share": learner.metric_share()}
@@ -350,17 +386,18 @@ def _learn(
     Raises:
         ReplayError: The learner refused its input; the message says why.
     """
+    scores = _ActionScores(test)
     try:
         learner.initialise()
         initial = {"step": 0, "object": "", "action": "", "explored": False, "prior": ""}
         result.rows.append(initial | {"n_observations": learner.n_observations_})
-        result.rows[-1] |= _scores(learner, test)
+        result.rows[-1] |= _scores(learner, scores)
         if on_step is not None:
             on_step(result.rows[-1])
         while not learner.done:
             record = learner.step()
             row = _named(spec, record.as_row()) | {"step": record.step + 1}
-            result.rows.append(row | _scores(learner, test))
+            result.rows.append(row | _scores(learner, scores))
             if on_step is not None:
                 on_step(result.rows[-1])
     except AtiktError as err:

@@ -52,7 +52,11 @@ def _kept_not_published(root: Path, final: Path) -> None:
 
 @pytest.mark.parametrize(
     "where",
-    ["mcap.writer.Writer.add_message", "mcap.writer.Writer.flush", "mcap.writer.Writer.finish"],
+    [
+        "recorder.writing._mcap.McapWriter.add_message",
+        "recorder.writing._mcap.McapWriter.flush",
+        "recorder.writing._mcap.McapWriter.finish",
+    ],
 )
 def test_disk_full_at_any_stage_is_named_and_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str

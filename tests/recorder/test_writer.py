@@ -302,6 +302,38 @@ def test_fixed_layout_messages_match_rosbags_serialization(
         assert encoder.encode(pose)[2] == encoder._pose_message(stamp, position, orientation)
 
 
+def test_fixed_layout_messages_take_any_float_sequence(objects: Objects, actions: Actions) -> None:
+    encoder = _Encoder(_info(objects["wood"], actions["P1"]))
+    q = np.random.default_rng(12).normal(size=(3, 6))
+    reference = encoder._joint_message(5, *q)
+    as_lists = JointSample(5, 5, q[0].tolist(), list(q[1]), tuple(q[2]))  # type: ignore[arg-type]
+    as_float32 = JointSample(5, 5, q[0], q[1].astype(">f8"), q[2][None, :])
+    assert encoder.encode(as_lists)[2] == reference
+    assert encoder.encode(as_float32)[2] == reference
+    with pytest.raises(RecorderError, match="joint velocity has 5 values"):
+        encoder.encode(JointSample(5, 5, q[0], q[1][:5], q[2]))
+
+
+@pytest.mark.parametrize("modality", list(VOCABULARY.modalities))
+def test_skin_blocks_match_rosbags_serialization(
+    objects: Objects, actions: Actions, modality: str
+) -> None:
+    encoder = _Encoder(_info(objects["wood"], actions["P1"]))
+    rng = np.random.default_rng(13)
+    msgtype = VOCABULARY.modalities[modality].msgtype
+    for shape in ((1, 1, 1), (100, 7, 3), (7, 3, 2), (10, 5, 1), (3, 1, 22), (100, 7, 3)):
+        for stamp, period in ((0, 1), (1_700_000_000_123_456_789, 1_000_000), (999, 2**63)):
+            data = rng.normal(size=shape).astype(np.float32)
+            block = SkinBlock(modality, stamp, period, stamp, data)
+            topic, _, payload = encoder.encode(block)
+            assert topic == VOCABULARY.modalities[modality].topic
+            assert payload == encoder._block_message(msgtype, stamp, period, data)
+    wide = rng.normal(size=(4, 6, 3))  # float64 and not contiguous: converted like rosbags
+    block = SkinBlock(modality, 7, 8, 9, wide[:, ::2].astype(np.float64))
+    expected = encoder._block_message(msgtype, 7, 8, wide[:, ::2].astype(np.float32))
+    assert encoder.encode(block)[2] == expected
+
+
 def test_full_disk_is_a_recorder_error_and_keeps_what_was_written(
     tmp_path: Path, objects: Objects, actions: Actions, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -312,7 +344,7 @@ def test_full_disk_is_a_recorder_error_and_keeps_what_was_written(
         if len(calls) > 100:
             raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("mcap.writer.Writer.add_message", add_message)
+    monkeypatch.setattr("recorder.writing._mcap.McapWriter.add_message", add_message)
     with (
         pytest.raises(RecorderError, match=r"001\.mcap: writing .*No space left on device"),
         FakeRig() as rig,

@@ -8,8 +8,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import mcap.writer
 from conftest import FakeRig
+
+from recorder.writing import _mcap
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -22,7 +23,7 @@ def _full(*_args: object, **_kwargs: object) -> None:
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 
-_FLUSH: Any = mcap.writer.Writer.flush
+_FLUSH: Any = _mcap.McapWriter.flush
 
 
 class FullDiskOnTrialOne(FakeRig):
@@ -34,7 +35,7 @@ class FullDiskOnTrialOne(FakeRig):
 
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
         full = trial == 1
-        mcap.writer.Writer.flush = _full if full else _FLUSH  # type: ignore[method-assign]
+        _mcap.McapWriter.flush = _full if full else _FLUSH  # type: ignore[method-assign]
         for item in super().perform(obj, action, trial):
             if not full:
                 time.sleep(0.002)
