@@ -3,19 +3,29 @@
 A benchmark nobody runs rots: an option renamed or an internal moved, and it crashes the day
 someone needs its figures. Each script found in tests/bench is run here as its own process with
 ``--quick`` (a few steps on tiny data, mostly the committed recordings); it must exit 0 and
-print something. The feature table of the committed recordings is built once per test run, in
-a user cache shared by the scripts (and by the xdist workers, under a lock).
+print something. The processes are forks of a launcher (``tests/bench/_launcher.py``, one per
+xdist worker) that has imported numpy, polars, scikit-learn and the project once, instead of a
+fresh interpreter each that imports them again. The feature table of the committed recordings
+is built once per test run, in a user cache shared by the scripts (and by the xdist workers,
+under a lock).
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
+import select
+import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pytest
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "tests" / "bench"
@@ -25,6 +35,8 @@ LEFT_OUT = {"bench_atikt.py"}
 SCRIPTS = sorted(
     p.name for p in BENCH.glob("*.py") if not p.name.startswith("_") and p.name not in LEFT_OUT
 )
+#: The launcher's import of the libraries, seconds before it counts as hung.
+READY_S = 120
 #: Seconds one quick run may take before it counts as hung.
 TIMEOUT_S = 300
 
@@ -60,17 +72,82 @@ def test_scripts_found() -> None:
     assert not LEFT_OUT & set(SCRIPTS)
 
 
+class _Launcher:
+    """A running ``_launcher.py``: one script at a time, each a fork of it."""
+
+    def __init__(self, env: dict[str, str]) -> None:
+        self.process = subprocess.Popen(  # noqa: S603 (this interpreter, a script of this checkout)
+            [sys.executable, str(BENCH / "_launcher.py")],
+            cwd=BENCH,
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,  # unbuffered: select() sees every answer
+        )
+        assert self._answer(READY_S) == {"ready": 1}
+
+    def _answer(self, timeout_s: float) -> dict[str, int] | None:
+        """Return the launcher's next answer, or None when none came within ``timeout_s``."""
+        assert self.process.stdout is not None
+        ready, _, _ = select.select([self.process.stdout], [], [], timeout_s)
+        if not ready:
+            return None
+        line = self.process.stdout.readline()
+        assert line, f"the launcher ended (status {self.process.wait()})"
+        answer: dict[str, int] = json.loads(line)
+        return answer
+
+    def run(self, script: Path, argv: list[str], cwd: Path, env: dict[str, str]) -> int | None:
+        """Run ``script ARGV`` in ``cwd``; its exit status (None: killed after TIMEOUT_S).
+
+        What it prints is in ``cwd/stdout.txt`` and ``cwd/stderr.txt``.
+        """
+        assert self.process.stdin is not None
+        request: dict[str, Any] = {"script": str(script), "argv": argv, "cwd": str(cwd)}
+        request |= {
+            "env": env,
+            "stdout": str(cwd / "stdout.txt"),
+            "stderr": str(cwd / "stderr.txt"),
+        }
+        self.process.stdin.write(json.dumps(request).encode() + b"\n")
+        started = self._answer(READY_S)
+        assert started is not None
+        assert "pid" in started
+        ended = self._answer(TIMEOUT_S)
+        if ended is None:  # hung: killed, and the launcher reports its end
+            os.kill(started["pid"], signal.SIGKILL)
+            assert self._answer(READY_S) is not None
+            return None
+        return ended["status"]
+
+    def close(self) -> None:
+        """End the launcher (end of its input)."""
+        assert self.process.stdin is not None
+        self.process.stdin.close()
+        self.process.wait(timeout=30)
+
+
+@pytest.fixture(scope="session")
+def launcher(quick_env: dict[str, str]) -> Iterator[_Launcher]:
+    """This worker's launcher of the quick runs."""
+    running = _Launcher(quick_env)
+    try:
+        yield running
+    finally:
+        running.close()
+
+
 @pytest.mark.parametrize("script", SCRIPTS)
-def test_quick_mode_runs(script: str, quick_env: dict[str, str], tmp_path: Path) -> None:
-    command = [sys.executable, str(BENCH / script), "--quick"]
-    done = subprocess.run(  # noqa: S603 (this interpreter, a script of this checkout)
-        command,
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        env=quick_env | {"TMPDIR": str(tmp_path)},
-        timeout=TIMEOUT_S,
-        check=False,
+def test_quick_mode_runs(
+    script: str, quick_env: dict[str, str], launcher: _Launcher, tmp_path: Path
+) -> None:
+    status = launcher.run(
+        BENCH / script, ["--quick"], tmp_path, quick_env | {"TMPDIR": str(tmp_path)}
     )
-    assert done.returncode == 0, f"{script} --quick failed:\n{done.stdout}\n{done.stderr}"
-    assert done.stdout.strip(), f"{script} --quick printed nothing:\n{done.stderr}"
+    stdout = (tmp_path / "stdout.txt").read_text("utf-8", errors="replace")
+    stderr = (tmp_path / "stderr.txt").read_text("utf-8", errors="replace")
+    assert status is not None, (
+        f"{script} --quick still ran after {TIMEOUT_S} s:\n{stdout}\n{stderr}"
+    )
+    assert status == 0, f"{script} --quick failed:\n{stdout}\n{stderr}"
+    assert stdout.strip(), f"{script} --quick printed nothing:\n{stderr}"
