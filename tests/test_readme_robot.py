@@ -231,7 +231,7 @@ def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -
             assert done.returncode == 0, f"{session[0]}\n{done.stderr}"
             deadline = time.monotonic() + 60  # the lab's last 'end', then the window written
             while sum(line.endswith(".mcap\n") for line in lines) < 2:
-                assert time.monotonic() < deadline, lines
+                assert time.monotonic() < deadline, "".join(lines)
                 time.sleep(0.1)
         finally:
             recorder.send_signal(signal.SIGINT)

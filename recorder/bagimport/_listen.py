@@ -24,6 +24,7 @@ written.
 from __future__ import annotations
 
 import hashlib
+import signal
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -78,6 +79,7 @@ from recorder.bagimport._windows import (
 )
 from recorder.errors import BagImportError, RecorderError
 from recorder.live import RecorderClock, SourceCounter, SourceReader
+from recorder.runner import deferred_interrupts
 
 if TYPE_CHECKING:
     import threading
@@ -812,26 +814,43 @@ def listen(
     )
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
-        listener.start()
-        listener._note(  # noqa: SLF001
-            f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
-            "(Ctrl-C or SIGTERM stops, keeping the open action as incomplete)"
-        )
-        while not (stop is not None and stop.is_set()):
-            if deadline is not None and time.monotonic() >= deadline:
-                break
-            listener.step()
+        listener.start()  # discovery; Ctrl-C here ends the run before anything arrived
     except KeyboardInterrupt as err:
-        signal_name = "SIGTERM" if isinstance(err, Terminated) else "SIGINT"
-        listener.report.interrupted = signal_name
-        listener._note(  # noqa: SLF001
-            f"interrupted ({signal_name}): writing the actions whose end arrived, the open "
-            "one as incomplete"
-        )
-    except JournalError as err:
-        listener.drop_journal(err)
-    finally:
         listener.stop()
+        return _interrupted(listener, "SIGTERM" if isinstance(err, Terminated) else "SIGINT")
+    # From here a signal only sets a flag: raised wherever Python happens to be, it could
+    # fall between a journal's creation and its bookkeeping and leave a stray file.
+    with deferred_interrupts() as flag:
+        try:
+            listener._note(  # noqa: SLF001
+                f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
+                "(Ctrl-C or SIGTERM stops, keeping the open action as incomplete)"
+            )
+            while flag.signum is None and not (stop is not None and stop.is_set()):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                listener.step()
+        except JournalError as err:
+            listener.drop_journal(err)
+        finally:
+            listener.stop()
+        if flag.signum is not None:
+            return _interrupted(listener, "SIGTERM" if flag.signum == signal.SIGTERM else "SIGINT")
+        return _finish(listener)
+
+
+def _interrupted(listener: Listener, signal_name: str) -> ImportReport:
+    """End a run a signal stopped: say so, then write what arrived."""
+    listener.report.interrupted = signal_name
+    listener._note(  # noqa: SLF001
+        f"interrupted ({signal_name}): writing the actions whose end arrived, the open "
+        "one as incomplete"
+    )
+    return _finish(listener)
+
+
+def _finish(listener: Listener) -> ImportReport:
+    """Take what is still queued, then write the windows and the index."""
     try:
         listener.step(0)
     except JournalError as err:

@@ -153,6 +153,8 @@ class ArmRig:
         self._state = _State()
         self._begun_ns = 0
         self._last_event_ns = 0
+        #: Modality -> the stamp of the latest skin sample taken in this action.
+        self._skin_until: dict[str, int] = {}
         #: Where the approaches begin (the object's pose once presented, else the first
         #: approach's start); retracts return there, so actions never creep toward the object.
         self._home: NDArray[np.float64] | None = None
@@ -319,6 +321,7 @@ class ArmRig:
             contact = yield from self._approach(at)
             yield from self._execute(at, action, contact)
             yield from self._retract(at, contact)
+            yield from self._skin_catch_up(self.clock.now_ns())
         except (Stop, SourceLostError) as ended:
             stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
             self._send_stop(at, stop.reason, stop.at_ns)
@@ -445,14 +448,30 @@ class ArmRig:
             self.arm.force_slide(
                 action.force_n, velocity, action.duration_s, motion.acceleration_m_s2, here
             )
+            # the hold counts from the first state that shows the slide running: a program
+            # starts a controller cycle or more after it is sent (later on a loaded machine)
+            limit = self.clock.now_ns() + round((2.0 * scale + 1.0) * _NS)
+            while self._state.still:
+                yield from self._pump()
+                if self.clock.now_ns() > limit:
+                    msg = "the slide did not begin: the arm stayed still"
+                    raise Stop(msg, self.clock.now_ns())
             start = self.clock.now_ns()
         else:
+            axis = _tool_axis(contact, 2)
             target = contact.copy()
-            target[:3] += _tool_axis(contact, 2) * action.depth_m
+            target[:3] += axis * action.depth_m
             self.arm.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
             travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 1.0
             limit = self.clock.now_ns() + round(travel_s * _NS)
-            while not self._reached(target):
+            # at depth: past half the depth (a depth of REACHED_M is "reached" at the contact,
+            # before the press program has begun), within REACHED_M of the target and still
+            # (the press is over: the hold is at depth, not on the way there)
+            while not (
+                self._pressed(contact, axis, action.depth_m)
+                and self._reached(target)
+                and self._state.still
+            ):
                 yield from self._pump()
                 if self.clock.now_ns() > limit:
                     reason = f"the press did not reach its depth {action.depth_m:g} m within 1 mm"
@@ -517,6 +536,7 @@ class ArmRig:
         """Forget what queued before (between actions), keeping the arm's latest state."""
         self.arm.begin()
         self._begun_ns = self.clock.now_ns()
+        self._skin_until = {}
 
     def _pump(self, wait_s: float = CYCLE_WAIT_S) -> Iterator[StreamItem]:
         """Yield what arrived (state samples, skin blocks) in receive order; check for stops.
@@ -537,9 +557,13 @@ class ArmRig:
                 violation_ns = sample.receive_ns
             items.extend(_items(sample))
         try:
-            items.extend(self.skin.poll())
+            blocks = self.skin.poll()
         except SourceLostError as err:
-            violation = violation or f"skin connection lost ({err})"
+            violation, blocks = violation or f"skin connection lost ({err})", []
+        for block in blocks:
+            last = block.stamp_ns + (block.data.shape[0] - 1) * block.period_ns
+            self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), last)
+        items.extend(blocks)
         items.sort(key=lambda item: item.receive_ns)
         yield from items
         self._check(violation, violation_ns)
@@ -583,6 +607,21 @@ class ArmRig:
         if reason:
             raise Stop(reason, now)
 
+    def _skin_catch_up(self, end_ns: int) -> Iterator[StreamItem]:
+        """Pump until the skin's samples reach ``end_ns``, at most :data:`SKIN_DELAY_S`.
+
+        A transport that delivers late (ROS 2 on a loaded machine: the publisher's samples
+        stamped on time, sent late) still has the action's last samples on their way when
+        the arm is done; without the wait they would be missing from the file.
+        """
+        limit = self.clock.now_ns() + round(SKIN_DELAY_S * _NS)
+        while (
+            self._skin_until
+            and min(self._skin_until.values()) < end_ns
+            and self.clock.now_ns() < limit
+        ):
+            yield from self._pump()
+
     def _rest(self) -> Iterator[StreamItem]:
         """Yield what is still queued: state samples and the skin's open blocks."""
         items: list[StreamItem] = []
@@ -602,6 +641,17 @@ class ArmRig:
     def _reached(self, target: NDArray[np.float64]) -> bool:
         pose = self._state.pose
         return pose is not None and float(np.linalg.norm(pose[:3] - target[:3])) <= REACHED_M
+
+    def _pressed(
+        self, contact: NDArray[np.float64], axis: NDArray[np.float64], depth_m: float
+    ) -> bool:
+        """Whether the arm went at least half ``depth_m`` past the contact along ``axis``."""
+        pose = self._state.pose
+        return pose is not None and float((pose[:3] - contact[:3]) @ axis) >= depth_m / 2
+
+
+#: How long the end of an action waits for skin samples stamped up to it, s.
+SKIN_DELAY_S = 2.0
 
 
 def _phase(at: Context, phase: str) -> Context:

@@ -85,6 +85,8 @@ class Ros2Server:
     _cells: dict[str, SkinTopic] = field(default_factory=dict)
     _annotations: str | None = None
     _announced: tuple[tuple[str, str, int], str] | None = None
+    _said: int = 0
+    _last_stamp: int = 0
     #: The annotations published, as (stamp ns, JSON text).
     annotated: list[tuple[int, str]] = field(default_factory=list)
 
@@ -138,6 +140,7 @@ class Ros2Server:
         """Publish at the rates until stopped (sample times on an exact grid)."""
         store = self.domain.store
         start = time.time_ns()
+        offset = start - self.world.controller_ns()  # wall clock minus controller time
         cell_period = round(_NS_PER_S / self.rate_hz)
         joint_period = round(_NS_PER_S / self.joint_rate_hz)
         stalled = self.faults.stall_s <= 0
@@ -151,8 +154,8 @@ class Ros2Server:
                 stalled = True
                 time.sleep(self.faults.stall_s)
             controller = self.world.controller_ns()
-            if due == next_cell:  # the phase at the sample time (the loop may run late)
-                self._annotate(store, due, controller - max(time.time_ns() - due, 0))
+            if due == next_cell:  # the phases announced up to the sample time
+                self._annotate(store, offset, due - offset)
             if due == next_joint:
                 self._robot(store, due, controller)
                 next_joint += joint_period
@@ -161,35 +164,30 @@ class Ros2Server:
                     self._publish(topic, self._cell(store, extractor, due, controller))
                 next_cell += cell_period
 
-    def _annotate(self, store: Any, stamp: int, controller_ns: int) -> None:  # noqa: ANN401
-        """Publish an annotation when the action enters a phase at ``controller_ns``.
+    def _annotate(self, store: Any, offset_ns: int, controller_ns: int) -> None:  # noqa: ANN401
+        """Publish the phases the world's programs announced up to ``controller_ns``.
 
-        The phase is the world's at the sample time (``controller_ns``), which may lie behind
-        the world's present when the publishing loop runs late: the action announced is the
-        one playing, or, once it ended at present, the one announced until its ``end``.
+        Each annotation is stamped with the time of the cycle that executed its ``textmsg``
+        (controller time + ``offset_ns``: the wall clock), so a loop running late delays the
+        annotations but never drops, merges or reorders them. An action that gives way to
+        another without saying ``end`` is ended where the next one begins.
         """
         if self._annotations is None:
             return
-        playing = self.world.playing()
-        announced = self._announced
-        key = playing if playing is not None else (announced[0] if announced else None)
-        if announced is not None and announced[0] != key and announced[1] != "end":
-            self._say(store, announced[0], "end", stamp)
-            announced = None
-        phase = self.world.phase_at(controller_ns) if key is not None else None
-        if key is None or phase is None:
-            self._announced = None
-            return
-        if playing is None and announced is None:
-            return  # an action that ended before it was announced
-        if phase == "end" and (announced is None or announced[0] != key):
-            return  # a new action whose first phase has not reached the sample time yet
-        if announced is None or announced[0] != key or announced[1] not in {phase, "end"}:
+        said, self._said = self.world.announcements(self._said, controller_ns)
+        for at_ns, key, phase in said:
+            stamp = max(at_ns + offset_ns, self._last_stamp + 1)  # increasing, as a bag's
+            announced = self._announced
+            if announced is not None and announced[0] != key and announced[1] != "end":
+                self._say(store, announced[0], "end", stamp)
+                stamp += 1
+                announced = None
+            if announced is not None and announced == (key, phase):
+                continue  # said again (a program re-announcing its phase)
+            if announced is None and phase == "end":
+                continue  # the end of an action never begun here
             self._say(store, key, phase, stamp)
-            announced = (key, phase)
-        if playing is None and announced[1] == "end":
-            announced = None
-        self._announced = announced
+            self._announced = None if phase == "end" else (key, phase)
 
     def _say(self, store: Any, key: tuple[str, str, int], phase: str, stamp: int) -> None:  # noqa: ANN401
         """Publish one annotation."""
@@ -200,6 +198,7 @@ class Ros2Server:
         message = store.types[ANNOTATION_TYPE](data=text)
         self._writers[self._annotations].write(bytes(store.serialize_cdr(message, ANNOTATION_TYPE)))
         self.annotated.append((stamp, text))
+        self._last_stamp = stamp
 
     def _robot(self, store: Any, stamp: int, controller_ns: int) -> None:  # noqa: ANN401
         """Publish the arm's joint state and tool pose, where the map has their topics."""

@@ -69,6 +69,8 @@ HOME_POSE = (-0.6, -0.2, 0.2, 0.0, np.pi, 0.0)
 HISTORY_S = 4
 #: Newest cycles readers search without the lock.
 RECENT = 32
+#: Phase announcements kept for readers such as the ROS 2 publisher (each action says ~5).
+ANNOUNCED = 1024
 #: Lines of the controller's log kept (a ring: the oldest go first).
 LOG_LINES = 1000
 #: Cycles the world may fall behind its clock before it computes the backlog as one cycle
@@ -166,6 +168,13 @@ class VirtualWorld:
     _first_action_ns: int | None = field(default=None, init=False)
     _world_s: float = field(default=0.0, init=False)
     _recent: tuple[_Cycle, ...] = field(default=(), init=False)
+    #: Every phase announced, as (controller ns of its cycle's end, key, phase), in order;
+    #: a ring of the latest ``ANNOUNCED`` (``_said`` counts them all).
+    _announced: deque[tuple[int, tuple[str, str, int], str]] = field(
+        default_factory=lambda: deque(maxlen=ANNOUNCED), init=False
+    )
+    _said: int = field(default=0, init=False)
+    _cycle_end_ns: int = field(default=0, init=False)
     _ticker: threading.Thread | None = field(default=None, init=False)
     _stopping: threading.Event = field(default_factory=threading.Event, init=False)
 
@@ -280,6 +289,7 @@ class VirtualWorld:
         than a cycle's between two states).
         """
         dt = min(end_ns - start_ns, self._period_ns) / 1e9 / self.time_scale
+        self._cycle_end_ns = end_ns
         if self._pending is not None:
             self._runner.load(self._pending)
             self._pending = None
@@ -380,6 +390,9 @@ class VirtualWorld:
             self.note(f"textmsg announcement {dict(pairs)} not understood")
             return
         self._phase = phase
+        with self._lock:  # the cycle's lock is held already; readers take it too
+            self._announced.append((self._cycle_end_ns, key, phase))
+            self._said += 1
         if phase != "approach" or key == self._action:
             return
         obj, action = self.objects.get(key[0]), self.actions.get(key[1])
@@ -525,6 +538,29 @@ class VirtualWorld:
     def phase_at(self, controller_ns: int) -> str | None:
         """Return the announced phase at a controller time (None: no action yet)."""
         return self._at(controller_ns).phase
+
+    def announcements(
+        self, after: int, until_ns: int
+    ) -> tuple[list[tuple[int, tuple[str, str, int], str]], int]:
+        """Return the phases announced after the first ``after``, up to ``until_ns``.
+
+        Each is (controller ns of the cycle that executed it, (object, action, trial), phase),
+        in the order the programs said them, every one of them: a reader that samples the
+        phase at its own times would miss a phase shorter than its period, or see two at one
+        stamp. Returns them and the count to pass as ``after`` next time.
+        """
+        self._catch_up(until_ns)
+        with self._lock:
+            kept = list(self._announced)
+            first = self._said - len(kept)
+        found: list[tuple[int, tuple[str, str, int], str]] = []
+        position = max(after, first)
+        for at_ns, key, phase in kept[position - first :]:
+            if at_ns > until_ns:
+                break
+            found.append((at_ns, key, phase))
+            position += 1
+        return found, position
 
     def action_at(self, controller_ns: int) -> tuple[str, str, int] | None:
         """Return the announced (object, action, trial) at a controller time (None: none)."""

@@ -53,6 +53,13 @@ class FakeArm:
     stop_ns: int | None = None
     #: How long the caller's thread is held after a stop reached the arm (a loaded machine).
     hold_after_stop_s: float = 0.0
+    #: Cycles from a motion command to its start (a program's way to the controller).
+    latency_cycles: int = 0
+    #: The cycle at which each ``move`` reached its target, by phase.
+    reached: dict[str, int] = field(default_factory=dict)
+    _pending: list[tuple[int, str, NDArray[np.float64] | None, float]] = field(default_factory=list)
+    _moving_phase: str = ""
+    _queued_velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
     _next_ns: int = 0
     _cycle: int = 0
     _contact_cycle: int | None = None
@@ -86,6 +93,12 @@ class FakeArm:
 
     def _step(self) -> None:
         dt = self.period_ns / 1e9
+        while self._pending and self._pending[0][0] <= self._cycle:
+            _, phase, target, value = self._pending.pop(0)
+            if target is None:  # a slide or a speed: value is unused, velocity was queued
+                self.target, self.velocity = None, self._queued_velocity
+            else:
+                self.target, self.target_speed, self._moving_phase = target, value, phase
         if self.target is not None:
             delta = self.target[:3] - self.pose[:3]
             distance = float(np.linalg.norm(delta))
@@ -94,6 +107,7 @@ class FakeArm:
                 self.pose[:3] += delta / distance * step
             else:  # there: a real arm's program ends and its joints stand still
                 self.target = None
+                self.reached.setdefault(self._moving_phase, self._cycle)
         else:
             self.pose[:3] += self.velocity[:3] * dt
             self.pose[2] = max(self.pose[2], SURFACE_Z - 0.003)  # the object stops the arm
@@ -152,8 +166,13 @@ class FakeArm:
     def move(
         self, pose: NDArray[np.float64], speed: float, acceleration: float, at: Context | None
     ) -> None:
-        self.commands.append((self._cycle, f"move {'present' if at is None else at.phase}"))
-        self.target, self.target_speed = np.asarray(pose, dtype=np.float64).copy(), speed
+        phase = "present" if at is None else at.phase
+        self.commands.append((self._cycle, f"move {phase}"))
+        target = np.asarray(pose, dtype=np.float64).copy()
+        if self.latency_cycles:
+            self._pending.append((self._cycle + self.latency_cycles, phase, target, speed))
+            return
+        self.target, self.target_speed, self._moving_phase = target, speed, phase
 
     def force_slide(
         self,
@@ -164,6 +183,10 @@ class FakeArm:
         at: Context,
     ) -> None:
         self.commands.append((self._cycle, f"slide {at.phase}"))
+        if self.latency_cycles:
+            self._queued_velocity = np.asarray(velocity, dtype=np.float64).copy()
+            self._pending.append((self._cycle + self.latency_cycles, at.phase, None, 0.0))
+            return
         self.target, self.velocity = None, np.asarray(velocity, dtype=np.float64).copy()
 
     def announce(self, at: Context) -> None:
@@ -172,7 +195,7 @@ class FakeArm:
     def stop(self, acceleration: float, at: Context | None) -> None:
         phase = "stop" if at is None else at.phase
         self.commands.append((self._cycle, f"stop {phase}"))
-        self.target, self.velocity = None, np.zeros(6)
+        self.target, self.velocity, self._pending = None, np.zeros(6), []
         if phase == "contact":
             self._contact_cycle = self._cycle
         elif self.stop_cycle is None:
@@ -236,10 +259,10 @@ class FakeSkin:
         return []
 
 
-def fake_rig(cause: str = "", *, period_ns: int = 8_000_000) -> ArmRig:
+def fake_rig(cause: str = "", *, period_ns: int = 8_000_000, latency_cycles: int = 0) -> ArmRig:
     """Return a runner over a fake arm and skin (time scale 0.05: actions are short)."""
     clock = RecorderClock()
-    arm = FakeArm(clock, period_ns=period_ns, cause=cause)
+    arm = FakeArm(clock, period_ns=period_ns, cause=cause, latency_cycles=latency_cycles)
     options = RunnerOptions(time_scale=0.05, silence_s=0.1)
     return ArmRig(
         arm,

@@ -185,3 +185,19 @@ def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> No
         "move retract",
         "announce end",
     ]
+
+
+@pytest.mark.parametrize("latency_cycles", [0, 25])
+def test_a_shallow_press_holds_its_duration_at_depth_however_late_the_program_starts(
+    tmp_path: Path, latency_cycles: int
+) -> None:
+    # P1 presses 1 mm: within REACHED_M of its target at the contact already; the hold must
+    # still count from the arm at depth, not from the command (a program that starts late)
+    press = load_actions()["P1"]
+    rig = fake_rig(latency_cycles=latency_cycles)
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig:
+        record_action(rig, OBJECT, press, 1, tmp_path / "001.mcap", seed=0)
+    hold_cycles = press.duration_s * 0.05 * 1e9 / arm.period_ns
+    retract = next(cycle for cycle, command in arm.commands if command == "move retract")
+    assert retract - arm.reached["execute"] >= hold_cycles - 1, arm.commands

@@ -453,3 +453,25 @@ def test_the_skins_readings_go_on_from_one_action_to_the_next() -> None:
     # in free air a reading is offset, drift and noise: the offsets go on (redrawn, they would
     # move by 0.003 N per sensor; the means of 160 samples differ by noise and drift only)
     assert np.abs(after - before).max() < 0.0015
+
+
+def test_every_phase_announced_is_kept_in_order_for_a_late_reader() -> None:
+    clock = Clock()
+    world = _world(clock)
+    said = "atikt: object=wood action=P1 trial=1 phase="
+    world.run(_program(f'textmsg("{said}approach")', f'textmsg("{said}contact")'))
+    _cycles(world, clock, 2)
+    world.run(
+        _program(f'textmsg("{said}execute")', "speedl([0.0, 0.0, 0.01, 0.0, 0.0, 0.0], 0.5, 0.1)")
+    )
+    _cycles(world, clock, 5)
+    world.run(_program(f'textmsg("{said}retract")'))
+    _cycles(world, clock, 2)
+    early, position = world.announcements(0, 2 * world.period_ns)
+    assert [phase for _, _, phase in early] == ["approach", "contact"]  # one cycle, both kept
+    late, end = world.announcements(position, clock.now)  # a reader that ran late
+    assert [phase for _, _, phase in late] == ["execute", "retract"]
+    stamps = [at for at, _, _ in early + late]
+    assert stamps == sorted(stamps)
+    assert all(key == ("wood", "P1", 1) for _, key, _ in early + late)
+    assert world.announcements(end, clock.now) == ([], end)
