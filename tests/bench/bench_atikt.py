@@ -8,7 +8,7 @@ action) and then 40 steps. Printed:
   action's models + record), over the first 5 steps (up to 40 collected observations) and over
   all 40 steps;
 - side by side, on the same inputs (the learner's state just before each update, copied; each
-  implementation timed in a loop of its own over all updates, ``--rounds`` rounds (3), an
+  update timed in atikt and right after in scikit-learn, ``--rounds`` rounds (3), an
   update's time its fastest round): the median time of atikt's update of the chosen action
   and of the same update done with scikit-learn's GaussianProcessClassifier
   (tests/atikt/sklearn_reference.py, with its ``warm_start`` on, its fastest setting, and its
@@ -162,8 +162,10 @@ class TimedLearner(ActiveLearner):
     def compare(self, rounds: int = 3) -> None:
         """Time every recorded update in atikt and in scikit-learn; compare the results.
 
-        Each round times atikt's loop over all updates (on fresh copies), then scikit-learn's;
-        an update's time is its fastest over the rounds (the machine's noise only ever adds).
+        Each round times every update in atikt (on a fresh copy) and right after it the same
+        update in scikit-learn, so the two meet the same moment of the machine's load (in
+        loops of their own, a burst of load during one loop moved the ratio by 1.5x between
+        runs); an update's time is its fastest over the rounds (noise only ever adds).
         scikit-learn searches the objective atikt's update searched (same source, rho and
         hyperprior per classifier, taken from atikt's update): the comparison is of the
         searches, not of the choices.
@@ -172,25 +174,23 @@ class TimedLearner(ActiveLearner):
         fits: list[list[ObjectSearch]] = []
         for _ in range(rounds):
             mine = [copy.deepcopy(s.learner) for s in self.snapshots]
-            times = []
-            for learner, s in zip(mine, self.snapshots, strict=True):
+            states = [copy.deepcopy(s.learner.states_[s.action]) for s in self.snapshots]
+            times, their_times = [], []
+            for index, (learner, s, state) in enumerate(
+                zip(mine, self.snapshots, states, strict=True)
+            ):
                 start = time.perf_counter()
                 learner._update(
                     s.action, n_restarts=s.n_restarts, max_iter=s.max_iter, changed=s.changed
                 )
                 times.append(time.perf_counter() - start)
-            ours.append(times)
-            if not fits:
-                fits = [
-                    searched(m.states_[s.action]) for m, s in zip(mine, self.snapshots, strict=True)
-                ]
-            times = []
-            states = [copy.deepcopy(s.learner.states_[s.action]) for s in self.snapshots]
-            for s, state, fit in zip(self.snapshots, states, fits, strict=True):
+                if len(fits) <= index:
+                    fits.append(searched(learner.states_[s.action]))
                 start = time.perf_counter()
-                self._reference(s, state, fit, warm_start=True)
-                times.append(time.perf_counter() - start)
-            theirs.append(times)
+                self._reference(s, state, fits[index], warm_start=True)
+                their_times.append(time.perf_counter() - start)
+            ours.append(times)
+            theirs.append(their_times)
         self.ours = list(np.min(ours, axis=0))
         self.theirs = list(np.min(theirs, axis=0))
         for learner, s, fit in zip(mine, self.snapshots, fits, strict=True):
