@@ -26,6 +26,7 @@ from atikt import (
     entropy,
     modality_kernel,
 )
+from atikt.active import separation
 from atikt.gpc import normalise
 from atikt.transfer import OLD_DOMAIN, with_domain
 
@@ -310,6 +311,7 @@ def reference_update(
     changed: int | None = None,
     warm_start: bool = True,
     fits: Sequence[ObjectSearch] | None = None,
+    metric_check: str = "none",
 ) -> tuple[FloatArray, FloatArray]:
     """One action update of the model prediction approach with scikit-learn.
 
@@ -328,7 +330,9 @@ def reference_update(
     recomputed (the others' depends on unchanged observations and fixed prior models).
     ``fits``: per new object, the source, rho and hyperprior atikt's update used; given, the
     reference searches the same objective from the same choices (a comparison of the searches
-    alone).
+    alone). ``metric_check``: the learner's check of metric transfer (``separation``,
+    ``evidence``, ``either``), done here with scikit-learn's kernels and classifiers so that
+    the update does the learner's work; its outcome is atikt's (in ``fits``).
     """
     prior = state.prior
     transformer = FeatureTransformer(n_thermal_components=n_thermal_components)
@@ -336,6 +340,15 @@ def reference_update(
     labels = np.asarray(state.labels)
     groups = prior.by_object() if prior is not None else {}
     auxiliary = {old: transformer.transform(obs) for old, obs in groups.items()}
+    _metric_work(
+        state,
+        transformer,
+        X,
+        auxiliary,
+        amplitude=amplitude,
+        n_new=n_new_objects,
+        check=metric_check,
+    )
     models: list[tuple[GaussianProcessClassifier, bool]] = []
     values: list[float] = []
     for obj in range(n_new_objects):
@@ -384,6 +397,63 @@ def reference_update(
     entropies = entropy(normalise(np.column_stack(columns)))
     unc = np.array([entropies[labels == obj].mean() for obj in range(n_new_objects)])
     return unc, np.array(values)
+
+
+def _metric_work(
+    state: ActionState,
+    transformer: FeatureTransformer,
+    X: FloatArray,
+    auxiliary: dict[int, FloatArray],
+    *,
+    amplitude: bool,
+    n_new: int,
+    check: str,
+) -> bool | None:
+    """The learner's check of metric transfer (None: none asked, or no old objects' kernel)."""
+    prior = state.prior
+    if check == "none" or prior is None or prior.model is None:
+        return None
+    initial = modality_kernel(transformer.slices_, amplitude=amplitude)
+    thetas = [e.kernel_.theta for e in prior.model.estimators_]
+    metric = initial.with_theta(np.median(thetas, axis=0))
+    kernels = (reference_kernel(metric), reference_kernel(initial))
+    labels = np.asarray(state.labels)
+    return check_metric(kernels, X, labels, auxiliary, n_new_objects=n_new, check=check)
+
+
+def check_metric(
+    kernels: tuple[SkKernel, SkKernel],
+    X: FloatArray,
+    labels: npt.NDArray[np.int64],
+    auxiliary: dict[int, FloatArray],
+    *,
+    n_new_objects: int,
+    check: str,
+) -> bool:
+    """Whether the old objects' kernel passes the learner's check, in scikit-learn.
+
+    ``separation`` ranks kernel correlations (atikt's function, given scikit-learn's kernels:
+    the kernel evaluations are scikit-learn's); ``evidence`` sums the new objects'
+    one-vs-all log evidence, each a scikit-learn classifier fitted without optimisation.
+    """
+    metric, initial = kernels
+    passed = False
+    if check in {"separation", "either"}:
+        passed = separation(metric, X, labels, auxiliary) >= separation(
+            initial, X, labels, auxiliary
+        )
+    if not passed and check in {"evidence", "either"}:
+        evidence = [
+            sum(
+                GaussianProcessClassifier(kernel=kernel, optimizer=None)
+                .fit(X, (labels == obj).astype(np.float64))
+                .log_marginal_likelihood_value_
+                for obj in range(n_new_objects)
+            )
+            for kernel in (metric, initial)
+        ]
+        passed = evidence[0] >= evidence[1]
+    return passed
 
 
 def reference_old_model(

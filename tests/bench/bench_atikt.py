@@ -146,6 +146,9 @@ class TimedLearner(ActiveLearner):
             changed=snapshot.changed,
             warm_start=warm_start,
             fits=fits,
+            metric_check=learner.options.metric_check
+            if learner.options.metric_sd is not None
+            else "none",
         )
 
     def _update(
