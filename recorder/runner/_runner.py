@@ -153,7 +153,7 @@ class ArmRig:
         self._state = _State()
         self._begun_ns = 0
         self._last_event_ns = 0
-        #: Modality -> the stamp of the latest skin sample taken in this action.
+        #: Modality -> how far its skin samples taken in this action reach (last + period).
         self._skin_until: dict[str, int] = {}
         #: Where the approaches begin (the object's pose once presented, else the first
         #: approach's start); retracts return there, so actions never creep toward the object.
@@ -560,9 +560,9 @@ class ArmRig:
             blocks = self.skin.poll()
         except SourceLostError as err:
             violation, blocks = violation or f"skin connection lost ({err})", []
-        for block in blocks:
-            last = block.stamp_ns + (block.data.shape[0] - 1) * block.period_ns
-            self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), last)
+        for block in blocks:  # each modality's samples cover up to their last one + a period
+            until = block.stamp_ns + block.data.shape[0] * block.period_ns
+            self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), until)
         items.extend(blocks)
         items.sort(key=lambda item: item.receive_ns)
         yield from items
@@ -608,7 +608,7 @@ class ArmRig:
             raise Stop(reason, now)
 
     def _skin_catch_up(self, end_ns: int) -> Iterator[StreamItem]:
-        """Pump until the skin's samples reach ``end_ns``, at most :data:`SKIN_DELAY_S`.
+        """Pump until the skin's samples cover ``end_ns``, at most :data:`SKIN_DELAY_S`.
 
         A transport that delivers late (ROS 2 on a loaded machine: the publisher's samples
         stamped on time, sent late) still has the action's last samples on their way when
