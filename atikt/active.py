@@ -28,6 +28,7 @@ old objects' models are fitted once per learner (or once per study, see
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
@@ -116,7 +117,7 @@ def separation(
         obs[np.linspace(0, len(obs) - 1, min(len(obs), SEPARATION_REPEATS)).astype(int)]
         for obs in aux.values()
     ]
-    repeats = [(kernel(obs) / scale)[np.triu_indices(len(obs), 1)] for obs in kept]
+    repeats = [(kernel(obs) / scale)[_upper_pairs(len(obs))] for obs in kept]
     pooled = np.sort(np.concatenate([np.empty(0), *repeats]))
     pairs = np.triu(labels[:, None] != labels[None, :], 1)
     if pooled.size == 0 or not pairs.any():
@@ -125,6 +126,18 @@ def separation(
     below = np.searchsorted(pooled, between, side="left")
     above = np.searchsorted(pooled, between, side="right")
     return float(np.mean(1.0 - (below + above) / (2.0 * pooled.size)))
+
+
+@functools.cache
+def _upper_pairs(n: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return the indices of the strict upper triangle of an (n, n) matrix (read only).
+
+    Cached: :func:`separation` needs them for every old object at every update, and numpy
+    builds them through an (n, n) mask each time (a tenth of a millisecond apiece).
+    """
+    rows, columns = np.triu_indices(n, 1)
+    rows.flags.writeable = columns.flags.writeable = False
+    return rows, columns
 
 
 def entropy(p: FloatArray) -> FloatArray:
