@@ -34,21 +34,6 @@ from replay.learning._session import (
     run_learning,
     run_offline,
 )
-from replay.live import (
-    LiveView,
-    check_rig,
-    claim_live_run,
-    configured_rig,
-    default_dataset_dir,
-    default_dataset_ready,
-    ensure_default_dataset,
-    foxglove_view,
-    free_file,
-    learn_live,
-    live_output,
-)
-from replay.outputs._plots import plot_learning_curves
-from replay.outputs._study_report import run_study
 from replay.studies._fusion_prior import (
     FUSION_PRIORS,
     HYPERPARAMETERS,
@@ -86,6 +71,11 @@ def _progress(description: str, unit: str = "") -> tuple[Progress, Callable[[int
 
 def _dataset(path: Path | None, workers: int) -> Path:
     """Return the dataset to use: the given one, else the default simulated dataset."""
+    from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        default_dataset_ready,
+        ensure_default_dataset,
+    )
+
     if path is not None:
         if not path.is_dir():
             msg = f"{path}: not a directory; give a dataset directory (atikt-record dataset)"
@@ -239,6 +229,10 @@ _PRIOR_ACTIONS = arg(
 
 def _dataset_input(path: Path | None) -> tuple[str, Path]:
     """Return the dataset a command reads, for :func:`schemas.cli.refuse_overlap`."""
+    from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        default_dataset_dir,
+    )
+
     if path is not None:
         return ("dataset", path)
     return ("default dataset", default_dataset_dir())
@@ -347,6 +341,13 @@ def _step_line(row: dict[str, Any]) -> str:
     WORKERS,
 )
 def _learn_command(args: argparse.Namespace) -> int:
+    from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        check_rig,
+        claim_live_run,
+        configured_rig,
+        live_output,
+    )
+
     workers = cli.worker_count(args.workers)
     learner = learner_from_args(args)  # before any work: refused in one line
     if args.rig is None and args.rig_config is not None:
@@ -449,6 +450,8 @@ def _learn_into(
     other: _OtherRig | None = None,
 ) -> None:
     """Run the learning and write its history, settings and plot into ``out``."""
+    from replay.outputs._plots import plot_learning_curves  # noqa: PLC0415 (matplotlib on use)
+
     models = None
     if spec.transfers:
         lookup = FeatureLookup(table.frame, spec.features)
@@ -519,6 +522,14 @@ def _learn_live(
     on_step: Callable[[dict[str, Any]], Any],
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
+    from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        LiveView,
+        configured_rig,
+        foxglove_view,
+        free_file,
+        learn_live,
+    )
+
     config = configured_rig(args.rig_config, args.rig, args.rig_option)
     session = out / "session"
     with contextlib.ExitStack() as stack:
@@ -613,6 +624,8 @@ def _live_settings(args: argparse.Namespace, spec: RunSpec) -> dict[str, Any]:
 )
 def _study_command(args: argparse.Namespace) -> int:
     # all: a study of another rig's priors only with that rig's recordings
+    from replay.outputs._study_report import run_study  # noqa: PLC0415 (matplotlib on use)
+
     every = [
         n
         for n, s in STUDIES.items()

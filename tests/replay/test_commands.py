@@ -127,6 +127,7 @@ def test_study_without_out_takes_a_new_numbered_directory(
 def test_a_complete_default_dataset_prints_no_recording_progress(
     small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    import replay.live  # noqa: PLC0415
     from replay.cli import _learn  # noqa: PLC0415
 
     shown: list[str] = []
@@ -137,8 +138,8 @@ def test_a_complete_default_dataset_prints_no_recording_progress(
         return progress(description, unit)
 
     monkeypatch.setattr(_learn, "_progress", spy)
-    monkeypatch.setattr(_learn, "default_dataset_ready", lambda: True)
-    monkeypatch.setattr(_learn, "ensure_default_dataset", lambda **_: small_dataset)
+    monkeypatch.setattr(replay.live, "default_dataset_ready", lambda: True)
+    monkeypatch.setattr(replay.live, "ensure_default_dataset", lambda **_: small_dataset)
     argv = ["learn", "--budget", "0", "--transfer", "none", "--workers", "1"]
     assert main([*argv, "--out", str(tmp_path / "r")]) == 0
     assert not [text for text in shown if "recording" in text]
