@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from recorder._sim.skin import FORCE_SENSORS, N_CELLS
 
@@ -93,6 +92,8 @@ class ContactLaw:
         Standard linear solid: ``F = F_e - r * lowpass_tau(F_e)``; a force that would pull
         (after a fast retract) means the surfaces separate, so it is clipped at 0.
         """
+        from scipy.signal import lfilter  # noqa: PLC0415 (scipy.signal: ~0.8 s to import, on use)
+
         decay = float(np.exp(-dt_s / self.relaxation_s))
         memory = lfilter([1.0 - decay], [1.0, -decay], elastic, axis=0)
         force: F64 = np.maximum(elastic - self.relaxation * memory, 0.0)

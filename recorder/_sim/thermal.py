@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter, lfilter_zi
 from scipy.special import erfc
 
 if TYPE_CHECKING:
@@ -100,6 +99,8 @@ def effusivity_over_time(obj: ObjectPhysics, since_contact_s: F64) -> F64:
 
 def _lag(signal: F64, tau_s: float, dt_s: float, start: float) -> F64:
     """First-order lag along axis 0, exactly discretised, starting at rest at ``start``."""
+    from scipy.signal import lfilter, lfilter_zi  # noqa: PLC0415 (scipy.signal: ~0.8 s to import, on use)
+
     decay = float(np.exp(-dt_s / tau_s))
     b, a = [1.0 - decay], [1.0, -decay]
     zi = lfilter_zi(b, a) * start

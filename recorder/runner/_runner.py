@@ -450,7 +450,7 @@ class ArmRig:
             )
             # the hold counts from the first state that shows the slide running: a program
             # starts a controller cycle or more after it is sent (later on a loaded machine)
-            limit = self.clock.now_ns() + round((2.0 * scale + 1.0) * _NS)
+            limit = self.clock.now_ns() + round((2.0 * scale + 2.0) * _NS)
             while self._state.still:
                 yield from self._pump()
                 if self.clock.now_ns() > limit:
@@ -462,7 +462,8 @@ class ArmRig:
             target = contact.copy()
             target[:3] += axis * action.depth_m
             self.arm.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
-            travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 1.0
+            # + 2 s: a virtual lab on a loaded machine runs behind its clock
+            travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 2.0
             limit = self.clock.now_ns() + round(travel_s * _NS)
             # at depth: past half the depth (a depth of REACHED_M is "reached" at the contact,
             # before the press program has begun), within REACHED_M of the target and still
@@ -474,7 +475,13 @@ class ArmRig:
             ):
                 yield from self._pump()
                 if self.clock.now_ns() > limit:
-                    reason = f"the press did not reach its depth {action.depth_m:g} m within 1 mm"
+                    pose = self._state.pose
+                    past = 0.0 if pose is None else float((pose[:3] - contact[:3]) @ axis)
+                    reason = (
+                        f"the press did not reach its depth {action.depth_m:g} m within 1 mm "
+                        f"and stay there (at {past * 1e3:.2f} mm past the contact, "
+                        f"{'still' if self._state.still else 'moving'})"
+                    )
                     raise Stop(reason, self.clock.now_ns())
             start = self.clock.now_ns()
         while self.clock.now_ns() - start < hold_ns:

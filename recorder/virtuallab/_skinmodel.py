@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from recorder._sim import contact, skin, texture, thermal
 from recorder._sim.motion import RATE_HZ
@@ -245,6 +244,8 @@ class SkinModel:
 
     def _forces(self, touch: Touch, depth: F64, slid: F64, dt_s: float) -> F64:
         """Return every force sensor's true force at the samples, (m, c, 3), N."""
+        from scipy.signal import lfilter  # noqa: PLC0415 (scipy.signal: ~0.8 s to import, on use)
+
         decay = float(np.exp(-dt_s / touch.law.relaxation_s))
         shape = (depth.shape[0], *touch.offsets.shape)
         if float(depth.max()) < float(touch.depths[0]) - touch.obj.texture_amplitude_m:

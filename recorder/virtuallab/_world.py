@@ -25,6 +25,7 @@ What happened is recorded with both clocks (``_events``; ``events()``).
 
 from __future__ import annotations
 
+import importlib
 import logging
 import threading
 import time
@@ -191,6 +192,8 @@ class VirtualWorld:
             msg = f"frequency = {self.frequency}: give 125 (CB3) or 500 (e-Series)"
             raise RigError(msg)
         self._period_ns = 1_000_000_000 // self.frequency
+        # the skin's filters import scipy.signal on first use (~0.8 s): here, not in a cycle
+        importlib.import_module("scipy.signal")
         self._origin_ns = self.clock()
         self._arm = KinematicArm.at(np.array(HOME_POSE))
         self._skin = SkinModel(self.rig, self.seed)
