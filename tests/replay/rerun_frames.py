@@ -69,6 +69,15 @@ def read_rrd(path: Path, index: str = "log_time") -> Entities:
     return entities(RrdReader(path).stream().to_chunks(), index)
 
 
+def temporal_entities(path: Path) -> set[str]:
+    """Return the entities of an .rrd file that have temporal rows, converting no column.
+
+    A live run's view holds tens of thousands of chunks: :func:`read_rrd` converts each to a
+    frame (seconds), where a test of what was logged needs only the entity paths.
+    """
+    return {c.entity_path for c in RrdReader(path).stream().to_chunks() if not c.is_static}
+
+
 def read_mcap_with_rerun(path: Path, index: str = "message_log_time") -> Entities:
     """Read an MCAP file through rerun's own MCAP loader (the one of ``rerun mcap convert``)."""
     return entities(McapReader(path).stream().to_chunks(), index)

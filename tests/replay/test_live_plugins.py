@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 from conftest import NEW
-from rerun_frames import read_rrd
+from rerun_frames import temporal_entities
 
 from recorder import RigConfig, RigPlugin, SimulatedRig, refuse_sections
 from recorder import _rigconfig as rigconfig
@@ -54,14 +54,14 @@ def test_live_learning_on_an_exclusive_plugin_rig_replays_offline_with_the_same_
     assert len(steps) == 3
     assert steps == [line for line in replay if line.startswith("step")]
 
-    shown = read_rrd(view)
+    shown = temporal_entities(view)
     recorded = sorted(
         p.relative_to(session).with_suffix("").as_posix() for p in session.rglob("*.mcap")
     )
-    files = {e for e in shown.temporal if e.count("/") >= 3 and not e.startswith("/live/")}
+    files = {e for e in shown if e.count("/") >= 3 and not e.startswith("/live/")}
     keys = sorted({"/".join(e.split("/")[1:4]) for e in files})
     assert keys == recorded  # every file, logged once written
-    streamed = {e for e in shown.temporal if e.startswith("/live/")}
+    streamed = {e for e in shown if e.startswith("/live/")}
     assert sorted({"/".join(e.split("/")[2:5]) for e in streamed}) == recorded  # and live
     assert any("/skin/" in e for e in streamed)
     assert len(recorded) == len(NEW) * 2 * 2 + 2

@@ -10,7 +10,7 @@ from conftest import ACTIONS, NEW, OLD
 from replay.errors import ReplayError
 from replay.learning._features import build_features
 from replay.learning._session import DEFAULT_LEARNER
-from replay.outputs._study_report import run_study, write_report
+from replay.outputs._study_report import StudyOutput, run_study, write_report
 from replay.studies._fusion import FUSION, fusion_tasks
 from replay.studies._fusion_prior import (
     HYPERPARAMETERS,
@@ -43,6 +43,14 @@ def _config(out: Path, **changes: object) -> StudyConfig:
         actions=ACTIONS,
     )
     return replace(base, **changes)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def whole_fusion(features: pl.DataFrame, tmp_path_factory: pytest.TempPathFactory) -> StudyOutput:
+    """The fusion study with every object in its group (no other objects), run once: read only."""
+    objects = len({*NEW, *OLD})
+    out = tmp_path_factory.mktemp("fusion") / "whole"
+    return run_study("fusion", features, _config(out, fusion_objects=objects))
 
 
 @pytest.mark.parametrize("name", [n for n in STUDIES if not n.startswith("cross-")])
@@ -164,7 +172,7 @@ def test_prediction_transfer_needs_two_old_objects_the_others_one(
 
 
 def test_fusion_prior_from_the_other_objects_and_the_margin_table(
-    features: pl.DataFrame, tmp_path: Path
+    features: pl.DataFrame, whole_fusion: StudyOutput, tmp_path: Path
 ) -> None:
     objects = len({*NEW, *OLD})
     config = _config(tmp_path / "others", fusion_objects=objects - 2)
@@ -179,7 +187,7 @@ def test_fusion_prior_from_the_other_objects_and_the_margin_table(
     assert set(pl.read_parquet(alone.results)["fusion_prior"]) == {"none"}
     assert "maximum likelihood on the group's samples" in alone.text
     assert f"groups of {objects - 2} objects" in output.text
-    whole = run_study("fusion", features, _config(tmp_path / "all", fusion_objects=objects))
+    whole = whole_fusion
     # no other objects: the modality weights come from the sensors' declared noise
     assert set(pl.read_parquet(whole.results)["fusion_prior"]) == {"noise"}
     assert "relative to its sensor's declared noise" in whole.text
@@ -203,11 +211,11 @@ def test_an_action_that_sets_the_force_makes_it_a_controlled_block(
 
 
 def test_fusion_study_saves_hyperparameters_that_centre_a_later_studys_prior(
-    features: pl.DataFrame, tmp_path: Path
+    features: pl.DataFrame, whole_fusion: StudyOutput, tmp_path: Path
 ) -> None:
     objects = len({*NEW, *OLD})
     whole = _config(tmp_path / "first", fusion_objects=objects)
-    first = run_study("fusion", features, whole)
+    first = whole_fusion
     saved = first.summary.parent / HYPERPARAMETERS
     document = json.loads(saved.read_text())
     assert set(document["actions"]) == set(ACTIONS)
