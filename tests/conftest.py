@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import fcntl
 import gc
+import itertools
 import os
 import tempfile
 import threading
@@ -239,11 +240,38 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return shared_directory(tmp_path_factory, "small", _record_small_dataset) / "dataset"
 
 
-@pytest.fixture(scope="session")
-def dds_domain() -> int:
-    """Return this run's DDS domain id (from the process id: parallel runs do not meet)."""
+#: DDS domain ids a test may take (Cyclone's default port mapping reaches 232).
+_DOMAINS = 230
+_domains_taken = itertools.count()
+
+
+def _take_dds_domain() -> int:
+    """Return a DDS domain id no other test of this run has taken (until the ids run out).
+
+    A domain shared with another test would let a publisher that is still shutting down (the
+    virtual lab of the test before) put its samples into this test's topics. The run (the
+    pytest process that started the workers) picks a base; each worker has its own slice of
+    the ids and hands them out in turn.
+    """
     assert os.environ["CYCLONEDDS_URI"] == LOOPBACK_URI
-    return 1 + os.getpid() % 200
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    run = os.getppid() if "PYTEST_XDIST_WORKER" in os.environ else os.getpid()
+    size = _DOMAINS // max(workers, 1)
+    index = int(worker.removeprefix("gw") or 0) * size + next(_domains_taken) % size
+    return 1 + (run + index) % _DOMAINS
+
+
+@pytest.fixture
+def dds_domain() -> int:
+    """Return a DDS domain id of this test's own."""
+    return _take_dds_domain()
+
+
+@pytest.fixture(scope="module")
+def module_dds_domain() -> int:
+    """Return a DDS domain id of this module's own (for its module-scoped fixtures)."""
+    return _take_dds_domain()
 
 
 @pytest.fixture(autouse=True)

@@ -11,6 +11,7 @@ DDS's binding (``pip install 'atikt[ros2]'``).
 from __future__ import annotations
 
 import threading
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
@@ -21,7 +22,7 @@ from recorder.bagimport._pack import align_rows, block_period, skin_blocks
 from recorder.bagimport._source import SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RecorderError, RigError
-from recorder.live import SourceCounter, SourceReader, window_samples
+from recorder.live import SourceCounter, SourceReader, Verdict, window_samples
 from recorder.live.dds import DdsDomain
 from schemas.cdr import compile_cdr
 
@@ -31,6 +32,11 @@ if TYPE_CHECKING:
 
     from recorder.bagimport._topicmap import TopicMap
     from recorder.live import RecorderClock
+
+
+#: How far back a recording's clock offset may look into earlier recordings, s (a source's
+#: clock drifts 0.1 ms a minute at 2 ppm; a publisher may lag for the whole first second).
+OFFSET_MEMORY_S = 60
 
 
 @dataclass(slots=True)
@@ -71,6 +77,9 @@ class Ros2Skin:
     _modalities: dict[str, _Modality] = field(default_factory=dict, init=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
     _last_receive: int | None = field(default=None, init=False)
+    #: Per topic, the lowest latency (receive minus stamp) of each second of receive time,
+    #: kept across recordings (:meth:`_offset`).
+    _floors: dict[str, deque[tuple[int, int]]] = field(default_factory=dict, init=False)
 
     def __enter__(self) -> Self:
         """Join the domain, find the skin topics' types and start one reader per topic.
@@ -157,16 +166,15 @@ class Ros2Skin:
                 if fields is None:
                     continue
                 stamp = fields[0] * 1_000_000_000 + fields[1]
-                self._observe(counter, extractor, stamp, item.receive_ns)
-                if extractor.buffer.last is None or stamp > extractor.buffer.last:
+                verdict = counter.count(None, stamp, item.receive_ns)
+                if verdict is Verdict.NEW_RUN:  # the source's clock jumped: forget its past
+                    self._floors.pop(topic, None)
+                if verdict.fresh and counter.period_ns > 0:  # checked against its range
+                    _lowest(self._floors.setdefault(topic, deque()), stamp, item.receive_ns)
+                last = extractor.buffer.last
+                if verdict.fresh and (last is None or stamp > last):  # never an invalid stamp
                     extractor.push_fields(fields, stamp, item.receive_ns)
                 self._last_receive = item.receive_ns
-
-    @staticmethod
-    def _observe(counter: Any, extractor: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
-        """Count a message (a counter without the map's rate measures the period itself)."""
-        del extractor
-        counter.observe(None, stamp, receive_ns)
 
     def _blocks(self, *, final: bool) -> list[Any]:
         """Return the blocks of every modality that all cells have samples for."""
@@ -203,10 +211,22 @@ class Ros2Skin:
         return out
 
     def _offset(self, modality: str) -> int:
-        """Return the clock offset of the first cell's topic of a modality."""
+        """Return the clock offset of the first cell's topic of a modality.
+
+        The offset is the lowest latency seen: this recording's (its first second, the
+        counter's), or that of the last :data:`OFFSET_MEMORY_S` of earlier recordings. A
+        source's clock does not change between actions, and a recording whose first second
+        arrived late (a publisher catching up) would otherwise place its samples too late.
+        """
         for topic, extractor in self._found.items():
             if modality in extractor.offsets:
-                return int(self._counters[topic].clock_offset_ns or 0)
+                own = self._counters[topic].clock_offset_ns
+                floor = self._floors.get(topic)
+                if floor:
+                    recent = floor[-1][0] - OFFSET_MEMORY_S
+                    remembered = min(low for second, low in floor if second >= recent)
+                    own = remembered if own is None else min(own, remembered)
+                return int(own or 0)
         return 0
 
     def poll(self) -> list[Any]:
@@ -251,6 +271,18 @@ class Ros2Skin:
             self._overflow0[topic] = overflowed
             out.append(counter.stats())
         return out
+
+
+def _lowest(floor: deque[tuple[int, int]], stamp: int, receive_ns: int) -> None:
+    """Keep the lowest latency of the receive second of a sample (the last minutes only)."""
+    second, latency = receive_ns // 1_000_000_000, receive_ns - stamp
+    if floor and floor[-1][0] == second:
+        if latency < floor[-1][1]:
+            floor[-1] = (second, latency)
+        return
+    floor.append((second, latency))
+    while floor[0][0] < second - OFFSET_MEMORY_S:
+        floor.popleft()
 
 
 def _shift(block: Any, offset_ns: int) -> Any:  # noqa: ANN401

@@ -15,6 +15,7 @@ from recorder.live._accounting import (
     SOURCES_RECORD,
     SourceCounter,
     SourceStats,
+    Verdict,
     parse_source_stats,
 )
 from recorder.live._clock import RecorderClock
@@ -50,6 +51,7 @@ __all__ = [
     "SourceReader",
     "SourceStats",
     "UdpSkin",
+    "Verdict",
     "open_skin",
     "parse_layout",
     "parse_source_stats",

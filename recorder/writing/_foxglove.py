@@ -71,6 +71,8 @@ class _Served:
         self._channels: dict[str, Any] = {}
         self.dropped = 0
         self.failure = ""
+        #: Topics a client has subscribed to (the server's listener adds them).
+        self.subscribed: set[str] = set()
 
     def __enter__(self) -> Self:
         """Start the WebSocket server and the thread.
@@ -83,14 +85,26 @@ class _Served:
         except ImportError as err:
             msg = f"--foxglove needs the foxglove-sdk package ({err}): pip install foxglove-sdk"
             raise RecorderError(msg) from err
+        view = self
+
+        class _Listener(foxglove.websocket.ServerListener):
+            def on_subscribe(self, client: Any, channel: Any) -> None:  # noqa: ANN401, ARG002
+                view.subscribed.add(str(channel.topic))
+
         try:
-            self._server = foxglove.start_server(name="atikt", host=self.host, port=self.port)
+            self._server = foxglove.start_server(
+                name="atikt", host=self.host, port=self.port, server_listener=_Listener()
+            )
         except Exception as err:  # the SDK's own error types
             msg = f"--foxglove {self.host}:{self.port}: cannot listen ({err}); choose another port"
             raise RecorderError(msg) from err
         self.port = int(self._server.port)
+        self._advertise()
         self._thread.start()
         return self
+
+    def _advertise(self) -> None:
+        """Make the channels known before their first message (none by default)."""
 
     def __exit__(
         self,
@@ -145,6 +159,19 @@ class FoxgloveView(_Served):
         """Prepare the server (it listens from ``__enter__``)."""
         super().__init__(address, capacity)
         self._encoder: _Encoder | None = None
+
+    def _advertise(self) -> None:
+        """Advertise every topic of the contract now.
+
+        A client (a layout's panels) subscribes before the first recording, and sees each
+        recording from its first message.
+        """
+        from schemas import build_typestore  # noqa: PLC0415
+
+        store = build_typestore()
+        for topic, msgtype in TYPE_OF_TOPIC.items():
+            text, _ = store.generate_msgdef(msgtype, ros_version=2)
+            self._channel(topic, msgtype, text)
 
     def begin(self, info: RecordingInfo) -> None:
         """Encode the next items as ``info``'s recording does."""

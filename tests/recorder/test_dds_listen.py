@@ -61,7 +61,7 @@ def _without_source(record: dict[str, str]) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def recorded(
-    dds_domain: int, tmp_path_factory: pytest.TempPathFactory
+    module_dds_domain: int, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[ImportReport, ImportReport, list[str]]:
     """Publish the session while listen records it; import the same messages from a bag."""
     root = tmp_path_factory.mktemp("dds")
@@ -71,7 +71,7 @@ def recorded(
     objects, actions = load_objects(None), load_actions(None)
     store = typestore(topic_map)
     session = ddsdata.script(store)
-    publisher = DdsDomain(dds_domain, store)
+    publisher = DdsDomain(module_dds_domain, store)
     notes: list[str] = []
     stop = threading.Event()
     result: dict[str, Any] = {}
@@ -82,7 +82,7 @@ def recorded(
             root / "live",
             objects=objects,
             actions=actions,
-            domain_id=dds_domain,
+            domain_id=module_dds_domain,
             stop=stop,
             discovery_s=5.0,
             on_note=notes.append,

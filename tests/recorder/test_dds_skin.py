@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,10 +14,13 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 from recorder import SimulatedRig, load_actions, load_objects
+from recorder.bagimport._source import JOINT_TYPE, POSE_TYPE, SkinTopic, extractors, typestore
+from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
 from recorder.live import RecorderClock, open_skin
+from recorder.live.dds import DdsDomain, register_atikt_types
 from recorder.virtuallab import VirtualWorld
-from recorder.virtuallab._ros2_server import Ros2Faults, serve_ros2
+from recorder.virtuallab._ros2_server import CELL_TYPE, Ros2Faults, _header, serve_ros2
 
 EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.toml"
 DROPPED = 5
@@ -73,3 +78,111 @@ def test_ros2_skin_refuses_a_bad_section(tmp_path: Path) -> None:
         open_skin({"transport": "ros2", "topic_map": str(EXAMPLE), "domain_id": 999}, clock, "x")
     with pytest.raises(RigError, match="unknown"):
         open_skin({"transport": "ros2", "topic_map": str(EXAMPLE), "port": 1}, clock, "x")
+
+
+def _publish_cells(domain: DdsDomain, stamps: list[int], lag_ns: list[int]) -> None:
+    """Publish the example map's seven cells at ``stamps``, each sent ``lag_ns`` after it."""
+    store = domain.store
+    writers = {f"/skin/cell_{c}": domain.writer(f"/skin/cell_{c}", CELL_TYPE) for c in range(7)}
+    deadline = time.monotonic() + 10
+    while any(w.matched() == 0 for w in writers.values()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    for stamp, lag in sorted(zip(stamps, lag_ns, strict=True), key=sum):
+        delay = (stamp + lag - time.time_ns()) / 1e9
+        if delay > 0:
+            time.sleep(delay)
+        message = store.types[CELL_TYPE](
+            header=_header(store, stamp),
+            force=np.ones(3, dtype=np.float32),
+            acc=np.zeros(3, dtype=np.float32),
+            temp=30.0,
+            prox=0.05,
+        )
+        raw = bytes(store.serialize_cdr(message, CELL_TYPE))
+        for writer in writers.values():
+            writer.write(raw)
+
+
+def test_a_recording_whose_first_second_arrives_late_keeps_the_sources_clock_offset(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    # the skin's clock is this computer's: its offset is ~0 whatever the latency. The second
+    # recording's first second is sent 0.6 s late (a publisher catching up), which alone
+    # would take the 0.6 s latency for the clock offset and place its samples 0.6 s late
+    period, lag = 4_000_000, 600_000_000
+    section = {"transport": "ros2", "topic_map": str(EXAMPLE), "domain_id": dds_domain}
+    publisher = DdsDomain(dds_domain, typestore(load_topic_map(EXAMPLE)), loopback=True)
+    skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
+    start = time.time_ns() + 300_000_000
+    thread = threading.Thread(
+        target=_publish_cells,
+        args=(publisher, [start + i * period for i in range(1000)], [0] * 1000),
+        daemon=True,
+    )
+    thread.start()
+    with skin:
+        thread.join()
+        skin.poll()
+        skin.begin()
+        second = time.time_ns() + 100_000_000
+        stamps = [second + i * period for i in range(500)]
+        lags = [lag if i < 250 else 0 for i in range(500)]  # 1 s late, then on time
+        _publish_cells(publisher, stamps, lags)
+        blocks = skin.poll()
+        time.sleep(0.3)
+        blocks += skin.finish()
+    force = [b for b in blocks if b.modality == "force"]
+    assert force
+    for block in force:  # a sample is never stamped after it arrived (same clock)
+        last = block.stamp_ns + (len(block.data) - 1) * block.period_ns
+        assert last <= block.receive_ns + 50_000_000, (last - block.receive_ns) / 1e6
+
+
+def test_the_virtual_labs_messages_are_rosbags_own_bytes() -> None:
+    from recorder._sim.ur10 import JOINT_NAMES  # noqa: PLC0415
+    from recorder.virtuallab import _ros2_server as lab  # noqa: PLC0415
+
+    topic_map = load_topic_map(EXAMPLE)
+    store = register_atikt_types(typestore(topic_map))
+    cells = [e for e in extractors(topic_map).values() if isinstance(e, SkinTopic)]
+    rng = np.random.default_rng(5)
+    skin = {"force": rng.normal(size=(7, 3)), "acceleration": rng.normal(size=(7, 3))}
+    skin |= {"temperature": rng.normal(30, 1, size=(7, 1)), "proximity": rng.random((7, 1))}
+    with SimulatedRig(0) as rig, VirtualWorld(rig, load_objects(None), load_actions(None)) as world:
+        server = lab.Ros2Server(world, topic_map, Ros2Faults(), None, 250.0, 500.0)  # type: ignore[arg-type]
+        stamp, controller = 1_795_784_566_528_339_486, world.controller_ns()
+        for extractor in cells:
+            raw: dict[str, Any] = {
+                "force": np.zeros(3),
+                "acc": np.zeros(3),
+                "temp": 0.0,
+                "prox": 0.0,
+            }
+            for spec in extractor.fields:
+                values = (skin[spec.modality][extractor.cell] - spec.offset) / spec.scale
+                raw[spec.field] = values if values.size > 1 else float(values[0])
+            message = store.types[CELL_TYPE](
+                header=_header(store, stamp),
+                force=np.asarray(raw["force"], dtype=np.float32),
+                acc=np.asarray(raw["acc"], dtype=np.float32),
+                temp=float(raw["temp"]),
+                prox=float(raw["prox"]),
+            )
+            expected = bytes(store.serialize_cdr(message, CELL_TYPE))
+            assert server._cell(store, extractor, stamp, skin) == expected, extractor.topic
+        state = world.robot_at(controller)
+        joints = store.types[JOINT_TYPE](
+            header=_header(store, stamp),
+            name=list(JOINT_NAMES),
+            position=np.asarray(state.q, dtype=np.float64),
+            velocity=np.asarray(state.qd, dtype=np.float64),
+            effort=np.zeros(len(JOINT_NAMES)),
+        )
+        expected = bytes(store.serialize_cdr(joints, JOINT_TYPE))
+        assert server._joint(store, stamp, controller) == expected
+        decoded: Any = store.deserialize_cdr(
+            server._pose(store, stamp, controller, 0.001), POSE_TYPE
+        )
+        assert decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec == stamp
+        position = [decoded.pose.position.x, decoded.pose.position.y, decoded.pose.position.z]
+        np.testing.assert_allclose(position, np.asarray(state.tcp_pose[:3]) / 0.001)

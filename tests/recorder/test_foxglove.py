@@ -5,7 +5,7 @@ protocol, subprotocol foxglove.sdk.v1), and the shipped layout names the contrac
 from __future__ import annotations
 
 import json
-import threading
+import time
 from typing import TYPE_CHECKING
 
 import pytest
@@ -14,8 +14,10 @@ from mcap.reader import make_reader
 from recorder import SimulatedRig, load_actions, load_objects, record_action
 from recorder.errors import RecorderError
 from recorder.writing._foxglove import FoxgloveView, parse_address
+from schemas import CHANNELS
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
 pytest.importorskip("websockets.sync.client")
@@ -24,28 +26,45 @@ pytest.importorskip("foxglove")
 from foxglove_client import FoxgloveClient as _Client
 
 
+def _file_messages(path: Path) -> dict[str, list[bytes]]:
+    with path.open("rb") as stream:
+        in_file: dict[str, list[bytes]] = {}
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            in_file.setdefault(channel.topic, []).append(bytes(message.data))
+    return in_file
+
+
+def _until(done: Callable[[], bool], timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
 def test_foxglove_clients_get_the_files_own_messages_live(tmp_path: Path) -> None:
     obj, action = load_objects()["wood"], load_actions()["S2"]
     with FoxgloveView("127.0.0.1:0") as view, SimulatedRig(3) as rig:
         assert view.url.startswith("ws://127.0.0.1:")
         client = _Client(view.url)
+        # every channel of the contract is advertised when the server starts: a client that
+        # subscribed before the action sees all of it
+        topics = {channel.topic for channel in CHANNELS}
+        _until(lambda: view.subscribed >= topics)
+        assert view.subscribed >= topics
         written = record_action(rig, obj, action, 1, tmp_path / "001.mcap", seed=3, viewers=[view])
-        threading.Event().wait(1.0)  # the thread serves what is queued
+        in_file = _file_messages(written.path)
+        _until(
+            lambda: (
+                {t: len(p) for t, p in client.received.items()}
+                == {t: len(p) for t, p in in_file.items()}
+            )
+        )
         client.close()
     assert view.dropped == 0
     assert view.failure == ""
-    with written.path.open("rb") as stream:
-        in_file: dict[str, list[bytes]] = {}
-        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-            in_file.setdefault(channel.topic, []).append(bytes(message.data))
     assert set(client.received) == set(in_file)
     for topic, payloads in client.received.items():
         assert client.schemas[topic] == ("cdr", "ros2msg")
-        whole = in_file[topic]
-        # a channel is advertised with its first message: what was sent before the client
-        # subscribed is not seen; everything after is the file's messages, in order
-        assert whole[len(whole) - len(payloads) :] == payloads, topic
-        assert len(payloads) >= len(whole) // 2, topic
+        assert payloads == in_file[topic], topic
 
 
 def test_foxglove_binds_loopback_unless_told_and_refuses_a_bad_address() -> None:

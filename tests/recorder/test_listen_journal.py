@@ -53,7 +53,7 @@ ROOT = Path(__file__).parents[2]
 
 @pytest.fixture(scope="module")
 def kept(
-    dds_domain: int, tmp_path_factory: pytest.TempPathFactory
+    module_dds_domain: int, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[ImportReport, TopicMap, list[Path]]:
     """Record the scripted session with ``listen``, keeping its journals."""
     root = tmp_path_factory.mktemp("journal")
@@ -61,7 +61,7 @@ def kept(
     map_path.write_text(ddsdata.TOPIC_MAP, encoding="utf-8")
     topic_map = load_topic_map(map_path)
     store = typestore(topic_map)
-    publisher = DdsDomain(dds_domain, store)
+    publisher = DdsDomain(module_dds_domain, store)
     stop = threading.Event()
     result: dict[str, Any] = {}
 
@@ -71,7 +71,7 @@ def kept(
             root / "live",
             objects=load_objects(None),
             actions=load_actions(None),
-            domain_id=dds_domain,
+            domain_id=module_dds_domain,
             stop=stop,
             discovery_s=5.0,
             keep_journals=True,
