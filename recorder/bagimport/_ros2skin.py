@@ -10,6 +10,7 @@ DDS's binding (``pip install 'atikt[ros2]'``).
 
 from __future__ import annotations
 
+import bisect
 import threading
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -37,6 +38,8 @@ if TYPE_CHECKING:
 #: How far back a recording's clock offset may look into earlier recordings, s (a source's
 #: clock drifts 0.1 ms a minute at 2 ppm; a publisher may lag for the whole first second).
 OFFSET_MEMORY_S = 60
+#: Blocks are cut at most this often while recording, s (of receive time).
+POLL_BLOCK_S = 0.02
 
 
 @dataclass(slots=True)
@@ -77,6 +80,7 @@ class Ros2Skin:
     _modalities: dict[str, _Modality] = field(default_factory=dict, init=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
     _last_receive: int | None = field(default=None, init=False)
+    _cut_ns: int = field(default=0, init=False)
     #: Per topic, the lowest latency (receive minus stamp) of each second of receive time,
     #: kept across recordings (:meth:`_offset`).
     _floors: dict[str, deque[tuple[int, int]]] = field(default_factory=dict, init=False)
@@ -179,11 +183,20 @@ class Ros2Skin:
     def _blocks(self, *, final: bool) -> list[Any]:
         """Return the blocks of every modality that all cells have samples for."""
         out: list[Any] = []
+        # each topic's messages from a few before the earliest not yet emitted, converted
+        # once per poll: converting the whole buffer for every modality made a poll cost
+        # grow with the buffer (2 s), and a busy recorder polled the skin late
+        since = min((s.emitted_ns for s in self._modalities.values()), default=-(2**62))
+        taken = {
+            topic: e.take_cells(_take_from(e.buffer.stamps, since), 2**62)
+            for topic, e in self._found.items()
+            if e.size() >= 2  # noqa: PLR2004 (a period needs two)
+        }
         for modality, state in self._modalities.items():
-            mine = [e for e in self._found.values() if modality in e.offsets]
-            if any(e.size() < 2 for e in mine):  # noqa: PLR2004 (a period needs two)
+            mine = [t for t, e in self._found.items() if modality in e.offsets]
+            if any(t not in taken for t in mine):
                 continue
-            cells = [c for e in mine for c in e.take_cells(-(2**62), 2**62)[modality]]
+            cells = [c for t in mine for c in taken[t][modality]]
             series = [s for _, s in sorted(cells, key=lambda cell: cell[0])]
             if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
                 continue
@@ -237,6 +250,13 @@ class Ros2Skin:
         """
         with self._lock:
             self._ingest()
+            # blocks are cut every POLL_BLOCK_S of received samples, not at every poll of a
+            # runner that polls with each arm state (500 Hz): cutting costs the same for one
+            # new sample as for ten, and a recorder busy cutting polls everything late
+            newest = self._last_receive or 0
+            if newest - self._cut_ns < POLL_BLOCK_S * 1_000_000_000:
+                return []
+            self._cut_ns = newest
             return self._blocks(final=False)
 
     def finish(self) -> list[Any]:
@@ -271,6 +291,12 @@ class Ros2Skin:
             self._overflow0[topic] = overflowed
             out.append(counter.stats())
         return out
+
+
+def _take_from(stamps: list[int], since: int) -> int:
+    """Return the stamp of the third message before ``since`` (the first one if fewer)."""
+    index = bisect.bisect_left(stamps, since)
+    return stamps[max(index - 3, 0)] if stamps else since
 
 
 def _lowest(floor: deque[tuple[int, int]], stamp: int, receive_ns: int) -> None:
