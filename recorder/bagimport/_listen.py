@@ -577,8 +577,12 @@ class Listener:
             for topic, raw in self._raw.items()
         }
         if self._journal is not None:
-            self._journal.messages(items)
-            self._journal.event(now, now=now, counts=self._counts)
+            try:
+                self._journal.messages(items)
+                self._journal.event(now, now=now, counts=self._counts)
+            except JournalError:  # what arrived is in memory: it is still written
+                self.replay(JournalStep(items, now, self._counts))
+                raise
             self._recent.extend(items)
         if self.view is not None:
             for topic, receive_ns, raw in items:
