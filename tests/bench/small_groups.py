@@ -10,10 +10,15 @@ splits. Three classifiers on the same splits:
 - ``sklearn-own``: scikit-learn's ``GaussianProcessClassifier`` (``1.0 * RBF(1.0)``, one-vs-rest,
   L-BFGS-B with 2 restarts) on the same features;
 - ``sklearn-simple``: the same on simple features: every raw feature block concatenated and
-  standardised on the training set (no PCA, no per-modality kernel).
+  standardised on the training set (no PCA, no per-modality kernel);
+- ``atikt-others``: the fusion study's default learner (``--fusion-prior others``): the
+  multi-modal classifier whose kernel starts at, and is held (sd 0.5) near, the
+  hyperparameters fitted on the dataset's objects outside the group (the multi-modal
+  classifier without a prior where fewer than two are left).
 
-Printed per training size: mean test accuracy of each and the paired differences atikt minus
-each reference with a 95 % percentile bootstrap interval over groups.
+Printed per training size: mean test accuracy of each and the paired differences of each of
+the learner's two forms minus each reference, with a 95 % percentile bootstrap interval over
+groups.
 
 Run: ``python tests/bench/small_groups.py [--recordings DIR] [--groups 10] [--splits 2]``.
 """
@@ -31,14 +36,15 @@ from sklearn.gaussian_process import GaussianProcessClassifier
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel
 from sklearn.preprocessing import StandardScaler
 
-from atikt import FeatureTransformer, OneVsAllGPC, modality_kernel
+from atikt import FeatureTransformer, MultiModalGPC, OneVsAllGPC, modality_kernel
 from atikt.features import stack_features
 from replay.learning._executors import FeatureLookup
 from replay.learning._features import build_features
 from replay.live._default import ensure_default_dataset
+from replay.studies._fusion_prior import REFERENCE_PRIOR_SD, reference_theta
 
 SIZES = (1, 2, 5, 10)
-METHODS = ("atikt", "sklearn-own", "sklearn-simple")
+METHODS = ("atikt", "sklearn-own", "sklearn-simple", "atikt-others")
 
 
 def _simple(observations: list[Any]) -> np.ndarray:
@@ -56,7 +62,11 @@ def _sklearn(X: np.ndarray, y: np.ndarray, Xt: np.ndarray, seed: int) -> np.ndar
 
 
 def accuracies(
-    observations: dict[str, list[Any]], n: int, rng: np.random.Generator, seed: int
+    observations: dict[str, list[Any]],
+    n: int,
+    rng: np.random.Generator,
+    seed: int,
+    reference: np.ndarray | None = None,
 ) -> dict[str, float] | None:
     """Test accuracy of each method on one split with ``n`` training recordings per object."""
     train, test, ytr, yte = [], [], [], []
@@ -75,12 +85,18 @@ def accuracies(
     ours = OneVsAllGPC(
         modality_kernel(transformer.slices_), n_restarts=1, prior_sd=5.0, random_state=seed
     ).fit(X, y)
+    others = MultiModalGPC(
+        random_state=seed,
+        initial_theta=reference,
+        prior_sd=None if reference is None else REFERENCE_PRIOR_SD,
+    )
     scaler = StandardScaler().fit(_simple(train))
     S, St = scaler.transform(_simple(train)), scaler.transform(_simple(test))
     return {
         "atikt": float(np.mean(ours.predict(Xt) == yt)),
         "sklearn-own": float(np.mean(_sklearn(X, y, Xt, seed) == yt)),
         "sklearn-simple": float(np.mean(_sklearn(S, y, St, seed) == yt)),
+        "atikt-others": float(np.mean(others.fit(train, y).predict(test) == yt)),
     }
 
 
@@ -132,7 +148,9 @@ def main(argv: list[str] | None = None) -> int:
                     o: [lookup.get(o, action, t) for t in lookup.trials(o, action)] for o in chosen
                 }
                 for split in range(args.splits):
-                    result = accuracies(observations, n, rng, seed=group * 100 + split)
+                    seed = group * 100 + split
+                    reference = reference_theta(lookup, action, chosen, seed)
+                    result = accuracies(observations, n, rng, seed, reference)
                     if result is not None:
                         for m in METHODS:
                             scores[m].append(result[m])
@@ -146,7 +164,9 @@ def main(argv: list[str] | None = None) -> int:
         rng = np.random.default_rng(n)
         means = ", ".join(f"{m} {values[m].mean():.3f}" for m in METHODS)
         diffs = "; ".join(
-            f"atikt - {m} {_interval(values['atikt'] - values[m], rng)}" for m in METHODS[1:]
+            f"{ours} - {m} {_interval(values[ours] - values[m], rng)}"
+            for ours in ("atikt", "atikt-others")
+            for m in ("sklearn-own", "sklearn-simple")
         )
         print(f"n={n} per object ({values['atikt'].size} groups): {means}; {diffs} points")
     return 0
