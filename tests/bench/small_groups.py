@@ -16,6 +16,10 @@ splits. Three classifiers on the same splits:
   hyperparameters fitted on the dataset's objects outside the group (the multi-modal
   classifier without a prior where fewer than two are left).
 
+With ``--breakdown`` three more, to tell the features from the classifier: ``atikt-simple``
+(the learner's classifier on the simple features, one block) and the nearest neighbour on each
+feature set (``1nn-own``, ``1nn-simple``).
+
 Printed per training size: mean test accuracy of each and the paired differences of each of
 the learner's two forms minus each reference, with a 95 % percentile bootstrap interval over
 groups.
@@ -45,6 +49,7 @@ from replay.studies._fusion_prior import REFERENCE_PRIOR_SD, reference_theta
 
 SIZES = (1, 2, 5, 10)
 METHODS = ("atikt", "sklearn-own", "sklearn-simple", "atikt-others")
+BREAKDOWN = ("atikt-simple", "1nn-own", "1nn-simple")
 
 
 def _simple(observations: list[Any]) -> np.ndarray:
@@ -67,6 +72,8 @@ def accuracies(
     rng: np.random.Generator,
     seed: int,
     reference: np.ndarray | None = None,
+    *,
+    breakdown: bool = False,
 ) -> dict[str, float] | None:
     """Test accuracy of each method on one split with ``n`` training recordings per object."""
     train, test, ytr, yte = [], [], [], []
@@ -92,12 +99,29 @@ def accuracies(
     )
     scaler = StandardScaler().fit(_simple(train))
     S, St = scaler.transform(_simple(train)), scaler.transform(_simple(test))
-    return {
+    out = {
         "atikt": float(np.mean(ours.predict(Xt) == yt)),
         "sklearn-own": float(np.mean(_sklearn(X, y, Xt, seed) == yt)),
         "sklearn-simple": float(np.mean(_sklearn(S, y, St, seed) == yt)),
         "atikt-others": float(np.mean(others.fit(train, y).predict(test) == yt)),
     }
+    if breakdown:
+        width = np.sqrt(S.shape[1])  # the learner's blocks have unit total variance
+        one = OneVsAllGPC(
+            modality_kernel({"all": slice(0, S.shape[1])}),
+            n_restarts=1,
+            prior_sd=5.0,
+            random_state=seed,
+        ).fit(S / width, y)
+        out["atikt-simple"] = float(np.mean(one.predict(St / width) == yt))
+        out["1nn-own"] = float(np.mean(_nearest(X, y, Xt) == yt))
+        out["1nn-simple"] = float(np.mean(_nearest(S, y, St) == yt))
+    return out
+
+
+def _nearest(X: np.ndarray, y: np.ndarray, Xt: np.ndarray) -> np.ndarray:
+    """The label of each test row's nearest training row (Euclidean)."""
+    return np.asarray(y[np.argmin(((Xt[:, None, :] - X[None]) ** 2).sum(axis=-1), axis=1)])
 
 
 def _interval(values: np.ndarray, rng: np.random.Generator) -> str:
@@ -118,13 +142,15 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--groups", type=int, default=10)
     parser.add_argument("--splits", type=int, default=2)
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)))
+    parser.add_argument("--breakdown", action="store_true", help="three more methods (see above)")
     args = parser.parse_args(argv)
     if args.quick:
         args.recordings = (
             args.recordings or Path(__file__).resolve().parents[2] / "recordings" / "data"
         )
-    if args.quick:  # one small group, one size
+    if args.quick:  # one small group, one size, every method
         args.groups, args.splits, args.sizes, args.objects = 1, 1, "1", 3
+        args.breakdown = True
     return args
 
 
@@ -137,10 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     actions = sorted({a for (_, a) in lookup._trials})
     print(f"dataset {root}; groups of {args.objects} objects; actions {', '.join(actions)}")
     for n in (int(v) for v in args.sizes.split(",")):
-        per_group: dict[str, list[float]] = {m: [] for m in METHODS}
+        methods = METHODS + (BREAKDOWN if args.breakdown else ())
+        per_group: dict[str, list[float]] = {m: [] for m in methods}
         for group in range(args.groups):
             rng = np.random.default_rng([group, n])
-            scores: dict[str, list[float]] = {m: [] for m in METHODS}
+            scores: dict[str, list[float]] = {m: [] for m in methods}
             for action in actions:
                 objects = lookup.objects(action)
                 chosen = sorted(rng.choice(objects, min(args.objects, len(objects)), replace=False))
@@ -150,19 +177,21 @@ def main(argv: list[str] | None = None) -> int:
                 for split in range(args.splits):
                     seed = group * 100 + split
                     reference = reference_theta(lookup, action, chosen, seed)
-                    result = accuracies(observations, n, rng, seed, reference)
+                    result = accuracies(
+                        observations, n, rng, seed, reference, breakdown=args.breakdown
+                    )
                     if result is not None:
-                        for m in METHODS:
+                        for m in methods:
                             scores[m].append(result[m])
             if scores["atikt"]:
-                for m in METHODS:
+                for m in methods:
                     per_group[m].append(float(np.mean(scores[m])))
         if not per_group["atikt"]:
             print(f"n={n}: too few recordings per object")
             continue
         values = {m: np.array(v) for m, v in per_group.items()}
         rng = np.random.default_rng(n)
-        means = ", ".join(f"{m} {values[m].mean():.3f}" for m in METHODS)
+        means = ", ".join(f"{m} {values[m].mean():.3f}" for m in methods)
         diffs = "; ".join(
             f"{ours} - {m} {_interval(values[ours] - values[m], rng)}"
             for ours in ("atikt", "atikt-others")
