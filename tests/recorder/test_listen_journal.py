@@ -386,6 +386,8 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
             assert time.monotonic() - ended < 2.2  # its window is not written yet
             killed_ns = time.time_ns()
             process.send_signal(signal.SIGKILL)
+            ends = [stamp for stamp, text in server.annotated if json.loads(text)["phase"] == "end"]
+            print(f"killed {(killed_ns - ends[-1]) / 1e9:.2f} s after the last end's stamp")
             process.wait(10)
         finally:
             if process.poll() is None:
