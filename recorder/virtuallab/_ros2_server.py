@@ -35,7 +35,7 @@ from recorder.bagimport._source import (
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
 from recorder.live.dds import DdsDomain
-from recorder.writing._writer import _STAMP, _sentinels, _Template
+from recorder.writing._writer import _STAMP, _STAMP_OFFSET, _sentinels, _Template
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping
@@ -271,7 +271,7 @@ class Ros2Server:
         if self._cell_head is None:
             self._cell_head = _cell_head(store)
         head = bytearray(self._cell_head)
-        _STAMP.pack_into(head, 4, *divmod(stamp, _NS_PER_S))
+        _STAMP.pack_into(head, _STAMP_OFFSET, *divmod(stamp, _NS_PER_S))
         return bytes(head) + values.astype("<f4").tobytes()
 
 
