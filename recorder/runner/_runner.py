@@ -92,11 +92,13 @@ class RunnerOptions:
 class Stop(Exception):  # noqa: N818 (control flow inside the runner, never escapes it)
     """A stop condition met inside the runner."""
 
-    def __init__(self, reason: str, at_ns: int) -> None:
-        """Keep the reason (one line) and when it was met (recorder clock, ns)."""
+    def __init__(self, reason: str, at_ns: int, arrived: Sequence[StreamItem] = ()) -> None:
+        """Keep the reason (one line), when it was met (recorder clock, ns) and what arrived
+        with its cause, not yet handed over (handed over once the stop went out)."""
         super().__init__(reason)
         self.reason = reason
         self.at_ns = at_ns
+        self.arrived = arrived
 
 
 @dataclass(slots=True)
@@ -325,6 +327,7 @@ class ArmRig:
         except (Stop, SourceLostError) as ended:
             stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
             self._send_stop(at, stop.reason, stop.at_ns)
+            yield from stop.arrived
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
@@ -548,8 +551,10 @@ class ArmRig:
     def _pump(self, wait_s: float = CYCLE_WAIT_S) -> Iterator[StreamItem]:
         """Yield what arrived (state samples, skin blocks) in receive order; check for stops.
 
-        Every state sample is checked against the limits as it is taken in; the samples that
-        arrived with the offending one are still handed over (valid data, kept).
+        Every state sample is checked against the limits as it is taken in. A sample that
+        breaks one raises the stop at once, before the skin is read and anything is handed
+        over; the samples that arrived with it are handed over after the stop went out (valid
+        data, kept).
         """
         try:
             samples = self.arm.poll(wait_s)
@@ -563,10 +568,12 @@ class ArmRig:
             if not violation and (violation := self._violation(sample)):
                 violation_ns = sample.receive_ns
             items.extend(_items(sample))
+        if violation:
+            raise Stop(violation, violation_ns, items)
         try:
             blocks = self.skin.poll()
         except SourceLostError as err:
-            violation, blocks = violation or f"skin connection lost ({err})", []
+            violation, blocks = f"skin connection lost ({err})", []
         for block in blocks:  # each modality's samples cover up to their last one + a period
             until = block.stamp_ns + block.data.shape[0] * block.period_ns
             self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), until)

@@ -48,6 +48,8 @@ class FakeArm:
     target_speed: float = 0.0
     commands: list[tuple[int, str]] = field(default_factory=list)
     cause_cycle: int | None = None
+    #: When the sample carrying the cause arrived (recorder clock, ns).
+    cause_ns: int | None = None
     stop_cycle: int | None = None
     #: When the stop reached the arm (recorder clock, ns).
     stop_ns: int | None = None
@@ -141,7 +143,7 @@ class FakeArm:
         stopped = ""
         if self._due():
             if self.cause_cycle is None:
-                self.cause_cycle = self._cycle
+                self.cause_cycle, self.cause_ns = self._cycle, stamp_ns
             if self.cause == "silence":
                 return None
             if self.cause == "lost":
@@ -213,6 +215,8 @@ class FakeSkin:
         self.arm, self.clock = arm, clock
         self._next_ns = 0
         self.fail = False
+        #: How long a poll takes once the arm met its cause (a skin slow to read), s.
+        self.slow_after_cause_s = 0.0
 
     def __enter__(self) -> Self:
         return self
@@ -234,6 +238,8 @@ class FakeSkin:
         if self.fail:
             msg = "fake skin: a bug"
             raise RuntimeError(msg)
+        if self.arm.cause_cycle is not None:
+            time.sleep(self.slow_after_cause_s)
         now = self.clock.now_ns()
         if now - self._next_ns < 4_000_000:
             return []

@@ -73,6 +73,22 @@ def test_a_limit_or_a_controller_stop_sends_the_stop_first(
     _kept(path, reason)
 
 
+def test_a_limit_stops_the_arm_before_the_skin_is_read(tmp_path: Path) -> None:
+    # the sample that breaks a limit sends the stop before anything else is done: a skin slow
+    # to read (a ROS 2 skin converting its topics) or the hand-over to the writer never
+    # delays it; what arrived with the sample is still kept
+    path = tmp_path / "001.mcap"
+    rig = fake_rig("force")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    rig.skin.slow_after_cause_s = 0.5  # type: ignore[attr-defined]
+    with rig, pytest.raises(ActionStoppedError, match="TCP force"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    assert arm.cause_ns is not None
+    assert arm.stop_ns is not None
+    assert arm.stop_ns - arm.cause_ns < 0.25e9, (arm.stop_ns - arm.cause_ns) / 1e9
+    _kept(path, "TCP force")
+
+
 def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Path) -> None:
     path = tmp_path / "001.mcap"
     rig = fake_rig("silence")
