@@ -93,8 +93,14 @@ class Stop(Exception):  # noqa: N818 (control flow inside the runner, never esca
     """A stop condition met inside the runner."""
 
     def __init__(self, reason: str, at_ns: int, arrived: Sequence[StreamItem] = ()) -> None:
-        """Keep the reason (one line), when it was met (recorder clock, ns) and what arrived
-        with its cause, not yet handed over (handed over once the stop went out)."""
+        """Keep the reason, when it was met and what arrived with its cause.
+
+        Args:
+            reason: One line.
+            at_ns: When the cause was met (recorder clock, ns).
+            arrived: What arrived with the cause, not yet handed over (handed over once the
+                stop went out).
+        """
         super().__init__(reason)
         self.reason = reason
         self.at_ns = at_ns
