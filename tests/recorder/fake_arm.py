@@ -59,11 +59,14 @@ class FakeArm:
     latency_cycles: int = 0
     #: The cycle at which each ``move`` reached its target, by phase.
     reached: dict[str, int] = field(default_factory=dict)
+    #: The stamp of the sample at which each ``move`` reached its target, by phase (ns).
+    reached_ns: dict[str, int] = field(default_factory=dict)
     _pending: list[tuple[int, str, NDArray[np.float64] | None, float]] = field(default_factory=list)
     _moving_phase: str = ""
     _queued_velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
     _next_ns: int = 0
     _cycle: int = 0
+    _stamp_ns: int = 0
     _contact_cycle: int | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -110,6 +113,7 @@ class FakeArm:
             else:  # there: a real arm's program ends and its joints stand still
                 self.target = None
                 self.reached.setdefault(self._moving_phase, self._cycle)
+                self.reached_ns.setdefault(self._moving_phase, self._stamp_ns)
         else:
             self.pose[:3] += self.velocity[:3] * dt
             self.pose[2] = max(self.pose[2], SURFACE_Z - 0.003)  # the object stops the arm
@@ -137,6 +141,7 @@ class FakeArm:
 
     def _sample(self, stamp_ns: int) -> ArmSample | None:
         self._cycle += 1
+        self._stamp_ns = stamp_ns
         self._step()
         force = np.zeros(6)
         pose = self.pose.copy()
@@ -217,6 +222,8 @@ class FakeSkin:
         self.fail = False
         #: How long a poll takes once the arm met its cause (a skin slow to read), s.
         self.slow_after_cause_s = 0.0
+        #: How late the skin's samples arrive (a transport that delivers late), ns.
+        self.delay_ns = 0
 
     def __enter__(self) -> Self:
         return self
@@ -241,9 +248,9 @@ class FakeSkin:
         if self.arm.cause_cycle is not None:
             time.sleep(self.slow_after_cause_s)
         now = self.clock.now_ns()
-        if now - self._next_ns < 4_000_000:
+        if now - self.delay_ns - self._next_ns < 4_000_000:
             return []
-        count = (now - self._next_ns) // 4_000_000
+        count = (now - self.delay_ns - self._next_ns) // 4_000_000
         data = np.full((int(count), 1, 3), self._force() / 3, dtype=np.float32)
         block = SkinBlock("force", self._next_ns, 4_000_000, now, data)
         self._next_ns += int(count) * 4_000_000

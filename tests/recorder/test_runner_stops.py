@@ -19,6 +19,7 @@ from mcap.reader import make_reader
 
 from recorder import ActionStoppedError, RecorderError, load_actions, load_objects
 from recorder.runner._record import record_action
+from recorder.writing._stream import PhaseEvent, SkinBlock
 from recorder.writing._writer import RecordingWriter
 from schemas import INCOMPLETE_RECORD, cli
 
@@ -201,6 +202,34 @@ def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> No
         "move retract",
         "announce end",
     ]
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.3])
+def test_a_late_skin_still_covers_the_action_to_its_end(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, delay_s: float
+) -> None:
+    # a skin whose samples arrive late (ROS 2 on a loaded machine: stamped on time, sent
+    # late): the arm is done before the action's last skin samples came; the runner waits for
+    # them (at most SKIN_DELAY_S) so that the file holds the skin up to the action's end
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    rig.skin.delay_ns = round(delay_s * 1e9)  # type: ignore[attr-defined]
+    written: list[object] = []
+    write = RecordingWriter.write
+
+    def keep(self: RecordingWriter, item: object) -> None:
+        written.append(item)
+        write(self, item)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(RecordingWriter, "write", keep)
+    with rig:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    blocks = [item for item in written if isinstance(item, SkinBlock)]
+    covered = max(b.stamp_ns + b.data.shape[0] * b.period_ns for b in blocks)
+    end = next(e.stamp_ns for e in written if isinstance(e, PhaseEvent) and e.phase == "end")
+    done = arm.reached_ns["retract"]  # the arm back: the action's motion is over
+    assert covered >= done, (covered - done) / 1e9
+    assert end >= covered - blocks[-1].period_ns  # 'end' once the skin's samples came
 
 
 @pytest.mark.parametrize("latency_cycles", [0, 25])
