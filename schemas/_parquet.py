@@ -15,10 +15,10 @@ import struct
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import polars as pl
-
 if TYPE_CHECKING:
     from collections.abc import Mapping
+
+    import polars as pl
 
 __all__ = [
     "MAX_FOOTER_BYTES",
@@ -125,6 +125,8 @@ def read_checked_parquet(
             be, or has other columns or dtypes; the message says which.
         OSError: The file cannot be read.
     """
+    import polars as pl  # noqa: PLC0415 (on use: `import schemas` stays light for the CLIs)
+
     path = Path(path)
     _check_footer(path, columns, max_rows, exact=exact)
     try:
