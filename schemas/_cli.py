@@ -406,6 +406,22 @@ def seed(text: str) -> int:
     return value
 
 
+#: The host a server the project starts binds unless told otherwise.
+LOOPBACK = "127.0.0.1"
+
+
+def host_port(text: str) -> tuple[str, int] | None:
+    """Return ``(host, port)`` of ``HOST:PORT`` or ``PORT`` (host: loopback); None: no port.
+
+    The port is a whole number in 0..65535 (0: any free port); the caller says what to give.
+    """
+    host, _, port = text.rpartition(":")
+    number = int(port) if port.isascii() and port.isdigit() else -1
+    if not 0 <= number <= 65535:  # noqa: PLR2004 (the largest port)
+        return None
+    return host or LOOPBACK, number
+
+
 def worker_count(value: int | None) -> int:
     """Return the worker count: the option's value, else every core."""
     return value if value is not None else os.cpu_count() or 1

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Self, cast
 
 from recorder.errors import RecorderError
 from recorder.writing._writer import TYPE_OF_TOPIC, _Encoder
+from schemas import cli
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
     from recorder.writing._writer import RecordingInfo
 
 #: Where the server listens unless told otherwise (loopback only).
-DEFAULT_ADDRESS = "127.0.0.1:8765"
+DEFAULT_ADDRESS = f"{cli.LOOPBACK}:8765"
 #: Items the view may fall behind by before it drops.
 CAPACITY = 20_000
 #: Longest wait for the thread when the run ends, s.
@@ -44,15 +45,11 @@ def parse_address(text: str) -> tuple[str, int]:
     Raises:
         RecorderError: Not a port in 0..65535.
     """
-    host, _, port = text.rpartition(":")
-    try:
-        number = int(port)
-    except ValueError:
-        number = -1
-    if not 0 <= number <= 65535:  # noqa: PLR2004 (the largest port)
+    address = cli.host_port(text)
+    if address is None:
         msg = f"--foxglove {text!r}: give HOST:PORT, e.g. {DEFAULT_ADDRESS} (0: any free port)"
         raise RecorderError(msg)
-    return host or "127.0.0.1", number
+    return address
 
 
 class _Served:

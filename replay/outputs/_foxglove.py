@@ -18,13 +18,14 @@ from typing import TYPE_CHECKING, Any
 from mcap.reader import make_reader
 
 from replay.errors import ReplayError
+from schemas import cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
     from pathlib import Path
 
 #: Where the server listens unless told otherwise (loopback only).
-DEFAULT_ADDRESS = "127.0.0.1:8765"
+DEFAULT_ADDRESS = f"{cli.LOOPBACK}:8765"
 #: How long after the first subscription the other channels may still be subscribed, s.
 SUBSCRIBE_SETTLE_S = 0.5
 _NS = 1_000_000_000
@@ -47,12 +48,11 @@ def parse_address(text: str) -> tuple[str, int]:
     Raises:
         ReplayError: Not a port in 0..65535.
     """
-    host, _, port = text.rpartition(":")
-    number = int(port) if port.isdigit() else -1
-    if not 0 <= number <= 65535:  # noqa: PLR2004 (the largest port)
+    address = cli.host_port(text)
+    if address is None:
         msg = f"--foxglove {text!r}: give HOST:PORT, e.g. {DEFAULT_ADDRESS} (0: any free port)"
         raise ReplayError(msg)
-    return host or "127.0.0.1", number
+    return address
 
 
 def _topics(paths: Sequence[Path]) -> dict[str, _Topic]:

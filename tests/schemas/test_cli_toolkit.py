@@ -113,3 +113,23 @@ def test_publish_file_refuses_an_existing_file_unless_forced(tmp_path: Path) -> 
         temporary.write_text("new")
     assert target.read_text() == "new"
     assert [p.name for p in tmp_path.iterdir()] == ["view.rrd"]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("8765", (cli.LOOPBACK, 8765)),
+        ("0", (cli.LOOPBACK, 0)),
+        ("0.0.0.0:9000", ("0.0.0.0", 9000)),  # noqa: S104 (asked for)
+        ("here:65535", ("here", 65535)),
+        ("here:65536", None),
+        ("here:port", None),
+        ("here:-1", None),
+        ("here:", None),
+        ("\uff18\uff17", None),  # full-width digits: str.isdigit says yes, int() reads them
+    ],
+)
+def test_a_host_and_port_binds_loopback_unless_told(
+    text: str, expected: tuple[str, int] | None
+) -> None:
+    assert cli.host_port(text) == expected
