@@ -19,6 +19,7 @@ import dataclasses
 import importlib
 import json
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -270,6 +271,18 @@ def _wait_for_a_stop() -> None:
             signal.signal(number, handler)
 
 
+def _switch_within_a_cycle(frequency: int) -> None:
+    """Let the lab's threads take turns within a quarter of a controller cycle.
+
+    A controller takes a stop program at its next cycle. The lab's threads (the world's
+    cycles, the RTDE stream, the script port) share one interpreter, which hands it over every
+    5 ms by default: longer than two cycles at 500 Hz, so a stop that arrived could wait for
+    the world's cycle in another thread. serve-sim is a process of its own: its switch
+    interval is set for it alone.
+    """
+    sys.setswitchinterval(min(sys.getswitchinterval(), 0.25 / frequency))
+
+
 @command(
     "serve-sim",
     "serve the simulator over a UR's RTDE and URScript ports (a virtual lab, on loopback)",
@@ -340,6 +353,7 @@ def _serve_sim(args: argparse.Namespace) -> int:
         msg = "serve-sim --ros2 needs --topic-map MAP: the topics the rig reads"
         raise RecorderError(msg)
     sections = _lab_sections(args.rig_config)
+    _switch_within_a_cycle(args.frequency)
     with contextlib.ExitStack() as stack:
         events = stack.enter_context(_event_files(args.events, args.fault_summary))
         sim = stack.enter_context(SimulatedRig(args.seed))
