@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from recorder import SimulatedRig, load_actions, load_objects
+from recorder import SimulatedRig, SkinBlock, load_actions, load_objects
 from recorder.bagimport._source import JOINT_TYPE, POSE_TYPE, SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RigError
@@ -30,19 +30,31 @@ def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
     dds_domain: int, tmp_path: Path
 ) -> None:
     objects, actions = load_objects(None), load_actions(None)
-    faults = Ros2Faults(drop={"/skin/cell_3": DROPPED}, drop_after=60)
+    # the drop is placed once the skin reads the topics (a loaded machine may take a second
+    # to discover them: a drop before that would be no gap in what the skin received)
+    faults = Ros2Faults(drop={"/skin/cell_3": DROPPED}, drop_after=2**62)
     section = {"transport": "ros2", "topic_map": str(EXAMPLE), "domain_id": dds_domain}
-    blocks = []
+    blocks: list[SkinBlock] = []
     with SimulatedRig(0) as rig, contextlib.ExitStack() as stack:
         world = stack.enter_context(VirtualWorld(rig, objects, actions, time_scale=0.5))
         world.start_action("wood", "P1", 1)
         with serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100) as server:
             skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
             with skin:
-                deadline = time.monotonic() + 1.2
-                while time.monotonic() < deadline:
+                deadline = time.monotonic() + 30
+                while not blocks:
+                    assert time.monotonic() < deadline, "the skin read nothing"
                     blocks.extend(skin.poll())
                     time.sleep(0.05)
+                after = server.sent.get("/skin/cell_3", 0) + 20
+                server.faults = Ros2Faults(drop={"/skin/cell_3": DROPPED}, drop_after=after)
+                until = time.monotonic() + 1.2
+                while time.monotonic() < until or server.dropped.get("/skin/cell_3", 0) < DROPPED:
+                    assert time.monotonic() < deadline, "the server dropped nothing"
+                    blocks.extend(skin.poll())
+                    time.sleep(0.05)
+                time.sleep(0.3)  # samples after the drop: the gap ends
+                blocks.extend(skin.poll())
                 blocks.extend(skin.finish())
                 stats = {s.name: s for s in skin.stats()}
                 force = skin.total_force()
