@@ -414,7 +414,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
             deadline = time.monotonic() + 60
             while not _journaled(out, b'"action": "P1"', opened_ns):
                 assert time.monotonic() < deadline, "the listener journaled no 'approach'"
-                time.sleep(0.25)  # a journal is read whole: not too often
+                time.sleep(0.25)  # every chunk record is scanned: not too often
             killed_ns = time.time_ns()
             process.send_signal(signal.SIGKILL)
             process.wait(10)
