@@ -4,7 +4,8 @@ A rig plug-in (:class:`RigPlugin`) builds a rig, not yet connected, from a seed 
 rig configuration (:class:`RigConfig`), and says whether the rig is exclusive hardware (one
 action at a time, in the main process, never in a pool of workers). A rig is found by name:
 
-1. the project's own rigs: ``sim`` (the simulator) and ``ur`` (a UR arm, ``recorder.ur``);
+1. the project's own rigs: ``sim`` (the simulator), ``ur`` (a UR arm, ``recorder.ur``) and
+   ``sim-ur10`` (the simulated UR10 under the action runner, ``recorder.virtuallab``);
 2. installed packages' entry points in the group ``atikt.rigs``; an entry point names a
    :class:`RigPlugin` or a bare builder ``builder(seed, options) -> Rig``::
 
@@ -239,7 +240,7 @@ def as_plugin(value: object) -> RigPlugin | None:
 
 #: The project's own rigs: a plug-in, or where to import it from (loaded on first use).
 BUILTIN_RIGS: Mapping[str, RigPlugin | str] = FrozenTable(
-    {"sim": SIM_RIG, "ur": "recorder.ur:PLUGIN"}
+    {"sim": SIM_RIG, "ur": "recorder.ur:PLUGIN", "sim-ur10": "recorder.virtuallab:SIM_UR10"}
 )
 #: Rigs registered at run time (:func:`register_rig`): a plug-in or a bare builder.
 _BUILDERS: dict[str, RigPlugin | RigBuilder] = {}

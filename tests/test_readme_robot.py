@@ -197,6 +197,32 @@ def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
     assert live == offline
 
 
+def test_the_in_process_rehearsal_runs_as_printed(tmp_path: Path) -> None:
+    steps = _steps(_block("--rig sim-ur10", "atikt-replay learn"))
+    outputs: dict[str, str] = {}
+    for command, comment in steps:
+        program, *argv = shlex.split(command)
+        if "sim-ur10" in argv:  # the world five times faster (the only change)
+            argv += ["--rig-option", "time_scale=0.2"]
+        argv = [sys.executable, "-m", PROGRAMS[program], *argv]
+        if "Ctrl-C" in comment:
+            status, err = _interrupt_mid_action(argv, tmp_path, tmp_path / "data" / "rehearsal")
+            assert status == 130, err
+            assert "interrupted by Ctrl-C (SIGINT): the arm was stopped" in err, err
+            continue
+        done = _run(argv, tmp_path)
+        assert done.returncode == 0, f"{command}\n{done.stderr}"
+        outputs[command] = done.stdout + done.stderr
+    out = tmp_path / "data" / "rehearsal"
+    made = sorted(p.relative_to(out).as_posix() for p in out.rglob("???.mcap"))
+    objects, actions, trials = ("foam_block", "wood"), ("P1", "S1"), (1, 2)
+    assert made == [f"{o}/{a}/{t:03d}.mcap" for o in objects for a in actions for t in trials]
+    assert list(out.rglob("*.incomplete.mcap"))  # the interrupted action's data, kept
+    learned = outputs[steps[-1][0]]
+    assert [line for line in learned.splitlines() if line.startswith("step  3")], learned
+    assert list((tmp_path / "runs" / "rehearsal" / "session").rglob("*.mcap"))
+
+
 def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(  # noqa: S603 (this project's command)
         argv, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=600, check=False

@@ -97,18 +97,25 @@ class SourceReader:
         try:
             while not self._stop.is_set():
                 item = self._receive()
-                if item is None:
-                    continue
-                with self._lock:
-                    self._received += 1
-                    self._last_receive_ns = item.receive_ns
-                try:
-                    self._queue.put_nowait(item)
-                except queue.Full:
-                    with self._lock:
-                        self._overflowed += 1
+                if item is not None:
+                    self.deliver(item)
         except BaseException as err:  # noqa: BLE001 (handed to the consumer, never lost)
             self._error = err
+
+    def deliver(self, item: Received) -> None:
+        """Queue one received sample (counted; a full queue drops it, counted as overflow).
+
+        The reader thread calls it for what ``receive`` returns; a source stepped in the
+        consumer's own thread (the in-process virtual lab) calls it directly.
+        """
+        with self._lock:
+            self._received += 1
+            self._last_receive_ns = item.receive_ns
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self._overflowed += 1
 
     @property
     def overflowed(self) -> int:

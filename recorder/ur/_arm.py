@@ -280,10 +280,12 @@ class URArm:
         recording's stamps strictly increase).
         """
         values = self._parse(package)
-        if values is None:
-            return None
+        return None if values is None else self._state(values, package.receive_ns)
+
+    def _state(self, values: Mapping[str, Any], receive_ns: int) -> ArmSample | None:
+        """Count one package's values; return its state if it is new and in order."""
         stamp = _stamp(values)
-        if not self._counter.observe(None, stamp, package.receive_ns) or stamp <= self._newest_ns:
+        if not self._counter.observe(None, stamp, receive_ns) or stamp <= self._newest_ns:
             return None
         self._newest_ns = stamp
         safety = int(values["safety_status"])
@@ -293,7 +295,7 @@ class URArm:
             stopped = f"{name} (RTDE safety_status {safety})"
         return ArmSample(
             stamp_ns=stamp + self._offset_ns,
-            receive_ns=package.receive_ns,
+            receive_ns=receive_ns,
             q=np.asarray(values["actual_q"], dtype=np.float64),
             qd=np.asarray(values["actual_qd"], dtype=np.float64),
             effort=np.asarray(values["target_moment"], dtype=np.float64),

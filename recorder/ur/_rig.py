@@ -154,6 +154,58 @@ class URRig(ArmRig):
         )
 
 
+@dataclass(frozen=True, slots=True)
+class URConfig:
+    """A UR rig configuration, checked: what :func:`build_ur_rig` builds a rig from.
+
+    Attributes:
+        options: ``[options]``.
+        limits: ``[limits]``.
+        skin: ``[skin]`` (its ``transport`` and the transport's keys).
+        poses: ``[objects.<id>] pose``, by object id.
+        where: The configuration file, for messages.
+    """
+
+    options: UROptions
+    limits: Limits
+    skin: Mapping[str, Any]
+    poses: Mapping[str, Sequence[float]]
+    where: str
+
+
+def read_ur_config(config: Any, rig: str = "ur") -> URConfig:  # noqa: ANN401 (a RigConfig)
+    """Check a UR rig configuration (nothing connects).
+
+    Args:
+        config: ``.options`` (flat), ``.sections`` (``limits``, ``skin``, ``objects``) and
+            ``.source`` (the file, for messages).
+        rig: The rig's name, for messages.
+
+    Raises:
+        RigError: An option, a limit or an object's pose is malformed, or no ``[skin]``.
+    """
+    where = str(getattr(config, "source", None) or "<rig options>")
+    refuse_sections(config, ("limits", "skin", "objects"))
+    sections: Mapping[str, Any] = thaw(getattr(config, "sections", {}) or {})
+    options = UROptions.from_options(dict(config.options), where)
+    limits = Limits.from_section(sections.get("limits", {}), where)
+    skin = sections.get("skin")
+    if not isinstance(skin, dict) or "transport" not in skin:
+        msg = (
+            f"{where}: the {rig} rig needs a [skin] table with transport = "
+            '"udp", "serial" or "ros2"'
+        )
+        raise RigError(msg)
+    poses: dict[str, Sequence[float]] = {}
+    for object_id, entry in (sections.get("objects", {}) or {}).items():
+        pose = entry.get("pose") if isinstance(entry, dict) else None
+        if not isinstance(pose, list) or not all(isinstance(v, int | float) for v in pose):
+            msg = f"{where}: [objects.{object_id}] needs pose = [x, y, z, rx, ry, rz] in m and rad"
+            raise RigError(msg)
+        poses[object_id] = [float(v) for v in pose]
+    return URConfig(options, limits, skin, poses, where)
+
+
 def build_ur_rig(seed: int, config: Any) -> URRig:  # noqa: ANN401 (a RigConfig)
     """Build the UR rig from a rig configuration (not yet connected).
 
@@ -166,20 +218,5 @@ def build_ur_rig(seed: int, config: Any) -> URRig:  # noqa: ANN401 (a RigConfig)
         RigError: An option, a limit or an object's pose is malformed or outside the limits.
     """
     del seed
-    where = str(getattr(config, "source", None) or "<rig options>")
-    refuse_sections(config, ("limits", "skin", "objects"))
-    sections: Mapping[str, Any] = thaw(getattr(config, "sections", {}) or {})
-    options = UROptions.from_options(dict(config.options), where)
-    limits = Limits.from_section(sections.get("limits", {}), where)
-    skin = sections.get("skin")
-    if not isinstance(skin, dict) or "transport" not in skin:
-        msg = f'{where}: the ur rig needs a [skin] table with transport = "udp", "serial" or "ros2"'
-        raise RigError(msg)
-    poses: dict[str, Sequence[float]] = {}
-    for object_id, entry in (sections.get("objects", {}) or {}).items():
-        pose = entry.get("pose") if isinstance(entry, dict) else None
-        if not isinstance(pose, list) or not all(isinstance(v, int | float) for v in pose):
-            msg = f"{where}: [objects.{object_id}] needs pose = [x, y, z, rx, ry, rz] in m and rad"
-            raise RigError(msg)
-        poses[object_id] = [float(v) for v in pose]
-    return URRig(options, limits, skin, poses, where=where)
+    checked = read_ur_config(config)
+    return URRig(checked.options, checked.limits, checked.skin, checked.poses, where=checked.where)

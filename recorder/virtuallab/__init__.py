@@ -10,14 +10,19 @@ simulator's objects; each server reads the world's state at its own rate, and
 
 from recorder.virtuallab._events import Event
 from recorder.virtuallab._skin_server import InjectedFaults, SkinFaults, SkinServer, serve_skin
+from recorder.virtuallab._stepped import PLUGIN as SIM_UR10
+from recorder.virtuallab._stepped import SimUR10Rig, SteppedLab
 from recorder.virtuallab._world import RobotState, VirtualWorld
 
 __all__ = [
+    "SIM_UR10",
     "Event",
     "InjectedFaults",
     "RobotState",
+    "SimUR10Rig",
     "SkinFaults",
     "SkinServer",
+    "SteppedLab",
     "VirtualWorld",
     "serve_skin",
 ]

@@ -194,6 +194,18 @@ class _Encoder:
         return out.tobytes()
 
 
+class FrameLink(Protocol):
+    """Where a skin server's frames go."""
+
+    def send(self, frames: list[bytes]) -> None:
+        """Send frames (each one whole frame), in order."""
+        ...
+
+    def close(self) -> None:
+        """Close the link."""
+        ...
+
+
 class _Link:
     """Where frames go: UDP datagrams to an address, or bytes to a serial line or descriptor."""
 
@@ -243,7 +255,7 @@ class SkinServer:
     def __init__(  # noqa: PLR0917 (the sender and its two optional hooks)
         self,
         world: SkinWorld,
-        link: _Link,
+        link: FrameLink,
         layout: SkinLayout,
         faults: SkinFaults,
         action_start: Callable[[], int | None] | None = None,
@@ -290,15 +302,22 @@ class SkinServer:
         self._on_fault = on_fault
         self._base: int | None = 0 if faults.at_action_s < 0 else None
 
-    def start(self) -> None:
-        """Start sending (sensor time and counters start at 0 now)."""
+    def start(self, *, thread: bool = True) -> None:
+        """Start sending (sensor time and counters start at 0 now).
+
+        Args:
+            thread: Send from the server's own thread; False: the caller calls
+                :meth:`send_due` (the in-process virtual lab, stepped on its own clock).
+        """
         self._origin = self.world.controller_ns()
-        self._thread.start()
+        if thread:
+            self._thread.start()
 
     def stop(self) -> None:
         """Stop sending and wait for the thread."""
         self._stop.set()
-        self._thread.join(5.0)
+        if self._thread.is_alive():
+            self._thread.join(5.0)
 
     @property
     def injected(self) -> InjectedFaults:
@@ -409,15 +428,22 @@ class SkinServer:
                         self._stopped = True
                     self._stop.wait(MIN_SLEEP_S * 10)
                     continue
-                for encoder in self._encoders:
-                    with self._lock:
-                        frames = self._due(encoder, now)
-                        self._sent[encoder.frame.name] += len(frames)
-                    if frames:
-                        self._link.send(frames)
+                self.send_due(now)
                 self._stop.wait(self._sleep(now))
         except BaseException as err:  # noqa: BLE001 (reported by serve_skin's exit)
             self.error = err
+
+    def send_due(self, now: int) -> None:
+        """Send every frame due by controller time ``now`` (the sending thread's step).
+
+        The in-process virtual lab calls it from its own loop instead of :meth:`start`.
+        """
+        for encoder in self._encoders:
+            with self._lock:
+                frames = self._due(encoder, now)
+                self._sent[encoder.frame.name] += len(frames)
+            if frames:
+                self._link.send(frames)
 
     def _sleep(self, now: int) -> float:
         """Return the time until the next frame is due (at least :data:`MIN_SLEEP_S`), s."""

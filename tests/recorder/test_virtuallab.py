@@ -241,8 +241,8 @@ def _free_port(kind: int) -> int:
         return int(probe.getsockname()[1])
 
 
-def _fifty_lab(tmp_path: Path) -> tuple[Path, list[str]]:
-    """Return the fifty-action test's rig configuration and its serve-sim command."""
+def _served_lab(tmp_path: Path) -> tuple[Path, list[str]]:
+    """Return the served-actions test's rig configuration and its serve-sim command."""
     # serve-sim in its own process (as at a robot: the lab never competes with the rig for
     # this interpreter), the UR rig with the example configuration and a UDP skin here.
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
@@ -268,10 +268,12 @@ def _fifty_lab(tmp_path: Path) -> tuple[Path, list[str]]:
     return lab, command
 
 
-def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_first_did(
+def test_over_ten_actions_served_every_action_starts_where_the_first_did(
     tmp_path: Path,
 ) -> None:
-    lab, command = _fifty_lab(tmp_path)
+    # Fifty actions run in process (test_sim_ur10_runner): the same world and driver code,
+    # stepped on a simulated clock. Here ten go over the wires, with serve-sim at real time.
+    lab, command = _served_lab(tmp_path)
     env = os.environ | {"PYTHONPATH": str(ROOT)}
     served = subprocess.Popen(  # noqa: S603 (this project's command)
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -283,7 +285,7 @@ def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_fir
         assert served.stdout.readline().startswith("virtual lab listening")
         with build_ur_rig(0, load_rig_config(lab)) as rig:
             assert rig.present(obj)
-            for trial in range(1, 51):
+            for trial in range(1, 11):
                 path = out / f"{trial:03d}.mcap"
                 record_action(rig, obj, ACTIONS["P1"], trial, path, seed=0)
                 recording = read_recording(path)
@@ -299,9 +301,9 @@ def test_over_fifty_actions_on_the_rigid_block_every_action_starts_where_the_fir
     # the approach began (the object's pose): every start within 1 mm of the first.
     off = [(trial, round(z, 6)) for trial, z in enumerate(starts, 1) if abs(z - first) >= 1e-3]
     assert not off, f"first start z {first:.6f}; trials off by 1 mm: {off}"
-    assert abs(np.median(starts[-10:]) - np.median(starts[:10])) < 2e-4, off  # no sinking
+    assert abs(np.median(starts[-3:]) - np.median(starts[:3])) < 2e-4, off  # no sinking
     events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
-    assert sum(1 for e in events if e["event"] == "program") > 150
+    assert sum(1 for e in events if e["event"] == "program") > 30
     assert replay_main(["check", str(out)]) == 0
     pressed = file_features(out / "001.mcap")
     slid = file_features(slide)

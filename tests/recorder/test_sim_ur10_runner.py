@@ -1,0 +1,123 @@
+"""The simulated UR10 under the action runner (``--rig sim-ur10``): the virtual lab in-process.
+
+The runner, the UR driver's programs and the UDP skin's parsing are the robot's; only the wires
+are replaced and the clock is simulated. So these tests are deterministic and do not depend on
+the machine's load: a session's files are byte-identical from run to run, and a stop's latency
+is counted in controller cycles exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recorder import ActionStoppedError, load_actions, load_objects, record_action
+from recorder._cli import main
+from recorder._rigconfig import find_rig, load_rig_config
+from recorder.errors import RecorderError
+from recorder.virtuallab import SimUR10Rig
+from recorder.virtuallab._stepped import START_NS
+from replay import read_recording
+from replay.cli._main import main as replay_main
+
+OBJECTS, ACTIONS = load_objects(), load_actions()
+#: Worlds move five times faster than the simulated clock: a press takes ~2 s of it.
+FAST = "time_scale=0.2"
+EXAMPLE = Path(__file__).resolve().parents[2] / "recorder/data/ur_rig.example.toml"
+
+
+def _rig(*options: str, seed: int = 0) -> SimUR10Rig:
+    rig = find_rig("sim-ur10").build(seed, load_rig_config(None, "sim-ur10", options))
+    assert isinstance(rig, SimUR10Rig)
+    return rig
+
+
+def test_a_session_is_byte_identical_run_to_run_and_valid(tmp_path: Path) -> None:
+    def session(out: Path) -> None:
+        args = ["session", "--rig", "sim-ur10", "--rig-option", FAST, "--yes"]
+        args += ["--objects", "wood,foam_block", "--actions", "P1,S1", "--trials", "1"]
+        assert main([*args, "--out", str(out)]) == 0
+
+    session(tmp_path / "a")
+    session(tmp_path / "b")
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.mcap"))
+    assert len(files) == 4
+    for name in files:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    assert replay_main(["check", str(tmp_path / "a")]) == 0
+    recording = read_recording(tmp_path / "a" / "foam_block" / "P1" / "001.mcap")
+    assert recording.metadata.rig["kind"] == "sim-ur10"
+    assert recording.tcp is not None
+    # presented at the example configuration's pose for foam_block: x -0.55
+    assert abs(float(recording.tcp.position[0, 0]) + 0.55) < 1e-3
+
+
+def test_over_fifty_actions_every_action_starts_where_the_first_did(tmp_path: Path) -> None:
+    obj = OBJECTS["wood"]
+    starts = []
+    with _rig(FAST) as rig:
+        assert rig.present(obj)
+        for trial in range(1, 51):
+            path = tmp_path / f"{trial:03d}.mcap"
+            record_action(rig, obj, ACTIONS["P1"], trial, path, seed=0)
+            tcp = read_recording(path).tcp
+            assert tcp is not None
+            starts.append(float(tcp.position[0, 2]))
+    off = [(trial, z) for trial, z in enumerate(starts, 1) if abs(z - starts[0]) >= 1e-3]
+    assert not off, f"first start z {starts[0]:.6f}; trials off by 1 mm: {off}"
+    assert abs(np.median(starts[-10:]) - np.median(starts[:10])) < 2e-4  # no sinking
+    assert replay_main(["check", str(tmp_path)]) == 0
+
+
+def test_a_force_limit_stops_the_arm_in_the_cycle_after_the_sample_that_broke_it(
+    tmp_path: Path,
+) -> None:
+    # the press to 1 mm into the rigid block needs more than 2 N: the limit ends it
+    rig = _rig(FAST)
+    rig.limits = dataclasses.replace(rig.limits, max_force_n=2.0)
+    with rig:
+        assert rig.present(OBJECTS["wood"])
+        with pytest.raises(ActionStoppedError, match="force"):
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
+        cause_ns, sent_ns, why = rig.stops_sent[-1]
+        # the stop goes out before the clock moves again: within the cycle of the cause
+        assert "force" in why
+        assert 0 <= sent_ns - cause_ns < rig.arm.period_ns
+        # the arm is still within its deceleration (5 mm/s at 0.5 m/s^2: 10 ms, 2 cycles)
+        speeds = [float(np.abs(s.qd).max()) for _ in range(3) for s in rig.arm.poll(1.0)]
+        assert speeds[-1] < 1e-6, speeds
+        # the controller runs the stopl from the cycle after the cause's
+        stop = rig.lab.world.events("program")[-1]
+        assert stop.details["calls"][-1] == "stopl"
+        assert 0 < stop.controller_ns - (cause_ns - START_NS) <= rig.arm.period_ns
+    assert (tmp_path / "001.incomplete.mcap").stat().st_size > 0
+    assert not (tmp_path / "001.mcap").exists()
+
+
+def test_without_a_configuration_the_example_is_used_and_a_ros2_skin_is_refused(
+    tmp_path: Path,
+) -> None:
+    rig = _rig()
+    assert rig.where.endswith("ur_rig.example.toml")
+    assert rig.can_present(OBJECTS["book"])  # every catalog object: the default pose
+    text = EXAMPLE.read_text("utf-8")
+    ros2 = text[: text.index("\n[skin]\n")] + '\n[skin]\ntransport = "ros2"\n'
+    (tmp_path / "ros2.toml").write_text(ros2, "utf-8")
+    with pytest.raises(RecorderError, match=r"transport = 'ros2'.*serve-sim --ros2"):
+        find_rig("sim-ur10").build(0, load_rig_config(tmp_path / "ros2.toml", "sim-ur10"))
+
+
+def test_the_seed_draws_the_skin_and_is_part_of_the_rigs_identity(tmp_path: Path) -> None:
+    forces = []
+    for seed in (0, 1):
+        with _rig(FAST, seed=seed) as rig:
+            assert rig.describe()["seed"] == str(seed)
+            rig.present(OBJECTS["wood"])
+            path = tmp_path / f"{seed}.mcap"
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=seed)
+        skin = read_recording(path).skin("force")
+        forces.append(np.asarray(skin.data[:200], dtype=np.float64))
+    assert not np.array_equal(forces[0], forces[1])
