@@ -16,9 +16,13 @@ splits. Three classifiers on the same splits:
   hyperparameters fitted on the dataset's objects outside the group (the multi-modal
   classifier without a prior where fewer than two are left).
 
-With ``--breakdown`` three more, to tell the features from the classifier: ``atikt-simple``
-(the learner's classifier on the simple features, one block) and the nearest neighbour on each
-feature set (``1nn-own``, ``1nn-simple``).
+With ``--breakdown`` more, to tell the features from the classifier and the hyperparameter
+search: ``atikt-simple`` (the learner's classifier on the simple features, one block), the
+nearest neighbour on each feature set (``1nn-own``, ``1nn-simple``), and three ways of sharing
+the hyperparameters of the learner's one-vs-all classifiers: ``atikt-shared`` (one set for all
+classes, the sum of their evidences, hyperprior sd 5 as ``atikt``), ``atikt-shared-ml`` (the
+same by maximum likelihood) and ``atikt-hier`` (each class its own, with a hyperprior of sd 1
+around ``atikt-shared``'s).
 
 Printed per training size: mean test accuracy of each and the paired differences of each of
 the learner's two forms minus each reference, with a 95 % percentile bootstrap interval over
@@ -49,7 +53,7 @@ from replay.studies._fusion_prior import REFERENCE_PRIOR_SD, reference_theta
 
 SIZES = (1, 2, 5, 10)
 METHODS = ("atikt", "sklearn-own", "sklearn-simple", "atikt-others")
-BREAKDOWN = ("atikt-simple", "1nn-own", "1nn-simple")
+BREAKDOWN = ("atikt-simple", "atikt-shared", "atikt-shared-ml", "atikt-hier", "1nn-own", "1nn-simple")
 
 
 def _simple(observations: list[Any]) -> np.ndarray:
@@ -114,6 +118,21 @@ def accuracies(
             random_state=seed,
         ).fit(S / width, y)
         out["atikt-simple"] = float(np.mean(one.predict(St / width) == yt))
+        shared = OneVsAllGPC(
+            modality_kernel(transformer.slices_),
+            n_restarts=1,
+            prior_sd=5.0,
+            random_state=seed,
+            shared=True,
+        ).fit(X, y)
+        out["atikt-shared"] = float(np.mean(shared.predict(Xt) == yt))
+        ml = OneVsAllGPC(
+            modality_kernel(transformer.slices_), n_restarts=1, random_state=seed, shared=True
+        ).fit(X, y)
+        out["atikt-shared-ml"] = float(np.mean(ml.predict(Xt) == yt))
+        centre = shared.estimators_[0].kernel_
+        hier = OneVsAllGPC(centre, n_restarts=0, prior_sd=1.0, random_state=seed).fit(X, y)
+        out["atikt-hier"] = float(np.mean(hier.predict(Xt) == yt))
         out["1nn-own"] = float(np.mean(_nearest(X, y, Xt) == yt))
         out["1nn-simple"] = float(np.mean(_nearest(S, y, St) == yt))
     return out
