@@ -118,6 +118,10 @@ class Motion:
         retract_m_s: Speed of the retract and of ``movel`` between objects, m/s.
         acceleration_m_s2: TCP acceleration of every motion, m/s^2.
         contact_force_n: Total skin force that counts as the light contact, N.
+        approach_blind_m: How far the approach may move toward the object beyond what the
+            skin's force samples have seen, m: a skin whose samples come late (a delayed
+            transport, a loaded recorder) pauses the approach until they catch up, so the
+            light contact is never overrun by more than this.
     """
 
     approach_max_m_s: float = 0.02
@@ -129,6 +133,7 @@ class Motion:
     retract_m_s: float = 0.02
     acceleration_m_s2: float = 0.5
     contact_force_n: float = LIGHT_CONTACT_N
+    approach_blind_m: float = 0.0005
 
     def approach_speed(self, distance_m: float | None) -> float:
         """Return the approach speed at a proximity distance (None: no proximity, slowest)."""

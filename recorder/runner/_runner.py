@@ -15,7 +15,9 @@ any exception -- sends the stop first, then hands over what arrived; the recorde
 
 from __future__ import annotations
 
+import bisect
 import contextlib
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -58,6 +60,8 @@ _HOME_M = 0.002
 TARE_NS = 30_000_000
 #: Longest wait for a state sample in one cycle, s (a cycle also ends when one arrives).
 CYCLE_WAIT_S = 0.002
+#: Longest pause of the approach waiting for a late skin's force samples, s.
+SKIN_BEHIND_S = 2.0
 
 
 class Watch(Protocol):
@@ -163,6 +167,9 @@ class ArmRig:
         self._last_event_ns = 0
         #: Modality -> how far its skin samples taken in this action reach (last + period).
         self._skin_until: dict[str, int] = {}
+        #: The longest force block of this action, ns: a skin hands its samples over in blocks,
+        #: so those of the block being filled have arrived though no block shows them yet.
+        self._force_block_ns = 0
         #: Where the approaches begin (the object's pose once presented, else the first
         #: approach's start); retracts return there, so actions never creep toward the object.
         self._home: NDArray[np.float64] | None = None
@@ -393,10 +400,20 @@ class ArmRig:
         # (a program the controller refused) must not keep the action waiting forever
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
+        blind = _Blind(direction, start, motion.approach_blind_m)
         while True:
             peak = yield from self._pump_force(since_ns=sent_ns)
             if peak is not None and peak - zero > motion.contact_force_n:
                 break
+            nearest = self.skin.nearest()
+            if blind.pauses(self._state.sample, self._skin_seen_ns(), nearest):
+                # the skin is behind the arm: stop, wait for it, then go on
+                waited, peak = yield from self._wait_for_skin(blind, at, sent_ns)
+                if peak is not None and peak - zero > motion.contact_force_n:
+                    break
+                give_up_ns += waited
+                self._speed(direction, speed, at)
+                continue
             now = self.clock.now_ns()
             if now > give_up_ns:
                 reason = (
@@ -419,6 +436,44 @@ class ArmRig:
         self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
         yield self._event("contact")
         return self._state.pose.copy()
+
+    def _wait_for_skin(
+        self, blind: _Blind, at: Context, since_ns: int
+    ) -> Generator[StreamItem, None, tuple[int, float | None]]:
+        """Stop the approach until the skin's force samples have caught up with the arm.
+
+        Returns:
+            How long it waited (ns) and the largest total skin force since ``since_ns`` that
+            came meanwhile (the late samples may hold the light contact).
+
+        Raises:
+            Stop: The skin stayed :data:`SKIN_BEHIND_S` behind.
+        """
+        self.arm.stop(self.options.motion.acceleration_m_s2, at)
+        began = self.clock.now_ns()
+        peak: float | None = None
+        while blind.paused:
+            force = yield from self._pump_force(since_ns=since_ns)
+            if force is not None:
+                peak = force if peak is None else max(peak, force)
+            now = self.clock.now_ns()
+            if now - began > round(SKIN_BEHIND_S * _NS):
+                reason = (
+                    f"the skin's force samples stayed {SKIN_BEHIND_S:g} s behind the arm "
+                    "during the approach; check the skin's link and the recorder's load"
+                )
+                raise Stop(reason, now)
+            blind.pauses(self._state.sample, self._skin_seen_ns(), self.skin.nearest())
+        return self.clock.now_ns() - began, peak
+
+    def _skin_seen_ns(self) -> int | None:
+        """Return how far the skin's force samples reach (None: none yet this action).
+
+        The reach of the blocks handed over, plus the longest block: the samples of the block
+        being filled have arrived already (a skin's total force reads them).
+        """
+        until = self._skin_until.get("force")
+        return None if until is None else until + self._force_block_ns
 
     def _speed(self, direction: NDArray[np.float64], speed: float, at: Context) -> None:
         motion = self.options.motion
@@ -552,7 +607,7 @@ class ArmRig:
         """Forget what queued before (between actions), keeping the arm's latest state."""
         self.arm.begin()
         self._begun_ns = self.clock.now_ns()
-        self._skin_until = {}
+        self._skin_until, self._force_block_ns = {}, 0
 
     def _pump(self, wait_s: float = CYCLE_WAIT_S) -> Iterator[StreamItem]:
         """Yield what arrived (state samples, skin blocks) in receive order; check for stops.
@@ -583,6 +638,9 @@ class ArmRig:
         for block in blocks:  # each modality's samples cover up to their last one + a period
             until = block.stamp_ns + block.data.shape[0] * block.period_ns
             self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), until)
+            if block.modality == "force":
+                span = block.data.shape[0] * block.period_ns
+                self._force_block_ns = max(self._force_block_ns, span)
         items.extend(blocks)
         items.sort(key=lambda item: item.receive_ns)
         yield from items
@@ -676,6 +734,52 @@ SKIN_DELAY_S = 2.0
 
 def _phase(at: Context, phase: str) -> Context:
     return Context(at.object_id, at.action_id, at.trial, phase)
+
+
+@dataclass(slots=True)
+class _Blind:
+    """How far the approach moved beyond what the skin's force samples have seen.
+
+    The arm's positions along the approach, by state stamp, and the skin's reach (its newest
+    sample's stamp, on the same time base) give the distance moved since the skin last saw
+    the arm: a late skin (a delayed transport, a loaded recorder) lets the arm press on past a
+    light contact it has not reported yet. Past ``limit_m`` the approach pauses; it goes on
+    once the skin has caught up with the arm (within half the limit).
+    """
+
+    direction: NDArray[np.float64]
+    start: NDArray[np.float64]
+    limit_m: float
+    paused: bool = False
+    _track: list[tuple[int, float]] = field(default_factory=list)
+
+    def pauses(
+        self, sample: ArmSample | None, skin_ns: int | None, nearest_m: float | None = None
+    ) -> bool:
+        """Take the arm's latest state; return True when the approach must pause now.
+
+        ``nearest_m`` is the skin's latest proximity reading: far from the object the arm may
+        move blind up to half of it (a skin's usual latency at the far approach speed).
+        While paused, :attr:`paused` turns False once the skin has caught up.
+        """
+        if sample is None:
+            return False
+        along = float(np.dot(sample.tcp_pose[:3] - self.start[:3], self.direction))
+        if not self._track or sample.stamp_ns > self._track[-1][0]:
+            self._track.append((sample.stamp_ns, along))
+        seen = 0.0  # where the arm was when the skin's newest sample was taken
+        if skin_ns is not None:
+            index = bisect.bisect_right(self._track, (skin_ns, math.inf)) - 1
+            if index >= 0:
+                seen = self._track[index][1]
+                del self._track[:index]  # older positions are never needed again
+        ahead = along - seen
+        limit = max(self.limit_m, 0.5 * nearest_m) if nearest_m is not None else self.limit_m
+        if self.paused:
+            self.paused = ahead > limit / 2
+            return False
+        self.paused = ahead > limit
+        return self.paused
 
 
 def _items(sample: ArmSample) -> list[StreamItem]:

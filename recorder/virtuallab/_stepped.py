@@ -28,6 +28,7 @@ is rehearsed with ``serve-sim --ros2``). Objects without a pose are presented at
 from __future__ import annotations
 
 import contextlib
+from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
@@ -92,14 +93,27 @@ class _Inbox(SourceReader):
 
 
 class _InboxLink:
-    """The skin server's link into the skin's inbox (what a socket would carry)."""
+    """The skin server's link into the skin's inbox (what a socket would carry).
+
+    Frames are held while the clock is before :attr:`hold_until_ns`, then delivered in order
+    (a stalled transport, for tests).
+    """
 
     def __init__(self, inbox: _Inbox, clock: SteppedClock) -> None:
         self._inbox, self._clock = inbox, clock
+        self.hold_until_ns = 0
+        self._held: deque[bytes] = deque()
 
     def send(self, frames: list[bytes]) -> None:
-        for frame in frames:
-            self._inbox.deliver(Received(self._clock.now_ns(), frame))
+        self._held.extend(frames)
+        self.release()
+
+    def release(self) -> None:
+        """Deliver the frames held, unless the link is stalled."""
+        now = self._clock.now_ns()
+        if now >= self.hold_until_ns:
+            while self._held:
+                self._inbox.deliver(Received(now, self._held.popleft()))
 
     def close(self) -> None:
         """Nothing to close."""
@@ -126,6 +140,8 @@ class SteppedLab:
         self._stack: contextlib.ExitStack | None = None
         self._world: VirtualWorld | None = None
         self._skin: SkinServer | None = None
+        #: The skin's link (``hold_until_ns`` stalls it: tests).
+        self.link = _InboxLink(self.inbox, self.clock)
 
     def __enter__(self) -> Self:
         """Build the world at rest at its home pose and start its skin's frames."""
@@ -143,8 +159,7 @@ class SteppedLab:
                 poses=self.poses,
                 seed=self.seed,
             )
-            link = _InboxLink(self.inbox, self.clock)
-            self._skin = SkinServer(self._world, link, self.layout, SkinFaults())
+            self._skin = SkinServer(self._world, self.link, self.layout, SkinFaults())
             self._skin.start(thread=False)
             stack.callback(self._skin.stop)
             self._stack = stack.pop_all()
@@ -187,6 +202,7 @@ class SteppedLab:
         world.advance_to(now)
         if self._skin is not None:
             self._skin.send_due(now)
+            self.link.release()
         return now
 
 

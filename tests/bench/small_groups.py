@@ -53,7 +53,14 @@ from replay.studies._fusion_prior import REFERENCE_PRIOR_SD, reference_theta
 
 SIZES = (1, 2, 5, 10)
 METHODS = ("atikt", "sklearn-own", "sklearn-simple", "atikt-others")
-BREAKDOWN = ("atikt-simple", "atikt-shared", "atikt-shared-ml", "atikt-hier", "1nn-own", "1nn-simple")
+BREAKDOWN = (
+    "atikt-simple",
+    "atikt-shared",
+    "atikt-shared-ml",
+    "atikt-hier",
+    "1nn-own",
+    "1nn-simple",
+)
 
 
 def _simple(observations: list[Any]) -> np.ndarray:

@@ -7,6 +7,7 @@ within 2 cycles, and what arrived must be kept as ``<trial>.incomplete.mcap``.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import signal
@@ -212,6 +213,7 @@ def test_a_late_skin_still_covers_the_action_to_its_end(
     # late): the arm is done before the action's last skin samples came; the runner waits for
     # them (at most SKIN_DELAY_S) so that the file holds the skin up to the action's end
     rig = fake_rig()
+    rig.options = dataclasses.replace(rig.options, silence_s=1.0)  # not under test here
     arm: FakeArm = rig.arm  # type: ignore[assignment]
     rig.skin.delay_ns = round(delay_s * 1e9)  # type: ignore[attr-defined]
     written: list[object] = []

@@ -58,7 +58,7 @@ def test_a_session_is_byte_identical_run_to_run_and_valid(tmp_path: Path) -> Non
 def test_over_fifty_actions_every_action_starts_where_the_first_did(tmp_path: Path) -> None:
     obj = OBJECTS["wood"]
     starts = []
-    with _rig(FAST) as rig:
+    with _rig("time_scale=0.1") as rig:  # ten times faster: no reaction time is lost here
         assert rig.present(obj)
         for trial in range(1, 51):
             path = tmp_path / f"{trial:03d}.mcap"
@@ -121,3 +121,40 @@ def test_the_seed_draws_the_skin_and_is_part_of_the_rigs_identity(tmp_path: Path
         skin = read_recording(path).skin("force")
         forces.append(np.asarray(skin.data[:200], dtype=np.float64))
     assert not np.array_equal(forces[0], forces[1])
+
+
+@pytest.mark.parametrize("pause", ["on", "off"])
+def test_a_skin_stalled_at_the_approach_pauses_the_arm_instead_of_pressing_on(
+    tmp_path: Path, pause: str
+) -> None:
+    # the skin's frames are held for 1 s once the arm is 2.5 mm above the block (a transport
+    # that stalls, a loaded recorder): without the pause the arm runs on into the rigid block
+    # until the force limit stops it; with it, the action is as without the stall
+    guarded = pause == "on"
+    options = [FAST, "silence_s=2"] + ([] if guarded else ["approach_blind_m=1"])
+    rig = _rig(*options)
+    lab, step = rig.lab, rig.lab.step
+    armed = [True]
+
+    def stepping() -> int:
+        now = step()
+        if armed[0] and lab.world.robot_at(now).tcp_pose[2] < 0.1325:  # the face: z 0.13
+            armed[0] = False
+            lab.link.hold_until_ns = lab.clock.now_ns() + 1_000_000_000
+        return now
+
+    lab.step = stepping  # type: ignore[method-assign]
+    path = tmp_path / "001.mcap"
+    with rig:
+        assert rig.present(OBJECTS["wood"])
+        if not guarded:
+            with pytest.raises(ActionStoppedError, match="max_force_n"):
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+            return
+        record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+    assert not armed[0]  # the stall happened
+    recording = read_recording(path)
+    assert recording.tcp is not None
+    # as deep as a press without a stall: 1 mm past the light contact at the face
+    assert float(recording.tcp.position[:, 2].min()) > 0.13 - 0.0015
+    assert float(recording.skin("force").data.sum(axis=(1, 2)).max()) < 4.0
