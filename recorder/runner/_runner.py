@@ -62,6 +62,9 @@ TARE_NS = 30_000_000
 CYCLE_WAIT_S = 0.002
 #: Longest pause of the approach waiting for a late skin's force samples, s.
 SKIN_BEHIND_S = 2.0
+#: How long one approach speed command moves the arm unless renewed (action time), s; the
+#: runner renews it every half of it.
+SPEED_LEASE_S = 0.5
 
 
 class Watch(Protocol):
@@ -395,24 +398,28 @@ class ArmRig:
         direction = _tool_axis(start, 2)
         speed = motion.approach_speed(self.skin.nearest())
         self._speed(direction, speed, at)
-        sent_ns = self.clock.now_ns()
+        sent_ns = began_ns = self.clock.now_ns()
+        # a speed command lasts SPEED_LEASE_S unless renewed: a recorder that stalls (a
+        # loaded or hung process) lets the arm move on for that long at most, not the whole way
+        renew_ns = round(SPEED_LEASE_S / 2 * scale * _NS)
         # the slowest approach over the whole distance, twice: an arm that does not move
         # (a program the controller refused) must not keep the action waiting forever
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
         blind = _Blind(direction, start, motion.approach_blind_m)
         while True:
-            peak = yield from self._pump_force(since_ns=sent_ns)
+            peak = yield from self._pump_force(since_ns=began_ns)
             if peak is not None and peak - zero > motion.contact_force_n:
                 break
             nearest = self.skin.nearest()
             if blind.pauses(self._state.sample, self._skin_seen_ns(), nearest):
                 # the skin is behind the arm: stop, wait for it, then go on
-                waited, peak = yield from self._wait_for_skin(blind, at, sent_ns)
+                waited, peak = yield from self._wait_for_skin(blind, at, began_ns)
                 if peak is not None and peak - zero > motion.contact_force_n:
                     break
                 give_up_ns += waited
                 self._speed(direction, speed, at)
+                sent_ns = self.clock.now_ns()
                 continue
             now = self.clock.now_ns()
             if now > give_up_ns:
@@ -429,8 +436,10 @@ class ArmRig:
                 )
                 raise Stop(reason, now)
             wanted = motion.approach_speed(self.skin.nearest())
-            # at most every 0.1 s of action time (a lab at time_scale S runs 1/S times faster)
-            if abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10 * scale:
+            # at most every 0.1 s of action time (a lab at time_scale S runs 1/S times faster),
+            # and before the last command's lease ends
+            changed = abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10 * scale
+            if changed or now - sent_ns > renew_ns:
                 speed, sent_ns = wanted, now
                 self._speed(direction, speed, at)
         self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
@@ -478,7 +487,7 @@ class ArmRig:
     def _speed(self, direction: NDArray[np.float64], speed: float, at: Context) -> None:
         motion = self.options.motion
         velocity = np.concatenate([direction * speed, np.zeros(3)])
-        seconds = motion.approach_limit_m / max(speed, 1e-6)
+        seconds = min(motion.approach_limit_m / max(speed, 1e-6), SPEED_LEASE_S)
         self.arm.speed(velocity, motion.acceleration_m_s2, seconds, at)
 
     def _pump_force(self, *, since_ns: int) -> Generator[StreamItem, None, float | None]:

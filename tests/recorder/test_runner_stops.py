@@ -14,12 +14,14 @@ import signal
 import threading
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pytest
 from fake_arm import FakeArm, fake_rig
 from mcap.reader import make_reader
 
 from recorder import ActionStoppedError, RecorderError, load_actions, load_objects
 from recorder.runner._record import record_action
+from recorder.runner._runner import SPEED_LEASE_S
 from recorder.writing._stream import PhaseEvent, SkinBlock
 from recorder.writing._writer import RecordingWriter
 from schemas import INCOMPLETE_RECORD, cli
@@ -196,13 +198,19 @@ def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> No
         written = record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
     assert written.path == tmp_path / "001.mcap"
     assert arm.stop_cycle is None
-    assert [c for _, c in arm.commands] == [
+    commands = [c for _, c in arm.commands]
+    assert [c for i, c in enumerate(commands) if i == 0 or c != commands[i - 1]] == [
         "speed approach",
         "stop contact",
         "move execute",
         "move retract",
         "announce end",
     ]
+    # the approach's speed is renewed before its lease ends (a stalled recorder: the arm stops)
+    sent = [cycle for cycle, c in arm.commands if c == "speed approach"]
+    lease = SPEED_LEASE_S * rig.options.time_scale * 1e9 / arm.period_ns
+    assert len(sent) > 1
+    assert max(np.diff(sent)) < lease
 
 
 @pytest.mark.parametrize("delay_s", [0.0, 0.3])
