@@ -11,10 +11,12 @@ new virtualenv in a temporary directory with the wheel installed (its dependenci
 package index); then, in that directory, with no ``PYTHONPATH`` and a user cache of its own
 (``ATIKT_CACHE``, ``XDG_CACHE_HOME``): ``atikt-record serve-sim`` with the shipped UR and UDP
 skin examples and a ``session`` against it (10x faster than real time), ``check`` and
-``info --json`` of what it wrote; ``import-bag`` of a small ROS 1 bag laid out as the shipped
-example topic map expects, with that map; and ``atikt-record dataset`` of a small simulated
-dataset with ``atikt-replay study transfer --quick`` on it (on the whole default dataset the
-quick study took 294 s of CPU, 19 min on the loaded 2-core machine: too long for every CI run).
+``info --json`` of what it wrote; a ``session --rig sim-ur10`` (the simulated UR10 in
+process, the shipped example configuration) and its ``check``; ``import-bag`` of a small
+ROS 1 bag laid out as the shipped example topic map expects, with that map; and
+``atikt-record dataset`` of a small simulated dataset with ``atikt-replay study transfer
+--quick`` on it (on the whole default dataset the quick study took 294 s of CPU, 19 min on the
+loaded 2-core machine: too long for every CI run).
 Exit 1 on the first failure, with its output.
 """
 
@@ -192,6 +194,15 @@ def session(bin_dir: Path, run: Path, env: dict[str, str]) -> None:
         raise CheckError(msg)
 
 
+def rehearsal(bin_dir: Path, run: Path, env: dict[str, str]) -> None:
+    """Record one action on the simulated UR10 in process (the shipped example configuration)."""
+    record = [str(bin_dir / "atikt-record"), "session", "--rig", "sim-ur10", "--rig-option"]
+    record += ["time_scale=0.2", "--objects", "wood", "--actions", "P1", "--trials", "1"]
+    record += ["--out", "rehearsal", "--yes"]
+    _run(record, cwd=run, env=env)
+    _run([str(bin_dir / "atikt-replay"), "check", "rehearsal", "--workers", "1"], cwd=run, env=env)
+
+
 def import_bag(bin_dir: Path, run: Path, env: dict[str, str]) -> None:
     """Import a small lab bag with the shipped example topic map; check the result."""
     _run([str(bin_dir / "python"), str(LAB_BAG), "session.bag"], cwd=run, env=env)
@@ -237,6 +248,8 @@ def check(work: Path) -> None:
     env = environment(work)
     session(bin_dir, run, env)
     started = _step("serve-sim + session (1 action), check, info --json", started)
+    rehearsal(bin_dir, run, env)
+    started = _step("session --rig sim-ur10 (1 action, in process), check", started)
     import_bag(bin_dir, run, env)
     started = _step("import-bag with the example topic map, check", started)
     study(bin_dir, run, env)
