@@ -109,6 +109,8 @@ class URArm:
         self._client_malformed_base = 0
         self.malformed = 0
         self.last_error = ""
+        #: The context of the last program if it was a speed (its renewals say no phase).
+        self._speeding: Context | None = None
 
     # -- connection -----------------------------------------------------------------------
 
@@ -308,7 +310,11 @@ class URArm:
         self, velocity: NDArray[np.float64], acceleration: float, duration_s: float, at: Context
     ) -> None:
         """Send ``speedl``."""
-        self._send(speed_program(_said(at), at.phase, velocity, acceleration, duration_s))
+        # a renewal of the same phase's speed (the runner's lease) says its phase only once:
+        # the controller's log gets one line per phase, not four a second
+        said = None if at == self._speeding else _said(at)
+        self._send(speed_program(said, at.phase, velocity, acceleration, duration_s))
+        self._speeding = at
 
     def move(
         self, pose: NDArray[np.float64], speed: float, acceleration: float, at: Context | None
@@ -365,6 +371,7 @@ class URArm:
         Raises:
             SourceLostError: The script connection is closed or lost.
         """
+        self._speeding = None
         sock = self._script
         link = self.connection
         where = f"{link.host}:{link.script_port}"

@@ -262,6 +262,7 @@ class SteppedArm(URArm):
 
     def _send(self, text: str) -> None:
         """Run a program as the lab's URScript server does (errors go to its log)."""
+        self._speeding = None
         program = parse_program(text, self.lab.clock.now_ns())
         world = self.lab.world
         if program.errors:

@@ -205,3 +205,14 @@ def test_a_stalled_recorder_lets_the_arm_move_for_the_speed_lease_at_most(
         return
     assert lowest[0] > 0.13, lowest  # stopped above the face
     assert not stopped
+
+
+def test_the_approach_renews_its_speed_and_says_its_phase_once(tmp_path: Path) -> None:
+    with _rig(FAST) as rig:
+        assert rig.present(OBJECTS["wood"])
+        record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
+        programs = [e.details for e in rig.lab.world.events("program")]
+    approach = [p["calls"] for p in programs if p["name"] == "atikt_approach"]
+    assert len(approach) > 3  # the lease renewed
+    assert approach[0] == ["textmsg", "speedl"]
+    assert all(calls == ["speedl"] for calls in approach[1:])
