@@ -18,6 +18,7 @@ from __future__ import annotations
 import bisect
 import contextlib
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -65,6 +66,8 @@ SKIN_BEHIND_S = 2.0
 #: How long one approach speed command moves the arm unless renewed (action time), s; the
 #: runner renews it every half of it.
 SPEED_LEASE_S = 0.5
+#: Force blocks whose median span says how far the skin's samples reach beyond its blocks.
+FORCE_SPANS = 32
 
 
 class Watch(Protocol):
@@ -170,9 +173,9 @@ class ArmRig:
         self._last_event_ns = 0
         #: Modality -> how far its skin samples taken in this action reach (last + period).
         self._skin_until: dict[str, int] = {}
-        #: The longest force block of this action, ns: a skin hands its samples over in blocks,
-        #: so those of the block being filled have arrived though no block shows them yet.
-        self._force_block_ns = 0
+        #: The spans of this action's latest force blocks, ns: a skin hands its samples over in
+        #: blocks, so those of the block being filled have arrived though no block shows them.
+        self._force_spans: deque[int] = deque(maxlen=FORCE_SPANS)
         #: Where the approaches begin (the object's pose once presented, else the first
         #: approach's start); retracts return there, so actions never creep toward the object.
         self._home: NDArray[np.float64] | None = None
@@ -478,11 +481,12 @@ class ArmRig:
     def _skin_seen_ns(self) -> int | None:
         """Return how far the skin's force samples reach (None: none yet this action).
 
-        The reach of the blocks handed over, plus the longest block: the samples of the block
-        being filled have arrived already (a skin's total force reads them).
+        The reach of the blocks handed over, plus a typical block (the median of the latest;
+        one large block after a stall does not count): the samples of the block being filled
+        have arrived already (a skin's total force reads them).
         """
         until = self._skin_until.get("force")
-        return None if until is None else until + self._force_block_ns
+        return None if until is None else until + int(np.median(self._force_spans))
 
     def _speed(self, direction: NDArray[np.float64], speed: float, at: Context) -> None:
         motion = self.options.motion
@@ -616,7 +620,8 @@ class ArmRig:
         """Forget what queued before (between actions), keeping the arm's latest state."""
         self.arm.begin()
         self._begun_ns = self.clock.now_ns()
-        self._skin_until, self._force_block_ns = {}, 0
+        self._skin_until = {}
+        self._force_spans.clear()
 
     def _pump(self, wait_s: float = CYCLE_WAIT_S) -> Iterator[StreamItem]:
         """Yield what arrived (state samples, skin blocks) in receive order; check for stops.
@@ -648,8 +653,7 @@ class ArmRig:
             until = block.stamp_ns + block.data.shape[0] * block.period_ns
             self._skin_until[block.modality] = max(self._skin_until.get(block.modality, 0), until)
             if block.modality == "force":
-                span = block.data.shape[0] * block.period_ns
-                self._force_block_ns = max(self._force_block_ns, span)
+                self._force_spans.append(block.data.shape[0] * block.period_ns)
         items.extend(blocks)
         items.sort(key=lambda item: item.receive_ns)
         yield from items
