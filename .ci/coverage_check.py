@@ -1,7 +1,8 @@
 """Print each package's branch coverage and fail if one fell below its committed baseline.
 
-Run after the test command of README.md (``python -m pytest -q``), which measures coverage
-through pytest's ``addopts`` (``--cov``, ``[tool.coverage]`` in pyproject.toml) into ``.coverage``:
+Run after the test command of README.md with coverage measured, as CI does
+(``PYTEST_ADDOPTS="--cov --cov-report=" python -m pytest -q``; ``[tool.coverage]`` in
+pyproject.toml), which writes ``.coverage``:
 
     python .ci/coverage_check.py            # the table; exit 1 if a package fell > 0.5 points
     python .ci/coverage_check.py --update   # write the current figures as the new baseline
@@ -78,7 +79,7 @@ def main() -> int:
     parser.add_argument("--update", action="store_true", help="write the baseline")
     args = parser.parse_args()
     if not args.data_file.is_file():
-        print(f"coverage_check: no {args.data_file}; run `python -m pytest -q` first")
+        print(f"coverage_check: no {args.data_file}; run `python -m pytest -q --cov` first")
         return 1
     figures = measure(args.data_file)
     baseline = json.loads(BASELINE.read_text(encoding="utf-8")) if BASELINE.is_file() else {}

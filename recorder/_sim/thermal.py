@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import erfc
 
 if TYPE_CHECKING:
     from recorder._catalog import ObjectPhysics
@@ -90,6 +89,10 @@ def effusivity_over_time(obj: ObjectPhysics, since_contact_s: F64) -> F64:
     if obj.thermal_layer_s <= 0 or obj.base_effusivity <= 0:
         return top
     t = np.maximum(since_contact_s, 1e-9)
+    # scipy.special on first use: at module level it costs every command 0.4 s of start (the
+    # UR driver and the virtual lab import the simulator's kinematics).
+    from scipy.special import erfc  # noqa: PLC0415
+
     weight = erfc(np.sqrt(obj.thermal_layer_s / (4.0 * t)))
     blended: F64 = np.exp(
         (1.0 - weight) * np.log(obj.effusivity) + weight * np.log(obj.base_effusivity)

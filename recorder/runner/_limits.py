@@ -12,7 +12,6 @@ from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from recorder.errors import RigError
 
@@ -222,6 +221,9 @@ def check_pose(
 
 def tool_axis(pose: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
     """Return a TCP axis (0: x, 1: y, 2: z) in the base frame from a pose's rotation vector."""
+    # scipy is imported on first use: at module level it costs every command 0.5 s of start.
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
     matrix = Rotation.from_rotvec(np.asarray(pose[3:6], dtype=np.float64)).as_matrix()
     column: NDArray[np.float64] = matrix[:, axis]
     return column

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, Self
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from recorder.errors import RigError
 from recorder.live import RecorderClock, SourceLostError, window_samples
@@ -797,6 +796,8 @@ class _Blind:
 
 def _items(sample: ArmSample) -> list[StreamItem]:
     """Return the joint state and the TCP pose of one state sample."""
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415 (0.5 s: on first use)
+
     quat = Rotation.from_rotvec(sample.tcp_pose[3:6]).as_quat()
     return [
         JointSample(sample.stamp_ns, sample.receive_ns, sample.q, sample.qd, sample.effort),
