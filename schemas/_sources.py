@@ -59,6 +59,12 @@ class SourceStats:
             stamps longer than the period with its tolerance. A pause is the publisher's; it
             is not counted as missing samples.
         gap_ns: The pauses' total length beyond one period each, ns.
+        unaligned: Stamps of this source that arrived valid but are not in the file: a skin
+            whose cells come in separate messages is written in rows, one sample of every
+            cell per row, and these stamps' row lacked another cell's sample within half a
+            period (or repeated the previous row's stamp). Counted where the rows are made;
+            the samples of the cell that had none are the other source's ``missing`` or
+            ``gaps``, not these.
     """
 
     name: str
@@ -82,6 +88,7 @@ class SourceStats:
     counter_resets: int = 0
     gaps: int = 0
     gap_ns: int = 0
+    unaligned: int = 0
 
     @property
     def complete(self) -> bool:
@@ -117,6 +124,8 @@ class SourceStats:
             parts.append(f"{self.counter_resets} counter resets")
         if self.gaps:
             parts.append(f"{self.gaps} gaps ({self.gap_ns / 1e9:.3f} s paused)")
+        if self.unaligned:
+            parts.append(f"{self.unaligned} left out of the rows (another cell had no sample)")
         return ", ".join(parts)
 
     def problems(self) -> str:
@@ -129,7 +138,7 @@ _INT_FIELDS = tuple(
 )
 _BASES = ("counter", "clock", "stamps")
 #: Fields added after the first files were written: an older record lacks them (0).
-_LATER_FIELDS = frozenset({"out_of_range", "counter_resets", "gaps", "gap_ns"})
+_LATER_FIELDS = frozenset({"out_of_range", "counter_resets", "gaps", "gap_ns", "unaligned"})
 
 
 def encode_source_stats(stats: Sequence[SourceStats]) -> dict[str, str]:

@@ -23,6 +23,7 @@ on an error the recordings it wrote are removed again. Alignment and packing of 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,13 @@ import numpy as np
 
 from recorder._catalog import ObjectSpec
 from recorder._dataset import declare_objects, write_index
-from recorder.bagimport._pack import Series, block_period, skin_blocks, window_rows
+from recorder.bagimport._pack import (
+    Series,
+    block_period,
+    left_out_by_topic,
+    skin_blocks,
+    window_rows,
+)
 from recorder.bagimport._report import BagIdentity, ImportReport, bag_identity, imported_bags
 from recorder.bagimport._source import (
     READ_ERRORS,
@@ -252,14 +259,17 @@ def _windows(
 
 def _cells(
     found: Mapping[str, Extractor], topic_map: TopicMap, lo: int, hi: int
-) -> dict[str, list[Series]]:
-    """Return, per mapped modality, every cell's samples reaching ``[lo, hi)``."""
-    columns: dict[str, list[tuple[int, Series]]] = {m: [] for m in topic_map.skin}
-    for extractor in found.values():
+) -> dict[str, list[tuple[str, Series]]]:
+    """Return, per mapped modality, every cell's topic and samples reaching ``[lo, hi)``."""
+    columns: dict[str, list[tuple[int, str, Series]]] = {m: [] for m in topic_map.skin}
+    for topic, extractor in found.items():
         if isinstance(extractor, SkinTopic):
             for modality, series in extractor.take_cells(lo, hi).items():
-                columns[modality].extend(series)
-    return {m: [s for _, s in sorted(c, key=lambda cell: cell[0])] for m, c in columns.items()}
+                columns[modality].extend((cell, topic, s) for cell, s in series)
+    return {
+        m: [(topic, s) for _, topic, s in sorted(c, key=lambda cell: cell[0])]
+        for m, c in columns.items()
+    }
 
 
 def _robot_items(
@@ -286,34 +296,42 @@ def _robot_items(
 
 def _window_items(
     plan: _Plan,
-    cells: Mapping[str, list[Series]],
+    cells: Mapping[str, list[tuple[str, Series]]],
     found: Mapping[str, Extractor],
     topic_map: TopicMap,
     report: ImportReport,
-) -> tuple[list[StreamItem], str]:
-    """Return every stream item of one window ordered by receive time, or why it is skipped."""
+) -> tuple[list[StreamItem], str, dict[str, int]]:
+    """Return every stream item of one window ordered by receive time, or why it is skipped.
+
+    Also returns, per skin topic, the stamps it delivered valid that cell alignment left out
+    (summed over its modalities; see :func:`left_out_by_topic`).
+    """
     window = plan.window
     items: list[StreamItem] = [PhaseEvent(s, s, p) for p, s in window.events]
+    left_out: dict[str, int] = {}
     for modality, spec in topic_map.skin.items():
-        series = cells[modality]
+        topics = [topic for topic, _ in cells[modality]]
+        series = [s for _, s in cells[modality]]
         # stamped by rate: the period on the stamps' clock is the fitted one (the drift)
         exact = spec.period_ns if spec.timing == "message" else None
         period = block_period(exact, series[0].stamps)
         if period <= 0 or any(s.stamps.size == 0 for s in series):
-            return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it"
+            return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it", {}
         rows = window_rows(series, window.start_ns, window.stop_ns, period)
         blocks, jitter, dropped = skin_blocks(modality, rows, period, topic_map.max_jitter)
         if not blocks:
-            return [], f"no {modality} samples of {spec.topic} with every cell inside it"
+            return [], f"no {modality} samples of {spec.topic} with every cell inside it", {}
         report.note(modality, rows, jitter, dropped)
+        for topic, count in left_out_by_topic(topics, rows, dropped).items():
+            left_out[topic] = left_out.get(topic, 0) + count
         items.extend(blocks)
     robot = _robot_items(window, found, report)
     for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
         if mapped is not None and not any(isinstance(item, kind) for item in robot):
-            return [], f"no message of {mapped.topic} inside it"
+            return [], f"no message of {mapped.topic} inside it", {}
     items.extend(robot)
     items.sort(key=lambda item: item.receive_ns)
-    return items, ""
+    return items, "", left_out
 
 
 def _rig(
@@ -476,15 +494,17 @@ class _Session:
         # live: the next window is not known yet, but it cannot start before this one ends
         last = plan.window.stop_ns - MARGIN_NS if self.live else self.his[i]
         forget = self.los[i + 1] if i + 1 < len(self.plans) else last
-        items, reason = _window_items(plan, cells, self.found, self.topic_map, self.report)
+        items, reason, left_out = _window_items(
+            plan, cells, self.found, self.topic_map, self.report
+        )
         for extractor in self.found.values():
             extractor.forget(forget)
         if reason:
             self.report.skipped.append((plan.window.describe(), reason))
             return
-        self._write(plan, items)
+        self._write(plan, items, left_out)
 
-    def _write(self, plan: _Plan, items: Sequence[StreamItem]) -> None:
+    def _write(self, plan: _Plan, items: Sequence[StreamItem], left_out: Mapping[str, int]) -> None:
         if plan.path in self.skip:  # written before the run was killed: never again
             if self.sources is not None:
                 self.sources(plan)  # the accounting moves on as it did
@@ -518,7 +538,12 @@ class _Session:
             for item in items:
                 writer.write(item)
             if self.sources is not None:
-                writer.add_sources(self.sources(plan))
+                writer.add_sources(
+                    [
+                        dataclasses.replace(stats, unaligned=left_out.get(stats.name, 0))
+                        for stats in self.sources(plan)
+                    ]
+                )
         path = writer.result.path if writer.result is not None else plan.path
         if plan.incomplete:
             self.report.incomplete.append(path)

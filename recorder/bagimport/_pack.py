@@ -60,6 +60,8 @@ class Rows:
         data: Values, shape (rows, cells, width).
         dropped: Rows dropped (a cell without a sample near the row, a non-finite value).
         max_offset_ns: Largest offset of another cell's sample from its row.
+        left_out: Per cell, the dropped rows in which that cell had a valid sample (a
+            sample that arrived and is not written because another cell had none).
     """
 
     stamps: NDArray[np.int64]
@@ -67,6 +69,7 @@ class Rows:
     data: NDArray[np.float64]
     dropped: int
     max_offset_ns: int
+    left_out: tuple[int, ...] = ()
 
 
 def measured_period(stamps: NDArray[np.int64]) -> int:
@@ -103,22 +106,25 @@ def align_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: 
     receives = cells[0].receives[lo:hi].copy()
     data = np.empty((stamps.size, len(cells), cells[0].values.shape[1]))
     data[:, 0] = cells[0].values[lo:hi]
-    keep = np.ones(stamps.size, dtype=bool)
+    # present[:, c]: cell c has a sample within half a period of the row, finite
+    present = np.ones((stamps.size, len(cells)), dtype=bool)
     max_offset = 0
     for c in range(1, len(cells)):
         if cells[c].stamps.size == 0:
-            keep[:] = False
+            present[:, c] = False
             continue
         index = _nearest(cells[c].stamps, stamps)
         offset = np.abs(cells[c].stamps[index] - stamps)
         ok = 2 * offset < period_ns
-        keep &= ok
+        present[:, c] = ok
         data[:, c] = cells[c].values[index]
         receives = np.maximum(receives, cells[c].receives[index])
         if bool(ok.any()):
             max_offset = max(max_offset, int(offset[ok].max()))
-    keep &= np.isfinite(data).reshape(stamps.size, -1).all(axis=1)
-    return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset)
+    present &= np.isfinite(data).all(axis=2)
+    keep = present.all(axis=1)
+    left_out = tuple(int(n) for n in present[~keep].sum(axis=0))
+    return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset, left_out)
 
 
 def window_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: int) -> Rows:
@@ -144,7 +150,7 @@ def window_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns:
     if end <= lead:  # no complete row before the window's end
         width = cells[0].values.shape[1]
         empty = np.zeros((0, len(cells), width))
-        return Rows(stamps[:0], stamps[:0], empty, 0, 0)
+        return Rows(stamps[:0], stamps[:0], empty, 0, 0, (0,) * len(cells))
     return align_rows(cells, int(stamps[lead]), int(stamps[end - 1]) + 1, period_ns)
 
 
@@ -195,3 +201,16 @@ def skin_blocks(
         )
         last, start = int(grid[-1]), stop
     return blocks, deviation, dropped
+
+
+def left_out_by_topic(topics: Sequence[str], rows: Rows, repeated: int) -> dict[str, int]:
+    """Return, per topic, the stamps it delivered valid that the rows left out.
+
+    A topic's cells share their messages' stamps: a row it lost counts once, however many of
+    its cells it carries (the most of its cells). ``repeated``: complete rows the blocks
+    dropped (a repeated stamp), lost to every topic.
+    """
+    out: dict[str, int] = {}
+    for topic, count in zip(topics, rows.left_out or (0,) * len(topics), strict=True):
+        out[topic] = max(out.get(topic, 0), count)
+    return {topic: count + repeated for topic, count in out.items()}

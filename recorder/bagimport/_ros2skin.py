@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 
-from recorder.bagimport._pack import align_rows, block_period, skin_blocks
+from recorder.bagimport._pack import align_rows, block_period, left_out_by_topic, skin_blocks
 from recorder.bagimport._source import SkinTopic, extractors, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RecorderError, RigError
@@ -196,8 +196,11 @@ class Ros2Skin:
             mine = [t for t, e in self._found.items() if modality in e.offsets]
             if any(t not in taken for t in mine):
                 continue
-            cells = [c for t in mine for c in taken[t][modality]]
-            series = [s for _, s in sorted(cells, key=lambda cell: cell[0])]
+            cells = sorted(
+                ((cell, t, s) for t in mine for cell, s in taken[t][modality]),
+                key=lambda cell: cell[0],
+            )
+            series = [s for _, _, s in cells]
             if any(s.stamps.size < 2 for s in series):  # noqa: PLR2004
                 continue
             exact = state.spec.period_ns if state.spec.timing == "message" else None
@@ -209,7 +212,10 @@ class Ros2Skin:
             if hi <= lo:
                 continue
             rows = align_rows(series, lo, hi, period)
-            blocks, _, _ = skin_blocks(modality, rows, period, self.topic_map.max_jitter)
+            blocks, _, repeated = skin_blocks(modality, rows, period, self.topic_map.max_jitter)
+            topics = [t for _, t, _ in cells]
+            for topic, count in left_out_by_topic(topics, rows, repeated).items():
+                self._counters[topic].unaligned(count)
             state.emitted_ns = hi
             if state.offset_ns is None:
                 state.offset_ns = self._offset(modality)

@@ -116,7 +116,7 @@ class SourceCounter:
         self._order: deque[int] = deque()
         self._received = self._unique = self._duplicated = self._late = self._overflowed = 0
         self._malformed = self._out_of_range = self._resets = 0
-        self._gap_count = self._gap_ns = 0
+        self._gap_count = self._gap_ns = self._unaligned = 0
         self._closed = 0
         self._first_sensor = self._last_sensor = self._first_receive = self._last_receive = 0
         self._run_sensor = self._run_receive = 0
@@ -330,6 +330,10 @@ class SourceCounter:
         """Count packages or frames that could not be parsed or held non-finite values."""
         self._malformed += count
 
+    def unaligned(self, count: int = 1) -> None:
+        """Count stamps received valid but left out of the skin's rows (a cell lacked one)."""
+        self._unaligned += count
+
     @property
     def period_ns(self) -> int:
         """The nominal (or measured) period, ns (0: not known yet)."""
@@ -373,4 +377,5 @@ class SourceCounter:
             counter_resets=self._resets,
             gaps=self._gap_count,
             gap_ns=self._gap_ns,
+            unaligned=self._unaligned,
         )

@@ -142,7 +142,8 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
         return
     table = Table(
         "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
-        "overflow", "malformed", "out of range", "resets", "gaps", "clock offset", "drift",
+        "overflow", "malformed", "out of range", "resets", "gaps", "unaligned", "clock offset",
+        "drift",
         "max latency", title="live sources",
     )  # fmt: skip
     for item in sources:
@@ -156,6 +157,7 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
             str(item.out_of_range),
             str(item.counter_resets),
             f"{item.gaps} ({item.gap_ns / 1e9:.3f} s)" if item.gaps else "0",
+            str(item.unaligned),
             _seconds(item.clock_offset_ns),
             f"{item.clock_drift_ns / 1e6:.3f} ms",
             f"{item.latency_max_ns / 1e6:.3f} ms",

@@ -251,3 +251,32 @@ def test_a_topic_that_stopped_does_not_hold_the_windows(tmp_path: Path) -> None:
     )
     assert written == [1]
     assert _checked(report)[0] is None
+
+
+def test_rows_a_missing_cell_leaves_out_are_counted_on_the_topics_that_delivered_them(
+    tmp_path: Path,
+) -> None:
+    # cell 1's force skips every 50th tick: each such row lacks cell 1, and cell 0's sample
+    # of it arrived valid but is not written; the file counts it on cell 0's topic
+    skipped = {t for t in range(LENGTH) if t % 50 == 7}
+    report = _listen(
+        tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick not in skipped
+    )
+    problem, warning, missing, _ = _checked(report)
+    assert problem is None
+    assert missing == 0
+    recording = read_recording(report.written[0])
+    sources = {s.name: s for s in recording.sources}
+    force = recording.skin("force")
+    first, last = (round((int(s) - WALL) / MS) for s in (force.stamps_ns[0], force.stamps_ns[-1]))
+    left_out = sources["/skin/force_0"].unaligned
+    assert left_out == len(skipped & set(range(first, last + 1))) > 0
+    assert (
+        force.stamps_ns.size + left_out == last - first + 1
+    )  # every cell 0 sample: written or counted
+    assert left_out == report.dropped_rows["force"]
+    assert sources["/skin/force_1"].unaligned == 0  # it delivered none of those rows
+    assert sources["/skin/force_1"].received < sources["/skin/force_0"].received
+    assert all(s.unaligned == 0 for name, s in sources.items() if "temp" in name)
+    assert warning is not None
+    assert f"/skin/force_0: {left_out} left out of the rows" in warning
