@@ -331,7 +331,7 @@ class Listener:
                 self.view.declare(topic, msgtype, text)
             raw = domain.reader(topic, msgtype, reliable=reliable)
             raw.clock = self.clock.now_ns
-            raw.max_bytes = self.topic_map.max_message_bytes
+            raw.max_bytes, _ = self.topic_map.message_budget(topic)
             self._raw[topic] = raw
             source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
             self._readers.append(source)
@@ -549,10 +549,10 @@ class Listener:
             new = oversize - self._noted.get(f"size {topic}", 0)
             if new > 0:
                 report.oversize[topic] = oversize
+                budget, where = self.topic_map.message_budget(topic)
                 self._note(
-                    f"{topic}: dropped {new} messages larger than [time] max_message_kib = "
-                    f"{self.topic_map.max_message_bytes >> 10} (the latest "
-                    f"{size} bytes); counted as malformed"
+                    f"{topic}: dropped {new} messages larger than {where} max_message_kib = "
+                    f"{budget >> 10} (the latest {size} bytes); counted as malformed"
                 )
                 self._noted[f"size {topic}"] = oversize
 

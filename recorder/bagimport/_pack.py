@@ -61,7 +61,8 @@ class Rows:
         dropped: Rows dropped (a cell without a sample near the row, a non-finite value).
         max_offset_ns: Largest offset of another cell's sample from its row.
         left_out: Per cell, the dropped rows in which that cell had a valid sample (a
-            sample that arrived and is not written because another cell had none).
+            sample that arrived and is not written because another cell had none), inside
+            the span from the latest first sample of a cell to the earliest last one.
     """
 
     stamps: NDArray[np.int64]
@@ -123,7 +124,15 @@ def align_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: 
             max_offset = max(max_offset, int(offset[ok].max()))
     present &= np.isfinite(data).all(axis=2)
     keep = present.all(axis=1)
-    left_out = tuple(int(n) for n in present[~keep].sum(axis=0))
+    # left out: dropped rows inside the span every cell delivers in (before a cell's first
+    # sample or after its last, a row is the recording's edge, not a sample lost to a row)
+    inside = np.zeros(stamps.size, dtype=bool)
+    if all(c.stamps.size for c in cells):
+        half = period_ns // 2
+        first = max(int(c.stamps[0]) for c in cells) - half
+        last = min(int(c.stamps[-1]) for c in cells) + half
+        inside = (stamps >= first) & (stamps <= last)
+    left_out = tuple(int(n) for n in present[~keep & inside].sum(axis=0))
     return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset, left_out)
 
 

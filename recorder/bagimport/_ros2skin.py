@@ -77,6 +77,10 @@ class Ros2Skin:
     _decoders: dict[str, Any] = field(default_factory=dict, init=False)
     _counters: dict[str, Any] = field(default_factory=dict, init=False)
     _overflow0: dict[str, int] = field(default_factory=dict, init=False)
+    #: Each topic's DDS reader (its count of messages dropped for their size) and that count
+    #: at the recording's start.
+    _raw: dict[str, Any] = field(default_factory=dict, init=False)
+    _oversize0: dict[str, int] = field(default_factory=dict, init=False)
     _modalities: dict[str, _Modality] = field(default_factory=dict, init=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, init=False)
     _last_receive: int | None = field(default=None, init=False)
@@ -117,6 +121,8 @@ class Ros2Skin:
             self._decoders[topic] = decoder.decode
             raw = self._domain.reader(topic, msgtype, reliable=reliable)
             raw.clock = self.clock.now_ns
+            raw.max_bytes, _ = self.topic_map.message_budget(topic)  # larger: malformed
+            self._raw[topic] = raw
             reader = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
             self._readers[topic] = reader
             reader.start()
@@ -152,6 +158,8 @@ class Ros2Skin:
                 topic.lstrip("/").replace(".", "_"), period_ns=period, gaps=True
             )
             self._overflow0[topic] = reader.overflowed
+            raw = self._raw.get(topic)
+            self._oversize0[topic] = raw.oversize if raw is not None else 0
             extractor.forget(2**62)
         for state in self._modalities.values():
             state.emitted_ns = -(2**63)
@@ -295,6 +303,10 @@ class Ros2Skin:
             overflowed = self._readers[topic].overflowed
             counter.overflow(overflowed - self._overflow0[topic])
             self._overflow0[topic] = overflowed
+            raw = self._raw.get(topic)
+            if raw is not None:  # messages over the topic's max_message_kib
+                counter.malformed(raw.oversize - self._oversize0[topic])
+                self._oversize0[topic] = raw.oversize
             out.append(counter.stats())
         return out
 

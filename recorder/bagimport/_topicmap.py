@@ -96,6 +96,8 @@ class SkinField:
         counter: With ``timing = "rate"``: a field counting the frames (lost frames are its
             jumps), or "" (lost frames are seen in the stamps).
         counter_modulo: The counter wraps at this value (0: it does not wrap).
+        max_message_bytes: Largest message of this modality's topics ``listen`` takes (0:
+            ``[time] max_message_kib``).
     """
 
     modality: str
@@ -111,6 +113,7 @@ class SkinField:
     timing: str = "message"
     counter: str = ""
     counter_modulo: int = 0
+    max_message_bytes: int = 0
 
     @property
     def fields(self) -> tuple[FieldPart, ...]:
@@ -150,11 +153,13 @@ class RobotTopic:
         topic: The topic.
         names: Joint names to keep, in output order (empty: all, as the messages list them).
         position_scale: Positions to SI (rad or m).
+        max_message_bytes: Largest message ``listen`` takes (0: ``[time] max_message_kib``).
     """
 
     topic: str
     names: tuple[str, ...] = ()
     position_scale: float = 1.0
+    max_message_bytes: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -233,7 +238,8 @@ class TopicMap:
         objects: Objects declared in the map.
         actions: Actions declared in the map.
         max_message_bytes: Largest message of a mapped topic ``listen`` takes; a larger one
-            is counted (malformed) and dropped at the reader.
+            is counted (malformed) and dropped at the reader. A topic's own table may set
+            its own (:meth:`message_budget`).
     """
 
     path: Path
@@ -249,6 +255,25 @@ class TopicMap:
     objects: Mapping[str, LabObject]
     actions: Mapping[str, LabAction]
     max_message_bytes: int = 4 << 20
+
+    def message_budget(self, topic: str) -> tuple[int, str]:
+        """Return the largest message ``listen`` takes on ``topic``, bytes, and where it is set.
+
+        A ``max_message_kib`` of the table that maps the topic (``[skin.<modality>]``,
+        ``[joint_states]``, ``[tool_pose]``) wins over ``[time]``'s; a topic two skin tables
+        map gets the smaller of theirs.
+        """
+        own = [
+            (field.max_message_bytes, f"[skin.{field.modality}]")
+            for field in self.skin.values()
+            if field.max_message_bytes and topic in {field.topic_of(cell) for cell in self.cells}
+        ]
+        own += [
+            (robot.max_message_bytes, f"[{key}]")
+            for key, robot in (("joint_states", self.joints), ("tool_pose", self.pose))
+            if robot is not None and robot.max_message_bytes and robot.topic == topic
+        ]
+        return min(own) if own else (self.max_message_bytes, "[time]")
 
     def with_csv(self, csv: Path) -> TopicMap:
         """Return the map with its windows taken from ``csv`` (the ``--windows`` option)."""
@@ -417,9 +442,15 @@ def _skin_field(table: _Table, modality: str) -> SkinField:
         timing=timing,
         counter=counter,
         counter_modulo=modulo,
+        max_message_bytes=_budget(table),
     )
     table.done()
     return field
+
+
+def _budget(table: _Table) -> int:
+    """Return a table's own ``max_message_kib`` in bytes (0: the ``[time]`` one)."""
+    return table.integer("max_message_kib", 0, 1) * 1024 if table.has("max_message_kib") else 0
 
 
 def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[str, SkinField]]:
@@ -456,7 +487,12 @@ def _robot(root: _Table, key: str, *, names: bool) -> RobotTopic | None:
             table.fail(f"[{key}] names must be a list of joint names")
         if len(set(joint_names)) != len(joint_names):
             table.fail(f"[{key}] names {list(joint_names)} repeats a joint")
-    robot = RobotTopic(table.get("topic", str), joint_names, table.number("position_scale", 1.0))
+    robot = RobotTopic(
+        table.get("topic", str),
+        joint_names,
+        table.number("position_scale", 1.0),
+        _budget(table),
+    )
     table.done()
     return robot
 

@@ -415,6 +415,28 @@ def test_topic_maps_are_checked_strictly(tmp_path: Path) -> None:
         _broken_map(tmp_path, "cells = ", "cellz = ")
 
 
+def test_a_topic_has_its_own_message_budget_where_its_table_sets_one(tmp_path: Path) -> None:
+    text = (Path(__file__).parents[2] / "recorder" / "data" / EXAMPLE).read_text("utf-8")
+    force, accel = (f'[skin.{m}]\ntopic = "/skin/cell_{{cell}}"' for m in ("force", "acceleration"))
+    assert force in text
+    assert accel in text
+    text = text.replace(force, force + "\nmax_message_kib = 16")
+    text = text.replace(accel, accel + "\nmax_message_kib = 8")
+    path = tmp_path / "map.toml"
+    path.write_text(
+        text.replace('topic = "/tool_pose"', 'topic = "/tool_pose"\nmax_message_kib = 1')
+    )
+    topic_map = load_topic_map(path)
+    # every cell's topic carries force and acceleration: the smaller budget holds
+    assert topic_map.message_budget("/skin/cell_3") == (8 << 10, "[skin.acceleration]")
+    assert topic_map.message_budget("/tool_pose") == (1 << 10, "[tool_pose]")
+    assert topic_map.message_budget("/joint_states") == (4096 << 10, "[time]")
+    assert topic_map.message_budget("/skin/cell_7") == (4096 << 10, "[time]")  # not a cell
+    path.write_text(text.replace("max_message_kib = 16", "max_message_kib = 0"))
+    with pytest.raises(BagImportError, match=r"\[skin.force\] max_message_kib = 0 must be at"):
+        load_topic_map(path)
+
+
 def test_the_packaged_example_map_is_valid() -> None:
     example = Path(__file__).parents[2] / "recorder" / "data" / EXAMPLE
     topic_map = load_topic_map(example)
