@@ -129,9 +129,9 @@ def align_rows(cells: Sequence[Series], start_ns: int, stop_ns: int, period_ns: 
     inside = np.zeros(stamps.size, dtype=bool)
     if all(c.stamps.size for c in cells):
         half = period_ns // 2
-        first = max(int(c.stamps[0]) for c in cells) - half
-        last = min(int(c.stamps[-1]) for c in cells) + half
-        inside = (stamps >= first) & (stamps <= last)
+        all_from = max(int(c.stamps[0]) for c in cells) - half
+        all_until = min(int(c.stamps[-1]) for c in cells) + half
+        inside = (stamps >= all_from) & (stamps <= all_until)
     left_out = tuple(int(n) for n in present[~keep & inside].sum(axis=0))
     return Rows(stamps[keep], receives[keep], data[keep], int((~keep).sum()), max_offset, left_out)
 

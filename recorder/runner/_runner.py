@@ -188,6 +188,11 @@ class ArmRig:
 
     def __enter__(self) -> Self:
         """Connect the arm, then the skin."""
+        # scipy's rotations (the recorded TCP quaternion, the tool axes) are imported here, not
+        # when the module is (commands start 0.5 s sooner) and never while the arm moves: an
+        # import on the first state sample would hold up the runner's loop for half a second
+        from scipy.spatial.transform import Rotation  # noqa: PLC0415, F401
+
         with contextlib.ExitStack() as stack:
             stack.enter_context(self.arm)
             stack.enter_context(self.skin)
@@ -635,6 +640,9 @@ class ArmRig:
         except SourceLostError as err:
             msg = f"arm connection lost ({err.__cause__ or err})"
             raise Stop(msg, self.clock.now_ns()) from None
+        # silence is judged at the time the sources were read: time the runner or its
+        # consumer (the writer) spends after that is not the sources' silence
+        polled_ns = self.clock.now_ns()
         items: list[StreamItem] = []
         violation, violation_ns = "", 0
         for sample in samples:
@@ -656,7 +664,7 @@ class ArmRig:
         items.extend(blocks)
         items.sort(key=lambda item: item.receive_ns)
         yield from items
-        self._check(violation, violation_ns)
+        self._check(violation, violation_ns, polled_ns)
 
     def _pump_quietly(self) -> None:
         """Pump without recording (between actions); the checks still run."""
@@ -676,8 +684,11 @@ class ArmRig:
             return f"TCP at {where} left the [limits] workspace"
         return ""
 
-    def _check(self, violation: str, violation_ns: int = 0) -> None:
+    def _check(self, violation: str, violation_ns: int = 0, polled_ns: int | None = None) -> None:
         """Raise a stop for a limit, a signal, a writer in trouble or a silent source.
+
+        A source is silent when nothing of it had arrived for ``silence_s`` at ``polled_ns``
+        (when the sources were last read; now when not given).
 
         Raises:
             Stop: The reason, one line, and when the cause was met.
@@ -687,13 +698,14 @@ class ArmRig:
             raise Stop(violation, violation_ns or now)
         reason = violation or self._watch.problem()
         if not reason:
+            read = now if polled_ns is None else polled_ns
             silence = round(self.options.silence_s * _NS)
             last_arm = max(self._state.receive_ns, self._begun_ns)
             last_skin = max(self.skin.last_receive_ns() or 0, self._begun_ns)
-            if now - last_arm > silence:
-                reason = f"arm state silent for {(now - last_arm) / _NS:.2f} s"
-            elif now - last_skin > silence:
-                reason = f"skin silent for {(now - last_skin) / _NS:.2f} s"
+            if read - last_arm > silence:
+                reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
+            elif read - last_skin > silence:
+                reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
         if reason:
             raise Stop(reason, now)
 

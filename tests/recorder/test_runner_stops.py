@@ -107,6 +107,28 @@ def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Pat
     _kept(path, "silent")
 
 
+def test_a_consumer_held_up_after_a_read_is_not_a_silent_arm() -> None:
+    # the writer (or an import, a collection) holds the runner up for three times silence_s
+    # right after it read the sources; the arm went on sending: not silence, no stop
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    held = 3 * rig.options.silence_s
+    with rig:
+        items = rig.perform(OBJECT, ACTION, 1)
+        count = 0
+        try:
+            while True:
+                next(items)
+                count += 1
+                if count == 1:
+                    threading.Event().wait(held)
+        except StopIteration as end:
+            reason = end.value
+    assert not reason, reason  # a normal end
+    assert arm.stop_cycle is None
+    assert count > 50
+
+
 def _after_contact(rig: ArmRig, then: object) -> dict[str, int]:
     """Call ``then()`` from a thread 5 cycles after the contact; return the cycle it did."""
     arm: FakeArm = rig.arm  # type: ignore[assignment]
