@@ -43,7 +43,7 @@ EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.t
 def _map(root: Path, **time: str) -> Path:
     """Return the example map without a tool pose (fewer topics for the virtual lab)."""
     text = EXAMPLE.read_text(encoding="utf-8")
-    head, _, rest = text.partition("[tool_pose]")
+    head, _, rest = text.partition("\n[tool_pose]\n")
     rest = rest[rest.index("\n[skin]") :]
     text = head + rest
     text = text.replace("max_delay_s = 2.0", "max_delay_s = 0.3")
