@@ -118,6 +118,7 @@ def run_session(
     on_recorded: Callable[[RecordingTask, WrittenRecording], Any] | None = None,
     on_set_aside: Callable[[Path], Any] | None = None,
     viewers: Sequence[Viewer] = (),
+    on_start: Callable[[RecordingTask], Any] | None = None,
 ) -> SessionReport:
     """Record ``tasks`` object by object with one rig, skipping recordings on disk.
 
@@ -131,6 +132,7 @@ def run_session(
         on_recorded: Called after every recording.
         on_set_aside: Called with each unfinished file of a dead recorder that was set aside.
         viewers: Live views of every action (they never block).
+        on_start: Called before each recording begins (the object presented first).
 
     Returns:
         What was written and kept, and the index.
@@ -159,6 +161,8 @@ def run_session(
                 present(rig, group[0].obj, unattended=unattended, ask=ask, root=root)
                 for task in group:
                     path = task.path(root)
+                    if on_start is not None:
+                        on_start(task)
                     written = record_action(
                         rig, task.obj, task.action, task.trial, path, seed=seed, viewers=viewers
                     )

@@ -72,6 +72,12 @@ def _session(args: argparse.Namespace) -> int:
             f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
         )
 
+    def started(task: RecordingTask) -> None:
+        # at a terminal, the operator sees what the arm is doing; piped output stays one line
+        # per recording
+        if console.is_terminal:
+            console.print(f"[dim]{task.obj.id}  {task.action.id}  trial {task.trial}  ...[/dim]")
+
     def set_aside(path: Path) -> None:
         console.print(f"unfinished recording of a stopped recorder set aside: {path}")
 
@@ -90,6 +96,7 @@ def _session(args: argparse.Namespace) -> int:
             on_recorded=recorded,
             on_set_aside=set_aside,
             viewers=viewers,
+            on_start=started,
         )
         if args.foxglove is not None and view.dropped:
             console.print(f"foxglove: the client fell behind; {view.dropped} items not shown")

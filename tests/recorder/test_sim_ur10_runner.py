@@ -14,9 +14,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recorder import ActionStoppedError, load_actions, load_objects, record_action
+from recorder import (
+    ActionStoppedError,
+    load_actions,
+    load_objects,
+    plan_dataset,
+    record_action,
+    rig_factory,
+)
 from recorder._cli import main
 from recorder._rigconfig import find_rig, load_rig_config
+from recorder._session import run_session
 from recorder.errors import RecorderError
 from recorder.runner import _runner as runner_module
 from recorder.virtuallab import SimUR10Rig
@@ -216,3 +224,31 @@ def test_the_approach_renews_its_speed_and_says_its_phase_once(tmp_path: Path) -
     assert len(approach) > 3  # the lease renewed
     assert approach[0] == ["textmsg", "speedl"]
     assert all(calls == ["speedl"] for calls in approach[1:])
+
+
+def test_a_session_says_which_recording_begins_before_the_arm_moves_for_it(
+    tmp_path: Path,
+) -> None:
+    # at a terminal the operator sees each recording begin, not only end (an action takes
+    # 5-12 s at the robot); a resumed session begins only the recordings still missing
+    tasks = plan_dataset(OBJECTS, ACTIONS, object_ids=["wood"], action_ids=["P1"], trials=2)
+    factory = rig_factory(load_rig_config(None, "sim-ur10", [FAST]))
+    events: list[tuple[str, int]] = []
+
+    def session() -> None:
+        run_session(
+            tasks,
+            tmp_path,
+            factory,
+            seed=0,
+            unattended=True,
+            on_start=lambda task: events.append(("start", task.trial)),
+            on_recorded=lambda task, _written: events.append(("written", task.trial)),
+        )
+
+    session()
+    assert events == [("start", 1), ("written", 1), ("start", 2), ("written", 2)]
+    (tmp_path / "wood" / "P1" / "002.mcap").rename(tmp_path / "kept.mcap")
+    events.clear()
+    session()
+    assert events == [("start", 2), ("written", 2)]
