@@ -83,3 +83,22 @@ def test_python_dash_m_replay_is_the_same_program() -> None:
     assert done.returncode == 0
     assert "info" in done.stdout
     assert "check" in done.stdout
+
+
+def test_a_command_of_its_own_starts_without_the_learner() -> None:
+    # `check` and `info` read recordings: the learner (atikt, scipy) is not imported for them,
+    # every other command (and --help, which lists them all) still finds its module
+    recording = Path(__file__).parents[2] / "recordings/data/soft_sponge/P1/001.mcap"
+    code = (
+        "import sys\nfrom replay.cli._main import main\n"
+        f"status = main(['info', {str(recording)!r}])\n"
+        "print(status, 'atikt' in sys.modules, 'scipy' in sys.modules)\n"
+    )
+    done = subprocess.run(  # noqa: S603 (this interpreter, the code above)
+        [sys.executable, "-c", code], capture_output=True, text=True, check=False
+    )
+    assert done.stdout.splitlines()[-1] == "0 False False", done.stdout + done.stderr
+    listed = subprocess.run(
+        [sys.executable, "-m", "replay", "--help"], capture_output=True, text=True, check=False
+    )
+    assert all(name in listed.stdout for name in ("learn", "study", "features", "view"))
