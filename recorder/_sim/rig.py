@@ -257,6 +257,10 @@ class SimulatedRig:
         Raises:
             RigError: The seed is negative.
         """
+        # the thermal model's scipy.special, loaded with the rig and not in its first action:
+        # importing it holds the interpreter (other threads: progress, readers) for 0.3 s
+        import scipy.special  # noqa: PLC0415, F401
+
         if seed < 0:
             msg = f"SimulatedRig seed = {seed} must be >= 0"
             raise RigError(msg)
