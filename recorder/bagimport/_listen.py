@@ -78,7 +78,7 @@ from recorder.bagimport._windows import (
     windows_from_csv,
 )
 from recorder.errors import BagImportError, RecorderError
-from recorder.live import RecorderClock, SourceCounter, SourceReader
+from recorder.live import RecorderClock, SourceCounter, SourceReader, gap_periods
 from recorder.runner import deferred_interrupts
 
 if TYPE_CHECKING:
@@ -156,7 +156,9 @@ class _Arrivals:
             period = int(np.median(steps)) if steps.size else 0
         if period <= 0:
             return None
-        counter = SourceCounter(name, period_ns=period, gaps=True)
+        edges = [s for s in (before, after) if s is not None]
+        threshold = gap_periods([*stamps, *edges], period)
+        counter = SourceCounter(name, period_ns=period, gaps=True, gap_periods=threshold)
         for i in inside:
             counter.observe(None, self.stamps[i], self.receives[i])
         if before is not None:

@@ -16,6 +16,7 @@ from recorder.live._accounting import (
     SourceCounter,
     SourceStats,
     Verdict,
+    gap_periods,
     parse_source_stats,
 )
 from recorder.live._clock import RecorderClock
@@ -52,6 +53,7 @@ __all__ = [
     "SourceStats",
     "UdpSkin",
     "Verdict",
+    "gap_periods",
     "open_skin",
     "parse_layout",
     "parse_source_stats",

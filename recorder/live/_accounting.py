@@ -22,9 +22,15 @@ import enum
 import itertools
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from recorder.errors import RecorderError
 from schemas import SOURCES_RECORD, SourceStats, encode_source_stats, parse_source_stats
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
 
 __all__ = [
     "SOURCES_RECORD",
@@ -32,6 +38,7 @@ __all__ = [
     "SourceStats",
     "Verdict",
     "encode_source_stats",
+    "gap_periods",
     "parse_source_stats",
 ]
 
@@ -57,6 +64,41 @@ COUNTER_RELATIVE = 0.1
 #: A step between stamps longer than this many periods is a gap of a source without a
 #: sequence (below ``check``'s five periods: every pause ``check`` finds is counted).
 GAP_PERIODS = 2.5
+#: The gap threshold of a source whose stamps lie on its period's grid (see
+#: :func:`gap_periods`): one skipped slot of the grid is a gap there.
+GRID_GAP_PERIODS = 1.5
+#: Stamps lie on the grid when every step is this close to a whole number of periods
+#: (a fraction of a period).
+GRID_TOLERANCE = 0.1
+#: Steps needed before the stamps are judged to lie on the grid.
+GRID_MIN_STEPS = 8
+
+
+def gap_periods(stamps_ns: Iterable[int], period_ns: int) -> float:
+    """Return the gap threshold, in periods, of a source without a sequence, from its stamps.
+
+    A publisher that stamps with its own sample clock puts every stamp on its period's grid;
+    one that stamps with the time it publishes jitters around it. The threshold between
+    jitter and a pause must leave room for the jitter (:data:`GAP_PERIODS`), but when every
+    step of the distinct stamps lies within :data:`GRID_TOLERANCE` of a whole number of
+    periods (at least :data:`GRID_MIN_STEPS` steps, their median one period) there is no
+    jitter to leave room for: a single skipped slot, a lost message, is then a gap of its own
+    (:data:`GRID_GAP_PERIODS`) instead of passing unseen. Either way it is counted as a gap,
+    never as a missing sample: without a sequence a pause cannot be told from a loss.
+    """
+    if period_ns <= 0:
+        return GAP_PERIODS
+    unique = np.unique(np.fromiter(stamps_ns, dtype=np.int64))
+    if unique.size <= GRID_MIN_STEPS:
+        return GAP_PERIODS
+    ratio = np.diff(unique) / period_ns
+    whole = np.rint(ratio)
+    on_grid = (
+        abs(float(np.median(ratio)) - 1.0) <= GRID_TOLERANCE
+        and bool((whole >= 1).all())
+        and float(np.abs(ratio - whole).max()) <= GRID_TOLERANCE
+    )
+    return GRID_GAP_PERIODS if on_grid else GAP_PERIODS
 
 
 class Verdict(enum.Enum):
@@ -95,7 +137,13 @@ class SourceCounter:
     """
 
     def __init__(
-        self, name: str, *, period_ns: int = 0, modulo: int = 0, gaps: bool = False
+        self,
+        name: str,
+        *,
+        period_ns: int = 0,
+        modulo: int = 0,
+        gaps: bool = False,
+        gap_periods: float | None = None,
     ) -> None:
         """Start counting.
 
@@ -104,11 +152,18 @@ class SourceCounter:
             period_ns: Nominal sample period, ns; needed when samples carry no sequence.
             modulo: The counter wraps at this value (0: it never wraps).
             gaps: Samples without a sequence number are counted by gaps (``stamps``).
+            gap_periods: A step longer than this many periods is a gap (see
+                :func:`gap_periods`); None: judged from the steps so far, as they come
+                (:data:`GRID_GAP_PERIODS` while every step has been on the period's grid,
+                else :data:`GAP_PERIODS`).
         """
         self.name = name
         self._period_ns = period_ns
         self._modulo = modulo
         self._gaps = gaps
+        self._gap_periods = gap_periods
+        self._grid_steps = self._grid_whole = 0
+        self._grid_broken = False
         self._basis = "counter"
         self._first: int | None = None
         self._max = 0
@@ -277,11 +332,24 @@ class SourceCounter:
             self._gap(step_ns)
 
     def _gap(self, step_ns: int) -> None:
-        """Count a pause of a source without a sequence."""
+        """Count a pause of a source without a sequence (then learn whether it keeps a grid)."""
         period = self._period_ns
-        if step_ns > GAP_PERIODS * period:
+        threshold = self._gap_periods
+        if threshold is None:
+            on_grid = (
+                not self._grid_broken
+                and self._grid_steps >= GRID_MIN_STEPS
+                and 2 * self._grid_whole > self._grid_steps
+            )
+            threshold = GRID_GAP_PERIODS if on_grid else GAP_PERIODS
+        if step_ns > threshold * period:
             self._gap_count += 1
             self._gap_ns += step_ns - period
+        ratio = step_ns / period
+        whole = round(ratio)
+        self._grid_broken |= whole < 1 or abs(ratio - whole) > GRID_TOLERANCE
+        self._grid_steps += 1
+        self._grid_whole += whole == 1
 
     def _remember(self, number: int) -> None:
         """Keep the recent sequence numbers (a bounded window)."""

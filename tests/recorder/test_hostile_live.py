@@ -14,7 +14,15 @@ import numpy as np
 import pytest
 
 from recorder.live import Received, RecorderClock
-from recorder.live._accounting import SourceCounter, Verdict
+from recorder.live._accounting import (
+    GAP_PERIODS,
+    GRID_GAP_PERIODS,
+    GRID_MIN_STEPS,
+    SourceCounter,
+    SourceStats,
+    Verdict,
+    gap_periods,
+)
 from recorder.live._framelayout import parse_layout
 from recorder.live._frames import UdpSkin
 
@@ -177,6 +185,55 @@ def test_stamps_basis_counts_gaps_not_missing() -> None:
     assert (stats.missing, stats.duplicated, stats.out_of_order) == (0, 0, 0)
     assert stats.gaps == 1
     assert stats.lost == 0
+
+
+def _stamps_counter(steps_ms: list[float], **options: Any) -> SourceStats:
+    counter = SourceCounter("force", period_ns=MS, gaps=True, **options)
+    t = 0
+    for step in steps_ms:
+        t += round(step * MS)
+        counter.observe(None, t, T0 + t + 50_000)
+    return counter.stats()
+
+
+def test_a_single_lost_message_of_a_publisher_on_its_grid_is_a_gap() -> None:
+    # a publisher that stamps with its sample clock (steps within 2 % of a period): one lost
+    # message is a step of two periods, a gap on its own topic (not a missing sample:
+    # without a sequence it cannot be told from a skipped tick)
+    rng = np.random.default_rng(5)
+    steps = [1.0 + float(rng.uniform(-0.02, 0.02)) for _ in range(3000)]
+    lost = [400, 1500, 2900]
+    for i in lost:
+        steps[i] += 1.0
+    stats = _stamps_counter(steps)
+    assert (stats.gaps, stats.missing, stats.lost) == (len(lost), 0, 0)
+    assert stats.gap_ns == pytest.approx(len(lost) * MS, rel=0.05)
+    # the same publisher without the losses: no gap
+    assert _stamps_counter([1.0 + s % 0.01 for s in range(3000)]).gaps == 0
+
+
+def test_a_jittery_publisher_is_judged_off_its_grid_and_its_jitter_is_no_gap() -> None:
+    # stamped when sent: steps of 0.5..2.2 periods are jitter, never a gap (the grid is off
+    # from the first step that leaves it, and stays off)
+    rng = np.random.default_rng(6)
+    steps = [1.0] * 20 + [float(rng.uniform(0.5, 1.5)) for _ in range(3000)] + [2.2, 0.5]
+    assert _stamps_counter(steps).gaps == 0
+    # a whole number of periods that are not one period each (a rate declared twice too
+    # high): no grid either
+    assert _stamps_counter([2.0] * 100).gaps == 0
+    # the decision can also be given (listen judges a window from all its stamps)
+    assert _stamps_counter([1.0] * 50 + [2.0] + [1.0] * 50, gap_periods=2.5).gaps == 0
+
+
+def test_gap_periods_is_judged_from_the_distinct_stamps() -> None:
+    grid = [i * MS for i in range(100) if i != 50]
+    assert gap_periods(grid + grid[:10], MS) == GRID_GAP_PERIODS  # duplicates are not steps
+    assert gap_periods([s + (MS // 4 if i % 7 == 3 else 0) for i, s in enumerate(grid)], MS) == (
+        GAP_PERIODS
+    )
+    assert gap_periods(grid[:GRID_MIN_STEPS], MS) == GAP_PERIODS  # too few to judge
+    assert gap_periods([2 * s for s in grid], MS) == GAP_PERIODS  # median step 2 periods
+    assert gap_periods(grid, 0) == GAP_PERIODS
 
 
 # ---------------------------------------------------------------------------------- RTDE

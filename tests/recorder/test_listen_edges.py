@@ -280,3 +280,23 @@ def test_rows_a_missing_cell_leaves_out_are_counted_on_the_topics_that_delivered
     assert all(s.unaligned == 0 for name, s in sources.items() if "temp" in name)
     assert warning is not None
     assert f"/skin/force_0: {left_out} left out of the rows" in warning
+
+
+def test_a_lost_message_of_a_publisher_on_its_grid_is_a_gap_on_its_own_topic(
+    tmp_path: Path,
+) -> None:
+    # the publisher stamps each tick's messages 10-40 us after the tick: on its grid. Two
+    # force messages of cell 1 are lost in transport: each is a gap of one period on cell
+    # 1's topic (2 periods apart is within the 2.5 periods a jittery publisher needs), and
+    # cell 0's samples of those rows are counted as left out; nothing counts as missing
+    lost = {640, 820}
+    report = _listen(tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick not in lost)
+    problem, warning, missing, _ = _checked(report)
+    assert problem is None
+    assert missing == 0
+    sources = {s.name: s for s in read_recording(report.written[0]).sources}
+    assert (sources["/skin/force_1"].gaps, sources["/skin/force_1"].gap_ns) == (2, 2 * MS)
+    assert sources["/skin/force_0"].gaps == 0
+    assert sources["/skin/force_0"].unaligned == 2
+    assert warning is not None
+    assert "/skin/force_1: 2 gaps (0.002 s paused)" in warning

@@ -146,12 +146,7 @@ def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> 
     with _served(map_path, dds_domain, 250) as (world, server):
         run = _Run(dds_domain, tmp_path, map_path)
         run.thread.start()
-        # listen declares the topics once discovered; the client subscribes to what is
-        # declared: the action starts once both are done, however long discovery takes
-        deadline = time.monotonic() + 60
-        while not view.subscribed >= {"/annotations", "/joint_states"}:
-            assert time.monotonic() < deadline, view.subscribed
-            time.sleep(0.05)
+        time.sleep(1.5)  # discovery
         _play(world, "S1", 1, wait=server)
         time.sleep(1.8)  # max_delay_s + the import's margin
         report = run.finish()
