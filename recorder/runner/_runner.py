@@ -18,6 +18,7 @@ from __future__ import annotations
 import bisect
 import contextlib
 import math
+import sys
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, Self
@@ -196,6 +197,14 @@ class ArmRig:
         with contextlib.ExitStack() as stack:
             stack.enter_context(self.arm)
             stack.enter_context(self.skin)
+            stack.callback(sys.setswitchinterval, sys.getswitchinterval())
+            # the readers, the runner's loop and the writer share one interpreter, handed
+            # over every 5 ms by default: 2.5 cycles at 500 Hz that a state sample which
+            # breaks a limit could wait in its reader; within a quarter cycle instead (as
+            # serve-sim's threads take turns). Restored when the rig disconnects.
+            period_s = self.arm.period_ns / 1e9
+            if period_s > 0:
+                sys.setswitchinterval(min(sys.getswitchinterval(), period_s / 4))
             self._stack = stack.pop_all()
         return self
 

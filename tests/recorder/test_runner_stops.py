@@ -278,3 +278,17 @@ def test_a_shallow_press_holds_its_duration_at_depth_however_late_the_program_st
     hold_cycles = press.duration_s * 0.05 * 1e9 / arm.period_ns
     retract = next(cycle for cycle, command in arm.commands if command == "move retract")
     assert retract - arm.reached["execute"] >= hold_cycles - 1, arm.commands
+
+
+def test_a_connected_rig_lets_its_threads_take_turns_within_a_quarter_cycle() -> None:
+    import sys  # noqa: PLC0415
+
+    rig = fake_rig()
+    before = sys.getswitchinterval()
+    try:
+        sys.setswitchinterval(0.005)  # the interpreter's default
+        with rig:
+            assert sys.getswitchinterval() <= rig.arm.period_ns / 4e9
+        assert sys.getswitchinterval() == pytest.approx(0.005)  # restored on disconnect
+    finally:
+        sys.setswitchinterval(before)
