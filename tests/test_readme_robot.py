@@ -202,8 +202,8 @@ def test_the_in_process_rehearsal_runs_as_printed(tmp_path: Path) -> None:
     outputs: dict[str, str] = {}
     for command, comment in steps:
         program, *argv = shlex.split(command)
-        if "sim-ur10" in argv:  # the world five times faster (the only change)
-            argv += ["--rig-option", "time_scale=0.2"]
+        if "sim-ur10" in argv:  # the world ten times faster (the only change)
+            argv += ["--rig-option", "time_scale=0.1"]
         argv = [sys.executable, "-m", PROGRAMS[program], *argv]
         if "Ctrl-C" in comment:
             status, err = _interrupt_mid_action(argv, tmp_path, tmp_path / "data" / "rehearsal")
