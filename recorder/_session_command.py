@@ -101,7 +101,8 @@ def _session(args: argparse.Namespace) -> int:
         if args.foxglove is not None and view.dropped:
             console.print(f"foxglove: the client fell behind; {view.dropped} items not shown")
     console.print(
-        f"session {report.root}: {report.written} recordings written, {report.kept} kept "
+        f"session {report.root}: {report.written} "
+        f"{'recording' if report.written == 1 else 'recordings'} written, {report.kept} kept "
         f"(existed); index {report.index}"
     )
     return 0

@@ -115,5 +115,5 @@ def test_a_session_on_the_simulator_asks_nobody(
     assert main([*argv, "--out", str(tmp_path / "s")]) == 0
     printed = capsys.readouterr().out
     assert "place" not in printed
-    assert "1 recordings written, 0 kept" in printed
+    assert "1 recording written, 0 kept" in printed
     assert (tmp_path / "s" / "wood" / "P1" / "001.mcap").is_file()
