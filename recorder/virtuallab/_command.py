@@ -333,7 +333,8 @@ def _switch_within_a_cycle(frequency: int) -> None:
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
         "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, skin.* and ros2.* "
-        "for those servers (skin.at_action=S: counted from S s after the first action)",
+        "for those servers (skin.at_action=S, ros2.at_action=S: counted from S s after the "
+        "first action)",
     ),
     arg("--events", type=Path, default=None, help="write every event as a JSON line (new file)"),
     arg(
@@ -455,7 +456,7 @@ def _serve_skin(
 
 def _ros2_summary(events: EventLog, world: VirtualWorld, server: Any) -> None:  # noqa: ANN401
     """Record the ROS 2 server's drops (it counts them itself) as fault events."""
+    dropped_at = getattr(server, "dropped_at", {})
     for topic, count in sorted(getattr(server, "dropped", {}).items()):
-        events.add(
-            "fault", world.controller_ns(), source="ros2", fault="drop", topic=topic, count=count
-        )
+        at = dropped_at.get(topic, world.controller_ns())
+        events.add("fault", at, source="ros2", fault="drop", topic=topic, count=count)

@@ -63,12 +63,16 @@ class Ros2Faults:
         drop_after: Samples of each topic published before the drop starts.
         stall_s: Every topic pauses this long once (0: never).
         stall_after_s: When the pause starts, s after the start.
+        at_action_s: Count ``drop_after`` and ``stall_after_s`` from this long after the
+            first announced action began instead of from the start (negative: from the
+            start), so that a fault lands inside an action however long the lab waited.
     """
 
     drop: Mapping[str, int] = field(default_factory=dict)
     drop_after: int = 50
     stall_s: float = 0.0
     stall_after_s: float = 0.0
+    at_action_s: float = -1.0
 
 
 @dataclass
@@ -83,6 +87,12 @@ class Ros2Server:
     joint_rate_hz: float
     sent: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
+    #: Topic -> controller time of its first dropped sample, ns.
+    dropped_at: dict[str, int] = field(default_factory=dict)
+    #: Topic -> samples published or dropped since the faults' origin.
+    _counted: dict[str, int] = field(default_factory=dict)
+    #: Controller time publishing began, ns.
+    _start_ns: int = 0
     _stop: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
     _writers: dict[str, RawWriter] = field(default_factory=dict)
@@ -137,13 +147,26 @@ class Ros2Server:
         if self._thread is not None:
             self._thread.join(2.0)
 
-    def _publish(self, topic: str, raw: bytes) -> None:
-        """Publish one sample unless a fault drops it."""
-        count = self.sent.get(topic, 0) + self.dropped.get(topic, 0)
-        drop = self.faults.drop.get(topic, 0)
-        if self.faults.drop_after <= count < self.faults.drop_after + drop:
-            self.dropped[topic] = self.dropped.get(topic, 0) + 1
-            return
+    def _origin(self, controller_ns: int) -> int | None:
+        """Return the controller time the faults count from (None: not reached yet)."""
+        if self.faults.at_action_s < 0:
+            return self._start_ns
+        began = self.world.first_action_ns
+        if began is None:
+            return None
+        origin = began + round(self.faults.at_action_s * _NS_PER_S)
+        return origin if controller_ns >= origin else None
+
+    def _publish(self, topic: str, raw: bytes, controller_ns: int) -> None:
+        """Publish one sample unless a fault drops it (its time: ``controller_ns``)."""
+        if self._origin(controller_ns) is not None:
+            count = self._counted.get(topic, 0)
+            self._counted[topic] = count + 1
+            drop = self.faults.drop.get(topic, 0)
+            if self.faults.drop_after <= count < self.faults.drop_after + drop:
+                self.dropped[topic] = self.dropped.get(topic, 0) + 1
+                self.dropped_at.setdefault(topic, controller_ns)
+                return
         self._writers[topic].write(raw)
         self.sent[topic] = self.sent.get(topic, 0) + 1
 
@@ -152,6 +175,7 @@ class Ros2Server:
         store = self.domain.store
         start = time.time_ns()
         offset = start - self.world.controller_ns()  # wall clock minus controller time
+        self._start_ns = start - offset
         cell_period = round(_NS_PER_S / self.rate_hz)
         joint_period = round(_NS_PER_S / self.joint_rate_hz)
         stalled = self.faults.stall_s <= 0
@@ -161,13 +185,18 @@ class Ros2Server:
             delay = (due - time.time_ns()) / _NS_PER_S
             if delay > 0:
                 time.sleep(delay)
-            if not stalled and due - start >= self.faults.stall_after_s * _NS_PER_S:
-                stalled = True
-                time.sleep(self.faults.stall_s)
             # a sample's values are the world's at its stamp, as a driver stamps what it
             # acquired: a publisher running late sends old samples late, never new values
             # under an old stamp
             controller = due - offset
+            origin = self._origin(controller)
+            if (
+                not stalled
+                and origin is not None
+                and controller - origin >= self.faults.stall_after_s * _NS_PER_S
+            ):
+                stalled = True
+                time.sleep(self.faults.stall_s)
             if due == next_cell:  # the phases announced up to the sample time
                 self._annotate(store, offset, controller)
             if due == next_joint:
@@ -176,7 +205,7 @@ class Ros2Server:
             if due == next_cell:
                 skin = {m: self.world.skin_at(m, controller) for m in self._modalities}
                 for topic, extractor in self._cells.items():
-                    self._publish(topic, self._cell(store, extractor, due, skin))
+                    self._publish(topic, self._cell(store, extractor, due, skin), controller)
                 next_cell += cell_period
 
     def _annotate(self, store: Any, offset_ns: int, controller_ns: int) -> None:  # noqa: ANN401
@@ -219,10 +248,12 @@ class Ros2Server:
         """Publish the arm's joint state and tool pose, where the map has their topics."""
         mapped = self.topic_map
         if mapped.joints is not None:
-            self._publish(mapped.joints.topic, self._joint(store, stamp, controller_ns))
+            self._publish(
+                mapped.joints.topic, self._joint(store, stamp, controller_ns), controller_ns
+            )
         if mapped.pose is not None:
             pose = self._pose(store, stamp, controller_ns, mapped.pose.position_scale)
-            self._publish(mapped.pose.topic, pose)
+            self._publish(mapped.pose.topic, pose, controller_ns)
 
     def _pose(self, store: Any, stamp: int, controller_ns: int, scale: float) -> bytes:  # noqa: ANN401
         """Return a PoseStamped of the world's TCP (position in the map's raw units)."""

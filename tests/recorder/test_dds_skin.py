@@ -200,3 +200,24 @@ def test_the_virtual_labs_messages_are_rosbags_own_bytes() -> None:
         assert decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec == stamp
         position = [decoded.pose.position.x, decoded.pose.position.y, decoded.pose.position.z]
         np.testing.assert_allclose(position, np.asarray(state.tcp_pose[:3]) / 0.001)
+
+
+def test_a_ros2_drop_placed_after_the_first_action_lands_there(dds_domain: int) -> None:
+    # ros2.at_action=S: the samples before the drop are counted from S s after the first
+    # action began, however long the lab ran before it
+    objects, actions = load_objects(None), load_actions(None)
+    faults = Ros2Faults(drop={"/skin/cell_3": 1}, drop_after=0, at_action_s=0.3)
+    with SimulatedRig(0) as rig, VirtualWorld(rig, objects, actions, time_scale=0.5) as world:
+        with serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100) as server:
+            time.sleep(0.5)  # the lab runs a while before any action
+            assert server.dropped == {}
+            world.start_action("wood", "P1", 1)
+            deadline = time.monotonic() + 10
+            while not server.dropped:
+                assert time.monotonic() < deadline, "the server dropped nothing"
+                time.sleep(0.02)
+    began = world.first_action_ns
+    assert began is not None
+    assert server.dropped == {"/skin/cell_3": 1}
+    late = server.dropped_at["/skin/cell_3"] - began
+    assert 0.3e9 <= late < 0.3e9 + 0.05e9  # the first sample at or after the origin (100 Hz)
