@@ -121,9 +121,11 @@ class SourceStats:
         if self.out_of_range:
             parts.append(f"{self.out_of_range} stamped out of range")
         if self.counter_resets:
-            parts.append(f"{self.counter_resets} counter resets")
+            parts.append(f"{self.counter_resets} counter {_plural(self.counter_resets, 'reset')}")
         if self.gaps:
-            parts.append(f"{self.gaps} gaps ({self.gap_ns / 1e9:.3f} s paused)")
+            parts.append(
+                f"{self.gaps} {_plural(self.gaps, 'gap')} ({self.gap_ns / 1e9:.3f} s paused)"
+            )
         if self.unaligned:
             parts.append(f"{self.unaligned} left out of the rows (another cell had no sample)")
         return ", ".join(parts)
@@ -131,6 +133,11 @@ class SourceStats:
     def problems(self) -> str:
         """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
         return ", ".join(part for part in (self.loss(), self.warnings()) if part)
+
+
+def _plural(count: int, noun: str) -> str:
+    """Return ``noun``, with an ``s`` unless ``count`` is one."""
+    return noun if count == 1 else f"{noun}s"
 
 
 _INT_FIELDS = tuple(

@@ -207,15 +207,19 @@ def test_a_ros2_drop_placed_after_the_first_action_lands_there(dds_domain: int) 
     # action began, however long the lab ran before it
     objects, actions = load_objects(None), load_actions(None)
     faults = Ros2Faults(drop={"/skin/cell_3": 1}, drop_after=0, at_action_s=0.3)
-    with SimulatedRig(0) as rig, VirtualWorld(rig, objects, actions, time_scale=0.5) as world:
-        with serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100) as server:
-            time.sleep(0.5)  # the lab runs a while before any action
-            assert server.dropped == {}
-            world.start_action("wood", "P1", 1)
-            deadline = time.monotonic() + 10
-            while not server.dropped:
-                assert time.monotonic() < deadline, "the server dropped nothing"
-                time.sleep(0.02)
+    with contextlib.ExitStack() as stack:
+        rig = stack.enter_context(SimulatedRig(0))
+        world = stack.enter_context(VirtualWorld(rig, objects, actions, time_scale=0.5))
+        server = stack.enter_context(
+            serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100)
+        )
+        time.sleep(0.5)  # the lab runs a while before any action
+        assert server.dropped == {}
+        world.start_action("wood", "P1", 1)
+        deadline = time.monotonic() + 10
+        while not server.dropped:
+            assert time.monotonic() < deadline, "the server dropped nothing"
+            time.sleep(0.02)
     began = world.first_action_ns
     assert began is not None
     assert server.dropped == {"/skin/cell_3": 1}

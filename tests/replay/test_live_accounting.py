@@ -76,7 +76,7 @@ def test_counted_without_loss_is_a_warning(
     captured = capsys.readouterr()
     assert "1 of 1 recordings valid" in captured.out
     assert "WARN" in captured.err
-    assert "1 duplicated, 2 malformed, 1 gaps" in captured.err
+    assert "1 duplicated, 2 malformed, 1 gap (" in captured.err
 
 
 def test_complete_sources_give_no_warning(
