@@ -28,6 +28,7 @@ import signal
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from operator import attrgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -80,6 +81,7 @@ from recorder.bagimport._windows import (
 from recorder.errors import BagImportError, RecorderError
 from recorder.live import RecorderClock, SourceCounter, SourceReader, gap_periods
 from recorder.runner import deferred_interrupts
+from schemas.cdr import compile_cdr
 
 if TYPE_CHECKING:
     import threading
@@ -126,11 +128,23 @@ def _dds() -> ModuleType:
 
 @dataclass(slots=True)
 class _Arrivals:
-    """Header stamps and receive times of one topic as they arrived (duplicates too)."""
+    """Header stamps and receive times of one topic as they arrived (duplicates too).
+
+    A topic whose messages carry a counter (``counter`` in the topic map) is counted by it:
+    a message lost is *missing*, exactly, whatever the publisher's jitter; without one, the
+    stamps' pauses are *gaps*.
+    """
 
     period_ns: int
+    #: Reads a message's counter from its CDR bytes (None: the topic has none; the reader
+    #: returns None for a message it cannot read).
+    read_counter: Callable[[bytes], int | None] | None = None
+    #: The counter wraps at this value (0: it does not wrap).
+    modulo: int = 0
     stamps: list[int] = field(default_factory=list)
     receives: list[int] = field(default_factory=list)
+    #: Per arrival, its counter (with :attr:`read_counter`).
+    sequences: list[int | None] = field(default_factory=list)
     #: The latest stamp received (None: nothing yet).
     latest: int | None = None
     overflow_seen: int = 0
@@ -156,25 +170,48 @@ class _Arrivals:
             period = int(np.median(steps)) if steps.size else 0
         if period <= 0:
             return None
-        edges = [s for s in (before, after) if s is not None]
-        threshold = gap_periods([*stamps, *edges], period)
-        counter = SourceCounter(name, period_ns=period, gaps=True, gap_periods=threshold)
-        for i in inside:
-            counter.observe(None, self.stamps[i], self.receives[i])
-        if before is not None:
-            counter.pause(min(stamps) - before)
-        if after is not None:
-            counter.pause(after - max(stamps))
+        if self.read_counter is not None:
+            counter = self._by_counter(name, period, inside, lo, hi)
+        else:
+            edges = [s for s in (before, after) if s is not None]
+            threshold = gap_periods([*stamps, *edges], period)
+            counter = SourceCounter(name, period_ns=period, gaps=True, gap_periods=threshold)
+            for i in inside:
+                counter.observe(None, self.stamps[i], self.receives[i])
+            if before is not None:
+                counter.pause(min(stamps) - before)
+            if after is not None:
+                counter.pause(after - max(stamps))
         counter.overflow(overflowed - self.overflow_seen)
         counter.malformed(oversize - self.oversize_seen)
         self.overflow_seen, self.oversize_seen = overflowed, oversize
         return counter.stats()
+
+    def _by_counter(
+        self, name: str, period: int, inside: list[int], lo: int, hi: int
+    ) -> SourceCounter:
+        """Count the arrivals ``inside`` by their counters; messages unread count malformed."""
+        counter = SourceCounter(name, period_ns=period, modulo=self.modulo)
+        unread = 0
+        for i in inside:
+            sequence = self.sequences[i]
+            if sequence is None:
+                unread += 1
+                continue
+            counter.observe(sequence, self.stamps[i], self.receives[i])
+        read = [(s, q) for s, q in zip(self.stamps, self.sequences, strict=True) if q is not None]
+        before = max(((q, s) for s, q in read if s < lo), key=lambda e: e[1], default=None)
+        after = min(((q, s) for s, q in read if s >= hi), key=lambda e: e[1], default=None)
+        counter.edge_loss(before, after)
+        counter.malformed(unread)
+        return counter
 
     def forget(self, before_ns: int) -> None:
         """Drop arrivals stamped before ``before_ns`` (they arrive in about stamp order)."""
         keep = next((i for i, s in enumerate(self.stamps) if s >= before_ns), len(self.stamps))
         del self.stamps[:keep]
         del self.receives[:keep]
+        del self.sequences[:keep]
 
 
 @dataclass
@@ -365,7 +402,15 @@ class Listener:
         for topic, msgtype in types.items():
             self._counts[topic] = (0, 0, 0)
             if topic in found and _has_header(self._store, msgtype):
-                self._arrivals[topic] = _Arrivals(_period(found[topic]))
+                extractor = found[topic]
+                sequence = extractor.sequence if isinstance(extractor, SkinTopic) else None
+                self._arrivals[topic] = _Arrivals(
+                    _period(extractor),
+                    None
+                    if sequence is None
+                    else _counter_reader(self._store, msgtype, sequence[0]),
+                    0 if sequence is None else sequence[1],
+                )
 
     # ----------------------------------------------------------------------------- journal
 
@@ -626,6 +671,8 @@ class Listener:
                 stamp = sec * _NS_PER_S + nanosec
                 arrivals.stamps.append(stamp)
                 arrivals.receives.append(receive_ns)
+                if arrivals.read_counter is not None:
+                    arrivals.sequences.append(arrivals.read_counter(raw))
                 arrivals.latest = stamp if arrivals.latest is None else max(arrivals.latest, stamp)
                 self._first_stamp.setdefault(topic, stamp)
                 if self._latest_stamp is None or stamp > self._latest_stamp:
@@ -736,6 +783,31 @@ def _has_header(store: Typestore, msgtype: str) -> bool:
     """Whether a type's first field is a std_msgs/Header (its stamp at CDR offset 4)."""
     fields = store.fielddefs[msgtype][1]
     return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == _HEADER[1][1]
+
+
+def _counter_reader(store: Typestore, msgtype: str, path: str) -> Callable[[bytes], int | None]:
+    """Return a reader of a message's integer field ``path`` from its CDR bytes.
+
+    The reader returns None for bytes it cannot read (the import counts such a message).
+    """
+    decoder = compile_cdr(store, msgtype, [path], stamped=False)
+    if decoder is not None:
+        decode, dtype = decoder.decode, decoder.dtypes[0]
+
+        def read_compiled(raw: bytes) -> int | None:
+            fields = decode(raw)
+            return None if fields is None else int(np.frombuffer(fields[2], dtype)[0])
+
+        return read_compiled
+    get = attrgetter(path)
+
+    def read(raw: bytes) -> int | None:
+        try:
+            return int(get(store.deserialize_cdr(raw, msgtype)))
+        except Exception:  # noqa: BLE001 (any undecodable message: the import counts it)
+            return None
+
+    return read
 
 
 def _period(extractor: Any) -> int:  # noqa: ANN401

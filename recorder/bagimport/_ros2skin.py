@@ -76,6 +76,8 @@ class Ros2Skin:
     _found: dict[str, Any] = field(default_factory=dict, init=False)
     _decoders: dict[str, Any] = field(default_factory=dict, init=False)
     _counters: dict[str, Any] = field(default_factory=dict, init=False)
+    #: Per topic: the index of its message counter among the decoded fields (None: none).
+    _sequence_at: dict[str, int | None] = field(default_factory=dict, init=False)
     _overflow0: dict[str, int] = field(default_factory=dict, init=False)
     #: Each topic's DDS reader (its count of messages dropped for their size) and that count
     #: at the recording's start.
@@ -154,8 +156,15 @@ class Ros2Skin:
             extractor = self._found[topic]
             spec = extractor.fields[0]
             period = int(spec.period_ns * spec.samples_per_message) if spec.period_ns else 0
-            self._counters[topic] = SourceCounter(
-                topic.lstrip("/").replace(".", "_"), period_ns=period, gaps=True
+            name = topic.lstrip("/").replace(".", "_")
+            sequence = extractor.sequence
+            self._counters[topic] = (
+                SourceCounter(name, period_ns=period, gaps=True)
+                if sequence is None  # pauses of its stamps are gaps
+                else SourceCounter(name, period_ns=period, modulo=sequence[1])  # loss is missing
+            )
+            self._sequence_at[topic] = (
+                None if sequence is None else extractor.paths.index(sequence[0])
             )
             self._overflow0[topic] = reader.overflowed
             raw = self._raw.get(topic)
@@ -178,7 +187,11 @@ class Ros2Skin:
                 if fields is None:
                     continue
                 stamp = fields[0] * 1_000_000_000 + fields[1]
-                verdict = counter.count(None, stamp, item.receive_ns)
+                at = self._sequence_at[topic]
+                sequence = None
+                if at is not None and extractor.dtypes is not None:
+                    sequence = int(np.frombuffer(fields[2 + at], extractor.dtypes[at])[0])
+                verdict = counter.count(sequence, stamp, item.receive_ns)
                 if verdict is Verdict.NEW_RUN:  # the source's clock jumped: forget its past
                     self._floors.pop(topic, None)
                 if verdict.fresh and counter.period_ns > 0:  # checked against its range

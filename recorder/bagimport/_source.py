@@ -207,7 +207,7 @@ class SkinTopic:
         self.buffer = _Buffer(self.topic, fix)
         if not self.cells:
             self.cells = tuple(((self.cell, self.cell),) for _ in self.fields)
-        counters = [s.counter for s in self.fields if s.timing == "rate" and s.counter]
+        counters = [s.counter for s in self.fields if s.counter]  # read for the accounting too
         read = [p.path for s in self.fields for p in s.fields]
         self.paths = tuple(dict.fromkeys([*read, *counters]))
         self.values = [[] for _ in self.paths]
@@ -227,6 +227,11 @@ class SkinTopic:
                 slack = max(slack, 2 * round(spec.period_ns * count))
         every = np.concatenate(list(self.offsets.values()))
         self.reach = (int(every.min()) - slack, int(every.max()) + slack)
+
+    @property
+    def sequence(self) -> tuple[str, int] | None:
+        """Return the topic's message counter and its modulo (the first the map names), or None."""
+        return next(((s.counter, s.counter_modulo) for s in self.fields if s.counter), None)
 
     @property
     def repeated(self) -> int:
@@ -786,7 +791,7 @@ def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map
         for spec in getattr(extractor, "fields", ()):
             for part in spec.fields:
                 _check_part(store, topic, msgtype, spec, part)
-            if spec.timing == "rate" and spec.counter:
+            if spec.counter:
                 _check_counter(store, topic, msgtype, spec)
         if topic_map.stamps == "header" and _field_type(store, msgtype, "header.stamp") is None:
             msg = (

@@ -93,8 +93,10 @@ class SkinField:
             (empty: ``field`` itself).
         timing: ``message`` (sample stamps from each message's stamp) or ``rate`` (from the
             sensor's rate within runs of messages; the message stamps anchor the runs).
-        counter: With ``timing = "rate"``: a field counting the frames (lost frames are its
-            jumps), or "" (lost frames are seen in the stamps).
+        counter: A field counting the messages, or "". With ``timing = "rate"`` its jumps are
+            lost frames within a run (else they are seen in the stamps); with either timing,
+            ``listen`` and a ROS 2 skin count the topic's loss by it (else they count pauses
+            of its stamps as gaps).
         counter_modulo: The counter wraps at this value (0: it does not wrap).
         max_message_bytes: Largest message of this modality's topics ``listen`` takes (0:
             ``[time] max_message_kib``).
@@ -420,8 +422,6 @@ def _skin_field(table: _Table, modality: str) -> SkinField:
         table.fail(f'[{table.name}] timing = "rate" needs rate_hz (the sensor\'s sample rate)')
     counter = table.get("counter", str, "")
     modulo = table.integer("counter_modulo", 0, 0)
-    if (counter or modulo) and timing != "rate":
-        table.fail(f'[{table.name}] counter and counter_modulo need timing = "rate"')
     if (counter and _FIELD.match(counter) is None) or "[" in counter:
         table.fail(f'[{table.name}] counter = {counter!r} must be a field path ("seq", "frame.id")')
     if modulo and not counter:

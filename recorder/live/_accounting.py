@@ -5,8 +5,9 @@ Every sample is checked where it enters: a stamp that leaves the source's plausi
 generous drift) is counted *out of range* and never written; a counter that jumps or runs
 backwards against the time that passed, or a clock whose stamps jump and stay there, starts a
 new *run* (counted as a counter reset), so one bad frame never shifts or hides the series.
-A source without a sequence (``basis = "stamps"``: a ROS 2 topic's header stamps) has no
-notion of a missing sample; its pauses are counted as *gaps* against its period.
+A source without a sequence (``basis = "stamps"``: the header stamps of a ROS 2 topic whose
+messages carry no counter the topic map names) has no notion of a missing sample; its pauses
+are counted as *gaps* against its period.
 
 What a source should have delivered comes from the source itself, not from what arrived:
 its sequence counter (skin frames, DDS sample counters) or its own clock and nominal period
@@ -172,7 +173,7 @@ class SourceCounter:
         self._received = self._unique = self._duplicated = self._late = self._overflowed = 0
         self._malformed = self._out_of_range = self._resets = 0
         self._gap_count = self._gap_ns = self._unaligned = 0
-        self._closed = 0
+        self._closed = self._edge_lost = 0
         self._first_sensor = self._last_sensor = self._first_receive = self._last_receive = 0
         self._run_sensor = self._run_receive = 0
         self._run_latency: int | None = None
@@ -331,6 +332,40 @@ class SourceCounter:
         if self._gaps and self._period_ns > 0:
             self._gap(step_ns)
 
+    def edge_loss(self, before: tuple[int, int] | None, after: tuple[int, int] | None) -> None:
+        """Count the samples a counter says were lost across the edges of a counted span.
+
+        A window of a stream counts the samples stamped inside it; a sample lost between the
+        last one before the window and its first (or between its last and the first after
+        it) has no stamp to place it by, and is counted as the window's, as a pause across
+        an edge is (:meth:`pause`). A counter that does not advance with the time that
+        passed (a reset) counts nothing there.
+
+        Args:
+            before: ``(sequence, sensor ns)`` of the last sample before the span, or None.
+            after: ``(sequence, sensor ns)`` of the first sample after it, or None.
+        """
+        if self._first is None or self._basis != "counter":
+            return
+        if before is not None and self.run == 0:  # the first run's first sample
+            self._edge_lost += self._lost_between(before, self._first, self._first_sensor)
+        if after is not None:
+            self._edge_lost += self._lost_between((self._max, self._last_sensor), *after)
+
+    def _lost_between(self, a: tuple[int, int], b_number: int, b_sensor_ns: int) -> int:
+        """Samples lost between sample ``a`` (raw or unwrapped number, sensor ns) and ``b``."""
+        step = b_number - a[0]
+        if self._modulo:
+            step %= self._modulo
+        if step < 1 or (self._modulo and 2 * step > self._modulo):  # back, or wrapped back
+            return 0
+        if self._period_ns > 0:
+            passed = b_sensor_ns - a[1]
+            moved = step * self._period_ns
+            if abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed):
+                return 0
+        return step - 1
+
     def _gap(self, step_ns: int) -> None:
         """Count a pause of a source without a sequence (then learn whether it keeps a grid)."""
         period = self._period_ns
@@ -421,6 +456,7 @@ class SourceCounter:
             missing = self._overflowed
         else:
             expected = self._closed + (0 if self._first is None else self._max - self._first + 1)
+            expected += self._edge_lost
             missing = max(expected - self._unique, 0)
         offset = self._offset_first or 0
         return SourceStats(

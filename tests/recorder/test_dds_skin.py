@@ -225,3 +225,79 @@ def test_a_ros2_drop_placed_after_the_first_action_lands_there(dds_domain: int) 
     assert server.dropped == {"/skin/cell_3": 1}
     late = server.dropped_at["/skin/cell_3"] - began
     assert 0.3e9 <= late < 0.3e9 + 0.05e9  # the first sample at or after the origin (100 Hz)
+
+
+#: A lab's skin cell that counts its messages (the example map's fields and a uint16 counter).
+COUNTED = "lab_msgs/msg/CountedCell"
+
+
+def _counted_map(root: Path) -> Path:
+    """Write the example map with the cells' type counting its messages (``seq``)."""
+    (root / "CountedCell.msg").write_text(
+        "std_msgs/Header header\nuint16 seq\nfloat32[3] force\nfloat32[3] acc\n"
+        "float32 temp\nfloat32 prox\n",
+        encoding="utf-8",
+    )
+    text = EXAMPLE.read_text(encoding="utf-8")
+    force = '[skin.force]\ntopic = "/skin/cell_{cell}"\n'
+    assert force in text
+    text = text.replace(force, force + 'counter = "seq"\ncounter_modulo = 65536\n')
+    path = root / "counted.toml"
+    path.write_text(text + f'\n[types]\n"{COUNTED}" = "CountedCell.msg"\n', encoding="utf-8")
+    return path
+
+
+def test_a_ros2_skin_counts_a_jittery_publishers_lost_messages_by_their_counter(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    # 250 Hz, each message stamped up to 0.4 periods off its tick (a jittery publisher: its
+    # stamps alone could not tell a lost message from jitter). Cell 2 loses 3 single
+    # messages; its counter says so exactly: 3 missing, no gap; the other cells lose none
+    path = _counted_map(tmp_path)
+    section = {"transport": "ros2", "topic_map": str(path), "domain_id": dds_domain}
+    publisher = DdsDomain(dds_domain, typestore(load_topic_map(path)), loopback=True)
+    store = publisher.store
+    writers = {c: publisher.writer(f"/skin/cell_{c}", COUNTED) for c in range(7)}
+    period, count, lost = 4_000_000, 600, {200, 301, 402}
+    rng = np.random.default_rng(3)
+    jitter = rng.uniform(-0.4, 0.4, count) * period
+    skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
+    blocks: list[SkinBlock] = []
+    with skin:
+        deadline = time.monotonic() + 10
+        while any(w.matched() == 0 for w in writers.values()):
+            assert time.monotonic() < deadline, "no reader matched"
+            time.sleep(0.01)
+        skin.begin()
+        start = time.time_ns() + 100_000_000
+        for i in range(count):
+            stamp = start + i * period + round(jitter[i])
+            delay = (stamp - time.time_ns()) / 1e9
+            if delay > 0:
+                time.sleep(delay)
+            message = store.types[COUNTED](
+                header=_header(store, stamp),
+                seq=i,
+                force=np.ones(3, dtype=np.float32),
+                acc=np.zeros(3, dtype=np.float32),
+                temp=30.0,
+                prox=0.05,
+            )
+            raw = bytes(store.serialize_cdr(message, COUNTED))
+            for cell, writer in writers.items():
+                if cell != 2 or i not in lost:
+                    writer.write(raw)
+            if i % 50 == 0:
+                blocks.extend(skin.poll())
+        time.sleep(0.3)
+        blocks.extend(skin.poll())
+        blocks.extend(skin.finish())
+        stats = {s.name: s for s in skin.stats()}
+    assert all(s.basis == "counter" for s in stats.values())
+    assert stats["skin/cell_2"].missing == 3
+    assert all(s.missing == 0 for name, s in stats.items() if name != "skin/cell_2")
+    assert all(s.gaps == 0 and s.counter_resets == 0 for s in stats.values())
+    assert all(
+        s.received == count - (3 if name == "skin/cell_2" else 0) for name, s in stats.items()
+    )
+    assert {b.modality for b in blocks} == {"force", "acceleration", "temperature", "proximity"}

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import struct
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -29,7 +29,7 @@ from replay.cli._main import _check_one
 from replay.recording._reader import read_recording
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Mapping
     from pathlib import Path
 
     from rosbags.typesys.store import Typestore
@@ -50,21 +50,28 @@ TOPICS = {
 TYPES = {
     "edge_msgs/msg/Vec3": "std_msgs/Header header\nfloat32[3] data\n",
     "edge_msgs/msg/Scalar": "std_msgs/Header header\nfloat32 data\n",
+    # the force of a publisher that counts its messages (a uint8 that wraps at 256)
+    "edge_msgs/msg/Vec3Seq": "std_msgs/Header header\nuint8 seq\nfloat32[3] data\n",
 }
 _STAMP = struct.Struct("<iI").pack_into
 
 #: (tick ms, topic) -> how long the publisher is held up before it sends that message, ms
-Stalls = dict[tuple[int, str], int]
+Stalls = dict[tuple[int, str], float]
 
 
-def _map(root: Path) -> Path:
-    """Write the topic map: force at 1 kHz and temperature at 20 Hz per cell, one action."""
+def _map(root: Path, *, counted: bool = False) -> Path:
+    """Write the topic map: force at 1 kHz and temperature at 20 Hz per cell, one action.
+
+    ``counted``: the force messages carry a counter the map names.
+    """
     lines = ["[time]", 'stamps = "header"', "max_delay_s = 0.2", "", "[skin]"]
     lines += [f"cells = {list(range(CELLS))}", ""]
     modalities = ("force", "temperature")
     for modality, (topic, (_, period)) in zip(modalities, TOPICS.items(), strict=True):
         lines += [f"[skin.{modality}]", f'topic = "{topic}"', 'field = "data"']
         lines += [f"rate_hz = {1000 // period}", ""]
+        if counted and modality == "force":
+            lines[-1:-1] = ['counter = "seq"', "counter_modulo = 256"]
     lines += ["[windows]", 'source = "topic"', 'topic = "/annotations"', ""]
     lines += ["[actions.tap]", 'kind = "static"', f"duration_s = {(END - EXECUTE) / 1000}", ""]
     lines += ["[objects.wood]", 'name = "Wood"', "", "[types]"]
@@ -77,13 +84,19 @@ def _map(root: Path) -> Path:
 
 
 def _template(store: Typestore, msgtype: str) -> bytearray:
-    """Return a message of ``msgtype`` whose stamp (CDR bytes 4..12) is patched per send."""
+    """Return a message of ``msgtype`` whose stamp (CDR bytes 4..12) is patched per send.
+
+    A counted message's ``seq`` (one byte, right after the header: byte 21) is patched too.
+    """
     types = store.types
     header = types["std_msgs/msg/Header"](
         stamp=types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="edge"
     )
-    value = np.ones(3, np.float32) if msgtype.endswith("Vec3") else 1.0
-    return bytearray(store.serialize_cdr(types[msgtype](header=header, data=value), msgtype))
+    fields: dict[str, Any] = {"header": header}
+    fields["data"] = np.ones(3, np.float32) if "Vec3" in msgtype else 1.0
+    if msgtype.endswith("Seq"):
+        fields["seq"] = 0
+    return bytearray(store.serialize_cdr(types[msgtype](**fields), msgtype))
 
 
 def _annotation(store: Typestore, phase: str, tick: int) -> bytes:
@@ -95,14 +108,20 @@ def _annotation(store: Typestore, phase: str, tick: int) -> bytes:
 
 
 def _session(
-    store: Typestore, stalls: Stalls, sends: Callable[[str, int], bool], length: int = LENGTH
+    store: Typestore,
+    stalls: Stalls,
+    sends: Callable[[str, int], bool],
+    length: int = LENGTH,
+    types: Mapping[str, str] | None = None,
 ) -> list[tuple[str, int, bytes]]:
     """Return the session's messages (topic, receive ns, CDR) as a publisher sends them.
 
     Every tick's messages are sent in topic order and stamped when sent: 10 us apart, no
-    earlier than the tick, later after a stall (which holds up everything after it).
+    earlier than the tick, later after a stall (which holds up everything after it). A
+    counted message's ``seq`` counts every message the publisher sent, lost ones included.
     """
-    templates = {t: _template(store, m) for t, (m, _) in TOPICS.items()}
+    types = types or {t: m for t, (m, _) in TOPICS.items()}
+    templates = {t: _template(store, types[t]) for t in TOPICS}
     now, out = WALL, []
     for tick in range(length):
         now = max(now, WALL + tick * MS)
@@ -114,9 +133,11 @@ def _session(
                 topic = pattern.format(cell=cell)
                 if tick % period or not sends(topic, tick):
                     continue
-                now += stalls.get((tick, topic), 0) * MS + 10_000
+                now += round(stalls.get((tick, topic), 0) * MS) + 10_000
                 template = templates[pattern]
                 _STAMP(template, 4, now // 1_000_000_000, now % 1_000_000_000)
+                if types[pattern].endswith("Seq"):
+                    template[21] = (tick // period) % 256
                 out.append((topic, now + MS // 5, bytes(template)))
     out.sort(key=lambda item: item[1])
     return out
@@ -130,6 +151,7 @@ def _listen(
     lag_ms: int = 0,
     length: int = LENGTH,
     before_finish: list[int] | None = None,
+    counted: bool = False,
 ) -> ImportReport:
     """Replay the session through ``listen``'s listener in 50 ms steps; return its report.
 
@@ -137,7 +159,7 @@ def _listen(
     listener held up: its steps' time runs ahead of what its readers took). The session
     lasts ``length`` ms; ``before_finish`` gets the windows written before the run ended.
     """
-    topic_map = load_topic_map(_map(tmp_path))
+    topic_map = load_topic_map(_map(tmp_path, counted=counted))
     store = typestore(topic_map)
     listener = Listener(
         topic_map,
@@ -147,11 +169,14 @@ def _listen(
         journal=False,
         started_ns=WALL,
     )
+    kinds = {p: m for p, (m, _) in TOPICS.items()}
+    if counted:
+        kinds["/skin/force_{cell}"] = "edge_msgs/msg/Vec3Seq"
     types = {"/annotations": "std_msgs/msg/String"}
-    types |= {p.format(cell=c): m for p, (m, _) in TOPICS.items() for c in range(CELLS)}
+    types |= {p.format(cell=c): m for p, m in kinds.items() for c in range(CELLS)}
     listener.prepare(types)
     counts = dict.fromkeys(types, (0, 0, 0))
-    items = _session(store, stalls, sends, length)
+    items = _session(store, stalls, sends, length, kinds)
     step = WALL
     while step < WALL + (length + 2000) * MS:
         taken = [item for item in items if step <= item[1] + lag_ms * MS < step + 50 * MS]
@@ -300,3 +325,81 @@ def test_a_lost_message_of_a_publisher_on_its_grid_is_a_gap_on_its_own_topic(
     assert sources["/skin/force_0"].unaligned == 2
     assert warning is not None
     assert "/skin/force_1: 2 gaps (0.002 s paused)" in warning
+
+
+#: A jittery publisher: held up 0.6 ms at every 7th tick before cell 1's force, so the steps
+#: of its stamps are 0.4-1.6 periods, off the period's grid.
+JITTER: Stalls = {(tick, "/skin/force_1"): 0.6 for tick in range(0, LENGTH, 7)}
+
+
+@pytest.mark.parametrize("counted", [False, True])
+def test_a_counter_counts_a_jittery_publishers_single_lost_messages_exactly(
+    tmp_path: Path, *, counted: bool
+) -> None:
+    # three single force messages of cell 1 are lost inside the action, none next to a
+    # stall: each is a step of about 2 periods, within the 2.5 a jittery publisher needs.
+    # Without a counter that loss cannot be told from jitter and is counted nowhere; with
+    # the publisher's counter (a uint8 that wraps 5 times in the session) it is counted
+    # exactly, as missing, on its own topic, and check fails on it
+    lost = {604, 745, 906}
+    assert all(tick % 7 not in {0, 1} for tick in lost)
+    report = _listen(
+        tmp_path,
+        JITTER,
+        lambda topic, tick: topic != "/skin/force_1" or tick not in lost,
+        counted=counted,
+    )
+    assert len(report.written) == 1
+    path = report.written[0]
+    sources = {s.name: s for s in read_recording(path).sources}
+    force = sources["/skin/force_1"]
+    problem, _, _ = _check_one(path)
+    if not counted:
+        assert (force.basis, force.missing, force.gaps) == ("stamps", 0, 0)
+        assert problem is None
+        return
+    assert force.basis == "counter"
+    assert (force.missing, force.gaps, force.duplicated, force.counter_resets) == (3, 0, 0, 0)
+    assert force.received == force.expected - 3
+    assert sources["/skin/force_0"].missing == 0
+    assert problem is not None
+    assert "/skin/force_1" in problem
+
+
+@pytest.mark.parametrize("where", ["first", "last"])
+def test_a_counted_message_lost_at_an_edge_of_the_action_is_the_actions(
+    tmp_path: Path, where: str
+) -> None:
+    # the message lost is the first (or the last) of the window: no message inside shows the
+    # jump; the counter of the message next to it outside the window does
+    (tmp_path / "all").mkdir()
+    (tmp_path / "lost").mkdir()
+    report = _listen(tmp_path / "all", {}, counted=True)
+    first, last = _window_ticks(report.written[0], "/skin/force_0")
+    lost = first if where == "first" else last
+    report = _listen(
+        tmp_path / "lost",
+        {},
+        lambda topic, tick: topic != "/skin/force_0" or tick != lost,
+        counted=True,
+    )
+    sources = {s.name: s for s in read_recording(report.written[0]).sources}
+    assert sources["/skin/force_0"].missing == 1
+    assert sources["/skin/force_1"].missing == 0
+
+
+def test_a_steady_counted_publisher_gives_a_file_without_warnings(tmp_path: Path) -> None:
+    report = _listen(tmp_path, {}, counted=True)
+    assert _checked(report) == (None, None, 0, 0)
+    sources = read_recording(report.written[0]).sources
+    counted = [s for s in sources if s.name.startswith("/skin/force")]
+    assert [s.basis for s in counted] == ["counter", "counter"]
+
+
+def _window_ticks(path: Path, topic: str) -> tuple[int, int]:
+    """Return the ticks of the first and last message of ``topic`` counted in a file."""
+    source = next(s for s in read_recording(path).sources if s.name == topic)
+    return (
+        round((source.first_sensor_ns - WALL) / MS),
+        round((source.last_sensor_ns - WALL) / MS),
+    )

@@ -203,3 +203,27 @@ def test_counter_with_too_few_samples_to_learn_still_counts_them() -> None:
     counter.observe(None, 9 * MS, 10 * MS)
     stats = counter.stats()
     assert (stats.expected, stats.received, stats.missing) == (2, 2, 0)
+
+
+def test_a_counter_counts_what_was_lost_across_the_edges_of_a_window() -> None:
+    # a window holds the samples counted 250..255, 0..3 (a uint8 that wraps); the last one
+    # before it was 247 and the first after it 6: 2 lost before it, 2 after it
+    period = 1_000_000
+    counter = SourceCounter("topic", period_ns=period, modulo=256)
+    numbers = [*range(250, 256), *range(4)]
+    for k, number in enumerate(numbers):
+        counter.observe(number, (k + 10) * period, (k + 10) * period + 5)
+    counter.edge_loss((247, 7 * period), (6, 20 * period))
+    stats = counter.stats()
+    assert (stats.expected, stats.received, stats.missing) == (14, 10, 4)
+
+
+def test_a_counter_that_jumps_across_an_edge_counts_no_loss_there() -> None:
+    # the sample after the window says 5000 with only two periods passed (a reset: 4,895
+    # lost would have taken 4.9 s), and the one before it counts back: nothing is counted
+    period = 1_000_000
+    counter = SourceCounter("topic", period_ns=period)
+    for k in range(5):
+        counter.observe(100 + k, (k + 10) * period, (k + 10) * period + 5)
+    counter.edge_loss((101, 9 * period), (5000, 16 * period))
+    assert counter.stats().missing == 0
