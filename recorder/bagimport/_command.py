@@ -74,10 +74,24 @@ def _print_report(console: Console, report: ImportReport) -> None:
         table.add_row(channel, str(dropped), "-", "-")
     console.print(table)
     _print_timing(console, report)
+    _print_counted(console, report)
     for window, reason in report.skipped:
         console.print(f"skipped {window}: {reason}", highlight=False, soft_wrap=True)
     console.print(f"index -> {report.index}", highlight=False, soft_wrap=True)
     console.print(f"report -> {report.json_path}", highlight=False, soft_wrap=True)
+
+
+def _print_counted(console: Console, report: ImportReport) -> None:
+    """Print, per topic counted by its messages' counter, the messages it shows lost."""
+    if not report.counted:
+        return
+    table = Table(
+        "topic", "messages", "lost", "duplicated", "counter resets", title="counted by counter"
+    )
+    for topic, c in report.counted.items():
+        counts = (c["messages"], c["lost"], c["duplicated"], c["resets"])
+        table.add_row(topic, *(str(n) for n in counts))
+    console.print(table)
 
 
 def _print_timing(console: Console, report: ImportReport) -> None:

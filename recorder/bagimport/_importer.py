@@ -815,6 +815,8 @@ def tally(found: Mapping[str, Extractor], report: ImportReport) -> None:
             for index, timeline in extractor.timelines.items():
                 modality = extractor.fields[index].modality
                 report.timing.setdefault(extractor.topic, {})[modality] = timeline.summary()
+            if extractor.counted is not None:
+                report.counted[extractor.topic] = extractor.counted[0].summary()
 
 
 def import_bag(

@@ -110,6 +110,9 @@ class ImportReport:
         timing: Per topic and modality stamped by rate (``timing = "rate"``): runs, gaps,
             lost frames, the jitter of the message stamps around the fitted timeline (ms) and
             the drift of the sensor's rate against the stamps' clock (ppm).
+        counted: Per topic stamped by its messages whose counter the map names (``timing =
+            "message"`` with ``counter``): messages, lost (the counter's skips), duplicated
+            and resets.
     """
 
     bags: Sequence[BagIdentity]
@@ -131,6 +134,7 @@ class ImportReport:
     oversize: dict[str, int] = field(default_factory=dict)
     interrupted: str = ""
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    counted: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -164,6 +168,7 @@ class ImportReport:
             **({"incomplete": [str(p) for p in self.incomplete]} if self.incomplete else {}),
             **({"oversize": self.oversize} if self.oversize else {}),
             **({"timing": self.timing} if self.timing else {}),
+            **({"counted": self.counted} if self.counted else {}),
         }
 
     def save(self) -> Path:

@@ -31,7 +31,7 @@ from recorder.bagimport import _bounded
 from recorder.bagimport._bounded import MAX_MESSAGE_BYTES
 from recorder.bagimport._pack import Series
 from recorder.bagimport._ros1 import StreamingReader
-from recorder.bagimport._timing import Timeline
+from recorder.bagimport._timing import MessageCount, Timeline
 from recorder.errors import BagImportError
 
 if TYPE_CHECKING:
@@ -196,6 +196,9 @@ class SkinTopic:
     timelines: dict[int, Timeline] = field(default_factory=dict)
     #: The frame counter's index in :attr:`paths`, by spec index (``counter`` of the map).
     counters: dict[int, int] = field(default_factory=dict)
+    #: A message counter of a topic stamped by its messages (``timing = "message"``), and
+    #: its index in :attr:`paths` (None: the topic has none, or its counter counts frames).
+    counted: tuple[MessageCount, int] | None = None
 
     def __post_init__(self) -> None:
         """Precompute field getters, each modality's sample offsets and timelines."""
@@ -225,6 +228,12 @@ class SkinTopic:
                     self.counters[i] = self.paths.index(spec.counter)
                 # fitted stamps lie below the message stamps by the latency (< a frame or two)
                 slack = max(slack, 2 * round(spec.period_ns * count))
+        message_counters = [s for s in self.fields if s.counter and s.timing != "rate"]
+        if message_counters and not self.counters:
+            first = message_counters[0]
+            period = round(first.period_ns * first.samples_per_message) if first.period_ns else 0
+            tally = MessageCount(first.counter_modulo, period)
+            self.counted = (tally, self.paths.index(first.counter))
         every = np.concatenate(list(self.offsets.values()))
         self.reach = (int(every.min()) - slack, int(every.max()) + slack)
 
@@ -275,6 +284,8 @@ class SkinTopic:
         for index, timeline in self.timelines.items():
             path = self.counters.get(index)
             timeline.push(stamp, None if path is None else counter(path))
+        if self.counted is not None:
+            self.counted[0].push(stamp, counter(self.counted[1]))
 
     def _width(self, spec: SkinField, size: int) -> int:
         """Return the values per sample, checked against the map and earlier messages."""

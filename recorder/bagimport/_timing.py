@@ -285,3 +285,62 @@ class Timeline:
             "drift_ppm": self.best[1] * _PPM if self.best[0] else None,
             "fitted_span_s": self.best[0] / 1e9,
         }
+
+
+#: A counter may differ from the time that passed by this much (plus a tenth of it) before it
+#: counts as a reset, ns (as the live accounting's ``COUNTER_TOLERANCE_NS``).
+COUNTER_TOLERANCE_NS = 1_000_000_000
+
+
+@dataclass(slots=True)
+class MessageCount:
+    """The messages of a topic stamped by their own stamps whose counter the map names.
+
+    ``timing = "message"`` with ``counter``: each message's counter is compared with the
+    previous one's; the numbers it skipped are lost messages. A counter that repeats is a
+    duplicate; one that goes back, or whose advance the stamps contradict (more than
+    :data:`COUNTER_TOLERANCE_NS` plus a tenth of the time that passed, when the period is
+    known), is a reset: nothing is counted lost there.
+    """
+
+    #: The counter wraps at this value (0: it does not wrap).
+    modulo: int = 0
+    #: The nominal message period, ns (0: unknown: the stamps do not check the counter).
+    period_ns: int = 0
+    messages: int = 0
+    lost: int = 0
+    duplicated: int = 0
+    resets: int = 0
+    last: tuple[int, int] | None = None
+
+    def push(self, stamp: int, counter: int) -> None:
+        """Count one message (its stamp, ns, and its counter)."""
+        self.messages += 1
+        last, self.last = self.last, (counter, stamp)
+        if last is None:
+            return
+        step = counter - last[0]
+        if self.modulo:
+            step %= self.modulo
+        if step == 0:
+            self.duplicated += 1
+            self.last = last
+            return
+        back = step < 0 or (self.modulo and 2 * step > self.modulo)
+        if not back and self.period_ns > 0:
+            passed = stamp - last[1]
+            moved = step * self.period_ns
+            back = abs(moved - passed) > COUNTER_TOLERANCE_NS + abs(passed) / 10
+        if back:
+            self.resets += 1
+            return
+        self.lost += step - 1
+
+    def summary(self) -> dict[str, int]:
+        """Return messages, lost, duplicated and resets for the import report."""
+        return {
+            "messages": self.messages,
+            "lost": self.lost,
+            "duplicated": self.duplicated,
+            "resets": self.resets,
+        }

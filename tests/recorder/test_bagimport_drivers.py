@@ -34,6 +34,7 @@ TYPES = {
         "std_msgs/Header header\nfloat32 force\nfloat32 thermistor_a\nfloat32 thermistor_b\n"
     ),
     "tip_msgs/msg/Electrodes": "std_msgs/Header header\nfloat32[19] electrodes\n",
+    "tip_msgs/msg/CountedPressure": "std_msgs/Header header\nuint16 seq\nfloat32 pressure\n",
 }
 Message = tuple[int, str, str, Any]
 PERIOD = NS / 2200  # exact sample period of the fingertip's vibration sensor, ns
@@ -464,6 +465,68 @@ def test_cli_prints_runs_jitter_and_drift(
     assert cells[4] == "0"
     assert cells[5].startswith("1.93")
     assert cells[6] == "+40.2"
+
+
+PRESSURE_MAP = """
+[skin]
+cells = [0]
+
+[skin.force]
+topic = "/tip/pressure"
+field = "pressure"
+rate_hz = 100
+counter = "seq"
+counter_modulo = 65536
+
+[windows]
+source = "csv"
+csv = "windows.csv"
+time_unit = "ns"
+
+[actions.SL]
+kind = "press"
+duration_s = 2.0
+
+[objects.felt]
+name = "Felt"
+"""
+
+
+@pytest.mark.parametrize("storage", ["ros1", "mcap"])
+def test_a_message_counter_counts_what_a_sensor_stamped_topic_lost(
+    storage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 100 Hz pressure stamped by the sensor (timing = "message"), counting its messages in
+    # seq: 4 of 4000 never reached the bag, and the driver restarted at message 3500 (seq
+    # from 0 again). The report counts the 4 lost and 1 reset, nothing lost at the reset
+    ros1 = storage == "ros1"
+    store = _store(ros1=ros1)
+    msgtype = "tip_msgs/msg/CountedPressure"
+    messages: list[Message] = []
+    for m in range(4000):
+        if m in LOST:
+            continue
+        stamp = START + m * NS // 100
+        seq = m if m < 3500 else m - 3500  # the restart
+        msg = store.types[msgtype](header=header(store, stamp, ros1=ros1), seq=seq, pressure=1.0)
+        messages.append((stamp + 300_000, "/tip/pressure", msgtype, msg))
+    bag = _write(tmp_path / "tip", storage, messages, store)
+    (tmp_path / "map.toml").write_text(PRESSURE_MAP, encoding="utf-8")
+    (tmp_path / "windows.csv").write_text(FRAMES_WINDOWS, encoding="utf-8")
+    argv = ["import-bag", str(bag), "--topic-map", str(tmp_path / "map.toml")]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    row = next(line for line in printed.splitlines() if line.startswith("│ /tip/pressure"))
+    assert [cell.strip() for cell in row.split("│")[1:-1]] == [
+        "/tip/pressure",
+        "3996",
+        "4",
+        "0",
+        "1",
+    ]
+    (report,) = (tmp_path / "out" / "imports").glob("*.json")
+    counted = json.loads(report.read_text("utf-8"))["counted"]["/tip/pressure"]
+    assert counted == {"messages": 3996, "lost": 4, "duplicated": 0, "resets": 1}
 
 
 def test_the_documented_examples_parse(tmp_path: Path) -> None:

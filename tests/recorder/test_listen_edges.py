@@ -360,6 +360,13 @@ def test_a_counter_counts_a_jittery_publishers_single_lost_messages_exactly(
         return
     assert force.basis == "counter"
     assert (force.missing, force.gaps, force.duplicated, force.counter_resets) == (3, 0, 0, 0)
+    # the run's report counts them too, over everything received
+    assert report.counted["/skin/force_1"] == {
+        "messages": LENGTH - 3,
+        "lost": 3,
+        "duplicated": 0,
+        "resets": 0,
+    }
     assert force.received == force.expected - 3
     assert sources["/skin/force_0"].missing == 0
     assert problem is not None
