@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from recorder.errors import BagImportError
+from recorder.live import COUNTER_RELATIVE, COUNTER_TOLERANCE_NS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -287,20 +288,15 @@ class Timeline:
         }
 
 
-#: A counter may differ from the time that passed by this much (plus a tenth of it) before it
-#: counts as a reset, ns (as the live accounting's ``COUNTER_TOLERANCE_NS``).
-COUNTER_TOLERANCE_NS = 1_000_000_000
-
-
 @dataclass(slots=True)
 class MessageCount:
     """The messages of a topic stamped by their own stamps whose counter the map names.
 
     ``timing = "message"`` with ``counter``: each message's counter is compared with the
     previous one's; the numbers it skipped are lost messages. A counter that repeats is a
-    duplicate; one that goes back, or whose advance the stamps contradict (more than
-    :data:`COUNTER_TOLERANCE_NS` plus a tenth of the time that passed, when the period is
-    known), is a reset: nothing is counted lost there.
+    duplicate; one that goes back, or whose advance the stamps contradict (as the live
+    accounting judges it: by more than ``COUNTER_TOLERANCE_NS`` plus ``COUNTER_RELATIVE`` of
+    the time that passed, when the period is known), is a reset: nothing is counted lost there.
     """
 
     #: The counter wraps at this value (0: it does not wrap).
@@ -330,7 +326,7 @@ class MessageCount:
         if not back and self.period_ns > 0:
             passed = stamp - last[1]
             moved = step * self.period_ns
-            back = abs(moved - passed) > COUNTER_TOLERANCE_NS + abs(passed) / 10
+            back = abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed)
         if back:
             self.resets += 1
             return

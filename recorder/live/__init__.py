@@ -12,6 +12,8 @@ The DDS transport (Cyclone DDS, an optional extra) is the public submodule
 """
 
 from recorder.live._accounting import (
+    COUNTER_RELATIVE,
+    COUNTER_TOLERANCE_NS,
     SOURCES_RECORD,
     SourceCounter,
     SourceStats,
@@ -35,6 +37,8 @@ from recorder.live._skin import (
 )
 
 __all__ = [
+    "COUNTER_RELATIVE",
+    "COUNTER_TOLERANCE_NS",
     "FIELD_TYPES",
     "FORCE_WINDOW_NS",
     "SKIN_ENTRY_POINTS",
