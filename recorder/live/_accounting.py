@@ -156,7 +156,8 @@ class SourceCounter:
             gap_periods: A step longer than this many periods is a gap (see
                 :func:`gap_periods`); None: judged from the steps so far, as they come
                 (:data:`GRID_GAP_PERIODS` while every step has been on the period's grid,
-                else :data:`GAP_PERIODS`).
+                else :data:`GAP_PERIODS`; a step of the first :data:`GRID_MIN_STEPS` waits
+                until the grid can be told).
         """
         self.name = name
         self._period_ns = period_ns
@@ -165,6 +166,8 @@ class SourceCounter:
         self._gap_periods = gap_periods
         self._grid_steps = self._grid_whole = 0
         self._grid_broken = False
+        #: Steps of the first GRID_MIN_STEPS that are gaps only if the stamps keep a grid.
+        self._undecided: list[int] = []
         self._basis = "counter"
         self._first: int | None = None
         self._max = 0
@@ -367,24 +370,44 @@ class SourceCounter:
         return step - 1
 
     def _gap(self, step_ns: int) -> None:
-        """Count a pause of a source without a sequence (then learn whether it keeps a grid)."""
+        """Count a pause of a source without a sequence (then learn whether it keeps a grid).
+
+        Judged as the steps come (``gap_periods`` None): a step of the first
+        :data:`GRID_MIN_STEPS`, before the grid can be told, that is a gap only on a grid
+        (from :data:`GRID_GAP_PERIODS` to :data:`GAP_PERIODS` periods) waits until it can;
+        every later step is judged at once by what the steps before it showed.
+        """
         period = self._period_ns
         threshold = self._gap_periods
+        judged = threshold is not None or self._grid_steps >= GRID_MIN_STEPS
         if threshold is None:
-            on_grid = (
-                not self._grid_broken
-                and self._grid_steps >= GRID_MIN_STEPS
-                and 2 * self._grid_whole > self._grid_steps
-            )
-            threshold = GRID_GAP_PERIODS if on_grid else GAP_PERIODS
+            threshold = GRID_GAP_PERIODS if self._on_grid() else GAP_PERIODS
         if step_ns > threshold * period:
-            self._gap_count += 1
-            self._gap_ns += step_ns - period
+            self._count_gap(step_ns)
+        elif not judged and step_ns > GRID_GAP_PERIODS * period:
+            self._undecided.append(step_ns)
         ratio = step_ns / period
         whole = round(ratio)
         self._grid_broken |= whole < 1 or abs(ratio - whole) > GRID_TOLERANCE
         self._grid_steps += 1
         self._grid_whole += whole == 1
+        if not judged and self._grid_steps >= GRID_MIN_STEPS:  # the grid is told now
+            for early in self._undecided if self._on_grid() else ():
+                self._count_gap(early)
+            self._undecided.clear()
+
+    def _on_grid(self) -> bool:
+        """Whether every step so far (enough of them, mostly one period) kept the grid."""
+        return (
+            not self._grid_broken
+            and self._grid_steps >= GRID_MIN_STEPS
+            and 2 * self._grid_whole > self._grid_steps
+        )
+
+    def _count_gap(self, step_ns: int) -> None:
+        """Count one gap of ``step_ns``."""
+        self._gap_count += 1
+        self._gap_ns += step_ns - self._period_ns
 
     def _remember(self, number: int) -> None:
         """Keep the recent sequence numbers (a bounded window)."""

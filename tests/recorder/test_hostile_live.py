@@ -212,6 +212,18 @@ def test_a_single_lost_message_of_a_publisher_on_its_grid_is_a_gap() -> None:
     assert _stamps_counter([1.0 + s % 0.01 for s in range(3000)]).gaps == 0
 
 
+@pytest.mark.parametrize("at", [1, 3, 7, 8])
+def test_a_message_lost_before_the_grid_can_be_told_is_a_gap_once_it_can(at: int) -> None:
+    # the step of the lost message comes among the first steps, before there are enough to
+    # tell a grid: it waits, and is counted once the grid shows; a publisher whose first
+    # steps leave the grid (jitter) has no grid, and the step is no gap
+    steps = [1.0] * 40
+    steps[at] = 2.0
+    stats = _stamps_counter(steps)
+    assert (stats.gaps, stats.gap_ns) == (1, MS)
+    assert _stamps_counter([1.4, 0.6, *steps]).gaps == 0
+
+
 def test_a_jittery_publisher_is_judged_off_its_grid_and_its_jitter_is_no_gap() -> None:
     # stamped when sent: steps of 0.5..2.2 periods are jitter, never a gap (the grid is off
     # from the first step that leaves it, and stays off)
