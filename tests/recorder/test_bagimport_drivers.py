@@ -492,13 +492,16 @@ name = "Felt"
 """
 
 
-@pytest.mark.parametrize("storage", ["ros1", "mcap"])
+@pytest.mark.parametrize(
+    ("storage", "counter"), [("ros1", "seq"), ("mcap", "seq"), ("ros1", "header.seq")]
+)
 def test_a_message_counter_counts_what_a_sensor_stamped_topic_lost(
-    storage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    storage: str, counter: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # 100 Hz pressure stamped by the sensor (timing = "message"), counting its messages in
-    # seq: 4 of 4000 never reached the bag, and the driver restarted at message 3500 (seq
-    # from 0 again). The report counts the 4 lost and 1 reset, nothing lost at the reset
+    # seq (or, in ROS 1, in its header's seq): 4 of 4000 never reached the bag, and the
+    # driver restarted at message 3500 (seq from 0 again). The report counts the 4 lost and
+    # 1 reset, nothing lost at the reset
     ros1 = storage == "ros1"
     store = _store(ros1=ros1)
     msgtype = "tip_msgs/msg/CountedPressure"
@@ -508,10 +511,14 @@ def test_a_message_counter_counts_what_a_sensor_stamped_topic_lost(
             continue
         stamp = START + m * NS // 100
         seq = m if m < 3500 else m - 3500  # the restart
-        msg = store.types[msgtype](header=header(store, stamp, ros1=ros1), seq=seq, pressure=1.0)
+        head = header(store, stamp, ros1=ros1)
+        if counter == "header.seq":
+            head.seq, seq = seq, 0
+        msg = store.types[msgtype](header=head, seq=seq, pressure=1.0)
         messages.append((stamp + 300_000, "/tip/pressure", msgtype, msg))
     bag = _write(tmp_path / "tip", storage, messages, store)
-    (tmp_path / "map.toml").write_text(PRESSURE_MAP, encoding="utf-8")
+    text = PRESSURE_MAP.replace('counter = "seq"', f'counter = "{counter}"')
+    (tmp_path / "map.toml").write_text(text, encoding="utf-8")
     (tmp_path / "windows.csv").write_text(FRAMES_WINDOWS, encoding="utf-8")
     argv = ["import-bag", str(bag), "--topic-map", str(tmp_path / "map.toml")]
     assert main([*argv, "--out", str(tmp_path / "out")]) == 0
