@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
+from rich.markup import escape
 
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import (
@@ -20,6 +21,7 @@ from recorder._cli import (
 from recorder._dataset import plan_dataset
 from recorder._session import run_session
 from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
+from schemas import lost_samples
 
 if TYPE_CHECKING:
     import argparse
@@ -71,6 +73,12 @@ def _session(args: argparse.Namespace) -> int:
         console.print(
             f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
         )
+        if lost := lost_samples(written.sources):  # said now, while the object is still here
+            console.print(
+                f"[yellow]{written.path}: live sources lost samples ({escape(lost)}); check "
+                "fails on it: move it aside and run the session again to record the trial "
+                "again[/yellow]"
+            )
 
     def started(task: RecordingTask) -> None:
         # at a terminal, the operator sees what the arm is doing; piped output stays one line

@@ -44,6 +44,7 @@ from schemas._sources import (
     SOURCES_RECORD,
     SourceStats,
     encode_source_stats,
+    lost_samples,
     parse_source_stats,
 )
 from schemas._toml import MAX_TOML_BYTES, MAX_TOML_DEPTH, TomlLimitError, load_toml, loads_toml
@@ -121,6 +122,7 @@ __all__ = [
     "is_recording",
     "load_toml",
     "loads_toml",
+    "lost_samples",
     "msg_definition",
     "parse_metadata",
     "parse_source_stats",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Iterable, Mapping, Sequence
 
 #: Name of the MCAP metadata record that holds the per-source counts of a live recording.
 SOURCES_RECORD = "atikt.sources"
@@ -133,6 +133,15 @@ class SourceStats:
     def problems(self) -> str:
         """Return what went wrong, e.g. ``3 of 7500 missing, 2 duplicated`` (empty: nothing)."""
         return ", ".join(part for part in (self.loss(), self.warnings()) if part)
+
+
+def lost_samples(sources: Iterable[SourceStats]) -> str:
+    """Return the counted loss of a recording's sources, e.g. ``rtde: 3 of 500 missing``.
+
+    One entry per source that lost samples, ``; ``-separated (empty: nothing lost). A
+    recording with counted loss fails ``check``.
+    """
+    return "; ".join(f"{item.name}: {item.loss()}" for item in sources if item.lost)
 
 
 def _plural(count: int, noun: str) -> str:

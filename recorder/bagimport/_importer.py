@@ -65,7 +65,14 @@ from recorder.bagimport._windows import (
 from recorder.errors import BagImportError, RecorderError
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
 from recorder.writing._writer import RecordingInfo, RecordingWriter
-from schemas import SCHEMA_VERSION, VOCABULARY, RecordingMetadata, check_rig, software_version
+from schemas import (
+    SCHEMA_VERSION,
+    VOCABULARY,
+    RecordingMetadata,
+    check_rig,
+    lost_samples,
+    software_version,
+)
 from schemas.cdr import compile_cdr, compile_ros1
 
 if TYPE_CHECKING:
@@ -545,6 +552,8 @@ class _Session:
                     ]
                 )
         path = writer.result.path if writer.result is not None else plan.path
+        if writer.result is not None and (lost := lost_samples(writer.result.sources)):
+            self.report.lost_samples[path] = lost
         if plan.incomplete:
             self.report.incomplete.append(path)
         else:

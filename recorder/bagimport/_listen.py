@@ -577,8 +577,14 @@ class Listener:
             )
 
     def _notes(self) -> None:
-        """Print one line per window skipped, and for samples late or too large."""
+        """Print one line per window skipped or written with lost samples, late, too large."""
         report = self.report
+        for path, lost in list(report.lost_samples.items())[self._noted.get("lost", 0) :]:
+            self._note(
+                f"{path}: live sources lost samples ({lost}); check fails on it: the recording "
+                "lacks data its sources sent: record the action again"
+            )
+        self._noted["lost"] = len(report.lost_samples)
         for where, reason in report.skipped[self._noted.get("", 0) :]:
             self._note(f"skipped {where}: {reason}")
         self._noted[""] = len(report.skipped)

@@ -113,6 +113,8 @@ class ImportReport:
         counted: Per topic stamped by its messages whose counter the map names (``timing =
             "message"`` with ``counter``): messages, lost (the counter's skips), duplicated
             and resets.
+        lost_samples: Live: per recording whose sources lost samples (``check`` fails it),
+            what they lost (e.g. ``/skin/force_1: 3 of 500 missing``).
     """
 
     bags: Sequence[BagIdentity]
@@ -135,6 +137,7 @@ class ImportReport:
     interrupted: str = ""
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     counted: dict[str, dict[str, int]] = field(default_factory=dict)
+    lost_samples: dict[Path, str] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -169,6 +172,11 @@ class ImportReport:
             **({"oversize": self.oversize} if self.oversize else {}),
             **({"timing": self.timing} if self.timing else {}),
             **({"counted": self.counted} if self.counted else {}),
+            **(
+                {"lost_samples": {_relative(p, self.out): t for p, t in self.lost_samples.items()}}
+                if self.lost_samples
+                else {}
+            ),
         }
 
     def save(self) -> Path:

@@ -56,6 +56,7 @@ from schemas import (
     cli,
     dataset_recordings,
     is_incomplete,
+    lost_samples,
     software_version,
 )
 
@@ -409,10 +410,9 @@ def _accounting_verdict(recording: Any) -> tuple[str | None, str | None]:  # noq
     (gaps) are warnings.
     """
     path = recording.path
-    lost = [f"{item.name}: {item.loss()}" for item in recording.sources if item.lost]
-    if lost:
+    if lost := lost_samples(recording.sources):
         error = (
-            f"{path}: live sources lost samples ({'; '.join(lost)}); the recording lacks data "
+            f"{path}: live sources lost samples ({lost}); the recording lacks data "
             "its sources sent: record the action again"
         )
         return error, None

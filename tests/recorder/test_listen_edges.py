@@ -357,9 +357,12 @@ def test_a_counter_counts_a_jittery_publishers_single_lost_messages_exactly(
     if not counted:
         assert (force.basis, force.missing, force.gaps) == ("stamps", 0, 0)
         assert problem is None
+        assert report.lost_samples == {}
         return
     assert force.basis == "counter"
     assert (force.missing, force.gaps, force.duplicated, force.counter_resets) == (3, 0, 0, 0)
+    # listen says so when it writes the file (the report keeps the line's figures)
+    assert report.lost_samples == {path: "/skin/force_1: 3 of 500 missing"}
     # the run's report counts them too, over everything received
     assert report.counted["/skin/force_1"] == {
         "messages": LENGTH - 3,

@@ -8,6 +8,7 @@ from rig_plugins import traces
 
 from recorder import _rigconfig as rigconfig
 from recorder._cli import main
+from schemas import SourceStats
 
 
 @pytest.fixture(autouse=True)
@@ -117,3 +118,25 @@ def test_a_session_on_the_simulator_asks_nobody(
     assert "place" not in printed
     assert "1 recording written, 0 kept" in printed
     assert (tmp_path / "s" / "wood" / "P1" / "001.mcap").is_file()
+
+
+def test_a_recording_that_lost_samples_says_so_when_it_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the operator learns at once, while the object is still there, that a trial lacks data
+    # (check will fail it); a trial without loss says nothing more
+    lossy = SourceStats("skin", "counter", expected=100, received=97, missing=3)
+    trials = iter([[lossy], []])
+    monkeypatch.setattr(
+        rig_plugins.PresentingRig, "source_stats", lambda _self: next(trials), raising=False
+    )
+    config, _ = _lab(tmp_path, "wood = [0.4, 0.1, 0.2]\n")
+    argv = ["session", "--rig-config", str(config), "--objects", "wood", "--actions", "P1"]
+    assert main([*argv, "--trials", "2", "--out", str(tmp_path / "s"), "--yes"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    said = [line for line in lines if "lost samples" in line]
+    assert len(said) == 1
+    first = tmp_path / "s" / "wood" / "P1" / "001.mcap"
+    assert said[0].startswith(f"{first}: live sources lost samples (skin: 3 of 100 missing)")
+    assert "move it aside and run the session again" in said[0]
+    assert lines.index(said[0]) == 1 + next(i for i, line in enumerate(lines) if str(first) in line)
