@@ -16,6 +16,7 @@ that could not present a new object is refused before anything moves.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
@@ -25,7 +26,7 @@ from recorder import Presenting, record_action, recording_path
 from replay.errors import ReplayError
 from replay.learning._executors import SESSION_NAME, Pair, TestSet
 from replay.learning._features import file_features
-from schemas import atomic_write
+from schemas import atomic_write, lost_samples
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -122,7 +123,14 @@ class LiveExecutor:
             self._present(obj)
             path.parent.mkdir(parents=True, exist_ok=True)
             action = self.actions[action_id]
-            record_action(self.rig, obj, action, trial, path, seed=self.seed, viewers=self.viewers)
+            written = record_action(
+                self.rig, obj, action, trial, path, seed=self.seed, viewers=self.viewers
+            )
+            if lost := lost_samples(written.sources):  # learned from all the same: said now
+                print(  # noqa: T201 (a note beside the run's step lines)
+                    f"{written.path}: live sources lost samples ({lost}); check fails on it",
+                    file=sys.stderr,
+                )
         self.made.append(
             {"order": len(self.made), "object_id": obj.id, "action_id": action_id}
             | {"trial": trial, "role": role, "path": path.relative_to(self.session).as_posix()}

@@ -10,6 +10,7 @@ from rerun_frames import temporal_entities
 from recorder import RigConfig, RigPlugin, SimulatedRig, refuse_sections
 from recorder import _rigconfig as rigconfig
 from replay.cli._main import main
+from schemas import SourceStats
 
 PROCESSES: list[int] = []
 
@@ -74,3 +75,23 @@ def test_view_needs_a_live_run(small_dataset: Path, capsys: pytest.CaptureFixtur
     assert err == [
         "atikt-replay: error: --view shows a live run's recordings as they are made; give --rig too"
     ]
+
+
+def test_live_learning_says_which_recordings_lost_samples(
+    small_dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the rig's first recording lost samples: learned from all the same, and said, once
+    lossy = SourceStats("skin", "counter", expected=100, received=98, missing=2)
+    said = iter([[lossy]])
+    monkeypatch.setattr(_TracedSim, "source_stats", lambda _self: next(said, []), raising=False)
+    config = tmp_path / "lab.toml"
+    config.write_text('rig = "lab"\n')
+    argv = ["learn", "--rig-config", str(config), "--recordings", str(small_dataset)]
+    argv += ["--budget", "1", "--actions", "P1", "--new", ",".join(NEW), "--workers", "1"]
+    assert main([*argv, "--test-trials", "1", "--out", str(tmp_path / "live")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "lost samples" in line]
+    assert len(err) == 1
+    assert err[0].endswith("live sources lost samples (skin: 2 of 100 missing); check fails on it")
