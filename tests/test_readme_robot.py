@@ -143,7 +143,10 @@ def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, s
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and run.poll() is None:
         done = list(out.rglob("*.mcap")) if out.exists() else []
-        if done and list(out.rglob("*.mcap.part")):
+        # a part being written (a finished one keeps its .part name for a moment as it is
+        # published: both names exist between the link and the unlink)
+        writing = [p for p in out.rglob("*.mcap.part") if not p.with_suffix("").exists()]
+        if done and writing:
             time.sleep(0.2)  # inside the action
             run.send_signal(signal.SIGINT)
             break

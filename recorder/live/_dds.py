@@ -65,6 +65,7 @@ if TYPE_CHECKING:
 ATIKT_TYPES = {
     "atikt_msgs/msg/SkinCell": (
         "std_msgs/Header header\nfloat32[3] force\nfloat32[3] acc\nfloat32 temp\nfloat32 prox\n"
+        "uint32 seq\n"  # counts the cell's messages: a map's ``counter = "seq"`` counts loss
     ),
 }
 #: Samples a reader's DDS cache keeps before the oldest is replaced (the reader thread takes

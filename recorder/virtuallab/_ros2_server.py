@@ -46,6 +46,9 @@ if TYPE_CHECKING:
     from recorder.virtuallab._world import VirtualWorld
 
 CELL_TYPE = "atikt_msgs/msg/SkinCell"
+#: The cell message's counter of the messages published on its topic (dropped ones included,
+#: as a publisher counts what it sent): a topic map's ``counter = "seq"`` counts their loss.
+CELL_COUNTER = "seq"
 #: Field of the cell message -> (modality, values per cell).
 CELL_FIELDS = {"force": 3, "acc": 3, "temp": 1, "prox": 1}
 #: Where each field's values start among the cell message's eight float32.
@@ -97,6 +100,8 @@ class Ros2Server:
     _thread: threading.Thread | None = None
     _writers: dict[str, RawWriter] = field(default_factory=dict)
     _cells: dict[str, SkinTopic] = field(default_factory=dict)
+    #: Per cell topic: the number of its next message (``seq``; dropped ones count too).
+    _sequence: dict[str, int] = field(default_factory=dict)
     _annotations: str | None = None
     _announced: tuple[tuple[str, str, int], str] | None = None
     _said: int = 0
@@ -121,6 +126,13 @@ class Ros2Server:
                 msg = (
                     f"{self.topic_map.path}: the virtual lab publishes {CELL_TYPE} "
                     f"({', '.join(CELL_FIELDS)}), not field {bad[0]!r} of {topic}"
+                )
+                raise RigError(msg)
+            if bad := [s.counter for s in extractor.fields if s.counter not in {"", CELL_COUNTER}]:
+                msg = (
+                    f"{self.topic_map.path}: the virtual lab's {CELL_TYPE} counts its messages in "
+                    f"{CELL_COUNTER!r}, not {bad[0]!r} of {topic}; set counter = "
+                    f'"{CELL_COUNTER}" or leave it out'
                 )
                 raise RigError(msg)
             self._cells[topic] = extractor
@@ -205,7 +217,10 @@ class Ros2Server:
             if due == next_cell:
                 skin = {m: self.world.skin_at(m, controller) for m in self._modalities}
                 for topic, extractor in self._cells.items():
-                    self._publish(topic, self._cell(store, extractor, due, skin), controller)
+                    sequence = self._sequence.get(topic, 0)
+                    self._sequence[topic] = sequence + 1
+                    raw = self._cell(store, extractor, due, skin, sequence)
+                    self._publish(topic, raw, controller)
                 next_cell += cell_period
 
     def _annotate(self, store: Any, offset_ns: int, controller_ns: int) -> None:  # noqa: ANN401
@@ -285,10 +300,12 @@ class Ros2Server:
         extractor: SkinTopic,
         stamp: int,
         skin: Mapping[str, Any],
+        sequence: int,
     ) -> bytes:
         """Return one cell's message, its fields in the map's raw units, serialized.
 
-        ``skin``: the world's sample of each modality at the stamp (cells, values).
+        ``skin``: the world's sample of each modality at the stamp (cells, values);
+        ``sequence``: the message's number on its topic (``seq``, wrapping at 2^32).
         """
         values = np.zeros(_CELL_VALUES, dtype=np.float32)  # force[3], acc[3], temp, prox
         for spec in extractor.fields:
@@ -303,14 +320,16 @@ class Ros2Server:
             self._cell_head = _cell_head(store)
         head = bytearray(self._cell_head)
         _STAMP.pack_into(head, _STAMP_OFFSET, *divmod(stamp, _NS_PER_S))
-        return bytes(head) + values.astype("<f4").tobytes()
+        counter = (sequence % 2**32).to_bytes(4, "little")
+        return bytes(head) + values.astype("<f4").tobytes() + counter
 
 
 def _cell_head(store: Any) -> bytes:  # noqa: ANN401
     """Return a cell message's bytes before its values (rosbags' serialisation, once).
 
-    The values (eight float32) are the message's last bytes; the stamp is patched per sample
-    (rosbags builds a message object per call: ten times the cost, 1,750 cells a second).
+    The values (eight float32) and the counter (a uint32) are the message's last bytes; the
+    stamp is patched per sample (rosbags builds a message object per call: ten times the cost,
+    1,750 cells a second).
     """
     message = store.types[CELL_TYPE](
         header=_header(store, 0),
@@ -318,9 +337,10 @@ def _cell_head(store: Any) -> bytes:  # noqa: ANN401
         acc=np.zeros(3, dtype=np.float32),
         temp=0.0,
         prox=0.0,
+        seq=0,
     )
     raw = bytes(store.serialize_cdr(message, CELL_TYPE))
-    return raw[: len(raw) - 4 * _CELL_VALUES]
+    return raw[: len(raw) - 4 * _CELL_VALUES - 4]
 
 
 def _joint_message(store: Any, runs: list[np.ndarray[Any, Any]]) -> bytes:  # noqa: ANN401

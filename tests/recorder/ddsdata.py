@@ -135,7 +135,7 @@ def script(store: Any, seed: int = 11) -> Script:
                     f"/skin/cell_{cell}",
                     CELL,
                     lambda s, f=force, a=acc, t=temp, p=prox: types[CELL](
-                        header=header(s), force=f, acc=a, temp=t, prox=p
+                        header=header(s), force=f, acc=a, temp=t, prox=p, seq=0
                     ),
                 )
             )

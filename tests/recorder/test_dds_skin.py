@@ -25,22 +25,34 @@ from recorder.virtuallab._ros2_server import CELL_TYPE, Ros2Faults, _header, ser
 EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "topic_map.example.toml"
 
 
-@pytest.mark.parametrize("dropped", [5, 1])
+def _with_cell_counter(root: Path) -> Path:
+    """Write the example map with the cells' counter named (``counter = "seq"``)."""
+    force = '[skin.force]\ntopic = "/skin/cell_{cell}"\n'
+    text = EXAMPLE.read_text(encoding="utf-8")
+    assert force in text
+    path = root / "counted.toml"
+    path.write_text(text.replace(force, force + 'counter = "seq"\n'), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(("dropped", "counted"), [(5, False), (1, False), (2, True)])
 def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
-    dds_domain: int, tmp_path: Path, dropped: int
+    dds_domain: int, tmp_path: Path, dropped: int, *, counted: bool
 ) -> None:
     # one lost message is a gap too: the lab stamps on its period's grid (a jittery
-    # publisher's tolerance, 2.5 periods, would hide it)
+    # publisher's tolerance, 2.5 periods, would hide it). With the cells' counter mapped
+    # (counter = "seq"), the lost messages are missing, exactly, and no gap
     objects, actions = load_objects(None), load_actions(None)
+    topic_map = _with_cell_counter(tmp_path) if counted else EXAMPLE
     # the drop is placed once the skin reads the topics (a loaded machine may take a second
     # to discover them: a drop before that would be no gap in what the skin received)
     faults = Ros2Faults(drop={"/skin/cell_3": dropped}, drop_after=2**62)
-    section = {"transport": "ros2", "topic_map": str(EXAMPLE), "domain_id": dds_domain}
+    section = {"transport": "ros2", "topic_map": str(topic_map), "domain_id": dds_domain}
     blocks: list[SkinBlock] = []
     with SimulatedRig(0) as rig, contextlib.ExitStack() as stack:
         world = stack.enter_context(VirtualWorld(rig, objects, actions, time_scale=0.5))
         world.start_action("wood", "P1", 1)
-        with serve_ros2(world, EXAMPLE, faults, domain_id=dds_domain, rate_hz=100) as server:
+        with serve_ros2(world, topic_map, faults, domain_id=dds_domain, rate_hz=100) as server:
             skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
             with skin:
                 deadline = time.monotonic() + 30
@@ -62,11 +74,15 @@ def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
                 force = skin.total_force()
     assert server.dropped == {"/skin/cell_3": dropped}
     assert set(stats) == {f"skin/cell_{i}" for i in range(7)}
-    # a ROS 2 message has no sequence number: the publisher's pause is a gap, not loss
-    assert all(s.basis == "stamps" and s.missing == 0 for s in stats.values())
-    assert stats["skin/cell_3"].gaps == 1
-    assert stats["skin/cell_3"].gap_ns == dropped * stats["skin/cell_3"].period_ns
-    assert all(s.gaps == 0 for name, s in stats.items() if name != "skin/cell_3")
+    if counted:  # counted by the cells' own counter: loss, exactly where it happened
+        assert all(s.basis == "counter" and s.gaps == 0 for s in stats.values())
+        assert stats["skin/cell_3"].missing == dropped
+        assert all(s.missing == 0 for name, s in stats.items() if name != "skin/cell_3")
+    else:  # a ROS 2 message has no sequence number: the publisher's pause is a gap
+        assert all(s.basis == "stamps" and s.missing == 0 for s in stats.values())
+        assert stats["skin/cell_3"].gaps == 1
+        assert stats["skin/cell_3"].gap_ns == dropped * stats["skin/cell_3"].period_ns
+        assert all(s.gaps == 0 for name, s in stats.items() if name != "skin/cell_3")
     assert all(s.received > 50 for s in stats.values())
     assert {b.modality for b in blocks} == {"force", "acceleration", "temperature", "proximity"}
     widths = {b.modality: b.data.shape[1:] for b in blocks}
@@ -111,6 +127,7 @@ def _publish_cells(domain: DdsDomain, stamps: list[int], lag_ns: list[int]) -> N
             acc=np.zeros(3, dtype=np.float32),
             temp=30.0,
             prox=0.05,
+            seq=0,
         )
         raw = bytes(store.serialize_cdr(message, CELL_TYPE))
         for writer in writers.values():
@@ -181,9 +198,11 @@ def test_the_virtual_labs_messages_are_rosbags_own_bytes() -> None:
                 acc=np.asarray(raw["acc"], dtype=np.float32),
                 temp=float(raw["temp"]),
                 prox=float(raw["prox"]),
+                seq=2**32 - 1,  # the counter of the message, last before it wraps
             )
             expected = bytes(store.serialize_cdr(message, CELL_TYPE))
-            assert server._cell(store, extractor, stamp, skin) == expected, extractor.topic
+            made = server._cell(store, extractor, stamp, skin, 2**33 - 1)
+            assert made == expected, extractor.topic
         state = world.robot_at(controller)
         joints = store.types[JOINT_TYPE](
             header=_header(store, stamp),
@@ -238,11 +257,10 @@ def _counted_map(root: Path) -> Path:
         "float32 temp\nfloat32 prox\n",
         encoding="utf-8",
     )
-    text = EXAMPLE.read_text(encoding="utf-8")
-    force = '[skin.force]\ntopic = "/skin/cell_{cell}"\n'
-    assert force in text
-    text = text.replace(force, force + 'counter = "seq"\ncounter_modulo = 65536\n')
-    path = root / "counted.toml"
+    path = _with_cell_counter(root)
+    text = path.read_text(encoding="utf-8").replace(
+        'counter = "seq"\n', 'counter = "seq"\ncounter_modulo = 65536\n'
+    )
     path.write_text(text + f'\n[types]\n"{COUNTED}" = "CountedCell.msg"\n', encoding="utf-8")
     return path
 
@@ -301,3 +319,17 @@ def test_a_ros2_skin_counts_a_jittery_publishers_lost_messages_by_their_counter(
         s.received == count - (3 if name == "skin/cell_2" else 0) for name, s in stats.items()
     )
     assert {b.modality for b in blocks} == {"force", "acceleration", "temperature", "proximity"}
+
+
+def test_the_virtual_lab_refuses_a_cell_counter_it_does_not_fill(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    path = _with_cell_counter(tmp_path)
+    path.write_text(path.read_text("utf-8").replace('counter = "seq"', 'counter = "frame"'))
+    with (
+        SimulatedRig(0) as rig,
+        VirtualWorld(rig, load_objects(None), load_actions(None)) as world,
+        pytest.raises(RigError, match=r"counts its messages in 'seq', not 'frame' of /skin/cell_0"),
+        serve_ros2(world, path, domain_id=dds_domain),
+    ):
+        pass

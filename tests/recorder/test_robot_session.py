@@ -237,7 +237,10 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
     number = {"SIGTERM": signal.SIGTERM, "SIGKILL": signal.SIGKILL}.get(cause)
     deadline = time.monotonic() + 120
     while number is not None and time.monotonic() < deadline and run.poll() is None:
-        if list(out.rglob("???.mcap")) and list(out.rglob("*.mcap.part")):
+        # a part being written: not the one a finished recording leaves for a moment while
+        # it is published (both names exist between the link and the unlink)
+        writing = [p for p in out.rglob("*.mcap.part") if not p.with_suffix("").exists()]
+        if list(out.rglob("???.mcap")) and writing:
             time.sleep(0.2)
             run.send_signal(number)
             break
