@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from recorder.errors import BagImportError
-from recorder.live import COUNTER_RELATIVE, COUNTER_TOLERANCE_NS
+from recorder.live import counter_skipped
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -295,8 +295,8 @@ class MessageCount:
     ``timing = "message"`` with ``counter``: each message's counter is compared with the
     previous one's; the numbers it skipped are lost messages. A counter that repeats is a
     duplicate; one that goes back, or whose advance the stamps contradict (as the live
-    accounting judges it: by more than ``COUNTER_TOLERANCE_NS`` plus ``COUNTER_RELATIVE`` of
-    the time that passed, when the period is known), is a reset: nothing is counted lost there.
+    accounting judges it, :func:`recorder.live.counter_skipped`), is a reset: nothing is
+    counted lost there.
     """
 
     #: The counter wraps at this value (0: it does not wrap).
@@ -315,22 +315,14 @@ class MessageCount:
         last, self.last = self.last, (counter, stamp)
         if last is None:
             return
-        step = counter - last[0]
-        if self.modulo:
-            step %= self.modulo
-        if step == 0:
+        skipped = counter_skipped(last, self.last, modulo=self.modulo, period_ns=self.period_ns)
+        if skipped is None:
+            self.resets += 1
+        elif skipped < 0:
             self.duplicated += 1
             self.last = last
-            return
-        back = step < 0 or (self.modulo and 2 * step > self.modulo)
-        if not back and self.period_ns > 0:
-            passed = stamp - last[1]
-            moved = step * self.period_ns
-            back = abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed)
-        if back:
-            self.resets += 1
-            return
-        self.lost += step - 1
+        else:
+            self.lost += skipped
 
     def summary(self) -> dict[str, int]:
         """Return messages, lost, duplicated and resets for the import report."""

@@ -12,12 +12,11 @@ The DDS transport (Cyclone DDS, an optional extra) is the public submodule
 """
 
 from recorder.live._accounting import (
-    COUNTER_RELATIVE,
-    COUNTER_TOLERANCE_NS,
     SOURCES_RECORD,
     SourceCounter,
     SourceStats,
     Verdict,
+    counter_skipped,
     gap_periods,
     parse_source_stats,
 )
@@ -37,8 +36,6 @@ from recorder.live._skin import (
 )
 
 __all__ = [
-    "COUNTER_RELATIVE",
-    "COUNTER_TOLERANCE_NS",
     "FIELD_TYPES",
     "FORCE_WINDOW_NS",
     "SKIN_ENTRY_POINTS",
@@ -57,6 +54,7 @@ __all__ = [
     "SourceStats",
     "UdpSkin",
     "Verdict",
+    "counter_skipped",
     "gap_periods",
     "open_skin",
     "parse_layout",

@@ -38,6 +38,7 @@ __all__ = [
     "SourceCounter",
     "SourceStats",
     "Verdict",
+    "counter_skipped",
     "encode_source_stats",
     "gap_periods",
     "parse_source_stats",
@@ -100,6 +101,28 @@ def gap_periods(stamps_ns: Iterable[int], period_ns: int) -> float:
         and float(np.abs(ratio - whole).max()) <= GRID_TOLERANCE
     )
     return GRID_GAP_PERIODS if on_grid else GAP_PERIODS
+
+
+def counter_skipped(
+    a: tuple[int, int], b: tuple[int, int], *, modulo: int = 0, period_ns: int = 0
+) -> int | None:
+    """Return how many numbers a counter skipped from sample ``a`` to ``b`` (each ``(number, ns)``).
+
+    ``-1``: ``b`` repeats ``a``'s number. None: the counter went back (beyond half its
+    ``modulo``, when it wraps), or advanced unlike the time that passed (by more than
+    :data:`COUNTER_TOLERANCE_NS` plus :data:`COUNTER_RELATIVE` of it, when ``period_ns`` is
+    known): a reset, where nothing is counted lost.
+    """
+    step = b[0] - a[0]
+    if modulo:
+        step %= modulo
+    if step < 0 or (modulo and 2 * step > modulo):
+        return None
+    if step and period_ns > 0:
+        passed = b[1] - a[1]
+        if abs(step * period_ns - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed):
+            return None
+    return step - 1
 
 
 class Verdict(enum.Enum):
@@ -357,17 +380,10 @@ class SourceCounter:
 
     def _lost_between(self, a: tuple[int, int], b_number: int, b_sensor_ns: int) -> int:
         """Samples lost between sample ``a`` (raw or unwrapped number, sensor ns) and ``b``."""
-        step = b_number - a[0]
-        if self._modulo:
-            step %= self._modulo
-        if step < 1 or (self._modulo and 2 * step > self._modulo):  # back, or wrapped back
-            return 0
-        if self._period_ns > 0:
-            passed = b_sensor_ns - a[1]
-            moved = step * self._period_ns
-            if abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed):
-                return 0
-        return step - 1
+        skipped = counter_skipped(
+            a, (b_number, b_sensor_ns), modulo=self._modulo, period_ns=self._period_ns
+        )
+        return max(skipped or 0, 0)
 
     def _gap(self, step_ns: int) -> None:
         """Count a pause of a source without a sequence (then learn whether it keeps a grid).
