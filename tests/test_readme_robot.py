@@ -145,7 +145,8 @@ def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, s
         done = list(out.rglob("*.mcap")) if out.exists() else []
         # a part being written (a finished one keeps its .part name for a moment as it is
         # published: both names exist between the link and the unlink)
-        writing = [p for p in out.rglob("*.mcap.part") if not p.with_suffix("").exists()]
+        parts = out.rglob("*.mcap.part")  # <trial>.<pid>-<token>.mcap.part of <trial>.mcap
+        writing = [p for p in parts if not p.with_name(f"{p.name.split('.')[0]}.mcap").exists()]
         if done and writing:
             time.sleep(0.2)  # inside the action
             run.send_signal(signal.SIGINT)

@@ -239,7 +239,8 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
     while number is not None and time.monotonic() < deadline and run.poll() is None:
         # a part being written: not the one a finished recording leaves for a moment while
         # it is published (both names exist between the link and the unlink)
-        writing = [p for p in out.rglob("*.mcap.part") if not p.with_suffix("").exists()]
+        parts = out.rglob("*.mcap.part")  # <trial>.<pid>-<token>.mcap.part of <trial>.mcap
+        writing = [p for p in parts if not p.with_name(f"{p.name.split('.')[0]}.mcap").exists()]
         if list(out.rglob("???.mcap")) and writing:
             time.sleep(0.2)
             run.send_signal(number)
