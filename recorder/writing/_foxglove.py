@@ -65,6 +65,9 @@ class _Served:
         self._queue: queue.Queue[object] = queue.Queue(maxsize=capacity)
         self._thread = threading.Thread(target=self._run, name="atikt-foxglove", daemon=True)
         self._server: Any = None
+        #: The server's own channels: a context of its own, so that a process serving twice
+        #: (or a test after another) never advertises another server's channels.
+        self._context: Any = None
         self._channels: dict[str, Any] = {}
         self.dropped = 0
         self.failure = ""
@@ -88,9 +91,14 @@ class _Served:
             def on_subscribe(self, client: Any, channel: Any) -> None:  # noqa: ANN401, ARG002
                 view.subscribed.add(str(channel.topic))
 
+        self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
-                name="atikt", host=self.host, port=self.port, server_listener=_Listener()
+                name="atikt",
+                host=self.host,
+                port=self.port,
+                server_listener=_Listener(),
+                context=self._context,
             )
         except Exception as err:  # the SDK's own error types
             msg = f"--foxglove {self.host}:{self.port}: cannot listen ({err}); choose another port"
@@ -115,6 +123,9 @@ class _Served:
         if self._server is not None:
             with contextlib.suppress(Exception):
                 self._server.stop()
+        for channel in self._channels.values():
+            with contextlib.suppress(Exception):
+                channel.close()
 
     @property
     def url(self) -> str:
@@ -144,7 +155,9 @@ class _Served:
             import foxglove  # noqa: PLC0415 (imported in __enter__)
 
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
-            channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr")
+            channel = foxglove.Channel(
+                topic, schema=schema, message_encoding="cdr", context=self._context
+            )
             self._channels[topic] = channel
         return channel
 

@@ -130,9 +130,10 @@ def serve_recordings(
         def on_subscribe(self, client: Any, channel: Any) -> None:  # noqa: ANN401, ARG002
             subscribed.set()
 
+    context = foxglove.Context()  # this server's channels only, however many ran before
     try:
         server = foxglove.start_server(
-            name="atikt", host=host, port=port, server_listener=_Subscribed()
+            name="atikt", host=host, port=port, server_listener=_Subscribed(), context=context
         )
     except Exception as err:  # the SDK's own error types
         msg = f"--foxglove {host}:{port}: cannot listen ({err}); choose another port"
@@ -141,6 +142,7 @@ def serve_recordings(
     handled = (signal.SIGINT, signal.SIGTERM)
     on_main = threading.current_thread() is threading.main_thread()
     previous = {n: signal.signal(n, lambda *_: stop.set()) for n in handled} if on_main else {}
+    channels: dict[str, Any] = {}
     try:
         channels = {
             t.topic: foxglove.Channel(
@@ -149,6 +151,7 @@ def serve_recordings(
                     name=t.schema_name, encoding=t.schema_encoding, data=t.schema
                 ),
                 message_encoding=t.message_encoding,
+                context=context,
             )
             for t in topics.values()
         }
@@ -169,6 +172,8 @@ def serve_recordings(
         for number, handler in previous.items():
             signal.signal(number, handler)
         server.stop()
+        for channel in channels.values():
+            channel.close()
 
 
 def _play(

@@ -90,3 +90,24 @@ def test_the_shipped_layout_names_only_the_contracts_topics() -> None:
     topics = set(re.findall(r'"(/[a-z_]+/[a-z_]+)', text))
     assert topics
     assert topics <= {channel.topic for channel in CHANNELS}
+
+
+def test_a_server_advertises_its_own_channels_only() -> None:
+    # a process that served before (a test before another, a second view) never shows a
+    # client the channels of an earlier server: each server has a context of its own
+    from recorder.writing._foxglove import TopicView  # noqa: PLC0415
+
+    text = "std_msgs/Header header\nfloat32 data\n"
+    with TopicView("127.0.0.1:0") as first:
+        first.declare("/earlier", "lab_msgs/msg/Scalar", text)
+        time.sleep(0.2)
+    with TopicView("127.0.0.1:0") as second:
+        second.declare("/now", "lab_msgs/msg/Scalar", text)
+        client = _Client(second.url)
+        deadline = time.monotonic() + 10
+        while "/now" not in second.subscribed:
+            assert time.monotonic() < deadline, "the client subscribed to nothing"
+            time.sleep(0.05)
+        client.close()
+    assert set(client.schemas) == {"/now"}
+    assert first.subscribed == set()
