@@ -201,7 +201,8 @@ def minimize_box(
         if not scale_first and -0.5 * slope < tol:  # the model's predicted improvement
             converged = True
             break
-        step = _line_search(fun, x, f, g, _capped(d, max_step), lo=lo, hi=hi)
+        floor = 0.0 if scale_first else tol
+        step = _line_search(fun, x, f, g, _capped(d, max_step), lo=lo, hi=hi, floor=floor)
         n_eval += step.n_evaluations
         if step.x is None:
             break
@@ -234,17 +235,24 @@ def _line_search(
     *,
     lo: FloatArray,
     hi: FloatArray,
+    floor: float = 0.0,
 ) -> _Step:
     """Backtrack along the projected path ``clip(x + t d)`` from ``t = 1`` (Armijo condition).
 
     A rejected trial shrinks ``t`` to the minimiser of the quadratic through ``f``, the slope
     and the trial value, kept within ``[t/10, t/2]``; a failed evaluation shrinks it tenfold.
+    A trial whose first-order gain ``-g'(trial - x)`` is below ``floor`` (the search's ``tol``)
+    is not evaluated: the search would stop after such a step anyway (it gained less than
+    ``tol``), and below the objective's own resolution (the Laplace mode's, up to about 1e-4
+    nats) further backtracking only compares noise.
     """
     t, k, last = 1.0, 0, None
     for _ in range(_MAX_BACKTRACKS):
         trial = np.minimum(np.maximum(x + t * d, lo), hi)
         decrease = float(g @ (trial - x))
-        if decrease >= 0.0:  # the projection left no descent (all movement clipped away)
+        if decrease >= 0.0 or (k > 0 and -decrease < floor):
+            # the projection left no descent (all movement clipped away), or what is left
+            # could gain less than the search's tolerance after a rejected trial
             return _Step(None, f, g, k)
         if last is not None and np.array_equal(trial, last):  # still clipped to the same point
             t *= 0.5

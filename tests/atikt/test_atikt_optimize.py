@@ -182,3 +182,25 @@ def test_a_full_step_is_at_most_max_step() -> None:
     box = np.array([[-500.0, 500.0]] * 2)
     minimize_box(fun, [0.0, 0.0], box, inverse_hessian=100.0 * np.eye(2), max_step=2.0)
     assert np.abs(visited[1] - visited[0]).max() == pytest.approx(2.0)
+
+
+def test_backtracking_stops_where_a_step_could_gain_less_than_tol() -> None:
+    # the start sits in a dip of the objective's noise (as a Laplace mode's inexact search
+    # leaves one): no trial along the direction is lower; backtracking below what tol could
+    # still gain is futile and stops, at the start
+    start = np.zeros(2)
+    inner = quadratic(np.eye(2), np.array([4e-4, 3e-4]))  # predicted improvement 1.25e-7
+    counted: list[np.ndarray] = []
+
+    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+        counted.append(x.copy())
+        value, grad = inner(x)
+        return value - (1e-6 if np.array_equal(x, start) else 0.0), grad
+
+    result = minimize_box(fun, start, BOX[:2], inverse_hessian=np.eye(2), tol=1e-8)
+    assert np.array_equal(result.x, start)
+    assert 2 <= len(counted) <= 5  # the start, then trials down to a gain of 1e-8
+    # the same search with tol = 0 backtracks to the limit before giving up
+    counted.clear()
+    minimize_box(fun, start, BOX[:2], inverse_hessian=np.eye(2), tol=0.0)
+    assert len(counted) == 21
