@@ -18,6 +18,7 @@ import enum
 import functools
 import hashlib
 import io
+import itertools
 import os
 import re
 import struct
@@ -34,6 +35,7 @@ import polars as pl
 import tomli_w
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.writer import MCAP0_MAGIC
 from threadpoolctl import ThreadpoolController
 
 from recorder._claim import claim_dataset
@@ -201,7 +203,13 @@ def _blas() -> ThreadpoolController:
 
 
 def run_task(
-    task: RecordingTask, root: Path, factory: RigFactory, seed: int, parent: int | None = None
+    task: RecordingTask,
+    root: Path,
+    factory: RigFactory,
+    seed: int,
+    parent: int | None = None,
+    *,
+    durable: bool = True,
 ) -> TaskResult:
     """Record one task with a fresh rig (one BLAS thread: results independent of workers).
 
@@ -211,6 +219,7 @@ def run_task(
         factory: Makes the rig.
         seed: Dataset seed.
         parent: Process id of the dataset run; a worker exits when it dies.
+        durable: Sync the file before it counts as written (see :func:`generate_dataset`).
 
     Returns:
         WRITTEN; SKIPPED when the file existed (possibly written meanwhile by another run);
@@ -222,7 +231,9 @@ def run_task(
     path = task.path(root)
     try:
         with _blas().limit(limits=1), factory(seed) as rig:
-            written = record_action(rig, task.obj, task.action, task.trial, path, seed=seed)
+            written = record_action(
+                rig, task.obj, task.action, task.trial, path, seed=seed, durable=durable
+            )
     except OutputExistsError:
         return TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size)
     except RecorderError as err:
@@ -281,6 +292,7 @@ def generate_dataset(
     seed: int,
     workers: int | None = None,
     on_result: Callable[[TaskResult], None] | None = None,
+    durable: bool = True,
 ) -> DatasetReport:
     """Record ``tasks`` under ``root`` in parallel, skipping existing files, then index.
 
@@ -293,6 +305,12 @@ def generate_dataset(
             :func:`recorder.is_exclusive`) records one action at a time in this process,
             whatever ``workers`` says.
         on_result: Called in the parent for every finished task (progress display).
+        durable: Sync each recording to the disk before it counts as written (the default).
+            False for a dataset that can be recorded again from its seed (the default
+            simulated dataset in the cache): the recordings are synced all at once before
+            the index is written (a sync per file is most of a small recording's time), and
+            a run first sets aside any recording cut short, which a power loss during an
+            earlier run can leave under its final name.
 
     Returns:
         What was written and skipped, and the index.
@@ -306,6 +324,8 @@ def generate_dataset(
     check_configuration(root, seed, factory)
     claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
     set_aside = set_aside_stale_parts(root)
+    if not durable:
+        set_aside += set_aside_cut_short(root)
     before = set(incomplete_files(root))
     n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
     notify = on_result or (lambda _result: None)
@@ -324,7 +344,7 @@ def generate_dataset(
     with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
         # tasks are handed out lazily: after a failure, none starts
         results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
-            joblib.delayed(run_task)(task, root, factory, seed, parent)
+            joblib.delayed(run_task)(task, root, factory, seed, parent, durable=durable)
             for task in pending
             if not failed
         )
@@ -340,6 +360,8 @@ def generate_dataset(
     if failed:
         more = f" ({len(failed) - 1} more recordings failed)" if len(failed) > 1 else ""
         raise RecorderError(failed[0].error + more)
+    if not durable and hasattr(os, "sync"):
+        os.sync()  # every recording on the disk before the index says the dataset is whole
     declare_objects(root, [task.obj for task in tasks])
     index = write_index(root)
     frame = pl.read_parquet(index)
@@ -621,6 +643,55 @@ def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
             continue
         except OSError as err:
             msg = f"{part}: cannot move it to {target.parent} ({err.strerror}); move it by hand"
+            raise RecorderError(msg) from err
+        moved.append(target)
+    return tuple(moved)
+
+
+def _cut_short(path: Path) -> bool:
+    """Return whether a recording lacks the MCAP magic that ends every finished file."""
+    try:
+        with path.open("rb") as stream:
+            size = stream.seek(0, os.SEEK_END)
+            if size < 2 * len(MCAP0_MAGIC):
+                return True
+            stream.seek(size - len(MCAP0_MAGIC))
+            return stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC
+    except OSError:
+        return False  # unreadable: the index names it
+
+
+def set_aside_cut_short(root: Path) -> tuple[Path, ...]:
+    """Move recordings cut short (no closing MCAP magic) to ``<root>/.incomplete/`` (kept).
+
+    Only a dataset written without a sync per file (``generate_dataset(durable=False)``)
+    can hold one: a power loss may leave a finished name whose data never reached the disk.
+    The trial is recorded again.
+
+    Returns:
+        The new paths of the files set aside.
+
+    Raises:
+        RecorderError: A file cannot be moved.
+    """
+    root = Path(root)
+    moved = []
+    for path in recordings(root):
+        if not _cut_short(path):
+            continue
+        base = root / SET_ASIDE_DIR / path.relative_to(root)
+        try:
+            base.parent.mkdir(parents=True, exist_ok=True)
+            for attempt in itertools.count():  # never over an earlier file set aside
+                target = base.with_name(f"{base.name}.{attempt}") if attempt else base
+                try:
+                    os.link(path, target)
+                except FileExistsError:
+                    continue
+                break
+            path.unlink()
+        except OSError as err:
+            msg = f"{path}: cannot move it to {base.parent} ({err.strerror}); move it by hand"
             raise RecorderError(msg) from err
         moved.append(target)
     return tuple(moved)

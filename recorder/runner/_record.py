@@ -52,6 +52,7 @@ def record_action(
     *,
     seed: int,
     viewers: Sequence[Viewer] = (),
+    durable: bool = True,
 ) -> WrittenRecording:
     """Perform ``action`` on ``obj`` with a connected ``rig`` and record it to ``path``.
 
@@ -64,6 +65,8 @@ def record_action(
         seed: Seed the rig was created with (for the metadata record).
         viewers: Live views: each gets every item as it arrives and the file once written;
             none may block (``recorder.runner.Viewer``).
+        durable: Sync the file to the disk before it counts as written (see
+            ``RecordingWriter``; False only for a dataset that can be recorded again).
 
     Returns:
         What was written.
@@ -80,7 +83,7 @@ def record_action(
     for viewer in viewers:
         viewer.begin(info)
     with deferred_interrupts() as flag:
-        with RecordingWriter(path, info) as writer:
+        with RecordingWriter(path, info, durable=durable) as writer:
             # an arm's loop must never wait for the disk: its writer has a thread of its own
             sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
             with sink:

@@ -561,6 +561,7 @@ class RecordingWriter:
         flush_interval_ns: int = FLUSH_INTERVAL_NS,
         chunk_size: int = 4 * 1024 * 1024,
         compression: CompressionType = CompressionType.ZSTD,
+        durable: bool = True,
     ) -> None:
         """Prepare to write ``path``; nothing is created before ``__enter__``.
 
@@ -570,12 +571,17 @@ class RecordingWriter:
             flush_interval_ns: Flush at least this often in log time, ns.
             chunk_size: Largest uncompressed chunk, bytes (flushes usually end chunks first).
             compression: Chunk compression (zstd; NONE for debugging).
+            durable: Sync the file and its name to the disk before it gets its final name
+                (the default: a recording counts as written once it is on the disk). False
+                only for files that can be made again and whose writer syncs them later
+                (a dataset recorded from a seed, synced once before its index).
         """
         self.path = Path(path)
         self.info = info
         self._flush_interval_ns = flush_interval_ns
         self._chunk_size = chunk_size
         self._compression = compression
+        self._durable = durable
         self._encoder = _Encoder(info)
         self._temporary: Path | None = None
         self._stream: IO[bytes] | None = None
@@ -743,10 +749,12 @@ class RecordingWriter:
                 self._writer.add_metadata(INCOMPLETE_RECORD, record)
             self._writer.finish()
             self._stream.flush()
-            os.fsync(self._stream.fileno())
+            if self._durable:
+                os.fsync(self._stream.fileno())
             self._stream.close()
             final = self._publish(self._temporary)
-            _sync_directory(self.path.parent)
+            if self._durable:
+                _sync_directory(self.path.parent)
         except BaseException as err:
             if self.written and not isinstance(err, OutputExistsError):
                 kept = self._keep_part(err)

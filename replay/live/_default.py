@@ -64,7 +64,13 @@ def ensure_default_dataset(
 
     try:
         report = generate_dataset(
-            tasks, root, rig_factory("sim"), seed=seed, workers=workers, on_result=progress
+            tasks,
+            root,
+            rig_factory("sim"),
+            seed=seed,
+            workers=workers,
+            on_result=progress,
+            durable=False,  # a cache recorded again from its seed: synced once, at the end
         )
     except RecorderError as err:
         msg = f"{root}: recording the default dataset failed ({err})"

@@ -110,6 +110,41 @@ def test_rerun_skips_existing_recordings_and_never_overwrites(
     assert (report.written, report.skipped) == (1, 2)
 
 
+def test_a_dataset_made_again_from_its_seed_syncs_once_and_sets_aside_what_was_cut_short(
+    tmp_path: Path, objects: Objects, actions: Actions, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # durable=False (the default dataset in the cache): no sync per recording, one for all
+    # before the index; the same bytes; a recording a power loss cut short is kept aside
+    tasks = plan_dataset(objects, actions, action_ids=["P1", "S2"], trials=2)
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    durable = generate_dataset(tasks, tmp_path / "durable", FakeRig, seed=4, workers=1)
+    per_recording = len(synced)
+    synced.clear()
+    whole: list[bool] = []
+    monkeypatch.setattr(os, "sync", lambda: whole.append(True))
+    cached = generate_dataset(tasks, tmp_path / "cached", FakeRig, seed=4, workers=1, durable=False)
+    assert per_recording >= 2 * len(tasks) > len(synced)  # the index and claim still sync
+    assert whole == [True]
+    assert _files(tmp_path / "durable") == _files(tmp_path / "cached")
+    assert durable.written == cached.written == len(tasks)
+    cut = tasks[1].path(tmp_path / "cached")
+    data = cut.read_bytes()
+    aside_dir = tmp_path / "cached" / ".incomplete" / cut.relative_to(tmp_path / "cached").parent
+    for attempt in range(2):  # cut short twice: the first one set aside stays as it was
+        cut.write_bytes(data[: len(data) // 2 + attempt])
+        again = generate_dataset(
+            tasks, tmp_path / "cached", FakeRig, seed=4, workers=1, durable=False
+        )
+        assert (again.written, again.skipped) == (1, len(tasks) - 1)
+        assert cut.read_bytes() == data  # recorded again, the same bytes
+    kept = sorted(aside_dir.iterdir())
+    assert [p.name for p in kept] == [cut.name, f"{cut.name}.1"]
+    assert [p.stat().st_size for p in kept] == [len(data) // 2, len(data) // 2 + 1]
+    assert again.set_aside == (kept[1],)
+
+
 def test_index_has_one_row_per_recording_and_is_rebuilt_from_files(
     tmp_path: Path, objects: Objects, actions: Actions
 ) -> None:
