@@ -118,7 +118,12 @@ def test_a_dataset_made_again_from_its_seed_syncs_once_and_sets_aside_what_was_c
     tasks = plan_dataset(objects, actions, action_ids=["P1", "S2"], trials=2)
     synced: list[int] = []
     real_fsync = os.fsync
-    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+
+    def fsync(fd: int) -> None:
+        synced.append(fd)
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
     durable = generate_dataset(tasks, tmp_path / "durable", FakeRig, seed=4, workers=1)
     per_recording = len(synced)
     synced.clear()
