@@ -215,6 +215,9 @@ def test_any_exception_stops_the_arm_first(tmp_path: Path) -> None:
 
 def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> None:
     rig = fake_rig()
+    # time scale 0.1: a lease of 6.25 cycles, so that the renewals' cadence is what is tested,
+    # not whether a loaded machine schedules the runner within 3 cycles (0.05: 25 ms)
+    rig.options = dataclasses.replace(rig.options, time_scale=0.1)
     arm: FakeArm = rig.arm  # type: ignore[assignment]
     with rig:
         written = record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
