@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import errno
 import functools
 import hashlib
 import io
@@ -635,17 +636,51 @@ def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
     for part in incomplete_files(root):
         if _alive(_writer_pid(part)):
             continue
-        target = root / SET_ASIDE_DIR / part.relative_to(root)
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            part.rename(target)
-        except FileNotFoundError:  # its recorder finished or removed it meanwhile
-            continue
-        except OSError as err:
-            msg = f"{part}: cannot move it to {target.parent} ({err.strerror}); move it by hand"
-            raise RecorderError(msg) from err
-        moved.append(target)
+        target = _move_aside(root, part)
+        if target is not None:  # None: its recorder finished or removed it meanwhile
+            moved.append(target)
     return tuple(moved)
+
+
+#: errno of a file system that has no hard links.
+_NO_LINKS = frozenset({errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK})
+
+
+def _move_aside(root: Path, path: Path) -> Path | None:
+    """Move ``path`` to the same place under ``<root>/.incomplete/``, never over a file there.
+
+    A name taken by an earlier file set aside gets ``.1``, ``.2``, ... appended.
+
+    Returns:
+        The new path; None if ``path`` was gone.
+
+    Raises:
+        RecorderError: The file cannot be moved.
+    """
+    base = root / SET_ASIDE_DIR / path.relative_to(root)
+    try:
+        base.parent.mkdir(parents=True, exist_ok=True)
+        for attempt in itertools.count():
+            target = base.with_name(f"{base.name}.{attempt}") if attempt else base
+            try:
+                os.link(path, target)
+            except FileExistsError:
+                continue
+            except OSError as err:  # a file system without hard links: a rename to a free name
+                if err.errno not in _NO_LINKS:
+                    raise
+                if target.exists():
+                    continue
+                path.rename(target)
+                return target
+            path.unlink(missing_ok=True)
+            return target
+    except FileNotFoundError:
+        return None
+    except OSError as err:
+        msg = f"{path}: cannot move it to {base.parent} ({err.strerror}); move it by hand"
+        raise RecorderError(msg) from err
+    return None  # pragma: no cover (the loop returns)
 
 
 def _cut_short(path: Path) -> bool:
@@ -679,21 +714,9 @@ def set_aside_cut_short(root: Path) -> tuple[Path, ...]:
     for path in recordings(root):
         if not _cut_short(path):
             continue
-        base = root / SET_ASIDE_DIR / path.relative_to(root)
-        try:
-            base.parent.mkdir(parents=True, exist_ok=True)
-            for attempt in itertools.count():  # never over an earlier file set aside
-                target = base.with_name(f"{base.name}.{attempt}") if attempt else base
-                try:
-                    os.link(path, target)
-                except FileExistsError:
-                    continue
-                break
-            path.unlink()
-        except OSError as err:
-            msg = f"{path}: cannot move it to {base.parent} ({err.strerror}); move it by hand"
-            raise RecorderError(msg) from err
-        moved.append(target)
+        target = _move_aside(root, path)
+        if target is not None:
+            moved.append(target)
     return tuple(moved)
 
 

@@ -1,4 +1,5 @@
 import contextlib
+import errno
 import os
 import signal
 import subprocess
@@ -25,6 +26,7 @@ from recorder._dataset import (
     plan_dataset,
     recording_path,
     rig_factory,
+    set_aside_stale_parts,
     write_index,
 )
 
@@ -288,3 +290,25 @@ def test_workers_exit_when_the_dataset_run_is_killed(tmp_path: Path) -> None:
         for pid in [int(p.name) for p in pids.iterdir()]:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("links", ["hard-links", "no-hard-links"])
+def test_stale_parts_are_set_aside_never_over_one_set_aside_before(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, links: str
+) -> None:
+    if links == "no-hard-links":  # a file system without hard links (some network shares): a rename
+
+        def no_link(_source: object, _target: object) -> None:
+            raise OSError(errno.EPERM, "Operation not permitted")
+
+        monkeypatch.setattr(os, "link", no_link)
+    dead = 2**22 + 7  # above the default pid_max: no such process
+    part = tmp_path / "wood" / "P1" / f"001.{dead}-ab12.mcap.part"
+    part.parent.mkdir(parents=True)
+    moved: list[Path] = []
+    for content in (b"first", b"second"):
+        part.write_bytes(content)
+        moved += set_aside_stale_parts(tmp_path)
+        assert not part.exists()
+    assert [p.name for p in moved] == [part.name, f"{part.name}.1"]
+    assert [p.read_bytes() for p in moved] == [b"first", b"second"]
