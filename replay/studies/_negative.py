@@ -30,7 +30,12 @@ def negative_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTas
 
 
 def similarity_tasks(
-    frame: pl.DataFrame, config: StudyConfig, study: str, *, nearest: bool
+    frame: pl.DataFrame,
+    config: StudyConfig,
+    study: str,
+    *,
+    nearest: bool,
+    splits_of: str | None = None,
 ) -> list[TransferTask]:
     """Return runs of one prior group chosen by similarity to the new objects.
 
@@ -39,6 +44,9 @@ def similarity_tasks(
         config: Study options; ``group_size`` priors, ``groups * trials`` runs.
         study: Name of the study (roles check and seeds).
         nearest: The most similar old objects if true, else the least similar.
+        splits_of: The study whose seeds (hence splits of the new objects) the runs take;
+            ``study`` when None. The most and the least similar groups run on the same
+            splits with one name, so their difference is paired run by run.
     """
     actions = roles(config, study)
     new, old = config.new, config.old
@@ -62,7 +70,7 @@ def similarity_tasks(
             priors=priors,
             actions=(actions,),
             trials=1,
-            seed=derive_seed(config.seed, study, number),
+            seed=derive_seed(config.seed, splits_of or study, number),
             labels={"group": 0, "repetition": number},
         )
         for number in range(runs)

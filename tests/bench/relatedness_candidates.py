@@ -16,12 +16,22 @@ with a paired 95 % bootstrap interval over prior groups, and how often a step's 
 choice for the explored object is its counterpart (when the counterpart is among the priors),
 any other old object, or nothing.
 
+``related`` runs on the ``negative`` study's splits (the same seeds): with both, the script
+also prints related minus dissimilar, paired run by run, and rho (the transfer weight a step
+gave the explored object's classifier; 0: no prior admitted) by the number of observations
+of that object and action after the step, for each group. ``--recordings DIR --new a,b,..``
+runs the same on a lab's dataset (its features extracted or updated first); objects without
+a catalogued counterpart are left out of the choice rates. Where relatedness is known rather
+than estimated, ``--related-priors a,b --dissimilar-priors c,d`` name the two groups and
+``--counterparts new=old,..`` each new object's relative (e.g. the iCub grasps: the same
+bottle or can at another fill level).
+
 Run: ``python tests/bench/relatedness_candidates.py --modes prediction density density+3
 [--trials 5] [--groups 10] [--workers 2]`` (``+3``: at most 3 sources at once;
 ``@name=value``: a learner option, e.g. ``density@eps_density=0.05``; ``@hyper_sd=none``:
 maximum likelihood learners, as in the thesis, instead of the tool's default hyperprior).
-``--quick``: the first mode, one group and trial of budget 2 on the committed recordings (a
-check that the script runs).
+``--quick``: the first mode, the two similarity groups, one run each of budget 2 on the
+committed recordings (a check that the script runs).
 """
 
 from __future__ import annotations
@@ -43,13 +53,15 @@ import polars as pl
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's packages
 
+from replay.learning._cachedir import feature_cache_path
 from replay.learning._datasets import dataset_roles
+from replay.learning._features import build_features
 from replay.learning._parallel import run_tasks
 from replay.learning._session import DEFAULT_LEARNER, learner_options
 from replay.studies._negative import similarity_tasks
 from replay.studies._priors import priors_tasks
-from replay.studies._running import StudyConfig, dataset_actions
-from replay.studies._transfer import run_transfer_task, transfer_tasks
+from replay.studies._running import StudyConfig, dataset_actions, derive_seed
+from replay.studies._transfer import run_transfer_task, transfer_task, transfer_tasks
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDY_NAMES = ("priors", "negative", "related", "single-action")
@@ -125,7 +137,9 @@ def choices(frame: pl.DataFrame, related: dict[str, str]) -> dict[str, float]:
     A step row names the explored new object (``object``), the old object transferred to its
     classifier (``prior``, empty for none) and the run's prior objects (``priors``).
     """
-    steps = frame.filter((pl.col("method") == "ATIKT") & (pl.col("step") >= 1))
+    steps = frame.filter(
+        (pl.col("method") == "ATIKT") & (pl.col("step") >= 1) & pl.col("object").is_in(related)
+    )
     counts = {"counterpart": 0, "other": 0, "none": 0, "absent_other": 0, "absent_none": 0}
     for row in steps.select("object", "prior", "priors").iter_rows(named=True):
         priors = row["priors"].split(",")
@@ -163,6 +177,58 @@ def report(name: str, frame: pl.DataFrame, by: list[str], budget: int, rng: Any)
         print(f"  {name} {label}({part.height} groups): " + ", ".join(cells))
 
 
+def observations(frame: pl.DataFrame) -> pl.DataFrame:
+    """ATIKT step rows with ``n``: the explored object's observations of the action after it.
+
+    Every new object starts with one observation per action (the initial round); each step
+    adds one to the object and action it explored.
+    """
+    run = [c for c in ("group", "trial", "repetition") if c in frame.columns]
+    steps = frame.filter((pl.col("method") == "ATIKT") & (pl.col("step") >= 1)).sort(*run, "step")
+    return steps.with_columns(
+        (pl.int_range(pl.len()).over([*run, "object", "action"]) + 2).alias("n")
+    )
+
+
+def rho_table(frames: dict[str, pl.DataFrame], counts: tuple[int, ...] = (2, 3, 5)) -> None:
+    """Print rho by the number of observations after the step, per prior group."""
+    print("rho of the explored object's classifier (0: no prior admitted), by observations n:")
+    for name, frame in frames.items():
+        rows = observations(frame)
+        for n in counts:
+            values = rows.filter(pl.col("n") == n)["rho"].to_numpy()
+            if values.size == 0:
+                continue
+            admitted = values[values > 0]
+            spread = (
+                "median {:.2f} [{:.2f}, {:.2f}] (quartiles of admitted)".format(
+                    *np.percentile(admitted, [50, 25, 75])
+                )
+                if admitted.size
+                else "none admitted"
+            )
+            print(
+                f"  {name:8s} n = {n}: {values.size:4d} steps, admitted "
+                f"{admitted.size / values.size:5.1%}, {spread}"
+            )
+
+
+def paired_related(frames: dict[str, pl.DataFrame], budget: int, rng: Any) -> None:
+    """Print related minus dissimilar (ATIKT on the same splits), paired by run."""
+    related, negative = frames["related"], frames["negative"]
+    base = [f.filter(pl.col("method") == "baseline").sort("group", "step") for f in frames.values()]
+    same = base[0]["accuracy"].equals(base[1]["accuracy"])
+    print(f"related minus dissimilar, ATIKT, paired by run (baselines identical: {same})")
+    both = pl.concat(
+        [
+            frame.filter(pl.col("method") == "ATIKT").with_columns(pl.lit(name).alias("method"))
+            for frame, name in ((negative, "baseline"), (related, "ATIKT"))
+        ],
+        how="diagonal_relaxed",
+    )
+    report("related-negative", both, [], budget, rng)
+
+
 def compare(directory: Path, first: str, second: str, budget: int) -> None:
     """Print ``second`` minus ``first`` (ATIKT runs, same splits and seeds), paired by run."""
     rng = np.random.default_rng(0)
@@ -183,8 +249,8 @@ def compare(directory: Path, first: str, second: str, budget: int) -> None:
         report(study, both, BY.get(study, []), budget, rng)
 
 
-def main() -> None:
-    """Run the studies' tasks for every mode and print the tables."""
+def arguments() -> argparse.Namespace:
+    """Parse the command line (``--quick`` filled in)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modes", nargs="+", default=["prediction", "density"])
     parser.add_argument("--features", type=Path, default=SIM)
@@ -194,6 +260,15 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--studies", nargs="+", choices=STUDY_NAMES, default=["priors", "negative"])
     parser.add_argument("--out", type=Path, default=None, help="directory for the rows")
+    parser.add_argument(
+        "--recordings", type=Path, default=None, help="a dataset instead of --features"
+    )
+    parser.add_argument("--new", default=None, help="comma-separated new objects (--recordings)")
+    parser.add_argument("--related-priors", default=None, help="the related group, a,b,..")
+    parser.add_argument("--dissimilar-priors", default=None, help="the dissimilar group, a,b,..")
+    parser.add_argument(
+        "--counterparts", default=None, help="each new object's relative: new=old,.."
+    )
     parser.add_argument(
         "--compare", nargs=2, metavar=("FIRST", "SECOND"), help="modes whose rows --out holds"
     )
@@ -206,51 +281,110 @@ def main() -> None:
 
         args.features, args.groups, args.trials, args.budget = quick_features(), 1, 1, 2
         args.workers, args.modes = 1, args.modes[:1]
+        args.studies = ["negative", "related"]  # the paired comparison and rho's table too
+    return args
+
+
+def study_tasks(
+    study: str, frame: pl.DataFrame, config: StudyConfig, named: dict[str, tuple[str, ...]]
+) -> list[Any]:
+    """Return a study's tasks; the similarity groups' runs on the ``negative`` study's splits.
+
+    ``named``: the ``related`` and ``negative`` groups where they are given, not estimated.
+    """
+    if study == "priors":
+        return priors_tasks(frame, config)
+    if study == "single-action":  # the study's groups, one action at a time
+        return transfer_tasks(frame, config, single_action=True)
+    if study in named:  # the same seeds as the similarity groups: paired runs
+        return [
+            transfer_task(
+                frame,
+                config,
+                priors=named[study],
+                actions=(config.actions,),
+                trials=1,
+                seed=derive_seed(config.seed, "negative", number),
+                labels={"group": number, "repetition": number},
+            )
+            for number in range(config.groups * config.trials)
+        ]
+    nearest = study == "related"  # one group: runs are the resampling unit
+    tasks = similarity_tasks(frame, config, study, nearest=nearest, splits_of="negative")
+    return [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
+
+
+def run_mode(name: str, frame: pl.DataFrame, config: StudyConfig, args: argparse.Namespace) -> None:
+    """Run every study of ``--studies`` for one mode and print its tables."""
+    mode, options = parse(name)
+    config = replace(config, learner=DEFAULT_LEARNER.replace(budget=args.budget, transfer=mode))
+    rng = np.random.default_rng(0)
+    related = (
+        dict(pair.split("=") for pair in args.counterparts.split(","))
+        if args.counterparts
+        else counterparts()
+    )
+    named = {
+        study: tuple(group.split(","))
+        for study, group in (("related", args.related_priors), ("negative", args.dissimilar_priors))
+        if group
+    }
+    print(f"\n## transfer={mode}, {options}")
+    frames: dict[str, pl.DataFrame] = {}
+    for study in args.studies:
+        tasks = study_tasks(study, frame, config, named)
+        jobs = [(t, options) for t in tasks]
+        rows = pl.concat(run_tasks(run, jobs, workers=args.workers), how="diagonal_relaxed")
+        frames[study] = rows
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            rows.write_parquet(args.out / f"{study}-{name}.parquet")
+        if study not in {"priors", "single-action"}:
+            print(f"{study}: priors {', '.join(tasks[0].priors)}")
+        print(f"{study}: gain, points [95 % bootstrap over groups]")
+        report(study, rows, BY.get(study, []), args.budget, rng)
+        base = rows.filter(pl.col("method") == "baseline")
+        first = float(base.filter(pl.col("step") == 0)["accuracy"].mean())  # type: ignore[arg-type]
+        steps = pl.col("step").is_between(1, args.budget)
+        later = float(base.filter(steps)["accuracy"].mean())  # type: ignore[arg-type]
+        print(f"  baseline accuracy: step 0 {first:.1%}, mean 1..{args.budget} {later:.1%}")
+        for key, value in choices(rows, related).items():
+            print(f"  {key}: {value:.3f}" if isinstance(value, float) else f"  {key}: {value}")
+    similar: dict[str, pl.DataFrame] = {
+        k: frames[k] for k in ("negative", "related") if k in frames
+    }
+    if len(similar) == len(("negative", "related")):
+        paired_related(similar, args.budget, rng)
+    if similar:
+        rho_table(similar)
+
+
+def main() -> None:
+    """Run the studies' tasks for every mode and print the tables."""
+    args = arguments()
     if args.compare:
         first, second = args.compare
         compare(args.out, first, second, args.budget)
         return
+    root = args.features.parent
+    if args.recordings is not None:
+        root = args.recordings
+        build_features(root, workers=args.workers)
+        args.features = feature_cache_path(root)
     frame = pl.read_parquet(args.features)
-    roles = dataset_roles(args.features.parent, sorted(set(frame["object_id"])))
-    related = counterparts()
+    new = args.new.split(",") if args.new else None
+    roles = dataset_roles(root, sorted(set(frame["object_id"])), new=new)
+    config = StudyConfig(
+        out=Path(),
+        groups=args.groups,
+        trials=args.trials,
+        learner=DEFAULT_LEARNER,
+        new=roles.new,
+        old=roles.old,
+        actions=dataset_actions(frame),
+    )
     for name in args.modes:  # "density", "density+3" (at most 3 sources), "density@key=value"
-        mode, options = parse(name)
-        config = StudyConfig(
-            out=Path(),
-            groups=args.groups,
-            trials=args.trials,
-            learner=DEFAULT_LEARNER.replace(budget=args.budget, transfer=mode),
-            new=roles.new,
-            old=roles.old,
-            actions=dataset_actions(frame),
-        )
-        rng = np.random.default_rng(0)
-        print(f"\n## transfer={mode}, {options}")
-        for study in args.studies:
-            if study == "priors":
-                tasks = priors_tasks(frame, config)
-            elif study == "single-action":  # the study's groups, one action at a time
-                tasks = transfer_tasks(frame, config, single_action=True)
-            else:  # one group: runs are the resampling unit
-                tasks = similarity_tasks(frame, config, study, nearest=study == "related")
-                tasks = [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
-            jobs = [(t, options) for t in tasks]
-            rows = pl.concat(run_tasks(run, jobs, workers=args.workers), how="diagonal_relaxed")
-            if args.out is not None:
-                args.out.mkdir(parents=True, exist_ok=True)
-                rows.write_parquet(args.out / f"{study}-{name}.parquet")
-            by = BY.get(study, [])
-            if study not in {"priors", "single-action"}:
-                print(f"{study}: priors {', '.join(tasks[0].priors)}")
-            print(f"{study}: gain, points [95 % bootstrap over groups]")
-            report(study, rows, by, args.budget, rng)
-            base = rows.filter(pl.col("method") == "baseline")
-            first = float(base.filter(pl.col("step") == 0)["accuracy"].mean())  # type: ignore[arg-type]
-            steps = pl.col("step").is_between(1, args.budget)
-            later = float(base.filter(steps)["accuracy"].mean())  # type: ignore[arg-type]
-            print(f"  baseline accuracy: step 0 {first:.1%}, mean 1..{args.budget} {later:.1%}")
-            for key, value in choices(rows, related).items():
-                print(f"  {key}: {value:.3f}" if isinstance(value, float) else f"  {key}: {value}")
+        run_mode(name, frame, config, args)
 
 
 if __name__ == "__main__":
