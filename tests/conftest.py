@@ -58,6 +58,15 @@ os.environ["CYCLONEDDS_URI"] = LOOPBACK_URI
 #: enough to wrap a line a test looks for, so the tests' consoles (and their subprocesses') are
 #: wide.
 os.environ["COLUMNS"] = "400"
+#: The tests start a few hundred Python processes (every command as a lab types it, the virtual
+#: lab, the benchmarks' quick modes); where the environment says PYTHONDONTWRITEBYTECODE, each
+#: would compile this project's modules from source again (about 0.2 s of a core per start).
+#: Their bytecode goes to a cache of the tests' own outside the checkout and site-packages
+#: (PYTHONPYCACHEPREFIX), checked against each source's size and time as usual; the xdist
+#: workers, started after this file is read, and every subprocess inherit it.
+PYCACHE = Path(tempfile.gettempdir()) / f"atikt-tests-pycache-{os.getuid()}"
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+os.environ.setdefault("PYTHONPYCACHEPREFIX", str(PYCACHE))
 
 NS = 1_000_000_000
 _CHANNELS_PER_CELL = {
