@@ -148,7 +148,9 @@ def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, s
         parts = out.rglob("*.mcap.part")  # <trial>.<pid>-<token>.mcap.part of <trial>.mcap
         writing = [p for p in parts if not p.with_name(f"{p.name.split('.')[0]}.mcap").exists()]
         if done and writing:
-            time.sleep(0.2)  # inside the action
+            # inside the action at once: the part is opened inside the action's deferred
+            # interrupts, and the in-process world at time scale 0.1 may end an action within
+            # 0.2 s (a signal after its end lands between actions: another message)
             run.send_signal(signal.SIGINT)
             break
         time.sleep(0.02)
