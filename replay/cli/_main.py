@@ -494,8 +494,16 @@ def progress_bar(console: Console) -> Progress:
     )
 
 
+#: Files checked in the command's own process when they hold fewer bytes than this: starting
+#: worker processes costs about 1.3 s here, and a check reads about 20 MB/s per core (a
+#: default recording, 275 kB, in 14 ms); two workers gain only beyond about 50 MB (3 files:
+#: 1.4 s in process against 2.6 s with 2 workers; 130 files: 3.2 s against 3.8 s; 1,950
+#: files: 28.0 s against 13.1 s).
+SERIAL_BYTES = 32 * 2**20
+
+
 def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str], dict[int, Path]]:
-    """Check every file on ``workers`` processes with a progress bar.
+    """Check every file with a progress bar, on ``workers`` processes beyond a few MB.
 
     Returns:
         The problems (files refused), the warnings (files valid, but something was counted),
@@ -506,11 +514,13 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
     problems: list[str] = []
     warnings: list[str] = []
     seeds: dict[int, Path] = {}
+    size = sum(_size(file) for file in files)
+    jobs = 1 if size < SERIAL_BYTES else min(workers, max(len(files), 1))
     with bar:
         with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
-            results = joblib.Parallel(
-                n_jobs=min(workers, max(len(files), 1)), return_as="generator"
-            )(joblib.delayed(_check_one)(file) for file in files)
+            results = joblib.Parallel(n_jobs=jobs, return_as="generator")(
+                joblib.delayed(_check_one)(file) for file in files
+            )
         for file, (problem, warning, seed) in zip(files, results, strict=True):
             bar.advance(task)
             problems += [problem] if problem is not None else []
@@ -518,6 +528,14 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
             if seed is not None:
                 seeds.setdefault(seed, file)
     return problems, warnings, seeds
+
+
+def _size(file: Path) -> int:
+    """Return a file's size (0 if it cannot be read: its check says why)."""
+    try:
+        return file.stat().st_size
+    except OSError:
+        return 0
 
 
 @command(

@@ -213,3 +213,32 @@ def test_results_arriving_together_do_not_read_as_a_burst_rate() -> None:
     now[0] = 145.0
     line = progress_line(progress.tasks[task_id])
     assert line == "study transfer: 2/10 tasks, ~120 s left (145 s)"  # 8 at 2 per 30 s
+
+
+@pytest.mark.parametrize(("serial_bytes", "jobs"), [(32 * 2**20, 1), (0, 2)])
+def test_check_starts_workers_only_for_more_than_a_few_mb(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    serial_bytes: int,
+    jobs: int,
+) -> None:
+    import joblib  # noqa: PLC0415 (the class the command calls, wrapped)
+
+    from replay.cli import _main  # noqa: PLC0415
+
+    data = tmp_path / "data"
+    shutil.copytree(RECORDING.parent, data / "wood" / "C1")
+    asked: list[int | None] = []
+
+    class Counted(joblib.Parallel):  # type: ignore[misc]
+        def __init__(self, n_jobs: int | None = None, **options: object) -> None:
+            asked.append(n_jobs)
+            super().__init__(n_jobs=n_jobs, **options)
+
+    monkeypatch.setattr(_main, "SERIAL_BYTES", serial_bytes)
+    monkeypatch.setattr(joblib, "Parallel", Counted)
+    assert main(["check", "--json", "--workers", "2", str(data)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert (result["recordings"], result["valid"]) == (2, 2)
+    assert asked == [jobs]
