@@ -89,7 +89,7 @@ def run_tasks(
     Args:
         function: A module-level function (it is pickled to other processes).
         tasks: The tasks; each must be picklable.
-        workers: Local worker processes; 1 runs in this process.
+        workers: Local worker processes; 1 (or a single task) runs in this process.
         scheduler: Address of a Dask scheduler (``tcp://host:8786``); overrides ``workers``.
         on_done: Called with the number of finished tasks after each one (for progress bars).
         connect_timeout_s: How long to wait for the Dask scheduler.
@@ -100,7 +100,7 @@ def run_tasks(
     if workers < 1:
         msg = f"--workers {workers}: need at least one worker"
         raise ReplayError(msg)
-    if scheduler is None and workers == 1:
+    if scheduler is None and min(workers, len(tasks)) <= 1:  # no pool for one task (~1.3 s)
         results = []
         for done, task in enumerate(tasks, start=1):
             results.append(_pinned(function, task))

@@ -19,6 +19,18 @@ def test_two_workers_give_the_same_results_in_task_order() -> None:
     assert run_tasks(statistics.fmean, TASKS, workers=2) == EXPECTED
 
 
+def test_a_single_task_runs_in_this_process_whatever_the_workers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import joblib  # noqa: PLC0415 (the pool the call must not start)
+
+    started: list[object] = []
+    monkeypatch.setattr(joblib, "Parallel", lambda *a, **k: started.append((a, k)))
+    assert run_tasks(statistics.fmean, TASKS[:1], workers=2) == EXPECTED[:1]
+    assert run_tasks(statistics.fmean, [], workers=2) == []
+    assert not started
+
+
 def test_zero_workers_is_refused() -> None:
     with pytest.raises(ReplayError, match="--workers 0"):
         run_tasks(statistics.fmean, TASKS, workers=0)
