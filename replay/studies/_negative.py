@@ -36,6 +36,7 @@ def similarity_tasks(
     *,
     nearest: bool,
     splits_of: str | None = None,
+    priors: tuple[str, ...] | None = None,
 ) -> list[TransferTask]:
     """Return runs of one prior group chosen by similarity to the new objects.
 
@@ -47,21 +48,12 @@ def similarity_tasks(
         splits_of: The study whose seeds (hence splits of the new objects) the runs take;
             ``study`` when None. The most and the least similar groups run on the same
             splits with one name, so their difference is paired run by run.
+        priors: The group where it is known rather than estimated (then ``nearest`` is unused).
     """
     actions = roles(config, study)
-    new, old = config.new, config.old
-    objects = [*new, *old]
-    frame = frame.filter(pl.col("object_id").is_in(objects))
-    per_action = {}
-    for action in actions:
-        part = frame.filter(pl.col("action_id") == action).sort("path")
-        matrix = np.vstack([_flat(row) for row in part.iter_rows(named=True)])
-        labels = np.array([objects.index(o) for o in part["object_id"]], dtype=np.int64)
-        per_action[action] = (matrix, labels)
-    similarity = similarity_to_new(per_action, len(objects), range(len(new)))
-    pick = most_similar if nearest else least_similar
-    chosen = pick(similarity, range(len(new), len(objects)), min(config.group_size, len(old)))
-    priors = tuple(objects[i] for i in chosen)
+    frame = frame.filter(pl.col("object_id").is_in([*config.new, *config.old]))
+    if priors is None:
+        priors = _similar_group(frame, config, actions, nearest=nearest)
     runs = config.groups * config.trials
     return [
         transfer_task(
@@ -75,6 +67,24 @@ def similarity_tasks(
         )
         for number in range(runs)
     ]
+
+
+def _similar_group(
+    frame: pl.DataFrame, config: StudyConfig, actions: tuple[str, ...], *, nearest: bool
+) -> tuple[str, ...]:
+    """Return the old objects most (or least) like the new ones, ``group_size`` of them."""
+    new, old = config.new, config.old
+    objects = [*new, *old]
+    per_action = {}
+    for action in actions:
+        part = frame.filter(pl.col("action_id") == action).sort("path")
+        matrix = np.vstack([_flat(row) for row in part.iter_rows(named=True)])
+        labels = np.array([objects.index(o) for o in part["object_id"]], dtype=np.int64)
+        per_action[action] = (matrix, labels)
+    similarity = similarity_to_new(per_action, len(objects), range(len(new)))
+    pick = most_similar if nearest else least_similar
+    chosen = pick(similarity, range(len(new), len(objects)), min(config.group_size, len(old)))
+    return tuple(objects[i] for i in chosen)
 
 
 def _flat(row: dict[str, Any]) -> np.ndarray[Any, np.dtype[np.float64]]:

@@ -60,8 +60,8 @@ from replay.learning._parallel import run_tasks
 from replay.learning._session import DEFAULT_LEARNER, learner_options
 from replay.studies._negative import similarity_tasks
 from replay.studies._priors import priors_tasks
-from replay.studies._running import StudyConfig, dataset_actions, derive_seed
-from replay.studies._transfer import run_transfer_task, transfer_task, transfer_tasks
+from replay.studies._running import StudyConfig, dataset_actions
+from replay.studies._transfer import run_transfer_task, transfer_tasks
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDY_NAMES = ("priors", "negative", "related", "single-action")
@@ -128,7 +128,8 @@ def gains(frame: pl.DataFrame, by: list[str], budget: int) -> pl.DataFrame:
         ((pl.col(f"{c}_ATIKT") - pl.col(f"{c}_baseline")) * 100).alias(c)
         for c in ("initial", "mean")
     )
-    return paired.group_by([*by, "group"]).agg(pl.col("initial").mean(), pl.col("mean").mean())
+    means = paired.group_by([*by, "group"]).agg(pl.col("initial").mean(), pl.col("mean").mean())
+    return means.sort([*by, "group"])  # group_by keeps no order: the bootstrap needs one
 
 
 def choices(frame: pl.DataFrame, related: dict[str, str]) -> dict[str, float]:
@@ -296,21 +297,10 @@ def study_tasks(
         return priors_tasks(frame, config)
     if study == "single-action":  # the study's groups, one action at a time
         return transfer_tasks(frame, config, single_action=True)
-    if study in named:  # the same seeds as the similarity groups: paired runs
-        return [
-            transfer_task(
-                frame,
-                config,
-                priors=named[study],
-                actions=(config.actions,),
-                trials=1,
-                seed=derive_seed(config.seed, "negative", number),
-                labels={"group": number, "repetition": number},
-            )
-            for number in range(config.groups * config.trials)
-        ]
     nearest = study == "related"  # one group: runs are the resampling unit
-    tasks = similarity_tasks(frame, config, study, nearest=nearest, splits_of="negative")
+    tasks = similarity_tasks(
+        frame, config, study, nearest=nearest, splits_of="negative", priors=named.get(study)
+    )
     return [replace(t, labels=t.labels | {"group": i}) for i, t in enumerate(tasks)]
 
 
