@@ -1,5 +1,6 @@
 """Record exploratory actions of a UR10 with a multimodal skin into MCAP files."""
 
+import importlib
 from typing import TYPE_CHECKING, Any
 
 from recorder._catalog import (
@@ -34,9 +35,6 @@ from recorder._rigconfig import (
     rig_factory,
     rig_names,
 )
-from recorder.bagimport._importer import import_bag
-from recorder.bagimport._report import ImportReport
-from recorder.bagimport._topicmap import TopicMap, load_topic_map
 from recorder.errors import (
     ActionStoppedError,
     BagImportError,
@@ -68,20 +66,30 @@ from schemas import software_version
 if TYPE_CHECKING:
     from recorder._sim import SimConfig, SimulatedRig
     from recorder._sim.rig import SIMULATOR_VERSION
+    from recorder.bagimport._importer import import_bag
+    from recorder.bagimport._report import ImportReport
+    from recorder.bagimport._topicmap import TopicMap, load_topic_map
+
+#: Names imported on first use: the simulator loads scipy, the bag importer rosbags' readers;
+#: a live session, serve-sim or listen never needs them.
+_LAZY = {
+    "SimConfig": "recorder._sim",
+    "SimulatedRig": "recorder._sim",
+    "SIMULATOR_VERSION": "recorder._sim.rig",
+    "import_bag": "recorder.bagimport._importer",
+    "ImportReport": "recorder.bagimport._report",
+    "TopicMap": "recorder.bagimport._topicmap",
+    "load_topic_map": "recorder.bagimport._topicmap",
+}
 
 
-def __getattr__(name: str) -> Any:  # noqa: ANN401 (the simulator's classes)
-    """Import the simulator on first use (it loads scipy; bag imports never need it)."""
-    if name in {"SimConfig", "SimulatedRig"}:
-        from recorder import _sim  # noqa: PLC0415
-
-        return getattr(_sim, name)
-    if name == "SIMULATOR_VERSION":
-        from recorder._sim import rig  # noqa: PLC0415
-
-        return rig.SIMULATOR_VERSION
-    msg = f"module 'recorder' has no attribute {name!r}"
-    raise AttributeError(msg)
+def __getattr__(name: str) -> Any:  # noqa: ANN401 (see _LAZY)
+    """Import the simulator's and the bag importer's names on first use (see :data:`_LAZY`)."""
+    module = _LAZY.get(name)
+    if module is None:
+        msg = f"module 'recorder' has no attribute {name!r}"
+        raise AttributeError(msg)
+    return getattr(importlib.import_module(module), name)
 
 
 __all__ = [

@@ -30,14 +30,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import cloudpickle
-import joblib
-import polars as pl
 import tomli_w
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import MCAP0_MAGIC
-from threadpoolctl import ThreadpoolController
 
 from recorder._claim import claim_dataset
 from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
@@ -64,9 +60,16 @@ from schemas import recording_path as schemas_recording_path
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 
+    import polars as pl
+    from threadpoolctl import ThreadpoolController
+
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._rigconfig import RigFactory
 
+#: polars, joblib, cloudpickle and threadpoolctl are imported where they are used, not with this
+#: module: every ``atikt-record`` command imports it, and most (``serve-sim``, ``session``
+#: until it indexes, ``--help``, a refusal) never need them (about 0.25 s of each start).
+_LAZY = ("polars", "joblib", "cloudpickle", "threadpoolctl")
 #: File name of a dataset's index, beside the object directories.
 INDEX_NAME = "index.parquet"
 #: The rig registry lives in recorder._rigconfig; these names stay importable from here.
@@ -200,6 +203,8 @@ def _blas() -> ThreadpoolController:
     much as the writer spends on a recording's messages); the libraries a worker has do not
     change between its recordings.
     """
+    from threadpoolctl import ThreadpoolController  # noqa: PLC0415 (see _LAZY)
+
     return ThreadpoolController()
 
 
@@ -250,6 +255,8 @@ def check_sendable(factory: RigFactory) -> None:
     Raises:
         RecorderError: The factory does not pickle; the message names it and the fix.
     """
+    import cloudpickle  # noqa: PLC0415 (see _LAZY)
+
     try:
         cloudpickle.dumps(factory)
     except Exception as err:  # pickling a user's object may raise anything
@@ -342,6 +349,9 @@ def generate_dataset(
     parent = os.getpid()
     if n_jobs > 1 and pending:
         check_sendable(factory)
+    import joblib  # noqa: PLC0415 (see _LAZY)
+    import polars as pl  # noqa: PLC0415
+
     with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
         # tasks are handed out lazily: after a failure, none starts
         results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
@@ -449,25 +459,33 @@ def _topic_column(topic: str) -> str:
     return "n_" + topic.rsplit("/", 1)[-1]
 
 
-_INDEX_SCHEMA: dict[str, Any] = {
-    "path": pl.String,
-    "object_id": pl.String,
-    "object_name": pl.String,
-    "action_id": pl.String,
-    "action_kind": pl.String,
-    "trial": pl.Int64,
-    "seed": pl.Int64,
-    "rig": pl.String,
-    "source": pl.String,
-    "software_version": pl.String,
-    "schema_version": pl.Int64,
-    "size_bytes": pl.Int64,
-    "sha256": pl.String,
-    "start_ns": pl.Int64,
-    "end_ns": pl.Int64,
-    "duration_ns": pl.Int64,
-    "messages": pl.Int64,
-} | {_topic_column(channel.topic): pl.Int64 for channel in CHANNELS}
+#: The index's columns and their types (polars' type names; see :func:`_index_schema`).
+_INDEX_COLUMNS: dict[str, str] = {
+    "path": "String",
+    "object_id": "String",
+    "object_name": "String",
+    "action_id": "String",
+    "action_kind": "String",
+    "trial": "Int64",
+    "seed": "Int64",
+    "rig": "String",
+    "source": "String",
+    "software_version": "String",
+    "schema_version": "Int64",
+    "size_bytes": "Int64",
+    "sha256": "String",
+    "start_ns": "Int64",
+    "end_ns": "Int64",
+    "duration_ns": "Int64",
+    "messages": "Int64",
+} | {_topic_column(channel.topic): "Int64" for channel in CHANNELS}
+
+
+def _index_schema() -> dict[str, Any]:
+    """Return the index's polars schema (polars is imported here, see :data:`_LAZY`)."""
+    import polars as pl  # noqa: PLC0415
+
+    return {name: getattr(pl, kind) for name, kind in _INDEX_COLUMNS.items()}
 
 
 def _summary_row(path: Path, data: bytes) -> dict[str, Any]:
@@ -743,8 +761,10 @@ def build_index(root: Path, paths: Iterable[Path] | None = None) -> pl.DataFrame
         RecorderError: A file is not a readable recording.
     """
     root = Path(root)
+    import polars as pl  # noqa: PLC0415 (see _LAZY)
+
     rows = [index_row(root, path) for path in (recordings(root) if paths is None else paths)]
-    return pl.DataFrame(rows, schema=_INDEX_SCHEMA)
+    return pl.DataFrame(rows, schema=_index_schema())
 
 
 def write_index(root: Path) -> Path:
@@ -756,6 +776,8 @@ def write_index(root: Path) -> Path:
     Raises:
         RecorderError: A file is not a readable recording, or the index cannot be written.
     """
+    import polars as pl  # noqa: PLC0415 (see _LAZY)
+
     root = Path(root)
     target = root / INDEX_NAME
     try:
@@ -783,6 +805,8 @@ def _check_one_seed(root: Path, frame: pl.DataFrame) -> None:
     Raises:
         RecorderError: The recordings have more than one seed or rig description.
     """
+    import polars as pl  # noqa: PLC0415 (see _LAZY)
+
     for column in ("seed", "rig"):
         firsts = frame.group_by(column, maintain_order=True).agg(pl.col("path").first())
         if firsts.height > 1:

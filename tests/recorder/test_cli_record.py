@@ -146,3 +146,20 @@ def test_python_dash_m_recorder_is_the_same_program() -> None:
     assert done.returncode == 0
     for name in ("action", "dataset", "index"):
         assert name in done.stdout
+
+
+def test_the_command_line_starts_without_the_libraries_only_some_commands_use() -> None:
+    # every atikt-record start imports the command line; polars, joblib and rosbags' readers
+    # (about 0.25 s of a start) are imported by the commands that use them, when they do
+    code = (
+        "import sys\n"
+        "import recorder._cli, recorder._session_command, recorder.virtuallab\n"
+        "heavy = ('polars', 'joblib', 'cloudpickle', 'rosbags.highlevel', 'scipy')\n"
+        "print(sorted(m for m in heavy if m in sys.modules))\n"
+        "import recorder\n"
+        "print(recorder.import_bag.__module__, recorder.TopicMap.__name__)\n"
+    )
+    result = subprocess.run(  # noqa: S603 (this interpreter, a fixed script)
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert result.stdout.splitlines() == ["[]", "recorder.bagimport._importer TopicMap"]
