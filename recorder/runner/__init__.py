@@ -18,7 +18,6 @@ from recorder.runner._limits import (
     check_pose,
     tool_axis,
 )
-from recorder.runner._realtime import check_priority, real_time
 from recorder.runner._runner import ArmRig, RunnerOptions, Stop, Watch, peak_total
 from recorder.runner._sink import WriterThread
 
@@ -39,10 +38,8 @@ __all__ = [
     "check_action",
     "check_motion",
     "check_pose",
-    "check_priority",
     "deferred_interrupts",
     "peak_total",
     "raise_interrupt",
-    "real_time",
     "tool_axis",
 ]

@@ -37,7 +37,6 @@ from recorder.runner._limits import (
     check_pose,
 )
 from recorder.runner._limits import tool_axis as _tool_axis
-from recorder.runner._realtime import NORMAL, check_priority, real_time
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 
 if TYPE_CHECKING:
@@ -93,14 +92,11 @@ class RunnerOptions:
             plays actions faster (the runner then holds and slides that much shorter).
         silence_s: A source silent this long ends the action, s.
         motion: How the arm moves.
-        rt_priority: ``SCHED_FIFO`` priority of the recorder's threads while the rig is
-            connected, 1-99 (0: normal scheduling; see ``recorder.runner._realtime``).
     """
 
     time_scale: float = 1.0
     silence_s: float = 0.5
     motion: Motion = field(default_factory=Motion)
-    rt_priority: int = 0
 
 
 class Stop(Exception):  # noqa: N818 (control flow inside the runner, never escapes it)
@@ -171,8 +167,6 @@ class ArmRig:
             check_pose(object_id, pose, limits, where)
         self._poses = {k: np.asarray(v, dtype=np.float64) for k, v in poses.items()}
         self.clock = clock or RecorderClock()
-        check_priority(options.rt_priority, where)
-        self._scheduling = NORMAL
         self._stack: contextlib.ExitStack | None = None
         self._state = _State()
         self._begun_ns = 0
@@ -201,8 +195,6 @@ class ArmRig:
         from scipy.spatial.transform import Rotation  # noqa: PLC0415, F401
 
         with contextlib.ExitStack() as stack:
-            # before the readers start: they inherit the thread's scheduling
-            self._scheduling = stack.enter_context(real_time(self.options.rt_priority, self.where))
             stack.enter_context(self.arm)
             stack.enter_context(self.skin)
             stack.callback(sys.setswitchinterval, sys.getswitchinterval())
@@ -249,11 +241,8 @@ class ArmRig:
         return described
 
     def facts(self) -> Mapping[str, str]:
-        """Return what the arm said on connecting and the threads' scheduling (recorded only)."""
-        facts = dict(self.arm.facts())
-        if self.options.rt_priority:  # asked for: say whether the system granted it
-            facts["scheduling"] = self._scheduling
-        return facts
+        """Return what the arm said on connecting (recorded, never compared)."""
+        return self.arm.facts()
 
     def source_stats(self) -> list[SourceStats]:
         """Return the accounting of the last action: the arm's and the skin's sources."""
