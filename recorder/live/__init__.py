@@ -25,6 +25,7 @@ from recorder.live._framelayout import FIELD_TYPES, FrameType, SkinLayout, parse
 from recorder.live._frames import SerialSkin, UdpSkin
 from recorder.live._packer import BlockPacker
 from recorder.live._reader import Received, SourceLostError, SourceReader
+from recorder.live._realtime import check_rt_priority, readers_at, real_time, rt_refusal
 from recorder.live._skin import (
     FORCE_WINDOW_NS,
     SKIN_ENTRY_POINTS,
@@ -54,11 +55,15 @@ __all__ = [
     "SourceStats",
     "UdpSkin",
     "Verdict",
+    "check_rt_priority",
     "counter_skipped",
     "gap_periods",
     "open_skin",
     "parse_layout",
     "parse_source_stats",
+    "readers_at",
+    "real_time",
+    "rt_refusal",
     "skin_transports",
     "window_samples",
 ]

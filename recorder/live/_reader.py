@@ -5,7 +5,8 @@ pipeline and warns when it overflows; this is the same shape for every live sour
 only receives and stamps: ``receive()`` blocks for at most its own timeout and returns one
 :class:`Received` (or None when nothing came). Parsing, counting and writing happen in the
 consumer. The thread never blocks on a full queue (a slow consumer must not stall the socket):
-it drops the sample and counts it.
+it drops the sample and counts it. A reader created under ``readers_at(priority)`` (a rig with
+``rt_priority``) runs under ``SCHED_FIFO`` (``recorder.live._realtime``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Self
 
 from recorder.errors import RigError
+from recorder.live._realtime import NORMAL, reader_priority, real_time
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -72,6 +74,9 @@ class SourceReader:
         self._overflowed = 0
         self._received = 0
         self._last_receive_ns: int | None = None
+        self._priority = reader_priority()
+        #: The thread's scheduling once it runs: ``"SCHED_FIFO 50"`` or ``"normal"``.
+        self.scheduling = NORMAL
 
     def __enter__(self) -> Self:
         """Start the thread."""
@@ -95,10 +100,11 @@ class SourceReader:
     def _run(self) -> None:
         """Receive until stopped or until ``receive`` fails."""
         try:
-            while not self._stop.is_set():
-                item = self._receive()
-                if item is not None:
-                    self.deliver(item)
+            with real_time(self._priority) as self.scheduling:
+                while not self._stop.is_set():
+                    item = self._receive()
+                    if item is not None:
+                        self.deliver(item)
         except BaseException as err:  # noqa: BLE001 (handed to the consumer, never lost)
             self._error = err
 

@@ -26,7 +26,15 @@ from typing import TYPE_CHECKING, Protocol, Self
 import numpy as np
 
 from recorder.errors import RigError
-from recorder.live import RecorderClock, SourceLostError, window_samples
+from recorder.live import (
+    RecorderClock,
+    SourceLostError,
+    check_rt_priority,
+    readers_at,
+    real_time,
+    rt_refusal,
+    window_samples,
+)
 from recorder.runner._arm import Context
 from recorder.runner._limits import (
     REACHED_M,
@@ -92,11 +100,15 @@ class RunnerOptions:
             plays actions faster (the runner then holds and slides that much shorter).
         silence_s: A source silent this long ends the action, s.
         motion: How the arm moves.
+        rt_priority: ``SCHED_FIFO`` priority, 1-99, of the arm's and the skin's readers and
+            of the runner's loop while an action runs (0: normal scheduling; see
+            ``recorder.live._realtime``).
     """
 
     time_scale: float = 1.0
     silence_s: float = 0.5
     motion: Motion = field(default_factory=Motion)
+    rt_priority: int = 0
 
 
 class Stop(Exception):  # noqa: N818 (control flow inside the runner, never escapes it)
@@ -167,6 +179,9 @@ class ArmRig:
             check_pose(object_id, pose, limits, where)
         self._poses = {k: np.asarray(v, dtype=np.float64) for k, v in poses.items()}
         self.clock = clock or RecorderClock()
+        check_rt_priority(options.rt_priority, where)
+        #: The real-time priority granted on connecting (0: normal scheduling).
+        self._rt_priority = 0
         self._stack: contextlib.ExitStack | None = None
         self._state = _State()
         self._begun_ns = 0
@@ -194,7 +209,8 @@ class ArmRig:
         # import on the first state sample would hold up the runner's loop for half a second
         from scipy.spatial.transform import Rotation  # noqa: PLC0415, F401
 
-        with contextlib.ExitStack() as stack:
+        self._rt_priority = self._granted_priority()
+        with contextlib.ExitStack() as stack, readers_at(self._rt_priority):
             stack.enter_context(self.arm)
             stack.enter_context(self.skin)
             stack.callback(sys.setswitchinterval, sys.getswitchinterval())
@@ -219,6 +235,21 @@ class ArmRig:
         if stack is not None:
             stack.close()
 
+    def _granted_priority(self) -> int:
+        """Return the real-time priority asked for if the system grants it, else 0 (said once)."""
+        asked = self.options.rt_priority
+        refused = rt_refusal(asked)
+        if refused is None:
+            return asked
+        print(  # noqa: T201 (the recorder goes on: a warning for the operator)
+            f"{self.where}: rt_priority = {asked}: {refused}; recording at normal priority "
+            "(allow it with an rtprio limit, e.g. '@robot - rtprio 99' in "
+            "/etc/security/limits.conf, or CAP_SYS_NICE)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 0
+
     def _connected(self) -> None:
         if self._stack is None:
             msg = f"{self.where}: the rig is used outside its with block; use `with rig:`"
@@ -241,8 +272,12 @@ class ArmRig:
         return described
 
     def facts(self) -> Mapping[str, str]:
-        """Return what the arm said on connecting (recorded, never compared)."""
-        return self.arm.facts()
+        """Return what the arm said on connecting and the scheduling granted (recorded only)."""
+        facts = dict(self.arm.facts())
+        if self.options.rt_priority:  # asked for: say whether the system granted it
+            granted = self._rt_priority
+            facts["scheduling"] = f"SCHED_FIFO {granted}" if granted else "normal"
+        return facts
 
     def source_stats(self) -> list[SourceStats]:
         """Return the accounting of the last action: the arm's and the skin's sources."""
@@ -266,6 +301,12 @@ class ArmRig:
         target = self._poses.get(obj.id)
         if target is None:
             return False
+        with real_time(self._rt_priority):  # this thread only, while the arm moves
+            self._present(obj, target, watch)
+        return True
+
+    def _present(self, obj: ObjectSpec, target: NDArray[np.float64], watch: Watch | None) -> None:
+        """Move to ``target`` (see :meth:`present`)."""
         motion = self.options.motion
         self._watch = watch or _Never()
         self._begin()
@@ -287,7 +328,6 @@ class ArmRig:
             raise
         finally:
             self._watch = _Never()
-        return True
 
     def _until_reached(self, target: NDArray[np.float64], limit_ns: int, what: str) -> None:
         """Read the arm's state (recording nothing) until within 1 mm of ``target``.
@@ -333,8 +373,9 @@ class ArmRig:
         actions = self.perform(obj, action, trial)
         self._watch = watch or _Never()
         try:
-            while True:
-                put(next(actions))
+            with real_time(self._rt_priority):  # this thread only, while the arm moves
+                while True:
+                    put(next(actions))
         except StopIteration as done:
             stop: Stop | None = done.value
             return stop

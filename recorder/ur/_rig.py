@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from recorder._rigconfig import refuse_sections, thaw
 from recorder.errors import RigError
-from recorder.live import RecorderClock, open_skin
+from recorder.live import RecorderClock, check_rt_priority, open_skin
 from recorder.runner import ArmRig, Limits, Motion, RunnerOptions
 from recorder.ur._arm import Connection, URArm
 from recorder.ur._rtde import RTDE_PORT
@@ -39,6 +39,9 @@ class UROptions:
         time_scale: Real seconds per action second; < 1 only against the virtual lab, which
             plays actions faster (the rig then holds and slides that much shorter).
         silence_s: A source silent this long ends the action, s.
+        rt_priority: ``SCHED_FIFO`` priority, 1-99, of the arm's and the skin's readers and
+            of the runner's loop during actions; 0 (the default): normal scheduling
+            (``recorder.live._realtime``).
         motion: How the arm moves (the remaining options: ``Motion``'s fields).
     """
 
@@ -48,6 +51,7 @@ class UROptions:
     frequency: int = 125
     time_scale: float = 1.0
     silence_s: float = 0.5
+    rt_priority: int = 0
     motion: Motion = field(default_factory=Motion)
 
     @classmethod
@@ -65,6 +69,11 @@ class UROptions:
             if key == "host":
                 if not isinstance(value, str) or not value:
                     msg = f'{where}: rig option host = {value!r}: give an address, e.g. "127.0.0.1"'
+                    raise RigError(msg)
+                values[key] = value
+            elif key == "rt_priority":
+                if isinstance(value, bool) or not isinstance(value, int):
+                    msg = f"{where}: rig option rt_priority = {value!r}: give a whole number 1-99"
                     raise RigError(msg)
                 values[key] = value
             elif key in own or key in moves:
@@ -93,6 +102,7 @@ class UROptions:
                 "give 125 (CB3) or 500 (e-Series)"
             )
             raise RigError(msg)
+        check_rt_priority(self.rt_priority, where)
         if not 0 < self.time_scale <= 1:
             msg = f"{where}: rig option time_scale = {self.time_scale}: give a value in (0, 1]"
             raise RigError(msg)
@@ -140,7 +150,9 @@ class URRig(ArmRig):
         self.options_ur = options
         clock = RecorderClock()
         link = Connection(options.host, options.rtde_port, options.script_port, options.frequency)
-        runner = RunnerOptions(options.time_scale, options.silence_s, options.motion)
+        runner = RunnerOptions(
+            options.time_scale, options.silence_s, options.motion, options.rt_priority
+        )
         super().__init__(
             URArm(link, clock, where),
             skin_factory(skin, clock, where),

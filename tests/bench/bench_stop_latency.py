@@ -71,6 +71,10 @@ def _free_port(kind: int) -> int:
         return int(probe.getsockname()[1])
 
 
+#: ``--rt-priority`` and ``--lab-rt-priority`` (0: normal scheduling).
+PRIORITY = {"recorder": 0, "lab": 0}
+
+
 def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], Path]:
     """Return the rig configuration, the serve-sim command and its events file."""
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
@@ -82,6 +86,10 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
     text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
     text = text.replace("contact_force_n = 0.05", "contact_force_n = 0.15")
     text = text.replace("silence_s = 0.5", "silence_s = 1.0")  # a loaded machine's lab
+    if PRIORITY["recorder"]:
+        text = text.replace(
+            "silence_s = 1.0", f"silence_s = 1.0\nrt_priority = {PRIORITY['recorder']}"
+        )
     if cause == "limit":  # 3 mm into the approach the TCP leaves the box
         text = text.replace(
             "workspace_min_m = [-0.9, -0.5, 0.0]",
@@ -94,6 +102,8 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
     lab.write_text(text, "utf-8")
     events = tmp / "events.jsonl"
     command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", str(SCALE)]
+    if PRIORITY["lab"]:  # a controller is a real-time system: the virtual one too
+        command = ["chrt", "--fifo", str(PRIORITY["lab"]), *command]
     command += [
         "--frequency",
         str(frequency),
@@ -261,7 +271,20 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="one run of three causes, 125 Hz")
     parser.add_argument("--causes", default=",".join(CAUSES), help="comma-separated causes")
     parser.add_argument("--frequencies", default="125,500", help="comma-separated, Hz")
+    parser.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="the rig option rt_priority: the readers and the runner under SCHED_FIFO (1-99)",
+    )
+    parser.add_argument(
+        "--lab-rt-priority",
+        type=int,
+        default=0,
+        help="serve-sim (the controller) under SCHED_FIFO at this priority (chrt)",
+    )
     args = parser.parse_args()
+    PRIORITY.update(recorder=args.rt_priority, lab=args.lab_rt_priority)
     # Ctrl-C is a cause: a shell starting this in the background ignores SIGINT for it
     signal.signal(signal.SIGINT, signal.default_int_handler)
     chosen = tuple(c for c in args.causes.split(",") if c)
@@ -270,7 +293,11 @@ def main() -> None:
     rates = tuple(int(f) for f in args.frequencies.split(",") if f)
     runs, frequencies = (1, (125,)) if args.quick else (args.runs, rates)
     causes = ("limit", "sigint", "write") if args.quick else chosen
-    print(f"load {os.getloadavg()[0]:.1f}; virtual lab time scale {SCALE}; {runs} runs each")
+    print(
+        f"load {os.getloadavg()[0]:.1f}; virtual lab time scale {SCALE}; {runs} runs each; "
+        f"real-time priority: recorder {args.rt_priority or 'none'}, "
+        f"lab {args.lab_rt_priority or 'none'}"
+    )
     head = ("cause", "Hz", "p99 cycles", "median", "p99 ms", "zero ms", "missed")
     print(f"{head[0]:<11}{head[1]:>5}{head[2]:>12}{head[3]:>8}{head[4]:>9}{head[5]:>9}{head[6]:>8}")
     for frequency in frequencies:
