@@ -75,10 +75,18 @@ class _Run:
         self.notes: list[str] = []
         self.stop = threading.Event()
         self.result: dict[str, ImportReport] = {}
+        self.error = ""
         self.thread = threading.Thread(target=self._listen, daemon=True)
         _RUNNING.append(self)
 
     def _listen(self) -> None:
+        try:
+            self._run_listen()
+        except BaseException as err:  # for the test's message: the thread's own error
+            self.error = f"{type(err).__name__}: {err}"
+            raise
+
+    def _run_listen(self) -> None:
         self.result["report"] = listen(
             load_topic_map(self.map_path),
             self.root / "out",
@@ -375,7 +383,9 @@ def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: P
         # declared: the action starts once both are done, however long discovery takes
         deadline = time.monotonic() + 60
         while not view.subscribed >= {"/annotations", "/joint_states"}:
-            assert time.monotonic() < deadline, view.subscribed
+            said = (view.subscribed, client.topics, run.error, run.notes, view.failure)
+            assert time.monotonic() < deadline, said
+            assert run.thread.is_alive(), said
             time.sleep(0.05)
         _play(world, "S1", 1, wait=server)
         time.sleep(1.8)  # max_delay_s + the import's margin
