@@ -54,23 +54,34 @@ def check_rt_priority(priority: int, where: str) -> None:
         raise RigError(msg)
 
 
+def _switch(priority: int) -> tuple[int, os.sched_param] | str:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (``SCHED_RESET_ON_FORK``).
+
+    Returns:
+        The thread's previous policy and parameters (to restore), or why it was refused.
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return "this system has no SCHED_FIFO"
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+    except OSError as err:
+        return f"real-time scheduling refused ({err.strerror})"
+    return policy, param
+
+
 def rt_refusal(priority: int) -> str | None:
     """Return why this thread may not use ``SCHED_FIFO`` at ``priority`` (None: it may).
 
     The calling thread is switched and switched back, so that a refusal is known (and said
     once) before anything moves.
     """
-    setscheduler = getattr(os, "sched_setscheduler", None)
     if priority == 0:
         return None
-    if setscheduler is None:
-        return "this system has no SCHED_FIFO"
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
-    except OSError as err:
-        return f"real-time scheduling refused ({err.strerror})"
-    setscheduler(0, policy, param)
+    switched = _switch(priority)
+    if isinstance(switched, str):
+        return switched
+    os.sched_setscheduler(0, *switched)
     return None
 
 
@@ -83,23 +94,17 @@ def real_time(priority: int) -> Iterator[str]:
 
     Yields:
         What the thread got: ``"SCHED_FIFO 50"``, or ``"normal"`` (nothing asked for, or
-        refused: :func:`rt_refusal` says why).
+        refused: :func:`rt_refusal` says why, once, before anything moves).
     """
-    setscheduler = getattr(os, "sched_setscheduler", None)
-    if priority == 0 or setscheduler is None:
-        yield NORMAL
-        return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
-    except OSError:  # refused: refusal() says why, once, before anything moves
+    switched = NORMAL if priority == 0 else _switch(priority)
+    if isinstance(switched, str):
         yield NORMAL
         return
     try:
         yield f"SCHED_FIFO {priority}"
     finally:
         with contextlib.suppress(OSError):  # lowering one's own priority is always allowed
-            setscheduler(0, policy, param)
+            os.sched_setscheduler(0, *switched)
 
 
 @contextlib.contextmanager

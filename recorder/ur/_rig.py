@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from recorder._rigconfig import refuse_sections, thaw
 from recorder.errors import RigError
-from recorder.live import RecorderClock, check_rt_priority, open_skin
+from recorder.live import RecorderClock, open_skin
 from recorder.runner import ArmRig, Limits, Motion, RunnerOptions
 from recorder.ur._arm import Connection, URArm
 from recorder.ur._rtde import RTDE_PORT
@@ -102,7 +102,6 @@ class UROptions:
                 "give 125 (CB3) or 500 (e-Series)"
             )
             raise RigError(msg)
-        check_rt_priority(self.rt_priority, where)
         if not 0 < self.time_scale <= 1:
             msg = f"{where}: rig option time_scale = {self.time_scale}: give a value in (0, 1]"
             raise RigError(msg)
