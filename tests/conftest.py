@@ -11,6 +11,7 @@ import fcntl
 import gc
 import itertools
 import os
+import signal
 import tempfile
 import threading
 import zlib
@@ -53,6 +54,12 @@ LOOPBACK_URI = (
     "</Discovery></Domain></CycloneDDS>"
 )
 os.environ["CYCLONEDDS_URI"] = LOOPBACK_URI
+#: A shell starts a command run in the background (``pytest &``, ``nohup``) with Ctrl-C ignored,
+#: and an ignored signal stays ignored in Python and in every process it starts: the tests that
+#: press Ctrl-C (on this process or on a command they run) would see nothing happen. The tests
+#: run as at a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 #: rich wraps what the commands print at the console width, 80 columns when the output is not
 #: a terminal; the temporary paths of pytest-xdist's workers (``.../popen-gw0/...``) are long
 #: enough to wrap a line a test looks for, so the tests' consoles (and their subprocesses') are
@@ -299,3 +306,19 @@ def _no_virtual_lab_left_ticking() -> Iterator[None]:
         thread.join(1.0)
     left = [t for t in ticking if t.is_alive()]
     assert not left, f"{len(left)} virtual lab world(s) left ticking: use `with world:`"
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_restored() -> Iterator[None]:
+    """Fail a test that leaves SIGINT or SIGTERM handled otherwise than it found them.
+
+    A Ctrl-C handler left ignored (or deferred) makes a later test's interrupt vanish: the
+    test that sends it fails, far from the test that caused it. The handlers are put back.
+    """
+    numbers = (signal.SIGINT, signal.SIGTERM)
+    before = {number: signal.getsignal(number) for number in numbers}
+    yield
+    changed = {n: h for n in numbers if (h := signal.getsignal(n)) is not before[n]}
+    for number in changed:
+        signal.signal(number, before[number])
+    assert not changed, f"handlers left changed: {changed} (were {before})"

@@ -38,11 +38,13 @@ def test_without_a_terminal_progress_is_a_plain_line_every_interval() -> None:
 def test_a_dataset_run_into_a_log_reports_progress(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("schemas._cli.PROGRESS_INTERVAL_S", 0.05)
+    # a press is recorded in tens of milliseconds once the first has warmed the process up:
+    # six of them and a line every 5 ms leave several lines between the first and the last
+    monkeypatch.setattr("schemas._cli.PROGRESS_INTERVAL_S", 0.005)
     argv = ["dataset", "--out", str(tmp_path / "d"), "--objects", "wood", "--actions", "P1"]
-    assert record([*argv, "--trials", "2", "--workers", "1"]) == 0
+    assert record([*argv, "--trials", "6", "--workers", "1"]) == 0
     err = " ".join(capsys.readouterr().err.split())
-    assert "recording: 2/2 recordings, done (" in err
+    assert "recording: 6/6 recordings, done (" in err
     assert "s left (" in err  # an estimate while it ran
 
 
