@@ -113,10 +113,7 @@ def separation(
     # at most SEPARATION_REPEATS evenly spaced observations per old object: the pairs grow
     # with the square of their number (20 objects x 100 observations: 10 ms a call, 1.4 ms
     # with the cap), and a few hundred pairs per object estimate a rank statistic well
-    kept = [
-        obs[np.linspace(0, len(obs) - 1, min(len(obs), SEPARATION_REPEATS)).astype(int)]
-        for obs in aux.values()
-    ]
+    kept = [obs[_spread_rows(len(obs))] for obs in aux.values()]
     repeats = [(kernel(obs) / scale)[_upper_pairs(len(obs))] for obs in kept]
     pooled = np.sort(np.concatenate([np.empty(0), *repeats]))
     pairs = np.triu(labels[:, None] != labels[None, :], 1)
@@ -126,6 +123,14 @@ def separation(
     below = np.searchsorted(pooled, between, side="left")
     above = np.searchsorted(pooled, between, side="right")
     return float(np.mean(1.0 - (below + above) / (2.0 * pooled.size)))
+
+
+@functools.cache
+def _spread_rows(n: int) -> npt.NDArray[np.intp]:
+    """Return at most SEPARATION_REPEATS evenly spaced row indices of ``n`` rows (read only)."""
+    rows = np.linspace(0, n - 1, min(n, SEPARATION_REPEATS)).astype(int)
+    rows.flags.writeable = False
+    return rows
 
 
 @functools.cache
@@ -261,12 +266,16 @@ class ActionState:
     prior_probabilities: FloatArray | None = None
 
 
-def _rivals(probabilities: FloatArray | None, labels: IntArray, obj: int) -> tuple[FloatArray, ...]:
-    """The old models' mean score of each other new object's observations (object order)."""
+def _group_means(probabilities: FloatArray | None, labels: IntArray) -> dict[int, FloatArray]:
+    """The old models' mean score of each new object's observations, by object."""
     if probabilities is None:
-        return ()
-    others = [o for o in np.unique(labels).tolist() if o != obj]
-    return tuple(probabilities[labels == o].mean(axis=0) for o in others)
+        return {}
+    return {o: probabilities[labels == o].mean(axis=0) for o in np.unique(labels).tolist()}
+
+
+def _rivals(means: Mapping[int, FloatArray], obj: int) -> tuple[FloatArray, ...]:
+    """The old models' mean score of each other new object's observations (object order)."""
+    return tuple(mean for o, mean in means.items() if o != obj)
 
 
 class ActiveLearner:
@@ -543,6 +552,7 @@ class ActiveLearner:
             state.gated = [False] * n
         seeds = spawn_seeds(self._rng, self.n_new_objects)
         probabilities = self._prior_probabilities(state)
+        means = _group_means(probabilities, labels)  # every object's rivals come from these
         models = []
         options = self.options
         initial = modality_kernel(
@@ -578,7 +588,7 @@ class ActiveLearner:
                 y,
                 known=state.choices[obj] if keep and not closed else None,
                 related=None if probabilities is None else probabilities[labels == obj],
-                rivals=_rivals(probabilities, labels, obj),
+                rivals=_rivals(means, obj),
                 prior=None if closed else prior,
                 auxiliary={} if closed else auxiliary,
                 rho_starts=state.rhos[obj],

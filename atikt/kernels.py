@@ -496,6 +496,7 @@ class ModalityKernel(Kernel):
             raise AtiktError(msg)
         self.logits = values
         self._weights = self._softmax(values)
+        self._theta: FloatArray | None = None  # theta, computed once (see the property)
         self.variance = variance
         self.logit_bounds = logit_bounds
         self.variance_bounds = variance_bounds
@@ -544,10 +545,14 @@ class ModalityKernel(Kernel):
 
     @property
     def theta(self) -> FloatArray:
-        """``[log l_m..., logits..., log s^2, log b^2]``."""
-        tail = [np.log(self.signal_variance)] if self._learn_variance else []
-        tail += [np.log(self.constant)] if self._learn_bias else []
-        return np.concatenate([*(p.theta for p in self.parts), self.logits, tail])
+        """``[log l_m..., logits..., log s^2, log b^2]`` (a copy: the caller may change it)."""
+        # the kernel is immutable (with_theta makes a new one): theta is put together once;
+        # the learner reads it several times per object and update
+        if self._theta is None:
+            tail = [np.log(self.signal_variance)] if self._learn_variance else []
+            tail += [np.log(self.constant)] if self._learn_bias else []
+            self._theta = np.concatenate([*(p.theta for p in self.parts), self.logits, tail])
+        return self._theta.copy()
 
     @property
     def bounds(self) -> FloatArray:
@@ -570,6 +575,7 @@ class ModalityKernel(Kernel):
             parts.append(part._with_values(values[start : start + n]))  # noqa: SLF001
             start += n
         new = self._copy()  # the bounds stay: only the values change
+        new._theta = None  # noqa: SLF001 - a copy of this class
         new.parts = tuple(parts)
         new.logits = values[start : start + len(self.parts) - 1].copy()
         new._weights = self._softmax(new.logits)  # noqa: SLF001 - a copy of this class
