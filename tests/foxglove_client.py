@@ -22,7 +22,10 @@ class FoxgloveClient:
     """Subscribes to every channel the server advertises; keeps what arrives per topic."""
 
     def __init__(self, url: str) -> None:
-        self.socket = connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")])
+        # entered as a context manager (websockets 17.1 deprecates a bare connect()); close()
+        # leaves it
+        connection = connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")])
+        self.socket = connection.__enter__()
         self.topics: dict[int, str] = {}
         self.received: dict[str, list[bytes]] = {}
         self.schemas: dict[str, tuple[str, str]] = {}
