@@ -254,3 +254,17 @@ def test_product_switches_a_modality_off_with_a_long_length_scale() -> None:
 def test_bad_kernel_choices_are_refused(build: Callable[[], object], match: str) -> None:
     with pytest.raises(AtiktError, match=match):
         build()
+
+
+def test_theta_is_the_callers_copy_and_follows_with_theta() -> None:
+    # theta is put together once per kernel: changing the array a caller got must change
+    # neither the kernel nor what it gives the next caller; a new kernel has its own theta
+    kernel = modality_kernel(SLICES, amplitude=True, bias=0.5)
+    first = kernel.theta
+    first[:] = 7.0
+    np.testing.assert_array_equal(
+        kernel.theta, modality_kernel(SLICES, amplitude=True, bias=0.5).theta
+    )
+    moved = kernel.with_theta(np.linspace(-1.0, 1.0, kernel.n_params))
+    assert not np.array_equal(moved.theta, kernel.theta)
+    np.testing.assert_allclose(moved.theta, np.linspace(-1.0, 1.0, kernel.n_params), atol=1e-12)
