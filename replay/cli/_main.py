@@ -353,29 +353,57 @@ def _dataset_json(root: Path) -> dict[str, Any]:
 JSON = arg("--json", action="store_true", help="print JSON for scripts (fields: the manual)")
 
 
+def _existing_all(paths: Sequence[Path], command: str) -> list[Path]:
+    """Return ``paths`` if they exist; several must all be recordings (a shell's glob).
+
+    Raises:
+        ReplayError: A path does not exist, or one of several is a directory.
+    """
+    found = [_existing(path) for path in paths]
+    if len(found) > 1 and (folder := next((p for p in found if p.is_dir()), None)):
+        msg = (
+            f"{folder}: a directory among {len(found)} paths; {command} takes one dataset "
+            "directory, or one or more recordings (.mcap)"
+        )
+        raise ReplayError(msg)
+    return found
+
+
+def _info_json(path: Path) -> dict[str, Any]:
+    """Return ``info --json`` of one path."""
+    if path.is_dir():
+        return _dataset_json(path)
+    if is_incomplete(path):
+        return _incomplete_json(path)
+    return _recording_json(read_recording(path))
+
+
 @command(
     "info",
-    "print a summary of a recording or of a dataset directory",
-    arg("path", type=Path, help="a recording (.mcap) or a dataset directory"),
+    "print a summary of recordings or of a dataset directory",
+    arg(
+        "paths",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="a dataset directory, or one or more recordings (.mcap)",
+    ),
     JSON,
 )
 def _info(args: argparse.Namespace) -> int:
-    path = _existing(args.path)
-    if args.json:
-        if path.is_dir():
-            _print_json(_dataset_json(path))
-        elif is_incomplete(path):
-            _print_json(_incomplete_json(path))
-        else:
-            _print_json(_recording_json(read_recording(path)))
+    paths = _existing_all(args.paths, "info")
+    if args.json:  # one path: its object; several: a list of them, in the order given
+        found = [_info_json(path) for path in paths]
+        _print_json(found[0] if len(found) == 1 else found)
         return 0
     console = output_console()
-    if path.is_dir():
-        _print_dataset(console, path)
-    elif is_incomplete(path):
-        _print_incomplete(console, path)
-    else:
-        _print_recording(console, read_recording(path))
+    for path in paths:
+        if path.is_dir():
+            _print_dataset(console, path)
+        elif is_incomplete(path):
+            _print_incomplete(console, path)
+        else:
+            _print_recording(console, read_recording(path))
     return 0
 
 
@@ -542,7 +570,13 @@ def _size(file: Path) -> int:
     "check",
     "validate recordings (CRCs, schema version, channels, decoding, dataset path and index); "
     "exit 1 if any is bad; --recover salvages an unfinished or damaged file",
-    arg("path", type=Path, help="a recording (.mcap or .mcap.part) or a dataset directory"),
+    arg(
+        "paths",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="a dataset directory, or one or more recordings (.mcap or .mcap.part)",
+    ),
     WORKERS,
     arg(
         "--recover",
@@ -553,9 +587,15 @@ def _size(file: Path) -> int:
     JSON,
 )
 def _check(args: argparse.Namespace) -> int:
-    path = _existing(args.path)
+    paths = _existing_all(args.paths, "check")
     if args.recover:
-        return _recover(path, args.out)
+        if len(paths) > 1:
+            msg = f"--recover salvages one file; {len(paths)} were given"
+            raise ReplayError(msg)
+        return _recover(paths[0], args.out)
+    if len(paths) > 1:
+        return _check_files(paths, json=args.json, workers=cli.worker_count(args.workers))
+    path = paths[0]
     files = dataset_files(path) if path.is_dir() else [path]
     bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
     unfinished = _unfinished(path) if path.is_dir() else []
@@ -585,6 +625,27 @@ def _check(args: argparse.Namespace) -> int:
     else:
         _print_check(path, files, (bad, index, unfinished, warnings), aside)
     return 1 if bad or index or unfinished else 0
+
+
+def _check_files(files: Sequence[Path], *, json: bool, workers: int) -> int:
+    """``check`` of several recordings (no dataset: no index, no seed check)."""
+    bad, warnings, _ = _check_all(list(files), workers)
+    if json:
+        _print_json(
+            {
+                "paths": [str(file) for file in files],
+                "recordings": len(files),
+                "valid": len(files) - len(bad),
+                "failures": bad,
+                "warnings": warnings,
+                "unfinished": 0,
+                "set_aside": [],
+                "ok": not bad,
+            }
+        )
+    else:
+        _print_check(files[0], files, (bad, [], [], warnings), [])
+    return 1 if bad else 0
 
 
 def _print_check(

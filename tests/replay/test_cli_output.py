@@ -153,6 +153,49 @@ def test_check_json_counts_lost_samples_as_failures(
     assert "lost samples" in failure
 
 
+def test_several_recordings_as_a_shell_glob_gives_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `atikt-replay check data/wood/C1/*.mcap`: each file checked, one verdict for all
+    data = tmp_path / "data"
+    shutil.copytree(RECORDING.parent, data / "wood" / "C1")
+    files = [str(f) for f in sorted((data / "wood" / "C1").glob("*.mcap"))]
+    assert len(files) == 2  # the committed C1 trials
+    assert main(["check", "--workers", "1", *files]) == 0
+    assert "2 of 2 recordings valid" in capsys.readouterr().out
+    assert main(["info", "--json", *files]) == 0
+    infos = json.loads(capsys.readouterr().out)
+    assert [info["path"] for info in infos] == files
+    assert main(["info", *files]) == 0
+    shown = capsys.readouterr().out
+    assert all(f in shown for f in files)
+    broken = Path(files[1])
+    broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    assert main(["check", "--json", "--workers", "1", *files]) == 1
+    result = json.loads(capsys.readouterr().out)
+    assert result["paths"] == files
+    assert (result["recordings"], result["valid"], result["ok"]) == (2, 1, False)
+    assert "002.mcap" in result["failures"][0]
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["check", "DIR", "FILE"], "a directory among 2 paths; check takes one dataset"),
+        (["info", "FILE", "DIR"], "a directory among 2 paths; info takes one dataset"),
+        (["check", "--recover", "FILE", "FILE"], "--recover salvages one file; 2 were given"),
+    ],
+)
+def test_several_paths_that_cannot_go_together_are_one_line(
+    argv: list[str], said: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    given = {"DIR": str(RECORDING.parents[2]), "FILE": str(RECORDING)}
+    assert main([given.get(word, word) for word in argv]) == 1
+    err = capsys.readouterr().err
+    assert said in err
+    assert err.count("\n") == 1
+
+
 def _task(total: float | None, completed: float, elapsed_s: float, unit: str = "tasks") -> str:
     progress = Progress(console=Console(file=None), disable=True)
     task_id = progress.add_task("study transfer", total=total, unit=unit)
