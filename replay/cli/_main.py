@@ -593,10 +593,8 @@ def _check(args: argparse.Namespace) -> int:
             msg = f"--recover salvages one file; {len(paths)} were given"
             raise ReplayError(msg)
         return _recover(paths[0], args.out)
-    if len(paths) > 1:
-        return _check_files(paths, json=args.json, workers=cli.worker_count(args.workers))
-    path = paths[0]
-    files = dataset_files(path) if path.is_dir() else [path]
+    path = paths[0]  # a directory comes alone (several paths are recordings)
+    files = dataset_files(path) if path.is_dir() else paths
     bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
     unfinished = _unfinished(path) if path.is_dir() else []
     try:
@@ -612,7 +610,7 @@ def _check(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(
             {
-                "path": str(path),
+                **({"path": str(path)} if len(paths) == 1 else {"paths": list(map(str, paths))}),
                 "recordings": len(files),
                 "valid": len(files) - len(bad),
                 "failures": bad + index + unfinished,
@@ -625,27 +623,6 @@ def _check(args: argparse.Namespace) -> int:
     else:
         _print_check(path, files, (bad, index, unfinished, warnings), aside)
     return 1 if bad or index or unfinished else 0
-
-
-def _check_files(files: Sequence[Path], *, json: bool, workers: int) -> int:
-    """``check`` of several recordings (no dataset: no index, no seed check)."""
-    bad, warnings, _ = _check_all(list(files), workers)
-    if json:
-        _print_json(
-            {
-                "paths": [str(file) for file in files],
-                "recordings": len(files),
-                "valid": len(files) - len(bad),
-                "failures": bad,
-                "warnings": warnings,
-                "unfinished": 0,
-                "set_aside": [],
-                "ok": not bad,
-            }
-        )
-    else:
-        _print_check(files[0], files, (bad, [], [], warnings), [])
-    return 1 if bad else 0
 
 
 def _print_check(
