@@ -16,7 +16,14 @@ from atikt.features import (
     texture,
     thermal_sequence,
 )
-from atikt.gpc import BinaryGPC, LaplaceMode, MultiModalGPC, OneVsAllGPC, laplace_mode
+from atikt.gpc import (
+    BinaryGPC,
+    LaplaceMode,
+    MultiModalGPC,
+    OneVsAllGPC,
+    laplace_evidences,
+    laplace_mode,
+)
 from atikt.kernels import (
     DependentKernel,
     Kernel,
@@ -92,6 +99,7 @@ __all__ = [
     "fit_prior_model",
     "fit_prior_models",
     "hjorth",
+    "laplace_evidences",
     "laplace_mode",
     "linear_correlation",
     "modality_kernel",

@@ -42,7 +42,7 @@ from atikt.gpc import (
     BinaryGPC,
     RandomState,
     add_to_diagonal,
-    laplace_mode,
+    laplace_evidences,
     normalise,
     predictive_probability,
     spawn_seeds,
@@ -644,19 +644,14 @@ class ActiveLearner:
         """Sum over the new objects of their one-vs-all log evidence at ``kernel``.
 
         The covariance is the same for every object (only the labels differ): computed once,
-        as :class:`BinaryGPC` with ``optimize=False`` would compute it for each.
+        as :class:`BinaryGPC` with ``optimize=False`` would compute it for each, and the
+        objects' Laplace approximations found together (:func:`~atikt.gpc.laplace_evidences`).
         """
         gpc = BinaryGPC(kernel, optimize=False)
         K = add_to_diagonal(kernel(X), gpc.jitter)
-        return sum(
-            laplace_mode(
-                K,
-                (labels == obj).astype(np.float64),
-                max_iter=gpc.newton_max_iter,
-                tol=gpc.newton_tol,
-            ).log_marginal_likelihood
-            for obj in range(self.n_new_objects)
-        )
+        Y = (labels == np.arange(self.n_new_objects)[:, None]).astype(np.float64)
+        evidences = laplace_evidences(K, Y, max_iter=gpc.newton_max_iter, tol=gpc.newton_tol)
+        return float(sum(evidences.tolist()))  # summed in order, as one by one
 
     def _prior_probabilities(self, state: ActionState) -> FloatArray | None:
         """The old models' score of every observation (model prediction or density approach).

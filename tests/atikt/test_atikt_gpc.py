@@ -20,7 +20,8 @@ from atikt import (
     laplace_mode,
     modality_kernel,
 )
-from atikt.gpc import predictive_probability
+from atikt import gpc as gpc_module
+from atikt.gpc import laplace_evidences, predictive_probability
 from atikt.transfer import with_domain
 
 if TYPE_CHECKING:
@@ -174,6 +175,52 @@ def test_numerical_failures_raise_numerical_error() -> None:
         laplace_mode(-100.0 * np.eye(3), y)
     with pytest.raises(NumericalError):
         laplace_mode(np.full((3, 3), np.nan), y)
+
+
+def test_evidences_of_many_label_vectors_equal_one_mode_each() -> None:
+    # the learner's smooth kernels, and covariances with anticorrelations (entries up to 1e4,
+    # which amplify rounding)
+    rng = np.random.default_rng(5)
+    for case in range(300):
+        n, m = int(rng.integers(2, 30)), int(rng.integers(1, 7))
+        if case % 2:
+            A = rng.standard_normal((n, n)) * 10 ** rng.uniform(0, 2)
+            K = A @ A.T + 1e-6 * np.eye(n)
+        else:
+            X = rng.standard_normal((n, 4))
+            K = modality_kernel(SLICES, variance=float(10 ** rng.uniform(-1, 2)))(X)
+        Y = (rng.integers(0, m, n) == np.arange(m)[:, None]).astype(float)
+        for max_iter in (2, 100):  # also vectors stopped by the iteration limit
+            together = laplace_evidences(K, Y, max_iter=max_iter)
+            one_by_one = [laplace_mode(K, y, max_iter=max_iter).log_marginal_likelihood for y in Y]
+            np.testing.assert_allclose(together, one_by_one, rtol=1e-12, atol=1e-9)
+    assert laplace_evidences(np.eye(3), np.zeros((0, 3))).shape == (0,)
+    with pytest.raises(NumericalError, match="Cholesky"):
+        laplace_evidences(-100.0 * np.eye(3), np.array([[0.0, 1.0, 1.0]]))
+    with pytest.raises(NumericalError):
+        laplace_evidences(np.full((3, 3), np.nan), np.array([[0.0, 1.0, 1.0]]))
+    with pytest.raises(AtiktError, match="max_iter"):
+        laplace_evidences(np.eye(3), np.array([[0.0, 1.0, 1.0]]), max_iter=0)
+
+
+def test_a_damped_newton_step_is_laplace_modes_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    # strong anticorrelations of entries near 1e6: a Newton step from zero can lower the
+    # objective; such a vector is handed to laplace_mode, so its evidence is laplace_mode's
+    damped = []
+    real_damped = gpc_module._damped
+    monkeypatch.setattr(gpc_module, "_damped", lambda *a: damped.append(1) or real_damped(*a))
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        n = int(rng.integers(2, 8))
+        A = rng.standard_normal((n, n)) * 10 ** rng.uniform(2, 4)
+        y = (rng.random(n) < 0.5).astype(float)
+        before = len(damped)
+        expected = laplace_mode(A @ A.T + 1e-6 * np.eye(n), y).log_marginal_likelihood
+        if len(damped) > before:
+            (together,) = laplace_evidences(A @ A.T + 1e-6 * np.eye(n), y[None, :])
+            assert together == expected
+            return
+    pytest.fail("no damped Newton step in 2000 covariances")
 
 
 def test_multimodal_gpc_on_chosen_modalities() -> None:
