@@ -392,19 +392,42 @@ def _info_json(path: Path) -> dict[str, Any]:
 )
 def _info(args: argparse.Namespace) -> int:
     paths = _existing_all(args.paths, "info")
-    if args.json:  # one path: its object; several: a list of them, in the order given
-        found = [_info_json(path) for path in paths]
-        _print_json(found[0] if len(found) == 1 else found)
+    console = None if args.json else output_console()
+    if len(paths) == 1:
+        _info_one(paths[0], console)
         return 0
-    console = output_console()
+    # several recordings (a shell's glob): each one readable is shown, each one not is one
+    # line on stderr, and the status says whether all were read
+    shown: list[dict[str, Any]] = []
+    failed = 0
     for path in paths:
-        if path.is_dir():
-            _print_dataset(console, path)
-        elif is_incomplete(path):
-            _print_incomplete(console, path)
-        else:
-            _print_recording(console, read_recording(path))
-    return 0
+        try:
+            if console is None:
+                shown.append(_info_json(path))
+            else:
+                _info_one(path, console)
+        except ReplayError as err:
+            failed += 1
+            line = one_line(str(err))
+            print(f"atikt-replay: error: {line}", file=sys.stderr)  # noqa: T201
+            shown.append({"kind": "unreadable", "path": str(path), "error": line})
+    if console is None:  # a list in the order given, an unreadable file's entry saying why
+        _print_json(shown)
+    if failed:
+        print(f"{failed} of {len(paths)} recordings could not be read", file=sys.stderr)  # noqa: T201
+    return 1 if failed else 0
+
+
+def _info_one(path: Path, console: Console | None) -> None:
+    """Print ``info`` of one path on ``console``; JSON without one (``--json``)."""
+    if console is None:
+        _print_json(_info_json(path))
+    elif path.is_dir():
+        _print_dataset(console, path)
+    elif is_incomplete(path):
+        _print_incomplete(console, path)
+    else:
+        _print_recording(console, read_recording(path))
 
 
 def _check_one(path: Path) -> tuple[str | None, str | None, int | None]:

@@ -176,6 +176,24 @@ def test_several_recordings_as_a_shell_glob_gives_them(
     assert result["paths"] == files
     assert (result["recordings"], result["valid"], result["ok"]) == (2, 1, False)
     assert "002.mcap" in result["failures"][0]
+    # info shows each file it can read and names each it cannot, in one line apiece
+    empty = data / "wood" / "C1" / "003.mcap"
+    empty.touch()
+    assert main(["info", *files, str(empty)]) == 1
+    out, err = capsys.readouterr()
+    assert files[0] in out
+    assert files[1] not in out
+    lines = err.splitlines()
+    assert len(lines) == 3
+    assert files[1] in lines[0]
+    assert "truncated" in lines[0]
+    assert str(empty) in lines[1]
+    assert lines[2] == "2 of 3 recordings could not be read"
+    assert main(["info", "--json", *files]) == 1
+    infos = json.loads(capsys.readouterr().out)
+    assert [info["kind"] for info in infos] == ["recording", "unreadable"]
+    assert infos[1]["path"] == files[1]
+    assert "truncated" in infos[1]["error"]
 
 
 @pytest.mark.parametrize(
