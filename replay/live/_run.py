@@ -147,14 +147,17 @@ class LiveView:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Send the recordings' properties and flush, waiting a bounded time for the viewer."""
+        """Send the recordings' properties, flush (a bounded wait for a viewer) and close.
+
+        Closing ends a file with rerun's footer (its index): until the stream lets go of the
+        file, a reader in this process (a library user, a test) finds a file without it.
+        """
         self.sink.__exit__(exc_type, exc, tb)
         with contextlib.suppress(Exception):  # the viewer's trouble never fails the run
             if self.viewed:
                 send_properties(self.stream, self.viewed)
             self.stream.flush(timeout_sec=CLOSE_S if self._viewer is not None else 1e38)
-        if self._viewer is not None:
-            self.stream.disconnect()
+        self.stream.disconnect()
 
 
 def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN401 (rerun's)

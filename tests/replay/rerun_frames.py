@@ -7,11 +7,13 @@ chunks of every entity, static and temporal apart.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import polars as pl
 from rerun.chunk import McapReader, RrdReader
+from rerun.error_utils import RerunWarning
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -66,7 +68,7 @@ def entities(chunks: Iterable[Any], index: str) -> Entities:
 
 def read_rrd(path: Path, index: str = "log_time") -> Entities:
     """Read an .rrd file written by ``atikt-replay view``."""
-    return entities(RrdReader(path).stream().to_chunks(), index)
+    return entities(_rrd(path).stream().to_chunks(), index)
 
 
 def temporal_entities(path: Path) -> set[str]:
@@ -75,7 +77,7 @@ def temporal_entities(path: Path) -> set[str]:
     A live run's view holds tens of thousands of chunks: :func:`read_rrd` converts each to a
     frame (seconds), where a test of what was logged needs only the entity paths.
     """
-    return {c.entity_path for c in RrdReader(path).stream().to_chunks() if not c.is_static}
+    return {c.entity_path for c in _rrd(path).stream().to_chunks() if not c.is_static}
 
 
 def read_mcap_with_rerun(path: Path, index: str = "message_log_time") -> Entities:
@@ -86,3 +88,10 @@ def read_mcap_with_rerun(path: Path, index: str = "message_log_time") -> Entitie
 def nanoseconds(column: pl.Series) -> list[int]:
     """Return a timestamp column as int nanoseconds."""
     return column.cast(pl.Int64).to_list()
+
+
+def _rrd(path: Path) -> RrdReader:
+    """Open an .rrd file; a file without rerun's footer (a stream never closed) fails."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RerunWarning)
+        return RrdReader(path)
