@@ -271,6 +271,9 @@ def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -
         reading.join(10)
         out = "".join(lines)
         err = recorder.stderr.read() if recorder.stderr is not None else ""
+        for pipe in (recorder.stdout, recorder.stderr):
+            if pipe is not None:
+                pipe.close()
     assert recorder.returncode == 130, err
     assert "Traceback" not in err
     listened = tmp_path / "data" / "listened"

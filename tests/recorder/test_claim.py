@@ -88,7 +88,9 @@ def test_check_reports_a_directory_of_two_seeds(
 ) -> None:
     one, two = tmp_path / "one", tmp_path / "two"
     for out, seed in ((one, 1), (two, 2)):
-        assert _dataset(out, seed).wait(300) == 0
+        run = _dataset(out, seed)
+        _, err = run.communicate(timeout=300)  # reads the pipes (wait() could fill them)
+        assert run.returncode == 0, err
     moved = one / "wood" / "P1" / "002.mcap"
     shutil.copy(two / "wood" / "P1" / "001.mcap", moved)
     (one / "index.parquet").unlink()

@@ -423,7 +423,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
         finally:
             if process.poll() is None:
                 process.kill()
-                process.wait(10)
+            process.communicate(timeout=10)  # reaps it and closes its pipes
     return second[0], killed_ns, (out / "wood" / "S1" / "002.mcap").exists()
 
 

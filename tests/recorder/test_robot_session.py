@@ -195,7 +195,7 @@ def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) ->
         time.sleep(2.0)  # well inside the 4.5 s hold (C1 at time_scale 0.3)
         killed_ns = time.time_ns()
         recorder.send_signal(signal.SIGKILL)
-        recorder.wait(timeout=10)
+        recorder.communicate(timeout=10)  # reaps it and closes its pipe
     assert recorder.returncode == -signal.SIGKILL
     assert not (out / "wood" / "C1" / "001.mcap").exists()
     report = salvage(parts[0])
