@@ -293,10 +293,11 @@ def laplace_evidences(
     on every label vector still iterating, with the same steps and the same stopping rules per
     vector as :func:`laplace_mode`. The results equal :func:`laplace_mode`'s up to rounding
     (about 1e-13 nats). A vector whose Newton step lowers the objective (the rare damped
-    step) is handed to :func:`laplace_mode` itself. Written by hand because no library fits
-    many small Laplace approximations at once; at tens of observations each numpy call costs
-    more than its arithmetic, so one call for all vectors instead of one per vector is what
-    makes it faster.
+    step) is handed to :func:`laplace_mode` itself, and so is every vector when ``K`` is not
+    positive definite (not a covariance, or singular without jitter). Written by hand because
+    no library fits many small Laplace approximations at once; at tens of observations each
+    numpy call costs more than its arithmetic, so one call for all vectors instead of one per
+    vector is what makes it faster.
 
     Args:
         K: Prior covariance of the training points, shape (n, n).
@@ -312,6 +313,12 @@ def laplace_evidences(
             is not finite.
     """
     _check_newton(K, max_iter)
+    try:  # K positive definite: every B = I + W^1/2 K W^1/2 is, as laplace_mode's Cholesky needs
+        np.linalg.cholesky(K)
+    except np.linalg.LinAlgError:  # not a covariance: each vector as laplace_mode decides
+        return np.array(
+            [laplace_mode(K, y, max_iter=max_iter, tol=tol).log_marginal_likelihood for y in Y]
+        )
     m, n = Y.shape
     result = [math.nan] * m
     sign = 2.0 * Y - 1.0

@@ -195,6 +195,11 @@ def test_evidences_of_many_label_vectors_equal_one_mode_each() -> None:
             one_by_one = [laplace_mode(K, y, max_iter=max_iter).log_marginal_likelihood for y in Y]
             np.testing.assert_allclose(together, one_by_one, rtol=1e-12, atol=1e-9)
     assert laplace_evidences(np.eye(3), np.zeros((0, 3))).shape == (0,)
+    # not a covariance: what laplace_mode gives (a value where its Cholesky succeeds)
+    indefinite = np.array([[1.0, 2.0], [2.0, 1.0]])
+    labels = np.array([[0.0, 1.0], [1.0, 0.0]])
+    expected = [laplace_mode(indefinite, y).log_marginal_likelihood for y in labels]
+    assert laplace_evidences(indefinite, labels).tolist() == expected
     with pytest.raises(NumericalError, match="Cholesky"):
         laplace_evidences(-100.0 * np.eye(3), np.array([[0.0, 1.0, 1.0]]))
     with pytest.raises(NumericalError):
