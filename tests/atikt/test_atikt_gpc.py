@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -211,9 +211,14 @@ def test_evidences_of_many_label_vectors_equal_one_mode_each() -> None:
 def test_a_damped_newton_step_is_laplace_modes_own(monkeypatch: pytest.MonkeyPatch) -> None:
     # strong anticorrelations of entries near 1e6: a Newton step from zero can lower the
     # objective; such a vector is handed to laplace_mode, so its evidence is laplace_mode's
-    damped = []
+    damped: list[int] = []
     real_damped = gpc_module._damped
-    monkeypatch.setattr(gpc_module, "_damped", lambda *a: damped.append(1) or real_damped(*a))
+
+    def counted(*args: Any) -> Any:
+        damped.append(1)
+        return real_damped(*args)
+
+    monkeypatch.setattr(gpc_module, "_damped", counted)
     rng = np.random.default_rng(3)
     for _ in range(2000):
         n = int(rng.integers(2, 8))
