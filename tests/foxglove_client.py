@@ -30,6 +30,8 @@ class FoxgloveClient:
         self.received: dict[str, list[bytes]] = {}
         self.schemas: dict[str, tuple[str, str]] = {}
         self._next = 1
+        #: Why the client stopped reading before close() (empty: it did not).
+        self.error = ""
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -40,24 +42,34 @@ class FoxgloveClient:
                 frame: Any = self.socket.recv(timeout=0.1)
             except TimeoutError:
                 continue
-            except Exception:  # noqa: BLE001 (the server went away: the test is over)
+            except Exception as err:  # noqa: BLE001 (the server went away: the test is over)
+                if not self._stop.is_set():
+                    self.error = f"recv: {err!r}"
                 return
-            if isinstance(frame, bytes):
-                if frame[0] == _MESSAGE_DATA:
-                    subscription, _ = struct.unpack_from("<IQ", frame, 1)
-                    topic = self.topics[subscription]
-                    self.received.setdefault(topic, []).append(frame[13:])
-                continue
-            message = json.loads(frame)
-            if message["op"] == "advertise":
-                subscriptions = []
-                for channel in message["channels"]:
-                    self.topics[self._next] = channel["topic"]
-                    encoding = (channel["encoding"], channel["schemaEncoding"])
-                    self.schemas[channel["topic"]] = encoding
-                    subscriptions.append({"id": self._next, "channelId": channel["id"]})
-                    self._next += 1
-                self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+            try:
+                self._take(frame)
+            except Exception as err:  # noqa: BLE001 (kept for the test's message)
+                self.error = f"{type(err).__name__}: {err} in {str(frame)[:200]}"
+                return
+
+    def _take(self, frame: Any) -> None:
+        """Keep a message's payload; subscribe to every channel an advertisement names."""
+        if isinstance(frame, bytes):
+            if frame[0] == _MESSAGE_DATA:
+                subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                topic = self.topics[subscription]
+                self.received.setdefault(topic, []).append(frame[13:])
+            return
+        message = json.loads(frame)
+        if message["op"] == "advertise":
+            subscriptions = []
+            for channel in message["channels"]:
+                self.topics[self._next] = channel["topic"]
+                encoding = (channel["encoding"], channel["schemaEncoding"])
+                self.schemas[channel["topic"]] = encoding
+                subscriptions.append({"id": self._next, "channelId": channel["id"]})
+                self._next += 1
+            self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def close(self) -> None:
         self._stop.set()

@@ -383,7 +383,11 @@ def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: P
         # declared: the action starts once both are done, however long discovery takes
         deadline = time.monotonic() + 60
         while not view.subscribed >= {"/annotations", "/joint_states"}:
-            said = (view.subscribed, client.topics, run.error, run.notes, view.failure)
+            said = (
+                f"subscribed {sorted(view.subscribed)}; advertised to the client "
+                f"{sorted(client.topics.values())} (its reader stopped: {client.error!r}); "
+                f"listen: {run.error!r} {run.notes}; the view: {view.failure!r}"
+            )
             assert time.monotonic() < deadline, said
             assert run.thread.is_alive(), said
             time.sleep(0.05)
@@ -392,6 +396,7 @@ def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: P
         report = run.finish()
         time.sleep(0.5)  # the view's thread serves what is queued
         client.close()
+    assert client.error == ""
     assert view.dropped == 0
     assert view.failure == ""
     (path,) = report.written
