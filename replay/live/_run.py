@@ -157,7 +157,8 @@ class LiveView:
             if self.viewed:
                 send_properties(self.stream, self.viewed)
             self.stream.flush(timeout_sec=CLOSE_S if self._viewer is not None else 1e38)
-        self.stream.disconnect()
+        with contextlib.suppress(Exception):  # nor does closing it (the file stays readable)
+            self.stream.disconnect()
 
 
 def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN401 (rerun's)
