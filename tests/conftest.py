@@ -322,3 +322,27 @@ def _signal_handlers_restored() -> Iterator[None]:
     for number in changed:
         signal.signal(number, before[number])
     assert not changed, f"handlers left changed: {changed} (were {before})"
+
+
+#: Seconds a test marked ``slow`` without a figure is taken to last.
+SLOW_S = 5.0
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the longest tests first, longest to shortest, then the rest in collection order.
+
+    pytest-xdist's worksteal scheduler hands each worker a contiguous half of the list and
+    lets an idle worker take the second half of another's queue: in collection order one of
+    the two ended 45 s after the other, running the manual's robot walk-throughs (about 100 s
+    in three tests) alone at the end. Longest first, the last tests to run are short ones.
+    The figures are a test's seconds alone on the 2-core machine (``--durations``); they only
+    order the run. The sort is stable and the same in every worker, as xdist requires.
+    """
+
+    def seconds(item: pytest.Item) -> float:
+        mark = item.get_closest_marker("slow")
+        if mark is None:
+            return 0.0
+        return float(mark.args[0]) if mark.args else SLOW_S
+
+    items.sort(key=lambda item: -seconds(item))

@@ -37,6 +37,16 @@ LEFT_OUT = {"bench_atikt.py", "bench_listen_soak.py"}
 SCRIPTS = sorted(
     p.name for p in BENCH.glob("*.py") if not p.name.startswith("_") and p.name not in LEFT_OUT
 )
+#: Seconds a quick run took alone (the slowest; tests/conftest.py runs the slowest tests first).
+QUICK_S = {
+    "bench_stop_latency.py": 16,
+    "bench_live_dds.py": 15,
+    "behaviour_hashes.py": 12,
+    "transfer_speed.py": 8,
+    "bench_live.py": 7,
+    "bench_view_export.py": 5,
+    "bench_replay.py": 5,
+}
 #: The launcher's import of the libraries, seconds before it counts as hung.
 READY_S = 120
 #: Seconds one quick run may take before it counts as hung.
@@ -72,6 +82,7 @@ def test_scripts_found() -> None:
     assert "bench_replay.py" in SCRIPTS
     assert "behaviour_hashes.py" in SCRIPTS
     assert not LEFT_OUT & set(SCRIPTS)
+    assert set(QUICK_S) <= set(SCRIPTS)
 
 
 class _Launcher:
@@ -139,7 +150,10 @@ def launcher(quick_env: dict[str, str]) -> Iterator[_Launcher]:
         running.close()
 
 
-@pytest.mark.parametrize("script", SCRIPTS)
+@pytest.mark.parametrize(
+    "script",
+    [pytest.param(s, marks=pytest.mark.slow(QUICK_S[s])) if s in QUICK_S else s for s in SCRIPTS],
+)
 def test_quick_mode_runs(
     script: str, quick_env: dict[str, str], launcher: _Launcher, tmp_path: Path
 ) -> None:

@@ -78,6 +78,7 @@ def test_readme_has_commands_for_every_tool() -> None:
         assert any(words[1] == wanted for words in used), wanted
 
 
+@pytest.mark.slow(7)
 def test_see_your_data_examples_run_on_small_data(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import pytest
+
 from recorder import load_actions
 
 if TYPE_CHECKING:
@@ -158,6 +160,7 @@ def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, s
     return run.returncode, err
 
 
+@pytest.mark.slow(56)
 def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
     (serve,) = [command for command, _ in _steps(BLOCKS[0]) if " serve-sim " in f" {command} "]
     steps = _steps(BLOCKS[1])
@@ -203,6 +206,7 @@ def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
     assert live == offline
 
 
+@pytest.mark.slow(19)
 def test_the_in_process_rehearsal_runs_as_printed(tmp_path: Path) -> None:
     steps = _steps(_block("--rig sim-ur10", "atikt-replay learn"))
     outputs: dict[str, str] = {}
@@ -235,6 +239,7 @@ def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow(31)
 def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -> None:
     (serve,) = [c for c, _ in _steps(_block("serve-sim", "--ros2")) if " serve-sim " in f" {c} "]
     (listen, _), *steps = _steps(_block("atikt-record listen", "atikt-record session"))

@@ -12,10 +12,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = ROOT / "tests" / "bench" / "bench_atikt.py"
 
 
+@pytest.mark.slow(13)
 def test_bench_atikt_quick_runs_and_meets_its_quality_targets() -> None:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "1"}
     done = subprocess.run(  # noqa: S603 - this repository's own script

@@ -134,6 +134,7 @@ def _publish_cells(domain: DdsDomain, stamps: list[int], lag_ns: list[int]) -> N
             writer.write(raw)
 
 
+@pytest.mark.slow(7)
 def test_a_recording_whose_first_second_arrives_late_keeps_the_sources_clock_offset(
     dds_domain: int, tmp_path: Path
 ) -> None:

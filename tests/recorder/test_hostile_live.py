@@ -366,6 +366,7 @@ def test_rtde_ten_times_the_rate_is_counted() -> None:
     assert not stats.complete
 
 
+@pytest.mark.slow(8)
 def test_a_udp_flood_is_bounded_in_memory_and_keeps_only_valid_frames_once() -> None:
     """100,000 datagrams as fast as loopback takes them (valid frames, garbage between them),
     while the consumer polls as the runner does: memory stays bounded (the kernel's buffer and

@@ -427,6 +427,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
     return second[0], killed_ns, (out / "wood" / "S1" / "002.mcap").exists()
 
 
+@pytest.mark.slow(21)
 def test_sigkill_after_an_end_then_a_rerun_recovers(dds_domain: int, tmp_path: Path) -> None:
     # a window is written once every topic sent samples stamped max_delay_s + 1 s past its
     # end: 5 s here, and the next action opens at once, so the listener is killed before

@@ -149,6 +149,7 @@ def _served(map_path: Path, domain_id: int, rate_hz: int) -> Iterator[tuple[Virt
         yield world, server
 
 
+@pytest.mark.slow(6)
 def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> None:
     map_path = _map(tmp_path)
     with _served(map_path, dds_domain, 250) as (world, server):
@@ -196,6 +197,7 @@ def test_lost_end_is_kept_as_incomplete_with_a_line(dds_domain: int, tmp_path: P
     assert any("kept as incomplete" in line and "before its 'end'" in line for line in run.notes)
 
 
+@pytest.mark.slow(6)
 def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
     dds_domain: int, tmp_path: Path
 ) -> None:
@@ -244,6 +246,7 @@ def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
     assert len(report.written) == 1, run.notes
 
 
+@pytest.mark.slow(11)
 def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: Path) -> None:
     import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
@@ -301,6 +304,7 @@ def _sockets(pid: int) -> list[str]:
     return [line.split()[3] for line in out.splitlines() if f"pid={pid}," in line]
 
 
+@pytest.mark.slow(9)
 @pytest.mark.skipif(__import__("shutil").which("ss") is None, reason="needs ss (iproute2)")
 def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     dds_domain: int, tmp_path: Path
@@ -338,6 +342,7 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     assert len(bound) - len(specific) <= 2, bound
 
 
+@pytest.mark.slow(18)
 def test_the_soak_benchmark_runs_quick() -> None:
     import os  # noqa: PLC0415
     import subprocess  # noqa: PLC0415
@@ -364,6 +369,7 @@ def test_the_soak_benchmark_runs_quick() -> None:
     assert written.group(1) == written.group(2), done.stdout[-1500:]
 
 
+@pytest.mark.slow(5)
 def test_listen_serves_what_it_receives_to_foxglove(dds_domain: int, tmp_path: Path) -> None:
     pytest.importorskip("websockets.sync.client")
     pytest.importorskip("foxglove")

@@ -156,6 +156,7 @@ def test_refused_real_time_scheduling_is_one_line_and_the_action_is_recorded(
     assert _fact(written.path) == "normal"
 
 
+@pytest.mark.slow(5)
 @needs_fifo
 def test_during_an_action_the_loop_and_readers_are_fifo_and_nothing_else(tmp_path: Path) -> None:
     threads: dict[str, tuple[int, int]] = {}

@@ -128,6 +128,7 @@ def _check_every_sample(
             assert item.missing == item.duplicated == item.out_of_order == 0, item
 
 
+@pytest.mark.slow(9)
 def test_a_session_with_a_udp_skin(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
     udp = _free_port(socket.SOCK_DGRAM)
@@ -142,6 +143,7 @@ def test_a_session_with_a_udp_skin(tmp_path: Path, capsys: pytest.CaptureFixture
     _check_every_sample(out, capsys, {"rtde", "skin-fast", "skin-proximity", "skin-temperature"})
 
 
+@pytest.mark.slow(15)
 def test_a_session_with_a_ros2_skin(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], dds_domain: int
 ) -> None:
@@ -168,6 +170,7 @@ def _last_log_ns(path: Path) -> int:
         return max(message.log_time for _, _, message in make_reader(stream).iter_messages())
 
 
+@pytest.mark.slow(8)
 def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) -> None:
     from replay import salvage  # noqa: PLC0415
 
@@ -203,6 +206,7 @@ def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) ->
     assert 0 <= lost_s < 0.5, lost_s
 
 
+@pytest.mark.slow(14)
 def test_live_learning_at_the_virtual_robot_replays_offline(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -257,6 +261,7 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
     return run.returncode, err
 
 
+@pytest.mark.slow(14)
 @pytest.mark.parametrize("cause", ["SIGTERM", "SIGKILL", "disconnect", "protective"])
 def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], cause: str

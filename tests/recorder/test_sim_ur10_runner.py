@@ -44,6 +44,7 @@ def _rig(*options: str, seed: int = 0) -> SimUR10Rig:
     return rig
 
 
+@pytest.mark.slow(5)
 def test_a_session_is_byte_identical_run_to_run_and_valid(tmp_path: Path) -> None:
     def session(out: Path) -> None:
         args = ["session", "--rig", "sim-ur10", "--rig-option", FAST, "--yes"]
@@ -64,6 +65,7 @@ def test_a_session_is_byte_identical_run_to_run_and_valid(tmp_path: Path) -> Non
     assert abs(float(recording.tcp.position[0, 0]) + 0.55) < 1e-3
 
 
+@pytest.mark.slow(12)
 def test_over_fifty_actions_every_action_starts_where_the_first_did(tmp_path: Path) -> None:
     obj = OBJECTS["wood"]
     starts = []

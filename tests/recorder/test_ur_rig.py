@@ -41,6 +41,7 @@ def _record(lab_rig: URRig, action: str, path: Path) -> Path:
     return written.path
 
 
+@pytest.mark.slow(6)
 def test_full_action_passes_check_and_opens_everywhere(tmp_path: Path) -> None:
     faults = RtdeFaults(drop=2, duplicate=1, reorder=1, after=20, at_action_s=0.0)
     path = tmp_path / "wood" / "C1" / "001.mcap"
@@ -128,6 +129,7 @@ def test_a_new_program_replaces_the_playing_action() -> None:
         assert lab.world.playing() == ("foam_block", "P1", 1)
 
 
+@pytest.mark.slow(6)
 def test_the_light_contact_counts_every_force_sample_not_only_the_latest(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -268,6 +268,7 @@ def _served_lab(tmp_path: Path) -> tuple[Path, list[str]]:
     return lab, command
 
 
+@pytest.mark.slow(25)
 def test_over_ten_actions_served_every_action_starts_where_the_first_did(
     tmp_path: Path,
 ) -> None:

@@ -107,7 +107,7 @@ def _leftovers(*directories: Path) -> list[Path]:
     return found
 
 
-@pytest.mark.slow
+@pytest.mark.slow(15)
 def test_ctrl_c_in_a_study_is_one_line_and_a_rerun_completes(tmp_path: Path) -> None:
     data = tmp_path / "data"
     shutil.copytree(ROOT / "recordings" / "data", data)
@@ -132,7 +132,7 @@ def test_ctrl_c_in_a_study_is_one_line_and_a_rerun_completes(tmp_path: Path) -> 
     assert (out / "results.parquet").is_file()
 
 
-@pytest.mark.slow
+@pytest.mark.slow(5)
 def test_ctrl_c_while_recording_a_dataset_leaves_no_part_and_resumes(tmp_path: Path) -> None:
     data = tmp_path / "data"
     argv = ["recorder", "dataset", "--out", str(data), "--workers", "2"]
@@ -209,6 +209,7 @@ def test_an_index_of_nothing_or_of_two_seeds_is_refused(
     assert "holds recordings of 2 different seeds (seed 0 (e.g. wood/P1/001.mcap)" in err
 
 
+@pytest.mark.slow(5)
 def test_a_hostile_feature_cache_is_rebuilt_with_a_line(
     small_dataset: Path, tmp_path: Path
 ) -> None:

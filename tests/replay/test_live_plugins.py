@@ -35,6 +35,7 @@ def lab_rig(monkeypatch: pytest.MonkeyPatch) -> None:
     PROCESSES.clear()
 
 
+@pytest.mark.slow(11)
 def test_live_learning_on_an_exclusive_plugin_rig_replays_offline_with_the_same_steps(
     small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

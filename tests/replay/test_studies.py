@@ -171,6 +171,7 @@ def test_prediction_transfer_needs_two_old_objects_the_others_one(
         assert [task.priors for task in tasks] == [OLD[:1]]
 
 
+@pytest.mark.slow(6)
 def test_fusion_prior_from_the_other_objects_and_the_margin_table(
     features: pl.DataFrame, whole_fusion: StudyOutput, tmp_path: Path
 ) -> None:
