@@ -422,6 +422,19 @@ def host_port(text: str) -> tuple[str, int] | None:
     return host or LOOPBACK, number
 
 
+def port(text: str) -> int:
+    """Return a port option's value: a whole number in 0..65535 (0: any free port).
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    address = host_port(text)
+    if address is None or ":" in text:
+        msg = f"{text}: give a port from 0 (any free port) to 65535"
+        raise argparse.ArgumentTypeError(msg)
+    return address[1]
+
+
 def worker_count(value: int | None) -> int:
     """Return the worker count: the option's value, else every core."""
     return value if value is not None else os.cpu_count() or 1

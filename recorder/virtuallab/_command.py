@@ -19,6 +19,7 @@ import dataclasses
 import importlib
 import json
 import signal
+import socket
 import sys
 import threading
 from pathlib import Path
@@ -34,6 +35,7 @@ from recorder.virtuallab._events import Event, EventLog
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
 from recorder.virtuallab._world import VirtualWorld
+from schemas import cli
 
 if TYPE_CHECKING:
     import argparse
@@ -287,8 +289,8 @@ def _switch_within_a_cycle(frequency: int) -> None:
     "serve-sim",
     "serve the simulator over a UR's RTDE and URScript ports (a virtual lab, on loopback)",
     arg("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, loopback)"),
-    arg("--rtde-port", type=int, default=30004, help="RTDE port (default: 30004)"),
-    arg("--script-port", type=int, default=30002, help="URScript port (default: 30002)"),
+    arg("--rtde-port", type=cli.port, default=30004, help="RTDE port (default: 30004)"),
+    arg("--script-port", type=cli.port, default=30002, help="URScript port (default: 30002)"),
     arg(
         "--frequency",
         type=int,
@@ -298,7 +300,7 @@ def _switch_within_a_cycle(frequency: int) -> None:
     ),
     arg(
         "--dashboard-port",
-        type=int,
+        type=cli.port,
         default=None,
         help="also serve the dashboard subset (robotmode, safetymode, stop, play, unlock "
         "protective stop) on this port (a UR's: 29999)",
@@ -418,7 +420,14 @@ def _serve_arm(
         if dashboard is not None:
             stack.enter_context(dashboard)
     except OSError as err:
-        msg = f"serve-sim: cannot listen on {args.host} ({err}); choose other ports"
+        ports = [args.rtde_port, args.script_port]
+        ports += [] if args.dashboard_port is None else [args.dashboard_port]
+        fix = "give --host an address of this machine (default: 127.0.0.1)"
+        if isinstance(err, socket.gaierror):
+            msg = f"serve-sim: --host {args.host!r} is not an address here ({err}); {fix}"
+        else:
+            where = ", ".join(f"{args.host}:{p}" for p in ports)
+            msg = f"serve-sim: cannot listen on {where} ({err}); choose other ports or {fix}"
         raise RecorderError(msg) from err
     where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
     if dashboard is not None:

@@ -164,8 +164,8 @@ def _figures(args: argparse.Namespace, runs: Sequence[LearnRun]) -> None:
         help="--serve: the address to listen on; 0.0.0.0 exposes the viewer and its data, "
         "without authentication, to every machine that reaches this one",
     ),
-    arg("--web-port", type=int, default=WEB_PORT, help="web viewer port"),
-    arg("--grpc-port", type=int, default=GRPC_PORT, help="data port"),
+    arg("--web-port", type=cli.port, default=WEB_PORT, help="web viewer port"),
+    arg("--grpc-port", type=cli.port, default=GRPC_PORT, help="data port"),
     arg("--figures", type=Path, default=None, help="learn runs: PNG directory (<run>/figures)"),
     arg("--no-figures", action="store_true", help="learn runs: do not write PNG figures"),
     arg(

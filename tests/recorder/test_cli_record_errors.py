@@ -30,6 +30,10 @@ CASES: list[tuple[str, str]] = [
     ("index {tmp}/missing", "not a directory; give the dataset directory"),
     ("import-bag {tmp}/missing.bag --topics", "missing.bag: cannot read the bag"),
     ("import-bag {tmp}/missing.bag", "--topic-map and --out are required"),
+    ("serve-sim --rtde-port 99999", "--rtde-port: 99999: give a port from 0 (any free port)"),
+    ("serve-sim --script-port -1", "--script-port: -1: give a port from 0 (any free port)"),
+    ("serve-sim --dashboard-port 80x", "--dashboard-port: 80x: give a port from 0"),
+    ("serve-sim --host nosuch.invalid", "--host 'nosuch.invalid' is not an address here"),
 ]
 
 

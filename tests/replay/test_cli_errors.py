@@ -70,6 +70,8 @@ CASES: list[tuple[str, str]] = [
     ("view {tmp}/missing.mcap", "no such file or directory"),
     ("view {tmp}", "no recordings (*.mcap) or learn runs found"),
     ("view {file} --save {tmp}/v.rrd --serve", "--save and --serve: choose one"),
+    ("view {file} --serve --web-port 70000", "--web-port: 70000: give a port from 0"),
+    ("view {file} --serve --grpc-port 1.5", "--grpc-port: 1.5: give a port from 0"),
     ("view {file} --save {taken}/old.rrd", "--save {taken}/old.rrd: exists"),
     ("view {file} --save {taken}", "is a directory; give a file name"),
     ("export {tmp}/missing.mcap", "no such file or directory"),
