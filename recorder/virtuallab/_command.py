@@ -426,8 +426,8 @@ def _serve_arm(
         if isinstance(err, socket.gaierror):
             msg = f"serve-sim: --host {args.host!r} is not an address here ({err}); {fix}"
         else:
-            where = ", ".join(f"{args.host}:{p}" for p in ports)
-            msg = f"serve-sim: cannot listen on {where} ({err}); choose other ports or {fix}"
+            addresses = ", ".join(f"{args.host}:{p}" for p in ports)
+            msg = f"serve-sim: cannot listen on {addresses} ({err}); choose other ports or {fix}"
         raise RecorderError(msg) from err
     where = [f"RTDE {rtde.address[0]}:{rtde.address[1]}", f"URScript {script.address[1]}"]
     if dashboard is not None:
