@@ -9,7 +9,7 @@ from importlib import resources
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 from recorder.errors import CatalogError
-from schemas import VOCABULARY, ContractError, check_id, load_toml, loads_toml
+from schemas import MAX_TRIAL, VOCABULARY, ContractError, check_id, load_toml, loads_toml
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -57,6 +57,13 @@ def _kind(value: object) -> ActionKind:
         msg = f"unknown kind {value!r}"
         raise ValueError(msg)
     return str(value)
+
+
+def _trials(value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_TRIAL:
+        msg = f"trials = {value!r} is not a number of trials 1..{MAX_TRIAL}"
+        raise ValueError(msg)
+    return value
 
 
 def _catalog_id(name: str, what: str, value: str) -> str:
@@ -118,7 +125,7 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
                 depth_m=float(entry.get("depth_m", 0.0)),
                 force_n=float(entry.get("force_n", 0.0)),
                 speed_m_s=float(entry.get("speed_m_s", 0.0)),
-                trials=int(entry.get("trials", 20)),
+                trials=_trials(entry.get("trials", 20)),
                 description=str(entry.get("description", "")),
             )
         except (KeyError, ValueError, TypeError) as err:

@@ -42,6 +42,7 @@ from recorder.runner._record import record_action
 from recorder.writing._writer import FACT_PREFIX, METADATA_NAME
 from schemas import (
     CHANNELS,
+    MAX_TRIAL,
     PART_SUFFIX,
     SET_ASIDE_DIR,
     VOCABULARY,
@@ -141,6 +142,9 @@ def plan_dataset(
     """
     if trials is not None and trials < 1:
         msg = f"--trials {trials}: need at least one trial"
+        raise RecorderError(msg)
+    if trials is not None and trials > MAX_TRIAL:
+        msg = f"--trials {trials}: trials are numbered 1..{MAX_TRIAL}; give at most {MAX_TRIAL}"
         raise RecorderError(msg)
     return [
         RecordingTask(obj, action, trial)

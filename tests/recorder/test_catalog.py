@@ -178,3 +178,14 @@ def test_unreadable_and_invalid_files_raise_catalog_errors(tmp_path: Path) -> No
         load_objects(tmp_path / "missing.toml")
     with pytest.raises(CatalogError, match="not valid TOML"):
         load_objects(_write(tmp_path, "[thing\nname = 1"))
+
+
+@pytest.mark.parametrize("trials", ["0", "10000000000000000", "2.5", "true", "'20'"])
+def test_an_actions_trials_out_of_range_is_refused_with_the_file(
+    tmp_path: Path, trials: str
+) -> None:
+    path = tmp_path / "actions.toml"
+    path.write_text(f"[P9]\nkind = 'press'\nduration_s = 1.0\ntrials = {trials}\n", "utf-8")
+    with pytest.raises(CatalogError, match=r"\[P9\].*not a number of trials 1\.\.999999") as info:
+        load_actions(path)
+    assert str(path) in str(info.value)

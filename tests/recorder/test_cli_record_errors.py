@@ -23,6 +23,7 @@ CASES: list[tuple[str, str]] = [
     (_ACTION + " --objects-catalog {tmp}/none.toml", "none.toml: cannot read the catalog"),
     (_DATASET + " --workers 0", "argument --workers: 0: give 1 or more worker processes"),
     (_DATASET + " --trials 0", "--trials 0: need at least one trial"),
+    (_DATASET + " --trials 10000000000000000000", "trials are numbered 1..999999; give at most"),
     (_DATASET + " --objects woood", "--objects woood: not in the objects catalog; known:"),
     (_DATASET + " --seed 1", "holds recordings of seed 0"),
     (_DATASET + " --seed 1", "give another --out, or --seed 0 to resume it"),
