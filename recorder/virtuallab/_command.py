@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import importlib
 import json
+import math
 import signal
 import socket
 import sys
@@ -71,10 +72,10 @@ def parse_faults(items: Sequence[str]) -> dict[str, dict[str, float]]:
             value = float(raw)
         except ValueError:
             value = float("nan")
-        if not (sep and dot and server and name) or value != value or value < 0:  # noqa: PLR0124
+        if not (sep and dot and server and name) or not math.isfinite(value) or value < 0:
             msg = (
-                f"--fault {item!r}: give server.name=number, e.g. rtde.drop=3, rtde.stall=1.5, "
-                "rtde.disconnect=2, script.protective_stop=1, skin.drop=5"
+                f"--fault {item!r}: give server.name=number (finite, 0 or more), e.g. rtde.drop=3, "
+                "rtde.stall=1.5, rtde.disconnect=2, script.protective_stop=1, skin.drop=5"
             )
             raise RecorderError(msg)
         faults.setdefault(server, {})[name] = value

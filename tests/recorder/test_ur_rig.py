@@ -260,5 +260,6 @@ def test_script_subset_is_checked() -> None:
 def test_fault_options_are_parsed() -> None:
     faults = parse_faults(["rtde.drop=3", "rtde.stall=1.5", "script.protective_stop=1"])
     assert rtde_faults(faults["rtde"]) == RtdeFaults(drop=3, stall_s=1.5)
-    with pytest.raises(RecorderError, match=r"give server\.name=number"):
-        parse_faults(["drop=3"])
+    for bad in ("drop=3", "rtde.stall=1e400", "rtde.stall=inf", "rtde.drop=nan", "rtde.drop=-1"):
+        with pytest.raises(RecorderError, match=r"give server\.name=number \(finite, 0 or more\)"):
+            parse_faults([bad])
