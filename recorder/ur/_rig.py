@@ -83,9 +83,7 @@ class UROptions:
                 known = ", ".join([*own, *sorted(moves)])
                 msg = f"{where}: rig option {key!r}: the ur rig takes {known}"
                 raise RigError(msg)
-        for key in ("rtde_port", "script_port", "frequency"):
-            if key in values:
-                values[key] = int(values[key])
+        _whole_numbers(values, where)
         made = cls(**values, motion=Motion(**motion))
         made.check(where)
         return made
@@ -104,6 +102,24 @@ class UROptions:
             raise RigError(msg)
         if not 0 < self.time_scale <= 1:
             msg = f"{where}: rig option time_scale = {self.time_scale}: give a value in (0, 1]"
+            raise RigError(msg)
+
+
+def _whole_numbers(values: dict[str, Any], where: str) -> None:
+    """Make the ports and the frequency whole numbers, the ports in 1..65535.
+
+    Raises:
+        RigError: A fraction, or a port out of range.
+    """
+    for key in ("rtde_port", "script_port", "frequency"):
+        if key in values:
+            if not float(values[key]).is_integer():
+                msg = f"{where}: rig option {key} = {values[key]!r}: give a whole number"
+                raise RigError(msg)
+            values[key] = int(values[key])
+    for key in ("rtde_port", "script_port"):
+        if not 1 <= values.get(key, 1) <= 65535:  # noqa: PLR2004 (the largest port)
+            msg = f"{where}: rig option {key} = {values[key]}: give the controller's port 1..65535"
             raise RigError(msg)
 
 

@@ -263,3 +263,22 @@ def test_fault_options_are_parsed() -> None:
     for bad in ("drop=3", "rtde.stall=1e400", "rtde.stall=inf", "rtde.drop=nan", "rtde.drop=-1"):
         with pytest.raises(RecorderError, match=r"give server\.name=number \(finite, 0 or more\)"):
             parse_faults([bad])
+
+
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        ({"rtde_port": 99999}, "rtde_port = 99999: give the controller's port 1..65535"),
+        ({"script_port": 0}, "script_port = 0: give a positive number"),
+        ({"script_port": 30002.5}, "script_port = 30002.5: give a whole number"),
+        ({"frequency": 125.5}, "frequency = 125.5: give a whole number"),
+    ],
+)
+def test_ports_out_of_range_are_refused_before_connecting(
+    option: dict[str, object], fragment: str
+) -> None:
+    with pytest.raises(RigError) as info:
+        UROptions.from_options(option, "lab.toml")
+    assert str(info.value).startswith("lab.toml: rig option ")
+    assert fragment in str(info.value)
+    assert UROptions.from_options({"rtde_port": 30004.0}, "lab.toml").rtde_port == 30004
