@@ -435,6 +435,23 @@ def port(text: str) -> int:
     return address[1]
 
 
+#: The largest DDS domain id (the RTPS port mapping leaves room for 0..232).
+MAX_DOMAIN_ID = 232
+
+
+def domain_id(text: str) -> int:
+    """Return a ``--domain-id`` option's value: a whole number in 0..232.
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    number = int(text) if text.isascii() and text.isdigit() else -1
+    if not 0 <= number <= MAX_DOMAIN_ID:
+        msg = f"{text}: give a DDS domain id 0..{MAX_DOMAIN_ID} (ROS_DOMAIN_ID)"
+        raise argparse.ArgumentTypeError(msg)
+    return number
+
+
 def worker_count(value: int | None) -> int:
     """Return the worker count: the option's value, else every core."""
     return value if value is not None else os.cpu_count() or 1

@@ -183,7 +183,12 @@ def _import_bag(args: argparse.Namespace) -> int:
     arg("--topic-map", type=Path, required=True, help=f"topic map TOML (example: {EXAMPLE})"),
     arg("--out", type=Path, required=True, help="dataset directory (existing recordings kept)"),
     arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
-    arg("--domain-id", type=int, default=0, help="DDS domain id (ROS_DOMAIN_ID; default: 0)"),
+    arg(
+        "--domain-id",
+        type=cli.domain_id,
+        default=0,
+        help="DDS domain id (ROS_DOMAIN_ID; default: 0)",
+    ),
     arg("--windows", type=Path, help="CSV of action windows (instead of the map's [windows])"),
     arg(
         "--loopback",

@@ -25,6 +25,7 @@ from recorder.bagimport._topicmap import load_topic_map
 from recorder.errors import RecorderError, RigError
 from recorder.live import SourceCounter, SourceReader, Verdict, window_samples
 from recorder.live.dds import DdsDomain
+from schemas import cli
 from schemas.cdr import compile_cdr
 
 if TYPE_CHECKING:
@@ -367,8 +368,9 @@ def ros2_skin(section: Mapping[str, Any], clock: RecorderClock, where: str) -> R
         msg = f'{where}: [skin] transport = "ros2" needs topic_map = "path/to/topic_map.toml"'
         raise RigError(msg)
     domain = section.get("domain_id", 0)
-    if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:  # noqa: PLR2004
-        msg = f"{where}: [skin] domain_id = {domain!r}: give a DDS domain id 0..232"
+    largest = cli.MAX_DOMAIN_ID
+    if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= largest:
+        msg = f"{where}: [skin] domain_id = {domain!r}: give a DDS domain id 0..{cli.MAX_DOMAIN_ID}"
         raise RigError(msg)
     base = Path(where).parent if where else Path()
     try:

@@ -327,7 +327,12 @@ def _switch_within_a_cycle(frequency: int) -> None:
     ),
     arg("--ros2", action="store_true", help="also publish the rig's ROS 2 topics over DDS"),
     arg("--topic-map", type=Path, default=None, help="topic map of the ROS 2 topics (--ros2)"),
-    arg("--domain-id", type=int, default=0, help="DDS domain of the ROS 2 topics (default: 0)"),
+    arg(
+        "--domain-id",
+        type=cli.domain_id,
+        default=0,
+        help="DDS domain of the ROS 2 topics (default: 0)",
+    ),
     arg("--seed", type=int, default=0, help="seed of the simulated rig (default: 0)"),
     arg(
         "--fault",

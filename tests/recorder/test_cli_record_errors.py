@@ -35,6 +35,8 @@ CASES: list[tuple[str, str]] = [
     ("serve-sim --script-port -1", "--script-port: -1: give a port from 0 (any free port)"),
     ("serve-sim --dashboard-port 80x", "--dashboard-port: 80x: give a port from 0"),
     ("serve-sim --host nosuch.invalid", "--host 'nosuch.invalid' is not an address here"),
+    ("serve-sim --ros2 --domain-id 233", "--domain-id: 233: give a DDS domain id 0..232"),
+    ("listen --topic-map x.toml --out {tmp} --domain-id -1", "--domain-id: -1: give a DDS"),
 ]
 
 
