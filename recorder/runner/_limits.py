@@ -62,8 +62,13 @@ class Limits:
                 raise RigError(msg)
             if key.startswith("workspace"):
                 values[key] = _corner(value, f"{where}: [limits] {key}")
-            elif isinstance(value, bool) or not isinstance(value, int | float) or value <= 0:
-                msg = f"{where}: [limits] {key} = {value!r}: give a positive number"
+            elif (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)  # nan passes every comparison: no limit at all
+                or value <= 0
+            ):
+                msg = f"{where}: [limits] {key} = {value!r}: give a positive finite number"
                 raise RigError(msg)
             else:
                 values[key] = float(value)
@@ -152,7 +157,7 @@ def check_motion(motion: Motion, limits: Limits, where: str) -> None:
     """Check the rig's own motion settings against the limits.
 
     Raises:
-        RigError: A speed, acceleration or force above its limit.
+        RigError: A speed, acceleration or force (the light contact's) above its limit.
     """
     speeds = {
         "approach_max_m_s": motion.approach_max_m_s,
@@ -163,6 +168,12 @@ def check_motion(motion: Motion, limits: Limits, where: str) -> None:
         if speed > limits.max_tcp_speed_m_s:
             fix = f"lower the rig option {name} or raise the limit"
             raise _refuse(where, name, speed, "max_tcp_speed_m_s", limits.max_tcp_speed_m_s, fix)
+    if motion.contact_force_n > limits.max_force_n:
+        # the light contact would be found only past the force limit: every approach stops
+        fix = "lower the rig option contact_force_n or raise the limit"
+        raise _refuse(
+            where, "contact_force_n", motion.contact_force_n, "max_force_n", limits.max_force_n, fix
+        )
     if motion.acceleration_m_s2 > limits.max_acceleration_m_s2:
         fix = "lower the rig option acceleration_m_s2 or raise the limit"
         raise _refuse(

@@ -68,6 +68,7 @@ REFUSALS = [
     (_change("colour", "red"), "[skin] colour = 'red': unknown key"),
     (_change("bind", "localhost"), 'give "host:port"'),
     (_change("cells", 0), "[skin] cells = 0: give an integer >= 1"),
+    (_change("cells", 100_000_000), "[skin] cells = 100000000: give an integer 1..65535"),
     (_change("byte_order", "middle"), "give one of little, big"),
     (_change("frames.fast.force.type", "i17"), "[skin.frames.fast.force] type = 'i17'"),
     (_change("frames.fast.force.scale", 0), "give a non-zero scale"),

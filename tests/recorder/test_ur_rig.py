@@ -20,6 +20,7 @@ from recorder import (
     record_action,
 )
 from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.runner import Motion, check_motion
 from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
 from recorder.virtuallab._command import parse_faults, rtde_faults
@@ -282,3 +283,20 @@ def test_ports_out_of_range_are_refused_before_connecting(
     assert str(info.value).startswith("lab.toml: rig option ")
     assert fragment in str(info.value)
     assert UROptions.from_options({"rtde_port": 30004.0}, "lab.toml").rtde_port == 30004
+
+
+@pytest.mark.parametrize(
+    ("limits", "motion", "fragment"),
+    [
+        ({"max_force_n": float("nan")}, {}, "max_force_n = nan: give a positive finite number"),
+        ({"max_tcp_speed_m_s": float("inf")}, {}, "give a positive finite number"),
+        ({"max_force_n": 0.1}, {"contact_force_n": 0.2}, "contact_force_n = 0.2 exceeds"),
+    ],
+)
+def test_limits_that_are_no_limits_are_refused(
+    limits: dict[str, float], motion: dict[str, float], fragment: str
+) -> None:
+    with pytest.raises(RigError) as info:
+        check_motion(Motion(**motion), Limits.from_section(limits, "lab.toml"), "lab.toml")
+    assert str(info.value).startswith("lab.toml: ")
+    assert fragment in str(info.value)
