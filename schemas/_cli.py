@@ -410,6 +410,10 @@ def seed(text: str) -> int:
 LOOPBACK = "127.0.0.1"
 
 
+#: The largest TCP/UDP port.
+MAX_PORT = 65_535
+
+
 def host_port(text: str) -> tuple[str, int] | None:
     """Return ``(host, port)`` of ``HOST:PORT`` or ``PORT`` (host: loopback); None: no port.
 
@@ -417,7 +421,7 @@ def host_port(text: str) -> tuple[str, int] | None:
     """
     host, _, port = text.rpartition(":")
     number = int(port) if port.isascii() and port.isdigit() else -1
-    if not 0 <= number <= 65535:  # noqa: PLR2004 (the largest port)
+    if not 0 <= number <= MAX_PORT:
         return None
     return host or LOOPBACK, number
 
@@ -430,7 +434,7 @@ def port(text: str) -> int:
     """
     address = host_port(text)
     if address is None or ":" in text:
-        msg = f"{text}: give a port from 0 (any free port) to 65535"
+        msg = f"{text}: give a port from 0 (any free port) to {MAX_PORT}"
         raise argparse.ArgumentTypeError(msg)
     return address[1]
 

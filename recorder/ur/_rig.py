@@ -17,6 +17,7 @@ from recorder.live import RecorderClock, open_skin
 from recorder.runner import ArmRig, Limits, Motion, RunnerOptions
 from recorder.ur._arm import Connection, URArm
 from recorder.ur._rtde import RTDE_PORT
+from schemas import cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -118,8 +119,9 @@ def _whole_numbers(values: dict[str, Any], where: str) -> None:
                 raise RigError(msg)
             values[key] = int(values[key])
     for key in ("rtde_port", "script_port"):
-        if not 1 <= values.get(key, 1) <= 65535:  # noqa: PLR2004 (the largest port)
-            msg = f"{where}: rig option {key} = {values[key]}: give the controller's port 1..65535"
+        if not 1 <= values.get(key, 1) <= cli.MAX_PORT:
+            fix = f"give the controller's port 1..{cli.MAX_PORT}"
+            msg = f"{where}: rig option {key} = {values[key]}: {fix}"
             raise RigError(msg)
 
 
