@@ -29,6 +29,7 @@ from schemas._layout import (
     recording_path,
 )
 from schemas._metadata import (
+    MAX_CELLS,
     MAX_SEED,
     MAX_TRIAL,
     RecordingMetadata,
@@ -75,6 +76,7 @@ __all__ = [
     "CUSTOM_TYPES",
     "INCOMPLETE_RECORD",
     "INCOMPLETE_SUFFIX",
+    "MAX_CELLS",
     "MAX_SEED",
     "MAX_TOML_BYTES",
     "MAX_TOML_DEPTH",

@@ -25,7 +25,14 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from recorder.errors import BagImportError
-from schemas import VOCABULARY, ContractError, check_id, check_parameters, load_toml
+from schemas import (
+    MAX_CELLS,
+    VOCABULARY,
+    ContractError,
+    check_id,
+    check_parameters,
+    load_toml,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -47,6 +54,10 @@ EXAMPLE = "topic_map.example.toml"
 #: Keys of an action table that are not parameters.
 _ACTION_KEYS = ("kind", "description", "trials")
 _NS_PER_S = 1_000_000_000
+#: The largest lab cell id (the ids are kept in the recording's rig metadata).
+MAX_CELL_ID = 2**31 - 1
+#: The largest ``max_message_kib`` (1 GiB): a limit that protects the other topics' memory.
+MAX_MESSAGE_KIB = 1 << 20
 #: Keys that changed meaning or name, with the new syntax (one line each).
 _RENAMED: Mapping[str, str] = MappingProxyType(
     {
@@ -338,11 +349,13 @@ class _Table:
         """Return a finite number as a float (for unit conversions of float data)."""
         return float(self.exact(key, Fraction(default)))
 
-    def integer(self, key: str, default: int, low: int) -> int:
-        """Return an integer of at least ``low``."""
+    def integer(self, key: str, default: int, low: int, high: int | None = None) -> int:
+        """Return an integer of at least ``low`` (and at most ``high``)."""
         value = int(self.get(key, int, default))
         if value < low:
             self.fail(f"[{self.name}] {key} = {value} must be at least {low}")
+        if high is not None and value > high:
+            self.fail(f"[{self.name}] {key} = {value} must be at most {high}")
         return value
 
     def table(self, key: str) -> _Table:
@@ -450,7 +463,9 @@ def _skin_field(table: _Table, modality: str) -> SkinField:
 
 def _budget(table: _Table) -> int:
     """Return a table's own ``max_message_kib`` in bytes (0: the ``[time]`` one)."""
-    return table.integer("max_message_kib", 0, 1) * 1024 if table.has("max_message_kib") else 0
+    if not table.has("max_message_kib"):
+        return 0
+    return table.integer("max_message_kib", 0, 1, MAX_MESSAGE_KIB) * 1024
 
 
 def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[str, SkinField]]:
@@ -458,6 +473,11 @@ def _skin(root: _Table) -> tuple[tuple[int, ...], float, dict[str, SkinField]]:
     cells = table.get("cells", list)
     if not cells or not all(isinstance(c, int) and not isinstance(c, bool) for c in cells):
         table.fail("[skin] cells must be a non-empty list of integer cell ids")
+    bad = [c for c in cells if not 0 <= c <= MAX_CELL_ID]
+    if bad:  # a negative id would index a field from its end: another cell's values, silently
+        table.fail(f"[skin] cells {bad[:3]}: give cell ids 0..{MAX_CELL_ID}")
+    if len(cells) > MAX_CELLS:
+        table.fail(f"[skin] cells lists {len(cells)} ids: give at most {MAX_CELLS}")
     if len(set(cells)) != len(cells):
         table.fail(f"[skin] cells {cells} repeats an id")
     jitter = table.number("max_jitter", 0.1)
@@ -602,7 +622,7 @@ def _time(root: _Table) -> tuple[str, int, int]:
     delay = time.exact("max_delay_s", Fraction(2))
     if delay < 0:
         time.fail(f"[time] max_delay_s = {delay} must be >= 0")
-    largest = time.integer("max_message_kib", 4096, 1)
+    largest = time.integer("max_message_kib", 4096, 1, MAX_MESSAGE_KIB)
     time.done()
     return stamps, int(delay * _NS_PER_S), largest * 1024
 

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal, NoReturn
 import numpy as np
 
 from recorder.errors import RigError
-from schemas import VOCABULARY
+from schemas import MAX_CELLS, VOCABULARY
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -44,10 +44,6 @@ FIELD_TYPES: dict[str, str] = {
 }
 _INTEGER = tuple(name for name in FIELD_TYPES if not name.startswith("f"))
 _NAME = re.compile(r"[A-Za-z0-9_-]+")
-#: The most cells a skin may declare: a cell's samples are rows of the recording's arrays, and
-#: a layout's per-cell fields are built when the configuration is read (65,535 cells took 5.6 s
-#: and 230 MB to read; a mistyped 100,000,000 would never finish).
-MAX_CELLS = 65_535
 #: Default UDP receive buffer: several seconds of a 7-cell 1 kHz skin (the kernel may cap it).
 RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 #: Samples per block, in seconds of the modality's rate (0.1 s, as the contract's blocks).

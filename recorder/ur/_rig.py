@@ -8,6 +8,7 @@ This module reads the rig configuration: ``[options]`` (connection and motion), 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
@@ -126,13 +127,19 @@ def _whole_numbers(values: dict[str, Any], where: str) -> None:
 
 
 def _number(key: str, value: object, where: str) -> float:
-    """Return a positive option value.
+    """Return a positive finite option value.
 
     Raises:
-        RigError: Not a positive number.
+        RigError: Not a positive finite number (nan passes every comparison: a silence_s of
+            nan would never end a silent action).
     """
-    if isinstance(value, bool) or not isinstance(value, int | float) or value <= 0:
-        msg = f"{where}: rig option {key} = {value!r}: give a positive number"
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or (isinstance(value, float) and not math.isfinite(value))
+        or value <= 0
+    ):
+        msg = f"{where}: rig option {key} = {value!r}: give a positive finite number"
         raise RigError(msg)
     return float(value)
 

@@ -382,6 +382,9 @@ def test_cells_by_index_of_one_field(
         (('field = "electrodes[{cell}]"', 'field = "electrodes"'), "mapped to 3 cells; .*{cell}"),
         (("scale = 0.5", "scale = 0.5\nsamples_per_message = 2\nrate_hz = 10"), "picks elements"),
         (("cells = [18, 3, 7]", "cells = [19]"), "has 19 values, no element 19"),
+        # -19 indexed from the end is element 0: another cell's values, written without a word
+        (("cells = [18, 3, 7]", "cells = [3, -19]"), r"cells \[-19\]: give cell ids 0\.\."),
+        (("cells = [18, 3, 7]", "cells = [2147483648]"), r"cells \[2147483648\]: give cell"),
         (("scale = 0.5", 'scale = 0.5\ntiming = "rate"'), "needs rate_hz"),
         (("scale = 0.5", 'scale = 0.5\ntiming = "sensor"'), "timing = 'sensor' must be one of"),
     ],

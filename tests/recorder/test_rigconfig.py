@@ -25,6 +25,8 @@ def test_a_rig_is_configured_from_a_file_and_the_command_line(tmp_path: Path) ->
         ('rig = "sim"\n[options]\nroom_c = "warm"\n', [], "room_c='warm': give a number"),
         ('rig = "ur10-lab"\n', [], "--rig ur10-lab: unknown rig; known rigs: sim, ur"),
         ('rig = "sim"\n[options.nested]\nx = 1\n', [], "no nesting"),
+        ('rig = "sim"\n[options]\nroom_c = nan\n', [], "room_c=nan is not a finite number"),
+        ('rig = "sim"\n', ["room_c=inf"], "room_c=inf is not a finite number; give a finite"),
         ("rig = ", [], "cannot read the rig configuration"),
         ('rig = "sim"\nhost = "x"\n', [], r"unknown keys \['host'\]"),
         ('rig = "sim"\n[limits]\nspeed_m_s = 0.1\n', [], r"unknown tables \[limits\]; rig 'sim'"),

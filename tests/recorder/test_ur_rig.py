@@ -270,7 +270,10 @@ def test_fault_options_are_parsed() -> None:
     ("option", "fragment"),
     [
         ({"rtde_port": 99999}, "rtde_port = 99999: give the controller's port 1..65535"),
-        ({"script_port": 0}, "script_port = 0: give a positive number"),
+        ({"script_port": 0}, "script_port = 0: give a positive finite number"),
+        # nan passes every comparison: a silence that never ends an action, a speed unchecked
+        ({"silence_s": float("nan")}, "silence_s = nan: give a positive finite number"),
+        ({"press_m_s": float("inf")}, "press_m_s = inf: give a positive finite number"),
         ({"script_port": 30002.5}, "script_port = 30002.5: give a whole number"),
         ({"frequency": 125.5}, "frequency = 125.5: give a whole number"),
     ],
