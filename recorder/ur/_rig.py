@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 #: The secondary interface's port (URScript programs).
 SCRIPT_PORT = 30002
 
+#: Values of an object's pose: position (m) and rotation vector (rad), base frame.
+POSE_SIZE = 6
+
 
 @dataclass(frozen=True, slots=True)
 class UROptions:
@@ -235,8 +238,16 @@ def read_ur_config(config: Any, rig: str = "ur") -> URConfig:  # noqa: ANN401 (a
     poses: dict[str, Sequence[float]] = {}
     for object_id, entry in (sections.get("objects", {}) or {}).items():
         pose = entry.get("pose") if isinstance(entry, dict) else None
-        if not isinstance(pose, list) or not all(isinstance(v, int | float) for v in pose):
-            msg = f"{where}: [objects.{object_id}] needs pose = [x, y, z, rx, ry, rz] in m and rad"
+        if (
+            not isinstance(pose, list)
+            or len(pose) != POSE_SIZE
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in pose)
+            or not all(math.isfinite(v) for v in pose)  # nan passes the workspace check
+        ):
+            msg = (
+                f"{where}: [objects.{object_id}] pose = {pose!r}: give pose = "
+                "[x, y, z, rx, ry, rz], six finite numbers in m and rad"
+            )
             raise RigError(msg)
         poses[object_id] = [float(v) for v in pose]
     return URConfig(options, limits, skin, poses, where)

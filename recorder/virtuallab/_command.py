@@ -191,14 +191,15 @@ def _lab_sections(path: Path | None) -> Mapping[str, Any]:
 
 
 def _poses(sections: Mapping[str, Any]) -> dict[str, list[float]]:
-    """Return the objects' poses of the rig configuration (those given as 6 numbers)."""
+    """Return the objects' poses of the rig configuration (those given as 6 finite numbers)."""
     poses: dict[str, list[float]] = {}
     for object_id, entry in (sections.get("objects") or {}).items():
         pose = entry.get("pose") if isinstance(entry, dict) else None
         if (
             isinstance(pose, list)
             and len(pose) == 6  # noqa: PLR2004 (x, y, z, rx, ry, rz)
-            and all(isinstance(v, int | float) for v in pose)
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in pose)
+            and all(math.isfinite(v) for v in pose)
         ):
             poses[object_id] = [float(v) for v in pose]
     return poses

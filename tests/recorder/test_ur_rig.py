@@ -235,6 +235,11 @@ def test_builder_checks_options_limits_and_poses() -> None:
         build_ur_rig(0, config({}, {"skin": {"transport": "udp"}}))  # before any connection
     placed = build_ur_rig(0, config({}, {"skin": skin, "objects": {"wood": {"pose": POSE}}}))
     assert placed.can_present(OBJECTS["wood"])
+    # a pose the arm could not be sent to: refused before connecting, with the value
+    for pose in ([-0.7, -0.2, 0.15], [*POSE[:4], float("inf"), 0.0], [*POSE[:5], True]):
+        bad = {"skin": skin, "objects": {"wood": {"pose": pose}}}
+        with pytest.raises(RigError, match=r"\[objects.wood\] pose = .*six finite numbers"):
+            build_ur_rig(0, config({}, bad))
     assert not placed.can_present(OBJECTS["glass_plate"])
 
 
