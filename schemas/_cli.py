@@ -27,7 +27,7 @@ import signal
 import sys
 import threading
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Any, ClassVar, NoReturn
 
 from rich.progress import Progress, ProgressColumn
 
@@ -47,10 +47,67 @@ ERROR_STATUS, USAGE_STATUS = 1, 2
 INTERRUPTED_STATUS = 130
 #: Exit status after SIGTERM (128 + 15, as a shell reports a process ended by it).
 TERMINATED_STATUS = 143
+#: Exit status after SIGHUP (128 + 1): the terminal or the SSH connection of the run closed.
+HUNG_UP_STATUS = 129
 
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM ended the run: unwound like Ctrl-C (files kept, one line), exit status 143."""
+
+    signal_name: ClassVar[str] = "SIGTERM"
+    status: ClassVar[int] = TERMINATED_STATUS
+
+
+class HungUp(Terminated):
+    """SIGHUP ended the run (its terminal or SSH connection closed): as SIGTERM, exit 129.
+
+    Without a handler SIGHUP ends a process at once: a session whose SSH connection dropped
+    would leave the arm running its last program and the action's samples unsaved.
+    """
+
+    signal_name: ClassVar[str] = "SIGHUP"
+    status: ClassVar[int] = HUNG_UP_STATUS
+
+
+#: The signals that end a run cleanly: Ctrl-C, a plain ``kill`` (SIGTERM) and a closed
+#: terminal (SIGHUP, where the platform has it).
+ENDING_SIGNALS: tuple[int, ...] = (
+    signal.SIGINT,
+    signal.SIGTERM,
+    *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()),
+)
+
+
+def signal_name(signum: int) -> str:
+    """Return a signal's name (``SIGINT``, ``SIGTERM``, ``SIGHUP``, ...)."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def ending(signum: int) -> KeyboardInterrupt:
+    """Return the exception that ends a run for an ending signal (Ctrl-C: KeyboardInterrupt)."""
+    if signum == signal.SIGTERM:
+        return Terminated()
+    if signum == getattr(signal, "SIGHUP", None):
+        return HungUp()
+    return KeyboardInterrupt()
+
+
+def handled_signals() -> list[int]:
+    """Return the ending signals to handle now: SIGHUP not when it is ignored.
+
+    ``nohup`` starts a command with SIGHUP ignored so that it outlives its terminal; it keeps
+    running. SIGINT and SIGTERM are always handled (a shell starts background jobs with SIGINT
+    ignored, and they must still stop on ``kill -INT``).
+    """
+    hangup = getattr(signal, "SIGHUP", None)
+    return [
+        number
+        for number in ENDING_SIGNALS
+        if number != hangup or signal.getsignal(number) is not signal.SIG_IGN
+    ]
 
 
 class CliError(Exception):
@@ -192,14 +249,14 @@ def run(
             raise
         print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
-    except KeyboardInterrupt as err:  # Terminated too (SIGTERM)
-        terminated = isinstance(err, Terminated)
+    except KeyboardInterrupt as err:  # Terminated too (SIGTERM, SIGHUP)
         said = str(err.args[0]) if err.args else ""
         line = f"{said}; {_after(interrupted)}" if said else interrupted
-        if terminated and not said:
-            line = f"terminated (SIGTERM); {_after(interrupted)}"
-        print(f"{parser.prog}: {one_line(line)}", file=sys.stderr)  # noqa: T201
-        return TERMINATED_STATUS if terminated else INTERRUPTED_STATUS
+        if isinstance(err, Terminated) and not said:
+            line = f"terminated ({err.signal_name}); {_after(interrupted)}"
+        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
+            print(f"{parser.prog}: {one_line(line)}", file=sys.stderr)  # noqa: T201
+        return err.status if isinstance(err, Terminated) else INTERRUPTED_STATUS
     return status
 
 
@@ -337,13 +394,11 @@ def progress(console: Console, *columns: str | ProgressColumn) -> Progress:
 
 
 def _interrupt(signum: int, frame: object) -> None:
-    """Raise KeyboardInterrupt (SIGTERM: Terminated) once; ignore further ones (unwinding)."""
+    """Raise KeyboardInterrupt (SIGTERM, SIGHUP: Terminated) once; ignore further ones."""
     del frame
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    if signum == signal.SIGTERM:
-        raise Terminated
-    raise KeyboardInterrupt
+    for number in ENDING_SIGNALS:
+        signal.signal(number, signal.SIG_IGN)
+    raise ending(signum)
 
 
 @contextlib.contextmanager
@@ -354,7 +409,7 @@ def _quiet_interrupts() -> Iterator[None]:
     traceback from inside the clean-up and leave the files; the first one already stops.
     """
     try:
-        previous = {number: signal.signal(number, _interrupt) for number in _ENDING}
+        previous = {number: signal.signal(number, _interrupt) for number in handled_signals()}
     except ValueError:  # not the main thread: signals are not ours to handle
         yield
         return
@@ -363,10 +418,6 @@ def _quiet_interrupts() -> Iterator[None]:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-
-
-#: The signals that end a run cleanly: Ctrl-C and a plain ``kill`` (SIGTERM).
-_ENDING = (signal.SIGINT, signal.SIGTERM)
 
 
 def workers(text: str) -> int:
@@ -622,17 +673,23 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
 
 
 __all__ = [
+    "ENDING_SIGNALS",
+    "HUNG_UP_STATUS",
+    "INTERRUPTED_STATUS",
     "PROGRESS_INTERVAL_S",
     "TERMINATED_STATUS",
     "Argument",
     "CliError",
     "Command",
+    "HungUp",
     "PlainProgress",
     "Registry",
     "Terminated",
     "arg",
     "build_parser",
     "check_new_file",
+    "ending",
+    "handled_signals",
     "numbered_directory",
     "one_line",
     "progress",
@@ -643,6 +700,7 @@ __all__ = [
     "refuse_overlap",
     "run",
     "seed",
+    "signal_name",
     "worker_count",
     "workers",
     "workers_ignore_interrupts",

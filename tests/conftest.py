@@ -38,7 +38,7 @@ from recorder import (
 )
 from recorder._catalog import ObjectSpec
 from recorder.runner._record import record_action
-from schemas import CHANNELS, VOCABULARY
+from schemas import CHANNELS, VOCABULARY, cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator, Mapping
@@ -310,18 +310,32 @@ def _no_virtual_lab_left_ticking() -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _signal_handlers_restored() -> Iterator[None]:
-    """Fail a test that leaves SIGINT or SIGTERM handled otherwise than it found them.
+    """Fail a test that leaves SIGINT, SIGTERM or SIGHUP handled otherwise than it found them.
 
     A Ctrl-C handler left ignored (or deferred) makes a later test's interrupt vanish: the
     test that sends it fails, far from the test that caused it. The handlers are put back.
     """
-    numbers = (signal.SIGINT, signal.SIGTERM)
+    numbers = cli.ENDING_SIGNALS
     before = {number: signal.getsignal(number) for number in numbers}
     yield
     changed = {n: h for n in numbers if (h := signal.getsignal(n)) is not before[n]}
     for number in changed:
         signal.signal(number, before[number])
     assert not changed, f"handlers left changed: {changed} (were {before})"
+
+
+@pytest.fixture
+def hangup_not_ignored() -> Iterator[None]:
+    """SIGHUP at its default for the test (``nohup`` starts the tests with it ignored).
+
+    A command handles SIGHUP only where it is not ignored (under ``nohup`` a run outlives its
+    terminal); a test that sends SIGHUP to see it handled needs it not ignored.
+    """
+    previous = signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGHUP, previous)
 
 
 #: Seconds a test marked ``slow`` without a figure is taken to last.

@@ -19,7 +19,7 @@ from rich.text import Text
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import CATALOG_ARGUMENTS, arg, command, refuse_overlap
 from recorder.bagimport._importer import import_bag
-from recorder.bagimport._listen import listen, on_sigterm, recover
+from recorder.bagimport._listen import listen, on_signal, recover
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
@@ -37,6 +37,13 @@ if TYPE_CHECKING:
     from recorder.bagimport._topicmap import TopicMap
 
 _NS_PER_MS = 1e6
+#: listen's exit status by the signal that stopped it (as a shell reports it; none: 0).
+_STATUS = {
+    "SIGHUP": cli.HUNG_UP_STATUS,
+    "SIGTERM": cli.TERMINATED_STATUS,
+    "SIGINT": cli.INTERRUPTED_STATUS,
+    "": 0,
+}
 
 
 class _Rate(ProgressColumn):
@@ -223,7 +230,8 @@ def _listen(args: argparse.Namespace) -> int:
         ):
             print(f"{args.out}: no journal left by a stopped run")  # noqa: T201
         return 0
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    ending = [number for number in cli.handled_signals() if number != signal.SIGINT]
+    previous = {number: signal.signal(number, on_signal) for number in ending}
     try:
         with contextlib.ExitStack() as stack:
             view = None
@@ -234,10 +242,12 @@ def _listen(args: argparse.Namespace) -> int:
             if view is not None and view.dropped:
                 print(f"foxglove: the client fell behind; {view.dropped} messages not shown")  # noqa: T201
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
     kept = f", {len(report.incomplete)} kept as incomplete" if report.incomplete else ""
-    print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
-    return {"SIGTERM": 143, "SIGINT": 130, "": 0}.get(report.interrupted, 1)
+    with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
+        print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
+    return _STATUS.get(report.interrupted, 1)
 
 
 def _listen_run(

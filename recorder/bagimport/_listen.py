@@ -24,7 +24,6 @@ written.
 from __future__ import annotations
 
 import hashlib
-import signal
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -81,6 +80,7 @@ from recorder.bagimport._windows import (
 from recorder.errors import BagImportError, RecorderError
 from recorder.live import RecorderClock, SourceCounter, SourceReader, gap_periods
 from recorder.runner import deferred_interrupts
+from schemas import cli
 from schemas.cdr import compile_cdr
 
 if TYPE_CHECKING:
@@ -825,13 +825,12 @@ def _period(extractor: Any) -> int:  # noqa: ANN401
     return 0
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled as Ctrl-C: the run stops and keeps what arrived."""
+def on_signal(signum: int, _frame: object) -> None:
+    """Raise the signal's :func:`schemas.cli.ending` exception in the main thread.
 
-
-def on_sigterm(_signum: int, _frame: object) -> None:
-    """Raise :class:`Terminated` in the main thread (``listen`` then ends as on Ctrl-C)."""
-    raise Terminated
+    SIGTERM and SIGHUP end ``listen`` as Ctrl-C does: the run stops and keeps what arrived.
+    """
+    raise cli.ending(signum)
 
 
 def listen(
@@ -901,14 +900,16 @@ def listen(
         listener.start()  # discovery; Ctrl-C here ends the run before anything arrived
     except KeyboardInterrupt as err:
         listener.stop()
-        return _interrupted(listener, "SIGTERM" if isinstance(err, Terminated) else "SIGINT")
+        return _interrupted(
+            listener, err.signal_name if isinstance(err, cli.Terminated) else "SIGINT"
+        )
     # From here a signal only sets a flag: raised wherever Python happens to be, it could
     # fall between a journal's creation and its bookkeeping and leave a stray file.
     with deferred_interrupts() as flag:
         try:
             listener._note(  # noqa: SLF001
                 f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
-                "(Ctrl-C or SIGTERM stops, keeping the open action as incomplete)"
+                "(Ctrl-C, SIGTERM or SIGHUP stops, keeping the open action as incomplete)"
             )
             while flag.signum is None and not (stop is not None and stop.is_set()):
                 if deadline is not None and time.monotonic() >= deadline:
@@ -919,7 +920,7 @@ def listen(
         finally:
             listener.stop()
         if flag.signum is not None:
-            return _interrupted(listener, "SIGTERM" if flag.signum == signal.SIGTERM else "SIGINT")
+            return _interrupted(listener, cli.signal_name(flag.signum))
         return _finish(listener)
 
 

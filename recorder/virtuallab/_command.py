@@ -259,12 +259,12 @@ def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
 
 
 def _wait_for_a_stop() -> None:
-    """Block until Ctrl-C (SIGINT) or SIGTERM.
+    """Block until Ctrl-C (SIGINT), SIGTERM or SIGHUP (its terminal closed; not under nohup).
 
-    Both are handled explicitly: a shell starts background jobs with SIGINT ignored, and the
+    Each is handled explicitly: a shell starts background jobs with SIGINT ignored, and the
     virtual lab must still stop on the first Ctrl-C or ``kill`` sent to it.
     """
-    handled = (signal.SIGINT, signal.SIGTERM)
+    handled = cli.handled_signals()
     previous = {number: signal.signal(number, signal.default_int_handler) for number in handled}
     try:
         threading.Event().wait()

@@ -149,8 +149,12 @@ def _after_contact(rig: ArmRig, then: object) -> dict[str, int]:
     [
         (signal.SIGINT, KeyboardInterrupt, "Ctrl-C"),
         (signal.SIGTERM, cli.Terminated, "SIGTERM"),
+        # the terminal or the SSH connection of the session closed: by default SIGHUP ends
+        # the process at once, the arm still running its last program
+        (signal.SIGHUP, cli.HungUp, "SIGHUP"),
     ],
 )
+@pytest.mark.usefixtures("hangup_not_ignored")
 def test_a_signal_stops_the_arm_keeps_the_data_then_ends_the_run(
     tmp_path: Path, signum: int, raised: type[BaseException], name: str
 ) -> None:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
+import time
 from typing import TYPE_CHECKING
 
 import pytest
@@ -53,6 +56,49 @@ def test_usage_errors_are_one_line(
     text = captured.err or captured.out
     assert text.count("\n") == 1
     assert fragment in text
+
+
+@pytest.mark.parametrize(
+    ("signum", "status", "line"),
+    [
+        (signal.SIGINT, 130, "prog: interrupted"),
+        (signal.SIGTERM, 143, "prog: terminated (SIGTERM)"),
+        # the terminal or SSH connection closed: unwound like SIGTERM, not ended on the spot
+        (signal.SIGHUP, 129, "prog: terminated (SIGHUP)"),
+    ],
+)
+@pytest.mark.usefixtures("hangup_not_ignored")
+def test_an_ending_signal_unwinds_the_command_with_its_status(
+    signum: int, status: int, line: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    unwound = []
+
+    def wait(_args: argparse.Namespace) -> int:
+        try:
+            os.kill(os.getpid(), signum)
+            time.sleep(10)  # the handler raises in this frame
+        finally:
+            unwound.append(True)
+        return 0
+
+    assert cli.run(_program(wait), ["go"], ()) == status
+    assert unwound == [True]
+    assert capsys.readouterr().err.startswith(line)
+
+
+def test_nohup_keeps_a_command_running_after_its_terminal_closed() -> None:
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as nohup starts it
+    try:
+
+        def hang_up(_args: argparse.Namespace) -> int:
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.05)
+            return 0
+
+        assert cli.run(_program(hang_up), ["go"], ()) == 0
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
 
 
 def test_seed_type_bounds() -> None:
