@@ -198,6 +198,23 @@ def build_parser(
     return parser
 
 
+#: A write failed for want of space (stdout redirected to a full disk, or a file's write).
+_DISK_FULL = frozenset(
+    number for number in (errno.ENOSPC, getattr(errno, "EDQUOT", None)) if number is not None
+)
+
+
+def _drop_stdout() -> None:
+    """Point standard output at the null device: its buffer is dropped, not flushed at exit.
+
+    Otherwise the interpreter's last flush fails again and prints "Exception ignored".
+    """
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+
+
 def _too_long(err: OSError) -> str:
     """Return the one-line message for a path longer than the system allows."""
     name = str(err.filename or "")
@@ -245,9 +262,19 @@ def run(
         print(f"{parser.prog}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
     except OSError as err:
-        if err.errno != errno.ENAMETOOLONG:
+        if err.errno == errno.ENAMETOOLONG:
+            line = _too_long(err)
+        elif err.errno in _DISK_FULL:
+            _drop_stdout()  # what is still buffered cannot be written either
+            where = f"{err.filename}: " if err.filename else ""
+            line = f"{where}cannot write ({err.strerror}); free disk space or write elsewhere"
+        elif err.errno == errno.EPIPE:  # the reader left (``| head``): as other tools, quietly
+            _drop_stdout()
+            return ERROR_STATUS
+        else:
             raise
-        print(f"{parser.prog}: error: {_too_long(err)}", file=sys.stderr)  # noqa: T201
+        with contextlib.suppress(OSError):
+            print(f"{parser.prog}: error: {line}", file=sys.stderr)  # noqa: T201
         return ERROR_STATUS
     except KeyboardInterrupt as err:  # Terminated too (SIGTERM, SIGHUP)
         said = str(err.args[0]) if err.args else ""

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
+import subprocess
+import sys
 import time
-from typing import TYPE_CHECKING
+from pathlib import Path
 
 import pytest
 
 from schemas import ContractError, cli
 
-if TYPE_CHECKING:
-    from pathlib import Path
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _program(run: object) -> argparse.ArgumentParser:
@@ -99,6 +101,51 @@ def test_nohup_keeps_a_command_running_after_its_terminal_closed() -> None:
         assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGHUP, previous)
+
+
+def test_a_full_disk_is_one_line_and_a_reader_gone_is_quiet(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dropped = []
+    monkeypatch.setattr(cli, "_drop_stdout", lambda: dropped.append(True))
+
+    def fail(number: int, name: str | None) -> object:
+        def run(_args: argparse.Namespace) -> int:
+            raise OSError(number, os.strerror(number), name)
+
+        return run
+
+    assert cli.run(_program(fail(errno.ENOSPC, None)), ["go"], ()) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        "prog: error: cannot write (No space left on device); free disk space or write elsewhere\n"
+    )
+    assert cli.run(_program(fail(errno.ENOSPC, "out/t.csv")), ["go"], ()) == 1
+    assert capsys.readouterr().err.startswith("prog: error: out/t.csv: cannot write (No space")
+    assert cli.run(_program(fail(errno.EPIPE, None)), ["go"], ()) == 1  # `| head` left
+    assert capsys.readouterr().err == ""
+    assert dropped == [True, True, True]
+    with pytest.raises(PermissionError):  # not a full disk: a bug or a case of its own
+        cli.run(_program(fail(errno.EACCES, "x")), ["go"], ())
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full here")
+def test_output_to_a_full_disk_is_one_line_without_a_traceback() -> None:
+    with Path("/dev/full").open("w") as full:
+        done = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+            [sys.executable, "-m", "replay", "info", str(ROOT / "recordings" / "data")],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=os.environ | {"PYTHONPATH": str(ROOT)},
+            check=False,
+            timeout=120,
+        )
+    assert done.returncode == 1
+    assert done.stderr == (
+        "atikt-replay: error: cannot write (No space left on device); free disk space or "
+        "write elsewhere\n"
+    )
 
 
 def test_seed_type_bounds() -> None:
