@@ -18,6 +18,7 @@ from recorder.runner._limits import (
     check_pose,
     tool_axis,
 )
+from recorder.runner._lock import arm_lock
 from recorder.runner._runner import ArmRig, RunnerOptions, Stop, Watch, peak_total
 from recorder.runner._sink import WriterThread
 
@@ -35,6 +36,7 @@ __all__ = [
     "Stop",
     "Watch",
     "WriterThread",
+    "arm_lock",
     "check_action",
     "check_motion",
     "check_pose",

@@ -23,6 +23,7 @@ import numpy as np
 from recorder._sim.ur10 import JOINT_NAMES  # the UR arms' joints, in RTDE's order
 from recorder.errors import RigError
 from recorder.live import RecorderClock, SourceCounter, SourceLostError, SourceReader
+from recorder.runner import arm_lock
 from recorder.runner._arm import ArmSample
 from recorder.ur._rtde import MAX_FREQUENCY, RtdeClient, RtdeError
 from recorder.ur._script import (
@@ -125,6 +126,8 @@ class URArm:
             rtde = RtdeClient(link.host, link.rtde_port, clock=self._clock.now_ns)
             rtde.connect()
             stack.callback(rtde.close)
+            # one process drives an arm: its programs go to this address's script port
+            stack.enter_context(arm_lock(f"ur-{rtde.peer_host}-{link.script_port}", self.where))
             major, minor, bugfix, build = rtde.controller_version()
             self._version = f"{major}.{minor}.{bugfix}.{build}"
             if link.frequency > MAX_FREQUENCY.get(major, 500.0):

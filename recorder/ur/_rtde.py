@@ -254,6 +254,14 @@ class RtdeClient:
             msg = f"RTDE {self.where}: the controller refuses protocol version 2; update it"
             raise RtdeError(msg)
 
+    @property
+    def peer_host(self) -> str:
+        """Return the address connected to (``host`` resolved: ``localhost`` is 127.0.0.1)."""
+        try:
+            return str(self._connected().getpeername()[0])
+        except OSError:
+            return self.host
+
     def controller_version(self) -> tuple[int, int, int, int]:
         """Return the controller's version (major, minor, bugfix, build).
 

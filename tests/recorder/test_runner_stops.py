@@ -19,7 +19,8 @@ import pytest
 from fake_arm import FakeArm, fake_rig
 from mcap.reader import make_reader
 
-from recorder import ActionStoppedError, RecorderError, load_actions, load_objects
+from recorder import ActionStoppedError, RecorderError, RigError, load_actions, load_objects
+from recorder.runner import arm_lock
 from recorder.runner._record import record_action
 from recorder.runner._runner import SPEED_LEASE_S
 from recorder.writing._stream import PhaseEvent, SkinBlock
@@ -299,3 +300,22 @@ def test_a_connected_rig_lets_its_threads_take_turns_within_a_quarter_cycle() ->
         assert sys.getswitchinterval() == pytest.approx(0.005)  # restored on disconnect
     finally:
         sys.setswitchinterval(before)
+
+
+def test_one_process_drives_an_arm_and_a_second_is_told_which(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    with arm_lock("ur-127.0.0.1-30002", "lab.toml"):
+        # another open of the lock file is another holder, as another process would be
+        with (
+            pytest.raises(RigError, match=rf"lab.toml: pid {os.getpid()} \(.*\) drives the arm "),
+            arm_lock("ur-127.0.0.1-30002", "lab.toml"),
+        ):
+            pass
+        with arm_lock("ur-10.0.0.2-30002", "lab.toml"):  # another arm is free
+            pass
+    with arm_lock("ur-127.0.0.1-30002", "lab.toml"):  # released with the block
+        pass
+    names = sorted(p.name for p in (tmp_path / "atikt").iterdir())
+    assert names == ["ur-10.0.0.2-30002.lock", "ur-127.0.0.1-30002.lock"]
