@@ -87,7 +87,16 @@ def test_live_learning_says_which_recordings_lost_samples(
     # the rig's first recording lost samples: learned from all the same, and said, once
     lossy = SourceStats("skin", "counter", expected=100, received=98, missing=2)
     said = iter([[lossy]])
-    monkeypatch.setattr(_TracedSim, "source_stats", lambda _self: next(said, []), raising=False)
+
+    class _Lossy(_TracedSim):  # a class of its own: the Accounting protocol's isinstance
+        def source_stats(self) -> list[SourceStats]:  # check caches its answer per class
+            return next(said, [])
+
+    def build_lossy(seed: int, config: RigConfig) -> SimulatedRig:
+        refuse_sections(config)
+        return _Lossy(seed)
+
+    monkeypatch.setitem(rigconfig._BUILDERS, "lab", RigPlugin(build_lossy, exclusive=True))
     config = tmp_path / "lab.toml"
     config.write_text('rig = "lab"\n')
     argv = ["learn", "--rig-config", str(config), "--recordings", str(small_dataset)]
