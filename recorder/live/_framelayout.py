@@ -14,6 +14,7 @@ batch of frames is parsed in one ``np.frombuffer`` call and written in one ``tob
 from __future__ import annotations
 
 import dataclasses
+import ipaddress
 import itertools
 import re
 from dataclasses import dataclass
@@ -202,6 +203,9 @@ class SkinLayout:
         name: The source name prefix (``skin``; ``skin-<frame>`` with several frame types).
         receive_buffer: UDP socket receive buffer, bytes (SO_RCVBUF).
         where: The configuration file, for messages.
+        sender: UDP: the only address whose datagrams are taken (empty: any). Datagrams from
+            another address are dropped and counted as malformed (another rig's skin sending
+            to the same port, stray traffic); they never keep a silent skin from being seen.
     """
 
     transport: str
@@ -216,6 +220,7 @@ class SkinLayout:
     name: str
     receive_buffer: int
     where: str
+    sender: str = ""
 
     def source(self, frame: FrameType) -> str:
         """Return the accounting source name of a frame type."""
@@ -325,6 +330,23 @@ def _address(table: _Table, key: str, default: str) -> tuple[str, int]:
     if not 0 <= int(port) < 65536:  # noqa: PLR2004 (the port range)
         table.fail(key, text, "give a port from 0 (any free port) to 65535")
     return host, int(port)
+
+
+def _sender(table: _Table) -> str:
+    """Return the ``sender`` address (empty: datagrams from any address are taken)."""
+    text = table.get("sender", "")
+    if text == "":
+        return ""
+    fix = 'give the skin\'s IP address, e.g. "192.168.1.20"'
+    if not isinstance(text, str):
+        table.fail("sender", text, fix)
+    try:
+        address = ipaddress.ip_address(text)
+    except ValueError:
+        table.fail("sender", text, fix)
+    if address.version != 4:  # noqa: PLR2004 (the skin's socket is IPv4)
+        table.fail("sender", text, "give an IPv4 address: the skin's UDP socket is IPv4")
+    return str(address)
 
 
 def _field(table: _Table, *, counter: bool) -> Field:
@@ -482,9 +504,10 @@ def parse_layout(section: Mapping[str, Any], where: str) -> SkinLayout:
     """
     table = _Table(dict(section), "skin", where)
     transport = table.choice("transport", ("udp", "serial"))
-    bind, device, baud = ("127.0.0.1", 5005), "", 0
+    bind, device, baud, sender = ("127.0.0.1", 5005), "", 0, ""
     if transport == "udp":
         bind = _address(table, "bind", "127.0.0.1:5005")
+        sender = _sender(table)
     else:
         device = str(table.get("device"))
         baud = table.integer("baud", 115200, low=1)
@@ -517,6 +540,7 @@ def parse_layout(section: Mapping[str, Any], where: str) -> SkinLayout:
         str(name),
         buffer,
         where,
+        sender,
     )
 
 

@@ -20,6 +20,7 @@ block; a late or duplicated frame is counted and left out (a block never goes ba
 from __future__ import annotations
 
 import dataclasses
+import ipaddress
 import socket
 from collections import deque
 from typing import TYPE_CHECKING, Any, Self
@@ -348,7 +349,11 @@ class FrameSkin:
         """Close the link (after the reader stopped)."""
 
     def _framer_malformed(self) -> int:
-        """Return sync losses of the byte stream so far (0 for datagrams)."""
+        """Return what the link dropped before decoding so far.
+
+        Serial: sync losses of the byte stream; UDP: datagrams from another address than
+        ``sender``.
+        """
         return 0
 
     def __enter__(self) -> Self:
@@ -514,6 +519,8 @@ class UdpSkin(FrameSkin):
 
     def __init__(self, layout: SkinLayout, clock: RecorderClock) -> None:
         """Prepare to listen on ``layout.bind``."""
+        #: Datagrams from another address than the layout's ``sender``, dropped.
+        self.foreign = 0
         super().__init__(layout, clock)
         self._socket: socket.socket | None = None
         self.address: tuple[str, int] = layout.bind
@@ -537,21 +544,37 @@ class UdpSkin(FrameSkin):
         self._socket = sock
         self.address = sock.getsockname()[:2]
         self.receive_buffer = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
-        clock = self.clock
+        clock, sender = self.clock, self.layout.sender
 
         def receive() -> Received | None:
             try:
-                data = sock.recv(65536)
+                if not sender:
+                    return Received(clock.now_ns(), sock.recv(65536))
+                data, origin = sock.recvfrom(65536)
             except TimeoutError:
+                return None
+            if _host(origin) != sender:  # not the skin: dropped, and no sign of life either
+                self.foreign += 1
                 return None
             return Received(clock.now_ns(), data)
 
         return SourceReader(self.layout.name, receive)
 
+    def _framer_malformed(self) -> int:
+        return self.foreign
+
     def _close(self) -> None:
         if self._socket is not None:
             self._socket.close()
             self._socket = None
+
+
+def _host(address: tuple[Any, ...]) -> str:
+    """Return a datagram's sender address in the form :func:`ipaddress.ip_address` prints."""
+    try:
+        return str(ipaddress.ip_address(address[0]))
+    except ValueError:
+        return str(address[0])
 
 
 class SerialSkin(FrameSkin):

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pytest
 
+from recorder.errors import RigError
 from recorder.live import Received, RecorderClock
 from recorder.live._accounting import (
     GAP_PERIODS,
@@ -415,3 +416,46 @@ def test_a_udp_flood_is_bounded_in_memory_and_keeps_only_valid_frames_once() -> 
     assert stats.malformed > 0  # the garbage, counted
     assert stats.received < count + 1
     assert peak < 300 * 2**20, f"peak {peak / 2**20:.0f} MiB of Python memory in the flood"
+
+
+def test_datagrams_of_another_sender_are_dropped_counted_and_no_sign_of_life() -> None:
+    """With ``sender``, a second skin sending valid frames to the same port (another rig, a
+    stray replay) is dropped and counted as malformed: only the skin's own frames are kept,
+    and the foreign ones never refresh the silence check (the last receive time)."""
+    import socket  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    count = 200
+    payloads = [_frames(count)[i : i + 1].tobytes() for i in range(count)]
+    with UdpSkin(parse_layout(LAYOUT | {"sender": "127.0.0.1"}, "h.toml"), RecorderClock()) as skin:
+        ours, theirs = (socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2))
+        ours.bind(("127.0.0.1", 0))
+        theirs.bind(("127.0.0.2", 0))  # the whole of 127/8 is this computer's loopback
+        blocks: list[SkinBlock] = []
+        for payload in payloads:
+            ours.sendto(payload, skin.address)
+            theirs.sendto(payload, skin.address)
+            blocks += skin.poll()
+        time.sleep(0.2)
+        heard = skin.last_receive_ns()
+        for payload in payloads[:50]:  # only the other sender now
+            theirs.sendto(payload, skin.address)
+        time.sleep(0.2)
+        assert skin.last_receive_ns() == heard  # silence stays silence
+        blocks += skin.poll() + skin.finish()
+        stats = skin.stats()[0]
+        ours.close()
+        theirs.close()
+    _, values = _written(blocks)
+    assert list(values) == list(range(count))  # each of ours once, none of theirs
+    assert stats.malformed == count + 50
+    assert (stats.missing, stats.duplicated) == (0, 0)
+
+
+@pytest.mark.parametrize(
+    ("sender", "fix"),
+    [("skin.local", "give the skin's IP address"), ("::1", "give an IPv4 address"), (7, "IP")],
+)
+def test_a_sender_that_is_no_ipv4_address_is_refused(sender: object, fix: str) -> None:
+    with pytest.raises(RigError, match=rf"h.toml: \[skin\] sender = .*{fix}"):
+        parse_layout(LAYOUT | {"sender": sender}, "h.toml")
