@@ -59,6 +59,9 @@ def _publish(root: Path, text: str) -> bool:
             with contextlib.suppress(OSError):
                 temporary.unlink()
     except OSError as err:
+        if root.exists() and not root.is_dir():
+            msg = f"--out {root}: is a file, not a directory; give a directory (new or a dataset)"
+            raise RecorderError(msg) from err
         msg = f"{target}: cannot claim the dataset directory ({err.strerror}); check --out"
         raise RecorderError(msg) from err
     return True

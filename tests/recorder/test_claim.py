@@ -70,6 +70,13 @@ def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:
     )
 
 
+def test_an_out_that_is_a_file_is_named_so(tmp_path: Path) -> None:
+    (tmp_path / "notes").write_text("a file", encoding="utf-8")
+    with pytest.raises(RecorderError, match=r"notes: is a file, not a directory; give a dir"):
+        claim_dataset(tmp_path / "notes", 3, {"rig": "sim"})  # was "(File exists)"
+    assert (tmp_path / "notes").read_text(encoding="utf-8") == "a file"
+
+
 def test_two_dataset_runs_started_together_never_mix(tmp_path: Path) -> None:
     out = tmp_path / "data"
     runs = [_dataset(out, 1), _dataset(out, 2)]
