@@ -53,6 +53,7 @@ from recorder.bagimport._source import (
     open_reader,
     raw_messages,
     required_types,
+    unreadable,
 )
 from recorder.bagimport._topicmap import LabAction, LabObject
 from recorder.bagimport._windows import (
@@ -880,8 +881,8 @@ def import_bag(
         )
     except READ_ERRORS as err:
         _remove(report.written)
-        msg = f"{bags[0]}: cannot read the bag ({err!r}); check the path and the [types] of the map"
-        raise BagImportError(msg) from err
+        fix = "; check the path and the [types] of the map"
+        raise BagImportError(unreadable(bags[:1], err, fix)) from err
     except RecorderError:
         _remove(report.written)
         raise

@@ -843,6 +843,24 @@ def raw_messages(
         yield connection, receive_ns, raw
 
 
+def unreadable(bags: Sequence[Path], err: BaseException, fix: str) -> str:
+    """Return the one-line message for bags rosbags cannot read, with the way out if known.
+
+    An MCAP file without its end (its recorder was killed, the disk filled, the power went)
+    is refused whole by rosbags; what it holds up to the cut is salvaged by ``atikt-replay
+    check --recover`` into a complete file beside it, which rosbags reads.
+    """
+    if "end magic" in str(err).lower():
+        cut = [f for b in bags for f in ([b] if b.is_file() else sorted(b.glob("*.mcap")))]
+        named = ", ".join(map(str, cut)) or ", ".join(map(str, bags))
+        return (
+            f"{named}: the MCAP file ends cut off (its recorder stopped without closing it); "
+            f"salvage what it holds with atikt-replay check --recover {cut[0] if cut else 'FILE'}"
+            ", then import the .recovered.mcap it writes"
+        )
+    return f"{', '.join(map(str, bags))}: cannot read the bag ({err!r}){fix}"
+
+
 def bag_topics(bags: Sequence[Path]) -> list[tuple[str, str, int]]:
     """Return (topic, type, message count) of every connection of the bags, for help messages.
 
@@ -854,5 +872,4 @@ def bag_topics(bags: Sequence[Path]) -> list[tuple[str, str, int]]:
         with AnyReader([Path(b) for b in bags]) as reader:
             return [(c.topic, c.msgtype, c.msgcount) for c in reader.connections]
     except READ_ERRORS as err:
-        msg = f"{', '.join(map(str, bags))}: cannot read the bag ({err!r})"
-        raise BagImportError(msg) from err
+        raise BagImportError(unreadable(bags, err, "")) from err

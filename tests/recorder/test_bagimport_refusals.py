@@ -289,3 +289,34 @@ def test_hostile_bags_are_refused_within_bounded_memory(tmp_path: Path) -> None:
         assert result.stderr.count("\n") == 1
         assert fragment in result.stderr, result.stderr
     assert resource.getrlimit(resource.RLIMIT_AS)[0] != 4 << 30  # only the subprocess
+
+
+def test_an_mcap_bag_cut_off_names_the_salvage_that_makes_it_importable(tmp_path: Path) -> None:
+    # a lab's recorder killed mid-bag leaves an MCAP file without its end: rosbags refuses
+    # it whole; the refusal names the salvage, whose file rosbags then reads
+    from rosbags.highlevel import AnyReader  # noqa: PLC0415
+
+    whole = (ROOT / "recordings" / "data" / "wood" / "S1" / "001.mcap").read_bytes()
+    cut = tmp_path / "lab.mcap"
+    cut.write_bytes(whole[: len(whole) * 2 // 3])
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    with pytest.raises(BagImportError) as caught:
+        import_bag(
+            cut,
+            load_topic_map(map_path),
+            tmp_path / "out",
+            objects=load_objects(),
+            actions=load_actions(),
+        )
+    assert str(caught.value) == (
+        f"{cut}: the MCAP file ends cut off (its recorder stopped without closing it); salvage "
+        f"what it holds with atikt-replay check --recover {cut}, then import the .recovered.mcap "
+        "it writes"
+    )
+    from replay.cli._main import main as replay_main  # noqa: PLC0415
+
+    assert replay_main(["check", "--recover", str(cut)]) in {0, 1}  # the action is cut short
+    with AnyReader([tmp_path / "lab.recovered.mcap"]) as reader:
+        assert sum(1 for _ in reader.messages()) > 0
+    assert cut.read_bytes() == whole[: len(whole) * 2 // 3]  # the original is never touched
