@@ -858,6 +858,23 @@ def unreadable(bags: Sequence[Path], err: BaseException, fix: str) -> str:
             f"salvage what it holds with atikt-replay check --recover {cut[0] if cut else 'FILE'}"
             ", then import the .recovered.mcap it writes"
         )
+    folders = [b for b in bags if b.is_dir() and not (b / "metadata.yaml").exists()]
+    if folders:  # rosbag2 writes metadata.yaml when its recorder closes the bag
+        folder = folders[0]
+        files = sorted(folder.glob("*.mcap"))
+        if files:
+            way = (
+                f"give its MCAP file{'s' if len(files) > 1 else ''} instead of the folder "
+                f"({', '.join(str(f) for f in files[:3])})"
+            )
+        elif any(folder.glob("*.db3")):
+            way = f"rebuild it with ros2 bag reindex {folder} (ROS 2)"
+        else:
+            return f"{folder}: holds no bag (no metadata.yaml, .mcap or .db3 file); give a bag"
+        return (
+            f"{folder}: a ROS 2 bag folder without metadata.yaml (its recorder did not close "
+            f"it); {way}"
+        )
     return f"{', '.join(map(str, bags))}: cannot read the bag ({err!r}){fix}"
 
 

@@ -320,3 +320,30 @@ def test_an_mcap_bag_cut_off_names_the_salvage_that_makes_it_importable(tmp_path
     with AnyReader([tmp_path / "lab.recovered.mcap"]) as reader:
         assert sum(1 for _ in reader.messages()) > 0
     assert cut.read_bytes() == whole[: len(whole) * 2 // 3]  # the original is never touched
+
+
+@pytest.mark.parametrize(
+    ("files", "said"),
+    [
+        (["lab.mcap"], r"without metadata.yaml \(its recorder did not close it\); give its MCAP"),
+        (["lab_0.db3"], r"without metadata.yaml .*; rebuild it with ros2 bag reindex"),
+        ([], r"holds no bag \(no metadata.yaml, .mcap or .db3 file\); give a bag"),
+    ],
+)
+def test_a_bag_folder_without_metadata_says_what_to_do(
+    files: list[str], said: str, tmp_path: Path
+) -> None:
+    folder = tmp_path / "session_1"
+    folder.mkdir()
+    for name in files:
+        (folder / name).write_bytes(b"\0" * 64)
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    with pytest.raises(BagImportError, match=rf"^{folder}: .*{said}"):
+        import_bag(
+            folder,
+            load_topic_map(map_path),
+            tmp_path / "out",
+            objects=load_objects(),
+            actions=load_actions(),
+        )
