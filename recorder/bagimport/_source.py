@@ -850,13 +850,22 @@ def unreadable(bags: Sequence[Path], err: BaseException, fix: str) -> str:
     is refused whole by rosbags; what it holds up to the cut is salvaged by ``atikt-replay
     check --recover`` into a complete file beside it, which rosbags reads.
     """
-    if "end magic" in str(err).lower():
+    if "end magic" in str(err).lower():  # rosbags' words for an MCAP file without its end
         cut = [f for b in bags for f in ([b] if b.is_file() else sorted(b.glob("*.mcap")))]
         named = ", ".join(map(str, cut)) or ", ".join(map(str, bags))
         return (
             f"{named}: the MCAP file ends cut off (its recorder stopped without closing it); "
             f"salvage what it holds with atikt-replay check --recover {cut[0] if cut else 'FILE'}"
             ", then import the .recovered.mcap it writes"
+        )
+    text = str(err)
+    active = [b for b in bags if b.name.endswith(".bag.active")]
+    if active or "bag index looks damaged" in text.lower() or "not indexed" in text.lower():
+        bag = (active or list(bags))[0]
+        return (
+            f"{bag}: a ROS 1 bag cut off or without its index (its recorder was killed); "
+            f"rebuild the index with rosbag reindex {bag} (ROS 1)"
+            + (", then rename it to end in .bag" if active else "")
         )
     folders = [b for b in bags if b.is_dir() and not (b / "metadata.yaml").exists()]
     if folders:  # rosbag2 writes metadata.yaml when its recorder closes the bag

@@ -347,3 +347,25 @@ def test_a_bag_folder_without_metadata_says_what_to_do(
             objects=load_objects(),
             actions=load_actions(),
         )
+
+
+def test_a_ros1_bag_cut_off_or_still_active_names_the_reindex(tmp_path: Path) -> None:
+    messages, store = probe_messages(ros1=True)
+    data = write_bag(tmp_path / "lab.bag", "ros1", messages, store).read_bytes()
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    for name in ("cut.bag", "cut.bag.active"):  # killed: cut off; unfinished: still .active
+        cut = tmp_path / name
+        cut.write_bytes(data[: len(data) * 2 // 3])
+        with pytest.raises(BagImportError) as caught:
+            import_bag(
+                cut,
+                load_topic_map(map_path),
+                tmp_path / "out",
+                objects=load_objects(),
+                actions=load_actions(),
+            )
+        assert str(caught.value).startswith(
+            f"{cut}: a ROS 1 bag cut off or without its index (its recorder was killed); "
+            f"rebuild the index with rosbag reindex {cut} (ROS 1)"
+        )
