@@ -226,6 +226,8 @@ _WRITE_ERRORS = (OSError, pl.exceptions.PolarsError)
 
 def _write_error(path: Path, err: OSError | pl.exceptions.PolarsError) -> ReplayError:
     """Return the error of a table that cannot be written, naming it and the fix."""
+    if path.exists() and not path.is_dir() and isinstance(err, FileExistsError):
+        return ReplayError(f"--out {path}: is a file, not a directory; give a new directory")
     reason = err.strerror if isinstance(err, OSError) else " ".join(str(err).split())
     return ReplayError(f"{path}: cannot write the export ({reason}); check free space and --out")
 

@@ -149,3 +149,14 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(
     assert "cannot write the export" in err
     assert "No space left on device" in err
     assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_an_out_that_is_a_file_is_named_so(
+    fake_recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "notes").write_text("a file", encoding="utf-8")
+    assert main(["export", str(fake_recording), "--out", str(tmp_path / "notes")]) == 1
+    assert capsys.readouterr().err.endswith(
+        "notes: is a file, not a directory; give a new directory\n"
+    )
+    assert (tmp_path / "notes").read_text(encoding="utf-8") == "a file"
