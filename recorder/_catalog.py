@@ -134,7 +134,27 @@ def load_actions(path: Path | None = None) -> dict[str, ActionSpec]:
                 f"({'|'.join(VOCABULARY.kinds)}), duration_s and the kind's parameters in SI units"
             )
             raise CatalogError(msg) from err
+        if problem := _motion_problem(actions[action_id]):
+            # checked here, before anything moves: a rig would act on it (a press of depth
+            # nan or -1 mm, a hold of 1e9 s) and only the recording's metadata refused it
+            msg = f"{name}: action [{action_id}] {problem}"
+            raise CatalogError(msg)
     return actions
+
+
+#: The longest action a catalog may declare, s (an hour; the thesis's longest hold is 15 s).
+MAX_DURATION_S = 3600.0
+
+
+def _motion_problem(action: ActionSpec) -> str:
+    """Return what makes an action's motion impossible (empty: nothing)."""
+    for key in ("duration_s", "depth_m", "force_n", "speed_m_s"):
+        value = getattr(action, key)
+        if not math.isfinite(value) or value < 0:
+            return f"{key} = {value}: give a finite number >= 0 (SI units)"
+    if not 0 < action.duration_s <= MAX_DURATION_S:
+        return f"duration_s = {action.duration_s}: give 0 < duration_s <= {MAX_DURATION_S:g} s"
+    return ""
 
 
 PROPERTIES = VOCABULARY.properties

@@ -189,3 +189,26 @@ def test_an_actions_trials_out_of_range_is_refused_with_the_file(
     with pytest.raises(CatalogError, match=r"\[P9\].*not a number of trials 1\.\.999999") as info:
         load_actions(path)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("line", "said"),
+    [
+        ("depth_m = -0.001", r"depth_m = -0.001: give a finite number >= 0"),
+        ("depth_m = nan", r"depth_m = nan: give a finite number >= 0"),
+        ("speed_m_s = inf", r"speed_m_s = inf: give a finite number >= 0"),
+        ("duration_s = 0.0", r"duration_s = 0.0: give 0 < duration_s <= 3600 s"),
+        ("duration_s = 1e9", r"duration_s = 1000000000.0: give 0 < duration_s <= 3600"),
+    ],
+)
+def test_an_action_no_rig_could_perform_is_refused_before_anything_moves(
+    tmp_path: Path, line: str, said: str
+) -> None:
+    # a press of -1 mm moved the arm, one of 1e9 s held it, until the recording was refused
+    path = tmp_path / "actions.toml"
+    entry = {"kind": "'press'", "duration_s": "3.0", "depth_m": "0.001"}
+    key, _, value = line.partition(" = ")
+    entry[key] = value
+    path.write_text("[P9]\n" + "".join(f"{k} = {v}\n" for k, v in entry.items()), "utf-8")
+    with pytest.raises(CatalogError, match=rf"actions.toml: action \[P9\] {said}"):
+        load_actions(path)
