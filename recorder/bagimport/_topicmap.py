@@ -56,6 +56,8 @@ _ACTION_KEYS = ("kind", "description", "trials")
 _NS_PER_S = 1_000_000_000
 #: The largest lab cell id (the ids are kept in the recording's rig metadata).
 MAX_CELL_ID = 2**31 - 1
+#: The largest ``[time] max_delay_s``, s: a delay beyond it is a stalled topic, not transport.
+MAX_DELAY_S = 60
 #: The largest ``max_message_kib`` (1 GiB): a limit that protects the other topics' memory.
 MAX_MESSAGE_KIB = 1 << 20
 #: Keys that changed meaning or name, with the new syntax (one line each).
@@ -620,8 +622,11 @@ def _time(root: _Table) -> tuple[str, int, int]:
     if stamps not in STAMP_CLOCKS:
         time.fail(f"[time] stamps = {stamps!r} must be one of {STAMP_CLOCKS}")
     delay = time.exact("max_delay_s", Fraction(2))
-    if delay < 0:
-        time.fail(f"[time] max_delay_s = {delay} must be >= 0")
+    if not 0 <= delay <= MAX_DELAY_S:  # an action's messages wait in memory this long
+        time.fail(
+            f"[time] max_delay_s = {float(delay):g} must lie in [0, {MAX_DELAY_S}] s (an "
+            "action's messages wait in memory this long after its end)"
+        )
     largest = time.integer("max_message_kib", 4096, 1, MAX_MESSAGE_KIB)
     time.done()
     return stamps, int(delay * _NS_PER_S), largest * 1024

@@ -435,6 +435,13 @@ def test_a_topic_has_its_own_message_budget_where_its_table_sets_one(tmp_path: P
     path.write_text(text.replace("max_message_kib = 16", "max_message_kib = 0"))
     with pytest.raises(BagImportError, match=r"\[skin.force\] max_message_kib = 0 must be at"):
         load_topic_map(path)
+    # a delay of hours keeps every action's messages in memory that long after its end
+    for delay in ("-1.0", "61.0", "1e9"):
+        path.write_text(text.replace("max_delay_s = 2.0", f"max_delay_s = {delay}"))
+        with pytest.raises(
+            BagImportError, match=r"\[time\] max_delay_s = .* must lie in \[0, 60\]"
+        ):
+            load_topic_map(path)
     # a budget beyond 1 GiB protects nothing: the other topics' memory is the point of it
     path.write_text(text.replace("max_message_kib = 16", "max_message_kib = 1048577"))
     with pytest.raises(BagImportError, match=r"max_message_kib = 1048577 must be at most 1048576"):
