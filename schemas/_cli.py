@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import math
 import os
 import shutil
 import signal
@@ -534,6 +535,22 @@ def domain_id(text: str) -> int:
     return number
 
 
+def seconds(text: str) -> float:
+    """Return a duration option's value: a positive finite number of seconds.
+
+    Raises:
+        argparse.ArgumentTypeError: Not a number, not finite (nan would never end), or <= 0.
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 < value < math.inf:
+        msg = f"{text}: give a positive number of seconds"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
 def worker_count(value: int | None) -> int:
     """Return the worker count: the option's value, else every core."""
     return value if value is not None else os.cpu_count() or 1
@@ -726,6 +743,7 @@ __all__ = [
     "refuse_existing",
     "refuse_overlap",
     "run",
+    "seconds",
     "seed",
     "signal_name",
     "worker_count",

@@ -189,7 +189,9 @@ def _import_bag(args: argparse.Namespace) -> int:
     "record a lab's ROS 2 topics live over DDS: one file per annotated action, as import-bag",
     arg("--topic-map", type=Path, required=True, help=f"topic map TOML (example: {EXAMPLE})"),
     arg("--out", type=Path, required=True, help="dataset directory (existing recordings kept)"),
-    arg("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)"),
+    arg(
+        "--duration", type=cli.seconds, default=None, help="stop after S seconds (default: Ctrl-C)"
+    ),
     arg(
         "--domain-id",
         type=cli.domain_id,

@@ -5,6 +5,7 @@ rerun and matplotlib are imported when a command runs, not when the command line
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -231,7 +232,7 @@ def _foxglove(args: argparse.Namespace, inputs: Inputs) -> int:
             )
             raise ReplayError(msg)
         recordings.extend(recorded)
-    if args.speed < 0:
+    if not 0 <= args.speed < math.inf:  # nan too
         msg = f"--speed {args.speed:g}: give 0 (at once) or a positive factor"
         raise ReplayError(msg)
     serve_recordings(

@@ -37,6 +37,9 @@ CASES: list[tuple[str, str]] = [
     ("serve-sim --host nosuch.invalid", "--host 'nosuch.invalid' is not an address here"),
     ("serve-sim --ros2 --domain-id 233", "--domain-id: 233: give a DDS domain id 0..232"),
     ("listen --topic-map x.toml --out {tmp} --domain-id -1", "--domain-id: -1: give a DDS"),
+    # nan never ends the run, -1 ends it before it began
+    ("listen --topic-map x.toml --out {tmp} --duration nan", "--duration: nan: give a positive"),
+    ("listen --topic-map x.toml --out {tmp} --duration -1", "--duration: -1: give a positive"),
 ]
 
 

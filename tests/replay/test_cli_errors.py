@@ -72,6 +72,8 @@ CASES: list[tuple[str, str]] = [
     ("view {file} --save {tmp}/v.rrd --serve", "--save and --serve: choose one"),
     ("view {file} --serve --web-port 70000", "--web-port: 70000: give a port from 0"),
     ("view {file} --serve --grpc-port 1.5", "--grpc-port: 1.5: give a port from 0"),
+    ("view {file} --foxglove 127.0.0.1:0 --speed nan", "--speed nan: give 0 (at once) or a"),
+    ("view {file} --foxglove 127.0.0.1:0 --speed -1", "--speed -1: give 0 (at once) or a"),
     ("view {file} --save {taken}/old.rrd", "--save {taken}/old.rrd: exists"),
     ("view {file} --save {taken}", "is a directory; give a file name"),
     ("export {tmp}/missing.mcap", "no such file or directory"),
