@@ -128,16 +128,13 @@ def rig_from_args(args: argparse.Namespace) -> RigFactory:
     "record one exploratory action into <out>/<object>/<action>/<trial>.mcap",
     arg("--object", required=True, help="object id from the object catalog"),
     arg("--action", required=True, help="action id from the action catalog (P1, S2, C1, ...)"),
-    arg("--trial", type=int, default=1, help="trial number, from 1 (default: 1)"),
+    arg("--trial", type=cli.trial, default=1, help="trial number, from 1 (default: 1)"),
     arg("--out", type=Path, required=True, help="dataset directory"),
-    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    arg("--seed", type=cli.rig_seed, default=0, help="seed of the rig (default: 0)"),
     *rig_arguments(),
     *CATALOG_ARGUMENTS,
 )
 def _action(args: argparse.Namespace) -> int:
-    if args.trial < 1:
-        msg = f"--trial {args.trial}: trials are numbered from 1"
-        raise RecorderError(msg)
     refuse_overlap(args)
     objects = load_objects(args.objects_catalog)
     actions = load_actions(args.actions_catalog)
@@ -195,7 +192,7 @@ def _report(console: Console, report: DatasetReport) -> None:
     arg("--objects", type=catalog_ids, help="comma-separated object ids (default: all)"),
     arg("--actions", type=catalog_ids, help="comma-separated action ids (default: all)"),
     arg("--trials", type=int, help="trials per (object, action) (default: the catalog's)"),
-    arg("--seed", type=int, default=0, help="dataset seed (default: 0)"),
+    arg("--seed", type=cli.rig_seed, default=0, help="dataset seed (default: 0)"),
     arg("--workers", type=cli.workers, help="worker processes (default: all cores)"),
     *rig_arguments(),
     *CATALOG_ARGUMENTS,

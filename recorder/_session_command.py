@@ -21,7 +21,7 @@ from recorder._cli import (
 from recorder._dataset import plan_dataset
 from recorder._session import run_session
 from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
-from schemas import lost_samples
+from schemas import cli, lost_samples
 
 if TYPE_CHECKING:
     import argparse
@@ -43,7 +43,7 @@ if TYPE_CHECKING:
         action="store_true",
         help="unattended: ask nobody; every object needs a pose in the rig configuration",
     ),
-    arg("--seed", type=int, default=0, help="seed of the rig (default: 0)"),
+    arg("--seed", type=cli.rig_seed, default=0, help="seed of the rig (default: 0)"),
     arg(
         "--foxglove",
         nargs="?",

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, NoReturn
 from rich.progress import Progress, ProgressColumn
 
 from schemas._atomic import create_exclusive, temporary_name
+from schemas._metadata import MAX_SEED, MAX_TRIAL
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -485,6 +486,37 @@ def seed(text: str) -> int:
     return value
 
 
+def _whole(text: str, low: int, high: int, what: str) -> int:
+    """Return a whole number in ``low..high``; refuse anything else naming ``what``."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = low - 1
+    if not low <= value <= high:
+        msg = f"{text}: give {what} {low}..{high}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def rig_seed(text: str) -> int:
+    """Parse a recorder's ``--seed``: a whole number a recording's metadata holds (0..2**63-1).
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range (a larger seed was
+            written into recordings that ``check`` then refused).
+    """
+    return _whole(text, 0, MAX_SEED, "a whole number in")
+
+
+def trial(text: str) -> int:
+    """Parse a ``--trial``: a trial number a recording holds (1..999999).
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    return _whole(text, 1, MAX_TRIAL, "a trial number")
+
+
 #: The host a server the project starts binds unless told otherwise.
 LOOPBACK = "127.0.0.1"
 
@@ -742,10 +774,12 @@ __all__ = [
     "publish_file",
     "refuse_existing",
     "refuse_overlap",
+    "rig_seed",
     "run",
     "seconds",
     "seed",
     "signal_name",
+    "trial",
     "worker_count",
     "workers",
     "workers_ignore_interrupts",

@@ -334,7 +334,7 @@ def _switch_within_a_cycle(frequency: int) -> None:
         default=0,
         help="DDS domain of the ROS 2 topics (default: 0)",
     ),
-    arg("--seed", type=int, default=0, help="seed of the simulated rig (default: 0)"),
+    arg("--seed", type=cli.rig_seed, default=0, help="seed of the simulated rig (default: 0)"),
     arg(
         "--fault",
         action="append",

@@ -61,7 +61,6 @@ def test_action_records_one_file_and_refuses_to_overwrite_it(
         (["--object", "marble"], "--objects marble: not in the objects catalog"),
         (["--action", "X9"], "--actions X9: not in the actions catalog"),
         (["--rig", "ur10-lab"], "--rig ur10-lab: unknown rig; known rigs: sim, ur"),
-        (["--trial", "0"], "--trial 0: trials are numbered from 1"),
     ],
 )
 def test_user_mistakes_give_one_line_and_status_1(

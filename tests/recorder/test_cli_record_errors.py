@@ -16,7 +16,11 @@ CASES: list[tuple[str, str]] = [
     ("nosuch", "invalid choice: 'nosuch'"),
     ("action --object wood --action P1", "the following arguments are required: --out"),
     (_ACTION, "001.mcap: a recording with this name exists and is never overwritten"),
-    (_ACTION + " --trial 0", "--trial 0: trials are numbered from 1"),
+    (_ACTION + " --trial 0", "--trial: 0: give a trial number 1..999999"),
+    # a trial or seed the recording's metadata cannot hold: written, then refused by check
+    (_ACTION + " --trial 9999999", "--trial: 9999999: give a trial number 1..999999"),
+    (_ACTION + " --seed 99999999999999999999", "--seed: 99999999999999999999: give a whole"),
+    (_DATASET + " --seed -1", "--seed: -1: give a whole number in 0..9223372036854775807"),
     (_ACTION + " --object marble", "--objects marble: not in the objects catalog"),
     (_ACTION + " --action S9", "--actions S9: not in the actions catalog"),
     (_ACTION + " --rig nosuch", "--rig nosuch: unknown rig; known rigs: sim, ur"),
