@@ -508,6 +508,15 @@ def rig_seed(text: str) -> int:
     return _whole(text, 0, MAX_SEED, "a whole number in")
 
 
+def trials(text: str) -> int:
+    """Parse a number of trials (``--test-trials``): 1..999999, as trials are numbered.
+
+    Raises:
+        argparse.ArgumentTypeError: Not a whole number, or out of range.
+    """
+    return _whole(text, 1, MAX_TRIAL, "a number of trials")
+
+
 def trial(text: str) -> int:
     """Parse a ``--trial``: a trial number a recording holds (1..999999).
 
@@ -780,6 +789,7 @@ __all__ = [
     "seed",
     "signal_name",
     "trial",
+    "trials",
     "worker_count",
     "workers",
     "workers_ignore_interrupts",

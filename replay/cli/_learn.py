@@ -309,7 +309,12 @@ def _step_line(row: dict[str, Any]) -> str:
     *learner_args(baseline=True),
     _PRIOR_RECORDINGS,
     _PRIOR_ACTIONS,
-    arg("--test-trials", type=int, default=3, help="live: held-out trials per object/action"),
+    arg(
+        "--test-trials",
+        type=cli.trials,
+        default=3,
+        help="live: held-out trials per object/action (default: 3)",
+    ),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
         "--view",

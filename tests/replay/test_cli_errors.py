@@ -31,6 +31,9 @@ CASES: list[tuple[str, str]] = [
     ("features {data} --workers 0", "give 1 or more worker processes"),
     ("learn --recordings {tmp}/missing", "not a directory"),
     ("learn --recordings {data} --budget -3", "--budget -3: give 0 or more observations"),
+    # a test set of 0 trials failed deep in the learner ("pass at least one RawFeatures")
+    ("learn --rig sim-ur10 --test-trials 0", "--test-trials: 0: give a number of trials 1.."),
+    ("learn --rig sim-ur10 --test-trials 10000000", "--test-trials: 10000000: give a number"),
     ("learn --recordings {data} --hyper-sd 0", "--hyper-sd 0.0: give a positive standard"),
     ("learn --recordings {data} --hyper-sd nan", "--hyper-sd nan: give a positive standard"),
     ("learn --recordings {data} --hyper-sd abc", "'abc': give a positive standard deviation"),
