@@ -68,6 +68,9 @@ def _dask_backend(scheduler: str, timeout_s: float) -> Iterator[None]:
     except OSError as err:
         msg = f"--scheduler {scheduler}: cannot reach the Dask scheduler ({err}); check the address"
         raise ReplayError(msg) from err
+    except ValueError as err:  # Dask's parse of the address ("missing port number ...")
+        msg = f"--scheduler {scheduler}: {err}; give tls://HOST:PORT or tcp://HOST:PORT"
+        raise ReplayError(msg) from err
     try:
         with joblib.parallel_config(backend="dask"):
             yield
