@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final, Literal
+
+import numpy as np
 
 from atikt.errors import AtiktError
 from atikt.kernels import PART_KERNELS
@@ -109,8 +112,10 @@ class LearnerOptions:
         Raises:
             AtiktError: Options out of range, all named in one line.
         """
+        if problems := _type_problems(self):  # before any comparison: 'x' >= 0 is a TypeError
+            raise AtiktError("; ".join(problems))
         object.__setattr__(self, "metric_check", _metric_check(self.metric_check))
-        object.__setattr__(self, "bias", bool(self.bias))
+        object.__setattr__(self, "bias", bool(self.bias))  # numpy's bool as Python's
         transfer: object = self.transfer  # a caller may pass a name instead of a strategy
         if isinstance(transfer, str):
             object.__setattr__(self, "transfer", transfer_strategy(transfer))
@@ -128,6 +133,26 @@ class LearnerOptions:
                 f"metric_until={self.metric_until} must be None or >= 1",
             ),
             (self.transfer_from >= 1, f"transfer_from={self.transfer_from} must be >= 1"),
+            (
+                self.patience is None or self.patience >= 1,
+                f"patience={self.patience} must be None or >= 1",
+            ),
+            (
+                0.0 <= self.min_improvement < math.inf,
+                f"min_improvement={self.min_improvement} must be finite and >= 0",
+            ),
+            (
+                self.n_thermal_components >= 1,
+                f"n_thermal_components={self.n_thermal_components} must be >= 1",
+            ),
+            (self.n_restarts >= 0, f"n_restarts={self.n_restarts} must be >= 0"),
+            (
+                min(self.max_iter_initial, self.max_iter_step) >= 1,
+                (
+                    f"max_iter_initial={self.max_iter_initial} and max_iter_step="
+                    f"{self.max_iter_step} must be >= 1"
+                ),
+            ),
             (
                 all(kind in PART_KERNELS for _, kind in self.kernel_parts),
                 f"kernel_parts={list(self.kernel_parts)}: kernels must be in {PART_KERNELS}",
@@ -195,6 +220,41 @@ class LearnerOptions:
         if "kernel_parts" in kwargs:
             kwargs["kernel_parts"] = _pairs(kwargs["kernel_parts"])
         return cls(**kwargs)
+
+
+#: The options of each type (None allowed where the name is in ``_OPTIONAL``).
+_INTEGERS = (
+    "budget",
+    "metric_until",
+    "transfer_from",
+    "patience",
+    "n_thermal_components",
+    "n_restarts",
+    "max_iter_initial",
+    "max_iter_step",
+)
+_NUMBERS = ("eps_explore", "hyper_sd", "metric_sd", "min_improvement")
+_BOOLEANS = ("bias", "amplitude")
+_OPTIONAL = ("hyper_sd", "metric_sd", "metric_until", "patience")
+
+
+def _type_problems(options: LearnerOptions) -> list[str]:
+    """Return the options of the wrong type, one phrase each (a TOML file may hold anything)."""
+    problems = []
+    for name in (*_INTEGERS, *_NUMBERS, *_BOOLEANS):
+        value = getattr(options, name)
+        if value is None and name in _OPTIONAL:
+            continue
+        boolean = isinstance(value, bool | np.bool_)
+        if name in _BOOLEANS:
+            ok, kind = boolean, "true or false"
+        elif name in _INTEGERS:  # numpy's integers too (numbers.Integral)
+            ok, kind = isinstance(value, numbers.Integral) and not boolean, "a whole number"
+        else:
+            ok, kind = isinstance(value, numbers.Real) and not boolean, "a number"
+        if not ok:
+            problems.append(f"{name}={value!r} must be {kind}")
+    return problems
 
 
 def _strategy(transfer: object, flat: Mapping[str, Any]) -> TransferStrategy:

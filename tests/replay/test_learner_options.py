@@ -62,6 +62,10 @@ def test_another_transfer_keeps_the_options_both_strategies_have(tmp_path: Path)
         ("big.json", " " * (MAX_JSON_BYTES + 1), f"over {MAX_JSON_BYTES} bytes; give a run.json"),
         ("unknown.toml", "eps_neg3 = 1\n", "unknown learner option"),
         ("range.toml", "eps_explore = 2.0\n", r"eps_explore=2\.0 must lie in \[0, 1\]"),
+        # a string where a number goes was a TypeError traceback; "no" was a true bias
+        ("type.toml", 'budget = "x"\n', r"budget='x' must be a whole number"),
+        ("bool.toml", 'bias = "no"\n', r"bias='no' must be true or false"),
+        ("restarts.toml", "n_restarts = -1\n", r"n_restarts=-1 must be >= 0"),
     ],
 )
 def test_a_bad_learner_file_is_refused_in_one_line_naming_it(
