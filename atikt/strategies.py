@@ -16,6 +16,7 @@ evidence gain) and ``none`` (the baseline without transfer).
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Final
@@ -469,4 +470,27 @@ def transfer_strategy(name: str, **options: Any) -> TransferStrategy:  # noqa: A
         where = "; ".join(f"{o}: {', '.join(owners.get(o, ())) or 'no strategy'}" for o in foreign)
         msg = f"transfer {name!r} has no option {', '.join(foreign)} (owned by {where})"
         raise AtiktError(msg)
+    if problems := [
+        p
+        for f in dataclasses.fields(cls)
+        if f.name in options
+        if (p := _type_problem(f.name, options[f.name], f.default))
+    ]:
+        raise AtiktError("; ".join(problems))  # before the ranges: 'x' < 0.5 is a TypeError
     return cls(**options)
+
+
+def _type_problem(name: str, value: object, default: object) -> str:
+    """Return why ``value`` is not of its option's type (the default's), or empty."""
+    boolean = isinstance(value, bool | np.bool_)
+    if isinstance(default, bool):
+        ok, kind = boolean, "true or false"
+    elif isinstance(default, int):  # numpy's integers too (numbers.Integral)
+        ok, kind = isinstance(value, numbers.Integral) and not boolean, "a whole number"
+    elif isinstance(default, float) or default is None:
+        number = isinstance(value, numbers.Real) and not boolean
+        ok = number or (default is None and value is None)
+        kind = "a number" if default is not None else "a number or None"
+    else:
+        return ""
+    return "" if ok else f"{name}={value!r} must be {kind}"

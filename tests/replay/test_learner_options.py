@@ -66,6 +66,8 @@ def test_another_transfer_keeps_the_options_both_strategies_have(tmp_path: Path)
         ("type.toml", 'budget = "x"\n', r"budget='x' must be a whole number"),
         ("bool.toml", 'bias = "no"\n', r"bias='no' must be true or false"),
         ("restarts.toml", "n_restarts = -1\n", r"n_restarts=-1 must be >= 0"),
+        ("strategy.toml", 'transfer = "density"\neps_density = "x"\n', "eps_density='x' must be a"),
+        ("sources.toml", 'max_sources = "2"\n', r"max_sources='2' must be a whole number"),
     ],
 )
 def test_a_bad_learner_file_is_refused_in_one_line_naming_it(
