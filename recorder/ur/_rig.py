@@ -72,7 +72,7 @@ class UROptions:
         motion: dict[str, float] = {}
         for key, value in options.items():
             if key == "host":
-                if not isinstance(value, str) or not value:
+                if not isinstance(value, str) or not value.strip() or value != value.strip():
                     msg = f'{where}: rig option host = {value!r}: give an address, e.g. "127.0.0.1"'
                     raise RigError(msg)
                 values[key] = value

@@ -280,6 +280,7 @@ def test_fault_options_are_parsed() -> None:
         ({"silence_s": float("nan")}, "silence_s = nan: give a positive finite number"),
         ({"press_m_s": float("inf")}, "press_m_s = inf: give a positive finite number"),
         ({"script_port": 30002.5}, "script_port = 30002.5: give a whole number"),
+        ({"host": " 10.0.0.2"}, "host = ' 10.0.0.2': give an address"),
         ({"frequency": 125.5}, "frequency = 125.5: give a whole number"),
     ],
 )
