@@ -33,15 +33,25 @@ _SAFE = re.compile(r"[^A-Za-z0-9._-]")
 
 
 def lock_directory() -> Path:
-    """Return the directory of the arms' lock files (created, private to the user)."""
+    """Return the directory of the arms' lock files (created, private to the user).
+
+    Raises:
+        RigError: Neither the runtime directory nor the temporary one can hold it.
+    """
+    uid = os.getuid() if hasattr(os, "getuid") else 0
     runtime = os.environ.get("XDG_RUNTIME_DIR")
-    if runtime and Path(runtime).is_dir():
-        base = Path(runtime) / "atikt"
-    else:
-        uid = os.getuid() if hasattr(os, "getuid") else 0
-        base = Path(tempfile.gettempdir()) / f"atikt-{uid}"
-    base.mkdir(mode=0o700, parents=True, exist_ok=True)
-    return base
+    candidates = [Path(runtime) / "atikt"] if runtime and Path(runtime).is_dir() else []
+    candidates.append(Path(tempfile.gettempdir()) / f"atikt-{uid}")
+    problem = ""
+    for base in candidates:
+        try:
+            base.mkdir(mode=0o700, parents=True, exist_ok=True)
+        except OSError as err:
+            problem = f"{base}: {err.strerror}"
+            continue
+        return base
+    msg = f"cannot make the arms' lock directory ({problem}); set XDG_RUNTIME_DIR to a writable one"
+    raise RigError(msg)
 
 
 @contextlib.contextmanager
@@ -61,7 +71,12 @@ def arm_lock(arm: str, where: str) -> Iterator[None]:
     import fcntl  # noqa: PLC0415 (POSIX only)
 
     path = lock_directory() / f"{_SAFE.sub('_', arm)}.lock"
-    with path.open("a+", encoding="utf-8") as handle:
+    try:
+        handle = path.open("a+", encoding="utf-8")
+    except OSError as err:
+        msg = f"{path}: cannot open the arm's lock ({err.strerror}); check the directory"
+        raise RigError(msg) from err
+    with handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

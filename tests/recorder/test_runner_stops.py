@@ -319,3 +319,21 @@ def test_one_process_drives_an_arm_and_a_second_is_told_which(
         pass
     names = sorted(p.name for p in (tmp_path / "atikt").iterdir())
     assert names == ["ur-10.0.0.2-30002.lock", "ur-127.0.0.1-30002.lock"]
+
+
+def test_an_unwritable_runtime_directory_falls_back_then_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    blocked = tmp_path / "runtime"
+    blocked.mkdir()
+    (blocked / "atikt").write_text("a file where the directory goes", encoding="utf-8")
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(blocked))
+    monkeypatch.setattr("tempfile.gettempdir", lambda: str(tmp_path / "tmp"))
+    with arm_lock("ur-127.0.0.1-30002", "lab.toml"):  # the temporary directory instead
+        assert (tmp_path / "tmp").is_dir()
+    monkeypatch.setattr("tempfile.gettempdir", lambda: str(blocked / "atikt"))
+    with (
+        pytest.raises(RigError, match=r"cannot make the arms' lock directory .*; set XDG_RUNTIME"),
+        arm_lock("ur-127.0.0.1-30002", "lab.toml"),
+    ):
+        pass
