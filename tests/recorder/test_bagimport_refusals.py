@@ -299,16 +299,9 @@ def test_an_mcap_bag_cut_off_names_the_salvage_that_makes_it_importable(tmp_path
     whole = (ROOT / "recordings" / "data" / "wood" / "S1" / "001.mcap").read_bytes()
     cut = tmp_path / "lab.mcap"
     cut.write_bytes(whole[: len(whole) * 2 // 3])
-    map_path = tmp_path / "map.toml"
-    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    map_path = _map(tmp_path)
     with pytest.raises(BagImportError) as caught:
-        import_bag(
-            cut,
-            load_topic_map(map_path),
-            tmp_path / "out",
-            objects=load_objects(),
-            actions=load_actions(),
-        )
+        _import(cut, map_path, tmp_path / "out")
     assert str(caught.value) == (
         f"{cut}: the MCAP file ends cut off (its recorder stopped without closing it); salvage "
         f"what it holds with atikt-replay check --recover {cut}, then import the .recovered.mcap "
@@ -337,34 +330,20 @@ def test_a_bag_folder_without_metadata_says_what_to_do(
     folder.mkdir()
     for name in files:
         (folder / name).write_bytes(b"\0" * 64)
-    map_path = tmp_path / "map.toml"
-    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    map_path = _map(tmp_path)
     with pytest.raises(BagImportError, match=rf"^{folder}: .*{said}"):
-        import_bag(
-            folder,
-            load_topic_map(map_path),
-            tmp_path / "out",
-            objects=load_objects(),
-            actions=load_actions(),
-        )
+        _import(folder, map_path, tmp_path / "out")
 
 
 def test_a_ros1_bag_cut_off_or_still_active_names_the_reindex(tmp_path: Path) -> None:
     messages, store = probe_messages(ros1=True)
     data = write_bag(tmp_path / "lab.bag", "ros1", messages, store).read_bytes()
-    map_path = tmp_path / "map.toml"
-    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    map_path = _map(tmp_path)
     for name in ("cut.bag", "cut.bag.active"):  # killed: cut off; unfinished: still .active
         cut = tmp_path / name
         cut.write_bytes(data[: len(data) * 2 // 3])
         with pytest.raises(BagImportError) as caught:
-            import_bag(
-                cut,
-                load_topic_map(map_path),
-                tmp_path / "out",
-                objects=load_objects(),
-                actions=load_actions(),
-            )
+            _import(cut, map_path, tmp_path / "out")
         assert str(caught.value).startswith(
             f"{cut}: a ROS 1 bag cut off or without its index (its recorder was killed); "
             f"rebuild the index with rosbag reindex {cut} (ROS 1)"
