@@ -267,11 +267,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
 
+RECORDING = ("action", "dataset", "session", "listen")
+"""The commands that record: a closed standard output is said on stderr, not passed over."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``atikt-record``; return the exit status (1 for a project error, 2 for usage)."""
     interrupted = "interrupted; finished recordings are kept, run it again to resume"
     try:
-        return cli.run(build_parser(), argv, (RecorderError, ContractError), interrupted)
+        return cli.run(build_parser(), argv, (RecorderError, ContractError), interrupted, RECORDING)
     except KeyboardInterrupt:  # while the parser is built
         print(f"{PROG}: {interrupted}", file=sys.stderr)  # noqa: T201
         return 130

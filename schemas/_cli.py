@@ -30,13 +30,14 @@ import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, NoReturn
 
+import rich.console
 from rich.progress import Progress, ProgressColumn
 
 from schemas._atomic import create_exclusive, temporary_name
 from schemas._metadata import MAX_SEED, MAX_TRIAL
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable, Iterator, Sequence
+    from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
     from pathlib import Path
     from types import TracebackType
 
@@ -244,13 +245,16 @@ def run(
     argv: Sequence[str] | None,
     errors: tuple[type[Exception], ...],
     interrupted: str = "interrupted; nothing unfinished was published, run it again to resume",
+    recording: Collection[str] = (),
 ) -> int:
     """Parse ``argv`` and run the chosen subcommand; return its exit status.
 
     Errors of the project (``errors`` and :class:`CliError`) and a path longer than the
     system allows are printed as one line on stderr with status 1, usage errors with status 2,
     Ctrl-C as ``interrupted`` with status 130; any other exception is a bug and keeps its
-    traceback.
+    traceback. A closed standard output (``| head`` left) ends a command with status 1,
+    quietly as other tools do, except the ``recording`` commands: a session whose ``| tee``
+    died must not look finished, so they say so on stderr, with how to resume.
     """
     try:
         args = parser.parse_args(argv)
@@ -258,7 +262,7 @@ def run(
         return done.code if isinstance(done.code, int) else USAGE_STATUS * (done.code is not None)
     caught: tuple[type[Exception], ...] = (*errors, CliError)
     try:
-        with _quiet_interrupts():
+        with _quiet_interrupts(), _broken_pipes_raise():
             status: int = args.run(args)
     except caught as err:
         print(f"{parser.prog}: error: {one_line(str(err))}", file=sys.stderr)  # noqa: T201
@@ -270,9 +274,11 @@ def run(
             _drop_stdout()  # what is still buffered cannot be written either
             where = f"{err.filename}: " if err.filename else ""
             line = f"{where}cannot write ({err.strerror}); free disk space or write elsewhere"
-        elif err.errno == errno.EPIPE:  # the reader left (``| head``): as other tools, quietly
+        elif err.errno == errno.EPIPE:  # the reader left (``| head``)
             _drop_stdout()
-            return ERROR_STATUS
+            if args.command not in recording:
+                return ERROR_STATUS
+            line = f"standard output was closed by its reader (broken pipe); {_after(interrupted)}"
         else:
             raise
         with contextlib.suppress(OSError):
@@ -287,6 +293,25 @@ def run(
             print(f"{parser.prog}: {one_line(line)}", file=sys.stderr)  # noqa: T201
         return err.status if isinstance(err, Terminated) else INTERRUPTED_STATUS
     return status
+
+
+@contextlib.contextmanager
+def _broken_pipes_raise() -> Iterator[None]:
+    """Let a broken pipe met by a rich console reach :func:`run` as the ``BrokenPipeError``.
+
+    rich's own handling (``Console.on_broken_pipe``, meant to be replaced) exits the process
+    with status 1 at once, which would pass over a recording command's line.
+    """
+
+    def reraise(_console: rich.console.Console) -> None:
+        raise  # noqa: PLE0704 (called by rich inside its 'except BrokenPipeError')
+
+    kept = rich.console.Console.on_broken_pipe
+    rich.console.Console.on_broken_pipe = reraise  # type: ignore[method-assign,assignment]
+    try:
+        yield
+    finally:
+        rich.console.Console.on_broken_pipe = kept  # type: ignore[method-assign]
 
 
 def _after(interrupted: str) -> str:

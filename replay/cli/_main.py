@@ -695,4 +695,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``atikt-replay``; return the exit status (1 for a project error, 2 for usage)."""
     given = sys.argv[1:] if argv is None else list(argv)
     command = given[0] if given and not given[0].startswith("-") else None
-    return cli.run(build_parser(command), argv, (ReplayError, ContractError))
+    return cli.run(
+        build_parser(command), argv, (ReplayError, ContractError), recording=("learn", "study")
+    )

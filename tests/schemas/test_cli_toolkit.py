@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import io
 import os
 import signal
 import subprocess
@@ -12,10 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 
 from schemas import ContractError, cli
 
 ROOT = Path(__file__).resolve().parents[2]
+ORIGINAL_ON_BROKEN_PIPE = Console.on_broken_pipe
 
 
 def _program(run: object) -> argparse.ArgumentParser:
@@ -127,6 +130,43 @@ def test_a_full_disk_is_one_line_and_a_reader_gone_is_quiet(
     assert dropped == [True, True, True]
     with pytest.raises(PermissionError):  # not a full disk: a bug or a case of its own
         cli.run(_program(fail(errno.EACCES, "x")), ["go"], ())
+
+
+def test_a_recording_command_says_its_output_was_closed(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(cli, "_drop_stdout", lambda: None)
+
+    def closed(_args: argparse.Namespace) -> int:
+        raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    said = "interrupted; finished recordings are kept, run it again to resume"
+    assert cli.run(_program(closed), ["go"], (), said, recording=("go",)) == 1
+    assert capsys.readouterr().err == (
+        "prog: error: standard output was closed by its reader (broken pipe); "
+        "finished recordings are kept, run it again to resume\n"
+    )
+
+
+def test_a_broken_pipe_met_by_rich_reaches_the_one_line(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """rich exits the process on its own (status 1, nothing said) unless told otherwise."""
+    monkeypatch.setattr(cli, "_drop_stdout", lambda: None)
+
+    class Closed(io.StringIO):
+        def write(self, _text: str) -> int:
+            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    def prints(_args: argparse.Namespace) -> int:
+        Console(file=Closed()).print("a line")
+        return 0
+
+    assert cli.run(_program(prints), ["go"], (), recording=("go",)) == 1
+    assert "closed by its reader (broken pipe)" in capsys.readouterr().err
+    assert cli.run(_program(prints), ["go"], ()) == 1  # not a recording command: quietly
+    assert capsys.readouterr().err == ""
+    assert Console.on_broken_pipe is ORIGINAL_ON_BROKEN_PIPE  # rich left as it was
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full here")
