@@ -78,7 +78,10 @@ def record_action(
         KeyboardInterrupt: Ctrl-C (``schemas.cli.Terminated``: SIGTERM) during the action,
             after the arm's stop and after what arrived was kept (the message names the file).
         RecorderError: The rig or the file failed; what arrived is kept (incomplete).
+        RigError: The arm could not start the action (nothing was sent, no file made).
     """
+    if isinstance(rig, ArmRig):  # an arm that could not start the action: no file for it
+        rig.check_ready()
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     for viewer in viewers:
         viewer.begin(info)
@@ -101,17 +104,21 @@ def record_action(
         raise RecorderError(msg)
     for viewer in viewers:
         viewer.recorded(written.path)
-    if flag.signum is not None:
-        try:
-            raise_interrupt(flag.signum)
-        except KeyboardInterrupt as err:
-            err.args = (
-                f"{flag.reason}: the arm was stopped; what arrived is kept in {written.path}",
-            )
-            raise
+    _raise_deferred(flag, written.path)
     if stop is not None:
         raise ActionStoppedError(stop.reason, stop.at_ns, written.path)
     return written
+
+
+def _raise_deferred(flag: InterruptFlag, path: Path) -> None:
+    """Raise the interrupt that arrived during the action, naming the file that kept it."""
+    if flag.signum is None:
+        return
+    try:
+        raise_interrupt(flag.signum)
+    except KeyboardInterrupt as err:
+        err.args = (f"{flag.reason}: the arm was stopped; what arrived is kept in {path}",)
+        raise
 
 
 def _fan_out(

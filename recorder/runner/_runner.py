@@ -341,6 +341,28 @@ class ArmRig:
                 msg = f"the arm did not reach the pose of {what} within 1 mm"
                 raise Stop(msg, self.clock.now_ns())
 
+    def check_ready(self) -> None:
+        """Read the arm's state afresh before an action; refuse an arm that could not start it.
+
+        A stop on the controller, a robot mode other than running (powered off, brakes
+        engaged), a limit broken where the arm stands or a silent source is refused here,
+        before anything is sent and before the action's file exists (the action itself checks
+        every sample again).
+
+        Raises:
+            RigError: The reason, one line (nothing was sent).
+        """
+        self._connected()
+        self._begin()
+        self.skin.begin()
+        before = self._state.sample
+        try:
+            while self._state.sample is before:  # the silence check bounds the wait
+                self._pump_quietly()
+        except (Stop, SourceLostError) as stop:
+            msg = f"{self.where}: the arm cannot start an action: {stop}; check the arm, then retry"
+            raise RigError(msg) from None
+
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
         """Perform ``action`` on ``obj``; yield every item as it arrives.
 

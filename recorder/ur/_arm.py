@@ -67,6 +67,20 @@ SAFETY_NAMES = {
     8: "violation",
     9: "fault",
 }
+#: RTDE ``robot_mode`` of an arm that can move (ROBOT_MODE_RUNNING: powered, brakes released).
+RUNNING = 7
+#: Names of the other robot modes, for messages (the controller's RobotMode enumeration).
+ROBOT_MODE_NAMES = {
+    -1: "no controller",
+    0: "disconnected",
+    1: "confirm safety",
+    2: "booting",
+    3: "powered off",
+    4: "powering on",
+    5: "idle, brakes engaged",
+    6: "backdrive",
+    8: "updating firmware",
+}
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
@@ -293,11 +307,17 @@ class URArm:
         if not self._counter.observe(None, stamp, receive_ns) or stamp <= self._newest_ns:
             return None
         self._newest_ns = stamp
-        safety = int(values["safety_status"])
+        safety, mode = int(values["safety_status"]), int(values["robot_mode"])
         stopped = ""
         if safety not in SAFE_STATUS:
             name = SAFETY_NAMES.get(safety, "unsafe state")
             stopped = f"{name} (RTDE safety_status {safety})"
+        elif mode != RUNNING:  # powered off, brakes engaged, backdrive: no program moves it
+            name = ROBOT_MODE_NAMES.get(mode, "unknown mode")
+            stopped = (
+                f"arm not running ({name}: RTDE robot_mode {mode}; power it on and release "
+                "its brakes)"
+            )
         return ArmSample(
             stamp_ns=stamp + self._offset_ns,
             receive_ns=receive_ns,

@@ -4,8 +4,10 @@ A UR controller's dashboard server takes one command per line and answers one li
 virtual lab answers ``robotmode``, ``safetymode`` (and ``safetystatus``), ``stop`` (the
 running program ends; the arm brakes), ``play`` (nothing to resume: the lab runs the programs
 sent to its URScript port as they arrive), ``unlock protective stop`` (releases a protective
-stop) and ``close safety popup``; anything else is answered as a controller answers an
-unknown command. On connecting, a client gets the controller's greeting.
+stop), ``power off``, ``power on`` and ``brake release`` (the robot mode: an arm that is not
+running takes no program and does not move) and ``close safety popup``; anything else is
+answered as a controller answers an unknown command. On connecting, a client gets the
+controller's greeting.
 """
 
 from __future__ import annotations
@@ -14,7 +16,13 @@ import contextlib
 from typing import TYPE_CHECKING
 
 from recorder.virtuallab._tcp import TcpServer
-from recorder.virtuallab._world import SAFETY_EMERGENCY_STOP, SAFETY_PROTECTIVE_STOP
+from recorder.virtuallab._world import (
+    ROBOT_MODE_IDLE,
+    ROBOT_MODE_POWER_OFF,
+    ROBOT_MODE_RUNNING,
+    SAFETY_EMERGENCY_STOP,
+    SAFETY_PROTECTIVE_STOP,
+)
 
 if TYPE_CHECKING:
     import socket
@@ -26,6 +34,13 @@ _SAFETY = {
     1: "NORMAL",
     SAFETY_PROTECTIVE_STOP: "PROTECTIVE_STOP",
     SAFETY_EMERGENCY_STOP: "ROBOT_EMERGENCY_STOP",
+}
+_MODES = {ROBOT_MODE_POWER_OFF: "POWER_OFF", ROBOT_MODE_IDLE: "IDLE", ROBOT_MODE_RUNNING: "RUNNING"}
+#: Dashboard commands that change the robot mode: the mode they lead to, their answer.
+_POWER = {
+    "power off": (ROBOT_MODE_POWER_OFF, "Powering off"),
+    "power on": (ROBOT_MODE_IDLE, "Powering on"),
+    "brake release": (ROBOT_MODE_RUNNING, "Brake releasing"),
 }
 #: Longest command line read, bytes (a longer one is dropped).
 MAX_LINE = 1024
@@ -68,7 +83,13 @@ class DashboardServer(TcpServer):
         text = command.strip().lower()
         safety = world.safety
         if text == "robotmode":
-            return "Robotmode: RUNNING"
+            mode = world.robot_mode
+            return f"Robotmode: {_MODES.get(mode, str(mode))}"
+        if text in _POWER:
+            mode, said = _POWER[text]
+            if text != "brake release" or world.robot_mode != ROBOT_MODE_POWER_OFF:
+                world.power(mode)  # a controller releases no brakes of an arm powered off
+            return said
         if text in {"safetymode", "safetystatus"}:
             name = _SAFETY.get(safety, str(safety))
             return f"{'Safetymode' if text == 'safetymode' else 'Safetystatus'}: {name}"

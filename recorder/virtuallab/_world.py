@@ -56,7 +56,10 @@ if TYPE_CHECKING:
     F64 = NDArray[np.float64]
 
 _log = logging.getLogger("atikt.virtuallab")
-#: RTDE ``robot_mode`` of a running arm (ROBOT_MODE_RUNNING).
+#: RTDE ``robot_mode`` values the virtual arm takes (the controller's RobotMode enumeration):
+#: powered off, powered on with the brakes engaged, running (brakes released).
+ROBOT_MODE_POWER_OFF = 3
+ROBOT_MODE_IDLE = 5
 ROBOT_MODE_RUNNING = 7
 #: RTDE ``safety_status`` values (the controller's SafetyStatus enumeration).
 SAFETY_NORMAL = 1
@@ -161,6 +164,7 @@ class VirtualWorld:
     _action: tuple[str, str, int] | None = field(default=None, init=False)
     _phase: str | None = field(default=None, init=False)
     _safety: int = field(default=SAFETY_NORMAL, init=False)
+    _mode: int = field(default=ROBOT_MODE_RUNNING, init=False)
     _moving: tuple[bool, bool] = field(default=(False, False), init=False)
     _log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES), init=False)
     _listeners: list[Callable[[tuple[str, str, int]], None]] = field(
@@ -297,7 +301,8 @@ class VirtualWorld:
             self._runner.load(self._pending)
             self._pending = None
         before = self._arm.tcp()[:3, 3].copy()
-        twist = self._runner.step(self._arm, dt) if self._safety == SAFETY_NORMAL else np.zeros(6)
+        free = self._safety == SAFETY_NORMAL and self._mode == ROBOT_MODE_RUNNING
+        twist = self._runner.step(self._arm, dt) if free else np.zeros(6)
         self._arm.step(twist, dt)
         after = self._arm.tcp()[:3, 3]
         count = max(1, (end_ns - start_ns) // SUB_NS)
@@ -322,7 +327,7 @@ class VirtualWorld:
             arm.qd.copy(),
             arm.pose(),
             wrench,
-            ROBOT_MODE_RUNNING,
+            self._mode,
             self._safety,
             arm.torques(wrench[:3]),
             arm.tcp_speed.copy(),
@@ -435,6 +440,12 @@ class VirtualWorld:
                     "unlock it first"
                 )
                 return False
+            if self._mode != ROBOT_MODE_RUNNING:
+                self.note(
+                    "URScript program refused: the arm is not running (powered off or its "
+                    "brakes engaged); power it on and release the brakes first"
+                )
+                return False
             self._pending = program
             return True
 
@@ -459,6 +470,26 @@ class VirtualWorld:
         with self._lock:
             self._pending = None
             self._runner.finish()
+
+    @property
+    def robot_mode(self) -> int:
+        """Return the RTDE robot mode now."""
+        with self._lock:
+            return self._mode
+
+    def power(self, mode: int) -> None:
+        """Take the robot mode ``mode`` (dashboard: ``power off``, ``power on``, ``brake release``).
+
+        Leaving the running mode ends the program and holds the arm where it is.
+        """
+        with self._lock:
+            self.advance_to(self.controller_ns())
+            if mode != ROBOT_MODE_RUNNING:
+                self._runner.abort()
+                self._pending = None
+                self._arm.halt()
+            self._mode = mode
+            self.events_log.add("mode", self.controller_ns(), robot_mode=mode)
 
     def unlock(self) -> None:
         """Release a stop (the pendant's "unlock protective stop")."""

@@ -1,6 +1,7 @@
 """The UR rig against the virtual lab: full actions, limits, stops, accounting."""
 
 import socket
+import threading
 import tomllib
 from pathlib import Path
 
@@ -96,6 +97,43 @@ def test_protective_stop_keeps_an_incomplete_file(tmp_path: Path) -> None:
     assert error.path == tmp_path / "001.incomplete.mcap"
     assert error.path.exists()
     assert not path.exists()
+
+
+def test_an_arm_that_is_not_running_is_refused_before_anything_moves(tmp_path: Path) -> None:
+    path = tmp_path / "wood" / "P1" / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.power(5)  # powered on, brakes engaged: the state of a morning
+        with lab.rig({"wood": POSE}) as rig:
+            with pytest.raises(RigError) as presenting:
+                rig.present(OBJECTS["wood"])
+            with pytest.raises(RigError) as starting:  # an object placed by hand
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+        moving = [p for p in lab.script.programs if "movel(" in p or "speedl(" in p]
+    said = "arm not running (idle, brakes engaged: RTDE robot_mode 5; power it on and release"
+    assert said in str(presenting.value)
+    assert said in str(starting.value)
+    assert "the arm cannot start an action" in str(starting.value)
+    assert "\n" not in str(starting.value)
+    assert moving == []  # nothing that moves was sent
+    assert not any(tmp_path.rglob("*.mcap*"))  # and no file for an action that never began
+
+
+def test_an_arm_powered_off_mid_action_stops_it(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            assert rig.present(OBJECTS["wood"])
+            timer = threading.Timer(0.3, lab.world.power, (3,))  # during the action
+            timer.start()
+            try:
+                with pytest.raises(ActionStoppedError) as info:
+                    record_action(rig, OBJECTS["wood"], ACTIONS["C1"], 1, path, seed=0)
+            finally:
+                timer.cancel()
+    assert "arm not running (powered off: RTDE robot_mode 3" in info.value.reason
+    assert info.value.path == tmp_path / "001.incomplete.mcap"
+    assert info.value.path.exists()
 
 
 def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:

@@ -434,6 +434,46 @@ def test_the_dashboard_releases_a_protective_stop() -> None:
         assert np.all(state.target_tcp_speed == 0)
 
 
+def test_the_dashboard_powers_the_arm_off_and_on() -> None:
+    from recorder.virtuallab._dashboard import DashboardServer  # noqa: PLC0415
+
+    with virtual_lab() as lab, DashboardServer(lab.controller, "127.0.0.1", 0) as dashboard:
+        with socket.create_connection(("127.0.0.1", dashboard.address[1]), timeout=5) as sock:
+            reader = sock.makefile("r")
+            reader.readline()
+
+            def ask(command: str) -> str:
+                sock.sendall(f"{command}\n".encode())
+                return reader.readline().strip()
+
+            def mode() -> int:
+                time.sleep(0.05)  # the next cycles' states (what RTDE sends) carry it
+                return lab.world.robot_at(lab.world.controller_ns()).robot_mode
+
+            assert ask("power off") == "Powering off"
+            assert (ask("robotmode"), mode()) == ("Robotmode: POWER_OFF", 3)
+            assert ask("brake release") == "Brake releasing"  # not from powered off
+            assert mode() == 3
+            start = lab.world.robot_at(lab.world.controller_ns()).tcp_pose.copy()
+            lab.script.run("speedl([0.0, 0.0, 0.05, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+            time.sleep(0.3)
+            assert "the arm is not running" in " ".join(lab.controller.log)
+            assert ask("power on") == "Powering on"
+            assert (ask("robotmode"), mode()) == ("Robotmode: IDLE", 5)
+            lab.script.run("speedl([0.0, 0.0, 0.05, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+            time.sleep(0.3)
+            held = lab.world.robot_at(lab.world.controller_ns()).tcp_pose
+            np.testing.assert_allclose(held, start, atol=1e-9)  # brakes engaged: no motion
+            assert ask("brake release") == "Brake releasing"
+            assert (ask("robotmode"), mode()) == ("Robotmode: RUNNING", 7)
+            lab.script.run("speedl([0.0, 0.0, 0.05, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+            time.sleep(0.3)
+            moved = lab.world.robot_at(lab.world.controller_ns()).tcp_pose
+            assert moved[2] > start[2] + 1e-3
+        modes = [e.details["robot_mode"] for e in lab.world.events_log.events("mode")]
+        assert modes == [3, 5, 7]
+
+
 def test_the_skins_readings_go_on_from_one_action_to_the_next() -> None:
     clock = Clock()
     world = _world(clock)
