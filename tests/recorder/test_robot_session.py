@@ -253,7 +253,8 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
         parts = out.rglob("*.mcap.part")  # <trial>.<pid>-<token>.mcap.part of <trial>.mcap
         writing = [p for p in parts if not p.with_name(f"{p.name.split('.')[0]}.mcap").exists()]
         if list(out.rglob("???.mcap")) and writing:
-            time.sleep(0.2)
+            # well inside the action (about 0.4 s at this time scale), also on a loaded machine
+            time.sleep(0.05)
             run.send_signal(number)
             break
         time.sleep(0.02)
