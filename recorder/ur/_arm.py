@@ -55,6 +55,10 @@ RTDE_VARIABLES = (
     "robot_mode",
     "safety_status",
 )
+#: RTDE outputs read when the controller provides them: the teach pendant's speed slider.
+OPTIONAL_VARIABLES = ("target_speed_fraction",)
+#: The slider's lowest reading taken as full speed (it reads 1.0 at 100 %).
+FULL_SPEED = 0.999
 #: RTDE ``safety_status`` values under which the arm may move (normal, reduced).
 SAFE_STATUS = frozenset({1, 2})
 #: Names of the other safety states, for messages.
@@ -151,7 +155,10 @@ class URArm:
                     "give frequency = 125"
                 )
                 raise RigError(msg)
-            rtde.setup_outputs(RTDE_VARIABLES, link.frequency)
+            try:
+                rtde.setup_outputs((*RTDE_VARIABLES, *OPTIONAL_VARIABLES), link.frequency)
+            except RtdeError:  # a controller without the slider's output: the rest is enough
+                rtde.setup_outputs(RTDE_VARIABLES, link.frequency)
             rtde.start()
             reader = SourceReader("rtde", rtde.receive)
             reader.start()
@@ -317,6 +324,13 @@ class URArm:
             stopped = (
                 f"arm not running ({name}: RTDE robot_mode {mode}; power it on and release "
                 "its brakes)"
+            )
+        elif (slider := values.get("target_speed_fraction", 1.0)) < FULL_SPEED:
+            # a slide at half its speed is another action: its recording would pass every
+            # check and still be wrong
+            stopped = (
+                f"speed slider at {slider * 100:.0f} % (RTDE target_speed_fraction "
+                f"{slider:.3f}; set it to 100 %: an action's speeds are part of its recording)"
             )
         return ArmSample(
             stamp_ns=stamp + self._offset_ns,

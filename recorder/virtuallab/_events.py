@@ -20,7 +20,8 @@ controller_ns`` (``origin_monotonic_ns`` is in the first event). Kinds:
 - ``action``: an announced action began (``object``, ``action``, ``trial``);
 - ``stop`` / ``unlock``: a protective or emergency stop, and its release;
 - ``mode``: the robot mode changed (``robot_mode``: 3 powered off, 5 idle with the brakes
-  engaged, 7 running), by the dashboard's ``power off``, ``power on`` and ``brake release``.
+  engaged, 7 running), by the dashboard's ``power off``, ``power on`` and ``brake release``;
+- ``slider``: the teach pendant's speed slider moved (``fraction``, 0..1).
 
 ``serve-sim --events FILE`` writes each as one JSON line as it happens (an object with
 ``event``, ``controller_ns``, ``monotonic_ns`` and the details above); in process,

@@ -70,6 +70,7 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "safety_mode": ("INT32", lambda s, _t: s.safety_status),
     "runtime_state": ("UINT32", lambda _s, _t: 2),
     "speed_scaling": ("DOUBLE", lambda _s, _t: 1.0),
+    "target_speed_fraction": ("DOUBLE", lambda s, _t: s.speed_fraction),
 }
 
 

@@ -256,6 +256,7 @@ class SteppedArm(URArm):
             "actual_TCP_force": state.tcp_force,
             "robot_mode": state.robot_mode,
             "safety_status": state.safety_status,
+            "target_speed_fraction": state.speed_fraction,
         }
         sample = self._state(values, self.lab.clock.now_ns())
         return [] if sample is None else [sample]

@@ -98,6 +98,7 @@ class RobotState:
         tcp_speed: Actual TCP twist (m/s, rad/s, base frame) over the last cycle.
         target_tcp_speed: Commanded TCP twist.
         target_pose: The pose the joints follow.
+        speed_fraction: The teach pendant's speed slider, 0..1 (RTDE ``target_speed_fraction``).
     """
 
     q: F64
@@ -110,6 +111,7 @@ class RobotState:
     tcp_speed: F64 = field(default_factory=lambda: np.zeros(6))
     target_tcp_speed: F64 = field(default_factory=lambda: np.zeros(6))
     target_pose: F64 | None = None
+    speed_fraction: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,6 +167,7 @@ class VirtualWorld:
     _phase: str | None = field(default=None, init=False)
     _safety: int = field(default=SAFETY_NORMAL, init=False)
     _mode: int = field(default=ROBOT_MODE_RUNNING, init=False)
+    _slider: float = field(default=1.0, init=False)
     _moving: tuple[bool, bool] = field(default=(False, False), init=False)
     _log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES), init=False)
     _listeners: list[Callable[[tuple[str, str, int]], None]] = field(
@@ -302,8 +305,11 @@ class VirtualWorld:
             self._pending = None
         before = self._arm.tcp()[:3, 3].copy()
         free = self._safety == SAFETY_NORMAL and self._mode == ROBOT_MODE_RUNNING
-        twist = self._runner.step(self._arm, dt) if free else np.zeros(6)
-        self._arm.step(twist, dt)
+        # the speed slider slows the program and the arm's motion alike, as a controller's does
+        # (the arm's own speeds then read as at full speed: a simplification)
+        moved = dt * self._slider
+        twist = self._runner.step(self._arm, moved) if free else np.zeros(6)
+        self._arm.step(twist, moved)
         after = self._arm.tcp()[:3, 3]
         count = max(1, (end_ns - start_ns) // SUB_NS)
         share = np.arange(1, count + 1) / count
@@ -333,6 +339,7 @@ class VirtualWorld:
             arm.tcp_speed.copy(),
             arm.twist.copy(),
             matrix_pose(arm.target),
+            self._slider,
         )
 
     def _note_zeros(self, end_ns: int, state: RobotState) -> None:
@@ -490,6 +497,13 @@ class VirtualWorld:
                 self._arm.halt()
             self._mode = mode
             self.events_log.add("mode", self.controller_ns(), robot_mode=mode)
+
+    def slide_speed(self, fraction: float) -> None:
+        """Set the teach pendant's speed slider (0.01..1): programs run that much slower."""
+        with self._lock:
+            self.advance_to(self.controller_ns())
+            self._slider = min(max(float(fraction), 0.01), 1.0)
+            self.events_log.add("slider", self.controller_ns(), fraction=self._slider)
 
     def unlock(self) -> None:
         """Release a stop (the pendant's "unlock protective stop")."""

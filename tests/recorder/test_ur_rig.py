@@ -136,6 +136,42 @@ def test_an_arm_powered_off_mid_action_stops_it(tmp_path: Path) -> None:
     assert info.value.path.exists()
 
 
+def test_a_speed_slider_below_full_speed_is_refused_and_stops_an_action(tmp_path: Path) -> None:
+    # a slide at half its speed would pass every check and still be another action
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "C1", 1)
+        lab.world.slide_speed(0.5)
+        with lab.rig({"wood": POSE}) as rig:
+            with pytest.raises(RigError, match=r"speed slider at 50 % \(RTDE target_speed_frac"):
+                rig.present(OBJECTS["wood"])
+            lab.world.slide_speed(1.0)
+            assert rig.present(OBJECTS["wood"])
+            timer = threading.Timer(0.3, lab.world.slide_speed, (0.3,))  # during the action
+            timer.start()
+            try:
+                with pytest.raises(ActionStoppedError) as info:
+                    record_action(
+                        rig, OBJECTS["wood"], ACTIONS["C1"], 1, tmp_path / "1.mcap", seed=0
+                    )
+            finally:
+                timer.cancel()
+    assert "speed slider at 30 %" in info.value.reason
+    assert info.value.path == tmp_path / "1.incomplete.mcap"
+
+
+def test_a_controller_without_the_slider_output_is_still_driven(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from recorder.virtuallab import _rtde_server  # noqa: PLC0415
+
+    served = {k: v for k, v in _rtde_server.VARIABLES.items() if k != "target_speed_fraction"}
+    monkeypatch.setattr(_rtde_server, "VARIABLES", served)
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "P1", 1)
+        assert _record(lab.rig({"wood": POSE}), "P1", path) == path
+
+
 def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
     with virtual_lab(rtde_faults=RtdeFaults(disconnect_after_s=0.6, at_action_s=0.0)) as lab:
         lab.world.prepare("wood", "C1", 1)
