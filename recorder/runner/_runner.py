@@ -61,6 +61,11 @@ if TYPE_CHECKING:
 _NS = 1_000_000_000
 #: Joint speed below which the arm counts as still, rad/s.
 STILL_RAD_S = 1e-3
+#: Joint speed above which the arm counts as moving before an action (a person guiding it by
+#: hand, another program), rad/s; far above a resting arm's readings.
+MOVING_RAD_S = 0.01
+#: How long an arm found moving before an action may take to come to rest, s (action time).
+MOVING_WAIT_S = 1.0
 #: How long the arm must be still (after the retract started) to end the action, s.
 SETTLE_S = 0.25
 #: How far from the home pose an approach may begin and still return there, m.
@@ -345,9 +350,9 @@ class ArmRig:
         """Read the arm's state afresh before an action; refuse an arm that could not start it.
 
         A stop on the controller, a robot mode other than running (powered off, brakes
-        engaged), a limit broken where the arm stands or a silent source is refused here,
-        before anything is sent and before the action's file exists (the action itself checks
-        every sample again).
+        engaged), a limit broken where the arm stands, a silent source or an arm that keeps
+        moving (guided by hand, another program) is refused here, before anything is sent and
+        before the action's file exists (the action itself checks every sample again).
 
         Raises:
             RigError: The reason, one line (nothing was sent).
@@ -355,13 +360,30 @@ class ArmRig:
         self._connected()
         self._begin()
         self.skin.begin()
-        before = self._state.sample
+        before, reason = self._state.sample, ""
         try:
             while self._state.sample is before:  # the silence check bounds the wait
                 self._pump_quietly()
+            give_up_ns = self.clock.now_ns() + round(MOVING_WAIT_S * self.options.time_scale * _NS)
+            while (speed := self._joint_speed()) > MOVING_RAD_S:
+                if self.clock.now_ns() > give_up_ns:
+                    reason = (
+                        f"the arm is moving (a joint at {speed:.3f} rad/s: guided by hand, or "
+                        "another program); let it come to rest"
+                    )
+                    break
+                self._pump_quietly()
         except (Stop, SourceLostError) as stop:
-            msg = f"{self.where}: the arm cannot start an action: {stop}; check the arm, then retry"
-            raise RigError(msg) from None
+            reason = str(stop)
+        if reason:
+            said = f"the arm cannot start an action: {reason}; check the arm, then retry"
+            msg = f"{self.where}: {said}"
+            raise RigError(msg)
+
+    def _joint_speed(self) -> float:
+        """Return the fastest joint's speed in the latest state sample, rad/s."""
+        sample = self._state.sample
+        return 0.0 if sample is None else float(np.abs(sample.qd).max(initial=0.0))
 
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
         """Perform ``action`` on ``obj``; yield every item as it arrives.

@@ -136,6 +136,19 @@ def test_an_arm_powered_off_mid_action_stops_it(tmp_path: Path) -> None:
     assert info.value.path.exists()
 
 
+def test_an_arm_that_keeps_moving_is_refused_before_an_action(tmp_path: Path) -> None:
+    path = tmp_path / "wood" / "P1" / "001.mcap"
+    with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
+        # another program (or a person guiding the arm) moves it, slowly and for long
+        lab.script.run("speedl([0.0, 0.0, 0.005, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+        with pytest.raises(RigError) as refused:  # an object placed by hand: no movel first
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+        ours = [p for p in lab.script.programs if p.startswith("def atikt")]
+    assert "the arm cannot start an action: the arm is moving (a joint at" in str(refused.value)
+    assert ours == []  # nothing of ours was sent
+    assert not any(tmp_path.rglob("*.mcap*"))
+
+
 def test_a_speed_slider_below_full_speed_is_refused_and_stops_an_action(tmp_path: Path) -> None:
     # a slide at half its speed would pass every check and still be another action
     with virtual_lab() as lab:
