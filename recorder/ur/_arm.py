@@ -57,6 +57,16 @@ RTDE_VARIABLES = (
 )
 #: RTDE outputs read when the controller provides them: the teach pendant's speed slider.
 OPTIONAL_VARIABLES = ("target_speed_fraction",)
+#: The recipes asked for in turn, until the controller provides one: a controller (or a
+#: controller emulator) without ``safety_status``, a later addition to RTDE, gives
+#: ``safety_mode`` (the same values up to 9; ur_rtde reads that one), and one without the
+#: slider's output is driven without it.
+RECIPES = (
+    (*RTDE_VARIABLES, *OPTIONAL_VARIABLES),
+    RTDE_VARIABLES,
+    (*RTDE_VARIABLES[:-1], "safety_mode", *OPTIONAL_VARIABLES),
+    (*RTDE_VARIABLES[:-1], "safety_mode"),
+)
 #: The slider's lowest reading taken as full speed (it reads 1.0 at 100 %).
 FULL_SPEED = 0.999
 #: RTDE ``safety_status`` values under which the arm may move (normal, reduced).
@@ -155,10 +165,7 @@ class URArm:
                     "give frequency = 125"
                 )
                 raise RigError(msg)
-            try:
-                rtde.setup_outputs((*RTDE_VARIABLES, *OPTIONAL_VARIABLES), link.frequency)
-            except RtdeError:  # a controller without the slider's output: the rest is enough
-                rtde.setup_outputs(RTDE_VARIABLES, link.frequency)
+            _setup_outputs(rtde, link.frequency)
             rtde.start()
             reader = SourceReader("rtde", rtde.receive)
             reader.start()
@@ -314,11 +321,12 @@ class URArm:
         if not self._counter.observe(None, stamp, receive_ns) or stamp <= self._newest_ns:
             return None
         self._newest_ns = stamp
-        safety, mode = int(values["safety_status"]), int(values["robot_mode"])
+        given = "safety_status" if "safety_status" in values else "safety_mode"
+        safety, mode = int(values[given]), int(values["robot_mode"])
         stopped = ""
         if safety not in SAFE_STATUS:
             name = SAFETY_NAMES.get(safety, "unsafe state")
-            stopped = f"{name} (RTDE safety_status {safety})"
+            stopped = f"{name} (RTDE {given} {safety})"
         elif mode != RUNNING:  # powered off, brakes engaged, backdrive: no program moves it
             name = ROBOT_MODE_NAMES.get(mode, "unknown mode")
             stopped = (
@@ -420,6 +428,24 @@ class URArm:
         except OSError as err:
             msg = f"URScript connection to {where} lost ({err})"
             raise SourceLostError(msg) from None
+
+
+def _setup_outputs(rtde: RtdeClient, frequency: int) -> None:
+    """Set up the first of :data:`RECIPES` the controller provides.
+
+    Raises:
+        RtdeError: It provides none (the error names what it lacks of :data:`RTDE_VARIABLES`).
+    """
+    said: RtdeError | None = None
+    for names in RECIPES:
+        try:
+            rtde.setup_outputs(names, frequency)
+        except RtdeError as err:
+            said = err if said is None or names == RTDE_VARIABLES else said
+        else:
+            return
+    assert said is not None  # noqa: S101 (RECIPES is not empty)
+    raise said
 
 
 def _stop_rtde(rtde: RtdeClient, reader: SourceReader) -> None:

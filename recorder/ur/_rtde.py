@@ -291,7 +291,7 @@ class RtdeClient:
         if len(types) != len(names) or unknown:
             msg = (
                 f"RTDE {self.where}: the controller does not provide {', '.join(unknown)} "
-                f"(answered {','.join(types)}); update the controller or drop the variable"
+                f"(answered {','.join(types)}); update the controller's software"
             )
             raise RtdeError(msg)
         self.recipe = Recipe(answer[0], tuple(names), types, frequency)

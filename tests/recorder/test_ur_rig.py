@@ -172,17 +172,48 @@ def test_a_speed_slider_below_full_speed_is_refused_and_stops_an_action(tmp_path
     assert info.value.path == tmp_path / "1.incomplete.mcap"
 
 
-def test_a_controller_without_the_slider_output_is_still_driven(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(
+    ("lacks", "safety"),
+    [
+        (("target_speed_fraction",), "safety_status"),
+        (("safety_status",), "safety_mode"),  # older controllers
+        (("safety_status", "target_speed_fraction"), "safety_mode"),
+    ],
+)
+def test_an_older_controller_is_driven_with_what_it_provides(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lacks: tuple[str, ...], safety: str
 ) -> None:
     from recorder.virtuallab import _rtde_server  # noqa: PLC0415
 
-    served = {k: v for k, v in _rtde_server.VARIABLES.items() if k != "target_speed_fraction"}
+    served = {k: v for k, v in _rtde_server.VARIABLES.items() if k not in lacks}
     monkeypatch.setattr(_rtde_server, "VARIABLES", served)
-    path = tmp_path / "001.mcap"
-    with virtual_lab() as lab:
-        lab.world.prepare("wood", "P1", 1)
-        assert _record(lab.rig({"wood": POSE}), "P1", path) == path
+    with virtual_lab(script_faults=ScriptFaults(protective_stop_s=0.2)) as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            assert rig.arm._rtde is not None  # type: ignore[attr-defined]
+            names = rig.arm._rtde.recipe.names  # type: ignore[attr-defined]
+            assert safety in names
+            assert not set(lacks) & set(names)
+            assert rig.present(OBJECTS["wood"])
+            with pytest.raises(ActionStoppedError) as info:  # the safety state is still read
+                record_action(rig, OBJECTS["wood"], ACTIONS["C1"], 1, tmp_path / "1.mcap", seed=0)
+    assert f"protective stop (RTDE {safety} 3)" in info.value.reason
+
+
+def test_a_controller_without_the_arms_state_is_refused_in_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from recorder.virtuallab import _rtde_server  # noqa: PLC0415
+
+    lacks = {"safety_status", "safety_mode", "actual_TCP_force"}
+    served = {k: v for k, v in _rtde_server.VARIABLES.items() if k not in lacks}
+    monkeypatch.setattr(_rtde_server, "VARIABLES", served)
+    with virtual_lab() as lab, pytest.raises(RigError) as refused:
+        lab.rig({"wood": POSE}).__enter__()
+    said = str(refused.value)
+    assert "does not provide actual_TCP_force, safety_status" in said, said
+    assert "target_speed_fraction" not in said
+    assert "\n" not in said
 
 
 def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
