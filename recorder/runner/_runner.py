@@ -66,6 +66,11 @@ STILL_RAD_S = 1e-3
 MOVING_RAD_S = 0.01
 #: How long an arm found moving before an action may take to come to rest, s (action time).
 MOVING_WAIT_S = 1.0
+#: How long after a motion command the arm must have started moving, s (action time): a
+#: controller starts a program within a few cycles.
+START_S = 1.0
+#: ... and at least this many cycles (a fast lab's second is a few).
+START_CYCLES = 25
 #: How long the arm must be still (after the retract started) to end the action, s.
 SETTLE_S = 0.25
 #: How far from the home pose an approach may begin and still return there, m.
@@ -140,6 +145,8 @@ class _State:
 
     sample: ArmSample | None = None
     receive_ns: int = 0
+    #: State samples taken so far (the controller's cycles seen).
+    taken: int = 0
 
     @property
     def pose(self) -> NDArray[np.float64] | None:
@@ -340,11 +347,25 @@ class ArmRig:
         Raises:
             Stop: A stop condition, or the deadline passed.
         """
+        # counted in the controller's cycles, not in time: a controller (or a virtual lab) held
+        # up by its machine sends nothing meanwhile, and its program starts none the later
+        cycles = max(START_S * self.options.time_scale * _NS / self.arm.period_ns, START_CYCLES)
+        until = self._state.taken + cycles
+        moved = False
         while not self._reached(target):
             self._pump_quietly()
-            if self.clock.now_ns() > limit_ns:
+            now = self.clock.now_ns()
+            moved = moved or not self._state.still
+            if not moved and self._state.taken > until:  # a program the controller did not run
+                msg = (
+                    f"the arm did not start moving toward {what} in {round(cycles)} controller "
+                    "cycles: the controller did not run the program (an e-Series in local "
+                    "control runs none sent to it; the controller's log says why)"
+                )
+                raise Stop(msg, now)
+            if now > limit_ns:
                 msg = f"the arm did not reach the pose of {what} within 1 mm"
-                raise Stop(msg, self.clock.now_ns())
+                raise Stop(msg, now)
 
     def check_ready(self) -> None:
         """Read the arm's state afresh before an action; refuse an arm that could not start it.
@@ -741,6 +762,7 @@ class ArmRig:
         violation, violation_ns = "", 0
         for sample in samples:
             self._state.sample, self._state.receive_ns = sample, sample.receive_ns
+            self._state.taken += 1
             if not violation and (violation := self._violation(sample)):
                 violation_ns = sample.receive_ns
             items.extend(_items(sample))

@@ -241,6 +241,18 @@ def test_an_arm_that_never_moves_ends_the_approach(
     assert info.value.path.name == "001.incomplete.mcap"
 
 
+def test_a_program_the_controller_does_not_run_is_said_at_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    with virtual_lab() as lab:
+        monkeypatch.setattr(lab.controller, "execute", lambda _program: False)  # local control
+        with lab.rig({"wood": POSE}) as rig, pytest.raises(RigError) as refused:
+            rig.present(OBJECTS["wood"])
+    said = str(refused.value)  # said after 25 cycles, not after the present's deadline (5 s)
+    assert "moving to wood: the arm did not start moving toward wood in 25 controller" in said
+    assert "the controller did not run the program" in said
+
+
 def test_a_new_program_replaces_the_playing_action() -> None:
     with virtual_lab() as lab:
         lab.world.start_action("wood", "C1", 1)
