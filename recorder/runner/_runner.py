@@ -64,8 +64,10 @@ STILL_RAD_S = 1e-3
 #: Joint speed above which the arm counts as moving before an action (a person guiding it by
 #: hand, another program), rad/s; far above a resting arm's readings.
 MOVING_RAD_S = 0.01
-#: How long an arm found moving before an action may take to come to rest, s (action time).
+#: How long an arm found moving before an action may take to come to rest, s (action time),
+#: and at least how many controller cycles.
 MOVING_WAIT_S = 1.0
+MOVING_WAIT_CYCLES = 125
 #: How long after a motion command the arm must have started moving, s (action time): a
 #: controller starts a program within a few cycles.
 START_S = 1.0
@@ -385,9 +387,11 @@ class ArmRig:
         try:
             while self._state.sample is before:  # the silence check bounds the wait
                 self._pump_quietly()
-            give_up_ns = self.clock.now_ns() + round(MOVING_WAIT_S * self.options.time_scale * _NS)
+            # in the controller's cycles, as the start of a motion (see _until_reached)
+            cycles = MOVING_WAIT_S * self.options.time_scale * _NS / self.arm.period_ns
+            until = self._state.taken + max(cycles, MOVING_WAIT_CYCLES)
             while (speed := self._joint_speed()) > MOVING_RAD_S:
-                if self.clock.now_ns() > give_up_ns:
+                if self._state.taken > until:
                     reason = (
                         f"the arm is moving (a joint at {speed:.3f} rad/s: guided by hand, or "
                         "another program); let it come to rest"
