@@ -10,6 +10,7 @@ its stop first) and what arrived is kept as ``<trial>.incomplete.mcap``.
 from __future__ import annotations
 
 import contextlib
+import shutil
 from collections.abc import Generator
 from typing import TYPE_CHECKING
 
@@ -29,6 +30,10 @@ if TYPE_CHECKING:
     from recorder.runner._viewer import Viewer
     from recorder.writing._stream import StreamItem
     from recorder.writing._writer import WrittenRecording
+
+
+#: Free space an action at the robot asks for before it begins, bytes.
+MIN_FREE_BYTES = 64_000_000
 
 
 class _Watch:
@@ -77,10 +82,12 @@ def record_action(
             incomplete file the error names (``<trial>.incomplete.mcap``).
         KeyboardInterrupt: Ctrl-C (``schemas.cli.Terminated``: SIGTERM) during the action,
             after the arm's stop and after what arrived was kept (the message names the file).
-        RecorderError: The rig or the file failed; what arrived is kept (incomplete).
+        RecorderError: The rig or the file failed; what arrived is kept (incomplete). Or, at
+            the robot, too little free disk for the action (nothing was sent, no file made).
         RigError: The arm could not start the action (nothing was sent, no file made).
     """
     if isinstance(rig, ArmRig):  # an arm that could not start the action: no file for it
+        _check_room(path)
         rig.check_ready()
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     for viewer in viewers:
@@ -108,6 +115,31 @@ def record_action(
     if stop is not None:
         raise ActionStoppedError(stop.reason, stop.at_ns, written.path)
     return written
+
+
+def _check_room(path: Path) -> None:
+    """Refuse an action at the robot whose disk has less than :data:`MIN_FREE_BYTES` free.
+
+    A full disk during the action stops the arm and keeps what was written; refusing before
+    anything moves spares the robot's time and the object (a few MB make a recording).
+
+    Raises:
+        RecorderError: Too little room, one line naming the directory.
+    """
+    where = path.parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:  # not ours to judge: the writer says what fails
+        return
+    if free < MIN_FREE_BYTES:
+        msg = (
+            f"{where}: {free / 1e6:.1f} MB free on its disk, below the {MIN_FREE_BYTES / 1e6:.0f} "
+            "MB an action at the robot asks for; free disk space or give another --out, then "
+            "run again to resume"
+        )
+        raise RecorderError(msg)
 
 
 def _raise_deferred(flag: InterruptFlag, path: Path) -> None:

@@ -341,3 +341,24 @@ def test_an_unwritable_runtime_directory_falls_back_then_says_so(
         arm_lock("ur-127.0.0.1-30002", "lab.toml"),
     ):
         pass
+
+
+def test_an_action_at_the_robot_is_refused_before_it_moves_on_a_nearly_full_disk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import shutil  # noqa: PLC0415
+
+    from recorder.runner import _record  # noqa: PLC0415
+
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(_record.shutil, "disk_usage", lambda _p: usage._replace(free=10_000_000))
+    path = tmp_path / "wood" / "C1" / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig, pytest.raises(RecorderError) as refused:
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    said = str(refused.value)
+    assert said.startswith(f"{tmp_path}: 10.0 MB free on its disk, below the 64 MB"), said
+    assert "run again to resume" in said
+    assert arm.commands == []  # nothing was sent
+    assert not any(tmp_path.rglob("*.mcap*"))
