@@ -105,8 +105,23 @@ def claim_dataset(root: Path, seed: int, configuration: Mapping[str, Any]) -> No
     text = _claim_text(seed, configuration)
     if _publish(root, text):
         return
-    claim = _read_claim(root / CLAIM_NAME)
-    ours = json.loads(text)
+    _compare(root, _read_claim(root / CLAIM_NAME), json.loads(text), seed)
+
+
+def check_claim(root: Path, seed: int, configuration: Mapping[str, Any]) -> None:
+    """Refuse as :func:`claim_dataset` does, writing nothing (an unclaimed directory passes).
+
+    Raises:
+        RecorderError: Another seed or configuration claimed the directory, or its claim
+            cannot be read.
+    """
+    path = Path(root) / CLAIM_NAME
+    if path.exists():
+        _compare(Path(root), _read_claim(path), json.loads(_claim_text(seed, configuration)), seed)
+
+
+def _compare(root: Path, claim: Mapping[str, Any], ours: Mapping[str, Any], seed: int) -> None:
+    """Refuse a claim of another seed or rig configuration than ``ours``."""
     if claim["seed"] != seed:
         msg = (
             f"{root}: is claimed by a run with seed {claim['seed']} ({root / CLAIM_NAME}), "

@@ -640,6 +640,11 @@ def _alive(pid: int | None) -> bool:
     return True
 
 
+def stale_parts(root: Path) -> tuple[Path, ...]:
+    """Return the unfinished recordings under ``root`` whose recorder is not running."""
+    return tuple(part for part in incomplete_files(root) if not _alive(_writer_pid(part)))
+
+
 def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
     """Move unfinished recordings whose recorder died to ``<root>/.incomplete/`` (kept).
 
@@ -655,9 +660,7 @@ def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
     """
     root = Path(root)
     moved = []
-    for part in incomplete_files(root):
-        if _alive(_writer_pid(part)):
-            continue
+    for part in stale_parts(root):
         target = _move_aside(root, part)
         if target is not None:  # None: its recorder finished or removed it meanwhile
             moved.append(target)

@@ -21,20 +21,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from recorder._claim import claim_dataset
+from recorder._claim import check_claim, claim_dataset
 from recorder._dataset import (
     check_configuration,
     declare_objects,
     set_aside_stale_parts,
+    stale_parts,
     write_index,
 )
-from recorder._rig import Presenting
+from recorder._rig import Presenting, facts, source_stats
 from recorder.errors import RecorderError
-from recorder.runner._record import record_action
+from recorder.runner._limits import check_action
+from recorder.runner._record import check_room, record_action
+from recorder.runner._runner import ArmRig
 from schemas import check_rig
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Mapping, Sequence
 
     from recorder._catalog import ObjectSpec
     from recorder._dataset import RecordingTask
@@ -42,6 +45,7 @@ if TYPE_CHECKING:
     from recorder._rigconfig import RigFactory
     from recorder.runner._viewer import Viewer
     from recorder.writing._writer import WrittenRecording
+    from schemas import SourceStats
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,3 +177,82 @@ def run_session(
             _finish(root, tasks)
         raise
     return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
+
+
+#: How long a dry run reads the arm and the skin, s (action time).
+DRY_RUN_S = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class SessionCheck:
+    """What a session would do and what the rig showed, found moving and writing nothing.
+
+    Attributes:
+        root: The session's dataset directory.
+        to_record: Recordings the session would make.
+        kept: Recordings on disk that it would keep and skip.
+        stale: Unfinished files of dead recorders it would set aside.
+        by_rig: Objects the rig would present (in the session's order).
+        by_hand: Objects a person would place.
+        facts: What the rig learned on connecting (e.g. the controller's version).
+        sources: The accounting of the arm's and the skin's sources over the check.
+    """
+
+    root: Path
+    to_record: int
+    kept: int
+    stale: tuple[Path, ...]
+    by_rig: tuple[str, ...]
+    by_hand: tuple[str, ...]
+    facts: Mapping[str, str]
+    sources: tuple[SourceStats, ...]
+
+
+def check_session(
+    tasks: Sequence[RecordingTask],
+    root: Path,
+    factory: RigFactory,
+    *,
+    seed: int,
+    unattended: bool = False,
+    seconds: float = DRY_RUN_S,
+) -> SessionCheck:
+    """Check everything a session would, moving nothing and writing nothing (``--dry-run``).
+
+    The directory's seed and rig configuration, the objects' presentation, every planned
+    action against the limits, the room on the disk, then, connected, the arm's state before
+    an action (:meth:`recorder.runner.ArmRig.check_ready`) and ``seconds`` of the arm's and
+    the skin's streams under every check an action runs.
+
+    Raises:
+        RecorderError: What the session would refuse, or a check of the rig failed; one line.
+    """
+    root = Path(root)
+    check_configuration(root, seed, factory)
+    check_claim(root, seed, check_rig(factory(seed).describe()))
+    pending = [task for task in tasks if not task.path(root).exists()]
+    objects = list({task.obj.id: task.obj for task in pending}.values())
+    rig = factory(seed)
+    if unattended:
+        refuse_unpresentable(rig, objects)
+    # a rig that does not present (the simulator) needs nobody: every object is the rig's
+    by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
+    with rig:
+        if isinstance(rig, ArmRig):
+            for action in {task.action.id: task.action for task in pending}.values():
+                check_action(action, rig.limits, rig.where)
+            check_room(root)
+            rig.check_ready()
+            rig.watch(seconds)
+        learned = dict(facts(rig))
+        sources = tuple(source_stats(rig))
+    return SessionCheck(
+        root,
+        len(pending),
+        len(tasks) - len(pending),
+        stale_parts(root) if root.exists() else (),
+        tuple(by_rig),
+        tuple(o.id for o in objects if o.id not in by_rig),
+        learned,
+        sources,
+    )

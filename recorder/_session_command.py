@@ -19,7 +19,7 @@ from recorder._cli import (
     rig_from_args,
 )
 from recorder._dataset import plan_dataset
-from recorder._session import run_session
+from recorder._session import SessionCheck, check_session, run_session
 from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
 from schemas import cli, lost_samples
 
@@ -45,6 +45,13 @@ if TYPE_CHECKING:
     ),
     arg("--seed", type=cli.rig_seed, default=0, help="seed of the rig (default: 0)"),
     arg(
+        "--dry-run",
+        action="store_true",
+        help="check everything the session would (the directory, the plan, the limits, the "
+        "disk; connected: the arm's state and a second of the arm's and the skin's streams) "
+        "and say what it would do; nothing moves, nothing is written",
+    ),
+    arg(
         "--foxglove",
         nargs="?",
         const=DEFAULT_ADDRESS,
@@ -67,6 +74,14 @@ def _session(args: argparse.Namespace) -> int:
     order = {object_id: position for position, object_id in enumerate(args.objects)}
     tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
     console = Console(soft_wrap=True, highlight=False)
+    if args.dry_run:
+        _say_check(
+            console,
+            check_session(
+                tasks, args.out, rig_from_args(args), seed=args.seed, unattended=args.yes
+            ),
+        )
+        return 0
 
     def recorded(task: RecordingTask, written: WrittenRecording) -> None:
         seconds = (written.end_ns - written.start_ns) / 1e9
@@ -114,3 +129,25 @@ def _session(args: argparse.Namespace) -> int:
         f"(existed); index {report.index}"
     )
     return 0
+
+
+def _say_check(console: Console, found: SessionCheck) -> None:
+    """Print what a dry run found: the plan, the objects, the rig, the sources."""
+    console.print(
+        f"dry run of session {found.root}: {found.to_record} to record, {found.kept} on disk "
+        f"(kept); nothing moved, nothing written"
+    )
+    if found.stale:
+        console.print(
+            f"{len(found.stale)} unfinished recordings of stopped recorders would be set aside "
+            f"(e.g. {found.stale[0]})"
+        )
+    console.print(
+        f"objects presented by the rig: {', '.join(found.by_rig) or '-'}; placed by hand: "
+        f"{', '.join(found.by_hand) or '-'}"
+    )
+    learned = ", ".join(f"{key} {value}" for key, value in found.facts.items())
+    console.print(f"rig: ready{f' ({learned})' if learned else ''}")
+    for source in found.sources:
+        said = source.problems() or "complete"
+        console.print(f"  {source.name}: {source.received} received, {said}")

@@ -276,7 +276,7 @@ def run(
             line = f"{where}cannot write ({err.strerror}); free disk space or write elsewhere"
         elif err.errno == errno.EPIPE:  # the reader left (``| head``)
             _drop_stdout()
-            if args.command not in recording:
+            if args.command not in recording or getattr(args, "dry_run", False):
                 return ERROR_STATUS
             line = f"standard output was closed by its reader (broken pipe); {_after(interrupted)}"
         else:

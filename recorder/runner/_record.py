@@ -87,7 +87,7 @@ def record_action(
         RigError: The arm could not start the action (nothing was sent, no file made).
     """
     if isinstance(rig, ArmRig):  # an arm that could not start the action: no file for it
-        _check_room(path)
+        check_room(path.parent)
         rig.check_ready()
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     for viewer in viewers:
@@ -117,16 +117,17 @@ def record_action(
     return written
 
 
-def _check_room(path: Path) -> None:
-    """Refuse an action at the robot whose disk has less than :data:`MIN_FREE_BYTES` free.
+def check_room(directory: Path) -> None:
+    """Refuse an action at the robot into ``directory`` on a disk nearly full.
 
-    A full disk during the action stops the arm and keeps what was written; refusing before
-    anything moves spares the robot's time and the object (a few MB make a recording).
+    Less than :data:`MIN_FREE_BYTES` free is refused. A full disk during the action stops the
+    arm and keeps what was written; refusing before anything moves spares the robot's time
+    and the object (a few MB make a recording).
 
     Raises:
         RecorderError: Too little room, one line naming the directory.
     """
-    where = path.parent
+    where = directory
     while not where.exists() and where != where.parent:
         where = where.parent
     try:

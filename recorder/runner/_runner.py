@@ -405,6 +405,24 @@ class ArmRig:
             msg = f"{self.where}: {said}"
             raise RigError(msg)
 
+    def watch(self, seconds: float) -> None:
+        """Read the arm and the skin for ``seconds`` (action time), moving nothing.
+
+        Every check of an action runs on what arrives (``session --dry-run``); the sources'
+        accounting (:meth:`source_stats`) then covers this and :meth:`check_ready`.
+
+        Raises:
+            RigError: A check failed, one line (nothing was sent).
+        """
+        self._connected()
+        end_ns = self.clock.now_ns() + round(seconds * self.options.time_scale * _NS)
+        try:
+            while self.clock.now_ns() < end_ns:
+                self._pump_quietly()
+        except (Stop, SourceLostError) as stop:
+            msg = f"{self.where}: watching the arm and the skin: {stop}; check them, then retry"
+            raise RigError(msg) from None
+
     def _joint_speed(self) -> float:
         """Return the fastest joint's speed in the latest state sample, rad/s."""
         sample = self._state.sample

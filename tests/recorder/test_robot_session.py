@@ -6,6 +6,7 @@ against it; every file passes `check` with every source's samples accounted for.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -126,6 +127,48 @@ def _check_every_sample(
         for item in recording.sources:
             assert item.expected > 0
             assert item.missing == item.duplicated == item.out_of_order == 0, item
+
+
+@pytest.mark.slow(5)
+def test_a_dry_run_checks_the_rig_and_moves_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    dashboard, udp = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_DGRAM)
+    skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
+    skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
+    lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
+    out, events = tmp_path / "session", tmp_path / "events.jsonl"
+    served = ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
+    served += ["--skin", f"udp://127.0.0.1:{udp}", "--dashboard-port", str(dashboard)]
+    argv = ["session", "--rig-config", str(lab), "--objects", "wood,glass_plate"]
+    argv += ["--actions", "P1,S1", "--trials", "2", "--out", str(out), "--dry-run"]
+    with _serve_sim(*served, "--events", str(events)):
+        ready = record(argv)
+        said = capsys.readouterr()
+        with socket.create_connection(("127.0.0.1", dashboard), timeout=5) as sock:
+            reader = sock.makefile("r")
+            reader.readline()
+            sock.sendall(b"power off\n")
+            assert reader.readline().startswith("Powering off")
+        refused = record(argv)
+        refusal = capsys.readouterr()
+    assert ready == 0, said.err
+    lines = said.out.splitlines()
+    assert lines[0] == (
+        f"dry run of session {out}: 8 to record, 0 on disk (kept); nothing moved, nothing written"
+    )
+    assert lines[1] == "objects presented by the rig: wood; placed by hand: glass_plate"
+    assert lines[2].startswith("rig: ready (controller_version ")
+    assert any(line.startswith("  rtde: ") and line.endswith(", complete") for line in lines)
+    assert any(line.startswith("  skin-") for line in lines)
+    assert refused == 1
+    assert "the arm cannot start an action: arm not running (powered off" in refusal.err
+    assert refusal.err.count("\n") == 1
+    assert not out.exists()  # nothing written
+    kinds = [json.loads(line)["event"] for line in events.read_text().splitlines()]
+    assert {"start", "mode"} <= set(kinds)  # the lab's log, read: the start, the power off
+    assert "program" not in kinds  # and nothing sent that moves
 
 
 @pytest.mark.slow(9)

@@ -348,10 +348,8 @@ def test_an_action_at_the_robot_is_refused_before_it_moves_on_a_nearly_full_disk
 ) -> None:
     import shutil  # noqa: PLC0415
 
-    from recorder.runner import _record  # noqa: PLC0415
-
     usage = shutil.disk_usage(tmp_path)
-    monkeypatch.setattr(_record.shutil, "disk_usage", lambda _p: usage._replace(free=10_000_000))
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage._replace(free=10_000_000))
     path = tmp_path / "wood" / "C1" / "001.mcap"
     rig = fake_rig()
     arm: FakeArm = rig.arm  # type: ignore[assignment]
