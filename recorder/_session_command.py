@@ -75,13 +75,10 @@ def _session(args: argparse.Namespace) -> int:
     tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
     console = Console(soft_wrap=True, highlight=False)
     if args.dry_run:
-        _say_check(
-            console,
-            check_session(
-                tasks, args.out, rig_from_args(args), seed=args.seed, unattended=args.yes
-            ),
+        found = check_session(
+            tasks, args.out, rig_from_args(args), seed=args.seed, unattended=args.yes
         )
-        return 0
+        return _say_check(console, found)
 
     def recorded(task: RecordingTask, written: WrittenRecording) -> None:
         seconds = (written.end_ns - written.start_ns) / 1e9
@@ -131,8 +128,13 @@ def _session(args: argparse.Namespace) -> int:
     return 0
 
 
-def _say_check(console: Console, found: SessionCheck) -> None:
-    """Print what a dry run found: the plan, the objects, the rig, the sources."""
+def _say_check(console: Console, found: SessionCheck) -> int:
+    """Print what a dry run found: the plan, the objects, the rig, the sources.
+
+    Returns:
+        The exit status: 1 when a source lost samples or sent none during the check (the
+        session's recordings would fail ``check`` or lack it), else 0.
+    """
     console.print(
         f"dry run of session {found.root}: {found.to_record} to record, {found.kept} on disk "
         f"(kept); nothing moved, nothing written"
@@ -147,7 +149,10 @@ def _say_check(console: Console, found: SessionCheck) -> None:
         f"{', '.join(found.by_hand) or '-'}"
     )
     learned = ", ".join(f"{key} {value}" for key, value in found.facts.items())
-    console.print(f"rig: ready{f' ({learned})' if learned else ''}")
+    short = [source.name for source in found.sources if source.lost or not source.received]
+    state = "not ready: " + ", ".join(short) + " lost samples or sent none" if short else "ready"
+    console.print(f"rig: {state}{f' ({learned})' if learned else ''}")
     for source in found.sources:
         said = source.problems() or "complete"
         console.print(f"  {source.name}: {source.received} received, {said}")
+    return 1 if short else 0

@@ -339,3 +339,28 @@ def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     files = [f.relative_to(out).as_posix() for f in dataset_recordings(out)]
     assert files == [f"{o}/S1/{t:03d}.mcap" for o in ("foam_block", "wood") for t in (1, 2)]
     assert replay(["check", str(out), "--workers", "1"]) == 0, capsys.readouterr().err
+
+
+def test_a_dry_run_whose_sources_lost_samples_is_not_ready(tmp_path: Path) -> None:
+    from rich.console import Console  # noqa: PLC0415
+
+    from recorder._session import SessionCheck  # noqa: PLC0415
+    from recorder._session_command import _say_check  # noqa: PLC0415
+    from schemas import SourceStats  # noqa: PLC0415
+
+    def said(*sources: SourceStats) -> tuple[int, str]:
+        console = Console(record=True, width=200, file=(tmp_path / "out.txt").open("w"))
+        found = SessionCheck(tmp_path, 4, 0, (), ("wood",), (), {"v": "1"}, sources)
+        status = _say_check(console, found)
+        return status, console.export_text()
+
+    rtde = SourceStats("rtde", expected=125, received=125)
+    assert said(rtde)[0] == 0
+    lossy = SourceStats("skin-fast", expected=1000, received=995, missing=5)
+    status, text = said(rtde, lossy)
+    assert status == 1
+    assert "rig: not ready: skin-fast lost samples or sent none (v 1)" in text
+    assert "  skin-fast: 995 received, 5 of 1000 missing" in text
+    status, text = said(rtde, SourceStats("skin-temperature"))
+    assert status == 1
+    assert "  skin-temperature: 0 received, complete" in text
