@@ -132,8 +132,9 @@ def _say_check(console: Console, found: SessionCheck) -> int:
     """Print what a dry run found: the plan, the objects, the rig, the sources.
 
     Returns:
-        The exit status: 1 when a source lost samples or sent none during the check (the
-        session's recordings would fail ``check`` or lack it), else 0.
+        The exit status: 1 when a source lost samples during the check (the session's
+        recordings would fail ``check``), else 0. A source that sent nothing is said, not
+        refused: one slower than the check (a thermal sensor at 0.5 Hz) sends nothing in it.
     """
     console.print(
         f"dry run of session {found.root}: {found.to_record} to record, {found.kept} on disk "
@@ -149,10 +150,12 @@ def _say_check(console: Console, found: SessionCheck) -> int:
         f"{', '.join(found.by_hand) or '-'}"
     )
     learned = ", ".join(f"{key} {value}" for key, value in found.facts.items())
-    short = [source.name for source in found.sources if source.lost or not source.received]
-    state = "not ready: " + ", ".join(short) + " lost samples or sent none" if short else "ready"
+    short = [source.name for source in found.sources if source.lost]
+    state = f"not ready: {', '.join(short)} lost samples" if short else "ready"
     console.print(f"rig: {state}{f' ({learned})' if learned else ''}")
     for source in found.sources:
         said = source.problems() or "complete"
+        if not source.received:
+            said = "nothing in the check's second (a source that slow is not checked here)"
         console.print(f"  {source.name}: {source.received} received, {said}")
     return 1 if short else 0
