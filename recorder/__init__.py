@@ -35,6 +35,7 @@ from recorder._rigconfig import (
     rig_factory,
     rig_names,
 )
+from recorder._session import RigCheck, check_rig_ready
 from recorder.errors import (
     ActionStoppedError,
     BagImportError,
@@ -124,6 +125,7 @@ __all__ = [
     "RecordingTask",
     "RecordingWriter",
     "Rig",
+    "RigCheck",
     "RigConfig",
     "RigError",
     "RigPlugin",
@@ -135,6 +137,7 @@ __all__ = [
     "TopicMap",
     "Viewer",
     "WrittenRecording",
+    "check_rig_ready",
     "declare_objects",
     "find_rig",
     "generate_dataset",

@@ -39,7 +39,7 @@ from schemas import check_rig
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
-    from recorder._catalog import ObjectSpec
+    from recorder._catalog import ActionSpec, ObjectSpec
     from recorder._dataset import RecordingTask
     from recorder._rig import Rig
     from recorder._rigconfig import RigFactory
@@ -184,6 +184,51 @@ DRY_RUN_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
+class RigCheck:
+    """What a rig showed before anything moved (a dry run of ``session`` or ``learn``).
+
+    Attributes:
+        by_rig: Objects the rig would present (in the run's order).
+        by_hand: Objects a person would place.
+        facts: What the rig learned on connecting (e.g. the controller's version).
+        sources: The accounting of the arm's and the skin's sources over the check.
+    """
+
+    by_rig: tuple[str, ...]
+    by_hand: tuple[str, ...]
+    facts: Mapping[str, str]
+    sources: tuple[SourceStats, ...]
+
+    @property
+    def lossy(self) -> tuple[str, ...]:
+        """The sources that lost samples during the check (their recordings would fail)."""
+        return tuple(source.name for source in self.sources if source.lost)
+
+    def lines(self) -> list[str]:
+        """The check, said: who presents the objects, whether the rig is ready, each source.
+
+        A source that sent nothing is said, not refused: one slower than the check (a thermal
+        sensor at 0.5 Hz) sends nothing in it.
+        """
+        learned = ", ".join(f"{key} {value}" for key, value in self.facts.items())
+        state = f"not ready: {', '.join(self.lossy)} lost samples" if self.lossy else "ready"
+        objects = (
+            f"objects presented by the rig: {', '.join(self.by_rig) or '-'}; placed by hand: "
+            f"{', '.join(self.by_hand) or '-'}"
+        )
+        lines = [
+            objects,
+            f"rig: {state}{f' ({learned})' if learned else ''}",
+        ]
+        for source in self.sources:
+            said = source.problems() or "complete"
+            if not source.received:
+                said = "nothing in the check's second (a source that slow is not checked here)"
+            lines.append(f"  {source.name}: {source.received} received, {said}")
+        return lines
+
+
+@dataclass(frozen=True, slots=True)
 class SessionCheck:
     """What a session would do and what the rig showed, found moving and writing nothing.
 
@@ -192,20 +237,53 @@ class SessionCheck:
         to_record: Recordings the session would make.
         kept: Recordings on disk that it would keep and skip.
         stale: Unfinished files of dead recorders it would set aside.
-        by_rig: Objects the rig would present (in the session's order).
-        by_hand: Objects a person would place.
-        facts: What the rig learned on connecting (e.g. the controller's version).
-        sources: The accounting of the arm's and the skin's sources over the check.
+        rig: What the rig showed.
     """
 
     root: Path
     to_record: int
     kept: int
     stale: tuple[Path, ...]
-    by_rig: tuple[str, ...]
-    by_hand: tuple[str, ...]
-    facts: Mapping[str, str]
-    sources: tuple[SourceStats, ...]
+    rig: RigCheck
+
+
+def check_rig_ready(
+    factory: RigFactory,
+    seed: int,
+    objects: Sequence[ObjectSpec],
+    actions: Sequence[ActionSpec],
+    room: Path,
+    *,
+    unattended: bool = False,
+    seconds: float = DRY_RUN_S,
+) -> RigCheck:
+    """Check a rig as a run would before its first action, moving nothing, writing nothing.
+
+    Who presents each object (``unattended``: every object needs a pose), every action against
+    the limits, the room on ``room``'s disk, then, connected, the arm's state before an action
+    (:meth:`recorder.runner.ArmRig.check_ready`) and ``seconds`` of the arm's and the skin's
+    streams under every check an action runs.
+
+    Raises:
+        RecorderError: What the run would refuse, or a check of the rig failed; one line.
+    """
+    rig = factory(seed)
+    if unattended:
+        refuse_unpresentable(rig, objects)
+    # a rig that does not present (the simulator) needs nobody: every object is the rig's
+    by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
+    with rig:
+        if isinstance(rig, ArmRig):
+            for action in actions:
+                check_action(action, rig.limits, rig.where)
+            check_room(room)
+            rig.check_ready()
+            rig.watch(seconds)
+        learned = dict(facts(rig))
+        sources = tuple(source_stats(rig))
+    return RigCheck(
+        tuple(by_rig), tuple(o.id for o in objects if o.id not in by_rig), learned, sources
+    )
 
 
 def check_session(
@@ -219,10 +297,8 @@ def check_session(
 ) -> SessionCheck:
     """Check everything a session would, moving nothing and writing nothing (``--dry-run``).
 
-    The directory's seed and rig configuration, the objects' presentation, every planned
-    action against the limits, the room on the disk, then, connected, the arm's state before
-    an action (:meth:`recorder.runner.ArmRig.check_ready`) and ``seconds`` of the arm's and
-    the skin's streams under every check an action runs.
+    The directory's seed and rig configuration, then the rig as :func:`check_rig_ready`
+    checks it for the objects and actions still to record.
 
     Raises:
         RecorderError: What the session would refuse, or a check of the rig failed; one line.
@@ -232,27 +308,14 @@ def check_session(
     check_claim(root, seed, check_rig(factory(seed).describe()))
     pending = [task for task in tasks if not task.path(root).exists()]
     objects = list({task.obj.id: task.obj for task in pending}.values())
-    rig = factory(seed)
-    if unattended:
-        refuse_unpresentable(rig, objects)
-    # a rig that does not present (the simulator) needs nobody: every object is the rig's
-    by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
-    with rig:
-        if isinstance(rig, ArmRig):
-            for action in {task.action.id: task.action for task in pending}.values():
-                check_action(action, rig.limits, rig.where)
-            check_room(root)
-            rig.check_ready()
-            rig.watch(seconds)
-        learned = dict(facts(rig))
-        sources = tuple(source_stats(rig))
+    actions = list({task.action.id: task.action for task in pending}.values())
+    found = check_rig_ready(
+        factory, seed, objects, actions, root, unattended=unattended, seconds=seconds
+    )
     return SessionCheck(
         root,
         len(pending),
         len(tasks) - len(pending),
         stale_parts(root) if root.exists() else (),
-        tuple(by_rig),
-        tuple(o.id for o in objects if o.id not in by_rig),
-        learned,
-        sources,
+        found,
     )

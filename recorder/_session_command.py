@@ -145,17 +145,6 @@ def _say_check(console: Console, found: SessionCheck) -> int:
             f"{len(found.stale)} unfinished recordings of stopped recorders would be set aside "
             f"(e.g. {found.stale[0]})"
         )
-    console.print(
-        f"objects presented by the rig: {', '.join(found.by_rig) or '-'}; placed by hand: "
-        f"{', '.join(found.by_hand) or '-'}"
-    )
-    learned = ", ".join(f"{key} {value}" for key, value in found.facts.items())
-    short = [source.name for source in found.sources if source.lost]
-    state = f"not ready: {', '.join(short)} lost samples" if short else "ready"
-    console.print(f"rig: {state}{f' ({learned})' if learned else ''}")
-    for source in found.sources:
-        said = source.problems() or "complete"
-        if not source.received:
-            said = "nothing in the check's second (a source that slow is not checked here)"
-        console.print(f"  {source.name}: {source.received} received, {said}")
-    return 1 if short else 0
+    for line in found.rig.lines():
+        console.print(line)
+    return 1 if found.rig.lossy else 0

@@ -197,6 +197,11 @@ def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
     assert list(lab_dir.rglob("*.incomplete.mcap"))  # the interrupted action's data, kept
     printed = "\n".join(outputs.values())
     assert "no display here; the live view is written to" in printed
+    (checked,) = [
+        text for command, text in outputs.items() if "learn" in command and "--dry" in command
+    ]
+    assert "dry run of live learning: a new run into runs/live; 4 held-out recordings" in checked
+    assert "\nrig: ready (" in checked
     assert (tmp_path / "runs" / "live" / "live.rrd").stat().st_size > 0
     live, offline = (
         [line for line in text.splitlines() if line.startswith("step")]

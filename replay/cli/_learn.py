@@ -317,6 +317,13 @@ def _step_line(row: dict[str, Any]) -> str:
     ),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
+        "--dry-run",
+        action="store_true",
+        help="live: check everything the run would (the run directory, the objects' poses, "
+        "the limits, the disk; connected: the arm's state and a second of the arm's and the "
+        "skin's streams) and say what it would do; nothing moves, nothing is written",
+    ),
+    arg(
         "--view",
         nargs="?",
         const="",
@@ -347,23 +354,13 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
-        check_rig,
         claim_live_run,
-        configured_rig,
         live_output,
     )
 
     workers = cli.worker_count(args.workers)
     learner = learner_from_args(args)  # before any work: refused in one line
-    if args.rig is None and args.rig_config is not None:
-        args.rig = configured_rig(args.rig_config, None, args.rig_option).name
-    if args.rig is not None:
-        check_rig(args.rig)
-    if args.view is not None and args.rig is None:
-        msg = "--view shows a live run's recordings as they are made; give --rig too"
-        raise ReplayError(msg)
-    if args.view:
-        cli.check_new_file(Path(args.view), force=args.force, option="--view")
+    _check_live_options(args)
     if args.rig is not None:  # live: recordings go straight into the run; it resumes
         target = live_output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     else:
@@ -403,6 +400,8 @@ def _learn_command(args: argparse.Namespace) -> int:
         seed=args.seed,
         features=args.features,
     )
+    if args.dry_run:
+        return _dry_run(args, spec, target)
     if args.rig is not None:
         claim_live_run(target, _live_settings(args, spec))
         _learn_into(args, table, spec, prior_root, target, other=other)
@@ -429,6 +428,52 @@ class _OtherRig:
     table: FeatureTable
     objects: tuple[str, ...]
     labels: tuple[str, ...]
+
+
+def _check_live_options(args: argparse.Namespace) -> None:
+    """Settle the live options (the rig named by ``--rig-config``) before any work.
+
+    Raises:
+        ReplayError: An unknown rig, or a live-only option without a rig (one line).
+    """
+    from replay.live import check_rig, configured_rig  # noqa: PLC0415
+
+    if args.rig is None and args.rig_config is not None:
+        args.rig = configured_rig(args.rig_config, None, args.rig_option).name
+    if args.rig is not None:
+        check_rig(args.rig)
+    for given, what in (
+        (args.view is not None, "--view shows a live run's recordings as they are made"),
+        (args.dry_run, "--dry-run checks a live run before anything moves"),
+    ):
+        if given and args.rig is None:
+            msg = f"{what}; give --rig too"
+            raise ReplayError(msg)
+    if args.view:
+        cli.check_new_file(Path(args.view), force=args.force, option="--view")
+
+
+def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
+    """Say what a live run would do and whether its rig is ready; move and write nothing.
+
+    Returns:
+        1 when a source lost samples during the check (the run's recordings would fail
+        ``check``), else 0.
+    """
+    from replay.live import check_live, check_live_run, configured_rig  # noqa: PLC0415
+
+    resumes = check_live_run(target, _live_settings(args, spec))
+    config = configured_rig(args.rig_config, args.rig, args.rig_option)
+    found = check_live(config, spec, target / "session", test_trials=args.test_trials)
+    run = f"resumes the run in {target}" if resumes else f"a new run into {target}"
+    print(  # noqa: T201
+        f"dry run of live learning: {run}; {found.test} held-out recordings, then "
+        f"{found.initial} first observations and up to {found.budget} the learner chooses; "
+        f"{found.on_disk} on disk (reused); nothing moved, nothing written"
+    )
+    for line in found.rig.lines():
+        print(line)  # noqa: T201
+    return 1 if found.rig.lossy else 0
 
 
 def _other_rig(args: argparse.Namespace, workers: int) -> _OtherRig:

@@ -9,13 +9,30 @@ only, and a test keeps it that way.
 
 from replay.live._default import default_dataset_dir, default_dataset_ready, ensure_default_dataset
 from replay.live._executor import LiveExecutor
-from replay.live._outputs import LIVE_NAME, claim_live_run, free_file, live_output
-from replay.live._run import LiveView, check_rig, configured_rig, foxglove_view, learn_live
+from replay.live._outputs import (
+    LIVE_NAME,
+    check_live_run,
+    claim_live_run,
+    free_file,
+    live_output,
+)
+from replay.live._run import (
+    LiveCheck,
+    LiveView,
+    check_live,
+    check_rig,
+    configured_rig,
+    foxglove_view,
+    learn_live,
+)
 
 __all__ = [
     "LIVE_NAME",
+    "LiveCheck",
     "LiveExecutor",
     "LiveView",
+    "check_live",
+    "check_live_run",
     "check_rig",
     "claim_live_run",
     "configured_rig",

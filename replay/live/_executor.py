@@ -77,19 +77,7 @@ class LiveExecutor:
         Raises:
             ReplayError: The rig has no pose for a new object (one line naming them).
         """
-        rig = self.rig
-        missing = (
-            [o.id for o in self.objects if not rig.can_present(o)]
-            if isinstance(rig, Presenting)
-            else []
-        )
-        if missing:
-            msg = (
-                f"the rig has no pose for {', '.join(missing)}: live learning presents "
-                "every new object by itself; give each a pose ([objects.<id>] pose in the "
-                "rig configuration)"
-            )
-            raise ReplayError(msg)
+        refuse_unpresented(self.rig, self.objects)
         self.session.mkdir(parents=True, exist_ok=True)
         self.rig.__enter__()
         return self
@@ -174,3 +162,21 @@ class LiveExecutor:
         }
         manifest = pl.DataFrame(self.made, schema=schema)
         atomic_write(self.session / SESSION_NAME, manifest.write_parquet)
+
+
+def refuse_unpresented(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
+    """Refuse new objects the rig cannot present: live learning places none by hand.
+
+    Raises:
+        ReplayError: The rig has no pose for a new object (one line naming them).
+    """
+    missing = (
+        [o.id for o in objects if not rig.can_present(o)] if isinstance(rig, Presenting) else []
+    )
+    if missing:
+        msg = (
+            f"the rig has no pose for {', '.join(missing)}: live learning presents "
+            "every new object by itself; give each a pose ([objects.<id>] pose in the "
+            "rig configuration)"
+        )
+        raise ReplayError(msg)

@@ -66,6 +66,21 @@ def claim_live_run(target: Path, settings: dict[str, Any]) -> bool:
         pass
     else:
         return False
+    return check_live_run(target, settings)
+
+
+def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
+    """Say whether a live run of ``settings`` in ``target`` would resume; writes nothing.
+
+    Returns:
+        True when ``target`` holds this run, unfinished (it resumes); False for a new run.
+
+    Raises:
+        ReplayError: The directory holds a finished run or a run of other settings.
+    """
+    path = target / LIVE_NAME
+    if not path.exists():
+        return False
     try:
         theirs = json.loads(path.read_text("utf-8"))
     except (OSError, ValueError) as err:

@@ -7,11 +7,15 @@ import os
 import socket
 import subprocess
 import sys
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
 from recorder import (
     FoxgloveView,
     RecorderError,
+    RigCheck,
+    check_rig_ready,
     find_rig,
     load_actions,
     load_objects,
@@ -20,7 +24,7 @@ from recorder import (
 from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
 from replay.learning._session import run_learning
-from replay.live._executor import LiveExecutor
+from replay.live._executor import LiveExecutor, refuse_unpresented
 from replay.live._stream import CLOSE_S, ViewSink
 from replay.outputs._view import (
     ViewedRecording,
@@ -34,12 +38,11 @@ from schemas import cli
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
-    from pathlib import Path
     from types import TracebackType
 
     import polars as pl
 
-    from recorder import RigConfig, Viewer
+    from recorder import ActionSpec, ObjectSpec, RigConfig, Viewer
     from replay.learning._session import RunSpec
 
 
@@ -176,6 +179,69 @@ def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN
     return viewer
 
 
+def _catalog(spec: RunSpec) -> tuple[list[ObjectSpec], dict[str, ActionSpec]]:
+    """The run's new objects (in order) and the action catalog.
+
+    Raises:
+        ReplayError: An object or an action the catalogs lack (the rig cannot perform it).
+    """
+    objects, actions = load_objects(), load_actions()
+    for option, asked, known in (
+        ("--new", spec.new_objects, objects),
+        ("--actions", spec.actions, actions),
+    ):
+        if unknown := [name for name in asked if name not in known]:
+            msg = (
+                f"{option} {','.join(unknown)}: not in the catalog, so the rig cannot "
+                f"perform it; choose from {', '.join(known)}"
+            )
+            raise ReplayError(msg)
+    return [objects[o] for o in spec.new_objects], actions
+
+
+@dataclass(frozen=True, slots=True)
+class LiveCheck:
+    """What a live run would do and what the rig showed (``learn --dry-run``).
+
+    Attributes:
+        test: Held-out recordings the run makes first.
+        initial: Observations every (new object, action) gets before the learner chooses.
+        budget: Observations the learner then chooses.
+        on_disk: Recordings of an earlier, interrupted run of the same command (reused).
+        rig: What the rig showed.
+    """
+
+    test: int
+    initial: int
+    budget: int
+    on_disk: int
+    rig: RigCheck
+
+
+def check_live(config: RigConfig, spec: RunSpec, session: Path, *, test_trials: int) -> LiveCheck:
+    """Check a live run as it would begin, moving nothing and writing nothing.
+
+    The new objects (in the catalog, each presentable by the rig), every action against the
+    rig's limits, the disk, the arm's state and a second of the arm's and the skin's streams
+    (:func:`recorder.check_rig_ready`).
+
+    Raises:
+        ReplayError: What the run would refuse, or a check of the rig failed (one line).
+    """
+    try:
+        objects, catalog = _catalog(spec)
+        factory = make_factory(config)
+        refuse_unpresented(factory(spec.seed), objects)
+        actions = [catalog[a] for a in spec.actions]
+        found = check_rig_ready(factory, spec.seed, objects, actions, session)
+    except RecorderError as err:  # the recorder's error, at the edge of the replay
+        msg = f"--rig {config.name}: {cli.one_line(str(err))}"
+        raise ReplayError(msg) from err
+    pairs = len(objects) * len(actions)
+    on_disk = sum(1 for _ in Path(session).glob("*/*/*.mcap")) if session.is_dir() else 0
+    return LiveCheck(pairs * test_trials, pairs, spec.learner.budget, on_disk, found)
+
+
 def learn_live(
     config: RigConfig,
     spec: RunSpec,
@@ -206,18 +272,12 @@ def learn_live(
         ReplayError: An object the catalog lacks, or the recorder refused (one line).
     """
     try:
-        objects = load_objects()
-        if unknown := [o for o in spec.new_objects if o not in objects]:
-            msg = (
-                f"--new {','.join(unknown)}: not in the object catalog, so the rig cannot "
-                f"perform on it; choose from {', '.join(objects)}"
-            )
-            raise ReplayError(msg)
+        objects, actions = _catalog(spec)
         rig = make_factory(config)(spec.seed)
         executor = LiveExecutor(
             rig,
-            [objects[o] for o in spec.new_objects],
-            load_actions(),
+            objects,
+            actions,
             session,
             seed=spec.seed,
             viewers=viewers,

@@ -262,9 +262,34 @@ def test_live_learning_at_the_virtual_robot_replays_offline(
     run = ["--new", "wood,foam_block", "--actions", "P1", "--budget", "2", "--test-trials", "1"]
     # priors from the committed recordings (not the default dataset: nothing to generate)
     run += ["--recordings", str(ROOT / "recordings" / "data"), "--priors", "soft_sponge,pine_board"]
-    with _serve_sim(*served, "--skin", f"udp://127.0.0.1:{udp}"):
-        live = replay(["learn", "--rig-config", str(lab), *run, "--out", str(tmp_path / "live")])
+    out = tmp_path / "live"
+    events = tmp_path / "events.jsonl"
+    with _serve_sim(*served, "--skin", f"udp://127.0.0.1:{udp}", "--events", str(events)):
+        learn = ["learn", "--rig-config", str(lab), *run, "--out", str(out)]
+        # the dry run first: the plan and the rig, nothing moved, nothing written
+        ready = replay([*learn, "--dry-run"])
+        said = capsys.readouterr()
+        absent = [*learn[:3], "--new", "wood,metal_toolbox", *learn[5:], "--dry-run"]
+        refused = replay(absent)
+        refusal = capsys.readouterr()
+        assert not out.exists()
+        moved = "program" in events.read_text()
+        live = replay(learn)
     printed = capsys.readouterr()
+    assert ready == 0, said.err
+    lines = said.out.splitlines()
+    assert lines[0] == (
+        f"dry run of live learning: a new run into {out}; 2 held-out recordings, then 2 first "
+        "observations and up to 2 the learner chooses; 0 on disk (reused); nothing moved, "
+        "nothing written"
+    )
+    assert lines[1] == "objects presented by the rig: foam_block, wood; placed by hand: -"
+    assert lines[2].startswith("rig: ready (controller_version ")
+    assert any(line.startswith("  rtde: ") and line.endswith(", complete") for line in lines)
+    assert refused == 1
+    assert "the rig has no pose for metal_toolbox: live learning presents" in refusal.err
+    assert refusal.err.count("\n") == 1
+    assert not moved  # the lab received no program during either dry run
     assert live == 0, printed.err
     steps = [line for line in printed.out.splitlines() if line.startswith("step")]
     assert len(steps) == 3
@@ -344,13 +369,13 @@ def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
 def test_a_dry_run_whose_sources_lost_samples_is_not_ready(tmp_path: Path) -> None:
     from rich.console import Console  # noqa: PLC0415
 
-    from recorder._session import SessionCheck  # noqa: PLC0415
+    from recorder._session import RigCheck, SessionCheck  # noqa: PLC0415
     from recorder._session_command import _say_check  # noqa: PLC0415
     from schemas import SourceStats  # noqa: PLC0415
 
     def said(*sources: SourceStats) -> tuple[int, str]:
         console = Console(record=True, width=200, file=(tmp_path / "out.txt").open("w"))
-        found = SessionCheck(tmp_path, 4, 0, (), ("wood",), (), {"v": "1"}, sources)
+        found = SessionCheck(tmp_path, 4, 0, (), RigCheck(("wood",), (), {"v": "1"}, sources))
         status = _say_check(console, found)
         return status, console.export_text()
 

@@ -69,12 +69,20 @@ def test_live_learning_on_an_exclusive_plugin_rig_replays_offline_with_the_same_
     assert len(recorded) == len(NEW) * 2 * 2 + 2
 
 
-def test_view_needs_a_live_run(small_dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_view_and_dry_run_need_a_live_run(
+    small_dataset: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     argv = ["learn", "--recordings", str(small_dataset), "--view", "x.rrd", "--workers", "1"]
     assert main(argv) == 1
     err = capsys.readouterr().err.splitlines()
     assert err == [
         "atikt-replay: error: --view shows a live run's recordings as they are made; give --rig too"
+    ]
+    argv = ["learn", "--recordings", str(small_dataset), "--dry-run", "--workers", "1"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "atikt-replay: error: --dry-run checks a live run before anything moves; give --rig too"
     ]
 
 
