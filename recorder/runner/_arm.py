@@ -35,6 +35,9 @@ class ArmSample:
         tcp_force: Force and torque at the TCP (fx, fy, fz, tx, ty, tz), N and N m.
         stopped: Empty while the arm may move; else why the controller stopped it, one line
             (e.g. ``protective stop (RTDE safety_status 3)``).
+        busy: Empty when the controller runs no program of another's; else what it runs,
+            one line (``a program is playing (RTDE runtime_state 2)``). Read only before an
+            action, when nothing of the runner's runs: a program sent then would replace it.
     """
 
     stamp_ns: int
@@ -45,6 +48,7 @@ class ArmSample:
     tcp_pose: NDArray[np.float64]
     tcp_force: NDArray[np.float64]
     stopped: str = ""
+    busy: str = ""
 
 
 @dataclass(frozen=True, slots=True)

@@ -324,6 +324,7 @@ class ArmRig:
         motion = self.options.motion
         self._watch = watch or _Never()
         self._begin()
+        self._until_free(f"move to {obj.id}")  # nothing sent yet: a refusal stops nothing
         try:
             while self._state.pose is None:
                 self._pump_quietly()
@@ -383,6 +384,18 @@ class ArmRig:
         self._connected()
         self._begin()
         self.skin.begin()
+        self._until_free("start an action")
+
+    def _until_free(self, what: str) -> None:
+        """Wait until the arm is at rest and the controller runs no other program.
+
+        Counted in the controller's cycles (1 s, at least :data:`MOVING_WAIT_CYCLES`), so a
+        controller held up by its machine is not taken for a moving arm. Nothing is sent.
+
+        Raises:
+            RigError: The arm kept moving, another program kept running, a stop or a silent
+                source: ``the arm cannot <what>: <reason>``, one line.
+        """
         before, reason = self._state.sample, ""
         try:
             while self._state.sample is before:  # the silence check bounds the wait
@@ -390,20 +403,29 @@ class ArmRig:
             # in the controller's cycles, as the start of a motion (see _until_reached)
             cycles = MOVING_WAIT_S * self.options.time_scale * _NS / self.arm.period_ns
             until = self._state.taken + max(cycles, MOVING_WAIT_CYCLES)
-            while (speed := self._joint_speed()) > MOVING_RAD_S:
+            while (speed := self._joint_speed()) > MOVING_RAD_S or self._busy():
                 if self._state.taken > until:
                     reason = (
                         f"the arm is moving (a joint at {speed:.3f} rad/s: guided by hand, or "
                         "another program); let it come to rest"
+                        if speed > MOVING_RAD_S
+                        else f"{self._busy()}: another program runs on the controller, and "
+                        "one of ours would replace it; stop it (the teach pendant, or the "
+                        "dashboard's stop)"
                     )
                     break
                 self._pump_quietly()
         except (Stop, SourceLostError) as stop:
             reason = str(stop)
         if reason:
-            said = f"the arm cannot start an action: {reason}; check the arm, then retry"
+            said = f"the arm cannot {what}: {reason}; check the arm, then retry"
             msg = f"{self.where}: {said}"
             raise RigError(msg)
+
+    def _busy(self) -> str:
+        """Return what else the controller runs, from the latest state sample ('': nothing)."""
+        sample = self._state.sample
+        return "" if sample is None else sample.busy
 
     def watch(self, seconds: float) -> None:
         """Read the arm and the skin for ``seconds`` (action time), moving nothing.

@@ -55,8 +55,9 @@ RTDE_VARIABLES = (
     "robot_mode",
     "safety_status",
 )
-#: RTDE outputs read when the controller provides them: the teach pendant's speed slider.
-OPTIONAL_VARIABLES = ("target_speed_fraction",)
+#: RTDE outputs read when the controller provides them: the teach pendant's speed slider and
+#: the program's state.
+OPTIONAL_VARIABLES = ("target_speed_fraction", "runtime_state")
 #: The recipes asked for in turn, until the controller provides one: a controller (or a
 #: controller emulator) without ``safety_status``, a later addition to RTDE, gives
 #: ``safety_mode`` (the same values up to 9; ur_rtde reads that one), and one without the
@@ -81,6 +82,10 @@ SAFETY_NAMES = {
     8: "violation",
     9: "fault",
 }
+#: RTDE ``runtime_state`` values: a program paused (a stop: the action cannot go on), and a
+#: program running, stopping or resuming (before an action: another's, which ours would replace).
+RUNTIME_PAUSED = {3: "pausing", 4: "paused"}
+RUNTIME_BUSY = {0: "stopping", 2: "playing", 5: "resuming"}
 #: RTDE ``robot_mode`` of an arm that can move (ROBOT_MODE_RUNNING: powered, brakes released).
 RUNNING = 7
 #: Names of the other robot modes, for messages (the controller's RobotMode enumeration).
@@ -340,6 +345,15 @@ class URArm:
                 f"speed slider at {slider * 100:.0f} % (RTDE target_speed_fraction "
                 f"{slider:.3f}; set it to 100 %: an action's speeds are part of its recording)"
             )
+        runtime = int(values.get("runtime_state", 1))
+        if not stopped and runtime in RUNTIME_PAUSED:
+            stopped = (
+                f"program {RUNTIME_PAUSED[runtime]} (RTDE runtime_state {runtime}: the teach "
+                "pendant's or the dashboard's pause; press stop there)"
+            )
+        busy = ""
+        if runtime in RUNTIME_BUSY:
+            busy = f"a program is {RUNTIME_BUSY[runtime]} (RTDE runtime_state {runtime})"
         return ArmSample(
             stamp_ns=stamp + self._offset_ns,
             receive_ns=receive_ns,
@@ -349,6 +363,7 @@ class URArm:
             tcp_pose=np.asarray(values["actual_TCP_pose"], dtype=np.float64),
             tcp_force=np.asarray(values["actual_TCP_force"], dtype=np.float64),
             stopped=stopped,
+            busy=busy,
         )
 
     def speed(

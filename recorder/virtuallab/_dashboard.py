@@ -1,13 +1,13 @@
 """The virtual lab's dashboard server (port 29999): the subset a lab's own scripts use.
 
 A UR controller's dashboard server takes one command per line and answers one line. The
-virtual lab answers ``robotmode``, ``safetymode`` (and ``safetystatus``), ``stop`` (the
-running program ends; the arm brakes), ``play`` (nothing to resume: the lab runs the programs
-sent to its URScript port as they arrive), ``unlock protective stop`` (releases a protective
-stop), ``power off``, ``power on`` and ``brake release`` (the robot mode: an arm that is not
-running takes no program and does not move) and ``close safety popup``; anything else is
-answered as a controller answers an unknown command. On connecting, a client gets the
-controller's greeting.
+virtual lab answers ``robotmode``, ``safetymode`` (and ``safetystatus``), ``programState``,
+``stop`` (the running program ends; the arm brakes), ``pause`` (the program waits; the arm
+brakes), ``play`` (a paused program goes on; the lab runs the programs sent to its URScript
+port as they arrive), ``unlock protective stop`` (releases a protective stop), ``power off``,
+``power on`` and ``brake release`` (the robot mode: an arm that is not running takes no
+program and does not move) and ``close safety popup``; anything else is answered as a
+controller answers an unknown command. On connecting, a client gets the controller's greeting.
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ _SAFETY = {
     SAFETY_EMERGENCY_STOP: "ROBOT_EMERGENCY_STOP",
 }
 _MODES = {ROBOT_MODE_POWER_OFF: "POWER_OFF", ROBOT_MODE_IDLE: "IDLE", ROBOT_MODE_RUNNING: "RUNNING"}
+#: ``programState`` answers by RTDE ``runtime_state`` (a controller adds the program's name).
+_PROGRAM_STATES = {0: "STOPPED", 1: "STOPPED", 2: "PLAYING", 4: "PAUSED"}
 #: Dashboard commands that change the robot mode: the mode they lead to, their answer.
 _POWER = {
     "power off": (ROBOT_MODE_POWER_OFF, "Powering off"),
@@ -93,11 +95,18 @@ class DashboardServer(TcpServer):
         if text in {"safetymode", "safetystatus"}:
             name = _SAFETY.get(safety, str(safety))
             return f"{'Safetymode' if text == 'safetymode' else 'Safetystatus'}: {name}"
-        if text == "stop":
-            world.halt_program()
-            return "Stopped"
-        if text == "play":
-            return "Starting program"
+        programs = {
+            "stop": (world.halt_program, "Stopped"),
+            "play": (world.play, "Starting program"),
+            "pause": (world.pause, "Pausing program"),
+        }
+        if text in programs:
+            do, said = programs[text]
+            do()
+            return said
+        if text == "programstate":
+            state = world.robot_at(world.controller_ns()).runtime_state
+            return _PROGRAM_STATES.get(state, "STOPPED")
         if text == "unlock protective stop":
             if safety == SAFETY_PROTECTIVE_STOP:
                 world.unlock()

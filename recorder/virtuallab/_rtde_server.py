@@ -68,7 +68,7 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "robot_mode": ("INT32", lambda s, _t: s.robot_mode),
     "safety_status": ("INT32", lambda s, _t: s.safety_status),
     "safety_mode": ("INT32", lambda s, _t: s.safety_status),
-    "runtime_state": ("UINT32", lambda _s, _t: 2),
+    "runtime_state": ("UINT32", lambda s, _t: s.runtime_state),
     "speed_scaling": ("DOUBLE", lambda _s, _t: 1.0),
     "target_speed_fraction": ("DOUBLE", lambda s, _t: s.speed_fraction),
 }

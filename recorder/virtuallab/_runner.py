@@ -51,6 +51,11 @@ MOVEL_ANGULAR_SPEED: Final = 0.5
 MOVEL_SPEED: Final = 0.25
 #: Calls that take no time.
 INSTANT: Final = frozenset({"textmsg", "force_mode", "end_force_mode", "get_actual_tcp_pose"})
+#: RTDE ``runtime_state`` values (the controller's program state).
+RUNTIME_STOPPING: Final = 0
+RUNTIME_STOPPED: Final = 1
+RUNTIME_PLAYING: Final = 2
+RUNTIME_PAUSED: Final = 4
 
 
 class Hooks(Protocol):
@@ -108,6 +113,7 @@ class ProgramRunner:
         self._elapsed = 0.0
         self._began = False
         self._braking = False
+        self._paused = False
         self._acceleration = DEFAULT_ACCELERATION
 
     @property
@@ -115,23 +121,47 @@ class ProgramRunner:
         """Whether a program runs (or the arm still brakes after its end)."""
         return self.program is not None or self._braking
 
+    @property
+    def state(self) -> int:
+        """The program's state as RTDE's ``runtime_state`` says it.
+
+        0 stopping (the arm brakes after the program's end), 1 stopped, 2 playing, 4 paused.
+        """
+        if self.program is not None:
+            return RUNTIME_PAUSED if self._paused else RUNTIME_PLAYING
+        return RUNTIME_STOPPING if self._braking else RUNTIME_STOPPED
+
+    def pause(self) -> None:
+        """Pause the program (the pendant's pause): the arm brakes, the program waits."""
+        if self.program is not None:
+            self._paused = True
+
+    def resume(self) -> None:
+        """Resume a paused program where it was (the pendant's play)."""
+        self._paused = False
+
     def load(self, program: Program) -> None:
         """Replace the running program (at the next cycle)."""
         self.program, self.force_mode = program, None
         self._pc, self._elapsed, self._began, self._braking = 0, 0.0, False, False
+        self._paused = False
 
     def finish(self) -> None:
         """End the program now: force mode ends, the arm brakes at the last acceleration."""
         if self.program is not None:
             self.program, self.force_mode, self._braking = None, None, True
+        self._paused = False
 
     def abort(self) -> None:
         """Drop the program (a protective stop): nothing runs until the next program."""
         self.program, self.force_mode, self._braking = None, None, False
+        self._paused = False
 
     def step(self, arm: KinematicArm, dt: float) -> F64:
         """Run one cycle; return the commanded TCP twist for it."""
         twist: F64 = arm.twist.copy()
+        if self._paused:  # the arm brakes; the program goes on from here when resumed
+            return ramp(twist, np.zeros(6), self._acceleration, dt)
         while self.program is not None:
             calls = self.program.calls
             if self._pc >= len(calls):

@@ -257,6 +257,7 @@ class SteppedArm(URArm):
             "robot_mode": state.robot_mode,
             "safety_status": state.safety_status,
             "target_speed_fraction": state.speed_fraction,
+            "runtime_state": state.runtime_state,
         }
         sample = self._state(values, self.lab.clock.now_ns())
         return [] if sample is None else [sample]

@@ -39,7 +39,7 @@ import numpy as np
 from recorder.errors import RigError
 from recorder.virtuallab._arm import STILL, KinematicArm, matrix_pose, pose_matrix
 from recorder.virtuallab._events import Event, EventLog
-from recorder.virtuallab._runner import ProgramRunner
+from recorder.virtuallab._runner import RUNTIME_PLAYING, RUNTIME_STOPPED, ProgramRunner
 from recorder.virtuallab._skinmodel import SUB_NS, SkinModel, Surface
 from recorder.virtuallab._urscript import Call, Program
 from schemas import VOCABULARY
@@ -99,6 +99,8 @@ class RobotState:
         target_tcp_speed: Commanded TCP twist.
         target_pose: The pose the joints follow.
         speed_fraction: The teach pendant's speed slider, 0..1 (RTDE ``target_speed_fraction``).
+        runtime_state: The program's state (RTDE ``runtime_state``: 0 stopping, 1 stopped,
+            2 playing, 4 paused).
     """
 
     q: F64
@@ -112,6 +114,7 @@ class RobotState:
     target_tcp_speed: F64 = field(default_factory=lambda: np.zeros(6))
     target_pose: F64 | None = None
     speed_fraction: float = 1.0
+    runtime_state: int = RUNTIME_STOPPED
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,6 +343,7 @@ class VirtualWorld:
             arm.twist.copy(),
             matrix_pose(arm.target),
             self._slider,
+            RUNTIME_PLAYING if self._pending is not None else self._runner.state,
         )
 
     def _note_zeros(self, end_ns: int, state: RobotState) -> None:
@@ -497,6 +501,20 @@ class VirtualWorld:
                 self._arm.halt()
             self._mode = mode
             self.events_log.add("mode", self.controller_ns(), robot_mode=mode)
+
+    def pause(self) -> None:
+        """Pause the running program (the pendant's or the dashboard's ``pause``)."""
+        with self._lock:
+            self.advance_to(self.controller_ns())
+            self._runner.pause()
+            self.events_log.add("pause", self.controller_ns())
+
+    def play(self) -> None:
+        """Resume a paused program (the pendant's or the dashboard's ``play``)."""
+        with self._lock:
+            self.advance_to(self.controller_ns())
+            self._runner.resume()
+            self.events_log.add("play", self.controller_ns())
 
     def slide_speed(self, fraction: float) -> None:
         """Set the teach pendant's speed slider (0.01..1): programs run that much slower."""

@@ -149,6 +149,58 @@ def test_an_arm_that_keeps_moving_is_refused_before_an_action(tmp_path: Path) ->
     assert not any(tmp_path.rglob("*.mcap*"))
 
 
+def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -> None:
+    path = tmp_path / "wood" / "P1" / "001.mcap"
+    with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
+        # a colleague's program, waiting at the controller: ours would replace it
+        lab.script.run("def theirs():\n  sleep(100.0)\nend\n")
+        with pytest.raises(RigError) as presenting:
+            rig.present(OBJECTS["wood"])
+        with pytest.raises(RigError) as starting:  # an object placed by hand
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+        ours = [p for p in lab.script.programs if p.startswith("def atikt")]
+        still = lab.world.robot_at(lab.world.controller_ns()).runtime_state
+    said = "a program is playing (RTDE runtime_state 2): another program runs on the controller"
+    assert said in str(presenting.value)
+    assert "the arm cannot move to wood" in str(presenting.value)
+    assert said in str(starting.value)
+    assert "\n" not in str(starting.value)
+    assert ours == []  # nothing of ours was sent: theirs still runs
+    assert still == 2
+    assert not any(tmp_path.rglob("*.mcap*"))
+
+
+def test_a_program_paused_on_the_pendant_stops_an_action(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "C1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            assert rig.present(OBJECTS["wood"])
+            done = threading.Event()
+
+            def state() -> int:
+                return lab.world.robot_at(lab.world.controller_ns()).runtime_state
+
+            def pause() -> None:  # during the action, while one of its programs runs
+                done.wait(0.3)
+                while not done.is_set() and state() != 4:  # 4: paused
+                    if state() == 2:  # 2: playing
+                        lab.world.pause()
+                    done.wait(0.005)
+
+            pausing = threading.Thread(target=pause)
+            pausing.start()
+            try:
+                with pytest.raises(ActionStoppedError) as info:
+                    record_action(rig, OBJECTS["wood"], ACTIONS["C1"], 1, path, seed=0)
+            finally:
+                done.set()
+                pausing.join()
+    assert "program paused (RTDE runtime_state 4" in info.value.reason
+    assert info.value.path == tmp_path / "001.incomplete.mcap"
+    assert info.value.path.exists()
+
+
 def test_a_speed_slider_below_full_speed_is_refused_and_stops_an_action(tmp_path: Path) -> None:
     # a slide at half its speed would pass every check and still be another action
     with virtual_lab() as lab:

@@ -191,6 +191,31 @@ def test_a_new_program_replaces_the_running_one_and_a_stop_refuses_programs() ->
     assert world.run(_program("stopl(0.5)"))
 
 
+def test_the_program_state_is_served_and_a_paused_program_holds_the_arm() -> None:
+    clock = Clock()
+    world = _world(clock)
+    assert _cycles(world, clock, 2)[-1].runtime_state == 1  # stopped: no program
+    world.run(_program("speedl([0.0, 0.0, 0.02, 0.0, 0.0, 0.0], 0.5, 1.0)"))
+    moving = _cycles(world, clock, 30)[-1]
+    assert moving.runtime_state == 2  # playing
+    assert moving.tcp_speed[2] > 0.01
+    world.pause()
+    held = _cycles(world, clock, 30)
+    assert {state.runtime_state for state in held} == {4}  # paused
+    assert np.all(held[-1].tcp_speed == 0)  # braked, and held
+    world.play()
+    going = _cycles(world, clock, 30)[-1]
+    assert going.runtime_state == 2
+    assert going.tcp_speed[2] > 0.01  # the same program goes on
+    after = _cycles(world, clock, 200)  # past its second: it ends, the arm brakes, it stops
+    assert [s.runtime_state for s in after][-1] == 1
+    assert 0 in {s.runtime_state for s in after}  # stopping while the arm brakes
+    assert [e.kind for e in world.events_log.events() if e.kind in {"pause", "play"}] == [
+        "pause",
+        "play",
+    ]
+
+
 def test_programs_and_the_log_are_bounded() -> None:
     splitter = ProgramSplitter()
     chunk = "x" * 65536
@@ -470,6 +495,13 @@ def test_the_dashboard_powers_the_arm_off_and_on() -> None:
             time.sleep(0.3)
             moved = lab.world.robot_at(lab.world.controller_ns()).tcp_pose
             assert moved[2] > start[2] + 1e-3
+            assert ask("programState") == "PLAYING"
+            assert ask("pause") == "Pausing program"
+            time.sleep(0.05)
+            assert ask("programState") == "PAUSED"
+            assert ask("stop") == "Stopped"
+            time.sleep(0.05)
+            assert ask("programState") == "STOPPED"
         modes = [e.details["robot_mode"] for e in lab.world.events_log.events("mode")]
         assert modes == [3, 5, 7]
 
