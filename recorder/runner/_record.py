@@ -120,9 +120,11 @@ def record_action(
 def check_room(directory: Path) -> None:
     """Refuse an action at the robot into ``directory`` on a disk nearly full.
 
-    Less than :data:`MIN_FREE_BYTES` free is refused. A full disk during the action stops the
-    arm and keeps what was written; refusing before anything moves spares the robot's time
-    and the object (a few MB make a recording).
+    An action asks for :data:`MIN_FREE_BYTES`, or twice the largest recording (complete or
+    not) already in ``directory`` when that is more: the same action's earlier trials say
+    best what a rig's sources write (a skin of images writes far more than a few MB). A full
+    disk during the action stops the arm and keeps what was written; refusing before anything
+    moves spares the robot's time and the object.
 
     Raises:
         RecorderError: Too little room, one line naming the directory.
@@ -134,11 +136,15 @@ def check_room(directory: Path) -> None:
         free = shutil.disk_usage(where).free
     except OSError:  # not ours to judge: the writer says what fails
         return
-    if free < MIN_FREE_BYTES:
+    need, why = MIN_FREE_BYTES, "an action at the robot asks for"
+    with contextlib.suppress(OSError):  # a directory that cannot be listed: the minimum
+        largest = max((f.stat().st_size for f in directory.glob("*.mcap")), default=0)
+        if 2 * largest > need:
+            need, why = 2 * largest, "this action asks for (twice its largest recording here)"
+    if free < need:
         msg = (
-            f"{where}: {free / 1e6:.1f} MB free on its disk, below the {MIN_FREE_BYTES / 1e6:.0f} "
-            "MB an action at the robot asks for; free disk space or give another --out, then "
-            "run again to resume"
+            f"{where}: {free / 1e6:.1f} MB free on its disk, below the {need / 1e6:.0f} MB "
+            f"{why}; free disk space or give another --out, then run again to resume"
         )
         raise RecorderError(msg)
 

@@ -360,3 +360,25 @@ def test_an_action_at_the_robot_is_refused_before_it_moves_on_a_nearly_full_disk
     assert "run again to resume" in said
     assert arm.commands == []  # nothing was sent
     assert not any(tmp_path.rglob("*.mcap*"))
+
+
+def test_the_room_an_action_asks_for_grows_with_its_recordings(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import shutil  # noqa: PLC0415
+
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage._replace(free=150_000_000))
+    action = tmp_path / "wood" / "C1"
+    action.mkdir(parents=True)
+    with (action / "001.mcap").open("wb") as earlier:  # a rig whose sources write a lot
+        earlier.truncate(100_000_000)  # sparse: its size, not its room
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig, pytest.raises(RecorderError) as refused:
+        record_action(rig, OBJECT, ACTION, 2, action / "002.mcap", seed=0)
+    said = str(refused.value)
+    assert said.startswith(f"{action}: 150.0 MB free on its disk, below the 200 MB this "), said
+    assert "(twice its largest recording here)" in said
+    assert arm.commands == []
+    assert sorted(f.name for f in action.iterdir()) == ["001.mcap"]
