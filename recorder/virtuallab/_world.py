@@ -308,11 +308,14 @@ class VirtualWorld:
             self._pending = None
         before = self._arm.tcp()[:3, 3].copy()
         free = self._safety == SAFETY_NORMAL and self._mode == ROBOT_MODE_RUNNING
-        # the speed slider slows the program and the arm's motion alike, as a controller's does
-        # (the arm's own speeds then read as at full speed: a simplification)
+        # the speed slider slows the program and the arm's motion alike, as a controller's does:
+        # the program runs `moved` s of its time in this cycle's `dt`
         moved = dt * self._slider
         twist = self._runner.step(self._arm, moved) if free else np.zeros(6)
         self._arm.step(twist, moved)
+        if self._slider != 1.0:  # the speeds the arm reports: its motion over the real dt
+            self._arm.qd = self._arm.qd * self._slider
+            self._arm.tcp_speed = self._arm.tcp_speed * self._slider
         after = self._arm.tcp()[:3, 3]
         count = max(1, (end_ns - start_ns) // SUB_NS)
         share = np.arange(1, count + 1) / count

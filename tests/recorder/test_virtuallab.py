@@ -216,6 +216,27 @@ def test_the_program_state_is_served_and_a_paused_program_holds_the_arm() -> Non
     ]
 
 
+def test_the_speed_slider_slows_the_motion_and_the_speeds_the_arm_reports() -> None:
+    states = {}
+    for fraction in (1.0, 0.5):
+        clock = Clock()
+        world = _world(clock)
+        world.slide_speed(fraction)
+        world.run(_program("speedl([0.0, 0.0, 0.02, 0.0, 0.0, 0.0], 0.5, 10.0)"))
+        start = _cycles(world, clock, 1)[-1].tcp_pose[2]
+        states[fraction] = (_cycles(world, clock, 125)[-1], start)
+    (full, full_start), (half, half_start) = states[1.0], states[0.5]
+    assert full.tcp_speed[2] == pytest.approx(0.02, rel=1e-3)
+    assert half.tcp_speed[2] == pytest.approx(0.01, rel=1e-3)
+    # the joints too (at another pose after a second: their share differs by a few %)
+    ratio = np.linalg.norm(half.qd) / np.linalg.norm(full.qd)
+    assert ratio == pytest.approx(0.5, rel=0.05)
+    # and where it went: half as far in the same second
+    assert half.tcp_pose[2] - half_start == pytest.approx(
+        (full.tcp_pose[2] - full_start) / 2, rel=0.05
+    )
+
+
 def test_programs_and_the_log_are_bounded() -> None:
     splitter = ProgramSplitter()
     chunk = "x" * 65536
