@@ -86,14 +86,25 @@ def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
     except (OSError, ValueError) as err:
         msg = f"{path}: unreadable ({err}); give another --out"
         raise ReplayError(msg) from err
-    if differ := sorted(k for k in {*settings, *theirs} if settings.get(k) != theirs.get(k)):
-        shown = ", ".join(f"{k}={theirs.get(k)!r} (now {settings.get(k)!r})" for k in differ)
+    ours, held = _leaves(settings), _leaves(theirs)
+    if differ := sorted(k for k in {*ours, *held} if ours.get(k) != held.get(k)):
+        shown = ", ".join(f"{k}={held.get(k)!r} (now {ours.get(k)!r})" for k in differ)
         msg = f"{target}: holds a live run of other settings ({shown}); give another --out"
         raise ReplayError(msg)
     if (target / HISTORY_NAME).exists():
         msg = f"{target}: this live run is finished ({HISTORY_NAME}); give another --out"
         raise ReplayError(msg)
     return True
+
+
+def _leaves(settings: Any, prefix: str = "") -> dict[str, Any]:  # noqa: ANN401 (JSON)
+    """Flatten nested settings to ``{"learner.budget": 2, ...}``: a difference names its leaf."""
+    if not isinstance(settings, dict):
+        return {prefix: settings}
+    flat: dict[str, Any] = {}
+    for key, value in settings.items():
+        flat |= _leaves(value, f"{prefix}{key}" if not prefix else f"{prefix}.{key}")
+    return flat
 
 
 def free_file(path: Path) -> Path:

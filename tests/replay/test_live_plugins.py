@@ -113,3 +113,28 @@ def test_live_learning_says_which_recordings_lost_samples(
     err = [line for line in capsys.readouterr().err.splitlines() if "lost samples" in line]
     assert len(err) == 1
     assert err[0].endswith("live sources lost samples (skin: 2 of 100 missing); check fails on it")
+
+
+def test_a_live_runs_directory_is_checked_without_writing_and_refused_by_its_leaf(
+    tmp_path: Path,
+) -> None:
+    from replay.errors import ReplayError  # noqa: PLC0415
+    from replay.live import check_live_run, claim_live_run  # noqa: PLC0415
+
+    target = tmp_path / "run"
+    settings = {"rig": "sim", "learner": {"budget": 2, "transfer": {"name": "prediction"}}}
+    assert check_live_run(target, settings) is False  # a new run
+    assert not target.exists()  # and nothing written by the check
+    assert claim_live_run(target, settings) is False
+    assert check_live_run(target, settings) is True  # it resumes
+    assert claim_live_run(target, settings) is True
+    other = {"rig": "sim", "learner": {"budget": 3, "transfer": {"name": "prediction"}}}
+    with pytest.raises(ReplayError) as refused:
+        check_live_run(target, other)
+    assert str(refused.value) == (
+        f"{target}: holds a live run of other settings (learner.budget=2 (now 3)); give "
+        "another --out"
+    )
+    (target / "history.parquet").write_bytes(b"")
+    with pytest.raises(ReplayError, match="this live run is finished"):
+        check_live_run(target, settings)
