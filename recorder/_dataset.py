@@ -449,6 +449,8 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
         raise RecorderError(msg)
     theirs_rig = _configuration(meta.rig)
     if differ := sorted(k for k in {*rig, *theirs_rig} if rig.get(k) != theirs_rig.get(k)):
+        if "kind" in differ:  # another rig altogether: its kind says it, not every setting
+            differ = ["kind"]
         theirs = ", ".join(f"{k}={theirs_rig.get(k)!r}" for k in differ)
         wanted = ", ".join(f"{k}={rig.get(k)!r}" for k in differ)
         msg = (

@@ -202,6 +202,17 @@ def test_another_rig_configuration_into_one_dataset_is_refused(
         generate_dataset(tasks, tmp_path, faster, seed=0, workers=1)
 
 
+    class Other(FakeRig):  # another rig altogether: its kind is named, not every setting
+        def describe(self) -> dict[str, str]:
+            return {"kind": "other", "port": "1", "time_scale": "0.05"}
+
+    with pytest.raises(RecorderError) as refused:
+        generate_dataset(tasks, tmp_path, Other, seed=0, workers=1)
+    said = str(refused.value)
+    assert "another rig configuration (kind='fake'; this run: kind='other', e.g. " in said, said
+    assert "time_scale" not in said
+
+
 def test_a_full_disk_in_one_worker_keeps_what_it_wrote(
     tmp_path: Path, objects: Objects, actions: Actions
 ) -> None:
