@@ -201,7 +201,6 @@ def test_another_rig_configuration_into_one_dataset_is_refused(
     with pytest.raises(RecorderError, match=r"another rig configuration \(time_scale='0.1'"):
         generate_dataset(tasks, tmp_path, faster, seed=0, workers=1)
 
-
     class Other(FakeRig):  # another rig altogether: its kind is named, not every setting
         def describe(self) -> dict[str, str]:
             return {"kind": "other", "port": "1", "time_scale": "0.05"}
