@@ -247,10 +247,16 @@ def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.mark.slow(31)
 def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -> None:
     (serve,) = [c for c, _ in _steps(_block("serve-sim", "--ros2")) if " serve-sim " in f" {c} "]
-    (listen, _), *steps = _steps(_block("atikt-record listen", "atikt-record session"))
+    (dry, _), (listen, _), *steps = _steps(_block("atikt-record listen", "atikt-record session"))
     assert " listen " in f" {listen} "
+    assert dry.endswith(" --dry-run")
     lab = _Lab(tmp_path, domain=dds_domain, scale=LISTEN_SCALE)
     with _serving(lab.argv(serve), tmp_path):
+        checked = _run(lab.argv(dry), tmp_path)
+        assert checked.returncode == 0, checked.stdout + checked.stderr
+        assert checked.stdout.splitlines()[-1].startswith("listen: ready"), checked.stdout
+        assert "/skin/cell_0 (atikt_msgs/msg/SkinCell): " in checked.stdout
+        assert not (tmp_path / "data").exists()  # the dry run wrote nothing
         recorder = subprocess.Popen(  # noqa: S603 (this project's command)
             lab.argv(listen),
             cwd=tmp_path,

@@ -19,7 +19,7 @@ from rich.text import Text
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import CATALOG_ARGUMENTS, arg, command, refuse_overlap
 from recorder.bagimport._importer import import_bag
-from recorder.bagimport._listen import listen, on_signal, recover
+from recorder.bagimport._listen import check_listen, listen, on_signal, recover
 from recorder.bagimport._source import bag_topics
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
@@ -37,6 +37,8 @@ if TYPE_CHECKING:
     from recorder.bagimport._topicmap import TopicMap
 
 _NS_PER_MS = 1e6
+#: How long ``listen --dry-run`` reads the topics by default, s.
+DRY_RUN_S = 2.0
 #: listen's exit status by the signal that stopped it (as a shell reports it; none: 0).
 _STATUS = {
     "SIGHUP": cli.HUNG_UP_STATUS,
@@ -218,6 +220,12 @@ def _import_bag(args: argparse.Namespace) -> int:
         action="store_true",
         help="only write what stopped runs left in --out's journals (listen does it first)",
     ),
+    arg(
+        "--dry-run",
+        action="store_true",
+        help="find the map's topics, check their types and fields, read them for --duration "
+        f"seconds (default {DRY_RUN_S:g}) and say what arrived; nothing is written",
+    ),
     *CATALOG_ARGUMENTS,
 )
 def _listen(args: argparse.Namespace) -> int:
@@ -225,6 +233,8 @@ def _listen(args: argparse.Namespace) -> int:
     if args.windows is not None:
         topic_map = topic_map.with_csv(args.windows)
     objects, actions = load_objects(args.objects_catalog), load_actions(args.actions_catalog)
+    if args.dry_run:
+        return _listen_check(args, topic_map, objects, actions)
     if args.recover:
         say = lambda line: print(line, flush=True)  # noqa: E731, T201 (one line per file, journal)
         if not recover(
@@ -250,6 +260,39 @@ def _listen(args: argparse.Namespace) -> int:
     with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
         print(f"{len(report.written)} recordings -> {args.out}{kept}")  # noqa: T201
     return _STATUS.get(report.interrupted, 1)
+
+
+def _listen_check(
+    args: argparse.Namespace,
+    topic_map: TopicMap,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+) -> int:
+    """Print what ``listen`` would record; 1 when a topic lost messages (a full queue, size)."""
+    seconds = DRY_RUN_S if args.duration is None else args.duration
+    found = check_listen(
+        topic_map,
+        args.out,
+        objects=objects,
+        actions=actions,
+        domain_id=args.domain_id,
+        seconds=seconds,
+        loopback=args.loopback,
+    )
+    print(  # noqa: T201
+        f"dry run of listen: DDS domain {args.domain_id}, {len(found)} topics of the map found, "
+        f"their types and fields as it says; read for {seconds:g} s; nothing written"
+    )
+    for topic in found:
+        print(f"  {topic.line()}")  # noqa: T201
+    silent = [t.topic for t in found if not t.received]
+    lossy = [t.topic for t in found if t.lost]
+    if lossy:
+        print(f"listen: not ready: {', '.join(lossy)} lost messages")  # noqa: T201
+        return 1
+    quiet = f" ({', '.join(silent)} sent nothing: idle, or slower than the check)" if silent else ""
+    print(f"listen: ready{quiet}")  # noqa: T201
+    return 0
 
 
 def _listen_run(

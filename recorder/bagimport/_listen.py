@@ -473,6 +473,39 @@ class Listener:
         if self.on_written is not None:
             self.on_written(path)
 
+    def rehearse(self, seconds: float) -> tuple[TopicCheck, ...]:
+        """Read every topic for ``seconds`` after :meth:`start`, writing nothing; what came.
+
+        The messages are counted and dropped: no window is fed, no journal written.
+        """
+        counts: dict[str, int] = dict.fromkeys(self._raw, 0)
+        first: dict[str, int] = {}
+        last: dict[str, int] = {}
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            for item in self._take(min(_TICK_S, left)):
+                topic = item.payload[0]
+                counts[topic] = counts.get(topic, 0) + 1
+                first.setdefault(topic, item.receive_ns)
+                last[topic] = item.receive_ns
+        found = []
+        for topic, raw in self._raw.items():
+            arrivals = self._arrivals.get(topic)
+            period = arrivals.period_ns if arrivals is not None else 0
+            span = last.get(topic, 0) - first.get(topic, 0)
+            found.append(
+                TopicCheck(
+                    topic,
+                    self._types.get(topic, ""),
+                    counts[topic],
+                    (counts[topic] - 1) * _NS_PER_S / span if span > 0 else None,
+                    _NS_PER_S / period if period > 0 else None,
+                    self._overflow[topic].overflowed,
+                    raw.oversize,
+                )
+            )
+        return tuple(found)
+
     def stop(self) -> None:
         """Stop the reader threads."""
         for source in self._readers:
@@ -922,6 +955,89 @@ def listen(
         if flag.signum is not None:
             return _interrupted(listener, cli.signal_name(flag.signum))
         return _finish(listener)
+
+
+@dataclass(frozen=True, slots=True)
+class TopicCheck:
+    """What one topic sent during ``listen --dry-run``.
+
+    Attributes:
+        topic: The topic.
+        msgtype: Its type, as discovered (and checked against the map).
+        received: Messages received.
+        rate_hz: Their rate by receive time (None: fewer than two).
+        declared_hz: The rate the map gives the topic (None: none, e.g. annotations).
+        dropped: Messages lost to a full queue (the reader fell behind).
+        oversize: Messages dropped as larger than the topic's budget.
+    """
+
+    topic: str
+    msgtype: str
+    received: int
+    rate_hz: float | None
+    declared_hz: float | None
+    dropped: int
+    oversize: int
+
+    @property
+    def lost(self) -> int:
+        """Messages that arrived and could not be kept."""
+        return self.dropped + self.oversize
+
+    def line(self) -> str:
+        """One line: the topic, what arrived, how fast, against the map."""
+        said = f"{self.topic} ({self.msgtype}): {self.received} received"
+        if self.rate_hz is not None:
+            said += f", {self.rate_hz:.4g} Hz"
+        if self.declared_hz is not None:
+            said += f" (the map: {self.declared_hz:.4g} Hz)"
+            if self.rate_hz is not None and abs(self.rate_hz / self.declared_hz - 1) > RATE_OFF:
+                said += "; check the map's rate or the publisher"
+        if self.dropped:
+            said += f"; {self.dropped} dropped by a full queue"
+        if self.oversize:
+            said += f"; {self.oversize} larger than the topic's budget (max_message_kib)"
+        return said
+
+
+#: A topic's measured rate this far from the map's (a share) is said in a dry run.
+RATE_OFF = 0.2
+
+
+def check_listen(
+    topic_map: TopicMap,
+    out: Path,
+    *,
+    objects: Mapping[str, ObjectSpec],
+    actions: Mapping[str, ActionSpec],
+    domain_id: int = 0,
+    seconds: float = 2.0,
+    discovery_s: float = 10.0,
+    loopback: bool = False,
+) -> tuple[TopicCheck, ...]:
+    """Check what ``listen`` would record, writing nothing (``listen --dry-run``).
+
+    The map's topics are found on the domain, their types and fields checked as a run checks
+    them, then every topic is read for ``seconds``.
+
+    Raises:
+        BagImportError: DDS is missing, or a topic or the map is wrong (one line).
+    """
+    listener = Listener(
+        topic_map,
+        Path(out),
+        objects,
+        actions,
+        domain_id,
+        discovery_s,
+        loopback=loopback,
+        journal=False,
+    )
+    try:
+        listener.start()
+        return listener.rehearse(seconds)
+    finally:
+        listener.stop()
 
 
 def _interrupted(listener: Listener, signal_name: str) -> ImportReport:

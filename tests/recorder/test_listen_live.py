@@ -169,6 +169,32 @@ def test_listen_rehearsed_against_serve_sim(dds_domain: int, tmp_path: Path) -> 
     assert all(s.lost == 0 for s in stats)
 
 
+def test_a_listen_dry_run_says_what_each_topic_sends_and_writes_nothing(
+    dds_domain: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from recorder._cli import main as record  # noqa: PLC0415
+
+    map_path = _map(tmp_path)
+    out = tmp_path / "listened"
+    argv = ["listen", "--topic-map", str(map_path), "--out", str(out)]
+    argv += ["--domain-id", str(dds_domain), "--dry-run", "--duration", "1"]
+    with _served(map_path, dds_domain, 250):
+        status = record(argv)
+    said = capsys.readouterr()
+    assert status == 0, said.err
+    lines = said.out.splitlines()
+    assert lines[0].startswith(f"dry run of listen: DDS domain {dds_domain}, ")
+    assert lines[0].endswith("read for 1 s; nothing written")
+    cells = [line for line in lines if line.startswith("  /skin/cell_")]
+    assert cells, said.out
+    for line in cells:  # 250 Hz for a second, give or take the machine's pauses
+        received = int(re.search(r": (\d+) received", line)[1])  # type: ignore[index]
+        assert 150 < received < 300, line
+    assert any(line.startswith("  /annotations (std_msgs/msg/String): ") for line in lines)
+    assert lines[-1].startswith("listen: ready")
+    assert not out.exists()  # no journal, no recording, no directory
+
+
 def _stats(path: Path) -> list[Any]:
     from mcap.reader import make_reader  # noqa: PLC0415
 
@@ -432,3 +458,23 @@ def test_the_virtual_lab_tool_pose_quaternion_is_scipys() -> None:
         mine = np.array(_quaternion(rotvec))
         theirs = Rotation.from_rotvec(rotvec).as_quat()  # x, y, z, w
         assert np.allclose(mine, theirs) or np.allclose(mine, -theirs), rotvec
+
+
+def test_a_dry_runs_topic_line_says_rates_off_the_map_and_losses() -> None:
+    from recorder.bagimport._listen import TopicCheck  # noqa: PLC0415
+
+    fine = TopicCheck("/skin", "atikt_msgs/msg/SkinCell", 1000, 1001.0, 1000.0, 0, 0)
+    assert (
+        fine.line() == "/skin (atikt_msgs/msg/SkinCell): 1000 received, 1001 Hz (the map: 1000 Hz)"
+    )
+    assert fine.lost == 0
+    slow = TopicCheck("/skin", "T", 500, 500.0, 1000.0, 3, 2)
+    assert slow.line() == (
+        "/skin (T): 500 received, 500 Hz (the map: 1000 Hz); check the map's rate or the "
+        "publisher; 3 dropped by a full queue; 2 larger than the topic's budget (max_message_kib)"
+    )
+    assert slow.lost == 5
+    assert (
+        TopicCheck("/annotations", "S", 0, None, None, 0, 0).line()
+        == "/annotations (S): 0 received"
+    )
