@@ -17,6 +17,8 @@ from recorder._dataset import (
     generate_dataset,
     plan_dataset,
     recording_path,
+    set_aside_stale_parts,
+    stale_parts,
     write_index,
 )
 from recorder._rig import Accounting, Connecting, Presenting, Rig
@@ -154,6 +156,8 @@ __all__ = [
     "register_rig",
     "rig_factory",
     "rig_names",
+    "set_aside_stale_parts",
     "software_version",
+    "stale_parts",
     "write_index",
 ]

@@ -471,6 +471,11 @@ def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
         f"{found.initial} first observations and up to {found.budget} the learner chooses; "
         f"{found.on_disk} on disk (reused); nothing moved, nothing written"
     )
+    if found.stale:
+        print(  # noqa: T201
+            f"{len(found.stale)} unfinished recordings of stopped recorders would be set aside "
+            f"(e.g. {found.stale[0]})"
+        )
     for line in found.rig.lines():
         print(line)  # noqa: T201
     return 1 if found.rig.lossy else 0

@@ -7,7 +7,9 @@ resumes: the learner's decisions are a function of the seed and of the observati
 same command asks for the same recordings in the same order, and every one already on disk is
 read instead of performed again. ``session.parquet`` lists the recordings in the order they
 were used, with their role (``test`` or ``pool``), so that an offline run over the session
-(``Split.from_session``) serves exactly the same files.
+(``Split.from_session``) serves exactly the same files. Unfinished files a killed run left
+(``.part``) are set aside into ``<session>/.incomplete/`` with a line, as ``atikt-record
+session`` does, and their trials recorded again.
 
 Objects are presented as ``atikt-record session`` presents them: a rig that can move to an
 object's pose goes there before the first recording of that object after another one; a rig
@@ -22,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Self
 
 import polars as pl
 
-from recorder import Presenting, record_action, recording_path
+from recorder import Presenting, record_action, recording_path, set_aside_stale_parts
 from replay.errors import ReplayError
 from replay.learning._executors import SESSION_NAME, Pair, TestSet
 from replay.learning._features import file_features
@@ -79,6 +81,10 @@ class LiveExecutor:
         """
         refuse_unpresented(self.rig, self.objects)
         self.session.mkdir(parents=True, exist_ok=True)
+        for moved in set_aside_stale_parts(self.session):  # a killed run's: kept, recorded again
+            print(  # noqa: T201 (a note beside the run's step lines)
+                f"unfinished recording of a stopped recorder set aside: {moved}", file=sys.stderr
+            )
         self.rig.__enter__()
         return self
 

@@ -8,7 +8,6 @@ import socket
 import subprocess
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
 from recorder import (
@@ -20,6 +19,7 @@ from recorder import (
     load_actions,
     load_objects,
     load_rig_config,
+    stale_parts,
 )
 from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
@@ -34,10 +34,11 @@ from replay.outputs._view import (
     unique_key,
 )
 from replay.recording._reader import read_recording
-from schemas import cli
+from schemas import cli, is_incomplete
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
+    from pathlib import Path
     from types import TracebackType
 
     import polars as pl
@@ -208,6 +209,7 @@ class LiveCheck:
         initial: Observations every (new object, action) gets before the learner chooses.
         budget: Observations the learner then chooses.
         on_disk: Recordings of an earlier, interrupted run of the same command (reused).
+        stale: Unfinished files of a killed run it would set aside.
         rig: What the rig showed.
     """
 
@@ -215,6 +217,7 @@ class LiveCheck:
     initial: int
     budget: int
     on_disk: int
+    stale: tuple[Path, ...]
     rig: RigCheck
 
 
@@ -238,8 +241,10 @@ def check_live(config: RigConfig, spec: RunSpec, session: Path, *, test_trials: 
         msg = f"--rig {config.name}: {cli.one_line(str(err))}"
         raise ReplayError(msg) from err
     pairs = len(objects) * len(actions)
-    on_disk = sum(1 for _ in Path(session).glob("*/*/*.mcap")) if session.is_dir() else 0
-    return LiveCheck(pairs * test_trials, pairs, spec.learner.budget, on_disk, found)
+    here = session.is_dir()
+    on_disk = sum(1 for p in session.glob("*/*/*.mcap") if not is_incomplete(p)) if here else 0
+    stale = stale_parts(session) if here else ()
+    return LiveCheck(pairs * test_trials, pairs, spec.learner.budget, on_disk, stale, found)
 
 
 def learn_live(

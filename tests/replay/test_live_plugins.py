@@ -138,3 +138,29 @@ def test_a_live_runs_directory_is_checked_without_writing_and_refused_by_its_lea
     (target / "history.parquet").write_bytes(b"")
     with pytest.raises(ReplayError, match="this live run is finished"):
         check_live_run(target, settings)
+
+
+def test_a_killed_live_runs_unfinished_file_is_said_by_the_dry_run_then_set_aside(
+    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["learn", "--rig", "sim", "--recordings", str(small_dataset), "--budget", "0"]
+    argv += ["--actions", "P1", "--new", ",".join(NEW), "--workers", "1", "--test-trials", "1"]
+    out = tmp_path / "live"
+    assert main([*argv, "--out", str(out)]) == 0
+    capsys.readouterr()
+    (out / "history.parquet").unlink()  # as if killed before its end: it resumes
+    dead = 2**22 + 7  # above the default pid_max: no such process
+    part = out / "session" / NEW[0] / "P1" / f"002.{dead}-ab12.mcap.part"
+    part.write_bytes(b"what a killed recorder left")
+    assert main([*argv, "--out", str(out), "--dry-run"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert (
+        said[1] == f"1 unfinished recordings of stopped recorders would be set aside (e.g. {part})"
+    )
+    assert part.exists()  # the dry run moves nothing
+    assert main([*argv, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    aside = out / "session" / ".incomplete" / NEW[0] / "P1" / part.name
+    assert f"unfinished recording of a stopped recorder set aside: {aside}" in err
+    assert not part.exists()
+    assert aside.read_bytes() == b"what a killed recorder left"
