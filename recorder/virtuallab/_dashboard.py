@@ -3,11 +3,12 @@
 A UR controller's dashboard server takes one command per line and answers one line. The
 virtual lab answers ``robotmode``, ``safetymode`` (and ``safetystatus``), ``programState``,
 ``stop`` (the running program ends; the arm brakes), ``pause`` (the program waits; the arm
-brakes), ``play`` (a paused program goes on; the lab runs the programs sent to its URScript
-port as they arrive), ``unlock protective stop`` (releases a protective stop), ``power off``,
-``power on`` and ``brake release`` (the robot mode: an arm that is not running takes no
-program and does not move) and ``close safety popup``; anything else is answered as a
-controller answers an unknown command. On connecting, a client gets the controller's greeting.
+brakes), ``play`` (a paused program goes on; with none paused it fails: the lab runs the
+programs sent to its URScript port as they arrive), ``unlock protective stop`` (releases a
+protective stop), ``power off``, ``power on`` and ``brake release`` (the robot mode: an arm
+that is not running takes no program and does not move) and ``close safety popup``; anything
+else is answered as a controller answers an unknown command. On connecting, a client gets the
+controller's greeting.
 """
 
 from __future__ import annotations
@@ -97,13 +98,13 @@ class DashboardServer(TcpServer):
             return f"{'Safetymode' if text == 'safetymode' else 'Safetystatus'}: {name}"
         programs = {
             "stop": (world.halt_program, "Stopped"),
-            "play": (world.play, "Starting program"),
             "pause": (world.pause, "Pausing program"),
+            # with nothing paused, as a controller answers when there is nothing to play
+            "play": (world.play, "Starting program"),
         }
         if text in programs:
             do, said = programs[text]
-            do()
-            return said
+            return said if do() is not False else "Failed to execute: play"
         if text == "programstate":
             state = world.robot_at(world.controller_ns()).runtime_state
             return _PROGRAM_STATES.get(state, "STOPPED")

@@ -136,9 +136,10 @@ class ProgramRunner:
         if self.program is not None:
             self._paused = True
 
-    def resume(self) -> None:
-        """Resume a paused program where it was (the pendant's play)."""
-        self._paused = False
+    def resume(self) -> bool:
+        """Resume a paused program where it was (the pendant's play); False: none paused."""
+        paused, self._paused = self._paused, False
+        return paused
 
     def load(self, program: Program) -> None:
         """Replace the running program (at the next cycle)."""

@@ -512,12 +512,19 @@ class VirtualWorld:
             self._runner.pause()
             self.events_log.add("pause", self.controller_ns())
 
-    def play(self) -> None:
-        """Resume a paused program (the pendant's or the dashboard's ``play``)."""
+    def play(self) -> bool:
+        """Resume a paused program (the pendant's or the dashboard's ``play``).
+
+        Returns:
+            False when no program was paused (nothing to play: the lab runs the programs it
+            receives as they arrive).
+        """
         with self._lock:
             self.advance_to(self.controller_ns())
-            self._runner.resume()
+            if not self._runner.resume():
+                return False
             self.events_log.add("play", self.controller_ns())
+            return True
 
     def slide_speed(self, fraction: float) -> None:
         """Set the teach pendant's speed slider (0.01..1): programs run that much slower."""

@@ -517,9 +517,13 @@ def test_the_dashboard_powers_the_arm_off_and_on() -> None:
             moved = lab.world.robot_at(lab.world.controller_ns()).tcp_pose
             assert moved[2] > start[2] + 1e-3
             assert ask("programState") == "PLAYING"
+            assert ask("play") == "Failed to execute: play"  # nothing paused
             assert ask("pause") == "Pausing program"
             time.sleep(0.05)
             assert ask("programState") == "PAUSED"
+            assert ask("play") == "Starting program"
+            time.sleep(0.05)
+            assert ask("programState") == "PLAYING"
             assert ask("stop") == "Stopped"
             time.sleep(0.05)
             assert ask("programState") == "STOPPED"
