@@ -181,6 +181,8 @@ def run_session(
 
 #: How long a dry run reads the arm and the skin, s (action time).
 DRY_RUN_S = 1.0
+#: A source that sent none of this many samples due in a dry run is not ready.
+DUE_SAMPLES = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,26 +194,50 @@ class RigCheck:
         by_hand: Objects a person would place.
         facts: What the rig learned on connecting (e.g. the controller's version).
         sources: The accounting of the arm's and the skin's sources over the check.
+        window_ns: How long the streams were watched, on the recorder's clock (0: unknown).
     """
 
     by_rig: tuple[str, ...]
     by_hand: tuple[str, ...]
     facts: Mapping[str, str]
     sources: tuple[SourceStats, ...]
+    window_ns: int = 0
 
     @property
     def lossy(self) -> tuple[str, ...]:
         """The sources that lost samples during the check (their recordings would fail)."""
         return tuple(source.name for source in self.sources if source.lost)
 
+    @property
+    def silent(self) -> tuple[str, ...]:
+        """The sources that sent nothing though their rate says they should have.
+
+        At least :data:`DUE_SAMPLES` of their samples were due in the check (a frame type the
+        skin does not send, a sensor unplugged).
+        """
+        due = DUE_SAMPLES
+        return tuple(s.name for s in self.sources if not s.received and self._due(s) >= due)
+
+    @property
+    def ready(self) -> bool:
+        """Whether the run's recordings could pass ``check``: no loss, no silent source."""
+        return not self.lossy and not self.silent
+
+    def _due(self, source: SourceStats) -> float:
+        """Samples of ``source`` due in the check by its nominal period (0: unknown)."""
+        return self.window_ns / source.period_ns if source.period_ns > 0 else 0.0
+
     def lines(self) -> list[str]:
         """The check, said: who presents the objects, whether the rig is ready, each source.
 
-        A source that sent nothing is said, not refused: one slower than the check (a thermal
-        sensor at 0.5 Hz) sends nothing in it.
+        A source that sent nothing is refused when its rate says that the check should have
+        seen some of its samples; otherwise it is said, not refused: one slower than the check
+        (a thermal sensor at 0.5 Hz) sends nothing in it.
         """
         learned = ", ".join(f"{key} {value}" for key, value in self.facts.items())
-        state = f"not ready: {', '.join(self.lossy)} lost samples" if self.lossy else "ready"
+        wrong = [f"{', '.join(self.lossy)} lost samples"] if self.lossy else []
+        wrong += [f"{', '.join(self.silent)} sent nothing"] if self.silent else []
+        state = f"not ready: {'; '.join(wrong)}" if wrong else "ready"
         objects = (
             f"objects presented by the rig: {', '.join(self.by_rig) or '-'}; placed by hand: "
             f"{', '.join(self.by_hand) or '-'}"
@@ -224,6 +250,8 @@ class RigCheck:
             said = source.problems() or "complete"
             if not source.received:
                 said = "nothing in the check's second (a source that slow is not checked here)"
+                if (due := self._due(source)) >= DUE_SAMPLES:
+                    said = f"nothing, {due:.0f} due at its rate: check it and its configuration"
             lines.append(f"  {source.name}: {source.received} received, {said}")
         return lines
 
@@ -272,6 +300,7 @@ def check_rig_ready(
         refuse_unpresentable(rig, objects)
     # a rig that does not present (the simulator) needs nobody: every object is the rig's
     by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
+    window_ns = 0
     with rig:
         if isinstance(rig, ArmRig):
             for action in actions:
@@ -279,11 +308,11 @@ def check_rig_ready(
             check_room(room)
             rig.check_ready()
             rig.watch(seconds)
+            window_ns = round(seconds * rig.options.time_scale * 1e9)  # as watch() counts it
         learned = dict(facts(rig))
         sources = tuple(source_stats(rig))
-    return RigCheck(
-        tuple(by_rig), tuple(o.id for o in objects if o.id not in by_rig), learned, sources
-    )
+    by_hand = tuple(o.id for o in objects if o.id not in by_rig)
+    return RigCheck(tuple(by_rig), by_hand, learned, sources, window_ns)
 
 
 def check_session(

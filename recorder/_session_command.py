@@ -132,9 +132,9 @@ def _say_check(console: Console, found: SessionCheck) -> int:
     """Print what a dry run found: the plan, the objects, the rig, the sources.
 
     Returns:
-        The exit status: 1 when a source lost samples during the check (the session's
-        recordings would fail ``check``), else 0. A source that sent nothing is said, not
-        refused: one slower than the check (a thermal sensor at 0.5 Hz) sends nothing in it.
+        The exit status: 1 when a source lost samples during the check, or sent nothing
+        though its rate says it should have (the session's recordings would fail ``check``),
+        else 0. A source slower than the check (a thermal sensor at 0.5 Hz) is said only.
     """
     console.print(
         f"dry run of session {found.root}: {found.to_record} to record, {found.kept} on disk "
@@ -147,4 +147,4 @@ def _say_check(console: Console, found: SessionCheck) -> int:
         )
     for line in found.rig.lines():
         console.print(line)
-    return 1 if found.rig.lossy else 0
+    return 0 if found.rig.ready else 1

@@ -457,8 +457,8 @@ def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
     """Say what a live run would do and whether its rig is ready; move and write nothing.
 
     Returns:
-        1 when a source lost samples during the check (the run's recordings would fail
-        ``check``), else 0.
+        1 when a source lost samples during the check or sent nothing though its rate says
+        it should have (the run's recordings would fail ``check``), else 0.
     """
     from replay.live import check_live, check_live_run, configured_rig  # noqa: PLC0415
 
@@ -478,7 +478,7 @@ def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
         )
     for line in found.rig.lines():
         print(line)  # noqa: T201
-    return 1 if found.rig.lossy else 0
+    return 0 if found.rig.ready else 1
 
 
 def _other_rig(args: argparse.Namespace, workers: int) -> _OtherRig:

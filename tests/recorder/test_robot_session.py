@@ -375,7 +375,8 @@ def test_a_dry_run_whose_sources_lost_samples_is_not_ready(tmp_path: Path) -> No
 
     def said(*sources: SourceStats) -> tuple[int, str]:
         console = Console(record=True, width=200, file=(tmp_path / "out.txt").open("w"))
-        found = SessionCheck(tmp_path, 4, 0, (), RigCheck(("wood",), (), {"v": "1"}, sources))
+        rig = RigCheck(("wood",), (), {"v": "1"}, sources, window_ns=1_000_000_000)
+        found = SessionCheck(tmp_path, 4, 0, (), rig)
         status = _say_check(console, found)
         return status, console.export_text()
 
@@ -386,6 +387,17 @@ def test_a_dry_run_whose_sources_lost_samples_is_not_ready(tmp_path: Path) -> No
     assert status == 1
     assert "rig: not ready: skin-fast lost samples (v 1)" in text
     assert "  skin-fast: 995 received, 5 of 1000 missing" in text
-    status, text = said(rtde, SourceStats("skin-temperature"))  # slower than the check
+    status, text = said(rtde, SourceStats("skin-temperature"))  # its rate unknown
     assert status == 0
     assert "  skin-temperature: 0 received, nothing in the check's second" in text
+    slow = SourceStats("skin-temperature", period_ns=2_000_000_000)  # 0.5 Hz: none due
+    status, text = said(rtde, slow)
+    assert status == 0
+    assert "  skin-temperature: 0 received, nothing in the check's second (a source that slow" in (
+        text
+    )
+    unplugged = SourceStats("skin-proximity", period_ns=20_000_000)  # 50 Hz: 50 due
+    status, text = said(rtde, unplugged, lossy)
+    assert status == 1
+    assert "rig: not ready: skin-fast lost samples; skin-proximity sent nothing (v 1)" in text
+    assert "  skin-proximity: 0 received, nothing, 50 due at its rate: check it and its " in text
