@@ -2,6 +2,7 @@
 
 import socket
 import threading
+import time
 import tomllib
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from ur_lab import POSE, TIME_SCALE, WorldSkin, config, virtual_lab
+from ur_lab import POSE, TIME_SCALE, Lab, WorldSkin, config, virtual_lab
 
 import recorder
 from recorder import (
@@ -136,11 +137,21 @@ def test_an_arm_powered_off_mid_action_stops_it(tmp_path: Path) -> None:
     assert info.value.path.exists()
 
 
+def _until_playing(lab: Lab) -> None:
+    """Wait until the lab plays the program sent, and has streamed that state a while."""
+    deadline = time.monotonic() + 10.0
+    while lab.world.robot_at(lab.world.controller_ns()).runtime_state != 2:  # 2: playing
+        assert time.monotonic() < deadline, "the lab never played the program"
+        time.sleep(0.005)
+    time.sleep(0.1)  # the state samples the rig reads next were taken since
+
+
 def test_an_arm_that_keeps_moving_is_refused_before_an_action(tmp_path: Path) -> None:
     path = tmp_path / "wood" / "P1" / "001.mcap"
     with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
         # another program (or a person guiding the arm) moves it, slowly and for long
         lab.script.run("speedl([0.0, 0.0, 0.005, 0.0, 0.0, 0.0], 0.5, 100.0)\n")
+        _until_playing(lab)
         with pytest.raises(RigError) as refused:  # an object placed by hand: no movel first
             record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
         ours = [p for p in lab.script.programs if p.startswith("def atikt")]
@@ -154,6 +165,7 @@ def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -
     with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
         # a colleague's program, waiting at the controller: ours would replace it
         lab.script.run("def theirs():\n  sleep(100.0)\nend\n")
+        _until_playing(lab)
         with pytest.raises(RigError) as presenting:
             rig.present(OBJECTS["wood"])
         with pytest.raises(RigError) as starting:  # an object placed by hand
