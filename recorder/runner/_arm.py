@@ -149,7 +149,14 @@ class ArmDriver(Protocol):
         ...
 
     def stop(self, acceleration: float, at: Context | None) -> None:
-        """Stop the arm now, decelerating at ``acceleration`` (m/s^2)."""
+        """Stop the arm now, decelerating at ``acceleration`` (m/s^2).
+
+        A driver tries what it can (a new connection for a lost one) before it raises; the
+        runner then says in its line that the stop did not reach the arm.
+
+        Raises:
+            SourceLostError: The stop could not be sent.
+        """
         ...
 
     def stats(self) -> list[SourceStats]:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from recorder._rig import source_stats
 from recorder.errors import ActionStoppedError, RecorderError
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
-from recorder.runner._runner import ArmRig, Stop
+from recorder.runner._runner import ArmRig, Stop, undelivered_line
 from recorder.runner._sink import InlineSink, WriterThread
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 
@@ -102,7 +102,7 @@ def record_action(
             if sink.failure is not None:
                 raise _failed(path, sink.failure) from sink.failure
             if stop is not None:
-                writer.mark_incomplete(stop.reason, stop.at_ns)
+                writer.mark_incomplete(_said(stop), stop.at_ns)
             if stats := source_stats(rig):
                 writer.add_sources(stats)
         written = writer.result
@@ -111,9 +111,9 @@ def record_action(
         raise RecorderError(msg)
     for viewer in viewers:
         viewer.recorded(written.path)
-    _raise_deferred(flag, written.path)
+    _raise_deferred(flag, written.path, stop)
     if stop is not None:
-        raise ActionStoppedError(stop.reason, stop.at_ns, written.path)
+        raise ActionStoppedError(_said(stop), stop.at_ns, written.path)
     return written
 
 
@@ -149,14 +149,24 @@ def check_room(directory: Path) -> None:
         raise RecorderError(msg)
 
 
-def _raise_deferred(flag: InterruptFlag, path: Path) -> None:
+def _said(stop: Stop) -> str:
+    """Return why the action stopped, and that the stop did not reach the arm if so."""
+    if not stop.undelivered:
+        return stop.reason
+    return f"{stop.reason}; {undelivered_line(stop.undelivered)}"
+
+
+def _raise_deferred(flag: InterruptFlag, path: Path, stop: Stop | None) -> None:
     """Raise the interrupt that arrived during the action, naming the file that kept it."""
     if flag.signum is None:
         return
+    stopped = "the arm was stopped"
+    if stop is not None and stop.undelivered:
+        stopped = undelivered_line(stop.undelivered)
     try:
         raise_interrupt(flag.signum)
     except KeyboardInterrupt as err:
-        err.args = (f"{flag.reason}: the arm was stopped; what arrived is kept in {path}",)
+        err.args = (f"{flag.reason}: {stopped}; what arrived is kept in {path}",)
         raise
 
 

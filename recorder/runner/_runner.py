@@ -139,6 +139,8 @@ class Stop(Exception):  # noqa: N818 (control flow inside the runner, never esca
         self.reason = reason
         self.at_ns = at_ns
         self.arrived = arrived
+        #: Why the stop could not be sent to the arm (empty: it was sent).
+        self.undelivered = ""
 
 
 @dataclass(slots=True)
@@ -508,12 +510,14 @@ class ArmRig:
             yield from self._skin_catch_up(self.clock.now_ns())
         except (Stop, SourceLostError) as ended:
             stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
-            self._send_stop(at, stop.reason, stop.at_ns)
+            stop.undelivered = self._send_stop(at, stop.reason, stop.at_ns)
             yield from stop.arrived
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
-            self._send_stop(at, "error")
+            if undelivered := self._send_stop(at, "error"):
+                # the exception on its way says nothing of the arm: a person must act now
+                print(f"{self.where}: {undelivered_line(undelivered)}", file=sys.stderr)  # noqa: T201
             raise
         yield from self._rest()
         with contextlib.suppress(SourceLostError):  # the action is over: a log line at most
@@ -521,8 +525,11 @@ class ArmRig:
         yield self._event("end")
         return None
 
-    def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> None:
+    def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> str:
         """Send the stop (first thing on every abnormal end); remember when it was sent.
+
+        Returns why the arm did not take it (empty: it was sent); the driver tried what it
+        can (a new connection) before it gave up.
 
         The time is taken as the stop goes to the driver, not when its send returns: a loaded
         machine can hold this thread after the stop's bytes left (another thread runs), and
@@ -530,9 +537,12 @@ class ArmRig:
         """
         context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
         sent = self.clock.now_ns()
-        with contextlib.suppress(Exception):  # a lost connection: the driver did what it could
+        try:
             self.arm.stop(self.options.motion.acceleration_m_s2, context)
+        except Exception as err:  # noqa: BLE001 - whatever failed, the line must say so
+            return str(err) or type(err).__name__
         self.stops_sent.append((sent if cause_ns is None else cause_ns, sent, why))
+        return ""
 
     def _tare(self) -> Generator[StreamItem, None, float]:
         """Return the skin's total force in free air before the approach (its zero).
@@ -914,6 +924,11 @@ class ArmRig:
 
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
+
+
+def undelivered_line(reason: str) -> str:
+    """Return what to say when the stop could not be sent to the arm (``reason``: why)."""
+    return f"the stop did not reach the arm ({reason}); stop it at the teach pendant now"
 
 
 def _phase(at: Context, phase: str) -> Context:

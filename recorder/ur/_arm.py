@@ -8,6 +8,14 @@ phases, limits and the stop belong to the runner.
 
 A package the recipe cannot parse (another recipe id, a wrong size) or with a non-finite value
 is counted as malformed and skipped: it never ends the action and never reaches the file.
+
+The script connection is read too, in a thread of its own: a controller streams its state to
+every client of its secondary (10 Hz) and real-time (125/500 Hz) interfaces, and a client that
+never reads fills its receive buffer, on which a controller may drop it. What arrives is
+dropped (RTDE carries the state); the end of that stream is the connection's loss, known
+before the next program would go into a dead socket. A program found with its connection
+lost ends the action; the stop then goes over a new connection (the controller takes one at
+any time), and between actions a lost connection is made again.
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ import contextlib
 import dataclasses
 import math
 import socket
+import threading
 from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
@@ -100,6 +109,9 @@ ROBOT_MODE_NAMES = {
     6: "backdrive",
     8: "updating firmware",
 }
+#: How long a new script connection may take when the old one was lost (s): the stop waits
+#: on it.
+RECONNECT_S = 1.0
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
@@ -135,6 +147,12 @@ class URArm:
         self._rtde: RtdeClient | None = None
         self._reader: SourceReader | None = None
         self._script: socket.socket | None = None
+        #: Why the script connection was lost (empty: it was not), seen by its reader.
+        self._script_lost = ""
+        #: Bytes the controller sent on the script connection (read and dropped).
+        self.script_bytes = 0
+        #: Script connections made again after one was lost.
+        self.reconnects = 0
         self._version = ""
         self._offset_ns = 0
         self._newest_ns = -1
@@ -193,11 +211,12 @@ class URArm:
         if stack is not None:
             stack.close()
         self._rtde = self._reader = self._script = None
+        self._script_lost = ""  # closed, not lost: nothing is sent again
 
-    def _open_script(self) -> socket.socket:
+    def _open_script(self, timeout_s: float = 2.0) -> socket.socket:
         link = self.connection
         try:
-            sock = socket.create_connection((link.host, link.script_port), timeout=2.0)
+            sock = socket.create_connection((link.host, link.script_port), timeout=timeout_s)
         except OSError as err:
             msg = (
                 f"URScript {link.host}:{link.script_port}: cannot connect ({err}); check the "
@@ -205,11 +224,35 @@ class URArm:
             )
             raise RigError(msg) from err
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a stop leaves at once
+        self._script_lost = ""
+        reader = threading.Thread(
+            target=self._read_script, args=(sock,), daemon=True, name="atikt-urscript"
+        )
+        reader.start()
         return sock
+
+    def _read_script(self, sock: socket.socket) -> None:
+        """Read and drop what the controller sends on ``sock``; note when it ends."""
+        while True:
+            try:
+                chunk = sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError as err:
+                lost = f"{err.strerror or err}"
+                break
+            if not chunk:
+                lost = "closed by the controller"
+                break
+            self.script_bytes += len(chunk)
+        if self._script is sock:  # not closed by us
+            self._script_lost = lost
 
     def _close_script(self) -> None:
         sock, self._script = self._script, None
         if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)  # ends its reader's recv
             with contextlib.suppress(OSError):
                 sock.close()
 
@@ -266,8 +309,14 @@ class URArm:
         return {"controller_version": self._version} if self._version else {}
 
     def begin(self) -> None:
-        """Take what queued between actions as the arm's state; count afresh from here."""
+        """Take what queued between actions as the arm's state; count afresh from here.
+
+        A script connection lost since the last action is made again (nothing was moving).
+        """
         reader = self._parts()
+        if self._script_lost:
+            with contextlib.suppress(RigError):
+                self._reconnect()
         with contextlib.suppress(SourceLostError):
             for item in reader.drain():
                 values = self._parse(item, count=False)
@@ -405,9 +454,13 @@ class URArm:
         )
 
     def stop(self, acceleration: float, at: Context | None) -> None:
-        """Send ``stopl`` (raises when the script connection is gone)."""
+        """Send ``stopl``, over a new connection if the script connection was lost.
+
+        Raises:
+            SourceLostError: Neither the connection nor a new one took it.
+        """
         phase = "stop" if at is None else at.phase
-        self._send(stop_program(_said(at), phase, acceleration))
+        self._send(stop_program(_said(at), phase, acceleration), reconnect=True)
 
     def stats(self) -> list[SourceStats]:
         """Return the RTDE stream's accounting since :meth:`begin`."""
@@ -425,24 +478,54 @@ class URArm:
             stats = dataclasses.replace(stats, malformed=stats.malformed + malformed)
         return [stats]
 
-    def _send(self, text: str) -> None:
+    def _send(self, text: str, *, reconnect: bool = False) -> None:
         """Send a URScript program (it replaces the running one).
 
+        Args:
+            text: The program.
+            reconnect: When the connection was lost, send over a new one (the stop); else
+                a lost connection raises (a program of an action that may have lost its
+                predecessors).
+
         Raises:
-            SourceLostError: The script connection is closed or lost.
+            SourceLostError: The script connection is closed or lost (and, with
+                ``reconnect``, a new one failed too).
         """
         self._speeding = None
-        sock = self._script
+        sock, lost = self._script, self._script_lost
         link = self.connection
         where = f"{link.host}:{link.script_port}"
-        if sock is None:
+        if sock is None and not lost:
             msg = f"URScript connection to {where} is closed"
             raise SourceLostError(msg)
+        data = text.encode()
+        if sock is not None and not lost:
+            try:
+                sock.sendall(data)
+            except OSError as err:
+                lost = self._script_lost = f"{err.strerror or err}"
+            else:
+                return
+        if not reconnect:
+            msg = f"URScript connection to {where} lost ({lost})"
+            raise SourceLostError(msg)
         try:
-            sock.sendall(text.encode())
-        except OSError as err:
-            msg = f"URScript connection to {where} lost ({err})"
+            self._reconnect().sendall(data)
+        except (RigError, OSError) as err:
+            cause = err.strerror if isinstance(err, OSError) else "cannot connect"
+            msg = f"URScript connection to {where} lost ({lost}); a new one failed ({cause})"
             raise SourceLostError(msg) from None
+
+    def _reconnect(self) -> socket.socket:
+        """Replace a lost script connection by a new one.
+
+        Raises:
+            RigError: The controller did not take it within :data:`RECONNECT_S`.
+        """
+        self._close_script()
+        sock = self._script = self._open_script(RECONNECT_S)
+        self.reconnects += 1
+        return sock
 
 
 def _setup_outputs(rtde: RtdeClient, frequency: int) -> None:

@@ -143,11 +143,11 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     Raises:
         RecorderError: An unknown URScript fault.
     """
-    unknown = set(faults) - {"protective_stop"}
+    unknown = set(faults) - {"protective_stop", "drop"}
     if unknown:
-        msg = f"--fault script.{min(unknown)}: the URScript fault is protective_stop"
+        msg = f"--fault script.{min(unknown)}: the URScript faults are protective_stop, drop"
         raise RecorderError(msg)
-    return ScriptFaults(faults.get("protective_stop", 0.0))
+    return ScriptFaults(faults.get("protective_stop", 0.0), faults.get("drop", 0.0))
 
 
 def typed_faults(
@@ -341,9 +341,9 @@ def _switch_within_a_cycle(frequency: int) -> None:
         default=[],
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
-        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, skin.* and ros2.* "
-        "for those servers (skin.at_action=S, ros2.at_action=S: counted from S s after the "
-        "first action)",
+        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, skin.* "
+        "and ros2.* for those servers (skin.at_action=S, ros2.at_action=S: counted from S s "
+        "after the first action)",
     ),
     arg("--events", type=Path, default=None, help="write every event as a JSON line (new file)"),
     arg(

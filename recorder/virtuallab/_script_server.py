@@ -7,18 +7,28 @@ refused with one log line and dropped), checks each as the controller's compiler
 unknown function or an argument that is not a literal: one error line, the program does not
 run) and hands it to the world, which runs it cycle by cycle (``_runner``).
 
-Fault for tests: a protective stop ``protective_stop_s`` (real seconds) after each announced
-action begins.
+Like a controller's secondary interface, it streams the arm's state to every client at 10 Hz:
+a primary-protocol robot state message (type 16) holding the robot mode data sub-package
+(type 0, the CB3 layout: timestamp, the power, stop and program flags, robot and control
+mode, speed fractions). A client that does not read only misses messages (a full buffer drops
+them); a client must not stall the programs it sends.
+
+Faults: a protective stop ``protective_stop_s`` (real seconds) after each announced action
+begins; the URScript connections closed ``drop_s`` after each announced action begins (a
+switch or cable glitch, a controller dropping a client).
 """
 
 from __future__ import annotations
 
 import contextlib
+import socket
+import struct
 import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from recorder.virtuallab._runner import RUNTIME_PAUSED, RUNTIME_PLAYING
 from recorder.virtuallab._tcp import TcpServer
 from recorder.virtuallab._urscript import (
     MAX_PROGRAM_BYTES,
@@ -27,15 +37,29 @@ from recorder.virtuallab._urscript import (
     parse_program,
     split_programs,
 )
+from recorder.virtuallab._world import (
+    ROBOT_MODE_IDLE,
+    SAFETY_EMERGENCY_STOP,
+    SAFETY_NORMAL,
+)
 
 if TYPE_CHECKING:
-    import socket
+    from collections.abc import Iterator
 
     from recorder.virtuallab._controller import VirtualController
 
 __all__ = ["ScriptFaults", "ScriptServer", "check_program", "split_programs"]
 #: Programs' texts kept for tests (the newest).
 KEPT_PROGRAMS = 100
+#: The state stream's period on the URScript port, s (a secondary interface's 10 Hz).
+STATE_PERIOD_S = 0.1
+#: Primary protocol: message type robot state, sub-package type robot mode data.
+ROBOT_STATE, ROBOT_MODE_DATA = 16, 0
+#: Robot mode data, CB3 layout: timestamp (us), 7 flags (real robot connected, enabled, power
+#: on, emergency stopped, protective stopped, program running, program paused), robot mode,
+#: control mode, target speed fraction, speed scaling, target speed fraction limit.
+_MODE_DATA = struct.Struct(">iBQ???????BBddd")
+_MESSAGE = struct.Struct(">iB")
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,9 +69,12 @@ class ScriptFaults:
     Attributes:
         protective_stop_s: A protective stop this long (real seconds) after an action
             starts (0: never).
+        drop_s: Close every URScript connection this long (real seconds) after an action
+            starts (0: never); the port takes new connections.
     """
 
     protective_stop_s: float = 0.0
+    drop_s: float = 0.0
 
 
 class ScriptServer(TcpServer):
@@ -72,8 +99,12 @@ class ScriptServer(TcpServer):
         self._lock = threading.Lock()
         self._programs: list[str] = []
         self.stops_injected = 0
+        self.drops_injected = 0
+        self._clients: set[socket.socket] = set()
         if self.faults.protective_stop_s > 0:
             controller.world.on_action(self._arm_stop)
+        if self.faults.drop_s > 0:
+            controller.world.on_action(self._arm_drop)
 
     @property
     def programs(self) -> list[str]:
@@ -85,8 +116,15 @@ class ScriptServer(TcpServer):
         """Read programs from one client until it leaves."""
         splitter = ProgramSplitter(self.limit)
         sock.settimeout(0.1)
-        with contextlib.closing(sock), contextlib.suppress(OSError):
+        with self._lock:
+            self._clients.add(sock)
+        next_state = time.monotonic()
+        with contextlib.closing(sock), contextlib.suppress(OSError), self._client(sock):
             while not self.stopping.is_set():
+                if time.monotonic() >= next_state:
+                    next_state += STATE_PERIOD_S
+                    with contextlib.suppress(BlockingIOError):  # a full buffer: not sent
+                        sock.send(self.state_message(), socket.MSG_DONTWAIT)
                 try:
                     chunk = sock.recv(65536)
                 except TimeoutError:
@@ -99,6 +137,42 @@ class ScriptServer(TcpServer):
                     self._refuse(refusal)
                 for program in programs:
                     self.run(program, received)
+
+    def state_message(self) -> bytes:
+        """Return the arm's state now as a primary-protocol robot state message."""
+        world = self.controller.world
+        now = world.controller_ns()
+        state = world.robot_at(now)
+        safety, runtime = state.safety_status, state.runtime_state
+        flags = (
+            False,  # real robot connected: a virtual lab
+            False,  # real robot enabled
+            state.robot_mode >= ROBOT_MODE_IDLE,  # power on
+            safety == SAFETY_EMERGENCY_STOP,
+            safety not in {SAFETY_NORMAL, SAFETY_EMERGENCY_STOP},  # protective stopped
+            runtime == RUNTIME_PLAYING,
+            runtime == RUNTIME_PAUSED,
+        )
+        data = _MODE_DATA.pack(
+            _MODE_DATA.size,
+            ROBOT_MODE_DATA,
+            now // 1000,
+            *flags,
+            state.robot_mode,
+            0,  # control mode: position
+            state.speed_fraction,
+            state.speed_fraction,
+            1.0,
+        )
+        return _MESSAGE.pack(_MESSAGE.size + len(data), ROBOT_STATE) + data
+
+    @contextlib.contextmanager
+    def _client(self, sock: socket.socket) -> Iterator[None]:
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._clients.discard(sock)
 
     def run(self, text: str, received_ns: int | None = None) -> None:
         """Check a program and run it (it replaces the running one)."""
@@ -121,6 +195,24 @@ class ScriptServer(TcpServer):
         timer = threading.Timer(self.faults.protective_stop_s, self._protective_stop)
         timer.daemon = True
         timer.start()
+
+    def _arm_drop(self, _action: tuple[str, str, int]) -> None:
+        """Schedule the injected drop of the connections after an action began."""
+        timer = threading.Timer(self.faults.drop_s, self.drop_clients)
+        timer.daemon = True
+        timer.start()
+
+    def drop_clients(self) -> None:
+        """Close every client's connection (the port takes new ones)."""
+        with self._lock:
+            clients = list(self._clients)
+            self.drops_injected += 1
+        for sock in clients:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+        world = self.controller.world
+        world.events_log.add("fault", world.controller_ns(), source="script", fault="drop")
+        self.controller.note(f"URScript connections dropped ({len(clients)}; injected fault)")
 
     def _protective_stop(self) -> None:
         with self._lock:

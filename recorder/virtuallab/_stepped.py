@@ -262,7 +262,7 @@ class SteppedArm(URArm):
         sample = self._state(values, self.lab.clock.now_ns())
         return [] if sample is None else [sample]
 
-    def _send(self, text: str) -> None:
+    def _send(self, text: str, *, reconnect: bool = False) -> None:  # noqa: ARG002 (no wire)
         """Run a program as the lab's URScript server does (errors go to its log)."""
         self._speeding = None
         program = parse_program(text, self.lab.clock.now_ns())

@@ -57,6 +57,8 @@ class FakeArm:
     hold_after_stop_s: float = 0.0
     #: Cycles from a motion command to its start (a program's way to the controller).
     latency_cycles: int = 0
+    #: Why a stop cannot reach the arm (a lost connection no new one replaces; "": it can).
+    stop_fails: str = ""
     #: The cycle at which each ``move`` reached its target, by phase.
     reached: dict[str, int] = field(default_factory=dict)
     #: The stamp of the sample at which each ``move`` reached its target, by phase (ns).
@@ -201,6 +203,9 @@ class FakeArm:
 
     def stop(self, acceleration: float, at: Context | None) -> None:
         phase = "stop" if at is None else at.phase
+        if self.stop_fails and phase != "contact":
+            self.commands.append((self._cycle, f"stop {phase} failed"))
+            raise SourceLostError(self.stop_fails)
         self.commands.append((self._cycle, f"stop {phase}"))
         self.target, self.velocity, self._pending = None, np.zeros(6), []
         if phase == "contact":

@@ -218,6 +218,56 @@ def test_any_exception_stops_the_arm_first(tmp_path: Path) -> None:
     _kept(path, "fake skin: a bug")
 
 
+LOST = "URScript connection to fake:30002 lost (closed by the controller); a new one failed"
+
+
+def test_a_stop_that_cannot_reach_the_arm_is_said_not_claimed(tmp_path: Path) -> None:
+    # the connection the stop goes over is gone and no new one is taken: the line must not
+    # say the arm was stopped, but that a person has to stop it
+    path = tmp_path / "001.mcap"
+    rig = fake_rig("force")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.stop_fails = LOST
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    said = str(info.value)
+    assert "TCP force 100.00 N above [limits] max_force_n" in said
+    assert f"the stop did not reach the arm ({LOST}); stop it at the teach pendant now" in said
+    assert "\n" not in said
+    assert any(command.endswith("failed") for _, command in arm.commands)
+    assert rig.stops_sent == []  # nothing to time: no stop went out
+    _kept(path, "the stop did not reach the arm")
+
+
+def test_an_interrupt_whose_stop_cannot_reach_the_arm_says_so(tmp_path: Path) -> None:
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.stop_fails = LOST
+    _after_contact(rig, lambda: os.kill(os.getpid(), signal.SIGINT))
+    with rig, pytest.raises(KeyboardInterrupt) as info:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    said = str(info.value)
+    assert said.startswith("interrupted by Ctrl-C (SIGINT): the stop did not reach the arm")
+    assert "the arm was stopped" not in said
+    assert "kept in" in said
+    _kept(tmp_path / "001.mcap", "the stop did not reach the arm")
+
+
+def test_an_error_whose_stop_cannot_reach_the_arm_prints_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.stop_fails = LOST
+    _after_contact(rig, lambda: setattr(rig.skin, "fail", True))
+    with rig, pytest.raises(RuntimeError, match="fake skin: a bug"):
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"fake.toml: the stop did not reach the arm ({LOST}); stop it at the teach pendant now"
+    ]
+
+
 def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> None:
     rig = fake_rig()
     # time scale 0.1: a lease of 6.25 cycles, so that the renewals' cadence is what is tested,

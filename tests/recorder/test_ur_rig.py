@@ -1,5 +1,6 @@
 """The UR rig against the virtual lab: full actions, limits, stops, accounting."""
 
+import re
 import socket
 import threading
 import time
@@ -25,7 +26,7 @@ from recorder.live import SOURCES_RECORD, parse_source_stats
 from recorder.runner import Motion, check_motion
 from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
-from recorder.virtuallab._command import parse_faults, rtde_faults
+from recorder.virtuallab._command import parse_faults, rtde_faults, script_faults
 from recorder.virtuallab._rtde_server import RtdeFaults
 from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs
 from recorder.writing._stream import SkinBlock
@@ -298,6 +299,49 @@ def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
     assert info.value.path.name == "001.incomplete.mcap"
 
 
+def test_a_lost_script_connection_ends_the_action_and_the_stop_takes_a_new_one(
+    tmp_path: Path,
+) -> None:
+    # a cable or switch glitch closes the URScript connection mid-action: the programs still
+    # to come would go into a dead socket (the retract, silently lost); the driver reads the
+    # connection and knows at once, the action ends and the stop goes over a new connection
+    path = tmp_path / "001.mcap"
+    with virtual_lab(script_faults=ScriptFaults(drop_s=0.3)) as lab:
+        lab.world.prepare("wood", "S1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}), "S1", path)
+        assert lab.script.drops_injected == 1
+        events = lab.world.events_log.events()
+    said = str(info.value)
+    assert re.search(r"URScript connection to 127\.0\.0\.1:\d+ lost \(closed by the ", said), said
+    assert "did not reach" not in said
+    (dropped,) = [e for e in events if e.kind == "fault"]
+    after = [e for e in events if e.controller_ns > dropped.controller_ns]
+    assert [e.details["name"] for e in after if e.kind == "program"] == ["atikt_stop"]
+    assert any(e.kind == "actual_zero" for e in after)
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_a_script_connection_lost_between_actions_is_made_again(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "P1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            assert rig.present(OBJECTS["wood"])
+            lab.script.drop_clients()  # while nothing moves
+            deadline = time.monotonic() + 5.0
+            while not rig.arm._script_lost:  # type: ignore[attr-defined]
+                assert time.monotonic() < deadline, "the driver did not see the loss"
+                time.sleep(0.01)
+            written = record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+            assert rig.arm.reconnects == 1  # type: ignore[attr-defined]
+            # the controller's state stream on the script port is read (and dropped)
+            assert rig.arm.script_bytes > 0  # type: ignore[attr-defined]
+    assert written.path == path
+    assert path.exists()
+
+
 def test_an_arm_that_never_moves_ends_the_approach(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -468,6 +512,10 @@ def test_script_subset_is_checked() -> None:
 def test_fault_options_are_parsed() -> None:
     faults = parse_faults(["rtde.drop=3", "rtde.stall=1.5", "script.protective_stop=1"])
     assert rtde_faults(faults["rtde"]) == RtdeFaults(drop=3, stall_s=1.5)
+    script = script_faults(parse_faults(["script.drop=0.5", "script.protective_stop=1"])["script"])
+    assert script == ScriptFaults(protective_stop_s=1.0, drop_s=0.5)
+    with pytest.raises(RecorderError, match="the URScript faults are protective_stop, drop"):
+        script_faults(parse_faults(["script.stall=1"])["script"])
     for bad in ("drop=3", "rtde.stall=1e400", "rtde.stall=inf", "rtde.drop=nan", "rtde.drop=-1"):
         with pytest.raises(RecorderError, match=r"give server\.name=number \(finite, 0 or more\)"):
             parse_faults([bad])
