@@ -120,13 +120,27 @@ def check_claim(root: Path, seed: int, configuration: Mapping[str, Any]) -> None
         _compare(Path(root), _read_claim(path), json.loads(_claim_text(seed, configuration)), seed)
 
 
+def _unused(root: Path) -> str:
+    """Return how to take over a claimed directory that holds no recording yet ('' if it does).
+
+    A run refused before its first recording (a rig not ready, a skin on the wrong port) leaves
+    its claim: a run with a corrected configuration is told how to take the directory.
+    """
+    recordings = (
+        path for path in root.glob("*/*/*.mcap") if not path.name.endswith(".incomplete.mcap")
+    )
+    if next(recordings, None) is not None:
+        return ""
+    return f", or delete {root / CLAIM_NAME}: the directory holds no recording yet"
+
+
 def _compare(root: Path, claim: Mapping[str, Any], ours: Mapping[str, Any], seed: int) -> None:
     """Refuse a claim of another seed or rig configuration than ``ours``."""
     if claim["seed"] != seed:
         msg = (
             f"{root}: is claimed by a run with seed {claim['seed']} ({root / CLAIM_NAME}), "
             f"this run has --seed {seed}; a dataset holds one seed: give another --out, or "
-            f"--seed {claim['seed']} to resume it"
+            f"--seed {claim['seed']} to resume it{_unused(root)}"
         )
         raise RecorderError(msg)
     if differ := sorted(
@@ -136,6 +150,6 @@ def _compare(root: Path, claim: Mapping[str, Any], ours: Mapping[str, Any], seed
         wanted = ", ".join(f"{k}={ours['rig'].get(k)!r}" for k in differ)
         msg = (
             f"{root}: is claimed by another rig configuration ({theirs}; this run: {wanted}; "
-            f"{root / CLAIM_NAME}); give another --out"
+            f"{root / CLAIM_NAME}); give another --out{_unused(root)}"
         )
         raise RecorderError(msg)

@@ -8,6 +8,7 @@ traceback.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
 from pathlib import Path
@@ -49,7 +50,6 @@ from recorder.runner._record import record_action
 from schemas import SET_ASIDE_DIR, ContractError, cli, software_version
 
 if TYPE_CHECKING:
-    import argparse
     from collections.abc import Sequence
 
     from recorder._dataset import DatasetReport
@@ -72,8 +72,17 @@ command = REGISTRY.command
 
 
 def catalog_ids(text: str) -> list[str]:
-    """Parse a comma-separated list of catalog ids."""
-    return [name.strip() for name in text.split(",") if name.strip()]
+    """Parse a comma-separated list of catalog ids.
+
+    Raises:
+        argparse.ArgumentTypeError: An id is given twice (a session would record it once:
+            more trials are ``--trials``).
+    """
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if twice := sorted({name for name in names if names.count(name) > 1}):
+        msg = f"{text}: {', '.join(twice)} given twice; name each once (more trials: --trials)"
+        raise argparse.ArgumentTypeError(msg)
+    return names
 
 
 #: ``--objects-catalog`` and ``--actions-catalog`` (every command that reads the catalogs).

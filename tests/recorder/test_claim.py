@@ -60,6 +60,24 @@ def test_the_same_seed_and_configuration_resume(tmp_path: Path) -> None:
         claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.2"})
 
 
+def test_a_claim_without_a_recording_says_how_to_take_the_directory(tmp_path: Path) -> None:
+    # a run refused before its first recording (a skin on the wrong port) leaves its claim;
+    # the corrected run is told it may delete the claim, until a recording is in it
+    claim_dataset(tmp_path, 3, {"rig": "ur", "silence_s": "0.5"})
+    kept = tmp_path / "wood" / "P1" / "001.incomplete.mcap"  # not a recording of the dataset
+    kept.parent.mkdir(parents=True)
+    kept.write_bytes(b"")
+    hint = f"or delete {tmp_path / CLAIM_NAME}: the directory holds no recording yet"
+    for seed, configuration in ((3, {"rig": "ur", "silence_s": "1"}), (4, {"rig": "ur"})):
+        with pytest.raises(RecorderError) as refused:
+            claim_dataset(tmp_path, seed, configuration)
+        assert hint in str(refused.value)
+    (kept.parent / "001.mcap").write_bytes(b"")
+    with pytest.raises(RecorderError) as refused:
+        claim_dataset(tmp_path, 3, {"rig": "ur", "silence_s": "1"})
+    assert str(refused.value).endswith("give another --out")
+
+
 def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:
     command = [sys.executable, "-m", "recorder", "dataset", "--out", str(out)]
     command += ["--objects", "wood", "--actions", "P1", "--trials", "1", "--seed", str(seed)]

@@ -29,6 +29,9 @@ CASES: list[tuple[str, str]] = [
     (_DATASET + " --trials 0", "--trials 0: need at least one trial"),
     (_DATASET + " --trials 10000000000000000000", "trials are numbered 1..999999; give at most"),
     (_DATASET + " --objects woood", "--objects woood: not in the objects catalog; known:"),
+    # recorded once, silently, before: a name given twice is a slip, more trials are --trials
+    (_DATASET + " --objects wood,wood", "wood,wood: wood given twice; name each once (more"),
+    (_DATASET + " --actions P1,S1,P1", "argument --actions: P1,S1,P1: P1 given twice"),
     (_DATASET + " --seed 1", "holds recordings of seed 0"),
     (_DATASET + " --seed 1", "give another --out, or --seed 0 to resume it"),
     (_DATASET + " --rig nosuch", "--rig nosuch: unknown rig"),
