@@ -6,9 +6,12 @@ virtual lab answers ``robotmode``, ``safetymode`` (and ``safetystatus``), ``prog
 brakes), ``play`` (a paused program goes on; with none paused it fails: the lab runs the
 programs sent to its URScript port as they arrive), ``unlock protective stop`` (releases a
 protective stop), ``power off``, ``power on`` and ``brake release`` (the robot mode: an arm
-that is not running takes no program and does not move) and ``close safety popup``; anything
-else is answered as a controller answers an unknown command. On connecting, a client gets the
-controller's greeting.
+that is not running takes no program and does not move) and ``close safety popup``; what a lab's
+scripts ask before they start (``ur_rtde``'s ``DashboardClient``): ``PolyscopeVersion`` (the
+version the RTDE port reports), ``running``, ``get robot model``, ``get serial number``,
+``get loaded program`` and, on an e-Series (500 Hz), ``is in remote control`` (always true:
+the lab runs what it is sent). Anything else is answered as a controller answers an unknown
+command. On connecting, a client gets the controller's greeting.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from __future__ import annotations
 import contextlib
 from typing import TYPE_CHECKING
 
+from recorder.virtuallab._rtde_server import VERSIONS
+from recorder.virtuallab._runner import RUNTIME_PLAYING
 from recorder.virtuallab._tcp import TcpServer
 from recorder.virtuallab._world import (
     ROBOT_MODE_IDLE,
@@ -45,6 +50,8 @@ _POWER = {
     "power on": (ROBOT_MODE_IDLE, "Powering on"),
     "brake release": (ROBOT_MODE_RUNNING, "Brake releasing"),
 }
+#: The first PolyScope major version of the e-Series (its dashboard knows remote control).
+E_SERIES = 5
 #: Longest command line read, bytes (a longer one is dropped).
 MAX_LINE = 1024
 
@@ -114,4 +121,20 @@ class DashboardServer(TcpServer):
             return "Protective stop releasing"
         if text == "close safety popup":
             return "closing safety popup"
-        return f"could not understand: '{command.strip()}'"
+        return self._about(text) or f"could not understand: '{command.strip()}'"
+
+    def _about(self, text: str) -> str:
+        """Answer the questions about the controller ('' for another command)."""
+        world = self.controller.world
+        major, minor, bugfix, build = VERSIONS[world.frequency]
+        playing = world.robot_at(world.controller_ns()).runtime_state == RUNTIME_PLAYING
+        answers = {
+            "polyscopeversion": f"URSoftware {major}.{minor}.{bugfix}.{build} (virtual lab)",
+            "running": f"Program running: {'true' if playing else 'false'}",
+            "get robot model": "UR10",
+            "get serial number": "virtual lab",
+            "get loaded program": "No program loaded",
+        }
+        if major >= E_SERIES:  # a CB3's dashboard does not know the command
+            answers["is in remote control"] = "true"
+        return answers.get(text, "")

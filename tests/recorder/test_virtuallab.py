@@ -480,6 +480,60 @@ def test_the_dashboard_releases_a_protective_stop() -> None:
         assert np.all(state.target_tcp_speed == 0)
 
 
+#: ur_rtde's dashboard client, in its own process (its calls hold the GIL while they wait).
+_UR_RTDE_DASHBOARD = """
+import json, sys
+from dashboard_client import DashboardClient
+client = DashboardClient("127.0.0.1", int(sys.argv[1]))
+client.connect()
+answers = {
+    "version": client.polyscopeVersion(),
+    "remote": client.isInRemoteControl(),
+    "running": client.running(),
+    "model": client.getRobotModel(),
+    "mode": str(client.robotmode()),
+}
+client.powerOff()
+answers["off"] = str(client.robotmode())
+client.powerOn()
+client.brakeRelease()
+answers["on"] = str(client.robotmode())
+client.disconnect()
+print(json.dumps(answers))
+"""
+
+
+@pytest.mark.parametrize(
+    ("frequency", "version", "remote"), [(125, "3.15.7", False), (500, "5.11.0", True)]
+)
+def test_ur_rtdes_dashboard_client_drives_the_lab(
+    frequency: int, version: str, *, remote: bool
+) -> None:
+    # a lab rehearses its own ur_rtde scripts: what they ask before they start is answered,
+    # and the e-Series' remote-control query only where PolyScope 5.6+ knows it
+    pytest.importorskip("dashboard_client")
+    from recorder.virtuallab._dashboard import DashboardServer  # noqa: PLC0415
+
+    with (
+        virtual_lab(frequency=frequency) as lab,
+        DashboardServer(lab.controller, "127.0.0.1", 0) as dashboard,
+    ):
+        done = subprocess.run(  # noqa: S603 (this interpreter, a fixed script)
+            [sys.executable, "-c", _UR_RTDE_DASHBOARD, str(dashboard.address[1])],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+    answers = json.loads(done.stdout.strip().splitlines()[-1])
+    assert answers["version"].startswith(f"{version}.")  # parsed from 'URSoftware 5.11.0.0 ...'
+    assert answers["remote"] is remote
+    assert answers["running"] is False
+    assert answers["model"] == "UR10"
+    modes = (answers["mode"], answers["off"], answers["on"])
+    assert modes == ("Robotmode: RUNNING", "Robotmode: POWER_OFF", "Robotmode: RUNNING")
+
+
 def test_the_dashboard_powers_the_arm_off_and_on() -> None:
     from recorder.virtuallab._dashboard import DashboardServer  # noqa: PLC0415
 
