@@ -13,9 +13,10 @@ The script connection is read too, in a thread of its own: a controller streams 
 every client of its secondary (10 Hz) and real-time (125/500 Hz) interfaces, and a client that
 never reads fills its receive buffer, on which a controller may drop it. What arrives is
 dropped (RTDE carries the state); the end of that stream is the connection's loss, known
-before the next program would go into a dead socket. A program found with its connection
-lost ends the action; the stop then goes over a new connection (the controller takes one at
-any time), and between actions a lost connection is made again.
+before the next program would go into a dead socket. A lost connection ends the action at the
+next state sample (the arm's last program runs on, and no stop could follow it), and so does a
+program found with its connection lost; the stop then goes over a new connection (the
+controller takes one at any time), and between actions a lost connection is made again.
 """
 
 from __future__ import annotations
@@ -153,6 +154,8 @@ class URArm:
         self.script_bytes = 0
         #: Script connections made again after one was lost.
         self.reconnects = 0
+        #: Whether :meth:`poll` reported the script connection's loss (once per loss).
+        self._loss_said = False
         self._version = ""
         self._offset_ns = 0
         self._newest_ns = -1
@@ -224,7 +227,7 @@ class URArm:
             )
             raise RigError(msg) from err
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a stop leaves at once
-        self._script_lost = ""
+        self._script_lost, self._loss_said = "", False
         reader = threading.Thread(
             target=self._read_script, args=(sock,), daemon=True, name="atikt-urscript"
         )
@@ -331,9 +334,15 @@ class URArm:
         """Return the new in-order state samples, waiting up to ``wait_s`` for the first.
 
         Raises:
-            SourceLostError: The RTDE connection was lost.
+            SourceLostError: The RTDE connection was lost, or the script connection (said
+                once: the arm's last program runs on, and no stop could follow it).
         """
         reader = self._parts()
+        if (lost := self._script_lost) and not self._loss_said:
+            self._loss_said = True
+            link = self.connection
+            msg = f"URScript connection to {link.host}:{link.script_port} lost ({lost})"
+            raise SourceLostError(msg)
         first = reader.get(wait_s) if wait_s > 0 else None
         packages = ([first] if first is not None else []) + reader.drain()
         samples = []

@@ -9,6 +9,8 @@ of this process records actions against it and meets one cause per action:
 * ``protective``: a protective stop injected by the lab after the action began (the cause: the
   lab's stop);
 * ``silence``: the RTDE stream stalls (the cause: the moment it had been silent ``silence_s``);
+* ``drop``: the lab closes the URScript connection during the action (the cause: the lab's
+  drop; the stop goes over a new connection);
 * ``sigint`` / ``sigterm``: Ctrl-C or SIGTERM sent to this process during the action;
 * ``write``: the file writer fails (a full disk) during the action;
 * ``error``: the skin raises an unexpected error during the action.
@@ -59,7 +61,7 @@ if TYPE_CHECKING:
     from recorder.live import RecorderClock
 
 
-CAUSES = ("limit", "protective", "silence", "sigint", "sigterm", "write", "error")
+CAUSES = ("limit", "protective", "silence", "drop", "sigint", "sigterm", "write", "error")
 SCALE = 0.2
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 POSE_Z = 0.15  # the example configuration's pose of wood
@@ -124,6 +126,8 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
         command += ["--fault", "script.protective_stop=1.0"]
     if cause == "silence":
         command += ["--fault", "rtde.stall=3", "--fault", "rtde.at_action=1"]
+    if cause == "drop":
+        command += ["--fault", "script.drop=2.0"]
     return lab, command, events
 
 
@@ -225,6 +229,10 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     events = [json.loads(line) for line in events_file.read_text().splitlines()]
     if cause == "protective":
         cause_mono = next(e["monotonic_ns"] for e in events if e["event"] == "stop")
+    elif cause == "drop":
+        cause_mono = next(
+            e["monotonic_ns"] for e in events if e["event"] == "fault" and e["fault"] == "drop"
+        )
     else:  # a signal, a failed write, an error; or the rig's own: a sample, the silence
         cause_mono = cause_ns.get("ns", cause_rig - offset)
     sent_mono = sent_rig - offset

@@ -22,7 +22,7 @@ from recorder import (
     load_objects,
     record_action,
 )
-from recorder.live import SOURCES_RECORD, parse_source_stats
+from recorder.live import SOURCES_RECORD, SourceLostError, parse_source_stats
 from recorder.runner import Motion, check_motion
 from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
@@ -321,6 +321,21 @@ def test_a_lost_script_connection_ends_the_action_and_the_stop_takes_a_new_one(
     assert any(e.kind == "actual_zero" for e in after)
     assert info.value.path is not None
     assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_a_lost_script_connection_is_said_by_the_next_state_poll_once() -> None:
+    # mid-slide no program is due for seconds: the loss must not wait for the next one
+    with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
+        arm = rig.arm
+        arm.poll(0.05)
+        lab.script.drop_clients()
+        deadline = time.monotonic() + 5.0
+        while not arm._script_lost:  # type: ignore[attr-defined]
+            assert time.monotonic() < deadline, "the driver did not see the loss"
+            time.sleep(0.01)
+        with pytest.raises(SourceLostError, match=r"URScript connection to .* lost \(closed by"):
+            arm.poll(0.05)
+        assert arm.poll(0.05)  # once: what arrives after it is still read (kept)
 
 
 def test_a_script_connection_lost_between_actions_is_made_again(tmp_path: Path) -> None:
