@@ -197,7 +197,7 @@ class URArm:
             reader.start()
             stack.callback(_stop_rtde, rtde, reader)
             self._rtde, self._reader = rtde, reader
-            self._script = self._open_script()
+            self._open_script()
             stack.callback(self._close_script)
             self._offset_ns = self._estimate_offset()
             self._stack = stack.pop_all()
@@ -217,6 +217,11 @@ class URArm:
         self._script_lost = ""  # closed, not lost: nothing is sent again
 
     def _open_script(self, timeout_s: float = 2.0) -> socket.socket:
+        """Connect to the script port, make it the driver's connection and start its reader.
+
+        Raises:
+            RigError: The controller did not take the connection within ``timeout_s``.
+        """
         link = self.connection
         try:
             sock = socket.create_connection((link.host, link.script_port), timeout=timeout_s)
@@ -227,7 +232,8 @@ class URArm:
             )
             raise RigError(msg) from err
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a stop leaves at once
-        self._script_lost, self._loss_said = "", False
+        # the connection is ours before its reader starts: a loss at once is noted too
+        self._script, self._script_lost, self._loss_said = sock, "", False
         reader = threading.Thread(
             target=self._read_script, args=(sock,), daemon=True, name="atikt-urscript"
         )
@@ -532,7 +538,7 @@ class URArm:
             RigError: The controller did not take it within :data:`RECONNECT_S`.
         """
         self._close_script()
-        sock = self._script = self._open_script(RECONNECT_S)
+        sock = self._open_script(RECONNECT_S)
         self.reconnects += 1
         return sock
 
