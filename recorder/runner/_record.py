@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from recorder._rig import source_stats
 from recorder.errors import ActionStoppedError, RecorderError
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
-from recorder.runner._runner import ArmRig, Stop, undelivered_line
+from recorder.runner._runner import ArmRig, Stop
 from recorder.runner._sink import InlineSink, WriterThread
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 
@@ -150,10 +150,8 @@ def check_room(directory: Path) -> None:
 
 
 def _said(stop: Stop) -> str:
-    """Return why the action stopped, and that the stop did not reach the arm if so."""
-    if not stop.undelivered:
-        return stop.reason
-    return f"{stop.reason}; {undelivered_line(stop.undelivered)}"
+    """Return why the action stopped, and what a person must know of the arm."""
+    return f"{stop.reason}; {stop.arm_left}" if stop.arm_left else stop.reason
 
 
 def _raise_deferred(flag: InterruptFlag, path: Path, stop: Stop | None) -> None:
@@ -161,8 +159,8 @@ def _raise_deferred(flag: InterruptFlag, path: Path, stop: Stop | None) -> None:
     if flag.signum is None:
         return
     stopped = "the arm was stopped"
-    if stop is not None and stop.undelivered:
-        stopped = undelivered_line(stop.undelivered)
+    if stop is not None and stop.arm_left:
+        stopped = stop.arm_left
     try:
         raise_interrupt(flag.signum)
     except KeyboardInterrupt as err:

@@ -86,6 +86,11 @@ SKIN_BEHIND_S = 2.0
 #: How long one approach speed command moves the arm unless renewed (action time), s; the
 #: runner renews it every half of it.
 SPEED_LEASE_S = 0.5
+#: How long the arm may take to come to rest after the stop, s (action time), and at least
+#: how many controller cycles: a stop at the runner's deceleration halts any of its motions in
+#: a fraction of it.
+REST_S = 1.0
+REST_CYCLES = 125
 #: Force blocks whose median span says how far the skin's samples reach beyond its blocks.
 FORCE_SPANS = 32
 
@@ -139,8 +144,9 @@ class Stop(Exception):  # noqa: N818 (control flow inside the runner, never esca
         self.reason = reason
         self.at_ns = at_ns
         self.arrived = arrived
-        #: Why the stop could not be sent to the arm (empty: it was sent).
-        self.undelivered = ""
+        #: What a person must know of the arm after the stop, one clause: the stop did not
+        #: reach it, or it did not come to rest (empty: it was stopped).
+        self.arm_left = ""
 
 
 @dataclass(slots=True)
@@ -510,8 +516,11 @@ class ArmRig:
             yield from self._skin_catch_up(self.clock.now_ns())
         except (Stop, SourceLostError) as ended:
             stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
-            stop.undelivered = self._send_stop(at, stop.reason, stop.at_ns)
+            if undelivered := self._send_stop(at, stop.reason, stop.at_ns):
+                stop.arm_left = undelivered_line(undelivered)
             yield from stop.arrived
+            if not stop.arm_left:
+                stop.arm_left = yield from self._until_rest()
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
@@ -524,6 +533,48 @@ class ArmRig:
             self.arm.announce(_phase(at, "end"))
         yield self._event("end")
         return None
+
+    def _until_rest(self) -> Generator[StreamItem, None, str]:
+        """Read the arm and the skin after the stop until the arm is at rest; hand them over.
+
+        A stop the controller took halts the arm within its deceleration; one it did not (a
+        program sent into a connection that was dying, a controller that ignores programs)
+        leaves it moving. Counted in controller cycles (:data:`REST_S`, at least
+        :data:`REST_CYCLES`), so a loaded machine is not taken for a moving arm. No limit is
+        judged here: the arm may stand outside one (that was the cause).
+
+        Returns:
+            The clause to tell a person when the arm did not come to rest (empty: it did, or
+            its state can no longer be read).
+        """
+        cycles = REST_S * self.options.time_scale * _NS / self.arm.period_ns
+        until = self._state.taken + max(cycles, REST_CYCLES)
+        deadline = self.clock.now_ns() + round((REST_S + self.options.silence_s) * _NS)
+        while (speed := self._joint_speed()) > MOVING_RAD_S:
+            if self._state.taken > until:
+                return (
+                    f"the arm did not come to rest after the stop (a joint at {speed:.3f} "
+                    "rad/s); stop it at the teach pendant now"
+                )
+            if self.clock.now_ns() > deadline:  # the state stopped arriving: nothing to judge
+                return ""
+            items: list[StreamItem] = []
+            try:
+                samples = self.arm.poll(CYCLE_WAIT_S)
+            except SourceLostError:
+                return ""
+            try:
+                blocks = self.skin.poll()
+            except SourceLostError:  # the skin's loss is not the arm's: go on judging it
+                blocks = []
+            for sample in samples:
+                self._state.sample, self._state.receive_ns = sample, sample.receive_ns
+                self._state.taken += 1
+                items.extend(_items(sample))
+            items.extend(blocks)
+            items.sort(key=lambda item: item.receive_ns)
+            yield from items
+        return ""
 
     def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> str:
         """Send the stop (first thing on every abnormal end); remember when it was sent.

@@ -59,6 +59,10 @@ class FakeArm:
     latency_cycles: int = 0
     #: Why a stop cannot reach the arm (a lost connection no new one replaces; "": it can).
     stop_fails: str = ""
+    #: Whether the arm goes on moving after a stop it took (a controller that ignored it).
+    stop_ignored: bool = False
+    #: The joints' speed while the arm moves, rad/s.
+    moving_qd: float = 0.01
     #: The cycle at which each ``move`` reached its target, by phase.
     reached: dict[str, int] = field(default_factory=dict)
     #: The stamp of the sample at which each ``move`` reached its target, by phase (ns).
@@ -163,7 +167,7 @@ class FakeArm:
             elif self.cause == "protective":
                 stopped = "protective stop (fake)"
         moving = self.target is not None or bool(np.any(self.velocity))
-        qd = np.full(6, 0.01 if moving else 0.0)
+        qd = np.full(6, self.moving_qd if moving else 0.0)
         return ArmSample(stamp_ns, stamp_ns, np.zeros(6), qd, np.zeros(6), pose, force, stopped)
 
     def speed(
@@ -207,7 +211,8 @@ class FakeArm:
             self.commands.append((self._cycle, f"stop {phase} failed"))
             raise SourceLostError(self.stop_fails)
         self.commands.append((self._cycle, f"stop {phase}"))
-        self.target, self.velocity, self._pending = None, np.zeros(6), []
+        if not (self.stop_ignored and phase != "contact"):
+            self.target, self.velocity, self._pending = None, np.zeros(6), []
         if phase == "contact":
             self._contact_cycle = self._cycle
         elif self.stop_cycle is None:

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from recorder.runner import ArmRig
 
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
+SLIDE = load_actions()["S1"]
 #: The largest delay from a cause to the stop, in controller cycles.
 MOST_CYCLES = 2
 
@@ -237,6 +238,38 @@ def test_a_stop_that_cannot_reach_the_arm_is_said_not_claimed(tmp_path: Path) ->
     assert any(command.endswith("failed") for _, command in arm.commands)
     assert rig.stops_sent == []  # nothing to time: no stop went out
     _kept(path, "the stop did not reach the arm")
+
+
+def test_an_arm_still_moving_after_the_stop_is_said(tmp_path: Path) -> None:
+    # the stop went out, but the arm goes on (a controller that did not take it): the line
+    # must not claim a stopped arm; what arrived while it was watched is kept
+    path = tmp_path / "001.mcap"
+    rig = fake_rig("workspace")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.stop_ignored, arm.moving_qd = True, 0.05
+    with rig, pytest.raises(ActionStoppedError) as info:  # during the slide: the arm moves
+        record_action(rig, OBJECT, SLIDE, 1, path, seed=0)
+    said = str(info.value)
+    assert "left the [limits] workspace" in said
+    assert (
+        "the arm did not come to rest after the stop (a joint at 0.050 rad/s); stop it at the "
+        "teach pendant now" in said
+    )
+    assert arm.stop_cycle is not None
+    assert arm._cycle - arm.stop_cycle >= 125  # watched for the cycles it had to stop in
+    _kept(path, "the arm did not come to rest after the stop")
+
+
+def test_an_arm_at_rest_after_the_stop_is_not_watched_longer(tmp_path: Path) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig("workspace")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.moving_qd = 0.05
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, SLIDE, 1, path, seed=0)
+    assert "did not come to rest" not in str(info.value)
+    assert arm.stop_cycle is not None
+    assert arm._cycle - arm.stop_cycle < 125
 
 
 def test_an_interrupt_whose_stop_cannot_reach_the_arm_says_so(tmp_path: Path) -> None:
