@@ -148,11 +148,15 @@ class ArmDriver(Protocol):
         """Mark a phase without motion (a UR writes it into its log; a lab reads it)."""
         ...
 
-    def stop(self, acceleration: float, at: Context | None) -> None:
+    def stop(self, acceleration: float, at: Context | None) -> str:
         """Stop the arm now, decelerating at ``acceleration`` (m/s^2).
 
-        A driver tries what it can (a new connection for a lost one) before it raises; the
-        runner then says in its line that the stop did not reach the arm.
+        A driver tries what it can (a new connection for a lost one, another way in) before
+        it raises; the runner then says in its line that the stop did not reach the arm.
+
+        Returns:
+            How the arm was stopped when not the usual way, one clause for the action's
+            line (empty: the usual way).
 
         Raises:
             SourceLostError: The stop could not be sent.

@@ -221,6 +221,8 @@ class ArmRig:
         #: recorder clock (a state sample's cause: its receive time), ns; for latency
         #: measurements.
         self.stops_sent: list[tuple[int, int, str]] = []
+        #: How the last stop reached the arm when not the usual way (the driver's clause).
+        self.stop_note = ""
 
     # -- connection -----------------------------------------------------------------------
 
@@ -519,8 +521,9 @@ class ArmRig:
             if undelivered := self._send_stop(at, stop.reason, stop.at_ns):
                 stop.arm_left = undelivered_line(undelivered)
             yield from stop.arrived
-            if not stop.arm_left:
-                stop.arm_left = yield from self._until_rest()
+            if not undelivered:
+                moving = yield from self._until_rest()
+                stop.arm_left = "; ".join(c for c in (self.stop_note, moving) if c)
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
@@ -588,8 +591,9 @@ class ArmRig:
         """
         context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
         sent = self.clock.now_ns()
+        self.stop_note = ""
         try:
-            self.arm.stop(self.options.motion.acceleration_m_s2, context)
+            self.stop_note = self.arm.stop(self.options.motion.acceleration_m_s2, context)
         except Exception as err:  # noqa: BLE001 - whatever failed, the line must say so
             return str(err) or type(err).__name__
         self.stops_sent.append((sent if cause_ns is None else cause_ns, sent, why))

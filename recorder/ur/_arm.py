@@ -17,6 +17,9 @@ before the next program would go into a dead socket. A lost connection ends the 
 next state sample (the arm's last program runs on, and no stop could follow it), and so does a
 program found with its connection lost; the stop then goes over a new connection (the
 controller takes one at any time), and between actions a lost connection is made again.
+When no new connection is taken either, the stop goes to the dashboard server (port 29999:
+``stop`` ends the running program and the arm brakes), a second way in that shares no socket
+with the programs; only when that fails too does the stop count as not sent.
 """
 
 from __future__ import annotations
@@ -113,6 +116,10 @@ ROBOT_MODE_NAMES = {
 #: How long a new script connection may take when the old one was lost (s): the stop waits
 #: on it.
 RECONNECT_S = 1.0
+#: How long each step of the dashboard's stop (connect, greeting, answer) may take, s.
+DASHBOARD_S = 0.5
+#: The dashboard server's port on every UR controller.
+DASHBOARD_PORT = 29999
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
@@ -127,12 +134,15 @@ class Connection:
         rtde_port: RTDE port.
         script_port: Secondary interface port for URScript.
         frequency: RTDE packages per second: 125 (CB3) or 500 (e-Series).
+        dashboard_port: The dashboard server's port, the stop's way in when no URScript
+            connection takes it (0: none).
     """
 
     host: str
     rtde_port: int
     script_port: int
     frequency: int
+    dashboard_port: int = DASHBOARD_PORT
 
 
 class URArm:
@@ -156,6 +166,8 @@ class URArm:
         self.reconnects = 0
         #: Whether :meth:`poll` reported the script connection's loss (once per loss).
         self._loss_said = False
+        #: Why the last new script connection failed.
+        self._unsent = ""
         self._version = ""
         self._offset_ns = 0
         self._newest_ns = -1
@@ -468,14 +480,56 @@ class URArm:
             )
         )
 
-    def stop(self, acceleration: float, at: Context | None) -> None:
+    def stop(self, acceleration: float, at: Context | None) -> str:
         """Send ``stopl``, over a new connection if the script connection was lost.
 
+        When no new connection takes it either, the dashboard server's ``stop`` ends the
+        running program (the arm brakes at the controller's own deceleration).
+
+        Returns:
+            How the arm was stopped when not by ``stopl`` (empty: by ``stopl``).
+
         Raises:
-            SourceLostError: Neither the connection nor a new one took it.
+            SourceLostError: Neither the script connections nor the dashboard took it.
         """
         phase = "stop" if at is None else at.phase
-        self._send(stop_program(_said(at), phase, acceleration), reconnect=True)
+        try:
+            self._send(stop_program(_said(at), phase, acceleration), reconnect=True)
+        except SourceLostError as lost:
+            refused = self._dashboard_stop()
+            if refused:
+                msg = f"{lost}; the dashboard's stop failed ({refused})"
+                raise SourceLostError(msg) from None
+            link = self.connection
+            return (
+                f"the arm was stopped by the dashboard server {link.host}:"
+                f"{link.dashboard_port} (no new URScript connection: {self._unsent})"
+            )
+        return ""
+
+    def _dashboard_stop(self) -> str:
+        """Send the dashboard server ``stop``; return why it failed (empty: it stopped).
+
+        A controller answers ``Stopped`` once the program is ended; anything else (``Failed
+        to execute: stop``, in local control on an e-Series) is a stop not taken.
+        """
+        link = self.connection
+        if not link.dashboard_port:
+            return "no dashboard_port"
+        try:
+            with socket.create_connection(
+                (link.host, link.dashboard_port), timeout=DASHBOARD_S
+            ) as sock:
+                sock.settimeout(DASHBOARD_S)
+                with sock.makefile("rb") as answers:
+                    answers.readline(1024)  # the greeting
+                    sock.sendall(b"stop\n")
+                    answer = answers.readline(1024).decode(errors="replace").strip()
+        except OSError as err:
+            return f"port {link.dashboard_port}: {err.strerror or err}"
+        if answer.lower().startswith("stopped"):
+            return ""
+        return f"port {link.dashboard_port} answered {answer!r}"
 
     def stats(self) -> list[SourceStats]:
         """Return the RTDE stream's accounting since :meth:`begin`."""
@@ -527,7 +581,8 @@ class URArm:
         try:
             self._reconnect().sendall(data)
         except (RigError, OSError) as err:
-            cause = err.strerror if isinstance(err, OSError) else "cannot connect"
+            cause = (err.strerror or str(err)) if isinstance(err, OSError) else "cannot connect"
+            self._unsent = cause
             msg = f"URScript connection to {where} lost ({lost}); a new one failed ({cause})"
             raise SourceLostError(msg) from None
 

@@ -16,7 +16,7 @@ from recorder._rigconfig import refuse_sections, thaw
 from recorder.errors import RigError
 from recorder.live import RecorderClock, open_skin
 from recorder.runner import ArmRig, Limits, Motion, RunnerOptions
-from recorder.ur._arm import Connection, URArm
+from recorder.ur._arm import DASHBOARD_PORT, Connection, URArm
 from recorder.ur._rtde import RTDE_PORT
 from schemas import cli
 
@@ -40,6 +40,8 @@ class UROptions:
         host: The controller's address (the virtual lab: 127.0.0.1).
         rtde_port: RTDE port.
         script_port: Secondary interface port for URScript (30002; 30003 also works).
+        dashboard_port: The dashboard server's port (29999): the stop goes there when no
+            URScript connection takes it; 0: nowhere.
         frequency: RTDE packages per second: 125 (CB3) or 500 (e-Series).
         time_scale: Real seconds per action second; < 1 only against the virtual lab, which
             plays actions faster (the rig then holds and slides that much shorter).
@@ -53,6 +55,7 @@ class UROptions:
     host: str = "127.0.0.1"
     rtde_port: int = RTDE_PORT
     script_port: int = SCRIPT_PORT
+    dashboard_port: int = DASHBOARD_PORT
     frequency: int = 125
     time_scale: float = 1.0
     silence_s: float = 0.5
@@ -79,6 +82,14 @@ class UROptions:
             elif key == "rt_priority":
                 if isinstance(value, bool) or not isinstance(value, int):
                     msg = f"{where}: rig option rt_priority = {value!r}: give a whole number 1-99"
+                    raise RigError(msg)
+                values[key] = value
+            elif key == "dashboard_port":  # 0 is a value here: no dashboard
+                if isinstance(value, bool) or not isinstance(value, int):
+                    msg = (
+                        f"{where}: rig option dashboard_port = {value!r}: give the "
+                        "controller's dashboard port (29999), or 0 for none"
+                    )
                     raise RigError(msg)
                 values[key] = value
             elif key in own or key in moves:
@@ -116,7 +127,7 @@ def _whole_numbers(values: dict[str, Any], where: str) -> None:
     Raises:
         RigError: A fraction, or a port out of range.
     """
-    for key in ("rtde_port", "script_port", "frequency"):
+    for key in ("rtde_port", "script_port", "dashboard_port", "frequency"):
         if key in values:
             if not float(values[key]).is_integer():
                 msg = f"{where}: rig option {key} = {values[key]!r}: give a whole number"
@@ -127,6 +138,10 @@ def _whole_numbers(values: dict[str, Any], where: str) -> None:
             fix = f"give the controller's port 1..{cli.MAX_PORT}"
             msg = f"{where}: rig option {key} = {values[key]}: {fix}"
             raise RigError(msg)
+    if not 0 <= values.get("dashboard_port", 0) <= cli.MAX_PORT:
+        fix = f"give the controller's dashboard port 1..{cli.MAX_PORT}, or 0 for none"
+        msg = f"{where}: rig option dashboard_port = {values['dashboard_port']}: {fix}"
+        raise RigError(msg)
 
 
 def _number(key: str, value: object, where: str) -> float:
@@ -176,7 +191,13 @@ class URRig(ArmRig):
         """
         self.options_ur = options
         clock = RecorderClock()
-        link = Connection(options.host, options.rtde_port, options.script_port, options.frequency)
+        link = Connection(
+            options.host,
+            options.rtde_port,
+            options.script_port,
+            options.frequency,
+            options.dashboard_port,
+        )
         runner = RunnerOptions(
             options.time_scale, options.silence_s, options.motion, options.rt_priority
         )

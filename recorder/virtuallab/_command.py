@@ -143,11 +143,13 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     Raises:
         RecorderError: An unknown URScript fault.
     """
-    unknown = set(faults) - {"protective_stop", "drop"}
+    unknown = set(faults) - {"protective_stop", "drop", "gone"}
     if unknown:
-        msg = f"--fault script.{min(unknown)}: the URScript faults are protective_stop, drop"
+        msg = f"--fault script.{min(unknown)}: the URScript faults are protective_stop, drop, gone"
         raise RecorderError(msg)
-    return ScriptFaults(faults.get("protective_stop", 0.0), faults.get("drop", 0.0))
+    return ScriptFaults(
+        faults.get("protective_stop", 0.0), faults.get("drop", 0.0), faults.get("gone", 0.0)
+    )
 
 
 def typed_faults(
@@ -341,7 +343,7 @@ def _switch_within_a_cycle(frequency: int) -> None:
         default=[],
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
-        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, skin.* "
+        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, script.gone=S, skin.* "
         "and ros2.* for those servers (skin.at_action=S, ros2.at_action=S: counted from S s "
         "after the first action)",
     ),

@@ -15,7 +15,9 @@ them); a client must not stall the programs it sends.
 
 Faults: a protective stop ``protective_stop_s`` (real seconds) after each announced action
 begins; the URScript connections closed ``drop_s`` after each announced action begins (a
-switch or cable glitch, a controller dropping a client).
+switch or cable glitch, a controller dropping a client); the port gone ``gone_s`` after an
+action begins (connections closed, new ones refused: only the dashboard server can stop the
+arm then).
 """
 
 from __future__ import annotations
@@ -71,10 +73,13 @@ class ScriptFaults:
             starts (0: never).
         drop_s: Close every URScript connection this long (real seconds) after an action
             starts (0: never); the port takes new connections.
+        gone_s: Close the port this long (real seconds) after an action starts (0: never):
+            its connections are closed and new ones refused.
     """
 
     protective_stop_s: float = 0.0
     drop_s: float = 0.0
+    gone_s: float = 0.0
 
 
 class ScriptServer(TcpServer):
@@ -105,6 +110,8 @@ class ScriptServer(TcpServer):
             controller.world.on_action(self._arm_stop)
         if self.faults.drop_s > 0:
             controller.world.on_action(self._arm_drop)
+        if self.faults.gone_s > 0:
+            controller.world.on_action(self._arm_gone)
 
     @property
     def programs(self) -> list[str]:
@@ -202,8 +209,19 @@ class ScriptServer(TcpServer):
         timer.daemon = True
         timer.start()
 
-    def drop_clients(self) -> None:
-        """Close every client's connection (the port takes new ones)."""
+    def _arm_gone(self, _action: tuple[str, str, int]) -> None:
+        """Schedule the injected loss of the port after an action began."""
+        timer = threading.Timer(self.faults.gone_s, self.close_port)
+        timer.daemon = True
+        timer.start()
+
+    def close_port(self) -> None:
+        """Refuse new connections from now on and close every client's (injected fault)."""
+        self.stop_listening()
+        self.drop_clients("gone")
+
+    def drop_clients(self, fault: str = "drop") -> None:
+        """Close every client's connection (the port takes new ones unless it is gone)."""
         with self._lock:
             clients = list(self._clients)
             self.drops_injected += 1
@@ -211,8 +229,9 @@ class ScriptServer(TcpServer):
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RDWR)
         world = self.controller.world
-        world.events_log.add("fault", world.controller_ns(), source="script", fault="drop")
-        self.controller.note(f"URScript connections dropped ({len(clients)}; injected fault)")
+        world.events_log.add("fault", world.controller_ns(), source="script", fault=fault)
+        said = "dropped" if fault == "drop" else "dropped, the port closed"
+        self.controller.note(f"URScript connections {said} ({len(clients)}; injected fault)")
 
     def _protective_stop(self) -> None:
         with self._lock:

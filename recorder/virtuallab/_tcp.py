@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 from typing import TYPE_CHECKING, Any, Self
@@ -59,6 +60,15 @@ class TcpServer:
         for thread in self._threads:
             thread.join(2.0)
         if self._listener is not None:
+            self._listener.close()
+
+    def stop_listening(self) -> None:
+        """Refuse new clients from now on (those connected are served on)."""
+        if self._listener is not None:
+            # shut down first: a close alone leaves the socket listening while the accepting
+            # thread still polls it
+            with contextlib.suppress(OSError):
+                self._listener.shutdown(socket.SHUT_RDWR)
             self._listener.close()
 
     def spawn(self, target: Callable[..., None], *args: Any) -> None:  # noqa: ANN401

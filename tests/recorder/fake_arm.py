@@ -205,7 +205,7 @@ class FakeArm:
     def announce(self, at: Context) -> None:
         self.commands.append((self._cycle, f"announce {at.phase}"))
 
-    def stop(self, acceleration: float, at: Context | None) -> None:
+    def stop(self, acceleration: float, at: Context | None) -> str:
         phase = "stop" if at is None else at.phase
         if self.stop_fails and phase != "contact":
             self.commands.append((self._cycle, f"stop {phase} failed"))
@@ -218,6 +218,7 @@ class FakeArm:
         elif self.stop_cycle is None:
             self.stop_cycle, self.stop_ns = self._cycle, self.clock.now_ns()
             time.sleep(self.hold_after_stop_s)
+        return ""
 
     def stats(self) -> list[SourceStats]:
         return [SourceCounter("fake-arm", period_ns=self.period_ns).stats()]

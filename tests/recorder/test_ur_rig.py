@@ -325,6 +325,42 @@ def test_a_lost_script_connection_ends_the_action_and_the_stop_takes_a_new_one(
     assert info.value.path.name == "001.incomplete.mcap"
 
 
+def test_a_script_port_gone_mid_action_is_stopped_by_the_dashboard(tmp_path: Path) -> None:
+    # the URScript port closes and takes no new connection: the stop goes to the dashboard
+    # server, whose ``stop`` ends the running program; the line says how the arm was stopped
+    path = tmp_path / "001.mcap"
+    with virtual_lab(script_faults=ScriptFaults(gone_s=0.3)) as lab:
+        lab.world.prepare("wood", "S1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}), "S1", path)
+        events = lab.world.events_log.events()
+    said = str(info.value)
+    assert re.search(r"the arm was stopped by the dashboard server 127\.0\.0\.1:\d+ \(", said)
+    assert "(no new URScript connection: cannot connect)" in said, said
+    assert "did not reach" not in said
+    assert "did not come to rest" not in said
+    (gone,) = [e for e in events if e.kind == "fault"]
+    assert gone.details["fault"] == "gone"
+    after = [e for e in events if e.controller_ns > gone.controller_ns]
+    assert not [e for e in after if e.kind == "program"]  # no program arrived: the port is gone
+    assert any(e.kind == "actual_zero" for e in after)
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_a_stop_taken_by_no_way_in_is_said(tmp_path: Path) -> None:
+    # without a dashboard port (0), the lost port leaves the arm to a person: said, not claimed
+    path = tmp_path / "001.mcap"
+    with virtual_lab(script_faults=ScriptFaults(gone_s=0.3)) as lab:
+        lab.world.prepare("wood", "S1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}, dashboard_port=0), "S1", path)
+    said = str(info.value)
+    assert "the dashboard's stop failed (no dashboard_port)" in said, said
+    assert "a new one failed (cannot connect)" in said, said
+    assert "stop it at the teach pendant now" in said, said
+
+
 def _until_lost() -> None:
     """Wait until the driver's script reader has seen its connection end (its thread ends)."""
     for thread in threading.enumerate():

@@ -20,6 +20,7 @@ from recorder.live import BlockPacker, RecorderClock, SourceCounter, SourceStats
 from recorder.ur import Limits, UROptions, URRig
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._controller import VirtualController
+from recorder.virtuallab._dashboard import DashboardServer
 from recorder.virtuallab._rtde_server import RtdeFaults, RtdeServer
 from recorder.virtuallab._script_server import ScriptFaults, ScriptServer
 from schemas import VOCABULARY
@@ -141,12 +142,14 @@ class Lab:
     controller: VirtualController
     rtde: RtdeServer
     script: ScriptServer
+    dashboard: DashboardServer
 
     def rig(self, poses: Mapping[str, Any] | None = None, **options: Any) -> URRig:
         """Return a UR rig for this lab (options over the test defaults)."""
         merged: dict[str, Any] = {
             "rtde_port": self.rtde.address[1],
             "script_port": self.script.address[1],
+            "dashboard_port": self.dashboard.address[1],
             "time_scale": TIME_SCALE,
             "silence_s": 0.5,
         } | options
@@ -183,8 +186,9 @@ def virtual_lab(
         controller = VirtualController(world)
         rtde = RtdeServer(controller, "127.0.0.1", 0, frequency=frequency, faults=rtde_faults)
         script = ScriptServer(controller, "127.0.0.1", 0, faults=script_faults)
-        with world, rtde, script:
-            yield Lab(world, controller, rtde, script)
+        dashboard = DashboardServer(controller, "127.0.0.1", 0)
+        with world, rtde, script, dashboard:
+            yield Lab(world, controller, rtde, script, dashboard)
 
 
 def config(options: Mapping[str, Any], sections: Mapping[str, Any]) -> SimpleNamespace:
