@@ -343,9 +343,9 @@ def _switch_within_a_cycle(frequency: int) -> None:
         default=[],
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
-        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, script.gone=S, skin.* "
-        "and ros2.* for those servers (skin.at_action=S, ros2.at_action=S: counted from S s "
-        "after the first action)",
+        "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, "
+        "script.gone=S, skin.* and ros2.* for those servers (skin.at_action=S, "
+        "ros2.at_action=S: counted from S s after the first action)",
     ),
     arg("--events", type=Path, default=None, help="write every event as a JSON line (new file)"),
     arg(

@@ -5,7 +5,9 @@ import socket
 import threading
 import time
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,6 +29,7 @@ from recorder.runner import Motion, check_motion
 from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
 from recorder.virtuallab._command import parse_faults, rtde_faults, script_faults
+from recorder.virtuallab._events import Event
 from recorder.virtuallab._rtde_server import RtdeFaults
 from recorder.virtuallab._script_server import ScriptFaults, check_program, split_programs
 from recorder.writing._stream import SkinBlock
@@ -301,61 +304,57 @@ def test_lost_rtde_connection_stops_the_action(tmp_path: Path) -> None:
     assert info.value.path.name == "001.incomplete.mcap"
 
 
+def _slide_under(
+    faults: ScriptFaults, path: Path, **options: Any
+) -> tuple[str, Sequence[Event], ActionStoppedError]:
+    """Slide on wood under ``faults``; return the line, the lab's events and the error."""
+    with virtual_lab(script_faults=faults) as lab:
+        lab.world.prepare("wood", "S1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}, **options), "S1", path)
+        assert lab.script.drops_injected == 1
+        events = lab.world.events_log.events()
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+    return str(info.value), events, info.value
+
+
+def _after_fault(events: Sequence[Event], fault: str) -> list[Event]:
+    (injected,) = [e for e in events if e.kind == "fault"]
+    assert injected.details["fault"] == fault
+    return [e for e in events if e.controller_ns > injected.controller_ns]
+
+
 def test_a_lost_script_connection_ends_the_action_and_the_stop_takes_a_new_one(
     tmp_path: Path,
 ) -> None:
     # a cable or switch glitch closes the URScript connection mid-action: the programs still
     # to come would go into a dead socket (the retract, silently lost); the driver reads the
     # connection and knows at once, the action ends and the stop goes over a new connection
-    path = tmp_path / "001.mcap"
-    with virtual_lab(script_faults=ScriptFaults(drop_s=0.3)) as lab:
-        lab.world.prepare("wood", "S1", 1)
-        with pytest.raises(ActionStoppedError) as info:
-            _record(lab.rig({"wood": POSE}), "S1", path)
-        assert lab.script.drops_injected == 1
-        events = lab.world.events_log.events()
-    said = str(info.value)
+    said, events, _ = _slide_under(ScriptFaults(drop_s=0.3), tmp_path / "001.mcap")
     assert re.search(r"URScript connection to 127\.0\.0\.1:\d+ lost \(closed by the ", said), said
     assert "did not reach" not in said
-    (dropped,) = [e for e in events if e.kind == "fault"]
-    after = [e for e in events if e.controller_ns > dropped.controller_ns]
+    after = _after_fault(events, "drop")
     assert [e.details["name"] for e in after if e.kind == "program"] == ["atikt_stop"]
     assert any(e.kind == "actual_zero" for e in after)
-    assert info.value.path is not None
-    assert info.value.path.name == "001.incomplete.mcap"
 
 
 def test_a_script_port_gone_mid_action_is_stopped_by_the_dashboard(tmp_path: Path) -> None:
     # the URScript port closes and takes no new connection: the stop goes to the dashboard
     # server, whose ``stop`` ends the running program; the line says how the arm was stopped
-    path = tmp_path / "001.mcap"
-    with virtual_lab(script_faults=ScriptFaults(gone_s=0.3)) as lab:
-        lab.world.prepare("wood", "S1", 1)
-        with pytest.raises(ActionStoppedError) as info:
-            _record(lab.rig({"wood": POSE}), "S1", path)
-        events = lab.world.events_log.events()
-    said = str(info.value)
+    said, events, _ = _slide_under(ScriptFaults(gone_s=0.3), tmp_path / "001.mcap")
     assert re.search(r"the arm was stopped by the dashboard server 127\.0\.0\.1:\d+ \(", said)
     assert "(no new URScript connection: cannot connect)" in said, said
     assert "did not reach" not in said
     assert "did not come to rest" not in said
-    (gone,) = [e for e in events if e.kind == "fault"]
-    assert gone.details["fault"] == "gone"
-    after = [e for e in events if e.controller_ns > gone.controller_ns]
+    after = _after_fault(events, "gone")
     assert not [e for e in after if e.kind == "program"]  # no program arrived: the port is gone
     assert any(e.kind == "actual_zero" for e in after)
-    assert info.value.path is not None
-    assert info.value.path.name == "001.incomplete.mcap"
 
 
 def test_a_stop_taken_by_no_way_in_is_said(tmp_path: Path) -> None:
     # without a dashboard port (0), the lost port leaves the arm to a person: said, not claimed
-    path = tmp_path / "001.mcap"
-    with virtual_lab(script_faults=ScriptFaults(gone_s=0.3)) as lab:
-        lab.world.prepare("wood", "S1", 1)
-        with pytest.raises(ActionStoppedError) as info:
-            _record(lab.rig({"wood": POSE}, dashboard_port=0), "S1", path)
-    said = str(info.value)
+    said, _, _ = _slide_under(ScriptFaults(gone_s=0.3), tmp_path / "001.mcap", dashboard_port=0)
     assert "the dashboard's stop failed (no dashboard_port)" in said, said
     assert "a new one failed (cannot connect)" in said, said
     assert "stop it at the teach pendant now" in said, said
