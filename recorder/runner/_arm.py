@@ -38,6 +38,8 @@ class ArmSample:
         busy: Empty when the controller runs no program of another's; else what it runs,
             one line (``a program is playing (RTDE runtime_state 2)``). Read only before an
             action, when nothing of the runner's runs: a program sent then would replace it.
+        replaced: Empty while no program of another started since :meth:`ArmDriver.begin`;
+            else which one, one line (it replaced the runner's: the action cannot go on).
     """
 
     stamp_ns: int
@@ -49,6 +51,7 @@ class ArmSample:
     tcp_force: NDArray[np.float64]
     stopped: str = ""
     busy: str = ""
+    replaced: str = ""
 
 
 @dataclass(frozen=True, slots=True)

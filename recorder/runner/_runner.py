@@ -900,6 +900,8 @@ class ArmRig:
         """Return why this state sample ends the action (empty: it does not)."""
         if sample.stopped:
             return f"{sample.stopped} from the controller"
+        if sample.replaced:
+            return sample.replaced
         limits = self.limits
         force = float(np.linalg.norm(sample.tcp_force[:3]))
         if force > limits.max_force_n:

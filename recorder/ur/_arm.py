@@ -12,7 +12,9 @@ is counted as malformed and skipped: it never ends the action and never reaches 
 The script connection is read too, in a thread of its own: a controller streams its state to
 every client of its secondary (10 Hz) and real-time (125/500 Hz) interfaces, and a client that
 never reads fills its receive buffer, on which a controller may drop it. What arrives is
-dropped (RTDE carries the state); the end of that stream is the connection's loss, known
+dropped (RTDE carries the state) but for the controller's key messages: ``PROGRAM_XXX_STARTED``
+names every program that starts, and one not of this driver (a colleague's computer, the
+pendant) has replaced the action's program; the end of that stream is the connection's loss, known
 before the next program would go into a dead socket. A lost connection ends the action at the
 next state sample (the arm's last program runs on, and no stop could follow it), and so does a
 program found with its connection lost; the stop then goes over a new connection (the
@@ -28,6 +30,7 @@ import contextlib
 import dataclasses
 import math
 import socket
+import struct
 import threading
 from typing import TYPE_CHECKING, Any, Self
 
@@ -120,6 +123,17 @@ RECONNECT_S = 1.0
 DASHBOARD_S = 0.5
 #: The dashboard server's port on every UR controller.
 DASHBOARD_PORT = 29999
+#: Primary protocol (the script connection's stream): a message's head (size, type), the
+#: robot message type and its key message type, a robot message's head (timestamp, source,
+#: type) and a key message's (code, argument, title length).
+_MESSAGE_HEAD = struct.Struct(">iB")
+ROBOT_MESSAGE, KEY_MESSAGE = 20, 7
+_ROBOT_MESSAGE_HEAD = struct.Struct(">QbB")
+_KEY_HEAD = struct.Struct(">iiB")
+#: The largest primary-protocol message taken as framed (a controller's are a few kB).
+MAX_MESSAGE = 1 << 20
+#: The prefix of this driver's program names (``_script``).
+OWN_PROGRAMS = "atikt_"
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
@@ -166,6 +180,9 @@ class URArm:
         self.reconnects = 0
         #: Whether :meth:`poll` reported the script connection's loss (once per loss).
         self._loss_said = False
+        #: The program of another that started since :meth:`begin` (empty: none), seen by
+        #: the script reader in the controller's key messages.
+        self._foreign = ""
         #: Why the last new script connection failed.
         self._unsent = ""
         self._version = ""
@@ -253,7 +270,9 @@ class URArm:
         return sock
 
     def _read_script(self, sock: socket.socket) -> None:
-        """Read and drop what the controller sends on ``sock``; note when it ends."""
+        """Read what the controller sends on ``sock``; note programs of another, and the end."""
+        buffer = bytearray()
+        framed = True  # a stream that is not the primary protocol is only drained
         while True:
             try:
                 chunk = sock.recv(65536)
@@ -266,8 +285,27 @@ class URArm:
                 lost = "closed by the controller"
                 break
             self.script_bytes += len(chunk)
+            if framed:
+                buffer += chunk
+                framed = self._read_messages(buffer)
         if self._script is sock:  # not closed by us
             self._script_lost = lost
+
+    def _read_messages(self, buffer: bytearray) -> bool:
+        """Take the whole messages off ``buffer``; return False when it is not framed."""
+        while len(buffer) >= _MESSAGE_HEAD.size:
+            size, kind = _MESSAGE_HEAD.unpack_from(buffer)
+            if not _MESSAGE_HEAD.size <= size <= MAX_MESSAGE:
+                buffer.clear()
+                return False
+            if len(buffer) < size:
+                return True
+            if kind == ROBOT_MESSAGE:
+                started = _started_program(bytes(buffer[_MESSAGE_HEAD.size : size]))
+                if started is not None and not started.startswith(OWN_PROGRAMS):
+                    self._foreign = started or "a program without a name"
+            del buffer[:size]
+        return True
 
     def _close_script(self) -> None:
         sock, self._script = self._script, None
@@ -346,6 +384,7 @@ class URArm:
         self._overflow_base = reader.overflowed
         self._counter = SourceCounter("rtde", period_ns=self.period_ns)
         self.malformed = 0
+        self._foreign = ""
         self._client_malformed_base = self._rtde.malformed if self._rtde is not None else 0
 
     def poll(self, wait_s: float) -> list[ArmSample]:
@@ -440,6 +479,12 @@ class URArm:
             tcp_force=np.asarray(values["actual_TCP_force"], dtype=np.float64),
             stopped=stopped,
             busy=busy,
+            replaced=(
+                f"another client's program {self._foreign!r} started on the controller and "
+                "replaced ours (a second computer or the teach pendant: one drives the arm)"
+                if self._foreign
+                else ""
+            ),
         )
 
     def speed(
@@ -620,6 +665,18 @@ def _stop_rtde(rtde: RtdeClient, reader: SourceReader) -> None:
     with contextlib.suppress(RtdeError):
         rtde.pause(timeout_s=0.2)
     reader.stop()
+
+
+def _started_program(body: bytes) -> str | None:
+    """Return the program a robot message says started (None: another message)."""
+    head = _ROBOT_MESSAGE_HEAD.size + _KEY_HEAD.size
+    if len(body) < head or body[_ROBOT_MESSAGE_HEAD.size - 1] != KEY_MESSAGE:
+        return None
+    title_size = body[head - 1]
+    title = body[head : head + title_size]
+    if title != b"PROGRAM_XXX_STARTED":
+        return None
+    return body[head + title_size :].decode(errors="replace")
 
 
 def _said(at: Context | None) -> Announcement | None:

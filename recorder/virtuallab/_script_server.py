@@ -10,8 +10,10 @@ run) and hands it to the world, which runs it cycle by cycle (``_runner``).
 Like a controller's secondary interface, it streams the arm's state to every client at 10 Hz:
 a primary-protocol robot state message (type 16) holding the robot mode data sub-package
 (type 0, the CB3 layout: timestamp, the power, stop and program flags, robot and control
-mode, speed fractions). A client that does not read only misses messages (a full buffer drops
-them); a client must not stall the programs it sends.
+mode, speed fractions). When a program starts, every client gets the controller's key message
+``PROGRAM_XXX_STARTED`` with the program's name (a robot message, type 20, of key type 7), as
+a controller sends it on its primary and secondary interfaces. A client that does not read
+only misses messages (a full buffer drops them); a client must not stall the programs it sends.
 
 Faults: a protective stop ``protective_stop_s`` (real seconds) after each announced action
 begins; the URScript connections closed ``drop_s`` after each announced action begins (a
@@ -62,6 +64,14 @@ ROBOT_STATE, ROBOT_MODE_DATA = 16, 0
 #: control mode, target speed fraction, speed scaling, target speed fraction limit.
 _MODE_DATA = struct.Struct(">iBQ???????BBddd")
 _MESSAGE = struct.Struct(">iB")
+#: Primary protocol: message type robot message, its key message type.
+ROBOT_MESSAGE, KEY_MESSAGE = 20, 7
+#: A robot message's head (timestamp in us, source, type) and a key message's (code,
+#: argument, title length).
+_ROBOT_MESSAGE = struct.Struct(">QbB")
+_KEY = struct.Struct(">iiB")
+#: How often a client's loop looks for messages to send, s.
+SEND_POLL_S = 0.02
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,6 +116,9 @@ class ScriptServer(TcpServer):
         self.stops_injected = 0
         self.drops_injected = 0
         self._clients: set[socket.socket] = set()
+        #: Messages waiting for each client (sent by the client's own thread, whole).
+        self._outbox: dict[socket.socket, list[bytes]] = {}
+        controller.world.on_program(self._started)
         if self.faults.protective_stop_s > 0:
             controller.world.on_action(self._arm_stop)
         if self.faults.drop_s > 0:
@@ -122,16 +135,20 @@ class ScriptServer(TcpServer):
     def serve(self, sock: socket.socket) -> None:
         """Read programs from one client until it leaves."""
         splitter = ProgramSplitter(self.limit)
-        sock.settimeout(0.1)
+        sock.settimeout(SEND_POLL_S)
         with self._lock:
             self._clients.add(sock)
+            self._outbox[sock] = []
         next_state = time.monotonic()
         with contextlib.closing(sock), contextlib.suppress(OSError), self._client(sock):
             while not self.stopping.is_set():
+                with self._lock:
+                    waiting, self._outbox[sock] = self._outbox[sock], []
                 if time.monotonic() >= next_state:
                     next_state += STATE_PERIOD_S
-                    with contextlib.suppress(BlockingIOError):  # a full buffer: not sent
-                        sock.send(self.state_message(), socket.MSG_DONTWAIT)
+                    waiting.append(self.state_message())
+                for message in waiting:
+                    _send_whole(sock, message)
                 try:
                     chunk = sock.recv(65536)
                 except TimeoutError:
@@ -173,6 +190,14 @@ class ScriptServer(TcpServer):
         )
         return _MESSAGE.pack(_MESSAGE.size + len(data), ROBOT_STATE) + data
 
+    def _started(self, name: str) -> None:
+        """Tell every client that program ``name`` started (a key message)."""
+        world = self.controller.world
+        message = key_message("PROGRAM_XXX_STARTED", name, world.controller_ns() // 1000)
+        with self._lock:
+            for waiting in self._outbox.values():
+                waiting.append(message)
+
     @contextlib.contextmanager
     def _client(self, sock: socket.socket) -> Iterator[None]:
         try:
@@ -180,6 +205,7 @@ class ScriptServer(TcpServer):
         finally:
             with self._lock:
                 self._clients.discard(sock)
+                self._outbox.pop(sock, None)
 
     def run(self, text: str, received_ns: int | None = None) -> None:
         """Check a program and run it (it replaces the running one)."""
@@ -242,3 +268,25 @@ class ScriptServer(TcpServer):
             "fault", world.controller_ns(), source="script", fault="protective_stop"
         )
         self.controller.note("protective stop (injected fault)")
+
+
+def key_message(title: str, text: str, timestamp_us: int) -> bytes:
+    """Return a primary-protocol key message (a controller's ``PROGRAM_XXX_STARTED``...)."""
+    head = _ROBOT_MESSAGE.pack(timestamp_us, -2, KEY_MESSAGE)  # source -2: the controller
+    title_bytes = title.encode()
+    body = head + _KEY.pack(0, 0, len(title_bytes)) + title_bytes + text.encode()
+    return _MESSAGE.pack(_MESSAGE.size + len(body), ROBOT_MESSAGE) + body
+
+
+def _send_whole(sock: socket.socket, message: bytes) -> None:
+    """Send a message whole, or nothing of it when the client's buffer is full.
+
+    A message begun is finished (blocking up to the socket's timeout), so the stream stays
+    framed; a client that does not read at all misses messages.
+    """
+    try:
+        sent = sock.send(message, socket.MSG_DONTWAIT)
+    except BlockingIOError:
+        return
+    if sent < len(message):
+        sock.sendall(message[sent:])

@@ -176,6 +176,7 @@ class VirtualWorld:
     _listeners: list[Callable[[tuple[str, str, int]], None]] = field(
         default_factory=list, init=False
     )
+    _program_listeners: list[Callable[[str], None]] = field(default_factory=list, init=False)
     _first_action_ns: int | None = field(default=None, init=False)
     _world_s: float = field(default=0.0, init=False)
     _recent: tuple[_Cycle, ...] = field(default=(), init=False)
@@ -378,6 +379,8 @@ class VirtualWorld:
             calls=[call.name for call in program.calls],
             announced=dict(program.announced),
         )
+        for listener in list(self._program_listeners):
+            listener(_name(program.text))
 
     def message(self, text: str) -> None:
         """Handle a ``textmsg``: an ``atikt:`` announcement names the action and its phase."""
@@ -545,6 +548,10 @@ class VirtualWorld:
             self.advance_to(self.controller_ns())
             self._runner.abort()
             self._arm.place(np.asarray(pose, dtype=np.float64))
+
+    def on_program(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(name)`` when a program starts (inside a cycle: it must not block)."""
+        self._program_listeners.append(listener)
 
     def on_action(self, listener: Callable[[tuple[str, str, int]], None]) -> None:
         """Call ``listener(object, action, trial)`` when an announced action begins."""

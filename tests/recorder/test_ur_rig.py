@@ -188,6 +188,50 @@ def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -
     assert not any(tmp_path.rglob("*.mcap*"))
 
 
+def test_another_program_started_mid_action_stops_it(tmp_path: Path) -> None:
+    # a colleague's computer sends a program mid-slide: it replaces ours at the controller
+    # (RTDE still says "playing"); the controller's key message names it, and the action ends
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "S1", 1)
+        theirs = "def theirs():\n  sleep(100.0)\nend\n"
+
+        def colleague(_action: tuple[str, str, int]) -> None:
+            timer = threading.Timer(0.3, lab.script.run, args=(theirs,))
+            timer.daemon = True
+            timer.start()
+
+        lab.world.on_action(colleague)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}), "S1", path)
+        events = lab.world.events_log.events()
+    said = str(info.value)
+    assert "another client's program 'theirs' started on the controller and replaced ours" in said
+    assert "did not reach" not in said
+    programs = [e.details["name"] for e in events if e.kind == "program"]
+    assert "theirs" in programs
+    assert programs[-1] == "atikt_stop", programs  # the stop came last: nothing of ours after it
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
+def test_the_drivers_own_programs_are_not_taken_for_anothers() -> None:
+    # every program of ours is announced by the controller too: none of them is another's
+    with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
+        assert rig.present(OBJECTS["wood"])
+        for _ in range(200):  # a hang guard: the key messages of the move have arrived
+            if rig.arm.script_bytes > 0:  # type: ignore[attr-defined]
+                break
+            time.sleep(0.01)
+        assert rig.arm._foreign == ""  # type: ignore[attr-defined]
+        lab.script.run("def theirs():\n  sleep(0.01)\nend\n")
+        for _ in range(500):  # a hang guard, not a time check
+            if rig.arm._foreign:  # type: ignore[attr-defined]
+                break
+            time.sleep(0.01)
+        assert rig.arm._foreign == "theirs"  # type: ignore[attr-defined]
+
+
 def test_a_program_paused_on_the_pendant_stops_an_action(tmp_path: Path) -> None:
     path = tmp_path / "001.mcap"
     with virtual_lab() as lab:
@@ -542,6 +586,29 @@ def test_builder_checks_options_limits_and_poses() -> None:
         with pytest.raises(RigError, match=r"\[objects.wood\] pose = .*six finite numbers"):
             build_ur_rig(0, config({}, bad))
     assert not placed.can_present(OBJECTS["glass_plate"])
+
+
+def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks() -> None:
+    from recorder.live import RecorderClock  # noqa: PLC0415
+    from recorder.ur._arm import Connection, URArm  # noqa: PLC0415
+    from recorder.virtuallab._script_server import key_message  # noqa: PLC0415
+
+    arm = URArm(Connection("127.0.0.1", 1, 1, 125), RecorderClock())
+    stream = (
+        key_message("PROGRAM_XXX_STARTED", "atikt_slide", 1)
+        + key_message("PROGRAM_XXX_STOPPED", "theirs", 2)  # stopped: not a start
+        + key_message("PROGRAM_XXX_STARTED", "theirs", 3)
+    )
+    buffer = bytearray()
+    for at in range(0, len(stream), 7):  # as the network cuts it
+        buffer += stream[at : at + 7]
+        assert arm._read_messages(buffer)
+    assert arm._foreign == "theirs"
+    assert not buffer
+    arm._foreign = ""
+    # a port that does not speak the primary protocol (a size of 'HTTP'): drained, not read
+    assert not arm._read_messages(bytearray(b"HTTP/1.1 400 Bad Request\r\n"))
+    assert arm._foreign == ""
 
 
 def test_cb3_cannot_stream_at_500_hz() -> None:
