@@ -148,7 +148,7 @@ def _lab(bin_dir: Path, run: Path, ports: tuple[int, int, int]) -> Path:
     rtde, script, udp = ports
     text = Path(ur_path).read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
-    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("script_port = 30001", f"script_port = {script}")
     text = text.replace("# time_scale = 0.1", "time_scale = 0.1")
     skin = Path(skin_path).read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')

@@ -71,7 +71,7 @@ class _Lab:
         self.topic_map.write_text(_scaled_map(scale), "utf-8")
         text = (ROOT / EXAMPLE).read_text("utf-8")
         text = text.replace("rtde_port = 30004", f"rtde_port = {self.rtde}")
-        text = text.replace("script_port = 30002", f"script_port = {self.script}")
+        text = text.replace("script_port = 30001", f"script_port = {self.script}")
         text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
         text = text.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{self.udp}"')
         self.config = tmp / "lab.toml"

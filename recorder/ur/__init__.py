@@ -1,7 +1,7 @@
 """A Universal Robots arm over its real interfaces: RTDE state, URScript motion, a live skin.
 
 The UR driver (:class:`URArm`) reads every RTDE data package (port 30004; 125 Hz on CB3,
-500 Hz on e-Series) and moves the arm with URScript programs (port 30002); the action runner
+500 Hz on e-Series) and moves the arm with URScript programs (port 30001); the action runner
 (:class:`recorder.runner.ArmRig`) drives it with the skin the rig configuration's ``[skin]``
 table describes; limits (``[limits]``) are checked before anything moves and on every sample.
 """

@@ -3,31 +3,34 @@
 The driver reads every RTDE data package in a reader thread (bounded queue, overflow counted),
 counts it by the controller's ``timestamp`` and turns each new, in-order package into an
 :class:`recorder.runner.ArmSample`; each command of the runner is one URScript program sent
-to the secondary interface (it replaces the running one; see ``_script``). It decides nothing:
-phases, limits and the stop belong to the runner.
+to the primary interface, port 30001 (it replaces the running one; see ``_script``). It
+decides nothing: phases, limits and the stop belong to the runner.
 
 A package the recipe cannot parse (another recipe id, a wrong size) or with a non-finite value
 is counted as malformed and skipped: it never ends the action and never reaches the file.
 
 The script connection is read too, in a thread of its own: a controller streams its state to
-every client of its secondary (10 Hz) and real-time (125/500 Hz) interfaces, and a client that
-never reads fills its receive buffer, on which a controller may drop it. What arrives is
-dropped (RTDE carries the state) but for the controller's key messages: ``PROGRAM_XXX_STARTED``
-names every program that starts, and one not of this driver (a colleague's computer, the
-pendant) has replaced the action's program; the end of that stream is the connection's loss, known
-before the next program would go into a dead socket. A lost connection ends the action at the
-next state sample (the arm's last program runs on, and no stop could follow it), and so does a
-program found with its connection lost; the stop then goes over a new connection (the
-controller takes one at any time), and between actions a lost connection is made again.
-When no new connection is taken either, the stop goes to the dashboard server (port 29999:
-``stop`` ends the running program and the arm brakes), a second way in that shares no socket
-with the programs; only when that fails too does the stop count as not sent.
+every client of its primary and secondary (10 Hz) and real-time (125/500 Hz) interfaces, and a
+client that never reads fills its receive buffer, on which a controller may drop it. The
+state is dropped (RTDE carries it); the primary interface's key messages are read:
+``PROGRAM_XXX_STARTED`` names every program that starts, and one not of this driver (a
+colleague's computer, the pendant) has replaced the action's program. A port that names none
+of the driver's own programs sends no messages (the secondary interface, 30002): that is said
+once, as programs of others are then not seen. The end of that stream is the connection's
+loss, known before the next program would go into a dead socket. A lost connection ends the
+action at the next state sample (the arm's last program runs on, and no stop could follow it),
+and so does a program found with its connection lost; the stop then goes over a new
+connection (the controller takes one at any time), and between actions a lost connection is
+made again. When no new connection is taken either, the stop goes to the dashboard server
+(port 29999: ``stop`` ends the running program and the arm brakes), a second way in that
+shares no socket with the programs; only when that fails too does the stop count as not sent.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import socket
 import struct
@@ -59,6 +62,8 @@ if TYPE_CHECKING:
 
     from recorder.live import Received, SourceStats
     from recorder.runner._arm import Context
+
+_log = logging.getLogger("atikt.ur")
 
 #: The RTDE outputs the driver asks for (``target_moment``: the joint torques it records).
 RTDE_VARIABLES = (
@@ -183,6 +188,9 @@ class URArm:
         #: The program of another that started since :meth:`begin` (empty: none), seen by
         #: the script reader in the controller's key messages.
         self._foreign = ""
+        #: Programs sent, and starts of the driver's own programs the controller named.
+        self.programs_sent = self.own_starts = 0
+        self._no_messages_said = False
         #: Why the last new script connection failed.
         self._unsent = ""
         self._version = ""
@@ -302,7 +310,9 @@ class URArm:
                 return True
             if kind == ROBOT_MESSAGE:
                 started = _started_program(bytes(buffer[_MESSAGE_HEAD.size : size]))
-                if started is not None and not started.startswith(OWN_PROGRAMS):
+                if started is not None and started.startswith(OWN_PROGRAMS):
+                    self.own_starts += 1
+                elif started is not None:
                     self._foreign = started or "a program without a name"
             del buffer[:size]
         return True
@@ -376,6 +386,17 @@ class URArm:
         if self._script_lost:
             with contextlib.suppress(RigError):
                 self._reconnect()
+        if self.programs_sent and not self.own_starts and not self._no_messages_said:
+            self._no_messages_said = True  # by now the controller named the last action's
+            link = self.connection
+            _log.warning(
+                "%s: the controller named none of the %d programs sent to port %d: it sends "
+                "no messages there (a secondary interface), so programs of other clients are "
+                "not seen; give script_port = 30001 (the primary interface)",
+                self.where,
+                self.programs_sent,
+                link.script_port,
+            )
         with contextlib.suppress(SourceLostError):
             for item in reader.drain():
                 values = self._parse(item, count=False)
@@ -619,6 +640,7 @@ class URArm:
             except OSError as err:
                 lost = self._script_lost = f"{err.strerror or err}"
             else:
+                self.programs_sent += 1
                 return
         if not reconnect:
             msg = f"URScript connection to {where} lost ({lost})"

@@ -25,8 +25,8 @@ if TYPE_CHECKING:
 
     from recorder.live import LiveSkin
 
-#: The secondary interface's port (URScript programs).
-SCRIPT_PORT = 30002
+#: The primary interface's port: URScript programs in, the controller's messages out.
+SCRIPT_PORT = 30001
 
 #: Values of an object's pose: position (m) and rotation vector (rad), base frame.
 POSE_SIZE = 6
@@ -39,7 +39,9 @@ class UROptions:
     Attributes:
         host: The controller's address (the virtual lab: 127.0.0.1).
         rtde_port: RTDE port.
-        script_port: Secondary interface port for URScript (30002; 30003 also works).
+        script_port: The port the programs go to: 30001, the primary interface, whose
+            messages name every program that starts (another's is seen); 30002 and 30003
+            take programs too but send no messages.
         dashboard_port: The dashboard server's port (29999): the stop goes there when no
             URScript connection takes it; 0: nowhere.
         frequency: RTDE packages per second: 125 (CB3) or 500 (e-Series).

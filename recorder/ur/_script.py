@@ -1,6 +1,6 @@
 """URScript programs: how the UR driver carries out the runner's commands.
 
-The arm moves by URScript programs sent to the controller's secondary interface (port 30002):
+The arm moves by URScript programs sent to the controller's primary interface (port 30001):
 each program replaces the one running, so the rig steers an action phase by phase. As in the
 thesis, the approach is ``speedl`` towards the object with a speed from the skin's proximity,
 stopped with ``stopl`` at the light contact; a press is a ``movel`` to the depth (the rig waits

@@ -294,7 +294,12 @@ def _switch_within_a_cycle(frequency: int) -> None:
     "serve the simulator over a UR's RTDE and URScript ports (a virtual lab, on loopback)",
     arg("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, loopback)"),
     arg("--rtde-port", type=cli.port, default=30004, help="RTDE port (default: 30004)"),
-    arg("--script-port", type=cli.port, default=30002, help="URScript port (default: 30002)"),
+    arg(
+        "--script-port",
+        type=cli.port,
+        default=30001,
+        help="URScript port, a primary interface (default: 30001)",
+    ),
     arg(
         "--frequency",
         type=int,

@@ -1,19 +1,20 @@
 """The virtual lab's URScript port: programs are parsed, checked and run on the virtual arm.
 
-A UR controller's secondary interface (port 30002) takes a program as text; a new program
+A UR controller's primary interface (port 30001) takes a program as text; a new program
 replaces the running one. This server cuts the stream into programs (``def name(): ... end``
 or one line; a program above ``MAX_PROGRAM_BYTES``, or a definition unterminated past it, is
 refused with one log line and dropped), checks each as the controller's compiler would (an
 unknown function or an argument that is not a literal: one error line, the program does not
 run) and hands it to the world, which runs it cycle by cycle (``_runner``).
 
-Like a controller's secondary interface, it streams the arm's state to every client at 10 Hz:
+Like a controller's primary interface, it streams the arm's state to every client at 10 Hz:
 a primary-protocol robot state message (type 16) holding the robot mode data sub-package
 (type 0, the CB3 layout: timestamp, the power, stop and program flags, robot and control
 mode, speed fractions). When a program starts, every client gets the controller's key message
 ``PROGRAM_XXX_STARTED`` with the program's name (a robot message, type 20, of key type 7), as
-a controller sends it on its primary and secondary interfaces. A client that does not read
-only misses messages (a full buffer drops them); a client must not stall the programs it sends.
+a controller sends it on its primary interface (its secondary, 30002, sends no messages). A
+client that does not read only misses messages (a full buffer drops them); a client must not
+stall the programs it sends.
 
 Faults: a protective stop ``protective_stop_s`` (real seconds) after each announced action
 begins; the URScript connections closed ``drop_s`` after each announced action begins (a
@@ -55,7 +56,7 @@ if TYPE_CHECKING:
 __all__ = ["ScriptFaults", "ScriptServer", "check_program", "split_programs"]
 #: Programs' texts kept for tests (the newest).
 KEPT_PROGRAMS = 100
-#: The state stream's period on the URScript port, s (a secondary interface's 10 Hz).
+#: The state stream's period on the URScript port, s (a primary interface's 10 Hz).
 STATE_PERIOD_S = 0.1
 #: Primary protocol: message type robot state, sub-package type robot mode data.
 ROBOT_STATE, ROBOT_MODE_DATA = 16, 0
@@ -101,7 +102,7 @@ class ScriptServer(TcpServer):
         self,
         controller: VirtualController,
         host: str = "127.0.0.1",
-        port: int = 30002,
+        port: int = 30001,
         *,
         faults: ScriptFaults | None = None,
         limit: int = MAX_PROGRAM_BYTES,

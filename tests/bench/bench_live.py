@@ -76,7 +76,7 @@ def _lab(root: Path, rtde: int, script: int, udp: int, scale: float) -> Path:
     if scale != 1:
         text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
-    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("script_port = 30001", f"script_port = {script}")
     text = text.replace("frequency = 125", "frequency = 500")
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')

@@ -83,7 +83,7 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
     udp = _free_port(socket.SOCK_DGRAM)
     text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
-    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("script_port = 30001", f"script_port = {script}")
     text = text.replace("frequency = 125", f"frequency = {frequency}")
     text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
     text = text.replace("contact_force_n = 0.05", "contact_force_n = 0.15")

@@ -48,7 +48,7 @@ def _lab(tmp_path: Path, rtde: int, script: int, skin: str, scale: str = TIME_SC
     """Write the example UR configuration with this test's ports and a skin table."""
     text = (DATA / "ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
-    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("script_port = 30001", f"script_port = {script}")
     text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
     # the session's workflow is under test here, not the silence check (test_runner_stops):
     # a test machine running other tests beside this one may pause a process for 0.5 s

@@ -219,7 +219,7 @@ def test_any_exception_stops_the_arm_first(tmp_path: Path) -> None:
     _kept(path, "fake skin: a bug")
 
 
-LOST = "URScript connection to fake:30002 lost (closed by the controller); a new one failed"
+LOST = "URScript connection to fake:30001 lost (closed by the controller); a new one failed"
 
 
 def test_a_stop_that_cannot_reach_the_arm_is_said_not_claimed(tmp_path: Path) -> None:

@@ -219,10 +219,11 @@ def test_the_drivers_own_programs_are_not_taken_for_anothers() -> None:
     # every program of ours is announced by the controller too: none of them is another's
     with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
         assert rig.present(OBJECTS["wood"])
-        for _ in range(200):  # a hang guard: the key messages of the move have arrived
-            if rig.arm.script_bytes > 0:  # type: ignore[attr-defined]
+        for _ in range(500):  # a hang guard: the key message of the move has arrived
+            if rig.arm.own_starts > 0:  # type: ignore[attr-defined]
                 break
             time.sleep(0.01)
+        assert rig.arm.own_starts > 0  # type: ignore[attr-defined]
         assert rig.arm._foreign == ""  # type: ignore[attr-defined]
         lab.script.run("def theirs():\n  sleep(0.01)\nend\n")
         for _ in range(500):  # a hang guard, not a time check
@@ -586,6 +587,23 @@ def test_builder_checks_options_limits_and_poses() -> None:
         with pytest.raises(RigError, match=r"\[objects.wood\] pose = .*six finite numbers"):
             build_ur_rig(0, config({}, bad))
     assert not placed.can_present(OBJECTS["glass_plate"])
+
+
+def test_a_port_without_messages_is_said_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a secondary interface (30002) takes programs but names none: others' are not seen
+    with virtual_lab() as lab:
+        monkeypatch.setattr(lab.world, "_program_listeners", [])  # the lab names none
+        lab.world.prepare("wood", "P1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            for trial in (1, 2):
+                path = tmp_path / f"{trial:03d}.mcap"
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], trial, path, seed=0)
+    said = [r.getMessage() for r in caplog.records if r.name == "atikt.ur"]
+    assert len(said) == 1, said
+    assert "it sends no messages there (a secondary interface)" in said[0]
+    assert "give script_port = 30001" in said[0]
 
 
 def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks() -> None:

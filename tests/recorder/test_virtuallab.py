@@ -295,7 +295,7 @@ def _served_lab(tmp_path: Path) -> tuple[Path, list[str]]:
     udp = _free_port(socket.SOCK_DGRAM)
     text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
-    text = text.replace("script_port = 30002", f"script_port = {script}")
+    text = text.replace("script_port = 30001", f"script_port = {script}")
     text = text.replace("# time_scale = 0.1", "time_scale = 0.2")
     # The skin's 21 force sensors sum their noise (sd 0.009 N) and drift (0.002 N/s): over an
     # approach the peak of single samples may cross the catalog's 0.05 N before the touch (a
