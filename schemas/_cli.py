@@ -319,6 +319,11 @@ def _after(interrupted: str) -> str:
     return interrupted.partition("; ")[2] or interrupted
 
 
+#: The warning filter handed to the process pool's resource tracker (see
+#: :func:`workers_ignore_interrupts`): its messages start with ``resource_tracker:``.
+_QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
+
+
 @contextlib.contextmanager
 def workers_ignore_interrupts() -> Iterator[None]:
     """Start worker processes inside the block with Ctrl-C ignored in them.
@@ -328,7 +333,14 @@ def workers_ignore_interrupts() -> Iterator[None]:
     stays ignored, and Python then installs no KeyboardInterrupt handler, so workers spawned
     in this block leave Ctrl-C to the parent, which stops them. Keep the block short: Ctrl-C
     is ignored in this process too while it runs (the spawn itself takes milliseconds).
+
+    The process pool's resource tracker (joblib's loky), started here too, takes this
+    interpreter's warning options: it is told not to warn of the semaphores an interrupted run
+    leaves it to unlink (it unlinks them; a run interrupted while its pool starts would add
+    two warnings after the interruption's one line).
     """
+    if _QUIET_TRACKER not in sys.warnoptions:
+        sys.warnoptions.append(_QUIET_TRACKER)
     try:
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     except ValueError:  # not the main thread: signals are not ours to handle

@@ -227,3 +227,28 @@ def test_a_hostile_feature_cache_is_rebuilt_with_a_line(
     index = data / "index.parquet"
     pl.DataFrame({"path": ["x" * (64 << 20)]}).write_parquet(index, compression="zstd")
     assert replay(["check", str(data), "--workers", "1"]) == 1
+
+
+def test_the_pools_resource_tracker_does_not_warn_after_an_interruption() -> None:
+    # a run interrupted while its pool starts leaves the tracker semaphores to unlink, and it
+    # warned twice after the interruption's one line: it gets this interpreter's -W options
+    script = (
+        "import os, subprocess, joblib\n"
+        "from schemas import cli\n"
+        "with cli.workers_ignore_interrupts():\n"
+        "    done = joblib.Parallel(n_jobs=2)(joblib.delayed(os.getpid)() for _ in range(2))\n"
+        "print(subprocess.run(['ps', '-o', 'args=', '--ppid', str(os.getpid())],\n"
+        "                     capture_output=True, text=True, check=True).stdout)\n"
+    )
+    shown = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        check=True,
+        timeout=120,
+    ).stdout
+    trackers = [line for line in shown.splitlines() if "loky.backend.resource_tracker" in line]
+    assert trackers, shown
+    assert all("-Wignore:resource_tracker:UserWarning" in line for line in trackers), trackers
