@@ -19,6 +19,7 @@ controller_ns`` (``origin_monotonic_ns`` is in the first event). Kinds:
   (``actual_TCP_speed``) TCP speed reached zero, after moving;
 - ``action``: an announced action began (``object``, ``action``, ``trial``);
 - ``stop`` / ``unlock``: a protective or emergency stop, and its release;
+- ``halt``: the running program ended by the dashboard's ``stop`` (``program``: its name);
 - ``mode``: the robot mode changed (``robot_mode``: 3 powered off, 5 idle with the brakes
   engaged, 7 running), by the dashboard's ``power off``, ``power on`` and ``brake release``;
 - ``slider``: the teach pendant's speed slider moved (``fraction``, 0..1).

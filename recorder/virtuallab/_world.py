@@ -485,6 +485,7 @@ class VirtualWorld:
     def halt_program(self) -> None:
         """End the running program (the dashboard's ``stop``): the arm brakes as at its end."""
         with self._lock:
+            self.events_log.add("halt", self.controller_ns(), program=self._program_name())
             self._pending = None
             self._runner.finish()
 

@@ -11,6 +11,11 @@ of this process records actions against it and meets one cause per action:
 * ``silence``: the RTDE stream stalls (the cause: the moment it had been silent ``silence_s``);
 * ``drop``: the lab closes the URScript connection during the action (the cause: the lab's
   drop; the stop goes over a new connection);
+* ``gone``: the lab closes its URScript port during the action (the cause: the lab's fault; no
+  new connection is taken, the stop goes to the dashboard server, its arrival is the lab's
+  ``halt``);
+* ``replaced``: another client sends a program during the action (the cause: its arrival at
+  the lab; the controller's key message names it, and the stop replaces it);
 * ``sigint`` / ``sigterm``: Ctrl-C or SIGTERM sent to this process during the action;
 * ``write``: the file writer fails (a full disk) during the action;
 * ``error``: the skin raises an unexpected error during the action.
@@ -61,7 +66,18 @@ if TYPE_CHECKING:
     from recorder.live import RecorderClock
 
 
-CAUSES = ("limit", "protective", "silence", "drop", "sigint", "sigterm", "write", "error")
+CAUSES = (
+    "limit",
+    "protective",
+    "silence",
+    "drop",
+    "gone",
+    "replaced",
+    "sigint",
+    "sigterm",
+    "write",
+    "error",
+)
 SCALE = 0.2
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 POSE_Z = 0.15  # the example configuration's pose of wood
@@ -80,10 +96,11 @@ PRIORITY = {"recorder": 0, "lab": 0}
 def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], Path]:
     """Return the rig configuration, the serve-sim command and its events file."""
     rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    udp, dashboard = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_STREAM)
     text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
     text = text.replace("script_port = 30001", f"script_port = {script}")
+    text = text.replace("dashboard_port = 29999", f"dashboard_port = {dashboard}")
     text = text.replace("frequency = 125", f"frequency = {frequency}")
     text = text.replace("# time_scale = 0.1", f"time_scale = {SCALE}")
     text = text.replace("contact_force_n = 0.05", "contact_force_n = 0.15")
@@ -113,6 +130,8 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
         str(rtde),
         "--script-port",
         str(script),
+        "--dashboard-port",
+        str(dashboard),
     ]
     command += [
         "--rig-config",
@@ -128,6 +147,8 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
         command += ["--fault", "rtde.stall=3", "--fault", "rtde.at_action=1"]
     if cause == "drop":
         command += ["--fault", "script.drop=2.0"]
+    if cause == "gone":
+        command += ["--fault", "script.gone=2.0"]
     return lab, command, events
 
 
@@ -168,6 +189,15 @@ def _set_cause(rig: Any, cause: str) -> dict[str, int]:
     if cause in {"sigint", "sigterm"}:
         number = signal.SIGINT if cause == "sigint" else signal.SIGTERM
         return _after(2.0, lambda: os.kill(os.getpid(), number))
+    if cause == "replaced":  # a colleague's computer: a connection and a program of its own
+        link = rig.arm.connection
+
+        def send() -> None:
+            with socket.create_connection((link.host, link.script_port), timeout=5) as sock:
+                sock.sendall(b"def theirs():\n  sleep(100.0)\nend\n")
+                time.sleep(0.5)  # its connection stays while the lab takes the program
+
+        return _after(2.0, send)
     if cause == "write":
 
         def full(self: RecordingWriter, item: Any) -> None:
@@ -222,6 +252,7 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
         finally:
             RecordingWriter.write = WRITE  # type: ignore[method-assign]
         stops = list(rig.stops_sent)
+        time.sleep(0.5)  # the lab notes the arm's speed at zero before it is stopped
     if not stops:
         print(f"  ({cause}: the rig recorded no stop)", file=sys.stderr)
         return None
@@ -229,9 +260,15 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     events = [json.loads(line) for line in events_file.read_text().splitlines()]
     if cause == "protective":
         cause_mono = next(e["monotonic_ns"] for e in events if e["event"] == "stop")
-    elif cause == "drop":
+    elif cause in {"drop", "gone"}:
         cause_mono = next(
-            e["monotonic_ns"] for e in events if e["event"] == "fault" and e["fault"] == "drop"
+            e["monotonic_ns"] for e in events if e["event"] == "fault" and e["fault"] == cause
+        )
+    elif cause == "replaced":
+        cause_mono = next(
+            int(e["received_monotonic_ns"])
+            for e in events
+            if e["event"] == "program" and e.get("name") == "theirs"
         )
     else:  # a signal, a failed write, an error; or the rig's own: a sample, the silence
         cause_mono = cause_ns.get("ns", cause_rig - offset)
@@ -245,6 +282,8 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
     ]
     if cause == "protective":  # the stopped controller refuses programs: the rig's send time
         arrived = [round(sent_mono)]
+    if cause == "gone":  # the dashboard's stop: the lab's halt
+        arrived = [int(e["monotonic_ns"]) for e in events if e["event"] == "halt"]
     if not arrived:
         print(
             f"  ({cause}: no stop program reached the lab after the rig sent it)", file=sys.stderr
