@@ -26,11 +26,12 @@ arm then).
 from __future__ import annotations
 
 import contextlib
+import select
 import socket
 import struct
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from recorder.virtuallab._runner import RUNTIME_PAUSED, RUNTIME_PLAYING
@@ -71,8 +72,29 @@ ROBOT_MESSAGE, KEY_MESSAGE = 20, 7
 #: argument, title length).
 _ROBOT_MESSAGE = struct.Struct(">QbB")
 _KEY = struct.Struct(">iiB")
-#: How often a client's loop looks for messages to send, s.
-SEND_POLL_S = 0.02
+#: How often a client's loop looks whether the server stops, s.
+STOP_POLL_S = 0.1
+#: How long the rest of a message begun may take to send, s.
+SEND_TIMEOUT_S = 0.1
+
+
+@dataclass(slots=True)
+class _Outbox:
+    """Messages waiting for one client, and the socket that wakes its thread."""
+
+    waker: socket.socket
+    messages: list[bytes] = field(default_factory=list)
+
+    def put(self, message: bytes) -> None:
+        """Add a message and wake the client's thread (a full wake buffer: it is awake)."""
+        self.messages.append(message)
+        with contextlib.suppress(OSError):
+            self.waker.send(b"\0")
+
+    def take(self) -> list[bytes]:
+        """Return the waiting messages, leaving none."""
+        taken, self.messages = self.messages, []
+        return taken
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,7 +140,7 @@ class ScriptServer(TcpServer):
         self.drops_injected = 0
         self._clients: set[socket.socket] = set()
         #: Messages waiting for each client (sent by the client's own thread, whole).
-        self._outbox: dict[socket.socket, list[bytes]] = {}
+        self._outbox: dict[socket.socket, _Outbox] = {}
         controller.world.on_program(self._started)
         if self.faults.protective_stop_s > 0:
             controller.world.on_action(self._arm_stop)
@@ -134,26 +156,41 @@ class ScriptServer(TcpServer):
             return list(self._programs)
 
     def serve(self, sock: socket.socket) -> None:
-        """Read programs from one client until it leaves."""
+        """Read programs from one client until it leaves; send it the state and messages.
+
+        A message (a program started) wakes the client's thread at once, as a controller
+        sends it when it happens, not at the next state message.
+        """
         splitter = ProgramSplitter(self.limit)
-        sock.settimeout(SEND_POLL_S)
+        sock.settimeout(SEND_TIMEOUT_S)  # a message begun is finished within this
+        wake, waker = socket.socketpair()
+        waker.settimeout(0.0)  # a wake never blocks the world
         with self._lock:
             self._clients.add(sock)
-            self._outbox[sock] = []
+            self._outbox[sock] = _Outbox(waker)
         next_state = time.monotonic()
-        with contextlib.closing(sock), contextlib.suppress(OSError), self._client(sock):
+        with (
+            contextlib.closing(sock),
+            contextlib.closing(wake),
+            contextlib.closing(waker),
+            contextlib.suppress(OSError),
+            self._client(sock),
+        ):
             while not self.stopping.is_set():
+                wait = min(max(next_state - time.monotonic(), 0.0), STOP_POLL_S)
+                ready, _, _ = select.select([sock, wake], [], [], wait)
+                if wake in ready:
+                    wake.recv(4096)
                 with self._lock:
-                    waiting, self._outbox[sock] = self._outbox[sock], []
+                    waiting = self._outbox[sock].take()
                 if time.monotonic() >= next_state:
                     next_state += STATE_PERIOD_S
                     waiting.append(self.state_message())
                 for message in waiting:
                     _send_whole(sock, message)
-                try:
-                    chunk = sock.recv(65536)
-                except TimeoutError:
+                if sock not in ready:
                     continue
+                chunk = sock.recv(65536)
                 if not chunk:
                     return
                 received = time.monotonic_ns()
@@ -196,8 +233,8 @@ class ScriptServer(TcpServer):
         world = self.controller.world
         message = key_message("PROGRAM_XXX_STARTED", name, world.controller_ns() // 1000)
         with self._lock:
-            for waiting in self._outbox.values():
-                waiting.append(message)
+            for outbox in self._outbox.values():
+                outbox.put(message)
 
     @contextlib.contextmanager
     def _client(self, sock: socket.socket) -> Iterator[None]:

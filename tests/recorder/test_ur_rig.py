@@ -196,12 +196,13 @@ def test_another_program_started_mid_action_stops_it(tmp_path: Path) -> None:
         lab.world.prepare("wood", "S1", 1)
         theirs = "def theirs():\n  sleep(100.0)\nend\n"
 
-        def colleague(_action: tuple[str, str, int]) -> None:
-            timer = threading.Timer(0.3, lab.script.run, args=(theirs,))
-            timer.daemon = True
-            timer.start()
+        def colleague(name: str) -> None:  # mid-slide, when no program of ours is due
+            if name == "atikt_slide":
+                timer = threading.Timer(0.1, lab.script.run, args=(theirs,))
+                timer.daemon = True
+                timer.start()
 
-        lab.world.on_action(colleague)
+        lab.world.on_program(colleague)
         with pytest.raises(ActionStoppedError) as info:
             _record(lab.rig({"wood": POSE}), "S1", path)
         events = lab.world.events_log.events()
