@@ -151,7 +151,7 @@ class Connection:
     Attributes:
         host: The controller's address.
         rtde_port: RTDE port.
-        script_port: Secondary interface port for URScript.
+        script_port: The port the programs go to (30001, the primary interface).
         frequency: RTDE packages per second: 125 (CB3) or 500 (e-Series).
         dashboard_port: The dashboard server's port, the stop's way in when no URScript
             connection takes it (0: none).
