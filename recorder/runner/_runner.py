@@ -547,8 +547,9 @@ class ArmRig:
         judged here: the arm may stand outside one (that was the cause).
 
         Returns:
-            The clause to tell a person when the arm did not come to rest (empty: it did, or
-            its state can no longer be read).
+            The clause to tell a person when the arm did not come to rest, or when its state
+            stopped arriving while it was last seen moving (the stop cannot be confirmed);
+            empty: it came to rest.
         """
         cycles = REST_S * self.options.time_scale * _NS / self.arm.period_ns
         until = self._state.taken + max(cycles, REST_CYCLES)
@@ -559,13 +560,13 @@ class ArmRig:
                     f"the arm did not come to rest after the stop (a joint at {speed:.3f} "
                     "rad/s); stop it at the teach pendant now"
                 )
-            if self.clock.now_ns() > deadline:  # the state stopped arriving: nothing to judge
-                return ""
+            if self.clock.now_ns() > deadline:  # the state stopped arriving: nothing seen
+                return _unconfirmed(speed)
             items: list[StreamItem] = []
             try:
                 samples = self.arm.poll(CYCLE_WAIT_S)
             except SourceLostError:
-                return ""
+                return _unconfirmed(speed)
             try:
                 blocks = self.skin.poll()
             except SourceLostError:  # the skin's loss is not the arm's: go on judging it
@@ -981,6 +982,14 @@ class ArmRig:
 
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
+
+
+def _unconfirmed(speed: float) -> str:
+    """Return what to say when the arm's state stopped arriving while it was moving."""
+    return (
+        "the arm's state stopped arriving, so the stop cannot be confirmed (last seen moving, "
+        f"a joint at {speed:.3f} rad/s); check the arm at the teach pendant now"
+    )
 
 
 def undelivered_line(reason: str) -> str:

@@ -109,6 +109,25 @@ def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Pat
     _kept(path, "silent")
 
 
+@pytest.mark.parametrize("cause", ["silence", "lost"])
+def test_a_stop_the_arms_state_cannot_confirm_is_said(tmp_path: Path, cause: str) -> None:
+    # mid-slide the arm's state stops arriving (a cable out, a stalled controller): the stop
+    # goes out, but nothing shows the arm at rest; the line must not claim a stopped arm
+    path = tmp_path / "001.mcap"
+    rig = fake_rig(cause)
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.moving_qd = 0.05
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, SLIDE, 1, path, seed=0)
+    said = str(info.value)
+    assert arm.stop_cycle is not None  # the stop went out
+    assert (
+        "the arm's state stopped arriving, so the stop cannot be confirmed (last seen moving, "
+        "a joint at 0.050 rad/s); check the arm at the teach pendant now" in said
+    ), said
+    _kept(path, "the stop cannot be confirmed")
+
+
 def test_a_consumer_held_up_after_a_read_is_not_a_silent_arm() -> None:
     # the writer (or an import, a collection) holds the runner up for three times silence_s
     # right after it read the sources; the arm went on sending: not silence, no stop
