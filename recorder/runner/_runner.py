@@ -345,11 +345,14 @@ class ArmRig:
             self._until_reached(target, limit_ns, obj.id)
             self._home = target.copy()
         except (Stop, SourceLostError) as stop:
-            self._send_stop(None, str(stop))
-            msg = f"{self.where}: moving to {obj.id}: {stop}; check the arm, then retry"
+            undelivered = self._send_stop(None, str(stop))
+            said = undelivered_line(undelivered) if undelivered else self.stop_note
+            left = f"; {said}" if said else ""
+            msg = f"{self.where}: moving to {obj.id}: {stop}{left}; check the arm, then retry"
             raise RigError(msg) from None
         except BaseException:
-            self._send_stop(None, "error")
+            if undelivered := self._send_stop(None, "error"):
+                print(f"{self.where}: {undelivered_line(undelivered)}", file=sys.stderr)  # noqa: T201
             raise
         finally:
             self._watch = _Never()

@@ -406,6 +406,32 @@ def test_a_stop_taken_by_no_way_in_is_said(tmp_path: Path) -> None:
     assert "stop it at the teach pendant now" in said, said
 
 
+@pytest.mark.parametrize("dashboard", [True, False])
+def test_a_stop_during_the_move_to_an_object_says_how_it_went(dashboard: bool) -> None:
+    # the URScript port goes away while the arm moves to the object: the refusal says whether
+    # the stop reached the arm (the dashboard's), or that a person must stop it
+    with virtual_lab() as lab:
+
+        def gone(name: str) -> None:
+            if name == "atikt_move":
+                timer = threading.Timer(0.05, lab.script.close_port)
+                timer.daemon = True
+                timer.start()
+
+        lab.world.on_program(gone)
+        port = lab.dashboard.address[1] if dashboard else 0
+        with lab.rig({"wood": POSE}, dashboard_port=port) as rig, pytest.raises(RigError) as info:
+            rig.present(OBJECTS["wood"])
+    line = str(info.value)
+    assert "moving to wood: arm connection lost (URScript connection to" in line, line
+    if dashboard:
+        assert "the arm was stopped by the dashboard server 127.0.0.1:" in line, line
+    else:
+        assert "the stop did not reach the arm" in line, line
+        assert "stop it at the teach pendant now" in line
+    assert line.endswith("check the arm, then retry")
+
+
 def _until_lost() -> None:
     """Wait until the driver's script reader has seen its connection end (its thread ends)."""
     for thread in threading.enumerate():
