@@ -66,12 +66,14 @@ class _Lab:
         self.rtde = _free_port(socket.SOCK_STREAM)
         self.script = _free_port(socket.SOCK_STREAM)
         self.udp = _free_port(socket.SOCK_DGRAM)
+        self.dashboard = _free_port(socket.SOCK_STREAM)
         self.domain, self.scale = domain, scale
         self.topic_map = tmp / "topic_map.toml"
         self.topic_map.write_text(_scaled_map(scale), "utf-8")
         text = (ROOT / EXAMPLE).read_text("utf-8")
         text = text.replace("rtde_port = 30004", f"rtde_port = {self.rtde}")
         text = text.replace("script_port = 30001", f"script_port = {self.script}")
+        text = text.replace("dashboard_port = 29999", f"dashboard_port = {self.dashboard}")
         text = text.replace("# time_scale = 0.1", f"time_scale = {scale}")
         text = text.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{self.udp}"')
         self.config = tmp / "lab.toml"
@@ -83,6 +85,7 @@ class _Lab:
         command = command.replace(TOPIC_MAP, str(self.topic_map))
         command = command.replace("udp://127.0.0.1:5005", f"udp://127.0.0.1:{self.udp}")
         command = command.replace("--domain-id 0", f"--domain-id {self.domain}")
+        command = command.replace("--dashboard-port 29999", f"--dashboard-port {self.dashboard}")
         program, *argv = shlex.split(command)
         if argv[0] == "serve-sim":
             argv += ["--rtde-port", str(self.rtde), "--script-port", str(self.script)]

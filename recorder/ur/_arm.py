@@ -194,6 +194,8 @@ class URArm:
         #: Why the last new script connection failed.
         self._unsent = ""
         self._version = ""
+        #: Whether the dashboard server answered on connecting (empty: not asked).
+        self._dashboard = ""
         self._offset_ns = 0
         self._newest_ns = -1
         self._counter = SourceCounter("rtde", period_ns=self.period_ns)
@@ -236,6 +238,7 @@ class URArm:
             self._rtde, self._reader = rtde, reader
             self._open_script()
             stack.callback(self._close_script)
+            self._dashboard = self._probe_dashboard()
             self._offset_ns = self._estimate_offset()
             self._stack = stack.pop_all()
         return self
@@ -374,8 +377,32 @@ class URArm:
         }
 
     def facts(self) -> Mapping[str, str]:
-        """Return the controller's version, as it said on connecting."""
-        return {"controller_version": self._version} if self._version else {}
+        """Return the controller's version, and whether its dashboard answered, on connecting."""
+        learned = {"controller_version": self._version} if self._version else {}
+        if self._dashboard:
+            learned["dashboard"] = self._dashboard
+        return learned
+
+    def _probe_dashboard(self) -> str:
+        """Return whether the dashboard server (the stop's second way in) greets a client.
+
+        Nothing is sent to it: the greeting is read, and the connection closed.
+        """
+        port = self.connection.dashboard_port
+        if not port:
+            return "none (dashboard_port = 0)"
+        try:
+            with socket.create_connection(
+                (self.connection.host, port), timeout=DASHBOARD_S
+            ) as sock:
+                sock.settimeout(DASHBOARD_S)
+                with sock.makefile("rb") as answers:
+                    greeting = answers.readline(1024)
+        except OSError as err:
+            return f"port {port} not reachable ({err.strerror or err})"
+        if greeting.startswith(b"Connected"):
+            return f"port {port} answers"
+        return f"port {port} answered {greeting.decode(errors='replace').strip()!r}"
 
     def begin(self) -> None:
         """Take what queued between actions as the arm's state; count afresh from here.

@@ -138,6 +138,9 @@ def test_a_dry_run_checks_the_rig_and_moves_and_writes_nothing(
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
+    lab.write_text(
+        lab.read_text("utf-8").replace("dashboard_port = 29999", f"dashboard_port = {dashboard}")
+    )
     out, events = tmp_path / "session", tmp_path / "events.jsonl"
     served = ["--rtde-port", str(rtde), "--script-port", str(script), "--rig-config", str(lab)]
     served += ["--skin", f"udp://127.0.0.1:{udp}", "--dashboard-port", str(dashboard)]
@@ -160,6 +163,7 @@ def test_a_dry_run_checks_the_rig_and_moves_and_writes_nothing(
     )
     assert lines[1] == "objects presented by the rig: wood; placed by hand: glass_plate"
     assert lines[2].startswith("rig: ready (controller_version ")
+    assert f"dashboard port {dashboard} answers" in lines[2], lines[2]  # the stop's second way
     assert any(line.startswith("  rtde: ") and line.endswith(", complete") for line in lines)
     assert any(line.startswith("  skin-") for line in lines)
     assert refused == 1
