@@ -14,7 +14,9 @@ every client of its primary and secondary (10 Hz) and real-time (125/500 Hz) int
 client that never reads fills its receive buffer, on which a controller may drop it. The
 state is dropped (RTDE carries it); the primary interface's key messages are read:
 ``PROGRAM_XXX_STARTED`` names every program that starts, and one not of this driver (a
-colleague's computer, the pendant) has replaced the action's program. A port that names none
+colleague's computer, the pendant) has replaced the action's program; a runtime exception
+(a program that did not compile, or one the controller stopped) ends the action with the
+controller's own text. A port that names none
 of the driver's own programs sends no messages (the secondary interface, 30002): that is said
 once, as programs of others are then not seen. The end of that stream is the connection's
 loss, known before the next program would go into a dead socket. A lost connection ends the
@@ -132,9 +134,11 @@ DASHBOARD_PORT = 29999
 #: robot message type and its key message type, a robot message's head (timestamp, source,
 #: type) and a key message's (code, argument, title length).
 _MESSAGE_HEAD = struct.Struct(">iB")
-ROBOT_MESSAGE, KEY_MESSAGE = 20, 7
+ROBOT_MESSAGE, KEY_MESSAGE, RUNTIME_EXCEPTION = 20, 7, 10
 _ROBOT_MESSAGE_HEAD = struct.Struct(">QbB")
 _KEY_HEAD = struct.Struct(">iiB")
+#: A runtime exception message's head (line, column); its text follows.
+_EXCEPTION_HEAD = struct.Struct(">ii")
 #: The largest primary-protocol message taken as framed (a controller's are a few kB).
 MAX_MESSAGE = 1 << 20
 #: The prefix of this driver's program names (``_script``).
@@ -188,6 +192,9 @@ class URArm:
         #: The program of another that started since :meth:`begin` (empty: none), seen by
         #: the script reader in the controller's key messages.
         self._foreign = ""
+        #: The controller's last runtime exception since :meth:`begin` (empty: none): the
+        #: program running was stopped, or one sent did not compile.
+        self._exception = ""
         #: Programs sent, and starts of the driver's own programs the controller named.
         self.programs_sent = self.own_starts = 0
         self._no_messages_said = False
@@ -312,11 +319,14 @@ class URArm:
             if len(buffer) < size:
                 return True
             if kind == ROBOT_MESSAGE:
-                started = _started_program(bytes(buffer[_MESSAGE_HEAD.size : size]))
+                body = bytes(buffer[_MESSAGE_HEAD.size : size])
+                started = _started_program(body)
                 if started is not None and started.startswith(OWN_PROGRAMS):
                     self.own_starts += 1
                 elif started is not None:
                     self._foreign = started or "a program without a name"
+                if (exception := _runtime_exception(body)) is not None:
+                    self._exception = exception
             del buffer[:size]
         return True
 
@@ -432,7 +442,7 @@ class URArm:
         self._overflow_base = reader.overflowed
         self._counter = SourceCounter("rtde", period_ns=self.period_ns)
         self.malformed = 0
-        self._foreign = ""
+        self._foreign = self._exception = ""
         self._client_malformed_base = self._rtde.malformed if self._rtde is not None else 0
 
     def poll(self, wait_s: float) -> list[ArmSample]:
@@ -509,6 +519,8 @@ class URArm:
                 f"{slider:.3f}; set it to 100 %: an action's speeds are part of its recording)"
             )
         runtime = int(values.get("runtime_state", 1))
+        if not stopped and self._exception:
+            stopped = f"a runtime exception ({self._exception})"
         if not stopped and runtime in RUNTIME_PAUSED:
             stopped = (
                 f"program {RUNTIME_PAUSED[runtime]} (RTDE runtime_state {runtime}: the teach "
@@ -726,6 +738,16 @@ def _started_program(body: bytes) -> str | None:
     if title != b"PROGRAM_XXX_STARTED":
         return None
     return body[head + title_size :].decode(errors="replace")
+
+
+def _runtime_exception(body: bytes) -> str | None:
+    """Return the text of a runtime exception message (None: another message)."""
+    head = _ROBOT_MESSAGE_HEAD.size + _EXCEPTION_HEAD.size
+    if len(body) < head or body[_ROBOT_MESSAGE_HEAD.size - 1] != RUNTIME_EXCEPTION:
+        return None
+    line, column = _EXCEPTION_HEAD.unpack_from(body, _ROBOT_MESSAGE_HEAD.size)
+    text = body[head:].decode(errors="replace").strip() or "no text"
+    return f"line {line}, column {column}: {text}" if line > 0 else text
 
 
 def _said(at: Context | None) -> Announcement | None:

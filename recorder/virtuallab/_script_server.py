@@ -12,7 +12,8 @@ a primary-protocol robot state message (type 16) holding the robot mode data sub
 (type 0, the CB3 layout: timestamp, the power, stop and program flags, robot and control
 mode, speed fractions). When a program starts, every client gets the controller's key message
 ``PROGRAM_XXX_STARTED`` with the program's name (a robot message, type 20, of key type 7), as
-a controller sends it on its primary interface (its secondary, 30002, sends no messages). A
+a controller sends it on its primary interface (its secondary, 30002, sends no messages); a
+program the lab cannot run gets a runtime exception message (type 10) with the error. A
 client that does not read only misses messages (a full buffer drops them); a client must not
 stall the programs it sends.
 
@@ -67,11 +68,13 @@ ROBOT_STATE, ROBOT_MODE_DATA = 16, 0
 _MODE_DATA = struct.Struct(">iBQ???????BBddd")
 _MESSAGE = struct.Struct(">iB")
 #: Primary protocol: message type robot message, its key message type.
-ROBOT_MESSAGE, KEY_MESSAGE = 20, 7
+ROBOT_MESSAGE, KEY_MESSAGE, RUNTIME_EXCEPTION = 20, 7, 10
 #: A robot message's head (timestamp in us, source, type) and a key message's (code,
 #: argument, title length).
 _ROBOT_MESSAGE = struct.Struct(">QbB")
 _KEY = struct.Struct(">iiB")
+#: A runtime exception message's head (line, column).
+_EXCEPTION = struct.Struct(">ii")
 #: How often a client's loop looks whether the server stops, s.
 STOP_POLL_S = 0.1
 #: How long the rest of a message begun may take to send, s.
@@ -231,7 +234,10 @@ class ScriptServer(TcpServer):
     def _started(self, name: str) -> None:
         """Tell every client that program ``name`` started (a key message)."""
         world = self.controller.world
-        message = key_message("PROGRAM_XXX_STARTED", name, world.controller_ns() // 1000)
+        self._tell(key_message("PROGRAM_XXX_STARTED", name, world.controller_ns() // 1000))
+
+    def _tell(self, message: bytes) -> None:
+        """Send ``message`` to every client (each client's thread sends it, whole)."""
         with self._lock:
             for outbox in self._outbox.values():
                 outbox.put(message)
@@ -253,6 +259,8 @@ class ScriptServer(TcpServer):
         if program.errors:
             for error in program.errors:
                 self._refuse(f"URScript error, program not run: {error}")
+            world = self.controller.world
+            self._tell(runtime_exception("; ".join(program.errors), world.controller_ns() // 1000))
             return
         self.controller.execute(program)
 
@@ -313,6 +321,13 @@ def key_message(title: str, text: str, timestamp_us: int) -> bytes:
     head = _ROBOT_MESSAGE.pack(timestamp_us, -2, KEY_MESSAGE)  # source -2: the controller
     title_bytes = title.encode()
     body = head + _KEY.pack(0, 0, len(title_bytes)) + title_bytes + text.encode()
+    return _MESSAGE.pack(_MESSAGE.size + len(body), ROBOT_MESSAGE) + body
+
+
+def runtime_exception(text: str, timestamp_us: int) -> bytes:
+    """Return a primary-protocol runtime exception message (a program the controller stopped)."""
+    head = _ROBOT_MESSAGE.pack(timestamp_us, -2, RUNTIME_EXCEPTION)
+    body = head + _EXCEPTION.pack(0, 0) + text.encode()
     return _MESSAGE.pack(_MESSAGE.size + len(body), ROBOT_MESSAGE) + body
 
 

@@ -496,6 +496,28 @@ def test_a_program_the_controller_does_not_run_is_said_at_once(
     assert "the controller did not run the program" in said
 
 
+def test_a_program_the_controller_refuses_is_said_with_its_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a controller that cannot compile a program (another firmware's signature) says why in
+    # a runtime exception message on the primary interface: the line carries it
+    from recorder.ur._script import FUNCTIONS  # noqa: PLC0415
+    from recorder.virtuallab import _urscript  # noqa: PLC0415
+
+    monkeypatch.setattr(_urscript, "FUNCTIONS", FUNCTIONS - {"force_mode"})
+    path = tmp_path / "001.mcap"
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "S1", 1)
+        with pytest.raises(ActionStoppedError) as info:
+            _record(lab.rig({"wood": POSE}), "S1", path)
+    said = str(info.value)
+    assert "a runtime exception (line 2: unknown function force_mode()) from the controller" in (
+        said
+    ), said
+    assert info.value.path is not None
+    assert info.value.path.name == "001.incomplete.mcap"
+
+
 def test_a_new_program_replaces_the_playing_action() -> None:
     with virtual_lab() as lab:
         lab.world.start_action("wood", "C1", 1)
