@@ -195,6 +195,8 @@ class URArm:
         #: The controller's last runtime exception since :meth:`begin` (empty: none): the
         #: program running was stopped, or one sent did not compile.
         self._exception = ""
+        #: The size a message claimed when the script stream stopped being framed.
+        self._unframed_size = 0
         #: Programs sent, and starts of the driver's own programs the controller named.
         self.programs_sent = self.own_starts = 0
         self._no_messages_said = False
@@ -306,6 +308,16 @@ class URArm:
             if framed:
                 buffer += chunk
                 framed = self._read_messages(buffer)
+                if not framed:
+                    link = self.connection
+                    _log.warning(
+                        "%s: the stream on port %d is not the controller's primary protocol "
+                        "(a message of %d bytes): programs of other clients are no longer seen "
+                        "on this connection",
+                        self.where,
+                        link.script_port,
+                        self._unframed_size,
+                    )
         if self._script is sock:  # not closed by us
             self._script_lost = lost
 
@@ -314,6 +326,7 @@ class URArm:
         while len(buffer) >= _MESSAGE_HEAD.size:
             size, kind = _MESSAGE_HEAD.unpack_from(buffer)
             if not _MESSAGE_HEAD.size <= size <= MAX_MESSAGE:
+                self._unframed_size = size
                 buffer.clear()
                 return False
             if len(buffer) < size:

@@ -678,6 +678,23 @@ def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks()
     assert arm._foreign == ""
 
 
+def test_a_script_stream_that_is_not_the_primary_protocol_is_said(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    with virtual_lab() as lab:
+        garbage = b"HTTP/1.1 400 Bad Request\r\n\r\n"
+        monkeypatch.setattr(lab.script, "state_message", lambda: garbage)
+        with lab.rig({"wood": POSE}):
+            for _ in range(500):  # a hang guard: the reader has judged the stream's first bytes
+                if any(r.name == "atikt.ur" for r in caplog.records):
+                    break
+                time.sleep(0.01)
+            time.sleep(0.3)  # more of the stream: still said once
+    said = [r.getMessage() for r in caplog.records if r.name == "atikt.ur"]
+    assert len(said) == 1, said
+    assert "is not the controller's primary protocol (a message of 1213486160 bytes)" in said[0]
+
+
 def test_cb3_cannot_stream_at_500_hz() -> None:
     with virtual_lab(frequency=125) as lab, pytest.raises(RigError, match="125 Hz at most"):
         lab.rig(frequency=500).__enter__()
