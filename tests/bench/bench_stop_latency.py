@@ -79,6 +79,10 @@ CAUSES = (
     "error",
 )
 SCALE = 0.2
+#: When a cause happens, s after the action is asked for (this process's causes) and after the
+#: lab saw the action begin (the lab's faults): during the approach, which lasts about 1 s at
+#: this time scale, while the arm moves, so the time to its speed at zero is measured too.
+CAUSE_S, LAB_CAUSE_S = 0.6, 0.4
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 POSE_Z = 0.15  # the example configuration's pose of wood
 
@@ -142,13 +146,13 @@ def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], 
         str(events),
     ]
     if cause == "protective":
-        command += ["--fault", "script.protective_stop=1.0"]
+        command += ["--fault", f"script.protective_stop={LAB_CAUSE_S}"]
     if cause == "silence":
-        command += ["--fault", "rtde.stall=3", "--fault", "rtde.at_action=1"]
+        command += ["--fault", "rtde.stall=3", "--fault", f"rtde.at_action={LAB_CAUSE_S}"]
     if cause == "drop":
-        command += ["--fault", "script.drop=2.0"]
+        command += ["--fault", f"script.drop={LAB_CAUSE_S}"]
     if cause == "gone":
-        command += ["--fault", "script.gone=2.0"]
+        command += ["--fault", f"script.gone={LAB_CAUSE_S}"]
     return lab, command, events
 
 
@@ -183,12 +187,12 @@ def _after(seconds: float, then: Callable[[], None]) -> dict[str, int]:
 
 
 def _set_cause(rig: Any, cause: str) -> dict[str, int]:
-    """Arrange for ``cause`` to happen 2 s into the action; return where its time goes."""
+    """Arrange for ``cause`` to happen during the approach; return where its time goes."""
     cause_ns: dict[str, int] = {}
     start = time.monotonic_ns()
     if cause in {"sigint", "sigterm"}:
         number = signal.SIGINT if cause == "sigint" else signal.SIGTERM
-        return _after(2.0, lambda: os.kill(os.getpid(), number))
+        return _after(CAUSE_S, lambda: os.kill(os.getpid(), number))
     if cause == "replaced":  # a colleague's computer: a connection and a program of its own
         link = rig.arm.connection
 
@@ -197,11 +201,11 @@ def _set_cause(rig: Any, cause: str) -> dict[str, int]:
                 sock.sendall(b"def theirs():\n  sleep(100.0)\nend\n")
                 time.sleep(0.5)  # its connection stays while the lab takes the program
 
-        return _after(2.0, send)
+        return _after(CAUSE_S, send)
     if cause == "write":
 
         def full(self: RecordingWriter, item: Any) -> None:
-            if time.monotonic_ns() - start > 2e9:
+            if time.monotonic_ns() - start > CAUSE_S * 1e9:
                 cause_ns.setdefault("ns", time.monotonic_ns())
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
             WRITE(self, item)
@@ -211,7 +215,7 @@ def _set_cause(rig: Any, cause: str) -> dict[str, int]:
         poll = rig.skin.poll
 
         def broken() -> Any:
-            if time.monotonic_ns() - start > 2e9:
+            if time.monotonic_ns() - start > CAUSE_S * 1e9:
                 cause_ns.setdefault("ns", time.monotonic_ns())
                 msg = "a bug in the skin"
                 raise RuntimeError(msg)
