@@ -20,10 +20,13 @@ of this process records actions against it and meets one cause per action:
 * ``write``: the file writer fails (a full disk) during the action;
 * ``error``: the skin raises an unexpected error during the action.
 
-For each: the time from the cause to the arrival of the stop program at the controller, in
-controller cycles and ms (p99 and median over the runs), and the time from that arrival to the
-arm's measured TCP speed at zero, beside the bound its deceleration gives (speed / a, plus a
-cycle). Printed as a table.
+Every cause comes during the approach, while the arm moves. For each: the time from the cause
+to the arrival of the stop program at the controller, in controller cycles and ms (p99 and
+median over the runs), and the median time from that arrival to the arm's measured TCP speed
+at zero (``zero ms``; empty when the arm was at rest before the stop arrived: a protective
+stop halts it itself), printed as a table; below it, the bound the deceleration gives (the
+approach's top speed over the acceleration, in real time at the lab's time scale, plus a
+cycle).
 
     python tests/bench/bench_stop_latency.py --runs 20            # 125 and 500 Hz
     python tests/bench/bench_stop_latency.py --quick              # one run of three causes
@@ -47,6 +50,7 @@ import sys
 import tempfile
 import threading
 import time
+import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -362,6 +366,14 @@ def main() -> None:
                 else:
                     found.append(result)
             print(_row(cause, frequency, found, missed), flush=True)
+    motion = tomllib.loads((ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8"))
+    speed, acceleration = (motion["options"][k] for k in ("approach_max_m_s", "acceleration_m_s2"))
+    for frequency in frequencies:
+        bound = speed / acceleration * SCALE * 1e3 + 1e3 / frequency
+        print(
+            f"bound at {frequency} Hz: {bound:.1f} ms from the stop to zero speed "
+            f"({speed:g} m/s / {acceleration:g} m/s^2 at time scale {SCALE}, plus a cycle)"
+        )
 
 
 if __name__ == "__main__":
