@@ -86,6 +86,11 @@ SKIN_BEHIND_S = 2.0
 #: How long one approach speed command moves the arm unless renewed (action time), s; the
 #: runner renews it every half of it.
 SPEED_LEASE_S = 0.5
+#: The oldest the arm's latest state may be (controller cycles since it arrived) when a motion
+#: is commanded on it: an older one (a stalled stream) is waited on, and a speed is not
+#: renewed on it (its lease runs out: the arm stops by itself), until the silence check ends
+#: the action.
+FRESH_CYCLES = 10
 #: How long the arm may take to come to rest after the stop, s (action time), and at least
 #: how many controller cycles: a stop at the runner's deceleration halts any of its motions in
 #: a fraction of it.
@@ -674,12 +679,23 @@ class ArmRig:
             # at most every 0.1 s of action time (a lab at time_scale S runs 1/S times faster),
             # and before the last command's lease ends
             changed = abs(wanted - speed) > 0.25 * speed and now - sent_ns > _NS // 10 * scale
-            if changed or now - sent_ns > renew_ns:
+            if (changed or now - sent_ns > renew_ns) and self._fresh():
                 speed, sent_ns = wanted, now
                 self._speed(direction, speed, at)
         self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
         yield self._event("contact")
+        yield from self._until_fresh()  # the contact's pose: a state taken now, not a stale one
         return self._state.pose.copy()
+
+    def _fresh(self) -> bool:
+        """Return whether the arm's latest state is fresh enough to command a motion on."""
+        age = self.clock.now_ns() - self._state.receive_ns
+        return age <= FRESH_CYCLES * self.arm.period_ns
+
+    def _until_fresh(self) -> Iterator[StreamItem]:
+        """Read the sources until the arm's latest state is fresh (the silence check bounds it)."""
+        while not self._fresh():
+            yield from self._pump()
 
     def _wait_for_skin(
         self, blind: _Blind, at: Context, since_ns: int
@@ -752,6 +768,7 @@ class ArmRig:
         hold_ns = round(action.duration_s * scale * _NS)
         here = _phase(at, "execute")
         yield self._event("execute")
+        yield from self._until_fresh()
         if action.kind == "slide":
             velocity = np.concatenate([_tool_axis(contact, 0) * action.speed_m_s, np.zeros(3)])
             self.arm.force_slide(
@@ -803,6 +820,7 @@ class ArmRig:
         holds it, still for :data:`SETTLE_S` after it moved.
         """
         motion = self.options.motion
+        yield from self._until_fresh()
         target = self._retract_target(contact)
         self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, _phase(at, "retract"))
         yield self._event("retract")

@@ -63,6 +63,8 @@ class FakeArm:
     stop_ignored: bool = False
     #: The joints' speed while the arm moves, rad/s.
     moving_qd: float = 0.01
+    #: The cycle from which the arm's state stops arriving (a stalled stream; None: never).
+    silent_from: int | None = None
     #: The cycle at which each ``move`` reached its target, by phase.
     reached: dict[str, int] = field(default_factory=dict)
     #: The stamp of the sample at which each ``move`` reached its target, by phase (ns).
@@ -166,6 +168,8 @@ class FakeArm:
                 pose[2] = -0.5
             elif self.cause == "protective":
                 stopped = "protective stop (fake)"
+        if self.silent_from is not None and self._cycle >= self.silent_from:
+            return None
         moving = self.target is not None or bool(np.any(self.velocity))
         qd = np.full(6, self.moving_qd if moving else 0.0)
         return ArmSample(stamp_ns, stamp_ns, np.zeros(6), qd, np.zeros(6), pose, force, stopped)

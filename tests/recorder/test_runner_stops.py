@@ -128,6 +128,23 @@ def test_a_stop_the_arms_state_cannot_confirm_is_said(tmp_path: Path, cause: str
     _kept(path, "the stop cannot be confirmed")
 
 
+def test_no_motion_is_commanded_on_a_stale_state(tmp_path: Path) -> None:
+    # the arm's state stalls mid-approach: the approach's speed is not renewed on the last
+    # state (its lease runs out, the arm stops by itself) until the silence check ends it
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    rig.options = dataclasses.replace(rig.options, silence_s=0.5)  # 62 cycles of silence
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.silent_from = 30  # cycles into the approach, before the contact
+    with rig, pytest.raises(ActionStoppedError, match="arm state silent"):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    assert arm._contact_cycle is None  # stalled before the contact
+    renewals = [cycle for cycle, command in arm.commands if command == "speed approach"]
+    assert any(cycle < arm.silent_from for cycle in renewals)  # renewed while the state came
+    # none after FRESH_CYCLES (10) without a state; a renewal went out every 2 cycles before
+    assert max(renewals) <= arm.silent_from + 12, (renewals, arm.silent_from)
+
+
 def test_a_consumer_held_up_after_a_read_is_not_a_silent_arm() -> None:
     # the writer (or an import, a collection) holds the runner up for three times silence_s
     # right after it read the sources; the arm went on sending: not silence, no stop
