@@ -71,8 +71,10 @@ MOVING_WAIT_CYCLES = 125
 #: How long after a motion command the arm must have started moving, s (action time): a
 #: controller starts a program within a few cycles.
 START_S = 1.0
-#: ... and at least this many cycles (a fast lab's second is a few).
-START_CYCLES = 25
+#: ... and at least this many cycles: a fast lab's second is a few, and a virtual lab in a
+#: loaded process (its program checked and started by threads that wait for the interpreter)
+#: may take a few hundred ms of them.
+START_CYCLES = 50
 #: How long the arm must be still (after the retract started) to end the action, s.
 SETTLE_S = 0.25
 #: How far from the home pose an approach may begin and still return there, m.

@@ -491,8 +491,8 @@ def test_a_program_the_controller_does_not_run_is_said_at_once(
         monkeypatch.setattr(lab.controller, "execute", lambda _program: False)  # local control
         with lab.rig({"wood": POSE}) as rig, pytest.raises(RigError) as refused:
             rig.present(OBJECTS["wood"])
-    said = str(refused.value)  # said after 25 cycles, not after the present's deadline (5 s)
-    assert "moving to wood: the arm did not start moving toward wood in 25 controller" in said
+    said = str(refused.value)  # said after 50 cycles, not after the present's deadline (5 s)
+    assert "moving to wood: the arm did not start moving toward wood in 50 controller" in said
     assert "the controller did not run the program" in said
 
 
