@@ -91,8 +91,9 @@ SPEED_LEASE_S = 0.5
 #: The oldest the arm's latest state may be (controller cycles since it arrived) when a motion
 #: is commanded on it: an older one (a stalled stream) is waited on, and a speed is not
 #: renewed on it (its lease runs out: the arm stops by itself), until the silence check ends
-#: the action.
+#: the action. At least FRESH_S: at 500 Hz ten cycles (20 ms) is a loaded machine's hiccup.
 FRESH_CYCLES = 10
+FRESH_S = 0.05
 #: How long the arm may take to come to rest after the stop, s (action time), and at least
 #: how many controller cycles: a stop at the runner's deceleration halts any of its motions in
 #: a fraction of it.
@@ -692,7 +693,7 @@ class ArmRig:
     def _fresh(self) -> bool:
         """Return whether the arm's latest state is fresh enough to command a motion on."""
         age = self.clock.now_ns() - self._state.receive_ns
-        return age <= FRESH_CYCLES * self.arm.period_ns
+        return age <= max(FRESH_CYCLES * self.arm.period_ns, round(FRESH_S * _NS))
 
     def _until_fresh(self) -> Iterator[StreamItem]:
         """Read the sources until the arm's latest state is fresh (the silence check bounds it)."""
