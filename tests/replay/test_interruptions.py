@@ -58,6 +58,19 @@ def _workers_running(after_s: float = 0.5) -> Callable[[int], bool]:
     return ready
 
 
+def _python(args: list[str], *, timeout_s: float) -> subprocess.CompletedProcess[str]:
+    """Run this interpreter with ``args`` in the checkout; return what it printed."""
+    return subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+        [sys.executable, *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        check=False,
+        timeout=timeout_s,
+    )
+
+
 def _interrupt(argv: list[str], ready: Callable[[int], bool]) -> subprocess.CompletedProcess[str]:
     """Run ``python -m argv`` in its own process group; Ctrl-C the group once ``ready()``.
 
@@ -119,15 +132,7 @@ def test_ctrl_c_in_a_study_is_one_line_and_a_rerun_completes(tmp_path: Path) -> 
     assert _interrupted_line(result.stderr).startswith("atikt-replay: interrupted")
     assert not out.exists()
     assert _leftovers(data, tmp_path) == []
-    done = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
-        [sys.executable, "-m", *argv],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        check=False,
-        timeout=300,
-    )
+    done = _python(["-m", *argv], timeout_s=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert (out / "results.parquet").is_file()
 
@@ -240,15 +245,9 @@ def test_the_pools_resource_tracker_does_not_warn_after_an_interruption() -> Non
         "print(subprocess.run(['ps', '-o', 'args=', '--ppid', str(os.getpid())],\n"
         "                     capture_output=True, text=True, check=True).stdout)\n"
     )
-    shown = subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
-        [sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        check=True,
-        timeout=120,
-    ).stdout
-    trackers = [line for line in shown.splitlines() if "loky.backend.resource_tracker" in line]
-    assert trackers, shown
+    shown = _python(["-c", script], timeout_s=120)
+    assert shown.returncode == 0, shown.stderr[-2000:]
+    lines = shown.stdout.splitlines()
+    trackers = [line for line in lines if "loky.backend.resource_tracker" in line]
+    assert trackers, shown.stdout
     assert all("-Wignore:resource_tracker:UserWarning" in line for line in trackers), trackers
