@@ -16,10 +16,10 @@ state is dropped (RTDE carries it); the primary interface's key messages are rea
 ``PROGRAM_XXX_STARTED`` names every program that starts, and one not of this driver (a
 colleague's computer, the pendant) has replaced the action's program; a runtime exception
 (a program that did not compile, or one the controller stopped) ends the action with the
-controller's own text. A port that names none
-of the driver's own programs sends no messages (the secondary interface, 30002): that is said
-once, as programs of others are then not seen. The end of that stream is the connection's
-loss, known before the next program would go into a dead socket. A lost connection ends the
+controller's own text. A port that names none of the driver's own programs sends no messages
+(the secondary interface, 30002): that is said once, as programs of others are then not seen.
+The end of that stream is the connection's loss, known before the next program would go into a
+dead socket. A lost connection ends the
 action at the next state sample (the arm's last program runs on, and no stop could follow it),
 and so does a program found with its connection lost; the stop then goes over a new
 connection (the controller takes one at any time), and between actions a lost connection is
@@ -415,17 +415,30 @@ class URArm:
         if not port:
             return "none (dashboard_port = 0)"
         try:
-            with socket.create_connection(
-                (self.connection.host, port), timeout=DASHBOARD_S
-            ) as sock:
-                sock.settimeout(DASHBOARD_S)
-                with sock.makefile("rb") as answers:
-                    greeting = answers.readline(1024)
+            greeting, _ = self._dashboard_says(None)
         except OSError as err:
             return f"port {port} not reachable ({err.strerror or err})"
-        if greeting.startswith(b"Connected"):
+        if greeting.startswith("Connected"):
             return f"port {port} answers"
-        return f"port {port} answered {greeting.decode(errors='replace').strip()!r}"
+        return f"port {port} answered {greeting!r}"
+
+    def _dashboard_says(self, command: bytes | None) -> tuple[str, str]:
+        """Return the dashboard server's greeting and its answer to ``command`` (None: none).
+
+        Each step (connect, greeting, answer) may take :data:`DASHBOARD_S`.
+
+        Raises:
+            OSError: The server could not be reached or did not answer in time.
+        """
+        link = self.connection
+        with socket.create_connection((link.host, link.dashboard_port), DASHBOARD_S) as sock:
+            sock.settimeout(DASHBOARD_S)
+            with sock.makefile("rb") as answers:
+                greeting = answers.readline(1024).decode(errors="replace").strip()
+                if command is None:
+                    return greeting, ""
+                sock.sendall(command + b"\n")
+                return greeting, answers.readline(1024).decode(errors="replace").strip()
 
     def begin(self) -> None:
         """Take what queued between actions as the arm's state; count afresh from here.
@@ -635,14 +648,7 @@ class URArm:
         if not link.dashboard_port:
             return "no dashboard_port"
         try:
-            with socket.create_connection(
-                (link.host, link.dashboard_port), timeout=DASHBOARD_S
-            ) as sock:
-                sock.settimeout(DASHBOARD_S)
-                with sock.makefile("rb") as answers:
-                    answers.readline(1024)  # the greeting
-                    sock.sendall(b"stop\n")
-                    answer = answers.readline(1024).decode(errors="replace").strip()
+            _, answer = self._dashboard_says(b"stop")
         except OSError as err:
             return f"port {link.dashboard_port}: {err.strerror or err}"
         if answer.lower().startswith("stopped"):
