@@ -1,5 +1,6 @@
 import contextlib
 import errno
+import math
 import os
 import signal
 import subprocess
@@ -261,12 +262,12 @@ def _alive(pid: int) -> bool:
 
 
 def _wait(condition: Callable[[], bool], seconds: float) -> bool:
-    deadline = time.monotonic() + seconds
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
+    # a hang guard (``seconds`` of 100 ms waits), not a time check
+    for _ in range(math.ceil(seconds / 0.1)):
+        if condition():
+            return True
         time.sleep(0.1)
-    return True
+    return condition()
 
 
 _KILLED_PARENT = """

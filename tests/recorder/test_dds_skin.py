@@ -55,18 +55,26 @@ def test_ros2_skin_reads_the_virtual_lab_and_counts_its_drops(
         with serve_ros2(world, topic_map, faults, domain_id=dds_domain, rate_hz=100) as server:
             skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
             with skin:
-                deadline = time.monotonic() + 30
-                while not blocks:
-                    assert time.monotonic() < deadline, "the skin read nothing"
+                for _ in range(600):  # a hang guard (30 s of 50 ms waits), not a time check
+                    if blocks:
+                        break
                     blocks.extend(skin.poll())
                     time.sleep(0.05)
+                else:
+                    pytest.fail("the skin read nothing")
                 after = server.sent.get("/skin/cell_3", 0) + 20
                 server.faults = Ros2Faults(drop={"/skin/cell_3": dropped}, drop_after=after)
-                until = time.monotonic() + 1.2
-                while time.monotonic() < until or server.dropped.get("/skin/cell_3", 0) < dropped:
-                    assert time.monotonic() < deadline, "the server dropped nothing"
+                until = time.monotonic() + 1.2  # the skin reads on at least this long
+                for _ in range(600):  # a hang guard (30 s of 50 ms waits), not a time check
+                    if (
+                        time.monotonic() >= until
+                        and server.dropped.get("/skin/cell_3", 0) >= dropped
+                    ):
+                        break
                     blocks.extend(skin.poll())
                     time.sleep(0.05)
+                else:
+                    pytest.fail("the server dropped nothing")
                 time.sleep(0.3)  # samples after the drop: the gap ends
                 blocks.extend(skin.poll())
                 blocks.extend(skin.finish())
@@ -236,10 +244,12 @@ def test_a_ros2_drop_placed_after_the_first_action_lands_there(dds_domain: int) 
         time.sleep(0.5)  # the lab runs a while before any action
         assert server.dropped == {}
         world.start_action("wood", "P1", 1)
-        deadline = time.monotonic() + 10
-        while not server.dropped:
-            assert time.monotonic() < deadline, "the server dropped nothing"
+        for _ in range(500):  # a hang guard (10 s of 20 ms waits), not a time check
+            if server.dropped:
+                break
             time.sleep(0.02)
+        else:
+            pytest.fail("the server dropped nothing")
     began = world.first_action_ns
     assert began is not None
     assert server.dropped == {"/skin/cell_3": 1}
@@ -283,10 +293,12 @@ def test_a_ros2_skin_counts_a_jittery_publishers_lost_messages_by_their_counter(
     skin = open_skin(section, RecorderClock(), str(tmp_path / "lab.toml"))
     blocks: list[SkinBlock] = []
     with skin:
-        deadline = time.monotonic() + 10
-        while any(w.matched() == 0 for w in writers.values()):
-            assert time.monotonic() < deadline, "no reader matched"
+        for _ in range(1000):  # a hang guard (10 s of 10 ms waits), not a time check
+            if all(w.matched() != 0 for w in writers.values()):
+                break
             time.sleep(0.01)
+        else:
+            pytest.fail("no reader matched")
         skin.begin()
         start = time.time_ns() + 100_000_000
         for i in range(count):

@@ -349,10 +349,13 @@ def _play_after(world: Any, server: Any, action: str, trial: int) -> None:
     """Play an action and return once its 'end' was published."""
     before = len(server.annotated)
     _play(world, action, trial)
-    deadline = time.monotonic() + 90  # a loaded machine's virtual lab plays slowly
-    while not any(json.loads(t)["phase"] == "end" for _, t in server.annotated[before:]):
-        assert time.monotonic() < deadline, "the server announced no end"
+    # a hang guard (90 s of 20 ms waits: a loaded machine's virtual lab plays slowly)
+    for _ in range(4500):
+        if any(json.loads(t)["phase"] == "end" for _, t in server.annotated[before:]):
+            break
         time.sleep(0.02)
+    else:
+        pytest.fail("the server announced no end")
 
 
 def _journals(out: Path) -> list[str]:
@@ -411,10 +414,12 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
             _play_after(world, server, "S1", 2)  # its end arrives ...
             opened_ns = time.time_ns()
             _announce(world, "P1", 1, "approach")  # ... and the next action opens at once
-            deadline = time.monotonic() + 60
-            while not _journaled(out, b'"action": "P1"', opened_ns):
-                assert time.monotonic() < deadline, "the listener journaled no 'approach'"
+            for _ in range(240):  # a hang guard (60 s of 250 ms waits), not a time check
+                if _journaled(out, b'"action": "P1"', opened_ns):
+                    break
                 time.sleep(0.25)  # every chunk record is scanned: not too often
+            else:
+                pytest.fail("the listener journaled no 'approach'")
             killed_ns = time.time_ns()
             process.send_signal(signal.SIGKILL)
             process.wait(10)
