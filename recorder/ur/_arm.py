@@ -37,6 +37,7 @@ import math
 import socket
 import struct
 import threading
+import time
 from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
@@ -143,6 +144,9 @@ _EXCEPTION_HEAD = struct.Struct(">ii")
 MAX_MESSAGE = 1 << 20
 #: The prefix of this driver's program names (``_script``).
 OWN_PROGRAMS = "atikt_"
+#: Seconds after its first program by which a controller that names programs has named one
+#: (a real controller does within a few cycles; generous for a loaded virtual lab).
+NAMED_WITHIN_S = 1.0
 #: RTDE samples read when connecting to estimate the controller's clock offset.
 OFFSET_SAMPLES = 10
 _NS = 1_000_000_000
@@ -199,6 +203,10 @@ class URArm:
         self._unframed_size = 0
         #: Programs sent, and starts of the driver's own programs the controller named.
         self.programs_sent = self.own_starts = 0
+        #: When the first program was sent (monotonic ns, 0: none yet). A controller names a
+        #: program within a few cycles; one sent just before an action begins (a move to a
+        #: pose the arm is at already ends at once) may not be named yet.
+        self._first_sent_ns = 0
         self._no_messages_said = False
         #: Why the last new script connection failed.
         self._unsent = ""
@@ -449,8 +457,11 @@ class URArm:
         if self._script_lost:
             with contextlib.suppress(RigError):
                 self._reconnect()
-        if self.programs_sent and not self.own_starts and not self._no_messages_said:
-            self._no_messages_said = True  # by now the controller named the last action's
+        named_by_now = self._first_sent_ns and (
+            time.monotonic_ns() - self._first_sent_ns > NAMED_WITHIN_S * _NS
+        )
+        if named_by_now and not self.own_starts and not self._no_messages_said:
+            self._no_messages_said = True
             link = self.connection
             _log.warning(
                 "%s: the controller named none of the %d programs sent to port %d: it sends "
@@ -699,6 +710,7 @@ class URArm:
                 lost = self._script_lost = f"{err.strerror or err}"
             else:
                 self.programs_sent += 1
+                self._first_sent_ns = self._first_sent_ns or time.monotonic_ns()
                 return
         if not reconnect:
             msg = f"URScript connection to {where} lost ({lost})"

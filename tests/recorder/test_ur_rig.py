@@ -655,6 +655,35 @@ def test_a_port_without_messages_is_said_once(
     assert "give script_port = 30001" in said[0]
 
 
+def test_a_program_not_yet_named_when_its_action_begins_is_not_said(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # the move to an object the arm is at ends at once: the action begins before the
+    # controller's message naming the move arrived (here 0.2 s late); a whole action later
+    # it has, and the primary interface is not called a secondary one
+    import threading  # noqa: PLC0415
+
+    with virtual_lab() as lab:
+        lab.world.prepare("wood", "P1", 1)
+        with lab.rig({"wood": POSE}) as rig:  # the arm goes to the pose
+            assert rig.present(OBJECTS["wood"])
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
+        listeners = list(lab.world._program_listeners)
+
+        def late(name: str) -> None:
+            for listener in listeners:
+                threading.Timer(0.2, listener, (name,)).start()
+
+        monkeypatch.setattr(lab.world, "_program_listeners", [late])
+        with lab.rig({"wood": POSE}) as rig:  # a new session: counted afresh
+            assert rig.present(OBJECTS["wood"])  # as a session does: the arm is there already
+            for trial in (2, 3):
+                path = tmp_path / f"{trial:03d}.mcap"
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], trial, path, seed=0)
+            assert rig.arm.own_starts > 0  # type: ignore[attr-defined]
+    assert [r.getMessage() for r in caplog.records if r.name == "atikt.ur"] == []
+
+
 def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks() -> None:
     from recorder.live import RecorderClock  # noqa: PLC0415
     from recorder.ur._arm import Connection, URArm  # noqa: PLC0415
