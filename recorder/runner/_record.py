@@ -93,19 +93,7 @@ def record_action(
     for viewer in viewers:
         viewer.begin(info)
     with deferred_interrupts() as flag:
-        with RecordingWriter(path, info, durable=durable) as writer:
-            # an arm's loop must never wait for the disk: its writer has a thread of its own
-            sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
-            with sink:
-                put = _fan_out(sink.put, [viewer.offer for viewer in viewers])
-                stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
-            if sink.failure is not None:
-                raise _failed(path, sink.failure) from sink.failure
-            if stop is not None:
-                writer.mark_incomplete(_said(stop), stop.at_ns)
-            if stats := source_stats(rig):
-                writer.add_sources(stats)
-        written = writer.result
+        written, stop = _write(rig, obj, action, trial, path, info, viewers, flag, durable=durable)
     if written is None:  # pragma: no cover (the 'with' block always sets it)
         msg = f"{path}: the recording was not finished"
         raise RecorderError(msg)
@@ -115,6 +103,43 @@ def record_action(
     if stop is not None:
         raise ActionStoppedError(_said(stop), stop.at_ns, written.path)
     return written
+
+
+def _write(  # noqa: PLR0917 (record_action's own arguments, passed on)
+    rig: Rig,
+    obj: ObjectSpec,
+    action: ActionSpec,
+    trial: int,
+    path: Path,
+    info: RecordingInfo,
+    viewers: Sequence[Viewer],
+    flag: InterruptFlag,
+    *,
+    durable: bool,
+) -> tuple[WrittenRecording | None, Stop | None]:
+    """Run the action into its file; return what was written and the stop that ended it."""
+    writer = RecordingWriter(path, info, durable=durable)
+    stop: Stop | None = None
+    failure: RecorderError | None = None
+    try:
+        with writer:
+            # an arm's loop must never wait for the disk: its writer has a thread of its own
+            sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
+            with sink:
+                put = _fan_out(sink.put, [viewer.offer for viewer in viewers])
+                stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
+            if sink.failure is not None:
+                failure = _failed(path, sink.failure)
+                raise failure from sink.failure
+            if stop is not None:
+                writer.mark_incomplete(_said(stop), stop.at_ns)
+            if stats := source_stats(rig):
+                writer.add_sources(stats)
+    except RecorderError as err:
+        if err is not failure:
+            raise
+        raise _writing_stopped(err, stop, writer.kept) from err.__cause__
+    return writer.result, stop
 
 
 def check_room(directory: Path) -> None:
@@ -207,6 +232,26 @@ def _run(
             with contextlib.suppress(Exception):
                 items.close()
     return None
+
+
+def _writing_stopped(err: RecorderError, stop: Stop | None, kept: Path | None) -> RecorderError:
+    """Return the line of an action the file's writing ended: what of the arm, where the data is.
+
+    A stop ended the action (the runner saw the writer fail): the arm was stopped, or what a
+    person must know of it. What arrived is kept: as the incomplete recording, or as its
+    ``.part`` when the disk had no room to finish it (the next session sets it aside).
+    """
+    said = [str(err)]
+    if stop is not None:
+        said.append(stop.arm_left or "the arm was stopped")
+    if kept is not None and kept.name.endswith(".part"):
+        said.append(
+            f"what arrived is kept in {kept} (no room to finish it; "
+            f"'atikt-replay check {kept} --recover' salvages it)"
+        )
+    elif kept is not None:
+        said.append(f"what arrived is kept in {kept}")
+    return RecorderError("; ".join(said))
 
 
 def _failed(path: Path, failure: BaseException) -> RecorderError:

@@ -734,6 +734,19 @@ class RecordingWriter:
                 self._finish()
 
     @property
+    def kept(self) -> Path | None:
+        """Where what was written is, once the writer has exited.
+
+        The (incomplete) recording, or the ``.part`` left when even finishing it failed (a
+        full disk); None: nothing was kept.
+        """
+        if self.result is not None:
+            return self.result.path
+        if self._temporary is not None and self._temporary.exists():
+            return self._temporary
+        return None
+
+    @property
     def written(self) -> int:
         """Return how many messages were written so far."""
         return sum(self._sequences.values())

@@ -38,6 +38,10 @@ SLIDE = load_actions()["S1"]
 MOST_CYCLES = 2
 
 
+def _incomplete(path: Path) -> Path:
+    return path.with_name("001.incomplete.mcap")
+
+
 def _kept(path: Path, reason: str) -> None:
     """The action's file is the incomplete one, with messages and the stop's reason."""
     assert not path.exists()
@@ -238,10 +242,45 @@ def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
         write(self, item)  # type: ignore[arg-type]
 
     monkeypatch.setattr(RecordingWriter, "write", full_after_contact)
-    with rig, pytest.raises(RecorderError, match="No space left on device"):
+    with rig, pytest.raises(RecorderError, match="No space left on device") as info:
         record_action(rig, OBJECT, ACTION, 1, path, seed=0)
     _stopped_in_time(arm, failed["cycle"])
     _kept(path, "No space left on device")
+    said = str(info.value)  # the line says the arm stopped and where the data is
+    assert said.endswith(f"; the arm was stopped; what arrived is kept in {_incomplete(path)}")
+    assert "\n" not in said
+
+
+def test_a_disk_too_full_to_finish_the_file_keeps_its_part_and_says_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the disk is full: the writer cannot finish even the incomplete recording (its summary,
+    # its sync): the .part holds what arrived, and the line names it
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    write = RecordingWriter.write
+
+    def full_after_contact(self: RecordingWriter, item: object) -> None:
+        if arm._contact_cycle is not None and arm._cycle > arm._contact_cycle + 5:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        write(self, item)  # type: ignore[arg-type]
+
+    def no_room(_fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(RecordingWriter, "write", full_after_contact)
+    monkeypatch.setattr(os, "fsync", no_room)
+    with rig, pytest.raises(RecorderError) as info:
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    (part,) = tmp_path.glob("*.part")
+    assert part.stat().st_size > 0
+    said = str(info.value)
+    assert said.startswith(f"{path}: writing the recording failed (")
+    assert "No space left on device" in said
+    assert f"; the arm was stopped; what arrived is kept in {part} (no room to finish it; " in said
+    assert arm.stop_cycle is not None
+    assert not list(tmp_path.glob("*.mcap"))
 
 
 def test_any_exception_stops_the_arm_first(tmp_path: Path) -> None:
