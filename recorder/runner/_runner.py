@@ -139,7 +139,14 @@ class RunnerOptions:
 class Stop(Exception):  # noqa: N818 (control flow inside the runner, never escapes it)
     """A stop condition met inside the runner."""
 
-    def __init__(self, reason: str, at_ns: int, arrived: Sequence[StreamItem] = ()) -> None:
+    def __init__(
+        self,
+        reason: str,
+        at_ns: int,
+        arrived: Sequence[StreamItem] = (),
+        *,
+        fix: str = "check the arm, then retry",
+    ) -> None:
         """Keep the reason, when it was met and what arrived with its cause.
 
         Args:
@@ -147,11 +154,13 @@ class Stop(Exception):  # noqa: N818 (control flow inside the runner, never esca
             at_ns: When the cause was met (recorder clock, ns).
             arrived: What arrived with the cause, not yet handed over (handed over once the
                 stop went out).
+            fix: What to do when it stops a move between actions.
         """
         super().__init__(reason)
         self.reason = reason
         self.at_ns = at_ns
         self.arrived = arrived
+        self.fix = fix
         #: What a person must know of the arm after the stop, one clause: the stop did not
         #: reach it, or it did not come to rest (empty: it was stopped).
         self.arm_left = ""
@@ -356,7 +365,8 @@ class ArmRig:
             undelivered = self._send_stop(None, str(stop))
             said = undelivered_line(undelivered) if undelivered else self.stop_note
             left = f"; {said}" if said else ""
-            msg = f"{self.where}: moving to {obj.id}: {stop}{left}; check the arm, then retry"
+            fix = stop.fix if isinstance(stop, Stop) else "check the arm, then retry"
+            msg = f"{self.where}: moving to {obj.id}: {stop}{left}; {fix}"
             raise RigError(msg) from None
         except BaseException:
             if undelivered := self._send_stop(None, "error"):
@@ -949,6 +959,7 @@ class ArmRig:
         if violation:
             raise Stop(violation, violation_ns or now)
         reason = violation or self._watch.problem()
+        fix = "check the arm, then retry"
         if not reason:
             read = now if polled_ns is None else polled_ns
             silence = round(self.options.silence_s * _NS)
@@ -958,8 +969,12 @@ class ArmRig:
                 reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
             elif read - last_skin > silence:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
+                fix = (
+                    "check that the skin sends (the dry run lists each source) and the rig "
+                    "configuration's [skin], then retry"
+                )
         if reason:
-            raise Stop(reason, now)
+            raise Stop(reason, now, fix=fix)
 
     def _skin_catch_up(self, end_ns: int) -> Iterator[StreamItem]:
         """Pump until the skin's samples cover ``end_ns``, at most :data:`SKIN_DELAY_S`.

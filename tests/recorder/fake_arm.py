@@ -239,6 +239,8 @@ class FakeSkin:
         self.slow_after_cause_s = 0.0
         #: How late the skin's samples arrive (a transport that delivers late), ns.
         self.delay_ns = 0
+        #: A skin that sends nothing (unplugged, or its sender not started).
+        self.mute = False
 
     def __enter__(self) -> Self:
         return self
@@ -263,7 +265,7 @@ class FakeSkin:
         if self.arm.cause_cycle is not None:
             time.sleep(self.slow_after_cause_s)
         now = self.clock.now_ns()
-        if now - self.delay_ns - self._next_ns < 4_000_000:
+        if self.mute or now - self.delay_ns - self._next_ns < 4_000_000:
             return []
         count = (now - self.delay_ns - self._next_ns) // 4_000_000
         data = np.full((int(count), 1, 3), self._force() / 3, dtype=np.float32)
@@ -281,7 +283,7 @@ class FakeSkin:
         return float(self.arm.pose[2] - SURFACE_Z)
 
     def last_receive_ns(self) -> int | None:
-        return self.clock.now_ns()
+        return None if self.mute else self.clock.now_ns()
 
     def stats(self) -> list[SourceStats]:
         return []

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
-from fake_arm import FakeArm, fake_rig
+from fake_arm import START, FakeArm, FakeSkin, fake_rig
 from mcap.reader import make_reader
 
 from recorder import ActionStoppedError, RecorderError, RigError, load_actions, load_objects
@@ -540,3 +540,19 @@ def test_the_room_an_action_asks_for_grows_with_its_recordings(
     assert "(twice its largest recording here)" in said
     assert arm.commands == []
     assert sorted(f.name for f in action.iterdir()) == ["001.mcap"]
+
+
+def test_a_silent_skin_on_the_way_to_an_object_names_the_skin_not_the_arm() -> None:
+    rig = fake_rig()
+    skin: FakeSkin = rig.skin  # type: ignore[assignment]
+    skin.mute = True
+    rig._poses["wood"] = START + np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    with rig, pytest.raises(RigError) as info:
+        rig.present(OBJECT)
+    said = str(info.value)
+    assert said.startswith("fake.toml: moving to wood: skin silent for "), said
+    assert said.endswith(
+        "; check that the skin sends (the dry run lists each source) and the rig "
+        "configuration's [skin], then retry"
+    )
+    assert "\n" not in said
