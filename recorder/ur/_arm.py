@@ -34,6 +34,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import secrets
 import socket
 import struct
 import threading
@@ -203,6 +204,10 @@ class URArm:
         self._unframed_size = 0
         #: Programs sent, and starts of the driver's own programs the controller named.
         self.programs_sent = self.own_starts = 0
+        #: This driver's mark on its programs' names (``atikt_move_<tag>``): the controller
+        #: names every program that starts, so another computer running this recorder against
+        #: the same arm (its programs are ``atikt_*`` too) is told apart by it.
+        self.tag = secrets.token_hex(3)
         #: When the first program was sent (monotonic ns, 0: none yet). A controller names a
         #: program within a few cycles; one sent just before an action begins (a move to a
         #: pose the arm is at already ends at once) may not be named yet.
@@ -342,7 +347,7 @@ class URArm:
             if kind == ROBOT_MESSAGE:
                 body = bytes(buffer[_MESSAGE_HEAD.size : size])
                 started = _started_program(body)
-                if started is not None and started.startswith(OWN_PROGRAMS):
+                if started is not None and _own(started, self.tag):
                     self.own_starts += 1
                 elif started is not None:
                     self._foreign = started or "a program without a name"
@@ -682,6 +687,10 @@ class URArm:
             stats = dataclasses.replace(stats, malformed=stats.malformed + malformed)
         return [stats]
 
+    def _named(self, text: str) -> str:
+        """Return a program with this driver's :attr:`tag` in its name."""
+        return _tagged(text, self.tag)
+
     def _send(self, text: str, *, reconnect: bool = False) -> None:
         """Send a URScript program (it replaces the running one).
 
@@ -702,7 +711,7 @@ class URArm:
         if sock is None and not lost:
             msg = f"URScript connection to {where} is closed"
             raise SourceLostError(msg)
-        data = text.encode()
+        data = self._named(text).encode()
         if sock is not None and not lost:
             try:
                 sock.sendall(data)
@@ -757,6 +766,19 @@ def _stop_rtde(rtde: RtdeClient, reader: SourceReader) -> None:
     with contextlib.suppress(RtdeError):
         rtde.pause(timeout_s=0.2)
     reader.stop()
+
+
+def _own(name: str, tag: str) -> bool:
+    """Whether program ``name`` is one this driver (``tag``) sent."""
+    return name.startswith(OWN_PROGRAMS) and name.endswith(f"_{tag}")
+
+
+def _tagged(text: str, tag: str) -> str:
+    """Return a ``def name():`` program as ``def name_<tag>():`` (see :attr:`URArm.tag`)."""
+    if not text.startswith("def "):
+        return text
+    name, rest = text[4:].split("(", 1)
+    return f"def {name}_{tag}({rest}"
 
 
 def _started_program(body: bytes) -> str | None:

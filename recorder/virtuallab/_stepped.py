@@ -265,7 +265,7 @@ class SteppedArm(URArm):
     def _send(self, text: str, *, reconnect: bool = False) -> None:  # noqa: ARG002 (no wire)
         """Run a program as the lab's URScript server does (errors go to its log)."""
         self._speeding = None
-        program = parse_program(text, self.lab.clock.now_ns())
+        program = parse_program(self._named(text), self.lab.clock.now_ns())
         world = self.lab.world
         if program.errors:
             for error in program.errors:

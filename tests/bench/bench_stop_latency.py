@@ -285,7 +285,7 @@ def _one(tmp: Path, frequency: int, cause: str) -> dict[str, float] | None:
         int(e["received_monotonic_ns"])
         for e in events
         if e["event"] == "program"
-        and e.get("name") == "atikt_stop"
+        and str(e.get("name", "")).startswith("atikt_stop_")
         and int(e.get("received_monotonic_ns", 0)) >= sent_mono - 1_000_000
     ]
     if cause == "protective":  # the stopped controller refuses programs: the rig's send time

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from ur_lab import POSE, TIME_SCALE, Lab, WorldSkin, config, virtual_lab
+from ur_lab import POSE, TIME_SCALE, Lab, WorldSkin, config, program_kind, virtual_lab
 
 import recorder
 from recorder import (
@@ -61,7 +61,7 @@ def test_full_action_passes_check_and_opens_everywhere(tmp_path: Path) -> None:
         firsts = [p.splitlines()[1].strip() for p in lab.script.programs]
         said = [line.startswith('textmsg("atikt:') for line in firsts]
         renewals = [
-            p.startswith("def atikt_approach():") and line.startswith("speedl(")
+            p.startswith("def atikt_approach_") and line.startswith("speedl(")
             for p, line in zip(lab.script.programs, firsts, strict=True)
         ]
         assert all(s or r for s, r in zip(said[1:], renewals[1:], strict=True))
@@ -188,16 +188,18 @@ def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -
     assert not any(tmp_path.rglob("*.mcap*"))
 
 
-def test_another_program_started_mid_action_stops_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["theirs", "atikt_slide_0a0a0a"])
+def test_another_program_started_mid_action_stops_it(tmp_path: Path, name: str) -> None:
     # a colleague's computer sends a program mid-slide: it replaces ours at the controller
-    # (RTDE still says "playing"); the controller's key message names it, and the action ends
+    # (RTDE still says "playing"); the controller's key message names it, and the action ends.
+    # Also when that computer runs this recorder (its programs are atikt_* with its own tag)
     path = tmp_path / "001.mcap"
     with virtual_lab() as lab:
         lab.world.prepare("wood", "S1", 1)
-        theirs = "def theirs():\n  sleep(100.0)\nend\n"
+        theirs = f"def {name}():\n  sleep(100.0)\nend\n"
 
-        def colleague(name: str) -> None:  # mid-slide, when no program of ours is due
-            if name == "atikt_slide":
+        def colleague(started: str) -> None:  # mid-slide, when no program of ours is due
+            if program_kind(started) == "atikt_slide" and started != name:
                 timer = threading.Timer(0.1, lab.script.run, args=(theirs,))
                 timer.daemon = True
                 timer.start()
@@ -207,10 +209,11 @@ def test_another_program_started_mid_action_stops_it(tmp_path: Path) -> None:
             _record(lab.rig({"wood": POSE}), "S1", path)
         events = lab.world.events_log.events()
     said = str(info.value)
-    assert "another client's program 'theirs' started on the controller and replaced ours" in said
+    assert f"another client's program '{name}' started on the controller and replaced ours" in said
     assert "did not reach" not in said
     programs = [e.details["name"] for e in events if e.kind == "program"]
-    assert "theirs" in programs
+    assert name in programs
+    programs = [program_kind(p) for p in programs]
     assert programs[-1] == "atikt_stop", programs  # the stop came last: nothing of ours after it
     assert info.value.path is not None
     assert info.value.path.name == "001.incomplete.mcap"
@@ -381,7 +384,7 @@ def test_a_lost_script_connection_ends_the_action_and_the_stop_takes_a_new_one(
     assert re.search(r"URScript connection to 127\.0\.0\.1:\d+ lost \(closed by the ", said), said
     assert "did not reach" not in said
     after = _after_fault(events, "drop")
-    assert [e.details["name"] for e in after if e.kind == "program"] == ["atikt_stop"]
+    assert [program_kind(e.details["name"]) for e in after if e.kind == "program"] == ["atikt_stop"]
     assert any(e.kind == "actual_zero" for e in after)
 
 
@@ -413,7 +416,7 @@ def test_a_stop_during_the_move_to_an_object_says_how_it_went(way: str) -> None:
     with virtual_lab() as lab:
 
         def gone(name: str) -> None:
-            if name == "atikt_move":
+            if program_kind(name) == "atikt_move":
                 timer = threading.Timer(0.05, lab.script.close_port)
                 timer.daemon = True
                 timer.start()
@@ -691,16 +694,21 @@ def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks()
 
     arm = URArm(Connection("127.0.0.1", 1, 1, 125), RecorderClock())
     stream = (
-        key_message("PROGRAM_XXX_STARTED", "atikt_slide", 1)
+        key_message("PROGRAM_XXX_STARTED", f"atikt_slide_{arm.tag}", 1)  # ours
         + key_message("PROGRAM_XXX_STOPPED", "theirs", 2)  # stopped: not a start
-        + key_message("PROGRAM_XXX_STARTED", "theirs", 3)
     )
     buffer = bytearray()
     for at in range(0, len(stream), 7):  # as the network cuts it
         buffer += stream[at : at + 7]
         assert arm._read_messages(buffer)
-    assert arm._foreign == "theirs"
+    assert (arm.own_starts, arm._foreign) == (1, "")
     assert not buffer
+    # another computer running this recorder: its programs carry its own tag
+    other = "atikt_slide_" + ("0" * 6 if arm.tag != "0" * 6 else "1" * 6)
+    assert arm._read_messages(bytearray(key_message("PROGRAM_XXX_STARTED", other, 3)))
+    assert (arm.own_starts, arm._foreign) == (1, other)
+    assert arm._read_messages(bytearray(key_message("PROGRAM_XXX_STARTED", "theirs", 4)))
+    assert arm._foreign == "theirs"
     arm._foreign = ""
     # a port that does not speak the primary protocol (a size of 'HTTP'): drained, not read
     assert not arm._read_messages(bytearray(b"HTTP/1.1 400 Bad Request\r\n"))

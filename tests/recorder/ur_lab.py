@@ -7,6 +7,7 @@ skin transports are tested on their own).
 from __future__ import annotations
 
 import contextlib
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -196,3 +197,8 @@ def config(options: Mapping[str, Any], sections: Mapping[str, Any]) -> SimpleNam
     return SimpleNamespace(
         name="ur", options=dict(options), sections=dict(sections), source="lab.toml"
     )
+
+
+def program_kind(name: str) -> str:
+    """Return a program's name without the driver's tag (``atikt_move_1a2b3c``: ``atikt_move``)."""
+    return re.sub(r"_[0-9a-f]{6}$", "", name) if name.startswith("atikt_") else name
