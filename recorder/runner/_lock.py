@@ -56,10 +56,11 @@ def lock_directory() -> Path:
 
 @contextlib.contextmanager
 def arm_lock(arm: str, where: str) -> Iterator[None]:
-    """Hold the lock of ``arm`` (e.g. ``ur-127.0.0.1-30002``) for the block.
+    """Hold the lock of ``arm`` (e.g. ``ur-127.0.0.1-30004``) for the block.
 
     Args:
-        arm: The arm's identity: its kind and the address its programs are sent to.
+        arm: The arm's identity: its kind and an address that is the arm's alone (a UR:
+            its host and RTDE port).
         where: The configuration file, for the message.
 
     Raises:

@@ -241,8 +241,9 @@ class URArm:
             rtde = RtdeClient(link.host, link.rtde_port, clock=self._clock.now_ns)
             rtde.connect()
             stack.callback(rtde.close)
-            # one process drives an arm: its programs go to this address's script port
-            stack.enter_context(arm_lock(f"ur-{rtde.peer_host}-{link.script_port}", self.where))
+            # one process drives an arm, whichever port its programs go to (30001, 30002 and
+            # 30003 all reach the same controller): the arm is its address and RTDE port
+            stack.enter_context(arm_lock(f"ur-{rtde.peer_host}-{link.rtde_port}", self.where))
             major, minor, bugfix, build = rtde.controller_version()
             self._version = f"{major}.{minor}.{bugfix}.{build}"
             if link.frequency > MAX_FREQUENCY.get(major, 500.0):

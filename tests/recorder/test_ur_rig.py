@@ -687,6 +687,23 @@ def test_a_program_not_yet_named_when_its_action_begins_is_not_said(
     assert [r.getMessage() for r in caplog.records if r.name == "atikt.ur"] == []
 
 
+def test_a_second_configuration_of_the_same_arm_is_locked_out_whatever_its_script_port(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    # an old configuration (script_port = 30002) and a new one (30001) reach one controller:
+    # one process at a time drives it, whichever port its programs go to
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    with virtual_lab() as lab, lab.rig({"wood": POSE}):
+        other = socket.socket()
+        other.bind(("127.0.0.1", 0))
+        with (
+            other,
+            pytest.raises(RigError, match=r"drives the arm ur-127\.0\.0\.1-\d+ from this computer"),
+            lab.rig({"wood": POSE}, script_port=other.getsockname()[1]),
+        ):
+            pass
+
+
 def test_the_script_stream_is_read_as_the_primary_protocol_whatever_its_chunks() -> None:
     from recorder.live import RecorderClock  # noqa: PLC0415
     from recorder.ur._arm import Connection, URArm  # noqa: PLC0415
