@@ -124,6 +124,8 @@ class TimedLearner(ActiveLearner):
         self.theirs: list[float] = []
         self.unc_gap: list[float] = []
         self.lml_gap: list[float] = []
+        #: Per update: the objective atikt's classifiers reached minus the reference's.
+        self.lml_by_update: list[np.ndarray] = []
 
     def _reference(
         self,
@@ -204,6 +206,7 @@ class TimedLearner(ActiveLearner):
             state = learner.states_[s.action]
             self.unc_gap.append(float(np.abs(unc - state.uncertainty).max()))
             self.lml_gap.extend(reached(state) - value)
+            self.lml_by_update.append(reached(state) - value)
 
 
 def searched(state: Any) -> list[ObjectSearch]:
@@ -333,6 +336,19 @@ def print_quality(learner: TimedLearner) -> list[str]:
         f"  |UNC atikt - UNC scikit-learn| per update (largest over the new objects), "
         f"{unc.size} updates: median {np.median(unc):.4f}, 90th percentile "
         f"{np.percentile(unc, 90):.4f}, max {unc.max():.4f} nats"
+    )
+    # where UNC differs, the two searches from one start ended at different optima of a
+    # multi-modal objective (a classifier's objective differs by more than 0.01 nats)
+    far = [k for k, u in enumerate(unc) if u > QUALITY_UNC]
+    apart = [learner.lml_by_update[k] for k in far]
+    split = [g[np.abs(g) > QUALITY_UNC] for g in apart]
+    higher = sum(int((d > 0).any()) for d in split)
+    lower = sum(int((d < 0).any()) for d in split)
+    print(
+        f"  updates with |UNC difference| > {QUALITY_UNC}: {len(far)} of {unc.size}; in "
+        f"{sum(d.size > 0 for d in split)} of them a classifier ended at another optimum than "
+        f"the reference's (objective > {QUALITY_UNC} nats apart: atikt's higher in {higher}, "
+        f"lower in {lower})"
     )
     missed = []
     if np.median(np.abs(gap)) > QUALITY_MEDIAN:
