@@ -467,6 +467,17 @@ def _interrupt(signum: int, frame: object) -> None:
     raise ending(signum)
 
 
+def after_deferred_interrupt(handler: Any) -> Any:
+    """Return the handler to put back after a block that deferred an ending signal.
+
+    The command's own handler (:func:`_interrupt`) raises on the first signal and ignores
+    the rest; a block that took the first one itself (an action at the robot: the stop first,
+    then what arrived is saved) leaves the rest ignored, as that handler would have, so a
+    second Ctrl-C cannot replace the line that names the stop and the file.
+    """
+    return signal.SIG_IGN if handler is _interrupt else handler
+
+
 @contextlib.contextmanager
 def _quiet_interrupts() -> Iterator[None]:
     """Run the block; after the first Ctrl-C, ignore further ones until the block is left.

@@ -47,8 +47,9 @@ class InterruptFlag:
 def deferred_interrupts() -> Iterator[InterruptFlag]:
     """Defer the ending signals to a flag inside the block (main thread; elsewhere: no-op).
 
-    The previous handlers come back when the block is left; the caller raises the deferred
-    signal (:func:`raise_interrupt`) once what arrived is saved.
+    The previous handlers come back when the block is left (after a signal came, a command's
+    handler as it would be after its first one: further ones ignored); the caller raises the
+    deferred signal (:func:`raise_interrupt`) once what arrived is saved.
     """
     flag = InterruptFlag()
 
@@ -67,7 +68,8 @@ def deferred_interrupts() -> Iterator[InterruptFlag]:
         yield flag
     finally:
         for number, old in previous.items():
-            signal.signal(number, old)
+            taken = flag.signum is not None  # the command's first signal: further ones ignored
+            signal.signal(number, cli.after_deferred_interrupt(old) if taken else old)
 
 
 def raise_interrupt(signum: int) -> NoReturn:

@@ -21,7 +21,7 @@ import math
 import sys
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, Self
+from typing import TYPE_CHECKING, NoReturn, Protocol, Self
 
 import numpy as np
 
@@ -36,6 +36,7 @@ from recorder.live import (
     window_samples,
 )
 from recorder.runner._arm import Context
+from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
 from recorder.runner._limits import (
     REACHED_M,
     Limits,
@@ -114,6 +115,18 @@ class Watch(Protocol):
 class _Never:
     def problem(self) -> str:
         return ""
+
+
+class _Deferred:
+    """What ends a move to an object: a signal deferred while it runs, or the caller's watch."""
+
+    def __init__(self, flag: InterruptFlag, watch: Watch | None) -> None:
+        self.flag, self.watch = flag, watch
+
+    def problem(self) -> str:
+        if self.flag.signum is not None:
+            return self.flag.reason
+        return self.watch.problem() if self.watch is not None else ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -342,17 +355,25 @@ class ArmRig:
         target = self._poses.get(obj.id)
         if target is None:
             return False
-        with real_time(self._rt_priority):  # this thread only, while the arm moves
-            self._present(obj, target, watch)
+        # a signal while the arm moves is deferred as in an action: it never lands inside a
+        # program being sent, the stop goes out first, and the line says so
+        with real_time(self._rt_priority), deferred_interrupts() as flag:
+            try:
+                self._present(obj, target, _Deferred(flag, watch))
+            except RigError:
+                if flag.signum is None:
+                    raise
+                _interrupted(flag, f"before moving to {obj.id}: nothing was sent to the arm")
         return True
 
-    def _present(self, obj: ObjectSpec, target: NDArray[np.float64], watch: Watch | None) -> None:
+    def _present(self, obj: ObjectSpec, target: NDArray[np.float64], watch: _Deferred) -> None:
         """Move to ``target`` (see :meth:`present`)."""
         motion = self.options.motion
-        self._watch = watch or _Never()
+        self._watch = watch
         self._begin()
         self._until_free(f"move to {obj.id}")  # nothing sent yet: a refusal stops nothing
         try:
+            self._check("")  # a signal that came before anything is sent
             while self._state.pose is None:
                 self._pump_quietly()
             distance = float(np.linalg.norm(self._state.pose[:3] - target[:3]))
@@ -364,6 +385,9 @@ class ArmRig:
         except (Stop, SourceLostError) as stop:
             undelivered = self._send_stop(None, str(stop))
             said = undelivered_line(undelivered) if undelivered else self.stop_note
+            if watch.flag.signum is not None:  # Ctrl-C, SIGTERM, SIGHUP: the run ends
+                arm = said or "the arm was stopped"
+                _interrupted(watch.flag, f"while moving to {obj.id}: {arm}")
             left = f"; {said}" if said else ""
             fix = stop.fix if isinstance(stop, Stop) else "check the arm, then retry"
             msg = f"{self.where}: moving to {obj.id}: {stop}{left}; {fix}"
@@ -1114,3 +1138,13 @@ def peak_total(block: SkinBlock, *, since_ns: int) -> float | None:
     width = min(window_samples(block.period_ns), after.size)
     means = np.convolve(after, np.full(width, 1.0 / width), mode="valid")
     return float(means.max())
+
+
+def _interrupted(flag: InterruptFlag, what: str) -> NoReturn:
+    """End the run for the deferred signal of ``flag``; the line says ``what`` of the arm."""
+    assert flag.signum is not None  # noqa: S101 - only called once a signal came
+    try:
+        raise_interrupt(flag.signum)
+    except KeyboardInterrupt as err:
+        err.args = (f"{flag.reason} {what}",)
+        raise

@@ -12,7 +12,7 @@ import errno
 import os
 import signal
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -556,3 +556,60 @@ def test_a_silent_skin_on_the_way_to_an_object_names_the_skin_not_the_arm() -> N
         "configuration's [skin], then retry"
     )
     assert "\n" not in said
+
+
+@pytest.mark.parametrize(
+    ("signum", "raised", "name"),
+    [
+        (signal.SIGINT, KeyboardInterrupt, "Ctrl-C \\(SIGINT\\)"),
+        (signal.SIGTERM, cli.Terminated, "SIGTERM"),
+    ],
+)
+def test_a_signal_while_moving_to_an_object_stops_the_arm_then_ends_the_run(
+    signum: int, raised: type[BaseException], name: str
+) -> None:
+    # the signal is deferred as in an action: it never lands inside a program being sent; the
+    # stop goes out, then the run ends with a line that says what of the arm
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    rig._poses["wood"] = START + np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    move = arm.move
+
+    def move_then_signal(*args: Any) -> None:
+        move(*args)
+        os.kill(os.getpid(), signum)  # arrives once the move program went out whole
+
+    arm.move = move_then_signal  # type: ignore[method-assign]
+    skin: FakeSkin = rig.skin  # type: ignore[assignment]
+    said = f"^interrupted by {name} while moving to wood: the arm was stopped$"
+    with rig:
+        skin.begin()  # the fake skin's samples from now (the runner reads them as it moves)
+        with pytest.raises(raised, match=said):
+            rig.present(OBJECT)
+    sent = [command for _, command in arm.commands]
+    assert sent[0] == "move present"
+    assert arm.stop_cycle is not None
+
+
+def test_a_second_ctrl_c_after_a_deferred_one_is_ignored_under_a_command() -> None:
+    # the command's handler ignores further signals after its first; a block that took the
+    # first itself leaves them ignored, so a second Ctrl-C cannot replace the line naming the
+    # stop and the file. Without a signal, the handler comes back as it was.
+    from recorder.runner import deferred_interrupts  # noqa: PLC0415
+
+    before = signal.signal(signal.SIGINT, cli._interrupt)
+    try:
+        with deferred_interrupts():
+            pass
+        assert signal.getsignal(signal.SIGINT) is cli._interrupt
+        with deferred_interrupts() as flag:
+            os.kill(os.getpid(), signal.SIGINT)
+        assert flag.signum == signal.SIGINT
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGINT)  # ignored: nothing raised
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        with deferred_interrupts() as flag:  # outside a command: its handler comes back
+            os.kill(os.getpid(), signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, before)
