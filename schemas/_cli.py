@@ -39,10 +39,13 @@ from schemas._metadata import MAX_SEED, MAX_TRIAL
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
     from pathlib import Path
-    from types import TracebackType
+    from types import FrameType, TracebackType
 
     from rich.console import Console
     from rich.progress import Task
+
+    #: What ``signal.signal`` takes and returns.
+    _Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
 
 #: Exit status of a refused input (a project error) and of a usage error.
 ERROR_STATUS, USAGE_STATUS = 1, 2
@@ -467,7 +470,7 @@ def _interrupt(signum: int, frame: object) -> None:
     raise ending(signum)
 
 
-def after_deferred_interrupt(handler: Any) -> Any:
+def after_deferred_interrupt(handler: _Handler) -> _Handler:
     """Return the handler to put back after a block that deferred an ending signal.
 
     The command's own handler (:func:`_interrupt`) raises on the first signal and ignores

@@ -579,7 +579,7 @@ def test_a_signal_while_moving_to_an_object_stops_the_arm_then_ends_the_run(
         move(*args)
         os.kill(os.getpid(), signum)  # arrives once the move program went out whole
 
-    arm.move = move_then_signal  # type: ignore[method-assign]
+    arm.move = move_then_signal  # type: ignore[method-assign,assignment]
     skin: FakeSkin = rig.skin  # type: ignore[assignment]
     said = f"^interrupted by {name} while moving to wood: the arm was stopped$"
     with rig:
