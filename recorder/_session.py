@@ -236,7 +236,11 @@ class RigCheck:
         """
         learned = ", ".join(f"{key} {value}" for key, value in self.facts.items())
         wrong = [f"{', '.join(self.lossy)} lost samples"] if self.lossy else []
-        wrong += [f"{', '.join(self.silent)} sent nothing"] if self.silent else []
+        malformed = {s.name for s in self.sources if not s.received and s.malformed}
+        if nothing := [name for name in self.silent if name not in malformed]:
+            wrong.append(f"{', '.join(nothing)} sent nothing")
+        if garbled := [name for name in self.silent if name in malformed]:
+            wrong.append(f"{', '.join(garbled)} sent only malformed frames")
         state = f"not ready: {'; '.join(wrong)}" if wrong else "ready"
         objects = (
             f"objects presented by the rig: {', '.join(self.by_rig) or '-'}; placed by hand: "
@@ -248,7 +252,12 @@ class RigCheck:
         ]
         for source in self.sources:
             said = source.problems() or "complete"
-            if not source.received:
+            if not source.received and source.malformed:
+                said = (
+                    f"{source.problems()}: what arrives does not match the rig configuration's "
+                    "[skin] layout (cells, frame sizes, byte order); check it against the skin"
+                )
+            elif not source.received:
                 said = "nothing in the check's second (a source that slow is not checked here)"
                 if (due := self._due(source)) >= DUE_SAMPLES:
                     said = f"nothing, {due:.0f} due at its rate: check it and its configuration"

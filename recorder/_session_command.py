@@ -146,5 +146,5 @@ def _say_check(console: Console, found: SessionCheck) -> int:
             f"(e.g. {found.stale[0]})"
         )
     for line in found.rig.lines():
-        console.print(line)
+        console.print(line, markup=False)  # plain text: a [skin] is not a style
     return 0 if found.rig.ready else 1

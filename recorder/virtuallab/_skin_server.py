@@ -332,6 +332,12 @@ class SkinServer:
             )
 
     def _samples(self, encoder: _Encoder, numbers: range) -> dict[str, NDArray[np.float64]]:
+        """The world's values of each frame's modalities, in the layout's cells.
+
+        A layout of another number of cells than the simulated skin's (7) gets the simulated
+        cells in turn (cell ``i`` is simulated cell ``i mod 7``): a lab rehearses its own
+        skin's layout, whatever its size.
+        """
         frame, cells = encoder.frame, self.layout.cells
         out: dict[str, NDArray[np.float64]] = {}
         for item in frame.modalities:
@@ -339,7 +345,8 @@ class SkinServer:
             for row, number in enumerate(numbers):
                 found = self.world.skin_at(item.modality, self._origin + number * frame.period_ns)
                 if found is not None:
-                    rows[row] = np.asarray(found, dtype=np.float64).reshape(cells, item.count)
+                    simulated = np.asarray(found, dtype=np.float64).reshape(-1, item.count)
+                    rows[row] = simulated[np.arange(cells) % simulated.shape[0]]
             out[item.modality] = rows
         return out
 

@@ -400,6 +400,14 @@ def test_a_dry_run_whose_sources_lost_samples_is_not_ready(tmp_path: Path) -> No
     assert "  skin-temperature: 0 received, nothing in the check's second (a source that slow" in (
         text
     )
+    garbled = SourceStats("skin-fast", period_ns=1_000_000, malformed=109)  # another layout
+    status, text = said(rtde, garbled)
+    assert status == 1
+    assert "rig: not ready: skin-fast sent only malformed frames (v 1)" in text
+    assert (
+        "  skin-fast: 0 received, 109 malformed: what arrives does not match the rig "
+        "configuration's [skin] layout (cells, frame sizes, byte order); check it against the skin"
+    ) in text
     unplugged = SourceStats("skin-proximity", period_ns=20_000_000)  # 50 Hz: 50 due
     status, text = said(rtde, unplugged, lossy)
     assert status == 1

@@ -8,6 +8,7 @@ import time
 from typing import TYPE_CHECKING, Self
 
 import numpy as np
+import pytest
 from skinframes import RampWorld, example, poll_until, received_past, serial_example
 
 from recorder.live import RecorderClock, SourceStats
@@ -81,6 +82,25 @@ def test_udp_values_arrive_as_sent() -> None:
     expected = np.arange(len(steps)) + steps[0]
     assert np.array_equal(steps, expected % 1000)  # force ramps 1 count per sample
     assert force.shape[1:] == (7, 3)
+
+
+@pytest.mark.parametrize("cells", [5, 9])
+def test_a_layout_of_another_size_is_served_the_simulated_cells_in_turn(cells: int) -> None:
+    # the virtual lab rehearses a lab's own skin: cell i carries simulated cell i mod 7
+    world = RampWorld()  # seven cells
+    section = example(cells=cells)
+    with udp_skin(section, RecorderClock(), "lab.toml") as skin:
+        skin.begin()
+        with serve_skin(world, _url(skin), section) as server:
+            blocks = poll_until(skin, received_past(skin, 0, 100 * MS))
+        blocks += skin.finish()
+        assert server.error is None
+    force = np.concatenate([b.data for b in blocks if b.modality == "force"])
+    assert force.shape[1:] == (cells, 3)
+    for cell in range(cells):
+        assert np.array_equal(force[:, cell], force[:, cell % 7])
+    assert not np.array_equal(force[:, 0], force[:, 1])
+    assert _by_name(skin.stats())["skin-fast"].malformed == 0
 
 
 def test_per_cell_frames_are_assembled_and_counted() -> None:
