@@ -260,21 +260,29 @@ def _optional_server(module: str, name: str, what: str) -> Callable[..., Any]:
         raise RecorderError(msg) from err
 
 
-def _wait_for_a_stop() -> None:
-    """Block until Ctrl-C (SIGINT), SIGTERM or SIGHUP (its terminal closed; not under nohup).
+def _wait_for_a_stop(failed: Callable[[], bool]) -> None:
+    """Block until a signal ends the lab, or ``failed()``.
 
-    Each is handled explicitly: a shell starts background jobs with SIGINT ignored, and the
+    The signals: Ctrl-C (SIGINT), SIGTERM or SIGHUP (its terminal closed; not under nohup).
+    ``failed()``: a server stopped serving (the lab ends, and the server says why). Each
+    signal is handled explicitly: a shell starts background jobs with SIGINT ignored, and the
     virtual lab must still stop on the first Ctrl-C or ``kill`` sent to it.
     """
     handled = cli.handled_signals()
     previous = {number: signal.signal(number, signal.default_int_handler) for number in handled}
+    wake = threading.Event()
     try:
-        threading.Event().wait()
+        while not failed():
+            wake.wait(FAILED_POLL_S)
     except KeyboardInterrupt:
         return
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+
+
+#: How often the lab looks whether a server stopped serving, s.
+FAILED_POLL_S = 0.5
 
 
 def _switch_within_a_cycle(frequency: int) -> None:
@@ -386,8 +394,9 @@ def _serve_sim(args: argparse.Namespace) -> int:
         )
         stack.enter_context(world)
         where = _serve_arm(stack, world, args, faults)
+        failed: list[Callable[[], bool]] = []
         if args.skin:
-            where.append(_serve_skin(stack, world, args, faults, sections))
+            where.append(_serve_skin(stack, world, args, faults, sections, failed=failed))
         if args.ros2:
             serve = _optional_server("recorder.virtuallab._ros2_server", "serve_ros2", "ROS 2")
             kind = _optional_server("recorder.virtuallab._ros2_server", "Ros2Faults", "ROS 2")
@@ -398,7 +407,7 @@ def _serve_sim(args: argparse.Namespace) -> int:
             stack.callback(_ros2_summary, events, world, server)
             where.append("ROS 2 topics")
         print(f"virtual lab listening: {', '.join(where)}; Ctrl-C stops it", flush=True)  # noqa: T201
-        _wait_for_a_stop()
+        _wait_for_a_stop(lambda: any(test() for test in failed))
     print("virtual lab stopped", flush=True)  # noqa: T201
     return 0
 
@@ -455,8 +464,10 @@ def _serve_skin(
     args: argparse.Namespace,
     faults: Mapping[str, dict[str, float]],
     sections: Mapping[str, Any],
+    *,
+    failed: list[Callable[[], bool]],
 ) -> str:
-    """Serve the skin's frames; return where they go."""
+    """Serve the skin's frames; return where they go; ``failed`` gets its failure test."""
     serve = _optional_server("recorder.virtuallab._skin_server", "serve_skin", "skin")
     kind = _optional_server("recorder.virtuallab._skin_server", "SkinFaults", "skin")
     skin_faults = typed_faults(kind, faults.get("skin", {}), "skin")
@@ -464,7 +475,7 @@ def _serve_skin(
     def report(fault: str, controller_ns: int, **details: object) -> None:
         world.events_log.add("fault", controller_ns, source="skin", fault=fault, **details)
 
-    stack.enter_context(
+    server = stack.enter_context(
         serve(
             world,
             args.skin,
@@ -474,6 +485,7 @@ def _serve_skin(
             on_fault=report,
         )
     )
+    failed.append(lambda: server.error is not None)  # the lab ends, serve_skin says why
     return f"skin {args.skin}"
 
 

@@ -403,6 +403,23 @@ receiver.disconnect()
         assert np.abs(_fk(np.array(q)) - np.array(tcp)[:3]).max() < 1e-4
 
 
+def test_a_skin_that_cannot_be_served_ends_the_lab_with_one_line(tmp_path: Path) -> None:
+    # 6000 cells: a frame larger than a UDP datagram. The lab does not go on serving an arm
+    # without its skin (a session would only see a silent skin): it ends, and says why
+    lab, command = _served_lab(tmp_path)
+    lab.write_text(lab.read_text("utf-8").replace("cells = 7 ", "cells = 6000 "), "utf-8")
+    env = os.environ | {"PYTHONPATH": str(ROOT)}
+    done = subprocess.run(  # noqa: S603 (this project's command)
+        command, env=env, capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert done.stdout.startswith("virtual lab listening")
+    # one error line (a loaded machine may add the lab's own note that it runs behind)
+    (line,) = [said for said in done.stderr.splitlines() if "error" in said]
+    assert line.startswith("atikt-record: error: skin server to udp://127.0.0.1:"), line
+    assert "sending failed ([Errno 90] Message too long)" in line
+
+
 def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     events, summary = tmp_path / "events.jsonl", tmp_path / "faults.json"
     ports = []
