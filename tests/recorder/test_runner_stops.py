@@ -226,12 +226,9 @@ def test_the_stop_is_timed_when_it_goes_to_the_arm(tmp_path: Path) -> None:
     assert cause <= sent <= arm.stop_ns
 
 
-def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    path = tmp_path / "001.mcap"
-    rig = fake_rig()
-    arm: FakeArm = rig.arm  # type: ignore[assignment]
+def _disk_full_after_contact(arm: FakeArm, monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
+    """Make every write fail (disk full) from 5 cycles after the contact; the dict gets the
+    cycle of the first failure (``cycle``)."""
     failed: dict[str, int] = {}
     write = RecordingWriter.write
 
@@ -242,6 +239,16 @@ def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
         write(self, item)  # type: ignore[arg-type]
 
     monkeypatch.setattr(RecordingWriter, "write", full_after_contact)
+    return failed
+
+
+def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    failed = _disk_full_after_contact(arm, monkeypatch)
     with rig, pytest.raises(RecorderError, match="No space left on device") as info:
         record_action(rig, OBJECT, ACTION, 1, path, seed=0)
     _stopped_in_time(arm, failed["cycle"])
@@ -259,17 +266,11 @@ def test_a_disk_too_full_to_finish_the_file_keeps_its_part_and_says_where(
     path = tmp_path / "001.mcap"
     rig = fake_rig()
     arm: FakeArm = rig.arm  # type: ignore[assignment]
-    write = RecordingWriter.write
-
-    def full_after_contact(self: RecordingWriter, item: object) -> None:
-        if arm._contact_cycle is not None and arm._cycle > arm._contact_cycle + 5:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        write(self, item)  # type: ignore[arg-type]
+    _disk_full_after_contact(arm, monkeypatch)
 
     def no_room(_fd: int) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(RecordingWriter, "write", full_after_contact)
     monkeypatch.setattr(os, "fsync", no_room)
     with rig, pytest.raises(RecorderError) as info:
         record_action(rig, OBJECT, ACTION, 1, path, seed=0)
