@@ -21,14 +21,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from recorder.errors import RecorderError
+from recorder.runner._limits import MOTION_PREFIX
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-__all__ = ["CLAIM_NAME", "claim_dataset"]
+__all__ = ["CLAIM_NAME", "claim_dataset", "differing_settings"]
 
 #: The claim's file name, in the dataset directory.
 CLAIM_NAME = ".atikt-dataset.json"
+#: Settings (by prefix) that rig descriptions gained after datasets were recorded without
+#: them; see :func:`differing_settings`.
+_ADDED = ("skin_cells", MOTION_PREFIX)
 
 
 def _claim_text(seed: int, configuration: Mapping[str, Any]) -> str:
@@ -134,6 +138,20 @@ def _unused(root: Path) -> str:
     return f", or delete {root / CLAIM_NAME}: the directory holds no recording yet"
 
 
+def differing_settings(theirs: Mapping[str, object], ours: Mapping[str, object]) -> list[str]:
+    """Return the settings in which two rig descriptions differ, sorted.
+
+    A setting added to the descriptions later (the skin's cells, the ``motion.*`` settings) is
+    compared only when ``theirs`` (recorded earlier) has it: a dataset recorded before it was
+    part of a rig's identity still resumes.
+    """
+    keys = {*theirs, *ours}
+    for added in _ADDED:
+        if not any(key.startswith(added) for key in theirs):
+            keys = {key for key in keys if not key.startswith(added)}
+    return sorted(key for key in keys if theirs.get(key) != ours.get(key))
+
+
 def _compare(root: Path, claim: Mapping[str, Any], ours: Mapping[str, Any], seed: int) -> None:
     """Refuse a claim of another seed or rig configuration than ``ours``."""
     if claim["seed"] != seed:
@@ -143,9 +161,7 @@ def _compare(root: Path, claim: Mapping[str, Any], ours: Mapping[str, Any], seed
             f"--seed {claim['seed']} to resume it{_unused(root)}"
         )
         raise RecorderError(msg)
-    if differ := sorted(
-        k for k in {*claim["rig"], *ours["rig"]} if claim["rig"].get(k) != ours["rig"].get(k)
-    ):
+    if differ := differing_settings(claim["rig"], ours["rig"]):
         theirs = ", ".join(f"{k}={claim['rig'].get(k)!r}" for k in differ)
         wanted = ", ".join(f"{k}={ours['rig'].get(k)!r}" for k in differ)
         msg = (

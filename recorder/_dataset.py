@@ -35,7 +35,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import MCAP0_MAGIC
 
-from recorder._claim import claim_dataset
+from recorder._claim import claim_dataset, differing_settings
 from recorder._rigconfig import ConfiguredRig, is_exclusive, register_rig, rig_factory, rig_names
 from recorder.errors import OutputExistsError, RecorderError
 from recorder.runner._record import record_action
@@ -448,7 +448,7 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
         )
         raise RecorderError(msg)
     theirs_rig = _configuration(meta.rig)
-    if differ := sorted(k for k in {*rig, *theirs_rig} if rig.get(k) != theirs_rig.get(k)):
+    if differ := differing_settings(theirs_rig, rig):
         if "kind" in differ:  # another rig altogether: its kind says it, not every setting
             differ = ["kind"]
         theirs = ", ".join(f"{k}={theirs_rig.get(k)!r}" for k in differ)

@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 LIGHT_CONTACT_N = 0.05
 #: How close a ``movel`` target counts as reached (the thesis: 1 mm).
 REACHED_M = 0.001
+#: Prefix of the motion settings in a rig's description (its identity in a dataset).
+MOTION_PREFIX = "motion."
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +140,18 @@ class Motion:
     acceleration_m_s2: float = 0.5
     contact_force_n: float = LIGHT_CONTACT_N
     approach_blind_m: float = 0.0005
+
+    def describe(self) -> dict[str, str]:
+        """Return the settings that shape the recorded signals, as ``motion.<name>`` text.
+
+        ``approach_limit_m`` is left out: it bounds the approach (when the rig gives up), as
+        the limits bound every motion; raising it changes no recording.
+        """
+        return {
+            f"{MOTION_PREFIX}{item.name}": repr(getattr(self, item.name))
+            for item in fields(self)
+            if item.name != "approach_limit_m"
+        }
 
     def approach_speed(self, distance_m: float | None) -> float:
         """Return the approach speed at a proximity distance (None: no proximity, slowest)."""

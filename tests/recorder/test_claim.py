@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from recorder._claim import CLAIM_NAME, claim_dataset
+from recorder._claim import CLAIM_NAME, claim_dataset, differing_settings
 from recorder.errors import RecorderError
 from replay.cli._main import main as replay_main
 
@@ -58,6 +58,17 @@ def test_the_same_seed_and_configuration_resume(tmp_path: Path) -> None:
     (tmp_path / CLAIM_NAME).write_text("{", encoding="utf-8")
     with pytest.raises(RecorderError, match="the dataset's claim cannot be read"):
         claim_dataset(tmp_path, 3, {"rig": "ur", "host": "10.0.0.2"})
+
+
+def test_a_dataset_claimed_before_the_motion_was_recorded_resumes(tmp_path: Path) -> None:
+    earlier = {"kind": "ur", "host": "10.0.0.2"}  # recorded before skin_cells and motion.*
+    claim_dataset(tmp_path, 3, earlier)
+    claim_dataset(tmp_path, 3, {**earlier, "skin_cells": "7", "motion.press_m_s": "0.005"})
+    assert differing_settings(earlier, {**earlier, "motion.press_m_s": "0.005"}) == []
+    # once recorded, they are compared: also when this run lacks one
+    now = {**earlier, "skin_cells": "7", "motion.press_m_s": "0.005"}
+    assert differing_settings(now, {**now, "motion.press_m_s": "0.004"}) == ["motion.press_m_s"]
+    assert differing_settings(now, earlier) == ["motion.press_m_s", "skin_cells"]
 
 
 def test_a_claim_without_a_recording_says_how_to_take_the_directory(tmp_path: Path) -> None:

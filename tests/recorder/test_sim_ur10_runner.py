@@ -66,6 +66,32 @@ def test_a_session_is_byte_identical_run_to_run_and_valid(tmp_path: Path) -> Non
     assert abs(float(recording.tcp.position[0, 0]) + 0.55) < 1e-3
 
 
+@pytest.mark.slow(3)
+def test_a_dataset_holds_one_way_of_moving_the_arm(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def session(*options: str, trials: int = 1) -> int:
+        args = ["session", "--rig", "sim-ur10", "--yes", "--objects", "wood", "--actions", "P1"]
+        for option in (FAST, *options):
+            args += ["--rig-option", option]
+        return main([*args, "--trials", str(trials), "--out", str(tmp_path)])
+
+    assert session() == 0
+    recorded = read_recording(tmp_path / "wood" / "P1" / "001.mcap").metadata.rig
+    assert recorded["motion.press_m_s"] == "0.005", recorded
+    assert recorded["skin_cells"] == "7", recorded
+    capsys.readouterr()
+    # a slower press shapes the force signals: not resumed into this dataset
+    assert session("press_m_s=0.004", trials=2) != 0
+    said = capsys.readouterr().err
+    assert "another rig configuration (motion.press_m_s='0.005'; this run: " in said, said
+    assert "motion.press_m_s='0.004'" in said, said
+    assert not (tmp_path / "wood" / "P1" / "002.mcap").exists()
+    # how far the approach may go bounds it, as the limits do: resumed
+    assert session("approach_limit_m=0.3", trials=2) == 0
+    assert (tmp_path / "wood" / "P1" / "002.mcap").exists()
+
+
 @pytest.mark.slow(12)
 def test_over_fifty_actions_every_action_starts_where_the_first_did(tmp_path: Path) -> None:
     obj = OBJECTS["wood"]
