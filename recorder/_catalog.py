@@ -351,12 +351,12 @@ def check_object(obj: ObjectPhysics) -> str | None:
 
 
 def _check_relation(obj: ObjectSpec, objects: dict[str, ObjectSpec]) -> str | None:
-    """Return what is wrong with a new simulated object's relation to an old one, or None.
+    """Return what is wrong with a new object's relation to an old one, or None.
 
-    The simulated catalog designs every new object after an old one (so that transfer has
-    something to transfer); a lab's objects without physics need no relation.
+    A relation is optional: a new object may resemble none of the old ones (then no prior
+    should be transferred to it). When given, it names an old object and what they share.
     """
-    if not obj.novel or (obj.physics is None and not obj.related_to):
+    if not obj.novel or (not obj.related_to and not obj.shared):
         return None
     related = objects.get(obj.related_to)
     if related is None or related.novel:
@@ -370,8 +370,8 @@ def _check_relation(obj: ObjectSpec, objects: dict[str, ObjectSpec]) -> str | No
 def load_objects(path: Path | None = None) -> dict[str, ObjectSpec]:
     """Load the object catalog, ordered as in the file.
 
-    Every new (``novel``) object must name the old object it resembles (``related_to``) and
-    the properties they share, so that knowledge transfer has something to transfer.
+    A new (``novel``) object may name the old object it resembles (``related_to``) and the
+    properties they share (``shared``); one that resembles none names neither.
 
     Args:
         path: A TOML catalog; the packaged thesis catalog (10 old, 5 new objects) when None.

@@ -165,6 +165,17 @@ def test_new_objects_need_an_old_relative(tmp_path: Path, relation: str, fragmen
     assert fragment in str(info.value)
 
 
+def test_a_new_object_may_resemble_no_old_one(tmp_path: Path) -> None:
+    old = MINIMAL.format(id="old")
+    new = MINIMAL.format(id="new").replace("novel = false", "novel = true")
+    objects = load_objects(_write(tmp_path, old + new))
+    assert objects["new"].novel
+    assert objects["new"].related_to == ""
+    assert objects["new"].shared == ()
+    with pytest.raises(CatalogError, match=r"\[new\]: related_to = '' must name an old object"):
+        load_objects(_write(tmp_path, old + new + 'shared = ["thermal"]\n'))
+
+
 def test_valid_relation_is_accepted(tmp_path: Path) -> None:
     old = MINIMAL.format(id="old")
     new = MINIMAL.format(id="new").replace("novel = false", "novel = true")
