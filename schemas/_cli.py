@@ -55,6 +55,8 @@ INTERRUPTED_STATUS = 130
 TERMINATED_STATUS = 143
 #: Exit status after SIGHUP (128 + 1): the terminal or the SSH connection of the run closed.
 HUNG_UP_STATUS = 129
+#: Exit status after Ctrl-Z (SIGTSTP, 128 + 20) ended a run while it moved an arm.
+SUSPENDED_STATUS = 148
 
 
 class Terminated(KeyboardInterrupt):
@@ -73,6 +75,18 @@ class HungUp(Terminated):
 
     signal_name: ClassVar[str] = "SIGHUP"
     status: ClassVar[int] = HUNG_UP_STATUS
+
+
+class Suspended(Terminated):
+    """Ctrl-Z (SIGTSTP) while a run moves an arm: it ends as after Ctrl-C, exit status 148.
+
+    A suspended recorder would leave the arm unwatched, its limits unchecked, until resumed:
+    while the arm moves, Ctrl-Z stops it first, saves what arrived and ends the run (run it
+    again to resume). Elsewhere Ctrl-Z suspends as usual.
+    """
+
+    signal_name: ClassVar[str] = "SIGTSTP"
+    status: ClassVar[int] = SUSPENDED_STATUS
 
 
 #: The signals that end a run cleanly: Ctrl-C, a plain ``kill`` (SIGTERM) and a closed
@@ -98,6 +112,8 @@ def ending(signum: int) -> KeyboardInterrupt:
         return Terminated()
     if signum == getattr(signal, "SIGHUP", None):
         return HungUp()
+    if signum == getattr(signal, "SIGTSTP", None):
+        return Suspended()
     return KeyboardInterrupt()
 
 
@@ -813,6 +829,7 @@ __all__ = [
     "HUNG_UP_STATUS",
     "INTERRUPTED_STATUS",
     "PROGRESS_INTERVAL_S",
+    "SUSPENDED_STATUS",
     "TERMINATED_STATUS",
     "Argument",
     "CliError",
@@ -820,6 +837,7 @@ __all__ = [
     "HungUp",
     "PlainProgress",
     "Registry",
+    "Suspended",
     "Terminated",
     "arg",
     "build_parser",

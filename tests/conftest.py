@@ -310,18 +310,32 @@ def _no_virtual_lab_left_ticking() -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _signal_handlers_restored() -> Iterator[None]:
-    """Fail a test that leaves SIGINT, SIGTERM or SIGHUP handled otherwise than it found them.
+    """Fail a test that leaves SIGINT, SIGTERM, SIGHUP, SIGTSTP or SIGCONT handled otherwise.
 
     A Ctrl-C handler left ignored (or deferred) makes a later test's interrupt vanish: the
     test that sends it fails, far from the test that caused it. The handlers are put back.
     """
-    numbers = cli.ENDING_SIGNALS
+    numbers = (*cli.ENDING_SIGNALS, signal.SIGTSTP, signal.SIGCONT)  # an arm's too
     before = {number: signal.getsignal(number) for number in numbers}
     yield
     changed = {n: h for n in numbers if (h := signal.getsignal(n)) is not before[n]}
     for number in changed:
         signal.signal(number, before[number])
     assert not changed, f"handlers left changed: {changed} (were {before})"
+
+
+@pytest.fixture
+def suspend_caught() -> Iterator[None]:
+    """SIGTSTP (Ctrl-Z) handled by a no-op for the test, never the default (suspend).
+
+    A test sending Ctrl-Z to its own process sees it taken by the code under test; if that
+    code does not take it, the no-op does, and the test fails instead of stopping the tests.
+    """
+    previous = signal.signal(signal.SIGTSTP, lambda *_: None)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTSTP, previous)
 
 
 @pytest.fixture

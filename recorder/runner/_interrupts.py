@@ -1,12 +1,14 @@
-"""Ctrl-C, SIGTERM and SIGHUP during an action: a flag the runner sees within one cycle.
+"""Ctrl-C, SIGTERM, SIGHUP (and Ctrl-Z) during an action: a flag the runner sees in a cycle.
 
 A signal must not end an action from wherever Python happens to be (inside the writer, between
 two halves of a message): while an action runs, SIGINT, SIGTERM and SIGHUP (the terminal or the
 SSH connection closed) only set a flag; the runner sends the stop, keeps what arrived
 (``.incomplete.mcap``) and then ends the run with :func:`raise_interrupt` (``KeyboardInterrupt``,
 or :class:`schemas.cli.Terminated` for SIGTERM and SIGHUP, which the commands turn into exit
-status 130, 143 and 129). Outside an action the handlers of the command (``schemas.cli``)
-apply: the run ends at once. A signal ignored when the block starts (``nohup``) stays ignored.
+status 130, 143 and 129). While an arm moves, Ctrl-Z (SIGTSTP) is deferred too and ends the
+run (exit status 148): a suspended recorder would leave the arm unwatched. Outside an action
+the handlers of the command (``schemas.cli``) apply: the run ends at once (Ctrl-Z suspends).
+A signal ignored when the block starts (``nohup``) stays ignored.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ if TYPE_CHECKING:
 
 #: The signals an action defers: Ctrl-C, SIGTERM and SIGHUP (a closed terminal or SSH link).
 SIGNALS = cli.ENDING_SIGNALS
+#: Deferred too while an arm moves: Ctrl-Z would leave it unwatched (``schemas.cli.Suspended``).
+SUSPEND = getattr(signal, "SIGTSTP", None)
+#: Sent when a stopped process goes on (after SIGSTOP, which no process can catch).
+CONTINUE = getattr(signal, "SIGCONT", None)
 
 
 @dataclass(slots=True)
@@ -32,20 +38,37 @@ class InterruptFlag:
 
     Attributes:
         signum: The signal (None: none came).
+        continued: The process was stopped (SIGSTOP) and went on while the arm moved: the
+            arm went unwatched meanwhile.
     """
 
     signum: int | None = None
+    continued: bool = False
+
+    @property
+    def stopped_meanwhile(self) -> str:
+        """Return why the action must end after the process was stopped (empty: it was not)."""
+        if not self.continued:
+            return ""
+        return (
+            "the recorder was stopped (SIGSTOP) while the arm moved, and continued: the arm "
+            "went unwatched meanwhile"
+        )
 
     @property
     def reason(self) -> str:
         """Return the stop's reason, one line."""
         name = cli.signal_name(self.signum) if self.signum else ""
-        return f"interrupted by {'Ctrl-C (SIGINT)' if name == 'SIGINT' else name}"
+        keys = {"SIGINT": "Ctrl-C (SIGINT)", "SIGTSTP": "Ctrl-Z (SIGTSTP)"}
+        return f"interrupted by {keys.get(name, name)}"
 
 
 @contextlib.contextmanager
-def deferred_interrupts() -> Iterator[InterruptFlag]:
+def deferred_interrupts(*, arm: bool = False) -> Iterator[InterruptFlag]:
     """Defer the ending signals to a flag inside the block (main thread; elsewhere: no-op).
+
+    With ``arm`` (the block moves an arm), Ctrl-Z (SIGTSTP) too: it ends the run as Ctrl-C
+    does rather than suspend the process with the arm unwatched.
 
     The previous handlers come back when the block is left (after a signal came, a command's
     handler as it would be after its first one: further ones ignored); the caller raises the
@@ -58,9 +81,16 @@ def deferred_interrupts() -> Iterator[InterruptFlag]:
         if flag.signum is None:
             flag.signum = signum
 
+    def continued(signum: int, frame: FrameType | None) -> None:
+        del signum, frame
+        flag.continued = True
+
     try:  # a signal ignored stays ignored (workers leave Ctrl-C to their parent; nohup)
-        wanted = [n for n in SIGNALS if signal.getsignal(n) is not signal.SIG_IGN]
+        deferred = (*SIGNALS, SUSPEND) if arm and SUSPEND is not None else SIGNALS
+        wanted = [n for n in deferred if signal.getsignal(n) is not signal.SIG_IGN]
         previous = {number: signal.signal(number, handler) for number in wanted}
+        if arm and CONTINUE is not None:
+            previous[CONTINUE] = signal.signal(CONTINUE, continued)
     except ValueError:  # not the main thread: signals are not ours to handle
         yield flag
         return
@@ -69,7 +99,8 @@ def deferred_interrupts() -> Iterator[InterruptFlag]:
     finally:
         for number, old in previous.items():
             taken = flag.signum is not None  # the command's first signal: further ones ignored
-            signal.signal(number, cli.after_deferred_interrupt(old) if taken else old)
+            ending = taken and number != CONTINUE
+            signal.signal(number, cli.after_deferred_interrupt(old) if ending else old)
 
 
 def raise_interrupt(signum: int) -> NoReturn:

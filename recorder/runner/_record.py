@@ -45,6 +45,8 @@ class _Watch:
     def problem(self) -> str:
         if self.flag.signum is not None:
             return self.flag.reason
+        if self.flag.continued:
+            return self.flag.stopped_meanwhile
         return self.sink.problem
 
 
@@ -92,7 +94,7 @@ def record_action(
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     for viewer in viewers:
         viewer.begin(info)
-    with deferred_interrupts() as flag:
+    with deferred_interrupts(arm=isinstance(rig, ArmRig)) as flag:
         written, stop = _write(rig, obj, action, trial, path, info, viewers, flag, durable=durable)
     if written is None:  # pragma: no cover (the 'with' block always sets it)
         msg = f"{path}: the recording was not finished"

@@ -126,6 +126,8 @@ class _Deferred:
     def problem(self) -> str:
         if self.flag.signum is not None:
             return self.flag.reason
+        if self.flag.continued:
+            return self.flag.stopped_meanwhile
         return self.watch.problem() if self.watch is not None else ""
 
 
@@ -366,7 +368,7 @@ class ArmRig:
             return False
         # a signal while the arm moves is deferred as in an action: it never lands inside a
         # program being sent, the stop goes out first, and the line says so
-        with real_time(self._rt_priority), deferred_interrupts() as flag:
+        with real_time(self._rt_priority), deferred_interrupts(arm=True) as flag:
             try:
                 self._present(obj, target, _Deferred(flag, watch))
             except RigError:

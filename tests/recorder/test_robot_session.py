@@ -304,7 +304,14 @@ def test_live_learning_at_the_virtual_robot_replays_offline(
     assert [line for line in replayed.out.splitlines() if line.startswith("step")] == steps
 
 
-_STOPPED = {"SIGTERM": 143, "SIGKILL": -signal.SIGKILL, "disconnect": 1, "protective": 1}
+_STOPPED = {
+    "SIGTERM": 143,
+    "SIGKILL": -signal.SIGKILL,
+    "SIGTSTP": 148,  # Ctrl-Z while the arm moves: stopped, saved, ended (never suspended)
+    "SIGSTOP": 1,  # cannot be caught: when continued, the action ends (the arm was unwatched)
+    "disconnect": 1,
+    "protective": 1,
+}
 _FAULTS = {
     "disconnect": ["--fault", "rtde.disconnect=1"],
     "protective": ["--fault", "script.protective_stop=0.5"],
@@ -317,7 +324,7 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
     run = subprocess.Popen(  # noqa: S603 (this project's command)
         command, env=os.environ | {"PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True
     )
-    number = {"SIGTERM": signal.SIGTERM, "SIGKILL": signal.SIGKILL}.get(cause)
+    number = getattr(signal, cause, None) if cause.startswith("SIG") else None
     deadline = time.monotonic() + 120
     while number is not None and time.monotonic() < deadline and run.poll() is None:
         # a part being written: not the one a finished recording leaves for a moment while
@@ -328,6 +335,9 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
             # well inside the action (about 0.4 s at this time scale), also on a loaded machine
             time.sleep(0.05)
             run.send_signal(number)
+            if number == signal.SIGSTOP:  # stopped for a second, as a debugger or kill -STOP
+                time.sleep(1.0)
+                run.send_signal(signal.SIGCONT)
             break
         time.sleep(0.02)
     _, err = run.communicate(timeout=120)
@@ -335,7 +345,9 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
 
 
 @pytest.mark.slow(14)
-@pytest.mark.parametrize("cause", ["SIGTERM", "SIGKILL", "disconnect", "protective"])
+@pytest.mark.parametrize(
+    "cause", ["SIGTERM", "SIGKILL", "SIGTSTP", "SIGSTOP", "disconnect", "protective"]
+)
 def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], cause: str
 ) -> None:
@@ -354,6 +366,11 @@ def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     assert status == _STOPPED[cause], err
     if cause == "SIGTERM":
         assert "interrupted by SIGTERM: the arm was stopped" in err
+    if cause == "SIGTSTP":
+        assert "interrupted by Ctrl-Z (SIGTSTP): the arm was stopped; what arrived is kept" in err
+    if cause == "SIGSTOP":
+        assert "the recorder was stopped (SIGSTOP) while the arm moved, and continued" in err
+        assert err.count("\n") == 1, err
     if cause == "protective":  # in an action, or while moving to the next object
         assert "protective stop" in err
         assert err.count("\n") == 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import errno
 import os
+import re
 import signal
 import threading
 from typing import TYPE_CHECKING, Any
@@ -194,9 +195,11 @@ def _after_contact(rig: ArmRig, then: object) -> dict[str, int]:
         # the terminal or the SSH connection of the session closed: by default SIGHUP ends
         # the process at once, the arm still running its last program
         (signal.SIGHUP, cli.HungUp, "SIGHUP"),
+        # Ctrl-Z: a suspended recorder would leave the arm unwatched until resumed
+        (signal.SIGTSTP, cli.Suspended, "Ctrl-Z"),
     ],
 )
-@pytest.mark.usefixtures("hangup_not_ignored")
+@pytest.mark.usefixtures("hangup_not_ignored", "suspend_caught")
 def test_a_signal_stops_the_arm_keeps_the_data_then_ends_the_run(
     tmp_path: Path, signum: int, raised: type[BaseException], name: str
 ) -> None:
@@ -208,6 +211,23 @@ def test_a_signal_stops_the_arm_keeps_the_data_then_ends_the_run(
         record_action(rig, OBJECT, ACTION, 1, path, seed=0)
     _stopped_in_time(arm, seen["cycle"])
     _kept(path, f"interrupted by {name}")
+
+
+def test_a_recorder_stopped_and_continued_mid_action_stops_the_arm_and_says_so(
+    tmp_path: Path,
+) -> None:
+    # SIGSTOP cannot be caught: only the SIGCONT that follows says the arm went unwatched
+    # (sent here alone: the process is not stopped, the handler runs as after a real stop)
+    path = tmp_path / "001.mcap"
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    seen = _after_contact(rig, lambda: os.kill(os.getpid(), signal.SIGCONT))
+    reason = "the recorder was stopped (SIGSTOP) while the arm moved, and continued"
+    with rig, pytest.raises(ActionStoppedError, match=re.escape(reason)):
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    _stopped_in_time(arm, seen["cycle"])
+    _kept(path, reason)
+    assert signal.getsignal(signal.SIGCONT) is signal.SIG_DFL  # put back after the action
 
 
 def test_the_stop_is_timed_when_it_goes_to_the_arm(tmp_path: Path) -> None:
