@@ -28,6 +28,7 @@ import signal
 import sys
 import threading
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, NoReturn
 
 import rich.console
@@ -38,7 +39,6 @@ from schemas._metadata import MAX_SEED, MAX_TRIAL
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
-    from pathlib import Path
     from types import FrameType, TracebackType
 
     from rich.console import Console
@@ -678,16 +678,57 @@ def numbered_directory(base: Path) -> Path:
     return candidate
 
 
+#: Names of recorded data (recordings, their unfinished parts, ROS 1 and ROS 2 bags): never
+#: replaced by an output, ``--force`` or not.
+RECORDED_SUFFIXES = (".mcap", ".mcap.part", ".bag", ".db3")
+
+
+def _recorded_data(path: Path) -> Path | None:
+    """Return a file of recorded data at or below ``path`` (None: it holds none).
+
+    The walk stops at the first such file; a directory it cannot list counts as holding one
+    (what it holds is unknown, so it is not replaced).
+    """
+    if not path.is_dir():
+        return path if path.name.endswith(RECORDED_SUFFIXES) else None
+
+    def unreadable(err: OSError) -> None:
+        raise err
+
+    try:
+        for directory, _, names in os.walk(path, onerror=unreadable):
+            for name in names:
+                if name.endswith(RECORDED_SUFFIXES):
+                    return Path(directory) / name
+    except OSError as err:
+        return Path(err.filename or path)
+    return None
+
+
 def refuse_existing(path: Path, *, force: bool, option: str = "--out") -> None:
-    """Refuse an existing output unless ``force``.
+    """Refuse an existing output unless ``force``; never one holding recorded data.
+
+    ``--force`` replaces a previous output (a run's, a study's, a saved view); a directory or
+    file that holds recordings or bags (a dataset given as ``--out`` by mistake) is refused
+    even then: nothing recorded is deleted by the program.
 
     Raises:
-        CliError: ``path`` exists (a non-empty directory or a file) and ``force`` is False.
+        CliError: ``path`` exists (a non-empty directory or a file) and ``force`` is False,
+            or it holds recorded data.
     """
-    if not force and _is_taken(path):
+    if not _is_taken(path):
+        return
+    if not force:
         msg = (
             f"{option} {path}: exists, and outputs are never overwritten; give another "
             f"{option}, or add --force to replace it"
+        )
+        raise CliError(msg)
+    if (recorded := _recorded_data(path)) is not None:
+        held = "is recorded data" if recorded == path else f"holds recorded data ({recorded})"
+        msg = (
+            f"{option} {path}: {held}; --force replaces a previous output, never recordings "
+            f"or bags: give another {option}"
         )
         raise CliError(msg)
 

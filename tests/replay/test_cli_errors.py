@@ -54,6 +54,9 @@ CASES: list[tuple[str, str]] = [
         "--transfer prediction needs >= 2 old objects; the run has 1 (wood)",
     ),
     ("learn --recordings {data} --out {taken}", "exists, and outputs are never overwritten"),
+    # a dataset given as --out by mistake: --force replaced it, its recordings gone
+    ("learn --recordings {data} --out {recorded} --force", "holds recorded data ("),
+    ("study transfer --recordings {data} --out {recorded} --force", "never recordings or bags"),
     ("learn --recordings {data} --workers 0", "give 1 or more worker processes"),
     ("study nosuch", "argument name: invalid choice"),
     ("study transfer --recordings {tmp}/missing", "not a directory"),
@@ -105,6 +108,7 @@ def places(
         "tmp": str(base / "tmp"),
         "taken": str(taken),
         "exported": str(exported),
+        "recorded": str(base / "recording"),
     }
 
 

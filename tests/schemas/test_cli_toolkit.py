@@ -219,6 +219,25 @@ def test_publish_directory_refuses_then_replaces_with_force(tmp_path: Path) -> N
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
+@pytest.mark.parametrize(
+    "recorded", ["wood/P1/001.mcap", "wood/P1/002.1-ab.mcap.part", "bags/lab.bag", "b/b_0.db3"]
+)
+def test_force_never_replaces_recorded_data(tmp_path: Path, recorded: str) -> None:
+    # a dataset given as --out by mistake: --force replaces outputs, never recordings
+    target = tmp_path / "data"
+    (target / recorded).parent.mkdir(parents=True)
+    (target / recorded).write_bytes(b"recorded at the robot")
+    with (
+        pytest.raises(cli.CliError, match=r"--out .*data: holds recorded data \(.*never rec"),
+        cli.publish_directory(target, force=True) as temporary,
+    ):
+        (temporary / "history.parquet").write_text("new")  # pragma: no cover (refused first)
+    assert (target / recorded).read_bytes() == b"recorded at the robot"
+    assert [p.name for p in tmp_path.iterdir()] == ["data"]
+    with pytest.raises(cli.CliError, match=r"--save .*: is recorded data; --force replaces"):
+        cli.check_new_file(target / recorded, force=True, option="--save")
+
+
 def test_a_failed_publish_keeps_the_old_output_and_removes_its_temporary(
     tmp_path: Path,
 ) -> None:
