@@ -286,7 +286,7 @@ class Listener:
             live=True,
             sources=self._sources,
         )
-        self._planner = self.planner or PathPlanner(self.out)
+        self._planner = self.planner or PathPlanner(self.out, renumber=True)
         self._catalogs = lab_catalogs(self.objects, self.actions)
         windows = self.topic_map.windows
         if windows.source == "topic":
@@ -568,6 +568,12 @@ class Listener:
             raise BagImportError(msg)
         planned = self._planner.plan(window)
         self.session.add(plan_window(planned, self.topic_map, self._catalogs, incomplete))
+        if window.trial is not None and planned[1] != window.trial:
+            self._note(
+                f"{window.describe()}: trial {window.trial} is recorded in {self.out} already "
+                f"(a new session of the lab's system); written as trial {planned[1]}: "
+                f"{planned[2]}"
+            )
         if incomplete:
             self._note(f"{window.describe()}: kept as incomplete ({incomplete})")
 

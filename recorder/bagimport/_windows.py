@@ -338,11 +338,15 @@ class PathPlanner:
     """Gives windows trial numbers and output paths, one after the other.
 
     Windows without a trial continue after the highest trial in ``out`` (and in this import).
+    A window whose trial is recorded already is refused (a bag can be imported again into
+    another ``--out``), or, with ``renumber`` (``listen``: live data exists nowhere else), it
+    continues after the highest trial as a window without one does.
     """
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, *, renumber: bool = False) -> None:
         """Plan into ``out``."""
         self.out = out
+        self.renumber = renumber
         self._used: dict[tuple[str, str], int] = {}
         self._seen: set[Path] = set()
 
@@ -377,10 +381,13 @@ class PathPlanner:
         if pair not in used:
             used[pair] = self._baseline(pair)
         trial = window.trial if window.trial is not None else used[pair] + 1
+        path = recording_path(self.out, window.object_id, window.action_id, trial)
+        if self.renumber and (self._exists(path) or path in self._seen):
+            trial = used[pair] + 1
+            path = recording_path(self.out, window.object_id, window.action_id, trial)
         if trial > MAX_TRIAL:
             msg = f"{window.describe()}: trial {trial} exceeds {MAX_TRIAL}; choose another --out"
             raise BagImportError(msg)
-        path = recording_path(self.out, window.object_id, window.action_id, trial)
         if self._exists(path) or path in self._seen:
             msg = (
                 f"{path}: {window.describe()} would overwrite a recording; recordings are never "
@@ -401,7 +408,7 @@ class ReplayPlanner(PathPlanner):
 
     def __init__(self, out: Path, trials: dict[str, int], written: set[Path]) -> None:
         """Plan into ``out`` from the journal's ``trials``; ``written``: the run's paths."""
-        super().__init__(out)
+        super().__init__(out, renumber=True)  # as the live run did
         self._trials = trials
         self._written = written
 

@@ -152,6 +152,8 @@ def _listen(
     length: int = LENGTH,
     before_finish: list[int] | None = None,
     counted: bool = False,
+    notes: list[str] | None = None,
+    started_ns: int = WALL,
 ) -> ImportReport:
     """Replay the session through ``listen``'s listener in 50 ms steps; return its report.
 
@@ -167,7 +169,8 @@ def _listen(
         load_objects(None),
         load_actions(None),
         journal=False,
-        started_ns=WALL,
+        started_ns=started_ns,
+        on_note=None if notes is None else notes.append,
     )
     kinds = {p: m for p, (m, _) in TOPICS.items()}
     if counted:
@@ -200,6 +203,22 @@ def _checked(report: ImportReport) -> tuple[str | None, str | None, int, int]:
 
 def test_a_steady_publisher_gives_a_file_without_warnings(tmp_path: Path) -> None:
     assert _checked(_listen(tmp_path, {})) == (None, None, 0, 0)
+
+
+def test_a_trial_recorded_already_is_written_as_the_next_never_dropped(tmp_path: Path) -> None:
+    # the lab's system started a new session that numbers its trials from 1 again: live data
+    # exists nowhere else, so it is kept under the next free trial (a bag is refused instead)
+    first = _listen(tmp_path, {})
+    notes: list[str] = []
+    again = _listen(tmp_path, {}, notes=notes, started_ns=WALL + 1)  # another run
+    out = tmp_path / "out" / "wood" / "tap"
+    assert first.written == [out / "001.mcap"]
+    assert again.written == [out / "002.mcap"], again.skipped
+    assert not again.skipped
+    (line,) = [n for n in notes if "trial 1 is recorded in" in n]
+    assert line.endswith(f"written as trial 2: {out / '002.mcap'}"), line
+    assert read_recording(out / "002.mcap").metadata.trial == 2
+    assert _check_one(out / "002.mcap")[0] is None
 
 
 @pytest.mark.parametrize("late_ms", [1, 6, 20])
