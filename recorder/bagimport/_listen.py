@@ -256,6 +256,8 @@ class Listener:
     _first_stamp: dict[str, int] = field(default_factory=dict, init=False)
     _latest_stamp: int | None = field(default=None, init=False)
     _noted: dict[str, int] = field(default_factory=dict, init=False)
+    #: Windows skipped before the open journal began (one skipped since: it is kept).
+    _skipped_before: int = field(default=0, init=False)
     _types: dict[str, str] = field(default_factory=dict, init=False)
     #: Topic -> (queue overflows, oversize drops, latest oversize bytes) as of the step.
     _counts: dict[str, tuple[int, int, int]] = field(default_factory=dict, init=False)
@@ -430,15 +432,28 @@ class Listener:
         self._serial += 1
         self._journal = JournalWriter.create(self.out, self.head(), self._store, self._serial)
         self._journal_wrote = False
+        self._skipped_before = len(self.report.skipped)
 
     def _retire(self, *, reopen: bool) -> None:
-        """Close the journal, all of whose windows are written, and remove it (or keep it)."""
+        """Close the journal, all of whose windows are written, and remove it (or keep it).
+
+        A journal during which a window was skipped is kept: it holds the only copy of that
+        action's messages (live data exists nowhere else).
+        """
         journal = self._journal
         if journal is None:
             return
         self._journal = None
-        kept = self.out / JOURNAL_DIR / KEPT_DIR if self.keep_journals else None
+        skipped = len(self.report.skipped) - self._skipped_before
+        keep = self.keep_journals or skipped > 0
+        kept = self.out / JOURNAL_DIR / KEPT_DIR if keep else None
         journal.close(kept)
+        if kept is not None and skipped and not self.keep_journals:
+            self._note(
+                f"{kept / journal.path.name}: kept, the messages of {skipped} skipped "
+                f"window{'s' if skipped > 1 else ''} as received (a ROS 2 MCAP: import-bag "
+                "reads it, with a windows CSV where the annotations were wrong)"
+            )
         if reopen:
             self._open_journal()
 
@@ -536,7 +551,8 @@ class Listener:
             if window is not None:
                 self._add(window, self._joined(window))
         except RecorderError as err:
-            self.report.skipped.append((f"topic {topic} at {receive_ns} ns", str(err)))
+            where = f"topic {topic} at {receive_ns} ns"
+            self.report.skipped.append((where, str(err).removeprefix(f"{where}: ")))
 
     def _joined(self, window: Window) -> str:
         """Return why a window began before this listener received its topics (empty: not)."""

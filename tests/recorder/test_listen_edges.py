@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 pytest.importorskip("cyclonedds")
 
@@ -25,8 +26,10 @@ from recorder.bagimport._journal import JournalStep
 from recorder.bagimport._listen import Listener
 from recorder.bagimport._source import typestore
 from recorder.bagimport._topicmap import load_topic_map
+from recorder.live import Received
 from replay.cli._main import _check_one
 from replay.recording._reader import read_recording
+from schemas import MAX_TRIAL
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -99,9 +102,9 @@ def _template(store: Typestore, msgtype: str) -> bytearray:
     return bytearray(store.serialize_cdr(types[msgtype](**fields), msgtype))
 
 
-def _annotation(store: Typestore, phase: str, tick: int) -> bytes:
+def _annotation(store: Typestore, phase: str, tick: int, trial: int = 1) -> bytes:
     """Return the annotation of ``phase`` scheduled at ``tick`` (the lab's schedule)."""
-    text = {"object": "wood", "action": "tap", "phase": phase, "trial": 1}
+    text = {"object": "wood", "action": "tap", "phase": phase, "trial": trial}
     text["stamp_ns"] = WALL + tick * MS
     message = store.types["std_msgs/msg/String"](data=json.dumps(text))
     return bytes(store.serialize_cdr(message, "std_msgs/msg/String"))
@@ -113,6 +116,8 @@ def _session(
     sends: Callable[[str, int], bool],
     length: int = LENGTH,
     types: Mapping[str, str] | None = None,
+    *,
+    trial: int = 1,
 ) -> list[tuple[str, int, bytes]]:
     """Return the session's messages (topic, receive ns, CDR) as a publisher sends them.
 
@@ -127,7 +132,7 @@ def _session(
         now = max(now, WALL + tick * MS)
         for phase, at in (("execute", EXECUTE), ("end", END)):
             if tick == at:
-                out.append(("/annotations", now + MS, _annotation(store, phase, tick)))
+                out.append(("/annotations", now + MS, _annotation(store, phase, tick, trial)))
         for pattern, (_, period) in TOPICS.items():
             for cell in range(CELLS):
                 topic = pattern.format(cell=cell)
@@ -219,6 +224,55 @@ def test_a_trial_recorded_already_is_written_as_the_next_never_dropped(tmp_path:
     assert line.endswith(f"written as trial 2: {out / '002.mcap'}"), line
     assert read_recording(out / "002.mcap").metadata.trial == 2
     assert _check_one(out / "002.mcap")[0] is None
+
+
+class _StepClock:
+    """The listener's clock, moved by the test (a step's time)."""
+
+    def __init__(self) -> None:
+        self.now = WALL
+
+    def now_ns(self) -> int:
+        return self.now
+
+
+def test_the_journal_of_a_skipped_window_is_kept(tmp_path: Path) -> None:
+    # annotations the run cannot take (a trial number out of range): the action is skipped
+    # with a line, and its messages, which exist nowhere else, stay in the journal
+    topic_map = load_topic_map(_map(tmp_path))
+    store = typestore(topic_map)
+    clock, notes = _StepClock(), []
+    listener = Listener(
+        topic_map,
+        tmp_path / "out",
+        load_objects(None),
+        load_actions(None),
+        started_ns=WALL,
+        clock=clock,  # type: ignore[arg-type]
+        on_note=notes.append,
+    )
+    types = {"/annotations": "std_msgs/msg/String"}
+    types |= {p.format(cell=c): m for p, (m, _) in TOPICS.items() for c in range(CELLS)}
+    listener.prepare(types)
+    listener._open_journal()
+    items = _session(store, {}, lambda _t, _k: True, trial=MAX_TRIAL + 1)
+    while clock.now < WALL + (LENGTH + 2000) * MS:
+        taken = [
+            Received(r, (t, raw)) for t, r, raw in items if clock.now <= r < clock.now + 50 * MS
+        ]
+        listener._take = lambda _wait, taken=taken: taken  # type: ignore[method-assign]
+        clock.now += 50 * MS
+        listener.step()
+    report = listener.finish()
+    assert report.written == []
+    assert report.skipped, notes
+    kept = sorted((tmp_path / "out" / ".listen" / "kept").glob("*.journal.mcap"))
+    assert len(kept) == 1, notes
+    assert any(line.startswith(f"{kept[0]}: kept, the messages of") for line in notes), notes
+    with kept[0].open("rb") as stream:  # every message of the session is in it
+        topics = [channel.topic for _, channel, _ in make_reader(stream).iter_messages()]
+    assert topics.count("/skin/force_0") == LENGTH
+    assert topics.count("/annotations") == 2
 
 
 @pytest.mark.parametrize("late_ms", [1, 6, 20])
