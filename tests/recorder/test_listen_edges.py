@@ -241,7 +241,7 @@ def test_the_journal_of_a_skipped_window_is_kept(tmp_path: Path) -> None:
     # with a line, and its messages, which exist nowhere else, stay in the journal
     topic_map = load_topic_map(_map(tmp_path))
     store = typestore(topic_map)
-    clock, notes = _StepClock(), []
+    clock, notes = _StepClock(), list[str]()
     listener = Listener(
         topic_map,
         tmp_path / "out",
@@ -260,7 +260,7 @@ def test_the_journal_of_a_skipped_window_is_kept(tmp_path: Path) -> None:
         taken = [
             Received(r, (t, raw)) for t, r, raw in items if clock.now <= r < clock.now + 50 * MS
         ]
-        listener._take = lambda _wait, taken=taken: taken  # type: ignore[method-assign]
+        listener._take = lambda _wait, taken=taken: taken  # type: ignore[method-assign,misc]
         clock.now += 50 * MS
         listener.step()
     report = listener.finish()
