@@ -706,25 +706,32 @@ def _recorded_data(path: Path) -> Path | None:
 
 
 def refuse_existing(path: Path, *, force: bool, option: str = "--out") -> None:
-    """Refuse an existing output unless ``force``; never one holding recorded data.
-
-    ``--force`` replaces a previous output (a run's, a study's, a saved view); a directory or
-    file that holds recordings or bags (a dataset given as ``--out`` by mistake) is refused
-    even then: nothing recorded is deleted by the program.
+    """Refuse an existing output unless ``force``.
 
     Raises:
-        CliError: ``path`` exists (a non-empty directory or a file) and ``force`` is False,
-            or it holds recorded data.
+        CliError: ``path`` exists (a non-empty directory or a file) and ``force`` is False.
     """
-    if not _is_taken(path):
-        return
-    if not force:
+    if not force and _is_taken(path):
         msg = (
             f"{option} {path}: exists, and outputs are never overwritten; give another "
             f"{option}, or add --force to replace it"
         )
         raise CliError(msg)
-    if (recorded := _recorded_data(path)) is not None:
+
+
+def refuse_recorded(path: Path, option: str = "--out") -> None:
+    """Refuse an output that is or holds recorded data, ``--force`` or not.
+
+    ``--force`` replaces a previous output (a run's, a study's, a saved view); a directory or
+    file that holds recordings or bags (a dataset given as ``--out`` by mistake) is never
+    replaced: nothing recorded is deleted by the program. Commands call it after
+    :func:`refuse_overlap` (whose line names the input), and :func:`publish_directory` and
+    :func:`publish_file` call it again before they replace anything.
+
+    Raises:
+        CliError: ``path`` is or holds recorded data.
+    """
+    if _is_taken(path) and (recorded := _recorded_data(path)) is not None:
         held = "is recorded data" if recorded == path else f"holds recorded data ({recorded})"
         msg = (
             f"{option} {path}: {held}; --force replaces a previous output, never recordings "
@@ -828,6 +835,7 @@ def publish_directory(target: Path, *, force: bool, option: str = "--out") -> It
         CliError: ``target`` exists and ``force`` is False, or it cannot be written.
     """
     refuse_existing(target, force=force, option=option)
+    refuse_recorded(target, option)
     temporary = _temporary_sibling(target, "tmp")
     try:
         temporary.mkdir(parents=True)
@@ -852,6 +860,7 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
         CliError: ``target`` exists and ``force`` is False, or it cannot be written.
     """
     check_new_file(target, force=force, option=option)
+    refuse_recorded(target, option)
     temporary = temporary_name(target, f"tmp{target.suffix}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -893,6 +902,7 @@ __all__ = [
     "publish_file",
     "refuse_existing",
     "refuse_overlap",
+    "refuse_recorded",
     "rig_seed",
     "run",
     "seconds",

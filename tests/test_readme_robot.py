@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+from ports import free_port
 
 from recorder import load_actions
 
@@ -53,20 +54,14 @@ def _steps(block: str) -> list[tuple[str, str]]:
     return steps
 
 
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
 class _Lab:
     """The example configuration on this test's ports, and how commands name it."""
 
     def __init__(self, tmp: Path, domain: int = 0, scale: str = SCALE) -> None:
-        self.rtde = _free_port(socket.SOCK_STREAM)
-        self.script = _free_port(socket.SOCK_STREAM)
-        self.udp = _free_port(socket.SOCK_DGRAM)
-        self.dashboard = _free_port(socket.SOCK_STREAM)
+        self.rtde = free_port(socket.SOCK_STREAM)
+        self.script = free_port(socket.SOCK_STREAM)
+        self.udp = free_port(socket.SOCK_DGRAM)
+        self.dashboard = free_port(socket.SOCK_STREAM)
         self.domain, self.scale = domain, scale
         self.topic_map = tmp / "topic_map.toml"
         self.topic_map.write_text(_scaled_map(scale), "utf-8")

@@ -40,6 +40,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "tests"))  # the tests' helpers (ports), after the packages
 DATA = ROOT / "recorder" / "data"
 NS = 1_000_000_000
 
@@ -51,6 +52,8 @@ assert _spec.loader is not None
 bench_live_dds = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bench_live_dds)  # sets CYCLONEDDS_URI to loopback first
 
+from ports import free_port  # noqa: E402
+
 from recorder import load_actions, load_objects, load_rig_config, rig_factory  # noqa: E402
 from recorder.live import RecorderClock  # noqa: E402
 from recorder.writing._stream import SkinBlock  # noqa: E402
@@ -60,12 +63,6 @@ from recorder.writing._writer import RecordingInfo, RecordingWriter  # noqa: E40
 def _cpu() -> float:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
-
-
-def _port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 def _lab(root: Path, rtde: int, script: int, udp: int, scale: float) -> Path:
@@ -101,9 +98,9 @@ def udp_case(seconds: float, scale: float = 1.0) -> dict[str, Any]:
     """
     root = Path(tempfile.mkdtemp(prefix="bench-live-"))
     rtde, script, udp = (
-        _port(socket.SOCK_STREAM),
-        _port(socket.SOCK_STREAM),
-        _port(socket.SOCK_DGRAM),
+        free_port(socket.SOCK_STREAM),
+        free_port(socket.SOCK_STREAM),
+        free_port(socket.SOCK_DGRAM),
     )
     lab = _lab(root, rtde, script, udp, scale)
     command = [sys.executable, "-m", "recorder", "serve-sim", "--frequency", "500"]

@@ -58,6 +58,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "tests"))  # the tests' helpers (ports), after the packages
+
+from ports import free_port  # noqa: E402
 
 from recorder import RecorderError, load_actions, load_objects, record_action  # noqa: E402
 from recorder._rigconfig import load_rig_config  # noqa: E402
@@ -91,20 +94,14 @@ OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 POSE_Z = 0.15  # the example configuration's pose of wood
 
 
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
 #: ``--rt-priority`` and ``--lab-rt-priority`` (0: normal scheduling).
 PRIORITY = {"recorder": 0, "lab": 0}
 
 
 def _lab_files(tmp: Path, frequency: int, cause: str) -> tuple[Path, list[str], Path]:
     """Return the rig configuration, the serve-sim command and its events file."""
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp, dashboard = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_STREAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp, dashboard = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
     text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
     text = text.replace("script_port = 30001", f"script_port = {script}")

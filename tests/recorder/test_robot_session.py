@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+from ports import free_port
 
 from recorder._cli import main as record
 from replay import read_recording
@@ -36,12 +37,6 @@ TIME_SCALE = "0.1"
 #: The ROS 2 lab (DDS latency ~50 ms) at 0.5: the rig's reaction time counts twice over in world
 #: motion, half as much as at 0.25, which a test machine running other tests beside it needs.
 ROS2_TIME_SCALE = "0.5"
-
-
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 def _lab(tmp_path: Path, rtde: int, script: int, skin: str, scale: str = TIME_SCALE) -> Path:
@@ -133,8 +128,8 @@ def _check_every_sample(
 def test_a_dry_run_checks_the_rig_and_moves_and_writes_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    dashboard, udp = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    dashboard, udp = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
@@ -177,8 +172,8 @@ def test_a_dry_run_checks_the_rig_and_moves_and_writes_nothing(
 
 @pytest.mark.slow(9)
 def test_a_session_with_a_udp_skin(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp = free_port(socket.SOCK_DGRAM)
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
@@ -195,7 +190,7 @@ def test_a_session_with_a_ros2_skin(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], dds_domain: int
 ) -> None:
     pytest.importorskip("cyclonedds")
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
     topic_map = DATA / "topic_map.example.toml"
     skin = f'[skin]\ntransport = "ros2"\ntopic_map = "{topic_map}"\ndomain_id = {dds_domain}\n'
     lab = _lab(tmp_path, rtde, script, skin, ROS2_TIME_SCALE)
@@ -221,8 +216,8 @@ def _last_log_ns(path: Path) -> int:
 def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) -> None:
     from replay import salvage  # noqa: PLC0415
 
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp = free_port(socket.SOCK_DGRAM)
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :], "0.3")
@@ -257,8 +252,8 @@ def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) ->
 def test_live_learning_at_the_virtual_robot_replays_offline(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp = free_port(socket.SOCK_DGRAM)
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])
@@ -351,8 +346,8 @@ def _interrupted_session(argv: list[str], out: Path, cause: str) -> tuple[int, s
 def test_a_session_resumes_after_anything_with_exactly_the_planned_trials(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], cause: str
 ) -> None:
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp = free_port(socket.SOCK_DGRAM)
     skin = (DATA / "skin_udp.example.toml").read_text("utf-8")
     skin = skin.replace('bind = "127.0.0.1:5005"', f'bind = "127.0.0.1:{udp}"')
     lab = _lab(tmp_path, rtde, script, skin[skin.index("\n[skin]\n") + 1 :])

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ports import free_port
 from ur_lab import POSE, virtual_lab
 
 from recorder import RecorderError, SimulatedRig, load_actions, load_objects, record_action
@@ -281,18 +282,12 @@ def test_faults_for_sources_not_served_are_refused_in_one_line(tmp_path: Path) -
     del tmp_path
 
 
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
 def _served_lab(tmp_path: Path) -> tuple[Path, list[str]]:
     """Return the served-actions test's rig configuration and its serve-sim command."""
     # serve-sim in its own process (as at a robot: the lab never competes with the rig for
     # this interpreter), the UR rig with the example configuration and a UDP skin here.
-    rtde, script = _free_port(socket.SOCK_STREAM), _free_port(socket.SOCK_STREAM)
-    udp = _free_port(socket.SOCK_DGRAM)
+    rtde, script = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    udp = free_port(socket.SOCK_DGRAM)
     text = (ROOT / "recorder/data/ur_rig.example.toml").read_text("utf-8")
     text = text.replace("rtde_port = 30004", f"rtde_port = {rtde}")
     text = text.replace("script_port = 30001", f"script_port = {script}")
@@ -422,11 +417,7 @@ def test_a_skin_that_cannot_be_served_ends_the_lab_with_one_line(tmp_path: Path)
 
 def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     events, summary = tmp_path / "events.jsonl", tmp_path / "faults.json"
-    ports = []
-    for _ in range(2):
-        with socket.socket() as probe:
-            probe.bind(("127.0.0.1", 0))
-            ports.append(probe.getsockname()[1])
+    ports = [free_port(), free_port()]
     command = [sys.executable, "-m", "recorder", "serve-sim", "--rtde-port", str(ports[0])]
     command += ["--script-port", str(ports[1]), "--events", str(events)]
     command += ["--fault-summary", str(summary), "--fault", "script.protective_stop=0.05"]

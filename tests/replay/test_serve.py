@@ -3,22 +3,16 @@
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from ports import free_port
 
 from replay.learning._parallel import scheduler_warning
 
 _LISTEN = "0A"  # TCP state LISTEN in /proc/net/tcp
-
-
-def _free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 def _listeners(port: int) -> list[str]:
@@ -38,7 +32,7 @@ def _listeners(port: int) -> list[str]:
 def test_serve_listens_on_loopback_prints_its_address_and_stops_on_ctrl_c(
     fake_recording: Path,
 ) -> None:
-    web, grpc = _free_port(), _free_port()
+    web, grpc = free_port(), free_port()
     command = [sys.executable, "-m", "replay", "view", str(fake_recording), "--serve"]
     command += ["--web-port", str(web), "--grpc-port", str(grpc), "--no-figures"]
     env = os.environ | {"PYTHONPATH": str(Path.cwd())}

@@ -234,8 +234,17 @@ def test_force_never_replaces_recorded_data(tmp_path: Path, recorded: str) -> No
         (temporary / "history.parquet").write_text("new")  # pragma: no cover (refused first)
     assert (target / recorded).read_bytes() == b"recorded at the robot"
     assert [p.name for p in tmp_path.iterdir()] == ["data"]
+    with pytest.raises(cli.CliError, match=r"--out .*data: holds recorded data \("):
+        cli.refuse_recorded(target)
     with pytest.raises(cli.CliError, match=r"--save .*: is recorded data; --force replaces"):
-        cli.check_new_file(target / recorded, force=True, option="--save")
+        cli.refuse_recorded(target / recorded, "--save")
+    with (
+        pytest.raises(cli.CliError, match=r"--save .*: is recorded data; --force replaces"),
+        cli.publish_file(target / recorded, force=True, option="--save"),
+    ):
+        pass  # pragma: no cover (refused first)
+    assert (target / recorded).read_bytes() == b"recorded at the robot"
+    cli.refuse_recorded(tmp_path / "new")  # nothing there: nothing to refuse
 
 
 def test_a_failed_publish_keeps_the_old_output_and_removes_its_temporary(

@@ -1,0 +1,63 @@
+"""Free loopback ports for a server a test starts in another process (serve-sim, a skin).
+
+A port found by binding port 0 is an ephemeral one: between the probe and the server's own
+bind, any socket that binds port 0 or sends a first datagram (a skin sender, a DDS
+participant, a client's connection) in another test may be given it, and the server then fails
+with "Address already in use" (a benchmark's skin port was taken so in a run of the suite).
+Ports handed out here lie below Linux's ephemeral range (32768-60999), so the kernel never
+gives them away by itself, in a block of its own per pytest-xdist worker, so two workers never
+hand out the same one; each is checked free (TCP and UDP) when handed out.
+
+Written by hand: no library hands out ports that the kernel's ephemeral allocation cannot take.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import socket
+
+#: First port of the blocks; they end below a UR's own ports (29999-30004), which the
+#: virtual lab serves by default.
+FIRST = 21_000
+#: Ports per worker block.
+BLOCK = 2_000
+#: Blocks (workers beyond these share them, as the main process shares block 0).
+BLOCKS = 4
+
+
+def _block() -> range:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    index = int(worker) % BLOCKS if worker.isdigit() else 0
+    return range(FIRST + index * BLOCK, FIRST + (index + 1) * BLOCK)
+
+
+def _free(port: int) -> bool:
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        with socket.socket(socket.AF_INET, kind) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                return False
+    return True
+
+
+#: Ports of the block in a random order (a process started by a test, e.g. a benchmark, starts
+#: elsewhere in the block than its parent), each handed out once.
+_ORDER = list(_block())
+random.shuffle(_ORDER)
+_NEXT = itertools.cycle(_ORDER)
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """Return a loopback port free for TCP and UDP, never the same twice in a row of a block.
+
+    ``kind`` is accepted for the callers' clarity (every port is free for both).
+    """
+    del kind
+    for port in itertools.islice(_NEXT, BLOCK):
+        if _free(port):
+            return port
+    msg = f"no free loopback port in {_block()}"
+    raise OSError(msg)
