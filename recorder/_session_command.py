@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,6 +21,8 @@ from recorder._cli import (
 )
 from recorder._dataset import plan_dataset
 from recorder._session import SessionCheck, check_session, run_session
+from recorder.errors import RecorderError
+from recorder.runner._viewer import open_viewer
 from recorder.writing._foxglove import DEFAULT_ADDRESS, FoxgloveView
 from schemas import cli, lost_samples
 
@@ -27,6 +30,7 @@ if TYPE_CHECKING:
     import argparse
 
     from recorder._dataset import RecordingTask
+    from recorder.runner._viewer import LiveViewer, Viewer
     from recorder.writing._writer import WrittenRecording
 
 
@@ -59,6 +63,17 @@ if TYPE_CHECKING:
         metavar="HOST:PORT",
         help=f"serve the signals live to Foxglove (WebSocket, default {DEFAULT_ADDRESS})",
     ),
+    arg(
+        "--view",
+        nargs="?",
+        const="",
+        default=None,
+        type=str,
+        metavar="FILE.rrd",
+        help="show the signals live in rerun as they arrive, and each recording once written "
+        "(a viewer listening on 127.0.0.1; FILE.rrd: written to it instead; without a "
+        "display: written beside --out, OUT.live.rrd)",
+    ),
     *rig_arguments(),
     *CATALOG_ARGUMENTS,
 )
@@ -74,6 +89,7 @@ def _session(args: argparse.Namespace) -> int:
     order = {object_id: position for position, object_id in enumerate(args.objects)}
     tasks.sort(key=lambda task: order[task.obj.id])  # stable: actions and trials keep theirs
     console = Console(soft_wrap=True, highlight=False)
+    save = _view_file(args)
     if args.dry_run:
         found = check_session(
             tasks, args.out, rig_from_args(args), seed=args.seed, unattended=args.yes
@@ -102,11 +118,7 @@ def _session(args: argparse.Namespace) -> int:
         console.print(f"unfinished recording of a stopped recorder set aside: {path}")
 
     with contextlib.ExitStack() as stack:
-        viewers = []
-        if args.foxglove is not None:
-            view = stack.enter_context(FoxgloveView(args.foxglove))
-            console.print(f"foxglove: live on {view.url} (Foxglove: open connection, WebSocket)")
-            viewers.append(view)
+        viewers, watched = _open_views(args, save, console, stack)
         report = run_session(
             tasks,
             args.out,
@@ -118,14 +130,63 @@ def _session(args: argparse.Namespace) -> int:
             viewers=viewers,
             on_start=started,
         )
-        if args.foxglove is not None and view.dropped:
-            console.print(f"foxglove: the client fell behind; {view.dropped} items not shown")
+    for name, view in watched:
+        if view.dropped:
+            console.print(
+                f"{name}: the viewer fell behind; {view.dropped} items were not shown (the "
+                "recordings hold everything)"
+            )
     console.print(
         f"session {report.root}: {report.written} "
         f"{'recording' if report.written == 1 else 'recordings'} written, {report.kept} kept "
         f"(existed); index {report.index}"
     )
     return 0
+
+
+def _open_views(
+    args: argparse.Namespace, save: Path | None, console: Console, stack: contextlib.ExitStack
+) -> tuple[list[Viewer], list[tuple[str, LiveViewer | FoxgloveView]]]:
+    """Open ``--view`` and ``--foxglove`` (closed with ``stack``).
+
+    Returns:
+        The viewers to hand the session, and by option the views whose dropped items are
+        said at the end.
+    """
+    viewers: list[Viewer] = []
+    watched: list[tuple[str, LiveViewer | FoxgloveView]] = []
+    if args.view is not None:
+        fallback = args.out.with_name(f"{args.out.name}.live.rrd")
+        live = open_viewer("rerun", f"session {args.out}", save, fallback=fallback)
+        if live.note:  # no display: where the view goes instead; the session goes on
+            print(live.note, file=sys.stderr, flush=True)  # noqa: T201
+        viewers.append(stack.enter_context(live).sink)
+        watched.append(("--view", live))
+    if args.foxglove is not None:
+        view = stack.enter_context(FoxgloveView(args.foxglove))
+        console.print(f"foxglove: live on {view.url} (Foxglove: open connection, WebSocket)")
+        viewers.append(view)
+        watched.append(("--foxglove", view))
+    return viewers, watched
+
+
+def _view_file(args: argparse.Namespace) -> Path | None:
+    """Return ``--view FILE.rrd`` (None: a viewer, or no view), refused where it cannot be.
+
+    Raises:
+        RecorderError: A dry run (it records nothing to show), or a file that exists (a
+            session has no --force: nothing is overwritten).
+    """
+    if args.view is None:
+        return None
+    if args.dry_run:
+        msg = "--view: a dry run records nothing to show; leave out --view or --dry-run"
+        raise RecorderError(msg)
+    save = Path(args.view) if args.view else None
+    if save is not None and save.exists():
+        msg = f"--view {save}: exists, and files are never overwritten; give a new file"
+        raise RecorderError(msg)
+    return save
 
 
 def _say_check(console: Console, found: SessionCheck) -> int:

@@ -24,6 +24,7 @@ from replay.live._run import (
     configured_rig,
     foxglove_view,
     learn_live,
+    session_view,
 )
 
 __all__ = [
@@ -43,4 +44,5 @@ __all__ = [
     "free_file",
     "learn_live",
     "live_output",
+    "session_view",
 ]

@@ -25,6 +25,7 @@ from recorder import rig_factory as make_factory
 from replay.errors import ReplayError
 from replay.learning._session import run_learning
 from replay.live._executor import LiveExecutor, refuse_unpresented
+from replay.live._outputs import free_file
 from replay.live._stream import CLOSE_S, ViewSink
 from replay.outputs._view import (
     ViewedRecording,
@@ -133,6 +134,11 @@ class LiveView:
         to_file = target is not None  # a file never blocks: everything is written
         self.sink = ViewSink(self.stream, self._log_file, close_s=None if to_file else CLOSE_S)
 
+    @property
+    def dropped(self) -> int:
+        """Items the view could not take in time (counted, never waited for)."""
+        return self.sink.dropped
+
     def _log_file(self, path: Path) -> None:
         """Log one finished recording under its own key (in the sink's thread)."""
         recording = read_recording(path)
@@ -163,6 +169,21 @@ class LiveView:
             self.stream.flush(timeout_sec=CLOSE_S if self._viewer is not None else 1e38)
         with contextlib.suppress(Exception):  # nor does closing it (the file stays readable)
             self.stream.disconnect()
+
+
+def session_view(title: str, save: Path | None, *, fallback: Path) -> LiveView:
+    """Return the rerun view of ``atikt-record session --view`` (the recorder finds it by name).
+
+    Without a display the stream goes to the first free name of ``fallback``.
+
+    Raises:
+        RecorderError: rerun cannot start the viewer or write the file (the recorder's error:
+            its command says it in one line).
+    """
+    try:
+        return LiveView(title, save, fallback=free_file(fallback))
+    except ReplayError as err:
+        raise RecorderError(str(err)) from err
 
 
 def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN401 (rerun's)

@@ -9,6 +9,7 @@ from rerun_frames import temporal_entities
 
 from recorder import RigConfig, RigPlugin, SimulatedRig, refuse_sections
 from recorder import _rigconfig as rigconfig
+from recorder._cli import main as record
 from replay.cli._main import main
 from schemas import SourceStats
 
@@ -164,3 +165,37 @@ def test_a_killed_live_runs_unfinished_file_is_said_by_the_dry_run_then_set_asid
     assert f"unfinished recording of a stopped recorder set aside: {aside}" in err
     assert not part.exists()
     assert aside.read_bytes() == b"what a killed recorder left"
+
+
+@pytest.mark.slow(3)
+def test_a_session_shows_its_signals_in_rerun_as_learn_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out, view = tmp_path / "lab", tmp_path / "session.rrd"
+    argv = ["session", "--rig", "sim-ur10", "--rig-option", "time_scale=0.2", "--yes"]
+    argv += ["--objects", "wood", "--actions", "P1", "--trials", "1", "--out", str(out)]
+    assert record([*argv, "--view", str(view)]) == 0
+    shown = temporal_entities(view)
+    streamed = {e for e in shown if e.startswith("/live/")}
+    assert {"/".join(e.split("/")[2:5]) for e in streamed} == {"wood/P1/001"}  # as it came
+    assert any("/skin/" in e for e in streamed)
+    files = {e for e in shown if e.count("/") >= 3 and not e.startswith("/live/")}
+    assert {"/".join(e.split("/")[1:4]) for e in files} == {"wood/P1/001"}  # once written
+    capsys.readouterr()
+
+    assert record([*argv, "--trials", "2", "--view", str(view)]) == 1  # never overwritten
+    assert f"--view {view}: exists, and files are never overwritten" in capsys.readouterr().err
+    assert record([*argv, "--view", "--dry-run"]) == 1
+    assert "a dry run records nothing to show" in capsys.readouterr().err
+
+    # no display (a server, ssh): one line, and the view goes beside the dataset
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert record([*argv, "--trials", "2", "--view"]) == 0
+    fallback = tmp_path / "lab.live.rrd"
+    assert f"--view: no display here; the live view is written to {fallback}" in (
+        capsys.readouterr().err
+    )
+    assert {"/".join(e.split("/")[2:5]) for e in temporal_entities(fallback) if "/live/" in e} == {
+        "wood/P1/002"
+    }
