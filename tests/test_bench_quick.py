@@ -131,6 +131,9 @@ class _Launcher:
             os.kill(started["pid"], signal.SIGKILL)
             assert self._answer(READY_S) is not None
             return None
+        # a process the script started and left running (a virtual lab ticking on for the
+        # rest of the run) is killed by the launcher, and the run fails
+        assert not ended["left"], f"{script} left processes running (killed)"
         return ended["status"]
 
     def close(self) -> None:

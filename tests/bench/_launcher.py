@@ -16,11 +16,14 @@ ended it, as ``subprocess`` reports it). End of input ends the launcher.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import runpy
+import signal
 import sys
 import tempfile
+import time
 import traceback
 from pathlib import Path
 from typing import Any
@@ -93,10 +96,43 @@ def main() -> None:
         request = json.loads(line)
         pid = os.fork()
         if pid == 0:  # the child ends as an interpreter does: threads joined, atexit run
+            os.setpgid(0, 0)  # a group of its own: what it starts and leaves behind is found
             sys.exit(_child(request))
         _answer({"pid": pid})
         _, wait_status = os.waitpid(pid, 0)
-        _answer({"status": os.waitstatus_to_exitcode(wait_status)})
+        _answer({"status": os.waitstatus_to_exitcode(wait_status), "left": _end_group(pid)})
+
+
+#: How long what a script started may take to end after it (multiprocessing's resource
+#: tracker ends once it sees its parent gone), s.
+GRACE_S = 5.0
+
+
+def _group(pgid: int) -> list[int]:
+    """Return the live processes (not zombies) of process group ``pgid``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            found.append(int(entry.name))
+    return found
+
+
+def _end_group(pgid: int) -> int:
+    """Kill what the script started and left running (a virtual lab ticking on); 1 if any."""
+    deadline = time.monotonic() + GRACE_S
+    while _group(pgid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if not _group(pgid):  # the script stopped all it started
+        return 0
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(pgid, signal.SIGKILL)
+    return 1
 
 
 if __name__ == "__main__":

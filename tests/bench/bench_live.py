@@ -110,36 +110,42 @@ def udp_case(seconds: float, scale: float = 1.0) -> dict[str, Any]:
     lab_process = subprocess.Popen(  # noqa: S603 (this project's command)
         command, stdout=subprocess.PIPE, text=True, env=os.environ | {"PYTHONPATH": str(ROOT)}
     )
-    assert lab_process.stdout is not None
-    print("  ", lab_process.stdout.readline().strip())
-    objects, actions = load_objects(), load_actions()
-    rig: Any = rig_factory(load_rig_config(lab))(0)  # the UR rig: present, source_stats
-    clock = RecorderClock()
-    latency: list[np.ndarray] = []
-    totals: dict[str, list[int]] = {}
-    files = 0
-    cpu0, wall0 = _cpu(), time.monotonic()
-    with rig:
-        trial = 1
-        while time.monotonic() - wall0 < seconds:
-            obj = objects["wood" if trial % 2 else "foam_block"]
-            rig.present(obj)
-            info = RecordingInfo.create(obj, actions["C1"], trial, rig, 0)
-            path = root / obj.id / "C1" / f"{trial:03d}.mcap"
-            with RecordingWriter(path, info) as writer:
-                for item in rig.perform(obj, actions["C1"], trial):
-                    latency.append(_latencies(item, clock.now_ns()))
-                    writer.write(item)
-                writer.add_sources(rig.source_stats())
-            for stats in rig.source_stats():
-                counts = totals.setdefault(stats.name, [0, 0, 0, 0])
-                values = (stats.expected, stats.received, stats.missing, stats.overflowed)
-                totals[stats.name] = [a + b for a, b in zip(counts, values, strict=True)]
-            files += 1
-            trial += 1
-    cpu, wall = _cpu() - cpu0, time.monotonic() - wall0
-    lab_process.send_signal(signal.SIGINT)
-    lab_process.communicate(timeout=20)
+    try:  # the lab stops whatever happens: a lab left running ticks on (5000 cycles/s here)
+        assert lab_process.stdout is not None
+        print("  ", lab_process.stdout.readline().strip())
+        objects, actions = load_objects(), load_actions()
+        rig: Any = rig_factory(load_rig_config(lab))(0)  # the UR rig: present, source_stats
+        clock = RecorderClock()
+        latency: list[np.ndarray] = []
+        totals: dict[str, list[int]] = {}
+        files = 0
+        cpu0, wall0 = _cpu(), time.monotonic()
+        with rig:
+            trial = 1
+            while time.monotonic() - wall0 < seconds:
+                obj = objects["wood" if trial % 2 else "foam_block"]
+                rig.present(obj)
+                info = RecordingInfo.create(obj, actions["C1"], trial, rig, 0)
+                path = root / obj.id / "C1" / f"{trial:03d}.mcap"
+                with RecordingWriter(path, info) as writer:
+                    for item in rig.perform(obj, actions["C1"], trial):
+                        latency.append(_latencies(item, clock.now_ns()))
+                        writer.write(item)
+                    writer.add_sources(rig.source_stats())
+                for stats in rig.source_stats():
+                    counts = totals.setdefault(stats.name, [0, 0, 0, 0])
+                    values = (stats.expected, stats.received, stats.missing, stats.overflowed)
+                    totals[stats.name] = [a + b for a, b in zip(counts, values, strict=True)]
+                files += 1
+                trial += 1
+        cpu, wall = _cpu() - cpu0, time.monotonic() - wall0
+    finally:
+        lab_process.send_signal(signal.SIGINT)
+        try:
+            lab_process.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            lab_process.kill()
+            lab_process.communicate()
     samples = np.concatenate(latency) / 1e6
     return {
         "files": files,
