@@ -7,6 +7,7 @@ channels, with a short last block per channel so uneven blocks are exercised.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import gc
 import itertools
@@ -306,6 +307,38 @@ def _no_virtual_lab_left_ticking() -> Iterator[None]:
         thread.join(1.0)
     left = [t for t in ticking if t.is_alive()]
     assert not left, f"{len(left)} virtual lab world(s) left ticking: use `with world:`"
+
+
+def _labs_started_here() -> list[int]:
+    """Return the live ``serve-sim`` processes this process started (its children)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            if stat[0] == "Z" or int(stat[1]) != os.getpid():
+                continue
+            if b"serve-sim" in (entry / "cmdline").read_bytes():
+                found.append(int(entry.name))
+        except OSError:  # ended meanwhile
+            continue
+    return found
+
+
+@pytest.fixture(autouse=True)
+def _no_lab_process_left_running() -> Iterator[None]:
+    """Fail a test that leaves a ``serve-sim`` it started running (it is killed).
+
+    A lab left running ticks its world for the rest of the run (5000 cycles a second at 500 Hz
+    and time scale 0.1) and slows every test after it.
+    """
+    yield
+    left = _labs_started_here()
+    for pid in left:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    assert not left, f"serve-sim process(es) {left} left running (killed): stop them"
 
 
 @pytest.fixture(autouse=True)

@@ -91,6 +91,21 @@ def test_an_ending_signal_unwinds_the_command_with_its_status(
     assert capsys.readouterr().err.startswith(line)
 
 
+def test_ctrl_z_deferred_while_an_arm_moves_ends_the_command_with_148(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # the runner turns a Ctrl-Z that came while the arm moved into this exception, its line
+    # naming the stop and the file (tests/recorder/test_runner_stops.py)
+    def moving(_args: argparse.Namespace) -> int:
+        err = cli.ending(signal.SIGTSTP)
+        err.args = ("interrupted by Ctrl-Z (SIGTSTP): the arm was stopped; what arrived ...",)
+        raise err
+
+    assert cli.run(_program(moving), ["go"], ()) == cli.SUSPENDED_STATUS == 148
+    said = capsys.readouterr().err
+    assert said.startswith("prog: interrupted by Ctrl-Z (SIGTSTP): the arm was stopped; what")
+
+
 def test_nohup_keeps_a_command_running_after_its_terminal_closed() -> None:
     previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # as nohup starts it
     try:
