@@ -43,6 +43,7 @@ from recorder.ur._rtde import (
     pack_text,
     unpack_text,
 )
+from recorder.virtuallab._runner import RUNTIME_PLAYING
 from recorder.virtuallab._tcp import TcpServer
 
 if TYPE_CHECKING:
@@ -51,6 +52,14 @@ if TYPE_CHECKING:
 
     from recorder.virtuallab._controller import VirtualController
     from recorder.virtuallab._world import RobotState
+
+#: RTDE ``joint_mode`` of a joint that runs (JOINT_RUNNING_MODE).
+JOINT_RUNNING = 253
+#: RTDE ``safety_status_bits`` per safety status: normal (bit 0); protective stop (bit 2)
+#: and robot emergency stop (bit 6), each with "stopped due to safety" (bit 10).
+SAFETY_STATUS_BITS = {1: 1 << 0, 3: 1 << 2 | 1 << 10, 7: 1 << 6 | 1 << 10}
+#: RTDE robot mode of an arm that runs (7): powered, brakes released.
+_RUNNING = 7
 
 #: Variables served, with their RTDE type and how to read them from the arm's state.
 VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
@@ -71,11 +80,65 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "runtime_state": ("UINT32", lambda s, _t: s.runtime_state),
     "speed_scaling": ("DOUBLE", lambda _s, _t: 1.0),
     "target_speed_fraction": ("DOUBLE", lambda s, _t: s.speed_fraction),
+    "robot_status_bits": ("UINT32", lambda s, _t: _robot_status_bits(s)),
+    "safety_status_bits": ("UINT32", lambda s, _t: SAFETY_STATUS_BITS.get(s.safety_status, 0)),
+    "joint_mode": ("VECTOR6INT32", lambda _s, _t: np.full(6, JOINT_RUNNING, dtype=np.int64)),
+    "actual_tool_accelerometer": ("VECTOR3D", lambda s, _t: _tool_gravity(s)),
 }
+#: What the lab does not model, served as the constants of an idle, unloaded arm, so that
+#: clients asking for every variable (``ur_rtde``'s receive interface by default) connect:
+#: joint accelerations, currents and control outputs 0, 30 degC joints, 48 V supplies, I/O
+#: and registers 0, no payload.
+UNMODELLED: dict[str, tuple[str, Any]] = {
+    "target_qdd": ("VECTOR6D", np.zeros(6)),
+    "target_current": ("VECTOR6D", np.zeros(6)),
+    "actual_current": ("VECTOR6D", np.zeros(6)),
+    "joint_control_output": ("VECTOR6D", np.zeros(6)),
+    "joint_temperatures": ("VECTOR6D", np.full(6, 30.0)),
+    "actual_joint_voltage": ("VECTOR6D", np.full(6, 48.0)),
+    "actual_execution_time": ("DOUBLE", 0.5),
+    "actual_momentum": ("DOUBLE", 0.0),
+    "actual_main_voltage": ("DOUBLE", 48.0),
+    "actual_robot_voltage": ("DOUBLE", 48.0),
+    "actual_robot_current": ("DOUBLE", 0.0),
+    "actual_digital_input_bits": ("UINT64", 0),
+    "actual_digital_output_bits": ("UINT64", 0),
+    "standard_analog_input0": ("DOUBLE", 0.0),
+    "standard_analog_input1": ("DOUBLE", 0.0),
+    "standard_analog_output0": ("DOUBLE", 0.0),
+    "standard_analog_output1": ("DOUBLE", 0.0),
+    "payload": ("DOUBLE", 0.0),
+    "payload_cog": ("VECTOR3D", np.zeros(3)),
+    "payload_inertia": ("VECTOR6D", np.zeros(6)),
+    **{f"output_int_register_{i}": ("INT32", 0) for i in range(48)},
+    **{f"output_double_register_{i}": ("DOUBLE", 0.0) for i in range(48)},
+}
+
+
+def _constant(value: Any) -> Callable[[RobotState, float], Any]:  # noqa: ANN401 (RTDE's)
+    """Return a reader of ``value`` whatever the state."""
+    return lambda _s, _t: value
+
+
+VARIABLES.update({name: (kind, _constant(value)) for name, (kind, value) in UNMODELLED.items()})
 
 
 def _target(state: RobotState) -> Any:  # noqa: ANN401 (a pose)
     return state.tcp_pose if state.target_pose is None else state.target_pose
+
+
+def _robot_status_bits(state: RobotState) -> int:
+    """Return RTDE ``robot_status_bits``: power on (bit 0), program running (bit 1)."""
+    powered = state.robot_mode >= _RUNNING - 2  # idle (5) and beyond: powered
+    return int(powered) | int(state.runtime_state == RUNTIME_PLAYING) << 1
+
+
+def _tool_gravity(state: RobotState) -> Any:  # noqa: ANN401 (a vector)
+    """Return what the tool's accelerometer reads of gravity at rest, tool frame, m/s^2."""
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415 (only when asked for)
+
+    up = np.array([0.0, 0.0, 9.81])  # the specific force at rest: up, base frame
+    return Rotation.from_rotvec(state.tcp_pose[3:6]).inv().apply(up)
 
 
 #: Controller version reported for each highest frequency.
@@ -260,7 +323,7 @@ class RtdeServer(TcpServer):
         for name in recipe.names:
             value = VARIABLES[name][1](state, controller_ns / 1e9)
             if isinstance(value, np.ndarray):
-                values.extend(float(v) for v in value)
+                values.extend(value.tolist())  # floats, or ints of an integer vector
             else:
                 values.append(value)
         return pack_package(DATA_PACKAGE, recipe.layout.pack(*values))

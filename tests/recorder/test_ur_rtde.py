@@ -106,13 +106,17 @@ def _port_free(port: int) -> bool:
 
 #: ur_rtde runs in its own process: its constructor holds the GIL while it waits for answers,
 #: which would starve the server's threads in this process.
+#: Its default variables (none named): what a lab's own ur_rtde script asks for (every output
+#: ur_rtde reads, the ones the lab does not model included).
 _UR_RTDE = """
 import json, time, rtde_receive
-receiver = rtde_receive.RTDEReceiveInterface(
-    "127.0.0.1", 125.0, ["timestamp", "actual_q", "actual_TCP_pose"]
-)
+receiver = rtde_receive.RTDEReceiveInterface("127.0.0.1", 125.0)
 time.sleep(0.2)
-print(json.dumps([receiver.getActualQ(), receiver.getActualTCPPose(), receiver.getTimestamp()]))
+print(json.dumps([
+    receiver.getActualQ(), receiver.getActualTCPPose(), receiver.getTimestamp(),
+    receiver.getRobotMode(), receiver.getSafetyStatusBits(), receiver.getJointMode(),
+    receiver.getActualToolAccelerometer(),
+]))
 receiver.disconnect()
 """
 
@@ -138,7 +142,10 @@ def test_ur_rtde_reads_the_virtual_lab() -> None:
                 check=True,
             )
         expected_q = lab.world.robot_at(lab.world.controller_ns()).q
-    q, tcp, stamp = json.loads(done.stdout.strip().splitlines()[-1])
+    q, tcp, stamp, mode, safety, joints, gravity = json.loads(done.stdout.strip().splitlines()[-1])
+    assert (mode, safety) == (7, 1 << 2 | 1 << 10)  # running, in the protective stop above
+    assert joints == [253] * 6
+    assert abs(np.linalg.norm(gravity) - 9.81) < 1e-9
     assert np.abs(expected_q).max() > 0.1
     np.testing.assert_allclose(q, expected_q, atol=1e-12)
     np.testing.assert_allclose(tcp, pose, atol=1e-12)
