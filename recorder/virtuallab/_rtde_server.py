@@ -84,6 +84,8 @@ VARIABLES: dict[str, tuple[str, Callable[[RobotState, float], Any]]] = {
     "safety_status_bits": ("UINT32", lambda s, _t: SAFETY_STATUS_BITS.get(s.safety_status, 0)),
     "joint_mode": ("VECTOR6INT32", lambda _s, _t: np.full(6, JOINT_RUNNING, dtype=np.int64)),
     "actual_tool_accelerometer": ("VECTOR3D", lambda s, _t: _tool_gravity(s)),
+    # an e-Series' raw force/torque sensor: the lab has none of its own, the TCP's is served
+    "ft_raw_wrench": ("VECTOR6D", lambda s, _t: s.tcp_force),
 }
 #: What the lab does not model, served as the constants of an idle, unloaded arm, so that
 #: clients asking for every variable (``ur_rtde``'s receive interface by default) connect:

@@ -109,19 +109,21 @@ def _port_free(port: int) -> bool:
 #: Its default variables (none named): what a lab's own ur_rtde script asks for (every output
 #: ur_rtde reads, the ones the lab does not model included).
 _UR_RTDE = """
-import json, time, rtde_receive
-receiver = rtde_receive.RTDEReceiveInterface("127.0.0.1", 125.0)
+import json, sys, time, rtde_receive
+receiver = rtde_receive.RTDEReceiveInterface("127.0.0.1", float(sys.argv[1]))
 time.sleep(0.2)
 print(json.dumps([
     receiver.getActualQ(), receiver.getActualTCPPose(), receiver.getTimestamp(),
     receiver.getRobotMode(), receiver.getSafetyStatusBits(), receiver.getJointMode(),
     receiver.getActualToolAccelerometer(),
+    receiver.getFtRawWrench() if sys.argv[1] == "500" else None,  # e-Series only
 ]))
 receiver.disconnect()
 """
 
 
-def test_ur_rtde_reads_the_virtual_lab() -> None:
+@pytest.mark.parametrize("frequency", [125, 500])  # a CB3, an e-Series (more outputs asked)
+def test_ur_rtde_reads_the_virtual_lab(frequency: int) -> None:
     pytest.importorskip("rtde_receive")
     # ur_rtde's receive interface has no port argument: it always connects to 30004.
     if not _port_free(30004):
@@ -133,22 +135,25 @@ def test_ur_rtde_reads_the_virtual_lab() -> None:
         controller = VirtualController(lab.world)
         pose = np.array([-0.7, -0.2, 0.15, 0.1, 3.0, 0.05])
         controller.park(pose)
-        with RtdeServer(controller, "127.0.0.1", 30004, frequency=125):
+        with RtdeServer(controller, "127.0.0.1", 30004, frequency=frequency):
             done = subprocess.run(  # noqa: S603 (this interpreter, a fixed script)
-                [sys.executable, "-c", _UR_RTDE],
+                [sys.executable, "-c", _UR_RTDE, str(frequency)],
                 capture_output=True,
                 text=True,
                 timeout=30,
                 check=True,
             )
         expected_q = lab.world.robot_at(lab.world.controller_ns()).q
-    q, tcp, stamp, mode, safety, joints, gravity = json.loads(done.stdout.strip().splitlines()[-1])
+    answer = json.loads(done.stdout.strip().splitlines()[-1])
+    q, tcp, stamp, mode, safety, joints, gravity, wrench = answer
     assert (mode, safety) == (7, 1 << 2 | 1 << 10)  # running, in the protective stop above
     assert joints == [253] * 6
     assert abs(np.linalg.norm(gravity) - 9.81) < 1e-9
     assert np.abs(expected_q).max() > 0.1
     np.testing.assert_allclose(q, expected_q, atol=1e-12)
     np.testing.assert_allclose(tcp, pose, atol=1e-12)
-    ticks = stamp * 125
+    if frequency == 500:  # an e-Series
+        assert len(wrench) == 6
+    ticks = stamp * frequency
     assert stamp > 0
     assert abs(ticks - round(ticks)) < 1e-6  # on the controller's 8 ms grid
