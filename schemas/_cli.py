@@ -681,16 +681,23 @@ def numbered_directory(base: Path) -> Path:
 #: Names of recorded data (recordings, their unfinished parts, ROS 1 and ROS 2 bags): never
 #: replaced by an output, ``--force`` or not.
 RECORDED_SUFFIXES = (".mcap", ".mcap.part", ".bag", ".db3")
+#: What the outputs ``--force`` replaces are made of (tables, figures, reports, settings, a
+#: saved view); a directory holding anything else is not one of them.
+OUTPUT_SUFFIXES = (".parquet", ".png", ".svg", ".pdf", ".json", ".md", ".csv", ".txt", ".rrd")
+#: Files a file manager leaves in any directory it showed.
+_FILE_MANAGERS = frozenset({".DS_Store", "Thumbs.db", "desktop.ini"})
 
 
-def _recorded_data(path: Path) -> Path | None:
-    """Return a file of recorded data at or below ``path`` (None: it holds none).
+def _irreplaceable(path: Path) -> tuple[Path, bool] | None:
+    """Return a file at or below ``path`` that no output replaces, and whether it is recorded.
 
-    The walk stops at the first such file; a directory it cannot list counts as holding one
-    (what it holds is unknown, so it is not replaced).
+    A file named as the output (``--save``) is irreplaceable when it is recorded data; below
+    a directory, also any file an output of this program does not have (``--out ~`` given by
+    mistake). The walk stops at the first one; a directory it cannot list counts as holding
+    one (what it holds is unknown, so it is not replaced).
     """
     if not path.is_dir():
-        return path if path.name.endswith(RECORDED_SUFFIXES) else None
+        return (path, True) if path.name.endswith(RECORDED_SUFFIXES) else None
 
     def unreadable(err: OSError) -> None:
         raise err
@@ -699,9 +706,11 @@ def _recorded_data(path: Path) -> Path | None:
         for directory, _, names in os.walk(path, onerror=unreadable):
             for name in names:
                 if name.endswith(RECORDED_SUFFIXES):
-                    return Path(directory) / name
+                    return Path(directory) / name, True
+                if not name.endswith(OUTPUT_SUFFIXES) and name not in _FILE_MANAGERS:
+                    return Path(directory) / name, False
     except OSError as err:
-        return Path(err.filename or path)
+        return Path(err.filename or path), False
     return None
 
 
@@ -719,25 +728,34 @@ def refuse_existing(path: Path, *, force: bool, option: str = "--out") -> None:
         raise CliError(msg)
 
 
-def refuse_recorded(path: Path, option: str = "--out") -> None:
-    """Refuse an output that is or holds recorded data, ``--force`` or not.
+def refuse_irreplaceable(path: Path, option: str = "--out") -> None:
+    """Refuse an output ``--force`` must not replace: recorded data, or not an output at all.
 
     ``--force`` replaces a previous output (a run's, a study's, a saved view); a directory or
     file that holds recordings or bags (a dataset given as ``--out`` by mistake) is never
-    replaced: nothing recorded is deleted by the program. Commands call it after
+    replaced: nothing recorded is deleted by the program; nor is a directory holding files no
+    output of this program has (a home directory, a project). Commands call it after
     :func:`refuse_overlap` (whose line names the input), and :func:`publish_directory` and
     :func:`publish_file` call it again before they replace anything.
 
     Raises:
-        CliError: ``path`` is or holds recorded data.
+        CliError: ``path`` is or holds recorded data, or files no output has.
     """
-    if _is_taken(path) and (recorded := _recorded_data(path)) is not None:
-        held = "is recorded data" if recorded == path else f"holds recorded data ({recorded})"
+    if not _is_taken(path) or (found := _irreplaceable(path)) is None:
+        return
+    file, recorded = found
+    if recorded:
+        held = "is recorded data" if file == path else f"holds recorded data ({file})"
         msg = (
             f"{option} {path}: {held}; --force replaces a previous output, never recordings "
             f"or bags: give another {option}"
         )
-        raise CliError(msg)
+    else:
+        msg = (
+            f"{option} {path}: holds files no output of this program has ({file}); --force "
+            f"replaces a previous output only: give another {option}"
+        )
+    raise CliError(msg)
 
 
 def _within(inner: Path, outer: Path) -> bool:
@@ -835,7 +853,7 @@ def publish_directory(target: Path, *, force: bool, option: str = "--out") -> It
         CliError: ``target`` exists and ``force`` is False, or it cannot be written.
     """
     refuse_existing(target, force=force, option=option)
-    refuse_recorded(target, option)
+    refuse_irreplaceable(target, option)
     temporary = _temporary_sibling(target, "tmp")
     try:
         temporary.mkdir(parents=True)
@@ -860,7 +878,7 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
         CliError: ``target`` exists and ``force`` is False, or it cannot be written.
     """
     check_new_file(target, force=force, option=option)
-    refuse_recorded(target, option)
+    refuse_irreplaceable(target, option)
     temporary = temporary_name(target, f"tmp{target.suffix}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -901,8 +919,8 @@ __all__ = [
     "publish_directory",
     "publish_file",
     "refuse_existing",
+    "refuse_irreplaceable",
     "refuse_overlap",
-    "refuse_recorded",
     "rig_seed",
     "run",
     "seconds",

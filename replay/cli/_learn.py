@@ -368,7 +368,7 @@ def _learn_command(args: argparse.Namespace) -> int:
     inputs = [_dataset_input(args.recordings), ("--session", args.session)]
     cli.refuse_overlap(target, [*inputs, ("--rig-config", args.rig_config)])
     if args.rig is None:  # a live run resumes into its own recordings (never replaced)
-        cli.refuse_recorded(target)
+        cli.refuse_irreplaceable(target)
     prior_root = _dataset(args.recordings, workers)  # live: the priors' recordings
     _check_names_early(prior_root, args)
     named = _ids(args.priors) if args.prior_recordings is None else None
@@ -453,7 +453,7 @@ def _check_live_options(args: argparse.Namespace) -> None:
             raise ReplayError(msg)
     if args.view:
         cli.check_new_file(Path(args.view), force=args.force, option="--view")
-        cli.refuse_recorded(Path(args.view), "--view")
+        cli.refuse_irreplaceable(Path(args.view), "--view")
 
 
 def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
@@ -699,7 +699,7 @@ def _study_command(args: argparse.Namespace) -> int:
     prior = None if args.fusion_prior in FUSION_PRIORS else Path(args.fusion_prior)
     for target in targets.values():
         cli.refuse_overlap(target, [_dataset_input(args.recordings), ("--fusion-prior", prior)])
-        cli.refuse_recorded(target)
+        cli.refuse_irreplaceable(target)
     workers = cli.worker_count(args.workers)
     if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
         _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)

@@ -206,7 +206,7 @@ def _view_command(args: argparse.Namespace) -> int:
     _check_display(args)
     if args.save is not None:
         cli.refuse_overlap(args.save, _named(args.paths), option="--save")
-        cli.refuse_recorded(args.save, "--save")
+        cli.refuse_irreplaceable(args.save, "--save")
     runs = [load_run(path) for path in inputs.runs]
     if args.serve:
         return _serve(args, inputs, runs)

@@ -250,16 +250,39 @@ def test_force_never_replaces_recorded_data(tmp_path: Path, recorded: str) -> No
     assert (target / recorded).read_bytes() == b"recorded at the robot"
     assert [p.name for p in tmp_path.iterdir()] == ["data"]
     with pytest.raises(cli.CliError, match=r"--out .*data: holds recorded data \("):
-        cli.refuse_recorded(target)
+        cli.refuse_irreplaceable(target)
     with pytest.raises(cli.CliError, match=r"--save .*: is recorded data; --force replaces"):
-        cli.refuse_recorded(target / recorded, "--save")
+        cli.refuse_irreplaceable(target / recorded, "--save")
     with (
         pytest.raises(cli.CliError, match=r"--save .*: is recorded data; --force replaces"),
         cli.publish_file(target / recorded, force=True, option="--save"),
     ):
         pass  # pragma: no cover (refused first)
     assert (target / recorded).read_bytes() == b"recorded at the robot"
-    cli.refuse_recorded(tmp_path / "new")  # nothing there: nothing to refuse
+    cli.refuse_irreplaceable(tmp_path / "new")  # nothing there: nothing to refuse
+
+
+def test_force_replaces_only_what_an_output_holds(tmp_path: Path) -> None:
+    # a previous study's output is replaced; a directory of other files (--out ~ or a project
+    # given by mistake) is never deleted, --force or not
+    study = tmp_path / "study"
+    study.mkdir()
+    for name in ("results.parquet", "summary.md", "learning_curves.png", "study.json"):
+        (study / name).write_text("old")
+    (study / ".DS_Store").write_text("a file manager's")
+    with cli.publish_directory(study, force=True) as temporary:
+        (temporary / "results.parquet").write_text("new")
+    assert [p.name for p in study.iterdir()] == ["results.parquet"]
+    home = tmp_path / "home"
+    (home / "thesis").mkdir(parents=True)
+    (home / "thesis" / "chapter.tex").write_text("three years of it")
+    (home / "plot.png").write_text("a figure")
+    with (
+        pytest.raises(cli.CliError, match=r"--out .*home: holds files no output of this prog"),
+        cli.publish_directory(home, force=True),
+    ):
+        pass  # pragma: no cover (refused first)
+    assert (home / "thesis" / "chapter.tex").read_text() == "three years of it"
 
 
 def test_a_failed_publish_keeps_the_old_output_and_removes_its_temporary(
