@@ -32,7 +32,7 @@ __all__ = ["CLAIM_NAME", "claim_dataset", "differing_settings"]
 CLAIM_NAME = ".atikt-dataset.json"
 #: Settings (by prefix) that rig descriptions gained after datasets were recorded without
 #: them; see :func:`differing_settings`.
-_ADDED = ("skin_cells", MOTION_PREFIX)
+_ADDED = (MOTION_PREFIX,)
 
 
 def _claim_text(seed: int, configuration: Mapping[str, Any]) -> str:
@@ -141,7 +141,7 @@ def _unused(root: Path) -> str:
 def differing_settings(theirs: Mapping[str, object], ours: Mapping[str, object]) -> list[str]:
     """Return the settings in which two rig descriptions differ, sorted.
 
-    A setting added to the descriptions later (the skin's cells, the ``motion.*`` settings) is
+    A setting added to the descriptions later (the ``motion.*`` settings) is
     compared only when ``theirs`` (recorded earlier) has it: a dataset recorded before it was
     part of a rig's identity still resumes.
     """

@@ -321,15 +321,15 @@ class ArmRig:
     def describe(self) -> Mapping[str, str]:
         """Return the rig's configuration (its identity in a dataset), flat.
 
-        What shapes the recorded signals is part of it: the skin's transport and cells, and
-        how the arm moves (``motion.*``: the approach, press and retract speeds, the
-        acceleration, the light contact), so a dataset never mixes recordings made with other
-        settings. The limits and the objects' poses are not: they bound the motion, they do
-        not change it.
+        What shapes the recorded signals is part of it: the skin's transport, and how the arm
+        moves (``motion.*``: the approach, press and retract speeds, the acceleration, the
+        light contact), so a dataset never mixes recordings made with other settings. The
+        limits and the objects' poses are not: they bound the motion, they do not change it.
+        Only what the configuration says is described: it is compared before the rig
+        connects (a skin plug-in may learn its cells only on connecting).
         """
         described = {"kind": self.kind, **self.arm.describe()}
         described["skin_transport"] = self.skin_transport
-        described["skin_cells"] = str(self.skin.cells)
         described["silence_s"] = f"{self.options.silence_s:g}"
         if self.options.time_scale != 1:
             described["time_scale"] = f"{self.options.time_scale:g}"

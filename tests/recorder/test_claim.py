@@ -61,14 +61,14 @@ def test_the_same_seed_and_configuration_resume(tmp_path: Path) -> None:
 
 
 def test_a_dataset_claimed_before_the_motion_was_recorded_resumes(tmp_path: Path) -> None:
-    earlier = {"kind": "ur", "host": "10.0.0.2"}  # recorded before skin_cells and motion.*
+    earlier = {"kind": "ur", "host": "10.0.0.2"}  # recorded before motion.*
     claim_dataset(tmp_path, 3, earlier)
-    claim_dataset(tmp_path, 3, {**earlier, "skin_cells": "7", "motion.press_m_s": "0.005"})
+    claim_dataset(tmp_path, 3, {**earlier, "motion.press_m_s": "0.005"})
     assert differing_settings(earlier, {**earlier, "motion.press_m_s": "0.005"}) == []
     # once recorded, they are compared: also when this run lacks one
-    now = {**earlier, "skin_cells": "7", "motion.press_m_s": "0.005"}
+    now = {**earlier, "motion.press_m_s": "0.005", "motion.retract_m": "0.02"}
     assert differing_settings(now, {**now, "motion.press_m_s": "0.004"}) == ["motion.press_m_s"]
-    assert differing_settings(now, earlier) == ["motion.press_m_s", "skin_cells"]
+    assert differing_settings(now, earlier) == ["motion.press_m_s", "motion.retract_m"]
 
 
 def test_a_claim_without_a_recording_says_how_to_take_the_directory(tmp_path: Path) -> None:
