@@ -26,6 +26,9 @@ if TYPE_CHECKING:
 
 #: Where the server listens unless told otherwise (loopback only).
 DEFAULT_ADDRESS = f"{cli.LOOPBACK}:8765"
+#: A client's queue of messages not yet sent, at least and at most (the SDK's default is the
+#: least; the most bounds the memory of a client that never reads: a few hundred MB).
+MIN_BACKLOG, MAX_BACKLOG = 1024, 2_000_000
 #: How long after the first subscription the other channels may still be subscribed, s.
 SUBSCRIBE_SETTLE_S = 0.5
 _NS = 1_000_000_000
@@ -55,13 +58,16 @@ def parse_address(text: str) -> tuple[str, int]:
     return address
 
 
-def _topics(paths: Sequence[Path]) -> dict[str, _Topic]:
-    """Return every topic of the files with its schema (the same in every file).
+def _topics(paths: Sequence[Path]) -> tuple[dict[str, _Topic], int]:
+    """Return every topic of the files with its schema, and how many messages they hold.
+
+    A topic has the same schema in every file.
 
     Raises:
         ReplayError: A file cannot be read, or two files give one topic two schemas.
     """
     topics: dict[str, _Topic] = {}
+    messages = 0
     for path in paths:
         try:
             with path.open("rb") as stream:
@@ -72,6 +78,7 @@ def _topics(paths: Sequence[Path]) -> dict[str, _Topic]:
         if summary is None:
             msg = f"{path}: the MCAP file has no summary; salvage it with check --recover"
             raise ReplayError(msg)
+        messages += summary.statistics.message_count if summary.statistics else 0
         for channel in summary.channels.values():
             schema = summary.schemas.get(channel.schema_id)
             found = _Topic(
@@ -88,7 +95,7 @@ def _topics(paths: Sequence[Path]) -> dict[str, _Topic]:
                     "before it; serve files of one contract version together"
                 )
                 raise ReplayError(msg)
-    return topics
+    return topics, messages
 
 
 def serve_recordings(
@@ -121,7 +128,7 @@ def serve_recordings(
         msg = f"--foxglove needs the foxglove-sdk package ({err}): pip install foxglove-sdk"
         raise ReplayError(msg) from err
     host, port = parse_address(address)
-    topics = _topics(paths)
+    topics, messages = _topics(paths)
     subscribed = threading.Event()
 
     class _Subscribed(foxglove.websocket.ServerListener):
@@ -133,7 +140,14 @@ def serve_recordings(
     context = foxglove.Context()  # this server's channels only, however many ran before
     try:
         server = foxglove.start_server(
-            name="atikt", host=host, port=port, server_listener=_Subscribed(), context=context
+            name="atikt",
+            host=host,
+            port=port,
+            server_listener=_Subscribed(),
+            context=context,
+            # a client that falls behind gets every message later, never fewer: the files'
+            # messages fit in its queue (the SDK drops the oldest beyond 1024 by default)
+            message_backlog_size=min(max(messages, MIN_BACKLOG), MAX_BACKLOG),
         )
     except Exception as err:  # the SDK's own error types
         msg = f"--foxglove {host}:{port}: cannot listen ({err}); choose another port"
