@@ -8,13 +8,16 @@ id u32, receive time u64, payload).
 from __future__ import annotations
 
 import json
+import re
 import struct
 import threading
+import time
 from typing import Any
 
 from websockets.sync.client import connect
 from websockets.typing import Subprotocol
 
+_UNKNOWN = re.compile(r"Unknown channel ID: (\d+)")
 _MESSAGE_DATA = 0x01  # server -> client binary opcode: subscription id, receive time, payload
 
 
@@ -30,6 +33,8 @@ class FoxgloveClient:
         self.received: dict[str, list[bytes]] = {}
         self.schemas: dict[str, tuple[str, str]] = {}
         self._next = 1
+        #: Subscription id per channel id.
+        self._subscription: dict[int, int] = {}
         #: Why the client stopped reading before close() (empty: it did not).
         self.error = ""
         self._stop = threading.Event()
@@ -61,6 +66,17 @@ class FoxgloveClient:
                 self.received.setdefault(topic, []).append(frame[13:])
             return
         message = json.loads(frame)
+        unknown = _UNKNOWN.fullmatch(str(message.get("message", "")))
+        if message["op"] == "status" and unknown and int(unknown[1]) in self._subscription:
+            # foxglove-sdk sends an advertisement before it records the channel as advertised to
+            # this client (connected_client.rs: advertise_channels), so a subscription sent the
+            # moment the advertisement arrives may be refused as unknown: ask again, as a client
+            # that wants the channel would
+            channel = int(unknown[1])
+            time.sleep(0.01)
+            subscription = {"id": self._subscription[channel], "channelId": channel}
+            self.socket.send(json.dumps({"op": "subscribe", "subscriptions": [subscription]}))
+            return
         if message["op"] == "advertise":
             subscriptions = []
             for channel in message["channels"]:
@@ -68,6 +84,7 @@ class FoxgloveClient:
                 encoding = (channel["encoding"], channel["schemaEncoding"])
                 self.schemas[channel["topic"]] = encoding
                 subscriptions.append({"id": self._next, "channelId": channel["id"]})
+                self._subscription[channel["id"]] = self._next
                 self._next += 1
             self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
