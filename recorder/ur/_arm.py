@@ -107,6 +107,17 @@ SAFETY_NAMES = {
     8: "violation",
     9: "fault",
 }
+#: What a person does about each safety state before the recorder may move the arm again.
+SAFETY_FIXES = {
+    3: "once its cause is clear, unlock it at the teach pendant or with the dashboard's "
+    "'unlock protective stop'",
+    4: "move the arm back inside its safety limits in the teach pendant's recovery mode",
+    5: "reset the safeguard input (a light curtain, a door) at the cell",
+    6: "release the emergency stop button, then reset it at the teach pendant",
+    7: "release the emergency stop button, then reset it at the teach pendant",
+    8: "read the teach pendant's log, then restart the safety system as it says",
+    9: "read the teach pendant's log, then restart the safety system as it says",
+}
 #: RTDE ``runtime_state`` values: a program paused (a stop: the action cannot go on), and a
 #: program running, stopping or resuming (before an action: another's, which ours would replace).
 RUNTIME_PAUSED = {3: "pausing", 4: "paused"}
@@ -547,7 +558,8 @@ class URArm:
         stopped = ""
         if safety not in SAFE_STATUS:
             name = SAFETY_NAMES.get(safety, "unsafe state")
-            stopped = f"{name} (RTDE {given} {safety})"
+            fix = SAFETY_FIXES.get(safety, "see the teach pendant")
+            stopped = f"{name} (RTDE {given} {safety}; {fix})"
         elif mode != RUNNING:  # powered off, brakes engaged, backdrive: no program moves it
             name = ROBOT_MODE_NAMES.get(mode, "unknown mode")
             stopped = (

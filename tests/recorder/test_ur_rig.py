@@ -97,7 +97,8 @@ def test_protective_stop_keeps_an_incomplete_file(tmp_path: Path) -> None:
             _record(lab.rig({"wood": POSE}), "C1", path)
         assert lab.script.stops_injected == 1
     error = info.value
-    assert "protective stop (RTDE safety_status 3)" in error.reason
+    assert "protective stop (RTDE safety_status 3; " in error.reason
+    assert "unlock it at the teach pendant or with the dashboard's" in error.reason  # the way on
     assert "\n" not in str(error)
     assert error.path == tmp_path / "001.incomplete.mcap"
     assert error.path.exists()
@@ -324,7 +325,7 @@ def test_an_older_controller_is_driven_with_what_it_provides(
             assert rig.present(OBJECTS["wood"])
             with pytest.raises(ActionStoppedError) as info:  # the safety state is still read
                 record_action(rig, OBJECTS["wood"], ACTIONS["C1"], 1, tmp_path / "1.mcap", seed=0)
-    assert f"protective stop (RTDE {safety} 3)" in info.value.reason
+    assert f"protective stop (RTDE {safety} 3; " in info.value.reason
 
 
 def test_a_controller_without_the_arms_state_is_refused_in_one_line(
