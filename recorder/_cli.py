@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -158,7 +159,9 @@ def _action(args: argparse.Namespace) -> int:
             rig.present(task.obj)  # the rig's configuration has the object's pose: go there
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
-    Console().print(f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB")
+    Console().print(
+        f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB", markup=False
+    )
     return 0
 
 
@@ -174,17 +177,17 @@ def _progress(console: Console) -> Progress:
 
 
 def _report(console: Console, report: DatasetReport) -> None:
-    table = Table(title=f"dataset {report.root}", show_header=False)
+    table = Table(title=escape(f"dataset {report.root}"), show_header=False)
     table.add_row("recordings written", str(report.written))
     table.add_row("recordings kept (existed)", str(report.skipped))
     table.add_row("size of all recordings", f"{report.size_bytes / 1e6:.1f} MB")
-    table.add_row("index", str(report.index))
+    table.add_row("index", escape(str(report.index)))
     console.print(table)
     if report.set_aside:
         console.print(
             f"[yellow]{len(report.set_aside)} unfinished recordings of stopped recorders moved "
-            f"to {report.root / SET_ASIDE_DIR} (salvage one with 'atikt-replay check FILE "
-            "--recover'); their trials were recorded again"
+            f"to {escape(str(report.root / SET_ASIDE_DIR))} (salvage one with 'atikt-replay "
+            "check FILE --recover'); their trials were recorded again"
         )
     if report.incomplete:
         console.print(
@@ -255,7 +258,7 @@ def _index(args: argparse.Namespace) -> int:
         raise RecorderError(msg)
     path = write_index(args.dir)
     console = Console()
-    console.print(f"{path}")
+    console.print(str(path), markup=False)
     if leftovers := incomplete_files(args.dir):
         console.print(
             f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part) ignored; "

@@ -379,7 +379,7 @@ def generate_dataset(
         os.sync()  # every recording on the disk before the index says the dataset is whole
     declare_objects(root, [task.obj for task in tasks])
     index = write_index(root)
-    frame = pl.read_parquet(index)
+    frame = pl.read_parquet(index, glob=False)  # a path, never a pattern
     return DatasetReport(
         root=root,
         written=len(tasks) - skipped,

@@ -99,23 +99,27 @@ def _session(args: argparse.Namespace) -> int:
     def recorded(task: RecordingTask, written: WrittenRecording) -> None:
         seconds = (written.end_ns - written.start_ns) / 1e9
         console.print(
-            f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  {seconds:.1f} s"
+            escape(
+                f"{task.obj.id}  {task.action.id}  trial {task.trial}  {written.path}  "
+                f"{seconds:.1f} s"
+            )
         )
         if lost := lost_samples(written.sources):  # said now, while the object is still here
             console.print(
-                f"[yellow]{written.path}: live sources lost samples ({escape(lost)}); check "
-                "fails on it: move it aside and run the session again to record the trial "
-                "again[/yellow]"
+                f"[yellow]{escape(str(written.path))}: live sources lost samples "
+                f"({escape(lost)}); check fails on it: move it aside and run the session again "
+                "to record the trial again[/yellow]"
             )
 
     def started(task: RecordingTask) -> None:
         # at a terminal, the operator sees what the arm is doing; piped output stays one line
         # per recording
         if console.is_terminal:
-            console.print(f"[dim]{task.obj.id}  {task.action.id}  trial {task.trial}  ...[/dim]")
+            doing = escape(f"{task.obj.id}  {task.action.id}  trial {task.trial}  ...")
+            console.print(f"[dim]{doing}[/dim]")
 
     def set_aside(path: Path) -> None:
-        console.print(f"unfinished recording of a stopped recorder set aside: {path}")
+        console.print(f"unfinished recording of a stopped recorder set aside: {path}", markup=False)
 
     with contextlib.ExitStack() as stack:
         viewers, watched = _open_views(args, save, console, stack)
@@ -134,12 +138,14 @@ def _session(args: argparse.Namespace) -> int:
         if view.dropped:
             console.print(
                 f"{name}: the viewer fell behind; {view.dropped} items were not shown (the "
-                "recordings hold everything)"
+                "recordings hold everything)",
+                markup=False,
             )
     console.print(
         f"session {report.root}: {report.written} "
         f"{'recording' if report.written == 1 else 'recordings'} written, {report.kept} kept "
-        f"(existed); index {report.index}"
+        f"(existed); index {report.index}",
+        markup=False,
     )
     return 0
 
@@ -199,12 +205,14 @@ def _say_check(console: Console, found: SessionCheck) -> int:
     """
     console.print(
         f"dry run of session {found.root}: {found.to_record} to record, {found.kept} on disk "
-        f"(kept); nothing moved, nothing written"
+        f"(kept); nothing moved, nothing written",
+        markup=False,
     )
     if found.stale:
         console.print(
             f"{len(found.stale)} unfinished recordings of stopped recorders would be set aside "
-            f"(e.g. {found.stale[0]})"
+            f"(e.g. {found.stale[0]})",
+            markup=False,
         )
     for line in found.rig.lines():
         console.print(line, markup=False)  # plain text: a [skin] is not a style

@@ -130,7 +130,7 @@ def read_checked_parquet(
     path = Path(path)
     _check_footer(path, columns, max_rows, exact=exact)
     try:
-        frame = pl.read_parquet(path, columns=list(columns), n_rows=max_rows)
+        frame = pl.read_parquet(path, columns=list(columns), n_rows=max_rows, glob=False)
     except pl.exceptions.PolarsError as err:
         msg = f"cannot read it ({' '.join(str(err).split())})"
         raise ParquetMismatchError(msg) from err

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, ProgressColumn, TextColumn
 from rich.table import Table
 from rich.text import Text
@@ -59,9 +60,9 @@ class _Rate(ProgressColumn):
 
 def _print_topics(console: Console, bags: list[Path]) -> None:
     """Print the bags' topics, types and message counts (to write a topic map)."""
-    table = Table("topic", "type", "messages", title=", ".join(map(str, bags)))
+    table = Table("topic", "type", "messages", title=escape(", ".join(map(str, bags))))
     for topic, msgtype, count in sorted(bag_topics(bags)):
-        table.add_row(topic, msgtype, str(count))
+        table.add_row(escape(topic), escape(msgtype), str(count))
     console.print(table)
 
 
@@ -73,21 +74,21 @@ def _print_report(console: Console, report: ImportReport) -> None:
         "rows dropped",
         "largest cell offset (ms)",
         "largest stamp jitter (ms)",
-        title=f"{len(report.written)} recordings from {names} -> {report.out}",
+        title=escape(f"{len(report.written)} recordings from {names} -> {report.out}"),
     )
     for modality, dropped in report.dropped_rows.items():
         offset = report.max_cell_offset_ns.get(modality, 0) / _NS_PER_MS
         jitter = report.max_jitter_ns.get(modality, 0) / _NS_PER_MS
         table.add_row(modality, str(dropped), f"{offset:.3f}", f"{jitter:.6f}")
     for channel, dropped in report.dropped_samples.items():
-        table.add_row(channel, str(dropped), "-", "-")
+        table.add_row(escape(channel), str(dropped), "-", "-")
     console.print(table)
     _print_timing(console, report)
     _print_counted(console, report)
     for window, reason in report.skipped:
-        console.print(f"skipped {window}: {reason}", highlight=False, soft_wrap=True)
-    console.print(f"index -> {report.index}", highlight=False, soft_wrap=True)
-    console.print(f"report -> {report.json_path}", highlight=False, soft_wrap=True)
+        console.print(f"skipped {window}: {reason}", highlight=False, soft_wrap=True, markup=False)
+    console.print(f"index -> {report.index}", highlight=False, soft_wrap=True, markup=False)
+    console.print(f"report -> {report.json_path}", highlight=False, soft_wrap=True, markup=False)
 
 
 def _print_counted(console: Console, report: ImportReport) -> None:
@@ -99,7 +100,7 @@ def _print_counted(console: Console, report: ImportReport) -> None:
     )
     for topic, c in report.counted.items():
         counts = (c["messages"], c["lost"], c["duplicated"], c["resets"])
-        table.add_row(topic, *(str(n) for n in counts))
+        table.add_row(escape(topic), *(str(n) for n in counts))
     console.print(table)
 
 
@@ -125,7 +126,7 @@ def _print_timing(console: Console, report: ImportReport) -> None:
             jitter = f"{t['jitter_max_ms']:.3f} / {t['jitter_sd_ms']:.3f}"
             gaps = f"{t['gaps']} ({t.get('gap_s', 0.0):.3f})"
             runs, lost = str(t["runs"]), str(t["lost_frames"])
-            table.add_row(topic, modality, runs, gaps, lost, jitter, drift)
+            table.add_row(escape(topic), modality, runs, gaps, lost, jitter, drift)
     console.print(table)
 
 
@@ -178,6 +179,7 @@ def _import_bag(args: argparse.Namespace) -> int:
         bag, file = next(iter(report.already_imported.items()))
         console.print(
             f"{bag}: imported into {args.out} already ({args.out}/imports/{file}); nothing added",
+            markup=False,
             highlight=False,
             soft_wrap=True,
         )

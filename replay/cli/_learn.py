@@ -117,7 +117,7 @@ def _features(root: Path, workers: int) -> FeatureTable:
     if table.discarded:
         _CONSOLE.print(f"[yellow]{escape(table.discarded)}", highlight=False, soft_wrap=True)
     for path, reason in table.quarantined.iter_rows():
-        _CONSOLE.print(f"[yellow]quarantined[/] {path}: {reason}", highlight=False)
+        _CONSOLE.print(f"[yellow]quarantined[/] {escape(f'{path}: {reason}')}", highlight=False)
     return table
 
 
@@ -702,7 +702,7 @@ def _study_command(args: argparse.Namespace) -> int:
         cli.refuse_irreplaceable(target)
     workers = cli.worker_count(args.workers)
     if args.scheduler is not None and (warning := scheduler_warning(args.scheduler)):
-        _CONSOLE.print(f"[yellow]{warning}", highlight=False, soft_wrap=True)
+        _CONSOLE.print(f"[yellow]{escape(warning)}", highlight=False, soft_wrap=True)
     root = _dataset(args.recordings, workers)
     _check_names_early(root, args)
     table = _features(root, workers)

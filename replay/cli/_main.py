@@ -128,11 +128,12 @@ def _print_json(value: object) -> None:
 
 def _about(path: Path, meta: RecordingMetadata) -> Table:
     """Return the table of a recording's metadata."""
-    about = Table(title=str(path), show_header=False)
+    # a recording's values are text, never markup: a rig value or a path may hold "[...]"
+    about = Table(title=escape(str(path)), show_header=False)
     for key in ("object_id", "object_name", "action_id", "action_kind", "trial", "source"):
-        about.add_row(key, str(getattr(meta, key)))
-    about.add_row("action parameters", str(dict(meta.action_parameters)))
-    about.add_row("rig", str(dict(meta.rig)))
+        about.add_row(key, escape(str(getattr(meta, key))))
+    about.add_row("action parameters", escape(str(dict(meta.action_parameters))))
+    about.add_row("rig", escape(str(dict(meta.rig))))
     about.add_row("seed", str(meta.seed))
     about.add_row("software / schema", f"{meta.software_version} / {meta.schema_version}")
     return about
@@ -150,7 +151,7 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
     )  # fmt: skip
     for item in sources:
         table.add_row(
-            item.name,
+            escape(item.name),
             item.basis,
             *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
             str(item.out_of_order),
@@ -190,10 +191,10 @@ def _print_incomplete(console: Console, path: Path) -> None:
     summary, rows = _incomplete_channels(path)
     console.print(_about(path, parse_metadata(path, summary.metadata)))
     reason = stopped_reason(summary.metadata) or "unknown"
-    console.print(f"[yellow]incomplete: the action was stopped ({reason})", highlight=False)
+    console.print(f"[yellow]incomplete: the action was stopped ({escape(reason)})", highlight=False)
     channels = Table("channel", "messages", title="channels")
     for topic, count in rows:
-        channels.add_row(topic, str(count))
+        channels.add_row(escape(topic), str(count))
     console.print(channels)
     _print_sources(console, parse_sources(path, summary.metadata))
 
@@ -312,9 +313,9 @@ def _print_dataset(console: Console, root: Path) -> None:
     """Print a dataset directory's recordings per object and action."""
     frame = _dataset_frame(root)
     counts = _trials(frame)
-    table = Table(*counts.columns, title=f"{root}", caption="trials per object and action")
+    table = Table(*counts.columns, title=escape(str(root)), caption="trials per object and action")
     for row in counts.iter_rows():
-        table.add_row(*(str(value) for value in row))
+        table.add_row(*(escape(str(value)) for value in row))
     console.print(table)
     hours = int(frame["duration_ns"].sum()) / _NS_PER_S / 3600
     console.print(
@@ -325,7 +326,9 @@ def _print_dataset(console: Console, root: Path) -> None:
         console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)")
     from replay.learning._cachedir import feature_cache_path  # noqa: PLC0415 (info on datasets)
 
-    console.print(f"feature cache: {feature_cache_path(root)}", highlight=False, soft_wrap=True)
+    console.print(
+        f"feature cache: {escape(str(feature_cache_path(root)))}", highlight=False, soft_wrap=True
+    )
 
 
 def _dataset_json(root: Path) -> dict[str, Any]:
@@ -500,15 +503,17 @@ def _print_salvage(report: RecoveryReport) -> None:
     console = Console()
     lost = f"; the rest is lost ({report.stopped})" if report.stopped else ""
     console.print(
-        f"salvaged {report.messages} messages from {report.source} into {report.target}: "
-        f"{report.intact_bytes} of {report.source_bytes} bytes intact, "
-        f"{report.damaged_chunks} damaged chunks skipped{lost}",
+        escape(
+            f"salvaged {report.messages} messages from {report.source} into {report.target}: "
+            f"{report.intact_bytes} of {report.source_bytes} bytes intact, "
+            f"{report.damaged_chunks} damaged chunks skipped{lost}"
+        ),
         highlight=False,
         soft_wrap=True,
     )
     table = Table("channel", "messages kept", "seconds kept", title="kept per channel")
     for channel in report.channels:
-        table.add_row(channel.topic, str(channel.messages), f"{channel.seconds:.3f}")
+        table.add_row(escape(channel.topic), str(channel.messages), f"{channel.seconds:.3f}")
     console.print(table)
 
 
@@ -668,6 +673,7 @@ def _print_check(
         Console().print(
             f"{len(aside)} unfinished recordings of stopped recorders set aside in "
             f"{path / SET_ASIDE_DIR} (salvage one with {recover_command(aside[0])})",
+            markup=False,
             highlight=False,
             soft_wrap=True,
         )

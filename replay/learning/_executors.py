@@ -102,7 +102,7 @@ class Split:
         """
         target = Path(root) / SESSION_NAME
         try:
-            frame = pl.read_parquet(target)
+            frame = pl.read_parquet(target, glob=False)
         except (OSError, pl.exceptions.PolarsError) as err:
             msg = f"{target}: cannot read the session manifest ({err}); is {root} a live session?"
             raise ReplayError(msg) from err

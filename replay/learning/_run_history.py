@@ -110,7 +110,7 @@ def _read(path: Path) -> pl.DataFrame:
         ReplayError: The file is missing, unreadable or lacks a required column.
     """
     try:
-        frame = pl.read_parquet(path)
+        frame = pl.read_parquet(path, glob=False)
     except (OSError, pl.exceptions.PolarsError) as err:
         msg = f"{path}: cannot read the run's history ({err}); run atikt-replay learn again"
         raise ReplayError(msg) from err

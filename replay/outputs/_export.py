@@ -349,7 +349,7 @@ class _Writer:
                 publish_temporary(table.temporary, table.path, replace=False)
         elif table.parts:
             with atomic_path(table.path, replace=False) as temporary:
-                pl.scan_parquet(table.parts).sink_parquet(temporary)
+                pl.scan_parquet(table.parts, glob=False).sink_parquet(temporary)
 
     def _remove_parts(self) -> None:
         """Remove the parquet parts' private directory."""

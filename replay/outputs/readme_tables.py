@@ -304,7 +304,7 @@ def _read_results(path: Path, study: str) -> pl.DataFrame:
         ReplayError: Missing or unreadable, in one line naming the command that writes it.
     """
     try:
-        return pl.read_parquet(path)
+        return pl.read_parquet(path, glob=False)
     except (OSError, pl.exceptions.PolarsError) as err:
         reason = cli.one_line(str(err))
         msg = f"{path}: cannot read the results ({reason}); run 'atikt-replay study {study}'"

@@ -19,10 +19,16 @@ LOSSY = SourceStats("skin", "counter", expected=100, received=99, missing=2, dup
 class _LiveRig(FakeRig):
     """A fake rig that reports its sources' accounting, like a live rig."""
 
-    def __init__(self, stats: SourceStats, stop_at: float | None = None) -> None:
+    def __init__(
+        self,
+        stats: SourceStats,
+        stop_at: float | None = None,
+        reason: str = "protective stop (safety status 3)",
+    ) -> None:
         super().__init__(seed=0)
         self._stats = stats
         self._stop_at = stop_at
+        self._reason = reason
 
     def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
         items = list(super().perform(obj, action, trial))
@@ -31,8 +37,7 @@ class _LiveRig(FakeRig):
             return
         cut = int(len(items) * self._stop_at)
         yield from items[:cut]
-        msg = "protective stop (safety status 3)"
-        raise ActionStoppedError(msg, items[cut].receive_ns)
+        raise ActionStoppedError(self._reason, items[cut].receive_ns)
 
     def source_stats(self) -> list[SourceStats]:
         return [self._stats]
@@ -113,3 +118,26 @@ def test_a_stopped_action_is_shown_warned_and_never_learned_from(
     captured = capsys.readouterr()
     assert "1 of 1 recordings valid" in captured.out
     assert "incomplete, kept for inspection" in captured.err
+
+
+def test_brackets_in_a_reason_or_a_path_are_printed_as_they_are(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # rich reads "[limits]" as a style and drops it: every value a command prints is text
+    reason = "TCP at [-0.7, -0.2, -0.0007] left the [limits] workspace"
+    root = tmp_path / "[lab]"
+    whole = SourceStats("skin", "counter", expected=100, received=100)
+    _record(_LiveRig(whole), root, objects["wood"], actions["P1"])
+    with pytest.raises(ActionStoppedError) as stopped:
+        _record(_LiveRig(whole, stop_at=0.5, reason=reason), root, objects["wood"], actions["S1"])
+    assert main(["info", str(stopped.value.path)]) == 0
+    shown = capsys.readouterr().out
+    assert f"incomplete: the action was stopped ({reason})" in shown
+    assert "[lab]" in shown
+    assert main(["info", str(root)]) == 0
+    assert str(root) in capsys.readouterr().out.replace("\n", "")
+    assert main(["check", str(root), "--workers", "1"]) == 0
+    assert f"(the action was stopped: {reason})" in capsys.readouterr().err.replace("\n", "")
