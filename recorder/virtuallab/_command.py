@@ -54,6 +54,12 @@ _RTDE_FAULTS = {
     "disconnect": "disconnect_after_s",
     "at_action": "at_action_s",
 }
+#: Faults that 0 turns off (an amount: none dropped, never stalled...); the others are when or
+#: where a fault starts, and 0 is a time or a count like any other.
+_OFF_AT_ZERO = frozenset(
+    {"drop", "duplicate", "reorder", "truncate", "stall", "disconnect", "protective_stop", "gone"}
+    | {"stop_after"}
+)
 #: The servers faults can be injected into, and the option that serves each.
 SERVERS = {"rtde": "", "script": "", "skin": "--skin URL", "ros2": "--ros2"}
 
@@ -76,6 +82,12 @@ def parse_faults(items: Sequence[str]) -> dict[str, dict[str, float]]:
             msg = (
                 f"--fault {item!r}: give server.name=number (finite, 0 or more), e.g. rtde.drop=3, "
                 "rtde.stall=1.5, rtde.disconnect=2, script.protective_stop=1, skin.drop=5"
+            )
+            raise RecorderError(msg)
+        if value == 0 and name in _OFF_AT_ZERO:
+            msg = (
+                f"--fault {item!r}: 0 turns {key} off, so it injects nothing; give a positive "
+                f"value (e.g. {key}=1), or leave the fault out"
             )
             raise RecorderError(msg)
         faults.setdefault(server, {})[name] = value

@@ -780,6 +780,14 @@ def test_fault_options_are_parsed() -> None:
     for bad in ("drop=3", "rtde.stall=1e400", "rtde.stall=inf", "rtde.drop=nan", "rtde.drop=-1"):
         with pytest.raises(RecorderError, match=r"give server\.name=number \(finite, 0 or more\)"):
             parse_faults([bad])
+    for off in ("script.drop=0", "rtde.stall=0", "skin.drop=0"):  # 0 is off: a fault that is not
+        with pytest.raises(RecorderError, match=r"0 turns .* off, so it injects nothing"):
+            parse_faults([off])
+    starts = ["rtde.at_action=0", "ros2.drop_after=0", "ros2.stall_after=0"]  # times and counts
+    assert parse_faults(starts) == {
+        "rtde": {"at_action": 0.0},
+        "ros2": {"drop_after": 0.0, "stall_after": 0.0},
+    }
 
 
 @pytest.mark.parametrize(
