@@ -3,7 +3,10 @@
 A live run's recordings are made at a robot: they go straight into ``<out>/session/`` as they
 are recorded (no temporary directory that an error would remove). ``<out>/live.json`` names
 the run (objects, actions, seed, learner, rig) when it starts; running the same command again
-resumes it (the recordings on disk are reused), and a run of other settings is refused.
+resumes it (the recordings on disk are reused), and a run of other settings is refused. A
+larger ``--budget`` continues a run, finished or not: the learner's choices do not depend on
+the budget, so the steps made are the first steps of the longer run, and only the new ones
+move the arm.
 """
 
 from __future__ import annotations
@@ -14,11 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from replay.errors import ReplayError
-from replay.learning._run_history import HISTORY_NAME
-from schemas import cli
+from replay.learning._run_history import HISTORY_NAME, SETTINGS_NAME
+from schemas import atomic_write_text, cli
 
 #: The file naming a live run's settings (written when it starts).
 LIVE_NAME = "live.json"
+#: The one setting a rerun may change: a larger budget continues the run.
+BUDGET = "learner.budget"
 
 
 def live_output(out: Path | None, default: Path, *, force: bool) -> Path:
@@ -66,7 +71,10 @@ def claim_live_run(target: Path, settings: dict[str, Any]) -> bool:
         pass
     else:
         return False
-    return check_live_run(target, settings)
+    resumes = check_live_run(target, settings)
+    if json.loads(path.read_text("utf-8")) != json.loads(text):  # a larger budget: now this one
+        atomic_write_text(path, text)
+    return resumes
 
 
 def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
@@ -87,14 +95,32 @@ def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
         msg = f"{path}: unreadable ({err}); give another --out"
         raise ReplayError(msg) from err
     ours, held = _leaves(settings), _leaves(theirs)
-    if differ := sorted(k for k in {*ours, *held} if ours.get(k) != held.get(k)):
+    differ = sorted(k for k in {*ours, *held} if ours.get(k) != held.get(k))
+    if differ and not (differ == [BUDGET] and _larger(ours.get(BUDGET), held.get(BUDGET))):
         shown = ", ".join(f"{k}={held.get(k)!r} (now {ours.get(k)!r})" for k in differ)
         msg = f"{target}: holds a live run of other settings ({shown}); give another --out"
         raise ReplayError(msg)
-    if (target / HISTORY_NAME).exists():
-        msg = f"{target}: this live run is finished ({HISTORY_NAME}); give another --out"
+    if (target / HISTORY_NAME).exists() and not _larger(ours.get(BUDGET), _finished_budget(target)):
+        msg = (
+            f"{target}: this live run is finished ({HISTORY_NAME}); give a larger --budget to "
+            "continue it (its steps are reused), or another --out"
+        )
         raise ReplayError(msg)
     return True
+
+
+def _larger(budget: object, than: object) -> bool:
+    """Say whether ``budget`` is a larger step budget than ``than`` (both integers)."""
+    return isinstance(budget, int) and isinstance(than, int) and budget > than
+
+
+def _finished_budget(target: Path) -> object:
+    """Return the budget the finished run's history was written for (None: not known)."""
+    try:
+        written = json.loads((target / SETTINGS_NAME).read_text("utf-8"))
+    except (OSError, ValueError):
+        return None
+    return _leaves(written).get(BUDGET)
 
 
 def _leaves(settings: Any, prefix: str = "") -> dict[str, Any]:  # noqa: ANN401 (JSON)

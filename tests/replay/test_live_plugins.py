@@ -1,5 +1,6 @@
 """Live learning on a plug-in rig (exclusive hardware), its live view, and its offline replay."""
 
+import json
 import os
 from pathlib import Path
 
@@ -129,16 +130,45 @@ def test_a_live_runs_directory_is_checked_without_writing_and_refused_by_its_lea
     assert claim_live_run(target, settings) is False
     assert check_live_run(target, settings) is True  # it resumes
     assert claim_live_run(target, settings) is True
-    other = {"rig": "sim", "learner": {"budget": 3, "transfer": {"name": "prediction"}}}
+    other = {"rig": "sim", "learner": {"budget": 2, "transfer": {"name": "density"}}}
     with pytest.raises(ReplayError) as refused:
         check_live_run(target, other)
     assert str(refused.value) == (
-        f"{target}: holds a live run of other settings (learner.budget=2 (now 3)); give "
-        "another --out"
+        f"{target}: holds a live run of other settings (learner.transfer.name='prediction' "
+        "(now 'density')); give another --out"
     )
     (target / "history.parquet").write_bytes(b"")
     with pytest.raises(ReplayError, match="this live run is finished"):
-        check_live_run(target, settings)
+        check_live_run(target, settings)  # its budget unknown (no run.json): finished
+
+
+def test_a_larger_budget_continues_a_live_run_and_a_smaller_one_is_refused(
+    tmp_path: Path,
+) -> None:
+    from replay.errors import ReplayError  # noqa: PLC0415
+    from replay.live import check_live_run, claim_live_run  # noqa: PLC0415
+
+    def budget(steps: int) -> dict[str, object]:
+        return {"rig": "sim", "learner": {"budget": steps, "transfer": {"name": "prediction"}}}
+
+    target = tmp_path / "run"
+    assert claim_live_run(target, budget(2)) is False
+    (target / "history.parquet").write_bytes(b"")  # finished, with budget 2
+    (target / "run.json").write_text(json.dumps(budget(2)), encoding="utf-8")
+    with pytest.raises(ReplayError) as finished:
+        check_live_run(target, budget(2))
+    assert str(finished.value) == (
+        f"{target}: this live run is finished (history.parquet); give a larger --budget to "
+        "continue it (its steps are reused), or another --out"
+    )
+    assert check_live_run(target, budget(3)) is True  # continues: says so, writes nothing
+    assert json.loads((target / "live.json").read_text(encoding="utf-8")) == budget(2)
+    assert claim_live_run(target, budget(3)) is True
+    assert json.loads((target / "live.json").read_text(encoding="utf-8")) == budget(3)
+    # interrupted before its history was written again: the same command resumes it
+    assert claim_live_run(target, budget(3)) is True
+    with pytest.raises(ReplayError, match=r"other settings \(learner\.budget=3 \(now 2\)\)"):
+        check_live_run(target, budget(2))
 
 
 def test_a_killed_live_runs_unfinished_file_is_said_by_the_dry_run_then_set_aside(

@@ -240,6 +240,36 @@ def test_an_interrupted_live_session_resumes_with_the_same_decisions(
     assert Split.from_session(session) == Split.from_session(tmp_path / "whole")
 
 
+def test_a_live_run_continued_with_a_larger_budget_is_the_longer_run(
+    features: pl.DataFrame, tmp_path: Path
+) -> None:
+    models = fit_priors(prior_data(FeatureLookup(features), OLD, ACTIONS), seed=2)
+    objects, actions = [load_objects()[o] for o in NEW], load_actions()
+
+    def run(session: Path, budget: int) -> tuple[pl.DataFrame, LiveExecutor]:
+        spec = RunSpec(
+            new_objects=NEW,
+            prior_objects=OLD,
+            actions=ACTIONS,
+            learner=learner_options("prediction", budget=budget),
+            seed=9,
+        )
+        live = LiveExecutor(SimulatedRig(seed=9), objects, actions, session, seed=9)
+        with live:
+            test = live.record_test_set(ACTIONS, trials=1)
+            return run_learning(spec, live, test, models).frame(), live
+
+    longer, _ = run(tmp_path / "longer", 4)
+    session = tmp_path / "continued"
+    shorter, _ = run(session, 2)
+    made = sorted(session.rglob("*.mcap"))
+    continued, live = run(session, 4)
+    assert continued.equals(longer)  # the learner's choices do not depend on its budget
+    assert shorter.equals(longer.head(shorter.height))
+    assert live.reused == len(made)  # nothing recorded again: only the new steps were made
+    assert set(made) < set(session.rglob("*.mcap"))
+
+
 def test_spec_refuses_an_object_that_is_new_and_prior() -> None:
     with pytest.raises(ReplayError, match="new and prior"):
         RunSpec(new_objects=NEW, prior_objects=(NEW[0],), actions=ACTIONS)
