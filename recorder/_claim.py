@@ -22,14 +22,13 @@ from typing import TYPE_CHECKING, Any
 
 from recorder.errors import RecorderError
 from recorder.runner._limits import MOTION_PREFIX
+from schemas import CLAIM_NAME
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
 __all__ = ["CLAIM_NAME", "claim_dataset", "differing_settings"]
 
-#: The claim's file name, in the dataset directory.
-CLAIM_NAME = ".atikt-dataset.json"
 #: Settings (by prefix) that rig descriptions gained after datasets were recorded without
 #: them; see :func:`differing_settings`.
 _ADDED = (MOTION_PREFIX,)

@@ -21,7 +21,6 @@ import hashlib
 import io
 import itertools
 import os
-import re
 import struct
 import threading
 import time
@@ -55,6 +54,9 @@ from schemas import (
     dataset_recordings,
     loads_toml,
     parse_metadata,
+    part_writer,
+    process_running,
+    recording_into,
 )
 from schemas import recording_path as schemas_recording_path
 
@@ -335,60 +337,61 @@ def generate_dataset(
     root = Path(root).absolute()  # reused workers keep the directory they started in
     check_configuration(root, seed, factory)
     claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
-    set_aside = set_aside_stale_parts(root)
-    if not durable:
-        set_aside += set_aside_cut_short(root)
-    before = set(incomplete_files(root))
-    n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
-    notify = on_result or (lambda _result: None)
-    pending = []
-    for task in tasks:
-        path = task.path(root)
-        if path.exists():
-            notify(TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size))
-        else:
-            pending.append(task)
-    skipped = len(tasks) - len(pending)
-    failed: list[TaskResult] = []
-    parent = os.getpid()
-    if n_jobs > 1 and pending:
-        check_sendable(factory)
-    import joblib  # noqa: PLC0415 (see _LAZY)
-    import polars as pl  # noqa: PLC0415
+    with recording_into(root):  # a check meanwhile sees a recorder at work
+        set_aside = set_aside_stale_parts(root)
+        if not durable:
+            set_aside += set_aside_cut_short(root)
+        before = set(incomplete_files(root))
+        n_jobs = 1 if is_exclusive(factory) else workers or os.cpu_count() or 1
+        notify = on_result or (lambda _result: None)
+        pending = []
+        for task in tasks:
+            path = task.path(root)
+            if path.exists():
+                notify(TaskResult(task, TaskStatus.SKIPPED, path.stat().st_size))
+            else:
+                pending.append(task)
+        skipped = len(tasks) - len(pending)
+        failed: list[TaskResult] = []
+        parent = os.getpid()
+        if n_jobs > 1 and pending:
+            check_sendable(factory)
+        import joblib  # noqa: PLC0415 (see _LAZY)
+        import polars as pl  # noqa: PLC0415
 
-    with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
-        # tasks are handed out lazily: after a failure, none starts
-        results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
-            joblib.delayed(run_task)(task, root, factory, seed, parent, durable=durable)
-            for task in pending
-            if not failed
+        with cli.workers_ignore_interrupts():  # the call starts the workers; Ctrl-C is ours
+            # tasks are handed out lazily: after a failure, none starts
+            results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(
+                joblib.delayed(run_task)(task, root, factory, seed, parent, durable=durable)
+                for task in pending
+                if not failed
+            )
+        try:
+            for result in results:
+                skipped += result.status == TaskStatus.SKIPPED
+                if result.status == TaskStatus.FAILED:
+                    failed.append(result)
+                notify(result)
+        except KeyboardInterrupt:  # joblib has killed the workers: their recordings are cut off
+            _remove_own_parts(root, before)
+            raise
+        if failed:
+            more = f" ({len(failed) - 1} more recordings failed)" if len(failed) > 1 else ""
+            raise RecorderError(failed[0].error + more)
+        if not durable and hasattr(os, "sync"):
+            os.sync()  # every recording on the disk before the index says the dataset is whole
+        declare_objects(root, [task.obj for task in tasks])
+        index = write_index(root)
+        frame = pl.read_parquet(index, glob=False)  # a path, never a pattern
+        return DatasetReport(
+            root=root,
+            written=len(tasks) - skipped,
+            skipped=skipped,
+            index=index,
+            size_bytes=int(frame["size_bytes"].sum()),
+            incomplete=incomplete_files(root),
+            set_aside=set_aside,
         )
-    try:
-        for result in results:
-            skipped += result.status == TaskStatus.SKIPPED
-            if result.status == TaskStatus.FAILED:
-                failed.append(result)
-            notify(result)
-    except KeyboardInterrupt:  # joblib has killed the workers: their recordings are cut off
-        _remove_own_parts(root, before)
-        raise
-    if failed:
-        more = f" ({len(failed) - 1} more recordings failed)" if len(failed) > 1 else ""
-        raise RecorderError(failed[0].error + more)
-    if not durable and hasattr(os, "sync"):
-        os.sync()  # every recording on the disk before the index says the dataset is whole
-    declare_objects(root, [task.obj for task in tasks])
-    index = write_index(root)
-    frame = pl.read_parquet(index, glob=False)  # a path, never a pattern
-    return DatasetReport(
-        root=root,
-        written=len(tasks) - skipped,
-        skipped=skipped,
-        index=index,
-        size_bytes=int(frame["size_bytes"].sum()),
-        incomplete=incomplete_files(root),
-        set_aside=set_aside,
-    )
 
 
 def _metadata_of(path: Path) -> RecordingMetadata:
@@ -615,36 +618,13 @@ def incomplete_files(root: Path) -> tuple[Path, ...]:
     )
 
 
-#: A recorder's temporary name: ``<trial>.<pid>-<token>.mcap.part`` (recorder.writing).
-_PART_NAME = re.compile(r"\.(\d+)-[0-9a-f]+" + re.escape(PART_SUFFIX) + "$")
 #: How long to wait for killed workers to be gone before their files are removed.
 _WORKER_EXIT_S = 5.0
 
 
-def _writer_pid(path: Path) -> int | None:
-    """Return the process id in a temporary recording's name, None if it has none."""
-    match = _PART_NAME.search(path.name)
-    return int(match.group(1)) if match else None
-
-
-def _alive(pid: int | None) -> bool:
-    """Return whether process ``pid`` exists (this process counts; None never)."""
-    if pid is None:
-        return False
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
 def stale_parts(root: Path) -> tuple[Path, ...]:
     """Return the unfinished recordings under ``root`` whose recorder is not running."""
-    return tuple(part for part in incomplete_files(root) if not _alive(_writer_pid(part)))
+    return tuple(part for part in incomplete_files(root) if not process_running(part_writer(part)))
 
 
 def set_aside_stale_parts(root: Path) -> tuple[Path, ...]:
@@ -756,10 +736,10 @@ def _remove_own_parts(root: Path, before: set[Path]) -> None:
     """
     deadline = time.monotonic() + _WORKER_EXIT_S
     for part in set(incomplete_files(root)) - before:
-        pid = _writer_pid(part)
-        while _alive(pid) and pid != os.getpid() and time.monotonic() < deadline:
+        pid = part_writer(part)
+        while process_running(pid) and pid != os.getpid() and time.monotonic() < deadline:
             time.sleep(0.05)
-        if not _alive(pid):
+        if not process_running(pid):
             part.unlink(missing_ok=True)
 
 

@@ -34,7 +34,7 @@ from recorder.errors import RecorderError
 from recorder.runner._limits import check_action
 from recorder.runner._record import check_room, record_action
 from recorder.runner._runner import ArmRig
-from schemas import check_rig
+from schemas import check_rig, recording_into
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -149,34 +149,35 @@ def run_session(
     root = Path(root)
     check_configuration(root, seed, factory)
     claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
-    for moved in set_aside_stale_parts(root):
-        if on_set_aside is not None:
-            on_set_aside(moved)
-    pending = [task for task in tasks if not task.path(root).exists()]
-    by_object: dict[str, list[RecordingTask]] = {}
-    for task in pending:
-        by_object.setdefault(task.obj.id, []).append(task)
-    rig = factory(seed)
-    if unattended:
-        refuse_unpresentable(rig, [group[0].obj for group in by_object.values()])
-    try:
-        with rig:
-            for group in by_object.values():
-                present(rig, group[0].obj, unattended=unattended, ask=ask, root=root)
-                for task in group:
-                    path = task.path(root)
-                    if on_start is not None:
-                        on_start(task)
-                    written = record_action(
-                        rig, task.obj, task.action, task.trial, path, seed=seed, viewers=viewers
-                    )
-                    if on_recorded is not None:
-                        on_recorded(task, written)
-    except BaseException:
-        with contextlib.suppress(RecorderError):  # the first error is the one to report
-            _finish(root, tasks)
-        raise
-    return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
+    with recording_into(root):  # a check meanwhile sees a recorder at work
+        for moved in set_aside_stale_parts(root):
+            if on_set_aside is not None:
+                on_set_aside(moved)
+        pending = [task for task in tasks if not task.path(root).exists()]
+        by_object: dict[str, list[RecordingTask]] = {}
+        for task in pending:
+            by_object.setdefault(task.obj.id, []).append(task)
+        rig = factory(seed)
+        if unattended:
+            refuse_unpresentable(rig, [group[0].obj for group in by_object.values()])
+        try:
+            with rig:
+                for group in by_object.values():
+                    present(rig, group[0].obj, unattended=unattended, ask=ask, root=root)
+                    for task in group:
+                        path = task.path(root)
+                        if on_start is not None:
+                            on_start(task)
+                        written = record_action(
+                            rig, task.obj, task.action, task.trial, path, seed=seed, viewers=viewers
+                        )
+                        if on_recorded is not None:
+                            on_recorded(task, written)
+        except BaseException:
+            with contextlib.suppress(RecorderError):  # the first error is the one to report
+                _finish(root, tasks)
+            raise
+        return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
 
 
 #: How long a dry run reads the arm and the skin, s (action time).

@@ -16,6 +16,7 @@ from schemas._atomic import (
     temporary_name,
 )
 from schemas._layout import (
+    CLAIM_NAME,
     INCOMPLETE_RECORD,
     INCOMPLETE_SUFFIX,
     PART_SUFFIX,
@@ -26,6 +27,10 @@ from schemas._layout import (
     dataset_recordings,
     is_incomplete,
     is_recording,
+    part_writer,
+    process_running,
+    recorder_at_work,
+    recording_into,
     recording_path,
 )
 from schemas._metadata import (
@@ -73,6 +78,7 @@ from schemas.errors import CdrError, ContractError
 
 __all__ = [
     "CHANNELS",
+    "CLAIM_NAME",
     "CUSTOM_TYPES",
     "INCOMPLETE_RECORD",
     "INCOMPLETE_SUFFIX",
@@ -129,8 +135,12 @@ __all__ = [
     "parse_metadata",
     "parse_source_stats",
     "parse_vocabulary",
+    "part_writer",
+    "process_running",
     "publish_temporary",
     "read_checked_parquet",
+    "recorder_at_work",
+    "recording_into",
     "recording_path",
     "rows_allowed",
     "software_version",

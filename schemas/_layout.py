@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from schemas._metadata import check_id
 from schemas.errors import ContractError
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 #: Suffix of a finished recording.
 RECORDING_SUFFIX = ".mcap"
@@ -24,6 +30,93 @@ INCOMPLETE_SUFFIX = ".incomplete.mcap"
 #: Name of the metadata record that marks a recording as ended early, and why.
 INCOMPLETE_RECORD = "atikt.incomplete"
 _INCOMPLETE = re.compile(r"\.incomplete(-[0-9]+)?\.mcap$")
+
+
+#: A recorder's temporary name: ``<trial>.<pid>-<token>.mcap.part`` (recorder.writing).
+_PART_NAME = re.compile(r"\.(\d+)-[0-9a-f]+" + re.escape(PART_SUFFIX) + "$")
+
+
+def part_writer(path: Path) -> int | None:
+    """Return the process id in an unfinished recording's name (None: it names none)."""
+    match = _PART_NAME.search(Path(path).name)
+    return int(match.group(1)) if match else None
+
+
+def process_running(pid: int | None) -> bool:
+    """Return whether process ``pid`` exists on this computer (this process counts; None never).
+
+    An unfinished recording whose writer runs is being written now; one whose writer is gone
+    was left by a recorder that stopped.
+    """
+    if pid is None:
+        return False
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+#: The claim of a dataset directory (its seed and rig configuration), written by the first run
+#: recording into it (``recorder._claim``); a run recording into it holds a shared lock on it.
+CLAIM_NAME = ".atikt-dataset.json"
+
+
+@contextlib.contextmanager
+def recording_into(root: Path) -> Iterator[None]:
+    """Hold a shared lock on the dataset's claim while a run records into it (POSIX ``flock``).
+
+    A reader (``atikt-replay check``) then sees that a recorder is at work: its unfinished
+    files and an index that lags behind the recordings are expected. The lock goes with the
+    process, however it ends; several runs may hold it together. Without ``fcntl`` or a claim,
+    nothing is held.
+    """
+    descriptor = _open_claim(Path(root))
+    if descriptor is None:
+        yield
+        return
+    try:
+        import fcntl  # noqa: PLC0415 (POSIX only)
+
+        with contextlib.suppress(OSError):  # a file system without locks: nothing held
+            fcntl.flock(descriptor, fcntl.LOCK_SH)
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
+
+
+def recorder_at_work(root: Path) -> bool:
+    """Return whether a run records into the dataset ``root`` now (holds :func:`recording_into`)."""
+    descriptor = _open_claim(Path(root))
+    if descriptor is None:
+        return False
+    try:
+        import fcntl  # noqa: PLC0415 (POSIX only)
+
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # a file system without locks: not known, so not at work
+        return False
+    finally:
+        os.close(descriptor)  # releases the lock taken to test
+    return False
+
+
+def _open_claim(root: Path) -> int | None:
+    """Open the dataset's claim for locking (None: no claim, or no ``fcntl`` here)."""
+    try:
+        import fcntl  # noqa: F401, PLC0415 (POSIX only)
+    except ImportError:  # pragma: no cover (Windows)
+        return None
+    try:
+        return os.open(root / CLAIM_NAME, os.O_RDONLY)
+    except OSError:
+        return None
 
 
 def is_incomplete(path: Path) -> bool:

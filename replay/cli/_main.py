@@ -57,6 +57,9 @@ from schemas import (
     dataset_recordings,
     is_incomplete,
     lost_samples,
+    part_writer,
+    process_running,
+    recorder_at_work,
     software_version,
 )
 
@@ -488,14 +491,28 @@ def _incomplete(root: Path) -> list[str]:
     ]
 
 
-def _unfinished(root: Path) -> list[str]:
-    """Return one problem per unfinished recording (``*.mcap.part``) under ``root``."""
-    return [
-        f"{part}: an unfinished recording (the recorder was interrupted); salvage it with "
-        f"{recover_command(part)}"
-        for part in sorted(root.rglob(f"*{PART_SUFFIX}"))
-        if not part.is_relative_to(root / SET_ASIDE_DIR)  # set aside: reported, not failed
-    ]
+def _unfinished(root: Path) -> tuple[list[str], list[str]]:
+    """Return the unfinished recordings (``*.mcap.part``) under ``root``: problems, and notes.
+
+    A file whose recorder is still running (the process id in its name) is being written: a
+    note, not a failure (a check beside a running session must not ask to salvage it). One
+    whose recorder is gone was left by an interrupted recorder: a problem.
+    """
+    problems, writing = [], []
+    for part in sorted(root.rglob(f"*{PART_SUFFIX}")):
+        if part.is_relative_to(root / SET_ASIDE_DIR):  # set aside: reported, not failed
+            continue
+        if process_running(pid := part_writer(part)):
+            writing.append(
+                f"{part}: being written by a running recorder (process {pid}); checked once "
+                "it is finished"
+            )
+            continue
+        problems.append(
+            f"{part}: an unfinished recording (the recorder was interrupted); salvage it with "
+            f"{recover_command(part)}"
+        )
+    return problems, writing
 
 
 def _print_salvage(report: RecoveryReport) -> None:
@@ -624,15 +641,21 @@ def _check(args: argparse.Namespace) -> int:
     path = paths[0]  # a directory comes alone (several paths are recordings)
     files = dataset_files(path) if path.is_dir() else paths
     bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
-    unfinished = _unfinished(path) if path.is_dir() else []
+    unfinished, writing = _unfinished(path) if path.is_dir() else ([], [])
     try:
         index = index_problems(path, files) if path.is_dir() else []
     except RecordingError as err:
         index = [str(err)]
+    if index and (writing or (path.is_dir() and recorder_at_work(path))):
+        # a run recording into the dataset rebuilds its index when it finishes
+        now = f"; a recorder is writing into {path} now: it rebuilds the index when it finishes"
+        warnings += [line + now for line in index]
+        index = []
     index += _seed_problem(seeds) if path.is_dir() else []
     warnings += _incomplete(path) if path.is_dir() else []
+    warnings += writing
     aside = sorted((path / SET_ASIDE_DIR).rglob(f"*{PART_SUFFIX}")) if path.is_dir() else []
-    if not files and not unfinished:
+    if not files and not unfinished and not writing:
         msg = f"{path}: no recordings (*.mcap) found"
         raise ReplayError(msg)
     if args.json:
@@ -644,6 +667,7 @@ def _check(args: argparse.Namespace) -> int:
                 "failures": bad + index + unfinished,
                 "warnings": warnings,
                 "unfinished": len(unfinished),
+                "being_written": len(writing),
                 "set_aside": [str(p) for p in aside],
                 "ok": not (bad or index or unfinished),
             }

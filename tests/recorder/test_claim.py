@@ -8,12 +8,22 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+from conftest import FakeRig
 
+from recorder import ActionSpec, StreamItem, generate_dataset, plan_dataset
 from recorder._claim import CLAIM_NAME, claim_dataset, differing_settings
+from recorder._session import run_session
 from recorder.errors import RecorderError
 from replay.cli._main import main as replay_main
+from schemas import recorder_at_work
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from recorder._catalog import ObjectSpec
 
 ROOT = Path(__file__).parents[2]
 
@@ -135,3 +145,42 @@ def test_check_reports_a_directory_of_two_seeds(
     captured = capsys.readouterr()
     assert "the recordings hold 2 seeds (seed 1 (e.g." in captured.err
     assert "2 of 2 recordings valid" in captured.out
+
+
+def test_a_run_holds_its_dataset_while_it_records_and_lets_go_however_it_ends(
+    tmp_path: Path, objects: dict[str, ObjectSpec], actions: dict[str, ActionSpec]
+) -> None:
+    # `atikt-replay check` beside a running session tells its files from a dead recorder's
+    seen: list[bool] = []
+    roots = [tmp_path / "session", tmp_path / "dataset"]
+
+    class Watching(FakeRig):
+        def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+            seen.append(recorder_at_work(roots[0]))
+            return super().perform(obj, action, trial)
+
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=2)
+    run_session(tasks, roots[0], Watching, seed=0, unattended=True)
+    assert seen == [True, True]
+    assert not recorder_at_work(roots[0])  # done: nobody records into it
+    roots.pop(0)
+    generate_dataset(tasks, roots[0], Watching, seed=0, workers=1)
+    assert seen[2:] == [True, True]
+    assert not recorder_at_work(roots[0])
+    failing = [*tasks, plan_dataset(objects, actions, object_ids=["wood"], trials=1)[0]]
+    with pytest.raises(RecorderError):  # a run that fails lets go too
+        run_session(failing, tmp_path / "failing", Failing, seed=0, unattended=True)
+    assert not recorder_at_work(tmp_path / "failing")
+
+
+class Failing(FakeRig):
+    """A rig whose third action fails."""
+
+    calls = 0
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        Failing.calls += 1
+        if Failing.calls == 3:
+            msg = "the rig failed"
+            raise RecorderError(msg)
+        return super().perform(obj, action, trial)

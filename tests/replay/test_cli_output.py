@@ -1,7 +1,10 @@
 """Output for people and for files: full-width tables when piped, ``--json``, progress lines."""
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -13,11 +16,12 @@ from rich.progress import Progress
 
 from recorder import ActionSpec
 from recorder._catalog import ObjectSpec
+from recorder._cli import main as record
 from recorder.runner._record import record_action
 from replay.cli._main import main, progress_line
 from replay.studies._registry import STUDIES
 from replay.studies._running import StudyConfig, study_results
-from schemas import SourceStats
+from schemas import CLAIM_NAME, SourceStats, recording_into
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDING = ROOT / "recordings" / "data" / "wood" / "C1" / "001.mcap"
@@ -131,6 +135,7 @@ def test_check_json_of_a_valid_and_of_a_broken_dataset(
         "failures": [],
         "warnings": [],
         "unfinished": 0,
+        "being_written": 0,
         "set_aside": [],
         "ok": True,
     }
@@ -141,6 +146,40 @@ def test_check_json_of_a_valid_and_of_a_broken_dataset(
     assert (result["recordings"], result["valid"], result["ok"]) == (2, 1, False)
     assert len(result["failures"]) == 1
     assert "002.mcap" in result["failures"][0]
+
+
+def test_check_beside_a_running_recorder_warns_where_it_would_fail_after_a_dead_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a lab checks its dataset in a second terminal while a session records into it
+    data = tmp_path / "data"
+    shutil.copytree(RECORDING.parent, data / "wood" / "C1")
+    second = data / "wood" / "C1" / "002.mcap"
+    second.rename(tmp_path / "002.mcap")
+    assert record(["index", str(data)]) == 0
+    (tmp_path / "002.mcap").rename(second)  # written since: the index lags behind
+    (data / CLAIM_NAME).write_text("{}", encoding="utf-8")
+    writing = data / "wood" / "C1" / f"004.{os.getpid()}-ab12.mcap.part"
+    writing.write_bytes(b"")
+    capsys.readouterr()
+    with recording_into(data):  # the session's lock on the dataset
+        assert main(["check", "--json", "--workers", "1", str(data)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert (result["ok"], result["failures"], result["being_written"]) == (True, [], 1)
+    assert any("being written by a running recorder" in w for w in result["warnings"])
+    assert any("it rebuilds the index when it finishes" in w for w in result["warnings"])
+    # the recorder is gone (SIGKILL): its file is left over and the index stale
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    writing.rename(writing.with_name(f"004.{dead}-ab12.mcap.part"))
+    assert main(["check", "--json", "--workers", "1", str(data)]) == 1
+    result = json.loads(capsys.readouterr().out)
+    assert result["unfinished"] == 1
+    assert any("lists 1 of the 2 recordings" in f for f in result["failures"])
 
 
 def test_check_json_counts_lost_samples_as_failures(
