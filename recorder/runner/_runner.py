@@ -462,7 +462,7 @@ class ArmRig:
             RigError: The arm kept moving, another program kept running, a stop or a silent
                 source: ``the arm cannot <what>: <reason>``, one line.
         """
-        before, reason = self._state.sample, ""
+        before, reason, fix = self._state.sample, "", "check the arm, then retry"
         try:
             while self._state.sample is before:  # the silence check bounds the wait
                 self._pump_quietly()
@@ -483,8 +483,9 @@ class ArmRig:
                 self._pump_quietly()
         except (Stop, SourceLostError) as stop:
             reason = str(stop)
+            fix = stop.fix if isinstance(stop, Stop) else fix
         if reason:
-            said = f"the arm cannot {what}: {reason}; check the arm, then retry"
+            said = f"the arm cannot {what}: {reason}; {fix}"
             msg = f"{self.where}: {said}"
             raise RigError(msg)
 
@@ -938,15 +939,20 @@ class ArmRig:
         # consumer (the writer) spends after that is not the sources' silence
         polled_ns = self.clock.now_ns()
         items: list[StreamItem] = []
-        violation, violation_ns = "", 0
+        violation, violation_ns, fix = "", 0, "check the arm, then retry"
         for sample in samples:
             self._state.sample, self._state.receive_ns = sample, sample.receive_ns
             self._state.taken += 1
             if not violation and (violation := self._violation(sample)):
                 violation_ns = sample.receive_ns
+                if not self.limits.inside(sample.tcp_pose[:3]):  # e.g. where it stood at start
+                    fix = (
+                        "bring the TCP inside [limits] workspace_min_m .. workspace_max_m at the "
+                        "teach pendant, or widen the workspace, then retry"
+                    )
             items.extend(_items(sample))
         if violation:
-            raise Stop(violation, violation_ns, items)
+            raise Stop(violation, violation_ns, items, fix=fix)
         try:
             blocks = self.skin.poll()
         except SourceLostError as err:

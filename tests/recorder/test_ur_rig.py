@@ -167,6 +167,29 @@ def test_an_arm_that_keeps_moving_is_refused_before_an_action(tmp_path: Path) ->
     assert not any(tmp_path.rglob("*.mcap*"))
 
 
+def test_an_arm_standing_outside_the_workspace_is_refused_with_the_way_in(tmp_path: Path) -> None:
+    path = tmp_path / "wood" / "P1" / "001.mcap"
+    box = Limits(workspace_min_m=(-0.9, -0.5, 0.25), workspace_max_m=(-0.4, 0.2, 0.4))
+    with virtual_lab() as lab:
+        lab.world.place([-0.6, -0.2, 0.2, 0.0, np.pi, 0.0])  # left below the box
+        with lab.rig({"wood": [-0.7, -0.2, 0.3, 0.0, np.pi, 0.0]}, box) as rig:
+            with pytest.raises(RigError) as presenting:
+                rig.present(OBJECTS["wood"])
+            with pytest.raises(RigError) as starting:  # an object placed by hand
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, path, seed=0)
+        moving = [p for p in lab.script.programs if "movel(" in p or "speedl(" in p]
+    way_in = (
+        "bring the TCP inside [limits] workspace_min_m .. workspace_max_m at the teach pendant, "
+        "or widen the workspace, then retry"
+    )
+    said = "the arm cannot move to wood: TCP at [-0.6, -0.2, 0.2] left the [limits] workspace; "
+    assert said in str(presenting.value)
+    assert str(presenting.value).endswith(way_in)
+    assert str(starting.value).endswith(way_in)
+    assert moving == []
+    assert not any(tmp_path.rglob("*.mcap*"))
+
+
 def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -> None:
     path = tmp_path / "wood" / "P1" / "001.mcap"
     with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:

@@ -145,8 +145,10 @@ class Lab:
     script: ScriptServer
     dashboard: DashboardServer
 
-    def rig(self, poses: Mapping[str, Any] | None = None, **options: Any) -> URRig:
-        """Return a UR rig for this lab (options over the test defaults)."""
+    def rig(
+        self, poses: Mapping[str, Any] | None = None, limits: Limits | None = None, **options: Any
+    ) -> URRig:
+        """Return a UR rig for this lab (options over the test defaults; limits: the defaults)."""
         merged: dict[str, Any] = {
             "rtde_port": self.rtde.address[1],
             "script_port": self.script.address[1],
@@ -156,7 +158,7 @@ class Lab:
         } | options
         return URRig(
             UROptions.from_options(merged, "lab.toml"),
-            Limits(),
+            limits or Limits(),
             {"transport": "test"},
             dict(poses or {}),
             where="lab.toml",
