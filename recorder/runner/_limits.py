@@ -92,6 +92,25 @@ class Limits:
             for v, lo, hi in zip(position, self.workspace_min_m, self.workspace_max_m, strict=True)
         )
 
+    def reach(
+        self, position: Sequence[float] | NDArray[np.float64], direction: NDArray[np.float64]
+    ) -> float:
+        """Return how far the TCP may go from ``position`` along unit ``direction`` in the box, m.
+
+        0 for a position outside the box; infinity for a direction of zeros.
+        """
+        if not self.inside(position):
+            return 0.0
+        out = math.inf
+        for v, d, lo, hi in zip(
+            position, direction, self.workspace_min_m, self.workspace_max_m, strict=True
+        ):
+            if d > 0:
+                out = min(out, (hi - float(v)) / float(d))
+            elif d < 0:
+                out = min(out, (lo - float(v)) / float(d))
+        return out
+
 
 def _corner(value: object, what: str) -> tuple[float, float, float]:
     """Return a workspace corner (3 finite numbers).

@@ -89,6 +89,10 @@ SKIN_BEHIND_S = 2.0
 #: How long one approach speed command moves the arm unless renewed (action time), s; the
 #: runner renews it every half of it.
 SPEED_LEASE_S = 0.5
+#: The approach stops this far (m) plus its stopping distance before the workspace's edge.
+_EDGE_M = 0.0005
+#: Controller cycles of reaction counted into that stopping distance (detection to stop).
+_EDGE_CYCLES = 4
 #: The oldest the arm's latest state may be (controller cycles since it arrived) when a motion
 #: is commanded on it: an older one (a stalled stream) is waited on, and a speed is not
 #: renewed on it (its lease runs out: the arm stops by itself), until the silence check ends
@@ -696,6 +700,7 @@ class ArmRig:
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
         blind = _Blind(direction, start, motion.approach_blind_m)
+        edge_m = self._approach_edge(start, direction)
         while True:
             peak = yield from self._pump_force(since_ns=began_ns)
             if peak is not None and peak - zero > motion.contact_force_n:
@@ -717,13 +722,7 @@ class ArmRig:
                     "reach the object (check the controller's log for a refused program)"
                 )
                 raise Stop(reason, now)
-            travelled = float(np.linalg.norm(self._state.pose[:3] - start[:3]))
-            if travelled > motion.approach_limit_m:
-                reason = (
-                    f"no light contact (total skin force above {motion.contact_force_n:g} N) "
-                    f"within approach_limit_m = {motion.approach_limit_m:g} m"
-                )
-                raise Stop(reason, now)
+            self._check_reach(float(np.linalg.norm(self._state.pose[:3] - start[:3])), edge_m)
             wanted = motion.approach_speed(self.skin.nearest())
             # at most every 0.1 s of action time (a lab at time_scale S runs 1/S times faster),
             # and before the last command's lease ends
@@ -735,6 +734,40 @@ class ArmRig:
         yield self._event("contact")
         yield from self._until_fresh()  # the contact's pose: a state taken now, not a stale one
         return self._state.pose.copy()
+
+    def _approach_edge(self, start: NDArray[np.float64], direction: NDArray[np.float64]) -> float:
+        """Return how far the approach may go before the workspace's edge, m.
+
+        The approach ends before the edge by the distance the arm needs to stop from its
+        fastest approach (a few cycles of reaction, then the deceleration): an object that is
+        not there, or a pose too close to the edge, stops the arm inside the box, not on a
+        limit after it left it.
+        """
+        motion = self.options.motion
+        fastest = motion.approach_max_m_s
+        margin = fastest**2 / (2 * motion.acceleration_m_s2) + _EDGE_M
+        cycle_s = self.arm.period_ns / _NS / self.options.time_scale  # of the arm's motion
+        margin += _EDGE_CYCLES * fastest * cycle_s
+        return self.limits.reach(start[:3], direction) - margin
+
+    def _check_reach(self, travelled: float, edge_m: float) -> None:
+        """Stop an approach that went as far as it may without a light contact.
+
+        Raises:
+            Stop: Past the workspace's edge (less the stopping distance) or approach_limit_m.
+        """
+        motion = self.options.motion
+        contact = f"no light contact (total skin force above {motion.contact_force_n:g} N)"
+        if travelled > edge_m and edge_m < motion.approach_limit_m:
+            reason = (
+                f"{contact} within {max(edge_m, 0.0):.3f} m of the pose, where the [limits] "
+                "workspace ends (less the arm's stopping distance): is the object there, and "
+                "its pose right?"
+            )
+            raise Stop(reason, self.clock.now_ns())
+        if travelled > motion.approach_limit_m:
+            reason = f"{contact} within approach_limit_m = {motion.approach_limit_m:g} m"
+            raise Stop(reason, self.clock.now_ns())
 
     def _fresh(self) -> bool:
         """Return whether the arm's latest state is fresh enough to command a motion on."""

@@ -1,5 +1,6 @@
 """The UR rig against the virtual lab: full actions, limits, stops, accounting."""
 
+import math
 import re
 import socket
 import threading
@@ -188,6 +189,32 @@ def test_an_arm_standing_outside_the_workspace_is_refused_with_the_way_in(tmp_pa
     assert str(starting.value).endswith(way_in)
     assert moving == []
     assert not any(tmp_path.rglob("*.mcap*"))
+
+
+def test_an_approach_that_finds_nothing_stops_inside_the_workspace(tmp_path: Path) -> None:
+    # a pose 4 mm above the workspace's floor: the object's surface lies below it
+    box = Limits(workspace_min_m=(-0.9, -0.5, 0.0), workspace_max_m=(-0.4, 0.2, 0.4))
+    pose = [-0.7, -0.2, 0.004, 0.0, np.pi, 0.0]
+    with virtual_lab() as lab, lab.rig({"wood": pose}, box) as rig:
+        rig.present(OBJECTS["wood"])
+        with pytest.raises(ActionStoppedError) as info:
+            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
+        time.sleep(0.5)  # the arm comes to rest
+        lowest = lab.world.robot_at(lab.world.controller_ns()).tcp_pose[2]
+    reason = info.value.reason
+    assert "no light contact (total skin force above" in reason
+    assert "where the [limits] workspace ends (less the arm's stopping distance)" in reason
+    assert lowest >= 0.0  # stopped inside the box: not on a limit after it left it
+
+
+def test_the_reach_to_the_workspaces_edge_along_a_direction() -> None:
+    box = Limits(workspace_min_m=(-1.0, -1.0, 0.0), workspace_max_m=(1.0, 1.0, 1.0))
+    down = np.array([0.0, 0.0, -1.0])
+    assert box.reach([0.0, 0.0, 0.2], down) == pytest.approx(0.2)
+    slanted = np.array([0.6, 0.0, -0.8])  # the x side at 1.0 / 0.6, the floor at 0.2 / 0.8
+    assert box.reach([0.0, 0.0, 0.2], slanted) == pytest.approx(0.25)
+    assert box.reach([0.0, 0.0, -0.1], down) == 0.0  # outside: nowhere to go
+    assert box.reach([0.0, 0.0, 0.2], np.zeros(3)) == math.inf
 
 
 def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -> None:
