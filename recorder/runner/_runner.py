@@ -689,6 +689,8 @@ class ArmRig:
         if self._home is None or np.linalg.norm(start[:3] - self._home[:3]) > _HOME_M:
             self._home = start.copy()  # the first approach, or the arm was moved by hand
         direction = _tool_axis(start, 2)
+        edge_m = self._approach_edge(start, direction)
+        self._check_reach(0.0, edge_m)  # no room to approach at all: nothing moves
         speed = motion.approach_speed(self.skin.nearest())
         self._speed(direction, speed, at)
         sent_ns = began_ns = self.clock.now_ns()
@@ -700,7 +702,6 @@ class ArmRig:
         limit_s = 2 * motion.approach_limit_m / motion.approach_min_m_s * self.options.time_scale
         give_up_ns = sent_ns + round(limit_s * _NS)
         blind = _Blind(direction, start, motion.approach_blind_m)
-        edge_m = self._approach_edge(start, direction)
         while True:
             peak = yield from self._pump_force(since_ns=began_ns)
             if peak is not None and peak - zero > motion.contact_force_n:
@@ -758,7 +759,7 @@ class ArmRig:
         """
         motion = self.options.motion
         contact = f"no light contact (total skin force above {motion.contact_force_n:g} N)"
-        if travelled > edge_m and edge_m < motion.approach_limit_m:
+        if travelled >= edge_m and edge_m < motion.approach_limit_m:
             reason = (
                 f"{contact} within {max(edge_m, 0.0):.3f} m of the pose, where the [limits] "
                 "workspace ends (less the arm's stopping distance): is the object there, and "

@@ -192,19 +192,27 @@ def test_an_arm_standing_outside_the_workspace_is_refused_with_the_way_in(tmp_pa
 
 
 def test_an_approach_that_finds_nothing_stops_inside_the_workspace(tmp_path: Path) -> None:
-    # a pose 4 mm above the workspace's floor: the object's surface lies below it
+    # the object's surface lies below the workspace's floor (20 mm below the pose in the lab)
     box = Limits(workspace_min_m=(-0.9, -0.5, 0.0), workspace_max_m=(-0.4, 0.2, 0.4))
-    pose = [-0.7, -0.2, 0.004, 0.0, np.pi, 0.0]
-    with virtual_lab() as lab, lab.rig({"wood": pose}, box) as rig:
-        rig.present(OBJECTS["wood"])
-        with pytest.raises(ActionStoppedError) as info:
-            record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
-        time.sleep(0.5)  # the arm comes to rest
-        lowest = lab.world.robot_at(lab.world.controller_ns()).tcp_pose[2]
-    reason = info.value.reason
-    assert "no light contact (total skin force above" in reason
-    assert "where the [limits] workspace ends (less the arm's stopping distance)" in reason
-    assert lowest >= 0.0  # stopped inside the box: not on a limit after it left it
+    reasons, lowest, approaches = [], [], []
+    for height in (0.015, 0.004):  # room to approach a little, and none
+        pose = [-0.7, -0.2, height, 0.0, np.pi, 0.0]
+        with virtual_lab() as lab, lab.rig({"wood": pose}, box) as rig:
+            rig.present(OBJECTS["wood"])
+            with pytest.raises(ActionStoppedError) as info:
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "1.mcap", seed=0)
+            time.sleep(0.5)  # the arm comes to rest
+            lowest.append(lab.world.robot_at(lab.world.controller_ns()).tcp_pose[2])
+            approaches.append(sum("speedl(" in p for p in lab.script.programs))
+        reasons.append(info.value.reason)
+        (tmp_path / "1.incomplete.mcap").unlink()
+    for reason in reasons:
+        assert "no light contact (total skin force above" in reason
+        assert "where the [limits] workspace ends (less the arm's stopping distance)" in reason
+    assert 0.0 <= lowest[0] < 0.015  # it approached, and stopped inside the box
+    assert approaches[0] > 0
+    assert approaches[1] == 0  # no room at all: no approach was sent
+    assert lowest[1] == pytest.approx(0.004, abs=1e-4)
 
 
 def test_the_reach_to_the_workspaces_edge_along_a_direction() -> None:
