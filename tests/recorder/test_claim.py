@@ -168,6 +168,7 @@ def test_a_run_holds_its_dataset_while_it_records_and_lets_go_however_it_ends(
     assert seen[2:] == [True, True]
     assert not recorder_at_work(roots[0])
     failing = [*tasks, plan_dataset(objects, actions, object_ids=["wood"], trials=1)[0]]
+    Failing.calls = 0
     with pytest.raises(RecorderError):  # a run that fails lets go too
         run_session(failing, tmp_path / "failing", Failing, seed=0, unattended=True)
     assert not recorder_at_work(tmp_path / "failing")

@@ -212,7 +212,7 @@ def test_an_approach_that_finds_nothing_stops_inside_the_workspace(tmp_path: Pat
     assert 0.0 <= lowest[0] < 0.015  # it approached, and stopped inside the box
     assert approaches[0] > 0
     assert approaches[1] == 0  # no room at all: no approach was sent
-    assert lowest[1] == pytest.approx(0.004, abs=1e-4)
+    assert lowest[1] == pytest.approx(0.004, abs=5e-4)  # where it was presented
 
 
 def test_the_reach_to_the_workspaces_edge_along_a_direction() -> None:
