@@ -48,13 +48,13 @@ def process_running(pid: int | None) -> bool:
     An unfinished recording whose writer runs is being written now; one whose writer is gone
     was left by a recorder that stopped.
     """
-    if pid is None:
+    if pid is None or not 0 < pid < 2**31:  # a name's number that is no process id
         return False
     if pid == os.getpid():
         return True
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError):
         return False
     except PermissionError:  # another user's process
         return True
