@@ -89,6 +89,8 @@ SKIN_BEHIND_S = 2.0
 #: How long one approach speed command moves the arm unless renewed (action time), s; the
 #: runner renews it every half of it.
 SPEED_LEASE_S = 0.5
+#: What a stop between actions asks of a person unless its cause says more.
+CHECK_ARM = "check the arm, then retry"
 #: The approach stops this far (m) plus its stopping distance before the workspace's edge.
 _EDGE_M = 0.0005
 #: Controller cycles of reaction counted into that stopping distance (detection to stop).
@@ -164,7 +166,7 @@ class Stop(Exception):  # noqa: N818 (control flow inside the runner, never esca
         at_ns: int,
         arrived: Sequence[StreamItem] = (),
         *,
-        fix: str = "check the arm, then retry",
+        fix: str = CHECK_ARM,
     ) -> None:
         """Keep the reason, when it was met and what arrived with its cause.
 
@@ -404,7 +406,7 @@ class ArmRig:
                 arm = said or "the arm was stopped"
                 _interrupted(watch.flag, f"while moving to {obj.id}: {arm}")
             left = f"; {said}" if said else ""
-            fix = stop.fix if isinstance(stop, Stop) else "check the arm, then retry"
+            fix = stop.fix if isinstance(stop, Stop) else CHECK_ARM
             msg = f"{self.where}: moving to {obj.id}: {stop}{left}; {fix}"
             raise RigError(msg) from None
         except BaseException:
@@ -466,7 +468,7 @@ class ArmRig:
             RigError: The arm kept moving, another program kept running, a stop or a silent
                 source: ``the arm cannot <what>: <reason>``, one line.
         """
-        before, reason, fix = self._state.sample, "", "check the arm, then retry"
+        before, reason, fix = self._state.sample, "", CHECK_ARM
         try:
             while self._state.sample is before:  # the silence check bounds the wait
                 self._pump_quietly()
@@ -973,7 +975,7 @@ class ArmRig:
         # consumer (the writer) spends after that is not the sources' silence
         polled_ns = self.clock.now_ns()
         items: list[StreamItem] = []
-        violation, violation_ns, fix = "", 0, "check the arm, then retry"
+        violation, violation_ns, fix = "", 0, CHECK_ARM
         for sample in samples:
             self._state.sample, self._state.receive_ns = sample, sample.receive_ns
             self._state.taken += 1
@@ -1034,7 +1036,7 @@ class ArmRig:
         if violation:
             raise Stop(violation, violation_ns or now)
         reason = violation or self._watch.problem()
-        fix = "check the arm, then retry"
+        fix = CHECK_ARM
         if not reason:
             read = now if polled_ns is None else polled_ns
             silence = round(self.options.silence_s * _NS)
