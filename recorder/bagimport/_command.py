@@ -69,20 +69,34 @@ def _print_topics(console: Console, bags: list[Path]) -> None:
 def _print_report(console: Console, report: ImportReport) -> None:
     """Print what was written, what was skipped and how the skin cells were aligned."""
     names = ", ".join(b.path.name for b in report.bags)
+    resumed = f" ({len(report.resumed)} written by an earlier run)" if report.resumed else ""
     table = Table(
         "modality",
         "rows dropped",
+        "gaps (s)",
         "largest cell offset (ms)",
         "largest stamp jitter (ms)",
-        title=escape(f"{len(report.written)} recordings from {names} -> {report.out}"),
+        title=escape(f"{len(report.written)} recordings{resumed} from {names} -> {report.out}"),
     )
     for modality, dropped in report.dropped_rows.items():
         offset = report.max_cell_offset_ns.get(modality, 0) / _NS_PER_MS
         jitter = report.max_jitter_ns.get(modality, 0) / _NS_PER_MS
-        table.add_row(modality, str(dropped), f"{offset:.3f}", f"{jitter:.6f}")
+        gaps = f"{report.gaps.get(modality, 0)} ({report.gap_ns.get(modality, 0) / 1e9:.3f})"
+        table.add_row(modality, str(dropped), gaps, f"{offset:.3f}", f"{jitter:.6f}")
     for channel, dropped in report.dropped_samples.items():
-        table.add_row(escape(channel), str(dropped), "-", "-")
+        table.add_row(escape(channel), str(dropped), "-", "-", "-")
+    if report.repeated_stamps:  # whole messages, before any row: a line of their own
+        repeated = str(report.repeated_stamps)
+        table.add_row("skin messages (stamp repeated)", repeated, "-", "-", "-")
     console.print(table)
+    for topic, count in report.malformed.items():
+        console.print(
+            f"{topic}: {count} messages malformed (velocities or efforts of another count than "
+            "the joint names), not written; fix the driver",
+            highlight=False,
+            soft_wrap=True,
+            markup=False,
+        )
     _print_timing(console, report)
     _print_counted(console, report)
     for window, reason in report.skipped:
@@ -174,6 +188,12 @@ def _import_bag(args: argparse.Namespace) -> int:
             ),
             on_progress=lambda bag, done: progress.update(tasks[bag], completed=done),
             on_start=lambda bag, total: tasks.setdefault(bag, progress.add_task(bag, total=total)),
+            on_set_aside=lambda path: progress.console.print(
+                f"unfinished recording of a stopped import set aside: {path}",
+                highlight=False,
+                soft_wrap=True,
+                markup=False,
+            ),
         )
     if report.already_imported:
         bag, file = next(iter(report.already_imported.items()))

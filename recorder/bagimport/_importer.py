@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from recorder._catalog import ObjectSpec
-from recorder._dataset import declare_objects, write_index
+from recorder._dataset import declare_objects, set_aside_stale_parts, write_index
 from recorder.bagimport._pack import (
     Series,
     block_period,
@@ -40,7 +40,14 @@ from recorder.bagimport._pack import (
     skin_blocks,
     window_rows,
 )
-from recorder.bagimport._report import BagIdentity, ImportReport, bag_identity, imported_bags
+from recorder.bagimport._report import (
+    BagIdentity,
+    ImportReport,
+    bag_identity,
+    earlier_import,
+    imported_bags,
+    window_key,
+)
 from recorder.bagimport._source import (
     READ_ERRORS,
     JointTopic,
@@ -57,13 +64,15 @@ from recorder.bagimport._source import (
 )
 from recorder.bagimport._topicmap import LabAction, LabObject
 from recorder.bagimport._windows import (
+    PathPlanner,
     Window,
     check_no_overlap,
-    plan_paths,
     windows_from_annotations,
     windows_from_csv,
 )
 from recorder.errors import BagImportError, RecorderError
+from recorder.live import SourceStats, gap_periods
+from recorder.runner._interrupts import deferred_interrupts, raise_interrupt
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample
 from recorder.writing._writer import RecordingInfo, RecordingWriter
 from schemas import (
@@ -79,6 +88,7 @@ from schemas.cdr import compile_cdr, compile_ros1
 if TYPE_CHECKING:
     from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 
+    from numpy.typing import NDArray
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
@@ -86,8 +96,7 @@ if TYPE_CHECKING:
     from recorder._catalog import ActionSpec
     from recorder.bagimport._source import Extractor
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live import SourceStats
-    from recorder.writing._stream import StreamItem
+    from recorder.writing._stream import SkinBlock, StreamItem
 
 #: Samples kept around a window: the skin's rows at its edges, and alignment neighbours.
 MARGIN_NS = 1_000_000_000
@@ -208,13 +217,28 @@ def _plans(
     out: Path,
     objects: Mapping[str, ObjectSpec],
     actions: Mapping[str, ActionSpec],
+    *,
+    earlier: Mapping[str, str] | None = None,
 ) -> list[_Plan]:
-    """Resolve every window's object and action, check it, and give it a path."""
+    """Resolve every window's object and action, check it, and give it a path.
+
+    A window an earlier run of the same bags wrote (``earlier``: window key -> recording
+    relative to ``out``) keeps its recording; the others number on after the trials in
+    ``out``. The windows an interrupted run wrote are the first ones in time, so the rest get
+    the trials an uninterrupted run would have given them.
+    """
     catalogs = lab_catalogs(objects, actions)
-    return [
-        plan_window(planned, topic_map, catalogs)
-        for planned in plan_paths(check_no_overlap(windows), out)
-    ]
+    planner = PathPlanner(out)
+    plans = []
+    for window in check_no_overlap(windows):
+        written = (earlier or {}).get(window_key(window.object_id, window.action_id, window.events))
+        if written is None:
+            planned = planner.plan(window)
+        else:
+            path = out / written
+            planned = (window, int(path.stem) if path.stem.isdigit() else 0, path)
+        plans.append(plan_window(planned, topic_map, catalogs))
+    return plans
 
 
 # -------------------------------------------------------------------------------- windows
@@ -289,6 +313,8 @@ def _robot_items(
         if isinstance(extractor, SkinTopic):
             continue
         series = extractor.take(window.start_ns, window.stop_ns)
+        if isinstance(extractor, JointTopic):
+            series = extractor.not_recorded(series)
         finite = np.isfinite(series.values).all(axis=1)
         name = "joint_states" if isinstance(extractor, JointTopic) else "tcp_pose"
         report.dropped_samples[name] = report.dropped_samples.get(name, 0) + int((~finite).sum())
@@ -302,44 +328,124 @@ def _robot_items(
     return items
 
 
+def _uncovered(plan: _Plan, modality: str, topic: str, blocks: Sequence[SkinBlock]) -> str:
+    """Return why a modality's blocks do not cover the window's execute phase (empty: they do).
+
+    The reader's rule (``atikt-replay check``): a skin channel begins at or before the
+    execute phase and covers the action's duration (its last sample plus a period).
+    """
+    if plan.incomplete:  # live: kept as what arrived, said incomplete
+        return ""
+    window, start = plan.window, plan.window.phase_start("execute")
+    first, last = blocks[0], blocks[-1]
+    end = last.stamp_ns + last.period_ns * last.data.shape[0]
+    needed = round(plan.action.duration_s * (1 - DURATION_TOLERANCE) * _NS_PER_S) - 1_000_000
+    if first.stamp_ns > start:
+        return (
+            f"the data does not cover it: {modality} of {topic} begins "
+            f"{(first.stamp_ns - start) / _NS_PER_S:.3f} s after its execute phase began; "
+            f"fix the window's start ({window.where or 'the annotation'})"
+        )
+    if end - start < needed:
+        return (
+            f"the data does not cover it: {modality} of {topic} ends "
+            f"{(window.phase_stop('execute') - end) / _NS_PER_S:.3f} s before its execute "
+            f"phase ends ({plan.action.id} lasts {plan.action.duration_s:g} s); fix the "
+            f"window's stop ({window.where or 'the annotation'})"
+        )
+    return ""
+
+
+def _too_few(
+    modality: str,
+    cells: Sequence[tuple[str, Series]],
+    found: Mapping[str, Extractor],
+    topic_map: TopicMap,
+) -> str:
+    """Return why a modality has too few samples near a window, naming the cell's topic.
+
+    A topic whose messages all carry one stamp (a driver that never fills ``header.stamp``)
+    has its messages dropped as repeats: that is said, with the receive time as the way out.
+    """
+    topic = next((t for t, s in cells if s.stamps.size < 2), cells[0][0])  # noqa: PLR2004
+    extractor = found.get(topic)
+    repeated = extractor.repeated if extractor is not None else 0
+    last = extractor.buffer.last if extractor is not None else None
+    if repeated and last is not None and last <= 0:
+        return (
+            f"the {modality} stamps of {topic} are all {last} ({repeated} messages dropped as "
+            'repeated stamps): the driver does not fill header.stamp; set [time] stamps = "log" '
+            f"in {topic_map.path.name} to use the receive time"
+        )
+    dropped = f" ({repeated} of its messages dropped for a repeated stamp)" if repeated else ""
+    return f"fewer than 2 {modality} samples of {topic} near it{dropped}"
+
+
+def _gaps(stamps: NDArray[np.int64], period_ns: int) -> tuple[int, int]:
+    """Return the pauses of written stamps as ``listen`` counts them: (gaps, their length).
+
+    A step longer than :func:`recorder.live.gap_periods` periods is a gap; its length is
+    counted beyond one period, in ns.
+    """
+    if stamps.size < 2 or period_ns <= 0:  # noqa: PLR2004 (a pair is the smallest step)
+        return 0, 0
+    steps = np.diff(stamps)
+    paused = steps[steps > gap_periods(stamps.tolist(), period_ns) * period_ns]
+    return int(paused.size), int((paused - period_ns).sum())
+
+
 def _window_items(
     plan: _Plan,
     cells: Mapping[str, list[tuple[str, Series]]],
     found: Mapping[str, Extractor],
     topic_map: TopicMap,
     report: ImportReport,
-) -> tuple[list[StreamItem], str, dict[str, int]]:
+) -> tuple[list[StreamItem], str, dict[str, int], list[SourceStats]]:
     """Return every stream item of one window ordered by receive time, or why it is skipped.
 
     Also returns, per skin topic, the stamps it delivered valid that cell alignment left out
-    (summed over its modalities; see :func:`left_out_by_topic`).
+    (summed over its modalities; see :func:`left_out_by_topic`), and the pauses of the skin
+    inside the window as sources' accounting (a topic without a counter cannot tell a pause
+    from loss: counted as gaps, as ``listen`` counts them, and written into the file).
     """
     window = plan.window
     items: list[StreamItem] = [PhaseEvent(s, s, p) for p, s in window.events]
     left_out: dict[str, int] = {}
+    paused: dict[str, SourceStats] = {}
     for modality, spec in topic_map.skin.items():
         topics = [topic for topic, _ in cells[modality]]
         series = [s for _, s in cells[modality]]
         # stamped by rate: the period on the stamps' clock is the fitted one (the drift)
         exact = spec.period_ns if spec.timing == "message" else None
         period = block_period(exact, series[0].stamps)
+        where = topics[0] if topics else spec.topic
         if period <= 0 or any(s.stamps.size == 0 for s in series):
-            return [], f"fewer than 2 {modality} samples of a cell of {spec.topic} near it", {}
+            return [], _too_few(modality, cells[modality], found, topic_map), {}, []
         rows = window_rows(series, window.start_ns, window.stop_ns, period)
         blocks, jitter, dropped = skin_blocks(modality, rows, period, topic_map.max_jitter)
         if not blocks:
-            return [], f"no {modality} samples of {spec.topic} with every cell inside it", {}
+            return [], f"no {modality} samples of {where} with every cell inside it", {}, []
+        if reason := _uncovered(plan, modality, where, blocks):
+            return [], reason, {}, []
         report.note(modality, rows, jitter, dropped)
+        count, length = _gaps(rows.stamps, period)
+        if count:
+            report.gaps[modality] = report.gaps.get(modality, 0) + count
+            report.gap_ns[modality] = report.gap_ns.get(modality, 0) + length
+            for topic in dict.fromkeys(topics):
+                had = paused.get(topic, SourceStats(topic, basis="stamps", period_ns=period))
+                more = dataclasses.replace(had, gaps=had.gaps + count, gap_ns=had.gap_ns + length)
+                paused[topic] = more
         for topic, count in left_out_by_topic(topics, rows, dropped).items():
             left_out[topic] = left_out.get(topic, 0) + count
         items.extend(blocks)
     robot = _robot_items(window, found, report)
     for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
         if mapped is not None and not any(isinstance(item, kind) for item in robot):
-            return [], f"no message of {mapped.topic} inside it", {}
+            return [], f"no message of {mapped.topic} inside it", {}, []
     items.extend(robot)
     items.sort(key=lambda item: item.receive_ns)
-    return items, "", left_out
+    return items, "", left_out, list(paused.values())
 
 
 def _rig(
@@ -389,6 +495,9 @@ class _Session:
     skip: set[Path] = field(default_factory=set)
     #: The windows of ``skip`` met so far.
     already: list[Path] = field(default_factory=list)
+    #: Import: called with each recording as soon as it is published (the import's progress
+    #: is saved there); Ctrl-C, SIGTERM and SIGHUP wait until both are done.
+    progress: Callable[[_Plan, Path], Any] | None = None
 
     def __post_init__(self) -> None:
         """Index the windows' reach ``[start - margin, stop + margin)``; read the version."""
@@ -502,7 +611,7 @@ class _Session:
         # live: the next window is not known yet, but it cannot start before this one ends
         last = plan.window.stop_ns - MARGIN_NS if self.live else self.his[i]
         forget = self.los[i + 1] if i + 1 < len(self.plans) else last
-        items, reason, left_out = _window_items(
+        items, reason, left_out, paused = _window_items(
             plan, cells, self.found, self.topic_map, self.report
         )
         for extractor in self.found.values():
@@ -510,14 +619,51 @@ class _Session:
         if reason:
             self.report.skipped.append((plan.window.describe(), reason))
             return
-        self._write(plan, items, left_out)
+        self._write(plan, items, left_out, paused)
 
-    def _write(self, plan: _Plan, items: Sequence[StreamItem], left_out: Mapping[str, int]) -> None:
+    def _write(
+        self,
+        plan: _Plan,
+        items: Sequence[StreamItem],
+        left_out: Mapping[str, int],
+        paused: Sequence[SourceStats] = (),
+    ) -> None:
+        """Write a window's recording (once: a window written before is only noted)."""
         if plan.path in self.skip:  # written before the run was killed: never again
             if self.sources is not None:
                 self.sources(plan)  # the accounting moves on as it did
             self.already.append(plan.path)
+            if self.progress is not None:  # an import resumed: the report lists it as written
+                self.report.written.append(plan.path)
+                self.report.resumed.append(plan.path)
             return
+        if self.progress is None:
+            path = self._publish(plan, items, left_out)
+        else:
+            # a signal waits until the file is published and the progress saved: an import
+            # stopped at any moment resumes from exactly the recordings it published
+            with deferred_interrupts() as stopped:
+                path = self._publish(plan, items, left_out, paused)
+                self.progress(plan, path)
+            if stopped.signum is not None:
+                if self.on_written is not None:
+                    self.on_written(path)
+                raise_interrupt(stopped.signum)
+        if self.on_written is not None:
+            self.on_written(path)
+
+    def _publish(
+        self,
+        plan: _Plan,
+        items: Sequence[StreamItem],
+        left_out: Mapping[str, int],
+        paused: Sequence[SourceStats] = (),
+    ) -> Path:
+        """Write a window's recording and note it in the report; return its path.
+
+        ``paused``: an import's skin topics that paused inside the window (their gaps go
+        into the file, so that ``check`` knows the pause was counted).
+        """
         joints = next((e for e in self.found.values() if isinstance(e, JointTopic)), None)
         widths = {
             m: w
@@ -552,6 +698,8 @@ class _Session:
                         for stats in self.sources(plan)
                     ]
                 )
+            elif paused:
+                writer.add_sources(paused)
         path = writer.result.path if writer.result is not None else plan.path
         if writer.result is not None and (lost := lost_samples(writer.result.sources)):
             self.report.lost_samples[path] = lost
@@ -559,8 +707,7 @@ class _Session:
             self.report.incomplete.append(path)
         else:
             self.report.written.append(path)
-        if self.on_written is not None:
-            self.on_written(path)
+        return path
 
 
 @dataclass(frozen=True, slots=True)
@@ -766,6 +913,24 @@ def _stream(
         session.finish_one()
 
 
+def _distinct(identities: Sequence[BagIdentity]) -> list[BagIdentity]:
+    """Return the bags, each given once.
+
+    Raises:
+        BagImportError: Two of them hold the same content (a bag and its copy): its
+            messages would be read twice.
+    """
+    first: dict[str, Path] = {}
+    for bag in identities:
+        if (other := first.setdefault(bag.sha256, bag.path)) is not bag.path:
+            msg = (
+                f"{other} and {bag.path} are the same bag (same content); give each bag of "
+                "the session once"
+            )
+            raise BagImportError(msg)
+    return list(identities)
+
+
 def _already(identities: Sequence[BagIdentity], out: Path) -> dict[str, str]:
     """Return bag name -> report file for bags imported before; refuse a partial overlap.
 
@@ -790,13 +955,12 @@ def _run(
     report: ImportReport,
     out: Path,
     *,
-    objects: Mapping[str, ObjectSpec],
-    actions: Mapping[str, ActionSpec],
+    catalogs: tuple[Mapping[str, ObjectSpec], Mapping[str, ActionSpec]],
     on_written: Callable[[Path], Any] | None,
     on_progress: Callable[[str, int], Any] | None,
     on_start: Callable[[str, int], Any] | None,
 ) -> list[_Plan]:
-    """Read the windows, then stream the bags into recordings."""
+    """Read the windows, then stream the bags into recordings (none if every one is written)."""
     found = extractors(topic_map)
     with open_reader(bags, topic_map) as reader:
         connections = check_connections(reader, required_types(topic_map))
@@ -805,11 +969,24 @@ def _run(
         if not windows:
             msg = f"{bags[0]}: no action windows found; check the [windows] of {topic_map.path}"
             raise BagImportError(msg)
-        plans = _plans(windows, topic_map, out, objects, actions)
-        session = _Session(plans, topic_map, found, report.bags, report, on_written)
+        plans = _plans(windows, topic_map, out, *catalogs, earlier=report.imported)
+        skip = {out / path for path in report.imported.values()}
+        if report.complete and all(p.path in skip for p in plans):
+            return []  # an import that finished holds every window: nothing to add
+        report.complete = False
+        session = _Session(plans, topic_map, found, report.bags, report, on_written, skip=skip)
+        session.progress = lambda plan, path: _progress(report, plan, path)
         _stream(reader, connections, session, on_progress, on_start)
     tally(found, report)
     return plans
+
+
+def _progress(report: ImportReport, plan: _Plan, path: Path) -> None:
+    """Note a published recording in ``<out>/imports/<id>.json`` (atomically): a rerun skips it."""
+    window = plan.window
+    key = window_key(window.object_id, window.action_id, window.events)
+    report.imported[key] = path.relative_to(report.out).as_posix()
+    report.save(replace=True)
 
 
 def tally(found: Mapping[str, Extractor], report: ImportReport) -> None:
@@ -818,6 +995,8 @@ def tally(found: Mapping[str, Extractor], report: ImportReport) -> None:
         if repeated := [e.repeated for e in found.values() if isinstance(e, kind)]:
             report.dropped_samples[name] = report.dropped_samples.get(name, 0) + sum(repeated)
     for extractor in found.values():
+        if isinstance(extractor, JointTopic) and extractor.malformed:
+            report.malformed[extractor.topic] = extractor.malformed
         if isinstance(extractor, SkinTopic):
             for spec in extractor.fields:
                 report.dropped_rows[spec.modality] = report.dropped_rows.get(spec.modality, 0)
@@ -839,8 +1018,16 @@ def import_bag(
     on_written: Callable[[Path], Any] | None = None,
     on_progress: Callable[[str, int], Any] | None = None,
     on_start: Callable[[str, int], Any] | None = None,
+    on_set_aside: Callable[[Path], Any] | None = None,
 ) -> ImportReport:
     """Import a session's bags: one recording per action window, then objects and index.
+
+    The import resumes: each recording is noted in ``<out>/imports/<id>.json`` as soon as it
+    is published (Ctrl-C waits for that), and a rerun with the same bags skips the windows
+    noted there and writes the rest, as an uninterrupted import would have (same trials,
+    same bytes); a rerun with other windows (a corrected table) adds the new ones, numbered
+    on. An unfinished file of a killed import is set aside (``<out>/.incomplete/``), never
+    deleted.
 
     Args:
         bag: A ROS 1 ``.bag`` file or a ROS 2 bag directory, or several (one session).
@@ -851,21 +1038,28 @@ def import_bag(
         on_written: Called with every recording written.
         on_progress: Called with (bag name, messages read so far) now and then.
         on_start: Called with (bag name, messages of the mapped topics) before reading.
+        on_set_aside: Called with each unfinished file of a stopped recorder set aside.
 
     Returns:
-        What was written and skipped, and the alignment figures. Bags imported into ``out``
-        before add nothing (``already_imported`` names them).
+        What was written and skipped, and the alignment figures. Bags whose every window is
+        in ``out`` already add nothing (``already_imported`` names them).
 
     Raises:
-        BagImportError: A bag, the map or a window is wrong; nothing is kept.
+        BagImportError: A bag, the map or a window is wrong; what this run wrote is removed
+            again (what earlier runs wrote stays).
     """
     bags = [Path(bag)] if isinstance(bag, str | Path) else [Path(b) for b in bag]
     out = Path(out)
-    identities = [bag_identity(b) for b in bags]
+    identities = _distinct([bag_identity(b) for b in bags])
     report = ImportReport(identities, out, topic_map.path)
-    report.already_imported = _already(identities, out)
-    if report.already_imported:
+    seen = _already(identities, out)
+    report.imported, report.complete = earlier_import(report.report_path)
+    if seen and not report.imported:  # a report of an older version: its windows unlisted
+        report.already_imported = seen
         return report
+    for moved in set_aside_stale_parts(out) if out.is_dir() else ():
+        if on_set_aside is not None:
+            on_set_aside(moved)
     plans: list[_Plan] = []
     try:
         plans = _run(
@@ -873,26 +1067,29 @@ def import_bag(
             topic_map,
             report,
             out,
-            objects=objects,
-            actions=actions,
+            catalogs=(objects, actions),
             on_written=on_written,
             on_progress=on_progress,
             on_start=on_start,
         )
     except READ_ERRORS as err:
-        _remove(report.written)
+        _undo(report)
         fix = "; check the path and the [types] of the map"
         raise BagImportError(unreadable(bags[:1], err, fix)) from err
     except RecorderError:
-        _remove(report.written)
+        _undo(report)
         raise
+    if not plans:
+        report.already_imported = seen
+        return report
     if not report.written:
         reasons = "; ".join(f"{w}: {r}" for w, r in report.skipped[:2])
         msg = f"{bags[0]}: no recording written ({reasons}); check the topic map and the windows"
         raise BagImportError(msg)
     declare_objects(out, [_object_spec(p.obj) for p in plans if p.path in report.written])
     report.index = write_index(out)
-    report.save()
+    report.complete = True
+    report.save(replace=True)
     return report
 
 
@@ -901,7 +1098,21 @@ def _object_spec(obj: LabObject) -> ObjectSpec:
     return ObjectSpec(id=obj.id, name=obj.name, description=obj.description, novel=obj.novel)
 
 
-def _remove(paths: Sequence[Path]) -> None:
-    """Remove the recordings an import wrote before it failed (all or nothing)."""
-    for path in paths:
+def _undo(report: ImportReport) -> None:
+    """Remove what this run wrote before it failed, and its notes; earlier runs' stay.
+
+    Raises:
+        BagImportError: The progress cannot be written back.
+    """
+    resumed = set(report.resumed)
+    mine = [path for path in report.written if path not in resumed]
+    for path in mine:
         path.unlink(missing_ok=True)
+    if not mine:
+        return
+    gone = {path.relative_to(report.out).as_posix() for path in mine}
+    report.imported = {k: v for k, v in report.imported.items() if v not in gone}
+    if report.imported:
+        report.save(replace=True)
+    else:
+        report.report_path.unlink(missing_ok=True)

@@ -81,6 +81,36 @@ def imported_bags(out: Path) -> dict[str, str]:
     return found
 
 
+def window_key(object_id: str, action_id: str, events: Sequence[tuple[str, int]]) -> str:
+    """Return a window's identity in an import report: object, action and phase stamps.
+
+    The trial is not part of it: the same window in a corrected table (a trial number added
+    or removed) is the same action, imported once.
+    """
+    return f"{object_id}/{action_id} " + " ".join(f"{phase}@{stamp}" for phase, stamp in events)
+
+
+def earlier_import(path: Path) -> tuple[dict[str, str], bool]:
+    """Return the windows an earlier import of the same bags wrote, and whether it finished.
+
+    Returns:
+        (window key -> recording relative to ``out``, finished); ``({}, True)`` when there
+        is no report (a report of an older version lists no windows: finished).
+
+    Raises:
+        BagImportError: The report is not one.
+    """
+    try:
+        data = json.loads(path.read_text("utf-8"))
+        imported = {str(k): str(v) for k, v in dict(data.get("imported", {})).items()}
+        return imported, bool(data.get("complete", True))
+    except FileNotFoundError:
+        return {}, True
+    except (OSError, ValueError, TypeError, AttributeError) as err:
+        msg = f"{path}: not an import report ({err}); restore or delete it"
+        raise BagImportError(msg) from err
+
+
 @dataclass(slots=True)
 class ImportReport:
     """What an import did.
@@ -115,6 +145,15 @@ class ImportReport:
             and resets.
         lost_samples: Live: per recording whose sources lost samples (``check`` fails it),
             what they lost (e.g. ``/skin/force_1: 3 of 500 missing``).
+        imported: Every window of these bags in ``out`` (:func:`window_key` -> its recording,
+            relative to ``out``), this run's and earlier runs': a rerun skips them.
+        resumed: The recordings of :attr:`written` that an earlier, stopped run wrote.
+        complete: False while the import runs (the report is its progress so far).
+        gaps: Pauses of the skin inside the windows written, per modality (a step between
+            stamps longer than ``listen`` allows: without a counter, loss or a pause).
+        gap_ns: Their total length beyond one period each, per modality.
+        malformed: Messages per topic not kept because they are malformed (a joint state
+            whose velocities or efforts number other than its names).
     """
 
     bags: Sequence[BagIdentity]
@@ -138,6 +177,12 @@ class ImportReport:
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     counted: dict[str, dict[str, int]] = field(default_factory=dict)
     lost_samples: dict[Path, str] = field(default_factory=dict)
+    imported: dict[str, str] = field(default_factory=dict)
+    resumed: list[Path] = field(default_factory=list)
+    complete: bool = True
+    malformed: dict[str, int] = field(default_factory=dict)
+    gaps: dict[str, int] = field(default_factory=dict)
+    gap_ns: dict[str, int] = field(default_factory=dict)
 
     @property
     def bag(self) -> Path:
@@ -177,20 +222,34 @@ class ImportReport:
                 if self.lost_samples
                 else {}
             ),
+            **({"imported": self.imported} if self.imported else {}),
+            **({"malformed": self.malformed} if self.malformed else {}),
+            **({"gaps": self.gaps, "gap_ns": self.gap_ns} if self.gaps else {}),
+            **({} if self.complete else {"complete": False}),
         }
 
-    def save(self) -> Path:
-        """Write the report to ``<out>/imports/<hash>.json`` (never replacing one).
+    @property
+    def report_path(self) -> Path:
+        """Return where the report goes: ``<out>/imports/<hash of the bags' hashes>.json``."""
+        combined = hashlib.sha256("".join(b.sha256 for b in self.bags).encode()).hexdigest()
+        return self.out / IMPORTS_DIR / f"{combined[:16]}.json"
+
+    def save(self, *, replace: bool = False) -> Path:
+        """Write the report to :attr:`report_path` atomically.
+
+        Args:
+            replace: Replace a report there (an import's progress, or the report of an
+                earlier import of the same bags that this one continues); otherwise an
+                existing report is never replaced.
 
         Raises:
             BagImportError: The file cannot be written.
         """
-        combined = hashlib.sha256("".join(b.sha256 for b in self.bags).encode()).hexdigest()
-        path = self.out / IMPORTS_DIR / f"{combined[:16]}.json"
+        path = self.report_path
         text = json.dumps(self.to_json(), indent=2, sort_keys=True) + "\n"
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, text, replace=False)
+            atomic_write_text(path, text, replace=replace)
         except OSError as err:
             msg = f"{path}: cannot write the import report ({err.strerror}); check --out"
             raise BagImportError(msg) from err

@@ -434,20 +434,30 @@ class SkinTopic:
 
 @dataclass(slots=True)
 class JointTopic:
-    """The joint-state topic: positions, velocities and efforts picked by name, buffered."""
+    """The joint-state topic: positions, velocities and efforts picked by name, buffered.
+
+    A message with empty velocities or efforts keeps NaN for them (nothing measured); a
+    window whose messages all lack a quantity records it as zeros, named "not recorded" in
+    its file (:meth:`not_recorded`), and in a window where only some lack it those samples
+    are dropped and counted, never filled. A message whose velocities or efforts number other
+    than its names is malformed: counted (:attr:`malformed`) and not kept.
+    """
 
     topic: str
     wanted: tuple[str, ...]
     scale: float
     names: tuple[str, ...] = ()
+    #: The quantities the window cut last does not hold (its recording says "not recorded").
     missing: set[str] = field(default_factory=set)
+    #: Messages not kept: velocities or efforts of another count than the names.
+    malformed: int = 0
     buffer: _Buffer = field(init=False)
     rows: list[list[Any]] = field(default_factory=lambda: [[], [], []])
     skipped: int = 0
     _index: dict[tuple[str, ...], NDArray[np.intp] | None] = field(default_factory=dict)
     _last: list[str] = field(default_factory=list)
     _last_index: NDArray[np.intp] | None = None
-    _zeros: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    _nans: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     #: Dtypes of a decoder's (names, position, velocity, effort), for :meth:`push_fields`.
     dtypes: tuple[Any, ...] = ()
 
@@ -477,7 +487,7 @@ class JointTopic:
         return self._index[names]
 
     def push(self, message: Any, stamp: int, receive_ns: int) -> None:  # noqa: ANN401
-        """Keep one joint sample (empty velocities or efforts: zeros, noted).
+        """Keep one joint sample (empty velocities or efforts: NaN, see the class).
 
         Raises:
             BagImportError: A message lacks positions or its stamp goes back.
@@ -525,7 +535,7 @@ class JointTopic:
         """
         if names != self._last:
             self._last_index = self._pick(tuple(names))
-            self._last, self._zeros = list(names), np.zeros(len(names))
+            self._last, self._nans = list(names), np.full(len(names), np.nan)
         index = self._last_index
         if index is None:  # another part of the robot on the same topic (a gripper)
             self.skipped += 1
@@ -535,10 +545,12 @@ class JointTopic:
         if len(values[0]) != count:
             msg = f"topic {self.topic}: a message at {stamp} ns has no joint positions"
             raise BagImportError(msg)
-        for k, quantity in ((1, "velocity"), (2, "effort")):
-            if len(values[k]) != count:
-                self.missing.add(quantity)
-                values[k] = self._zeros
+        for k in (1, 2):
+            if len(values[k]) == 0:  # not measured: NaN until a window decides
+                values[k] = self._nans
+            elif len(values[k]) != count:  # a value per joint, or none: never made up
+                self.malformed += 1
+                return
         if self.buffer.accept(stamp, receive_ns):
             for rows, array in zip(self.rows, values, strict=True):
                 rows.append(array[index])
@@ -554,6 +566,22 @@ class JointTopic:
         stamps = np.asarray(self.buffer.stamps[first:last], dtype=np.int64)
         receives = np.asarray(self.buffer.receives[first:last], dtype=np.int64)
         return Series(stamps, receives, np.concatenate(columns, axis=1))
+
+    def not_recorded(self, series: Series) -> Series:
+        """Return a window's samples with the quantities none of them holds as zeros.
+
+        Sets :attr:`missing` to those quantities (the window's recording names them). A
+        quantity some samples hold stays NaN where it is missing: those samples are dropped.
+        """
+        self.missing = set()
+        n = len(self.names)
+        values = series.values.copy()
+        for k, quantity in ((1, "velocity"), (2, "effort")):
+            block = values[:, k * n : (k + 1) * n]
+            if block.size and bool(np.isnan(block).all()):
+                block[:] = 0.0
+                self.missing.add(quantity)
+        return Series(series.stamps, series.receives, values)
 
     def forget(self, before: int) -> None:
         """Drop the samples before ``before``."""
@@ -797,6 +825,15 @@ def check_fields(reader: AnyReader, connections: Sequence[Connection], topic_map
     """
     store = reader.typestore
     types = {c.topic: c.msgtype for c in connections}
+    for topic, msgtype in types.items():
+        if msgtype not in store.fielddefs:  # a bag without definitions (ROS 2 Humble)
+            package, _, name = msgtype.rpartition("/")
+            msg = (
+                f"topic {topic} carries {msgtype}, whose definition the bag does not store and "
+                f'the topic map does not give; add [types] "{msgtype}" = """<the text of '
+                f'{package.split("/")[0]}/msg/{name}.msg>""" to {topic_map.path}'
+            )
+            raise BagImportError(msg)
     for topic, extractor in extractors(topic_map).items():
         msgtype = types[topic]
         for spec in getattr(extractor, "fields", ()):
@@ -894,8 +931,9 @@ def bag_topics(bags: Sequence[Path]) -> list[tuple[str, str, int]]:
         BagImportError: A bag cannot be read.
     """
     _bounded.install()
-    try:
-        with AnyReader([Path(b) for b in bags]) as reader:
+    try:  # a ROS 2 Humble bag stores no definitions: the standard ones are Humble's
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        with AnyReader([Path(b) for b in bags], default_typestore=store) as reader:
             return [(c.topic, c.msgtype, c.msgcount) for c in reader.connections]
     except READ_ERRORS as err:
         raise BagImportError(unreadable(bags, err, "")) from err

@@ -298,8 +298,18 @@ def _csv_rows(path: Path) -> list[dict[str, str | None]]:
         if path.stat().st_size > MAX_CSV_BYTES:
             msg = f"{path}: larger than {MAX_CSV_BYTES >> 20} MB; a windows CSV lists actions"
             raise BagImportError(msg)
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
+        # utf-8-sig: a table saved by Excel starts with a byte order mark, not part of "start";
+        # names and values are stripped: "start, stop, object" is what a person types
+        with path.open(newline="", encoding="utf-8-sig") as handle:
+            rows = [
+                {
+                    key.strip() if isinstance(key, str) else key: (
+                        value.strip() if isinstance(value, str) else value
+                    )
+                    for key, value in row.items()
+                }
+                for row in csv.DictReader(handle)
+            ]
     except OSError as err:
         msg = f"{path}: cannot read the windows ({err.strerror}); check the [windows] csv path"
         raise BagImportError(msg) from err
