@@ -9,7 +9,7 @@ import sqlite3
 from typing import TYPE_CHECKING
 
 import pytest
-from labbags import PROBE_MAP, Session, probe_messages, write_bag
+from labbags import PROBE_MAP, Session, header, probe_messages, write_bag
 
 from recorder._cli import main as record
 
@@ -117,3 +117,29 @@ def test_a_humble_bag_without_definitions_lists_topics_and_names_the_missing_typ
     assert err.count("\n") == 1
     assert "topic /probe carries probe_msgs/msg/Probe, whose definition the bag does not" in err
     assert '[types] "probe_msgs/msg/Probe"' in err
+
+
+def test_a_driver_that_never_stamps_its_messages_is_named_with_the_way_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    messages, store = probe_messages(ros1=True, session=SMALL)
+    unstamped = [
+        (receive, topic, msgtype, type(m)(header=header(store, 0, ros1=True), **_payload(m)))
+        if topic == "/probe"
+        else (receive, topic, msgtype, m)
+        for receive, topic, msgtype, m in messages
+    ]
+    bag = write_bag(tmp_path / "probe.bag", "ros1", unstamped, store)
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    argv = ["import-bag", str(bag), "--topic-map", str(map_path), "--out", str(tmp_path / "o")]
+    assert record(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "stamps of /probe are all 0" in err, err
+    assert 'set [time] stamps = "log" in map.toml' in err, err
+
+
+def _payload(message: object) -> dict[str, object]:
+    """Return a probe message's fields other than its header."""
+    return {"force": message.force, "temperatures": message.temperatures}  # type: ignore[attr-defined]
