@@ -160,7 +160,9 @@ def _action(args: argparse.Namespace) -> int:
         written = record_action(rig, task.obj, task.action, args.trial, path, seed=args.seed)
     seconds = (written.end_ns - written.start_ns) / 1e9
     Console().print(
-        f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB", markup=False
+        f"{written.path}  {seconds:.1f} s  {written.size_bytes / 1e6:.2f} MB",
+        markup=False,
+        soft_wrap=True,
     )
     return 0
 
@@ -187,13 +189,15 @@ def _report(console: Console, report: DatasetReport) -> None:
         console.print(
             f"[yellow]{len(report.set_aside)} unfinished recordings of stopped recorders moved "
             f"to {escape(str(report.root / SET_ASIDE_DIR))} (salvage one with 'atikt-replay "
-            "check FILE --recover'); their trials were recorded again"
+            "check FILE --recover'); their trials were recorded again",
+            soft_wrap=True,
         )
     if report.incomplete:
         console.print(
             f"[yellow]{len(report.incomplete)} unfinished recordings (*.mcap.part) from "
             "interrupted runs; salvage one with 'atikt-replay check FILE --recover', or "
-            "delete them when no recorder is running (the run records those trials again)"
+            "delete them when no recorder is running (the run records those trials again)",
+            soft_wrap=True,
         )
 
 
@@ -237,7 +241,7 @@ def _dataset(args: argparse.Namespace) -> int:
             workers=cli.worker_count(args.workers),
             on_result=advance,
         )
-    _report(Console(), report)
+    _report(cli.output_console(), report)  # into a pipe or a file: the table uncut
     return 0
 
 
@@ -258,11 +262,12 @@ def _index(args: argparse.Namespace) -> int:
         raise RecorderError(msg)
     path = write_index(args.dir)
     console = Console()
-    console.print(str(path), markup=False)
+    console.print(str(path), markup=False, soft_wrap=True)
     if leftovers := incomplete_files(args.dir):
         console.print(
             f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part) ignored; "
-            "salvage one with 'atikt-replay check FILE --recover'"
+            "salvage one with 'atikt-replay check FILE --recover'",
+            soft_wrap=True,
         )
     return 0
 

@@ -57,6 +57,7 @@ from schemas import (
     part_writer,
     process_running,
     recording_into,
+    unreadable,
 )
 from schemas import recording_path as schemas_recording_path
 
@@ -405,8 +406,7 @@ def _metadata_of(path: Path) -> RecordingMetadata:
             records = {r.name: r.metadata for r in make_reader(stream).iter_metadata()}
         return parse_metadata(records[METADATA_NAME])
     except OSError as err:
-        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
-        raise RecorderError(msg) from err
+        raise RecorderError(unreadable(path, err)) from err
     except (McapError, ContractError, KeyError, ValueError, EOFError, struct.error) as err:
         msg = f"{path}: not a readable recording ({err}); check it with 'atikt-replay check'"
         raise RecorderError(msg) from err
@@ -546,8 +546,7 @@ def index_row(root: Path, path: Path) -> dict[str, Any]:
         data = path.read_bytes()
         row = _summary_row(path, data)
     except OSError as err:
-        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
-        raise RecorderError(msg) from err
+        raise RecorderError(unreadable(path, err)) from err
     except (McapError, ValueError, KeyError, EOFError, struct.error) as err:
         msg = f"{path}: not a readable recording ({err}); delete it and record it again"
         raise RecorderError(msg) from err

@@ -25,6 +25,7 @@ from schemas._layout import (
     SET_ASIDE_DIR,
     check_inside,
     dataset_recordings,
+    enclosing_dataset,
     is_incomplete,
     is_recording,
     part_writer,
@@ -32,6 +33,7 @@ from schemas._layout import (
     recorder_at_work,
     recording_into,
     recording_path,
+    unreadable,
 )
 from schemas._metadata import (
     MAX_CELLS,
@@ -124,6 +126,7 @@ __all__ = [
     "cli",
     "create_exclusive",
     "dataset_recordings",
+    "enclosing_dataset",
     "encode_source_stats",
     "full_type_name",
     "is_incomplete",
@@ -145,4 +148,5 @@ __all__ = [
     "rows_allowed",
     "software_version",
     "temporary_name",
+    "unreadable",
 ]

@@ -179,6 +179,23 @@ class Registry:
         return register
 
 
+#: Console width when the output is not a terminal: wide enough for any table, uncut.
+FILE_WIDTH = 10_000
+
+
+def output_console(*, stderr: bool = False) -> rich.console.Console:
+    """Return a console for tables: the terminal's width, or unlimited when not a terminal.
+
+    rich fits tables to the console, 80 columns when the output is a file or a pipe, and cuts
+    cells with an ellipsis; a table written to a file is read whole, so it keeps every column
+    at its full width there. Used by ``atikt-replay`` and ``atikt-record`` alike.
+    """
+    console = rich.console.Console(stderr=stderr)
+    if console.is_terminal:
+        return console
+    return rich.console.Console(stderr=stderr, width=FILE_WIDTH)
+
+
 def one_line(text: str) -> str:
     """Return ``text`` on one line (an error message printed by a command line)."""
     return " ".join(text.split())
@@ -894,6 +911,7 @@ def publish_file(target: Path, *, force: bool, option: str = "--out") -> Iterato
 
 __all__ = [
     "ENDING_SIGNALS",
+    "FILE_WIDTH",
     "HUNG_UP_STATUS",
     "INTERRUPTED_STATUS",
     "PROGRESS_INTERVAL_S",
@@ -914,6 +932,7 @@ __all__ = [
     "handled_signals",
     "numbered_directory",
     "one_line",
+    "output_console",
     "progress",
     "progress_line",
     "publish_directory",

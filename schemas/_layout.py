@@ -119,6 +119,31 @@ def _open_claim(root: Path) -> int | None:
         return None
 
 
+def unreadable(
+    path: Path, err: OSError, fix: str = "check the file's permissions", what: str = ""
+) -> str:
+    """Return why ``path`` cannot be read, one line naming the fix (``err``: what reading raised).
+
+    A symbolic link whose target is gone (a dataset copied without the files its links point
+    to) names the link and the missing target: "check the file's permissions" would send the
+    user looking at a file that does not exist.
+
+    Args:
+        path: The file that could not be read.
+        err: The error opening or reading it raised.
+        fix: The fix for any other error.
+        what: What could not be read, in the message (``the recording``; default: nothing).
+    """
+    path = Path(path)
+    if path.is_symlink() and not path.exists():
+        target = path.parent / path.readlink()
+        return (
+            f"{path}: a symbolic link to {target}, which does not exist: remove the link or "
+            f"restore {target}"
+        )
+    return f"{path}: cannot read{f' {what}' if what else ''} ({err.strerror or err}); {fix}"
+
+
 def is_incomplete(path: Path) -> bool:
     """Return whether ``path`` names a recording that a stop ended early."""
     return _INCOMPLETE.search(Path(path).name) is not None
@@ -148,6 +173,30 @@ def dataset_recordings(root: Path) -> list[Path]:
         for p in root.rglob(f"*{RECORDING_SUFFIX}")
         if is_recording(p) and not any(d.startswith(".") for d in p.relative_to(root).parts[:-1])
     )
+
+
+#: Files that mark a dataset directory: its index (``atikt-record index``), its claim and its
+#: object declarations.
+DATASET_MARKERS = ("index.parquet", CLAIM_NAME, "objects.toml")
+
+
+def enclosing_dataset(path: Path, said: tuple[str, str] | None = None) -> Path | None:
+    """Return the dataset directory holding the recording ``path`` (None: it lies in none).
+
+    A recording of a dataset lies at ``<root>/<object>/<action>/<trial>.mcap``: ``<root>`` is
+    its dataset when it holds one of :data:`DATASET_MARKERS`, or when the two directories
+    above the file are the object and action its metadata says (``said``; a file two levels
+    below some directory is not a dataset's for its depth alone). Outputs (``view --save``,
+    ``export --out``) must not be written into it. Links are resolved first.
+    """
+    full = Path(path).resolve()
+    if len(full.parents) < 3:  # noqa: PLR2004 (<root>/<object>/<action>/<trial>.mcap)
+        return None
+    root = full.parents[2]
+    if any((root / marker).exists() for marker in DATASET_MARKERS):
+        return root
+    laid_out = said is not None and (full.parents[1].name, full.parent.name) == tuple(said)
+    return root if laid_out else None
 
 
 def check_inside(root: Path, path: Path) -> Path:

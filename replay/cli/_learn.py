@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
@@ -42,7 +43,12 @@ from replay.studies._fusion_prior import (
     load_hyperparameters,
 )
 from replay.studies._registry import STUDIES
-from replay.studies._running import StudyConfig, dataset_actions, prior_groups
+from replay.studies._running import (
+    StudyConfig,
+    StudyDoesNotApplyError,
+    dataset_actions,
+    prior_groups,
+)
 from schemas import atomic_write, atomic_write_text, cli, dataset_recordings
 
 if TYPE_CHECKING:
@@ -117,7 +123,9 @@ def _features(root: Path, workers: int) -> FeatureTable:
     if table.discarded:
         _CONSOLE.print(f"[yellow]{escape(table.discarded)}", highlight=False, soft_wrap=True)
     for path, reason in table.quarantined.iter_rows():
-        _CONSOLE.print(f"[yellow]quarantined[/] {escape(f'{path}: {reason}')}", highlight=False)
+        _CONSOLE.print(
+            f"[yellow]quarantined[/] {escape(f'{path}: {reason}')}", highlight=False, soft_wrap=True
+        )
     return table
 
 
@@ -715,30 +723,36 @@ def _study_command(args: argparse.Namespace) -> int:
     other = None
     if args.prior_recordings is not None:
         other = _features(_dataset(args.prior_recordings, workers), workers).frame
+    base = StudyConfig(
+        out=Path(),  # each study's own, below
+        seed=args.seed,
+        workers=workers,
+        scheduler=args.scheduler,
+        learner=learner,
+        new=roles.new,
+        old=roles.old,
+        actions=tuple(actions),
+        features=args.features,
+        fusion_prior=args.fusion_prior,
+        action_parameters=action_parameter_names(table.root, table.frame),
+        fusion_kernel=args.fusion_kernel,
+        fusion_parts=parts,
+        prior_frame=other,
+        prior_actions=tuple((args.prior_actions or {}).items()),
+    )
+    base = base.quick() if args.quick else base
+    if args.name == "all":  # decided before any study runs
+        targets = _studies_to_run(args, targets, table.frame, base)
     for name, target in targets.items():
         with cli.publish_directory(target, force=args.force) as out:
-            config = StudyConfig(
-                out=out,
-                seed=args.seed,
-                workers=workers,
-                scheduler=args.scheduler,
-                learner=learner,
-                new=roles.new,
-                old=roles.old,
-                actions=tuple(actions),
-                features=args.features,
-                fusion_prior=args.fusion_prior,
-                action_parameters=action_parameter_names(table.root, table.frame),
-                fusion_kernel=args.fusion_kernel,
-                fusion_parts=parts,
-                prior_frame=other,
-                prior_actions=tuple((args.prior_actions or {}).items()),
-            )
-            config = config.quick() if args.quick else config
             bar, update = _progress(f"study {name}", "tasks")
             with bar:
                 output = run_study(
-                    name, table.frame, config, quarantined=table.quarantined, on_progress=update
+                    name,
+                    table.frame,
+                    dataclasses.replace(base, out=out),
+                    quarantined=table.quarantined,
+                    on_progress=update,
                 )
         print(output.text)  # noqa: T201 (the command's output)
         paths = (target / p.name for p in (output.results, output.plot, output.summary))
@@ -746,8 +760,69 @@ def _study_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _studies_to_run(
+    args: argparse.Namespace, targets: dict[str, Path], frame: pl.DataFrame, base: StudyConfig
+) -> dict[str, Path]:
+    """Return the studies ``study all`` runs: those that apply and are not finished yet.
+
+    A study the dataset does not fit (a one-action dataset has no cross-action pair) is
+    skipped with its line; one already finished in ``--out`` with the same settings (its
+    ``study.json``) is kept as it is, so that ``study all`` run again resumes where it
+    stopped. A finished study of other settings is refused (``--force`` replaces it).
+
+    Raises:
+        ReplayError: A finished study in ``--out`` has other settings (without ``--force``).
+    """
+    from replay.outputs._study_report import study_options  # noqa: PLC0415 (matplotlib on use)
+
+    chosen = {}
+    for name, target in targets.items():
+        study = STUDIES[name]
+        config = dataclasses.replace(base, out=target)
+        try:
+            _ = study.tasks(frame, config)
+        except StudyDoesNotApplyError as err:
+            _CONSOLE.print(
+                f"[yellow]skipped[/] {escape(cli.one_line(str(err)))}",
+                highlight=False,
+                soft_wrap=True,
+            )
+            continue
+        if target.exists() and not args.force:
+            if _finished_alike(target, study_options(study, config)):
+                _CONSOLE.print(
+                    f"study {escape(name)}: finished before with the same settings in "
+                    f"{escape(str(target))}; kept",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+                continue
+            msg = (
+                f"--out {target}: holds a {name} study of other settings (its study.json); "
+                "give another --out, or --force to replace it"
+            )
+            raise ReplayError(msg)
+        chosen[name] = target
+    return chosen
+
+
+def _finished_alike(target: Path, options: dict[str, Any]) -> bool:
+    """Return whether ``target`` holds a finished study of these options (its ``study.json``)."""
+    from replay.outputs._study_report import OPTIONS  # noqa: PLC0415 (matplotlib on use)
+
+    try:
+        saved = json.loads((target / OPTIONS).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return bool(saved == json.loads(json.dumps(options)))
+
+
 def _study_output(args: argparse.Namespace, name: str) -> Path:
     """Return a study's output directory (``--out``, ``--out/<name>`` for all, or numbered)."""
+    from replay.outputs._study_report import OPTIONS  # noqa: PLC0415 (matplotlib on use)
+
     if args.out is None:
         return cli.numbered_directory(Path("studies") / name)
+    if args.name == "all" and (Path(args.out) / name / OPTIONS).is_file():
+        return Path(args.out) / name  # a finished study: kept when its settings are this run's
     return _output(args.out / name if args.name == "all" else args.out, args.out, force=args.force)

@@ -17,8 +17,10 @@ traceback.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import importlib
 import json
+import os
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -38,10 +40,17 @@ from rich.progress import (
 from rich.table import Table
 
 from replay.errors import RecordingError, ReplayError
-from replay.recording._checks import check_gaps, index_problems, pauses_explained
+from replay.recording._checks import (
+    check_gaps,
+    dataset_root,
+    index_problems,
+    index_row_problem,
+    pauses_explained,
+    read_index,
+)
 from replay.recording._container import read_summary, recover_command
 from replay.recording._reader import (
-    check_dataset_location,
+    location_facts,
     parse_metadata,
     parse_sources,
     read_recording,
@@ -61,6 +70,7 @@ from schemas import (
     process_running,
     recorder_at_work,
     software_version,
+    unreadable,
 )
 
 if TYPE_CHECKING:
@@ -76,8 +86,6 @@ PROG = "atikt-replay"
 #: Modules whose import registers further subcommands (``learn``, ``study``, ...).
 COMMAND_MODULES: tuple[str, ...] = ("replay.cli._learn", "replay.cli._view")
 _NS_PER_S = 1e9
-#: Console width when the output is not a terminal: wide enough for any table, uncut.
-_FILE_WIDTH = 10_000
 
 
 REGISTRY = cli.Registry()
@@ -96,6 +104,9 @@ def _existing(path: Path) -> Path:
     Raises:
         ReplayError: It does not.
     """
+    if path.is_symlink() and not path.exists():  # a link whose target is gone: name it
+        missing = FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT))
+        raise ReplayError(unreadable(path, missing))
     if not path.exists():
         msg = f"{path}: no such file or directory; give a recording (.mcap) or a dataset directory"
         raise ReplayError(msg)
@@ -111,17 +122,7 @@ def _seconds(ns: int) -> str:
     return f"{ns / _NS_PER_S:.3f} s"
 
 
-def output_console(*, stderr: bool = False) -> Console:
-    """Return a console for tables: the terminal's width, or unlimited when not a terminal.
-
-    rich fits tables to the console, 80 columns when the output is a file or a pipe, and cuts
-    cells with an ellipsis; a table written to a file is read whole, so it keeps every column
-    at its full width there.
-    """
-    console = Console(stderr=stderr)
-    if console.is_terminal:
-        return console
-    return Console(stderr=stderr, width=_FILE_WIDTH)
+output_console = cli.output_console  # tables full width into a file or a pipe
 
 
 def _print_json(value: object) -> None:
@@ -194,7 +195,11 @@ def _print_incomplete(console: Console, path: Path) -> None:
     summary, rows = _incomplete_channels(path)
     console.print(_about(path, parse_metadata(path, summary.metadata)))
     reason = stopped_reason(summary.metadata) or "unknown"
-    console.print(f"[yellow]incomplete: the action was stopped ({escape(reason)})", highlight=False)
+    console.print(
+        f"[yellow]incomplete: the action was stopped ({escape(reason)})",
+        highlight=False,
+        soft_wrap=True,
+    )
     channels = Table("channel", "messages", title="channels")
     for topic, count in rows:
         channels.add_row(escape(topic), str(count))
@@ -323,10 +328,13 @@ def _print_dataset(console: Console, root: Path) -> None:
     hours = int(frame["duration_ns"].sum()) / _NS_PER_S / 3600
     console.print(
         f"{frame.height} recordings, {int(frame['size'].sum()) / 1e6:.1f} MB, "
-        f"{hours:.2f} h of recorded time"
+        f"{hours:.2f} h of recorded time",
+        soft_wrap=True,
     )
     if leftovers := sorted(root.rglob("*.mcap.part")):
-        console.print(f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)")
+        console.print(
+            f"[yellow]{len(leftovers)} unfinished recordings (*.mcap.part)", soft_wrap=True
+        )
     from replay.learning._cachedir import feature_cache_path  # noqa: PLC0415 (info on datasets)
 
     console.print(
@@ -436,14 +444,60 @@ def _info_one(path: Path, console: Console | None) -> None:
         _print_recording(console, read_recording(path))
 
 
-def _check_one(path: Path) -> tuple[str | None, str | None, int | None]:
-    """Return (the error or None, a warning or None, the recording's seed or None)."""
+def _check_one(path: Path) -> tuple[str | None, str | None, dict[str, Any] | None]:
+    """Return (the error or None, a warning or None, what the index row of the file holds).
+
+    The third is None when the file cannot be read; the index itself is compared in the
+    command's process (:func:`_against_index`), which reads it once.
+    """
     try:
         recording = read_recording(path)
-        check_dataset_location(recording)
+        facts = location_facts(recording)
     except ReplayError as err:
         return one_line(str(err)), None, None
-    return (*_accounting_verdict(recording), recording.metadata.seed)
+    return (*_accounting_verdict(recording), facts)
+
+
+def _against_index(
+    path: Path, files: Sequence[Path], facts: Mapping[Path, Mapping[str, Any]]
+) -> tuple[list[str], list[str]]:
+    """Compare the checked recordings with their datasets' indexes, each index read once.
+
+    An index that cannot be read is one problem of its own: the recordings are judged on
+    their own then (the index is derived data, rebuilt from them), not failed one by one.
+
+    Args:
+        path: What was checked: a dataset directory (its index must list ``files``) or a
+            recording.
+        files: The recordings checked.
+        facts: What each readable recording says (:func:`location_facts`).
+
+    Returns:
+        The recordings' problems (their row says something else), and the indexes' problems.
+    """
+    indexes: dict[Path, dict[str, dict[str, Any]] | None] = {}
+    broken: list[str] = []
+
+    def rows_of(root: Path) -> dict[str, dict[str, Any]] | None:
+        key = root.resolve()
+        if key not in indexes:
+            try:
+                indexes[key] = read_index(root)
+            except RecordingError as err:
+                indexes[key] = None
+                broken.append(one_line(str(err)))
+        return indexes[key]
+
+    own = rows_of(path) if path.is_dir() else None  # named as given, read first
+    bad: list[str] = []
+    for file, fact in facts.items():
+        root = dataset_root(file)
+        rows = None if root is None else rows_of(root)
+        if root is not None and rows is not None:
+            bad += filter(None, [index_row_problem(file, root, rows, fact)])
+    if own is not None:
+        broken += index_problems(path, files, own)
+    return bad, broken
 
 
 def _seed_problem(seeds: Mapping[int, Path]) -> list[str]:
@@ -575,17 +629,21 @@ def progress_bar(console: Console) -> Progress:
 SERIAL_BYTES = 32 * 2**20
 
 
-def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str], dict[int, Path]]:
+def _check_all(
+    files: Sequence[Path], workers: int
+) -> tuple[list[str], list[str], dict[Path, dict[str, Any]], dict[int, Path]]:
     """Check every file with a progress bar, on ``workers`` processes beyond a few MB.
 
     Returns:
         The problems (files refused), the warnings (files valid, but something was counted),
-        and the seeds of the valid files (with a file of each).
+        what each valid file says for its index row (:func:`location_facts`), and the seeds
+        of the readable files (with a file of each).
     """
     bar = progress_bar(Console(stderr=True))
     task = bar.add_task("checking", total=len(files), unit="recordings")
     problems: list[str] = []
     warnings: list[str] = []
+    facts: dict[Path, dict[str, Any]] = {}
     seeds: dict[int, Path] = {}
     size = sum(_size(file) for file in files)
     jobs = 1 if size < SERIAL_BYTES else min(workers, max(len(files), 1))
@@ -594,13 +652,15 @@ def _check_all(files: Sequence[Path], workers: int) -> tuple[list[str], list[str
             results = joblib.Parallel(n_jobs=jobs, return_as="generator")(
                 joblib.delayed(_check_one)(file) for file in files
             )
-        for file, (problem, warning, seed) in zip(files, results, strict=True):
+        for file, (problem, warning, fact) in zip(files, results, strict=True):
             bar.advance(task)
             problems += [problem] if problem is not None else []
             warnings += [warning] if warning is not None else []
-            if seed is not None:
-                seeds.setdefault(seed, file)
-    return problems, warnings, seeds
+            if fact is not None:
+                seeds.setdefault(fact["seed"], file)
+            if fact is not None and problem is None:  # a refused file is failed once
+                facts[file] = fact
+    return problems, warnings, facts, seeds
 
 
 def _size(file: Path) -> int:
@@ -640,12 +700,10 @@ def _check(args: argparse.Namespace) -> int:
         return _recover(paths[0], args.out)
     path = paths[0]  # a directory comes alone (several paths are recordings)
     files = dataset_files(path) if path.is_dir() else paths
-    bad, warnings, seeds = _check_all(files, cli.worker_count(args.workers))
+    bad, warnings, facts, seeds = _check_all(files, cli.worker_count(args.workers))
     unfinished, writing = _unfinished(path) if path.is_dir() else ([], [])
-    try:
-        index = index_problems(path, files) if path.is_dir() else []
-    except RecordingError as err:
-        index = [str(err)]
+    stale, index = _against_index(path, files, facts)
+    bad += stale
     if index and (writing or (path.is_dir() and recorder_at_work(path))):
         # a run recording into the dataset rebuilds its index when it finishes
         now = f"; a recorder is writing into {path} now: it rebuilds the index when it finishes"
@@ -690,9 +748,9 @@ def _print_check(
         console.print(f"[red]FAIL[/red] {escape(problem)}", highlight=False, soft_wrap=True)
     for warning in warnings:
         console.print(f"[yellow]WARN[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
-    Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid")
+    Console().print(f"{len(files) - len(bad)} of {len(files)} recordings valid", soft_wrap=True)
     if unfinished:
-        Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})")
+        Console().print(f"{len(unfinished)} unfinished recordings (*{PART_SUFFIX})", soft_wrap=True)
     if aside:
         Console().print(
             f"{len(aside)} unfinished recordings of stopped recorders set aside in "

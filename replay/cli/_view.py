@@ -21,7 +21,9 @@ from replay.outputs._export import FORMATS, LAYOUTS, export
 from replay.outputs._foxglove import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
 from replay.outputs._foxglove import serve_recordings
 from replay.outputs._serve import DEFAULT_HOST, Served, serve_viewer, wait_until_interrupted
-from schemas import cli
+from replay.recording._container import read_summary
+from replay.recording._reader import parse_metadata
+from schemas import cli, enclosing_dataset
 
 if TYPE_CHECKING:
     import argparse
@@ -81,8 +83,26 @@ def collect_inputs(paths: Sequence[Path], *, allow_runs: bool = True) -> Inputs:
 
 
 def _named(paths: Sequence[Path]) -> list[tuple[str, Path | None]]:
-    """Return the inputs named on the command line, for :func:`schemas.cli.refuse_overlap`."""
-    return [("input", path) for path in paths]
+    """Return the inputs named on the command line, for :func:`schemas.cli.refuse_overlap`.
+
+    A recording's dataset is an input too: a saved view or an export written beside the
+    recording would become a file of the dataset (``check`` fails it, ``features`` reads it).
+    """
+    named: list[tuple[str, Path | None]] = [("input", path) for path in paths]
+    roots = (enclosing_dataset(path, _object_action(path)) for path in paths if path.is_file())
+    return named + [("dataset", root) for root in roots if root is not None]
+
+
+def _object_action(path: Path) -> tuple[str, str] | None:
+    """Return the object and action a recording's metadata says (None: it cannot be read).
+
+    Only the summary is read; a file that cannot be read is refused by the command itself.
+    """
+    try:
+        meta = parse_metadata(path, read_summary(path).metadata)
+    except ReplayError:
+        return None
+    return meta.object_id, meta.action_id
 
 
 def _view_name(inputs: Inputs) -> str:

@@ -135,8 +135,8 @@ def _trials(recorded: Mapping[Pair, list[int]], obj: str, action: str) -> list[i
     trials = sorted(recorded.get((obj, action), []))
     if len(trials) < 2:  # noqa: PLR2004
         msg = (
-            f"object {obj!r}, action {action!r}: {len(trials)} usable recording(s); a run "
-            "needs >= 2 (one to learn, one to test); record more trials"
+            f"object {str(obj)!r}, action {str(action)!r}: {len(trials)} usable recording(s); "
+            "a run needs >= 2 (one to learn, one to test); record more trials"
         )
         raise ReplayError(msg)
     return trials
@@ -166,7 +166,7 @@ class FeatureLookup:
         """
         raw = self._raw.get((obj, action, trial))
         if raw is None:
-            msg = f"no recording of object {obj!r}, action {action!r}, trial {trial}"
+            msg = f"no recording of object {str(obj)!r}, action {str(action)!r}, trial {trial}"
             raise ReplayError(msg)
         return raw
 
@@ -233,7 +233,7 @@ class PoolExecutor:
         position = self._next.get(pair, 0)
         if position >= len(pool):
             msg = (
-                f"object {pair[0]!r}, action {action!r}: all {len(pool)} pool recordings "
+                f"object {str(pair[0])!r}, action {str(action)!r}: all {len(pool)} pool recordings "
                 "are used; record more trials or lower the budget"
                 + (" (the replay left the recorded session's path)" if self.like_rig else "")
             )

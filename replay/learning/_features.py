@@ -22,6 +22,7 @@ from atikt import AtiktError, RawFeatures, extract_features
 from replay.errors import ReplayError
 from replay.learning._cachedir import FEATURES_NAME, feature_cache_path
 from replay.learning._parallel import run_tasks
+from replay.recording._checks import location_problem
 from replay.recording._reader import check_not_partial, read_recording
 from schemas import (
     VOCABULARY,
@@ -30,6 +31,7 @@ from schemas import (
     dataset_recordings,
     read_checked_parquet,
     rows_allowed,
+    unreadable,
 )
 
 if TYPE_CHECKING:
@@ -206,8 +208,7 @@ def _digest(path: Path) -> str:
         with path.open("rb") as stream:
             return hashlib.file_digest(stream, "sha256").hexdigest()
     except OSError as err:
-        msg = f"{path}: cannot read ({err.strerror}); check the file's permissions"
-        raise ReplayError(msg) from err
+        raise ReplayError(unreadable(path, err)) from err
 
 
 def _cached(target: Path, recordings: int) -> tuple[pl.DataFrame, str]:
@@ -296,9 +297,70 @@ def build_features(
     rows = [row for good, _ in results for row in good]
     bad = [entry for _, entries in results for entry in entries]
     frame = pl.concat([keep, pl.DataFrame(rows, schema=_SCHEMA)]).sort("path")
-    _write(frame, cache)
-    quarantined = pl.DataFrame(bad, schema=_QUARANTINE_SCHEMA).sort("path")
+    _write(frame, cache)  # every readable file's row: the cache is keyed by content
+    frame, refused = _one_row_per_trial(root, frame)
+    quarantined = pl.DataFrame([*bad, *refused], schema=_QUARANTINE_SCHEMA).sort("path")
     return FeatureTable(root, frame, quarantined, extracted=len(todo), discarded=discarded)
+
+
+def _one_row_per_trial(
+    root: Path, frame: pl.DataFrame
+) -> tuple[pl.DataFrame, list[dict[str, str]]]:
+    """Return the rows a study may use, and (path, reason) of those left out.
+
+    A study splits each (object, action)'s trials into a held-out test set and a pool; a
+    recording that counts twice can land in both, and the learner is then tested on what it
+    was shown. So, in path order, a row is left out (quarantined with a line naming both
+    files, never silently used) when:
+
+    - its metadata says another object, action or trial than its place in the dataset (a
+      file copied into another object's directory: it would be that object's trial too);
+    - its bytes are those of a row kept before (the same SHA-256: a copy, e.g. a directory
+      holding two datasets that share recordings);
+    - it says the same object, action and trial as a row kept before (two datasets in one
+      directory, or two runs' recordings mixed).
+
+    Leaving the row out (rather than refusing the whole table) keeps one copy of everything
+    in the study, so the study runs, and says in the summary what it left out. On a valid
+    dataset nothing is left out and the table is unchanged.
+    """
+    keep: list[bool] = []
+    refused: list[dict[str, str]] = []
+    seen_bytes: dict[str, str] = {}
+    seen_trials: dict[tuple[str, str, int], str] = {}
+    columns = ("path", "sha256", "object_id", "action_id", "trial")
+    for relative, digest, obj, action, trial in zip(*(frame[c] for c in columns), strict=True):
+        reason = _location(root, relative, {"object_id": obj, "action_id": action, "trial": trial})
+        if reason is None and digest in seen_bytes:
+            reason = (
+                f"the same bytes as {root / seen_bytes[digest]} (SHA-256 {digest[:12]}...): a "
+                "copy would count as a second trial; delete the copy (or give one dataset, not "
+                "a directory holding several)"
+            )
+        if reason is None and (obj, action, trial) in seen_trials:
+            first = root / seen_trials[obj, action, trial]
+            reason = (
+                f"object {obj} action {action} trial {trial}, as {first} says too (another "
+                "recording): a trial is one recording; give one dataset, not a directory "
+                "holding several"
+            )
+        keep.append(reason is None)
+        if reason is None:
+            seen_bytes[digest] = relative
+            seen_trials[obj, action, trial] = relative
+        else:
+            refused.append({"path": relative, "reason": reason})
+    return frame.filter(pl.Series(keep, dtype=pl.Boolean)), refused
+
+
+def _location(root: Path, relative: str, said: Mapping[str, Any]) -> str | None:
+    """Return why a row's metadata contradicts its place ``<object>/<action>/<trial>.mcap``.
+
+    None when it agrees, or when the file lies too shallow to say (a flat directory).
+    """
+    if len(Path(relative).parts) < 3:  # noqa: PLR2004 (<object>/<action>/<trial>.mcap)
+        return None
+    return location_problem(root.absolute() / relative, said, shown=root / relative)
 
 
 def _write(frame: pl.DataFrame, target: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -73,6 +74,19 @@ DEFAULT_LEARNER = LearnerOptions(
 )
 
 PriorData = dict[str, dict[int, list["RawFeatures"]]]
+
+
+#: A fix in the learner's API syntax (``transfer='optimization'``), as atikt words it.
+_API_TRANSFER = re.compile(r"\btransfer='([\w-]+)'")
+
+
+def _in_cli_words(err: AtiktError) -> str:
+    """Return atikt's message with a fix in API syntax named as the command line's option.
+
+    atikt speaks to Python callers (``transfer='optimization'``); a command's user types
+    ``--transfer optimization``.
+    """
+    return _API_TRANSFER.sub(r"--transfer \1", str(err))
 
 
 def learner_options(transfer: str, *, max_sources: int = 1, **options: Any) -> LearnerOptions:  # noqa: ANN401 (any option of LearnerOptions)
@@ -189,7 +203,7 @@ def prior_data(
                 i: list(shared_observations(obs, kind, blocks)) for i, obs in groups.items()
             }
         except AtiktError as err:
-            msg = f"priors of action {action} from action {origin}: {err}"
+            msg = f"priors of action {action} from action {origin}: {_in_cli_words(err)}"
             raise ReplayError(msg) from err
     return data
 
@@ -257,7 +271,7 @@ def fit_priors(
                 random_state=seed,
             )
     except AtiktError as err:
-        msg = f"prior objects: cannot fit their models ({err})"
+        msg = f"prior objects: cannot fit their models ({_in_cli_words(err)})"
         raise ReplayError(msg) from err
 
 
@@ -401,7 +415,7 @@ def _learn(
             if on_step is not None:
                 on_step(result.rows[-1])
     except AtiktError as err:
-        msg = f"learning run (seed {spec.seed}): {err}"
+        msg = f"learning run (seed {spec.seed}): {_in_cli_words(err)}"
         raise ReplayError(msg) from err
 
 

@@ -28,6 +28,12 @@ the channel columns above; ``wide`` has one row per sample and one column per ce
 channel, named ``c<cell>_<channel>`` (``c3_force_1``). Robot and phase tables are the same
 in both layouts. Values are exactly the reader's (float32 skin, float64 robot).
 
+Every table is written, the same files for any recordings: a table of a channel no exported
+recording has (``joint_states`` of a rig without an arm, ``force`` of a thermal probe) has no
+rows and the columns known without data: the key columns, ``stamp_ns`` and ``phase``, and
+those the contract names (``tcp_pose``'s, and in the ``long`` layout a skin table's ``cell``
+and its default value columns); a script reads every file and finds zero rows.
+
 Recordings are exported one at a time (memory stays that of one recording): CSV rows are
 appended to the open files, parquet parts are written per recording and streamed into one
 file at the end. Existing tables in ``out`` are never overwritten.
@@ -80,6 +86,36 @@ def value_columns(modality: str, width: int) -> tuple[str, ...]:
         return (modality,)
     names = VOCABULARY.modalities[modality].value_names(width)
     return tuple(f"{modality}_{name}" for name in names)
+
+
+#: Types of the key columns every table starts with, and of the sample tables' time columns.
+_KEY_SCHEMA: dict[str, Any] = {
+    "recording": pl.String,
+    "object_id": pl.String,
+    "action_id": pl.String,
+    "trial": pl.Int64,
+}
+_TIME_SCHEMA: dict[str, Any] = {"stamp_ns": pl.Int64, "phase": pl.String}
+
+
+def empty_table(name: str, layout: str = "long") -> pl.DataFrame:
+    """Return table ``name`` with no rows: the columns known without a recording.
+
+    Joint names and a wide skin table's cells come from the data; they are left out.
+    """
+    if name == "recordings":
+        return pl.DataFrame(schema=_KEY_SCHEMA | {"path": pl.String})
+    if name == "phases":
+        return pl.DataFrame(
+            schema=_KEY_SCHEMA | {"phase": pl.String, "start_ns": pl.Int64, "stop_ns": pl.Int64}
+        )
+    schema = _KEY_SCHEMA | _TIME_SCHEMA
+    if name == "tcp_pose":
+        schema |= dict.fromkeys(("x", "y", "z", "qx", "qy", "qz", "qw"), pl.Float64)
+    elif name in VOCABULARY.modalities and layout == "long":
+        width = len(VOCABULARY.modalities[name].values)
+        schema |= {"cell": pl.UInt16} | dict.fromkeys(value_columns(name, width), pl.Float32)
+    return pl.DataFrame(schema=schema)
 
 
 def _key(recording: ActionRecording, name: str) -> dict[str, Any]:
@@ -263,9 +299,10 @@ class _Table:
 class _Writer:
     """Appends frames to one file per table (CSV directly, parquet through parts)."""
 
-    def __init__(self, out: Path, fmt: str) -> None:
+    def __init__(self, out: Path, fmt: str, layout: str = "long") -> None:
         self.out = out
         self.fmt = fmt
+        self.layout = layout
         self.tables = {name: _Table(out / f"{name}.{fmt}") for name in TABLES}
         self._parts: Path | None = None
 
@@ -339,9 +376,17 @@ class _Writer:
     def _finish(self, table: _Table) -> None:
         """Close or merge one table's temporary output and give it its final name.
 
-        The final name is never replaced (a file that appeared meanwhile is refused).
+        The final name is never replaced (a file that appeared meanwhile is refused). A table
+        no recording had is written empty (:func:`empty_table`): the same files every time.
         """
-        if self.fmt == "csv":
+        if table.handle is None and not table.parts:
+            empty = empty_table(table.path.stem, self.layout)
+            with atomic_path(table.path, replace=False) as temporary:
+                if self.fmt == "csv":
+                    empty.write_csv(temporary)
+                else:
+                    empty.write_parquet(temporary)
+        elif self.fmt == "csv":
             if table.handle is not None and table.temporary is not None:
                 table.handle.flush()
                 os.fsync(table.handle.fileno())
@@ -438,7 +483,7 @@ def export(
     if not paths:
         msg = "no recordings to export; give .mcap files or a dataset directory"
         raise ReplayError(msg)
-    writer = _Writer(Path(out), fmt)
+    writer = _Writer(Path(out), fmt, layout)
     writer.open()
     try:
         for path in paths:

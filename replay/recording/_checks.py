@@ -25,6 +25,7 @@ and the fix; none of them repairs or reorders data silently:
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 import math
@@ -338,20 +339,25 @@ def _index_rows(index: Path, _mtime_ns: int, _size: int) -> dict[str, dict[str, 
     return {row["path"]: row for row in frame.iter_rows(named=True)}
 
 
-def index_problems(root: Path, files: Sequence[Path]) -> list[str]:
+def index_problems(
+    root: Path, files: Sequence[Path], rows: Mapping[str, Mapping[str, Any]]
+) -> list[str]:
     """Return how ``<root>/index.parquet`` disagrees with the recordings ``files`` (one each).
 
-    The index must list every recording once, with its size, and nothing else; a dataset
-    without an index has no problem here (it is derived data, made by ``atikt-record``).
+    The index must list every recording once, with its size, and nothing else. A file that
+    cannot be read (a symbolic link whose target is gone) is left out here: its own check
+    names it.
 
-    Raises:
-        RecordingError: The index cannot be read or does not match its format.
+    Args:
+        root: The dataset.
+        files: Its recordings.
+        rows: The index's rows (:func:`read_index`, read once by the caller).
     """
     index = Path(root) / INDEX_NAME
-    if not index.is_file():
-        return []
-    rows = _read_index(index, Path(root))
-    sizes = {f.relative_to(root).as_posix(): f.stat().st_size for f in files}
+    sizes = {}
+    for f in files:
+        with contextlib.suppress(OSError):
+            sizes[f.relative_to(root).as_posix()] = f.stat().st_size
     fix = f"rebuild it with 'atikt-record index {root}'"
     problems = []
     if missing := sorted(sizes.keys() - rows.keys()):
@@ -359,7 +365,7 @@ def index_problems(root: Path, files: Sequence[Path]) -> list[str]:
             f"{index}: lists {len(sizes) - len(missing)} of the {len(sizes)} recordings "
             f"(not {missing[0]}{' and more' if len(missing) > 1 else ''}); {fix}"
         )
-    if extra := sorted(rows.keys() - sizes.keys()):
+    if extra := sorted(rows.keys() - sizes.keys() - _unreadable(root, files)):
         problems.append(f"{index}: lists {len(extra)} files that are not there ({extra[0]}); {fix}")
     if changed := sorted(
         p for p in sizes.keys() & rows.keys() if rows[p]["size_bytes"] != sizes[p]
@@ -370,12 +376,23 @@ def index_problems(root: Path, files: Sequence[Path]) -> list[str]:
     return problems
 
 
-def _read_index(index: Path, root: Path) -> dict[str, dict[str, Any]]:
-    """Return a dataset index's rows by relative path.
+def _unreadable(root: Path, files: Sequence[Path]) -> set[str]:
+    """Return the relative paths of ``files`` that cannot be stat'ed (checked on their own)."""
+    return {f.relative_to(root).as_posix() for f in files if not f.exists()}
+
+
+def read_index(root: Path) -> dict[str, dict[str, Any]] | None:
+    """Return the rows of ``<root>/index.parquet`` by relative path (None: no index).
+
+    Read once per command: a check of a dataset compares every recording with these rows.
 
     Raises:
-        RecordingError: The index cannot be read.
+        RecordingError: The index cannot be read or does not match its format; one line
+            with the fix (``atikt-record index``).
     """
+    index = Path(root) / INDEX_NAME
+    if not index.is_file():
+        return None
     try:
         stat = index.stat()
         return _index_rows(index, stat.st_mtime_ns, stat.st_size)
@@ -387,47 +404,117 @@ def _read_index(index: Path, root: Path) -> dict[str, dict[str, Any]]:
         raise RecordingError(msg) from err
 
 
-def check_location(path: Path, said: Mapping[str, Any], size_bytes: int) -> None:
-    """Check a recording inside a dataset against its path and its row of the index.
+def dataset_root(path: Path) -> Path | None:
+    """Return the dataset holding the recording ``path`` (None: it lies in none).
 
     A file is inside a dataset when ``index.parquet`` lies three levels up
-    (``<root>/<object>/<action>/<trial>.mcap``); elsewhere nothing is checked.
-
-    Args:
-        path: The recording.
-        said: What its metadata says: ``object_id``, ``action_id``, ``trial``, ``seed``.
-        size_bytes: The file's size.
-
-    Raises:
-        RecordingError: The metadata contradicts the path or the index.
+    (``<root>/<object>/<action>/<trial>.mcap``); the root is returned resolved.
     """
     full = Path(path).resolve()
     if len(full.parents) < 3:  # noqa: PLR2004 (<root>/<object>/<action>/<trial>.mcap)
-        return
+        return None
     root = full.parents[2]
-    index = root / INDEX_NAME
-    if not index.is_file():
+    return root if (root / INDEX_NAME).is_file() else None
+
+
+def check_location(path: Path, said: Mapping[str, Any]) -> None:
+    """Check that a recording inside a dataset says the object, action and trial its path says.
+
+    Elsewhere (:func:`dataset_root` is None) nothing is checked.
+
+    Args:
+        path: The recording.
+        said: What its metadata says: ``object_id``, ``action_id``, ``trial``.
+
+    Raises:
+        RecordingError: The metadata contradicts the path; the fix names where it belongs
+            (and, when that file exists, what to do instead of overwriting it).
+    """
+    root = dataset_root(path)
+    if root is None:
         return
+    problem = location_problem(Path(path).resolve(), said, shown=path)
+    if problem is not None:
+        raise RecordingError(problem)
+
+
+def location_problem(
+    path: Path, said: Mapping[str, Any], *, shown: Path | None = None
+) -> str | None:
+    """Return how a recording's metadata contradicts its dataset path (None: it agrees).
+
+    The fix moves the file where its metadata says it belongs, unless a file is there already:
+    moving it would overwrite that recording. Then the line says whether it is a copy (same
+    bytes: delete it) or names the first free trial of that object and action.
+
+    Args:
+        path: The recording, ``<dataset>/<object>/<action>/<trial>.mcap``.
+        said: What its metadata says: ``object_id``, ``action_id``, ``trial``.
+        shown: How the message names the file (default: ``path``).
+    """
+    full = Path(path)
     match = _TRIAL_NAME.fullmatch(full.name)
     located: dict[str, Any] = {"object_id": full.parents[1].name, "action_id": full.parent.name}
     located["trial"] = int(match.group(1)) if match else said["trial"]
-    if wrong := [key for key, value in located.items() if said[key] != value]:
-        proper = root / str(said["object_id"]) / str(said["action_id"]) / f"{said['trial']:03d}"
-        msg = (
-            f"{path}: the metadata says {', '.join(f'{k} {said[k]}' for k in wrong)}, the "
-            f"dataset path says {', '.join(f'{k} {located[k]}' for k in wrong)}; move the file "
-            f"to {proper}.mcap (or record it again), then rebuild the index with "
-            f"'atikt-record index {root}'"
-        )
-        raise RecordingError(msg)
-    row = _read_index(index, root).get(full.relative_to(root).as_posix())
+    wrong = [key for key, value in located.items() if said[key] != value]
+    if not wrong:
+        return None
+    given = Path(shown or path)  # the fix names paths as the user gave them, where it can
+    home = given.parents[2] if len(given.parents) > 2 else full.parents[2]  # noqa: PLR2004
+    proper = home / str(said["object_id"]) / str(said["action_id"]) / f"{said['trial']:03d}.mcap"
+    return (
+        f"{shown or path}: the metadata says {', '.join(f'{k} {said[k]}' for k in wrong)}, the "
+        f"dataset path says {', '.join(f'{k} {located[k]}' for k in wrong)}; "
+        f"{_placing(full, proper)}, then rebuild the index with 'atikt-record index {home}'"
+    )
+
+
+def _placing(path: Path, proper: Path) -> str:
+    """Return how to put a misplaced recording where its metadata says, overwriting nothing."""
+    if not proper.exists():
+        return f"move the file to {proper} (or record it again)"
+    if _same_bytes(path, proper):
+        return f"it is a copy of {proper} (the same bytes): delete it"
+    trials = {
+        int(m.group(1))
+        for p in proper.parent.glob("*.mcap")
+        if (m := _TRIAL_NAME.fullmatch(p.name))
+    }
+    free = next(t for t in itertools.count(1) if t not in trials)
+    return (
+        f"{proper} holds another recording of that trial (moving the file there would "
+        f"overwrite it): take the file out of the dataset, or record the action again as "
+        f"trial {free} ({proper.parent / f'{free:03d}'}.mcap is free)"
+    )
+
+
+def _same_bytes(a: Path, b: Path) -> bool:
+    """Return whether two files hold the same bytes (False when one cannot be read)."""
+    try:
+        return a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes()
+    except OSError:
+        return False
+
+
+def index_row_problem(
+    path: Path, root: Path, rows: Mapping[str, Mapping[str, Any]], facts: Mapping[str, Any]
+) -> str | None:
+    """Return how a recording's row of its dataset's index disagrees with the file (None: agrees).
+
+    Args:
+        path: The recording.
+        root: Its dataset (:func:`dataset_root`).
+        rows: The index's rows (:func:`read_index`).
+        facts: What the file says (``object_id``, ``action_id``, ``trial``, ``seed``) and its
+            ``size_bytes``.
+    """
+    row = rows.get(Path(path).resolve().relative_to(root).as_posix())
     if row is None:
-        return
-    facts = dict(said) | {"size_bytes": size_bytes}
+        return None
     if wrong := [key for key in facts if key in row and row[key] != facts[key]]:
         listed = ", ".join(f"{key} {row[key]} (the file: {facts[key]})" for key in wrong)
-        msg = (
-            f"{path}: the dataset index {index} says {listed}; the index is derived data: "
-            f"rebuild it with 'atikt-record index {root}'"
+        return (
+            f"{path}: the dataset index {root / INDEX_NAME} says {listed}; the index is derived "
+            f"data: rebuild it with 'atikt-record index {root}'"
         )
-        raise RecordingError(msg)
+    return None

@@ -33,7 +33,7 @@ from mcap.records import Channel, Header, Metadata, Schema
 from numpy.typing import NDArray
 
 from replay.errors import RecordingError
-from schemas import PART_SUFFIX
+from schemas import PART_SUFFIX, unreadable
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -252,8 +252,7 @@ def _read_bytes(path: Path) -> bytes:
     try:
         return Path(path).read_bytes()
     except OSError as err:
-        msg = f"{path}: cannot read the recording ({err.strerror}); check the path"
-        raise RecordingError(msg) from err
+        raise RecordingError(unreadable(path, err, "check the path", "the recording")) from err
 
 
 def _hint(path: Path, damage: Damage) -> str:

@@ -29,7 +29,10 @@ from replay.recording._checks import (
     check_location,
     check_phases,
     check_stamps,
+    dataset_root,
+    index_row_problem,
     pauses_explained,
+    read_index,
     time_scale,
 )
 from replay.recording._container import RawChannel, read_container
@@ -43,6 +46,7 @@ from schemas import (
     SourceStats,
     build_typestore,
     parse_source_stats,
+    unreadable,
 )
 from schemas import parse_metadata as read_metadata
 from schemas.cdr import CdrError, DecodedGroup, decode_topic, gather
@@ -643,16 +647,19 @@ def check_not_partial(recording: ActionRecording) -> None:
         raise RecordingError(msg)
 
 
-def check_dataset_location(recording: ActionRecording) -> None:
-    """Check a recording inside a dataset against its path and its row of the dataset index.
+def location_facts(recording: ActionRecording) -> dict[str, Any]:
+    """Check a recording against its place in a dataset and return what its index row holds.
 
-    :func:`read_recording` checks a file on its own; this adds the dataset's view (used by
-    ``atikt-replay check`` and ``info``). Outside a dataset (no ``index.parquet`` three
-    levels up) nothing is checked.
+    The path part of :func:`check_dataset_location`: a salvage without its end is refused, and
+    inside a dataset the metadata must say the object, action and trial its path says. The
+    comparison with the dataset's index is left to the caller, which reads the index once
+    (``atikt-replay check`` of a dataset).
+
+    Returns:
+        ``object_id``, ``action_id``, ``trial``, ``seed`` and ``size_bytes`` of the file.
 
     Raises:
-        RecordingError: The metadata says another object, action or trial than the path, or
-            the index says another object, action, trial, seed or size.
+        RecordingError: A salvage without its end, or the metadata contradicts the path.
     """
     check_not_partial(recording)
     path, meta = recording.path, recording.metadata
@@ -660,9 +667,30 @@ def check_dataset_location(recording: ActionRecording) -> None:
     try:
         size = Path(path).stat().st_size
     except OSError as err:
-        msg = f"{path}: cannot read the recording ({err.strerror}); check the path"
-        raise RecordingError(msg) from err
-    check_location(path, said, size)
+        raise RecordingError(unreadable(path, err, "check the path", "the recording")) from err
+    check_location(path, said)
+    return {**said, "size_bytes": size}
+
+
+def check_dataset_location(recording: ActionRecording) -> None:
+    """Check a recording inside a dataset against its path and its row of the dataset index.
+
+    :func:`read_recording` checks a file on its own; this adds the dataset's view
+    (``atikt-replay check`` does the same, reading a dataset's index once for all its files).
+    Outside a dataset (no ``index.parquet`` three levels up) nothing
+    is checked.
+
+    Raises:
+        RecordingError: The metadata says another object, action or trial than the path, the
+            index cannot be read, or it says another object, action, trial, seed or size.
+    """
+    facts = location_facts(recording)
+    root = dataset_root(recording.path)
+    rows = None if root is None else read_index(root)
+    if root is not None and rows is not None:
+        problem = index_row_problem(recording.path, root, rows, facts)
+        if problem is not None:
+            raise RecordingError(problem)
 
 
 def decode_recording(container: Container) -> ActionRecording:

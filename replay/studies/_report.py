@@ -62,7 +62,30 @@ class Report:
 def summary(study: Study, frame: pl.DataFrame, config: StudyConfig) -> str:
     """Return a study's markdown summary: title, notes, then its report's sections."""
     sections = "\n\n".join(section(frame, config) for section in study.report.sections)
-    return f"# {study.title}\n{notes(config, learners=study.report.learners)}\n{sections}\n"
+    text = notes(config, learners=study.report.learners)
+    if study.report.learners:
+        text += steps_note(frame, config.budget)
+    return f"# {study.title}\n{text}\n{sections}\n"
+
+
+def steps_note(frame: pl.DataFrame, budget: int) -> str:
+    """Return the note that the recordings allowed fewer steps than the budget (empty if not).
+
+    A run stops when every (new object, action)'s pool of trials is used up; with few trials
+    per object (half of them held out for testing) that can be after the initial round, and a
+    table of "mean 1..budget" and "final" would otherwise show a budget that never ran.
+    """
+    if "step" not in frame.columns or frame.height == 0:
+        return ""
+    reached = int(frame["step"].max())  # type: ignore[arg-type]
+    if reached >= budget:
+        return ""
+    after = "after the initial round" if reached == 0 else f"after step {reached}"
+    return (
+        f"\n> The recordings allowed {reached} of the budget's {budget} steps: the pool of "
+        f"trials ran out {after}; give more trials per object and action, or a smaller "
+        "`--budget`.\n"
+    )
 
 
 @dataclass(frozen=True, slots=True)

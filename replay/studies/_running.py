@@ -166,13 +166,20 @@ def dataset_actions(frame: pl.DataFrame) -> tuple[str, ...]:
     return tuple(sorted(set(frame["action_id"].to_list())))
 
 
-def too_small(study: str, has: str, needs: str) -> ReplayError:
+class StudyDoesNotApplyError(ReplayError):
+    """The dataset does not fit a study's design (too few objects, no fitting action pair).
+
+    ``study NAME`` stops on it; ``study all`` skips that study with its line.
+    """
+
+
+def too_small(study: str, has: str, needs: str) -> StudyDoesNotApplyError:
     """Return the error of a dataset too small for a study's design, naming the fix."""
     msg = (
         f"study {study}: the dataset has {has}; the study needs {needs} (choose roles with "
         "--new/--priors, or record more)"
     )
-    return ReplayError(msg)
+    return StudyDoesNotApplyError(msg)
 
 
 def min_old(config: StudyConfig) -> int:

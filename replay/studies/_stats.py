@@ -111,8 +111,14 @@ def paired_gains(
 
 
 def gain_cells(row: dict[str, object], head: str) -> str:
-    """Render one gain as ``+3.6 pts [+2.2, +4.9]`` (percentage points, 95 % interval)."""
+    """Render one gain as ``+3.6 pts [+2.2, +4.9]`` (percentage points, 95 % interval).
+
+    A headline no run reached (``mean`` when the recordings allowed no step beyond the
+    initial round) is ``not reached``, not ``+nan pts``.
+    """
     gain, low, high = (float(row[f"{k}_{head}"]) for k in ("gain", "low", "high"))  # type: ignore[arg-type]
+    if np.isnan(gain):
+        return "not reached"
     if np.isnan(low):
         return f"{100 * gain:+.1f} pts"
     return f"{100 * gain:+.1f} pts [{100 * low:+.1f}, {100 * high:+.1f}]"

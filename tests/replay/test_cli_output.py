@@ -342,3 +342,45 @@ def test_check_starts_workers_only_for_more_than_a_few_mb(
     result = json.loads(capsys.readouterr().out)
     assert (result["recordings"], result["valid"]) == (2, 2)
     assert asked == [jobs]
+
+
+def test_a_quarantined_recording_is_one_line_in_a_pipe(
+    small_dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """rich wraps at 80 columns into a pipe; a message is one line a script can grep."""
+    import replay.cli._learn  # noqa: PLC0415
+
+    monkeypatch.setattr(replay.cli._learn, "_CONSOLE", Console(stderr=True, width=80))
+    data = tmp_path / "data"
+    for name in ("wood/P1/001.mcap", "foam_block/P1/001.mcap"):
+        (data / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(small_dataset / name, data / name)
+    shutil.copyfile(data / "wood/P1/001.mcap", data / "foam_block/P1/002.mcap")
+    assert main(["features", str(data), "--workers", "1"]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    quarantined = [line for line in lines if line.startswith("quarantined")]
+    assert len(quarantined) == 1
+    assert quarantined[0].endswith(f"then rebuild the index with 'atikt-record index {data}'")
+    assert len(quarantined[0]) > 80
+
+
+def test_the_dataset_report_is_whole_in_a_pipe(
+    small_dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``atikt-record dataset ... | cat``: the table's cells are not cut with an ellipsis."""
+    monkeypatch.delenv("COLUMNS")  # the tests' wide console: a pipe's 80 columns here
+    data = tmp_path / ("a-directory-name-long-enough-for-the-index-path-to-pass-80-columns" * 2)
+    (data / "wood" / "P1").mkdir(parents=True)
+    shutil.copyfile(small_dataset / "wood/P1/001.mcap", data / "wood/P1/001.mcap")
+    shutil.copyfile(small_dataset / CLAIM_NAME, data / CLAIM_NAME)
+    argv = ["dataset", "--out", str(data), "--objects", "wood", "--actions", "P1"]
+    assert record([*argv, "--trials", "1", "--seed", "0", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "…" not in out
+    assert str(data / "index.parquet") in out

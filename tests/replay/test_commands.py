@@ -1,4 +1,5 @@
 import json
+import shutil
 from pathlib import Path
 from typing import Any, Self
 
@@ -294,3 +295,65 @@ def test_learner_options_from_a_toml_file_and_flags_over_it(
     assert "learner.toml" in error
     assert "transfer 'prediction' has no option eps_density" in error
     assert not (tmp_path / "bad").exists()
+
+
+def _one_action_dataset(small_dataset: Path, root: Path) -> Path:
+    """Copy two trials of P1 of every object of the small dataset (one action: no pair)."""
+    for path in small_dataset.glob("*/P1/00[12].mcap"):
+        target = root / path.relative_to(small_dataset)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(path.read_bytes())
+    return root
+
+
+def test_study_all_skips_what_does_not_apply_and_resumes_what_is_finished(
+    small_dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Which studies run is decided before any runs; a rerun keeps the finished ones."""
+    from replay.outputs import _study_report  # noqa: PLC0415 (matplotlib on use)
+    from replay.studies._registry import STUDIES  # noqa: PLC0415
+
+    ran: list[str] = []
+
+    def run_study(name: str, _frame: pl.DataFrame, config: Any, **_: Any) -> Any:
+        """Stand in for a study: its options file, as a finished study leaves it."""
+        ran.append(name)
+        study = STUDIES[name]
+        options = _study_report.study_options(study, config)
+        (config.out / _study_report.OPTIONS).write_text(json.dumps(options, indent=1) + "\n")
+        results, plot, text = (config.out / n for n in ("results.parquet", "plot.png", "s.md"))
+        return _study_report.StudyOutput(name, results, plot, text, f"{name} done")
+
+    monkeypatch.setattr(_study_report, "run_study", run_study)
+    data = _one_action_dataset(small_dataset, tmp_path / "data")
+    out = tmp_path / "all"
+    argv = ["study", "all", "--recordings", str(data), "--new", ",".join(NEW), "--quick"]
+    argv += ["--out", str(out), "--workers", "1"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    skipped = [line for line in err.splitlines() if line.startswith("skipped")]
+    assert skipped == [
+        (
+            "skipped study cross-action: the dataset has actions P1; the study needs a target "
+            "and a source action with the same feature blocks (--prior-actions T=S) (choose "
+            "roles with --new/--priors, or record more)"
+        )
+    ]
+    assert "cross-action" not in ran
+    assert len(ran) == 6
+    last = ran[-1]
+    shutil.rmtree(out / last)  # stopped before its last study: the rerun resumes
+    first = sorted((out / ran[0]).iterdir())
+    ran.clear()
+    assert main(argv) == 0
+    assert ran == [last]
+    kept = f"study fusion: finished before with the same settings in {out / 'fusion'}; kept"
+    assert kept in capsys.readouterr().err
+    assert sorted((out / "fusion").iterdir()) == first
+    ran.clear()  # another seed: the finished studies are not this run's, never replaced
+    assert main([*argv, "--seed", "1"]) == 1
+    assert "holds a fusion study of other settings" in capsys.readouterr().err
+    assert ran == []

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import shutil
-from typing import TYPE_CHECKING
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -13,8 +13,8 @@ from replay import MODALITIES, ReplayError, read_recording
 from replay.cli._main import main
 from replay.outputs._export import TABLES, export, phase_labels, value_columns
 
-if TYPE_CHECKING:
-    from pathlib import Path
+#: The joint states' topic: a recording without it is a rig without an arm.
+_JOINTS = "/robot/joint_states"
 
 
 def _dataset(fake_recording: Path, root: Path, trials: tuple[str, ...] = ("003", "004")) -> Path:
@@ -160,3 +160,24 @@ def test_an_out_that_is_a_file_is_named_so(
         "notes: is a file, not a directory; give a new directory\n"
     )
     assert (tmp_path / "notes").read_text(encoding="utf-8") == "a file"
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+def test_a_channel_no_recording_has_is_an_empty_table_with_its_columns(
+    fmt: str, fake_recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every listed table is written: a rig without an arm gives empty robot tables."""
+    from test_bad_input import _copy  # noqa: PLC0415 (the bad-input matrix's rewriter)
+
+    armless = _copy(fake_recording, tmp_path / "armless" / "003.mcap", drop_channel=_JOINTS)
+    assert read_recording(armless).joints is None
+    out = tmp_path / "out"
+    assert main(["export", str(armless), "--out", str(out), "--format", fmt]) == 0
+    listed = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert listed == [str(out / f"{name}.{fmt}") for name in TABLES]
+    assert all(Path(path).is_file() for path in listed)
+    read = pl.read_parquet if fmt == "parquet" else pl.read_csv
+    joints = read(out / f"joint_states.{fmt}")
+    assert joints.height == 0
+    assert joints.columns == ["recording", "object_id", "action_id", "trial", "stamp_ns", "phase"]
+    assert read(out / f"force.{fmt}").height > 0

@@ -154,3 +154,25 @@ def test_info_says_where_the_cache_of_a_dataset_is(
     assert main(["info", str(checkout)]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert f"feature cache: {feature_cache_path(checkout)}" in out
+
+
+@pytest.mark.parametrize("command", ["view", "export"])
+def test_an_output_beside_a_named_recording_is_refused_inside_its_dataset(
+    parent: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    """A saved view or an export named into the dataset of the recording read would become
+    one of its files (``check`` fails an .rrd named 003.mcap; ``features`` reads it)."""
+    root = parent / "ds"
+    recording = root / "wood" / "P1" / "001.mcap"
+    before = _tree(parent)
+    if command == "view":
+        option, target = "--save", root / "wood" / "P1" / "099.mcap"
+        argv = ["view", str(recording), option, str(target), "--no-figures"]
+    else:
+        option, target = "--out", root / "exp"
+        argv = ["export", str(recording), option, str(target)]
+    _refused(capsys, main(argv), f"{option} {target}: lies inside the dataset {root.resolve()}")
+    assert _tree(parent) == before
+    outside = parent / "exp"  # beside the dataset: written
+    assert main(["export", str(recording), "--out", str(outside)]) == 0
+    assert (outside / "force.parquet").is_file()

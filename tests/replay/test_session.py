@@ -1,6 +1,7 @@
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 import pytest
 from conftest import ACTIONS, NEW, OLD, TRIALS
@@ -24,6 +25,7 @@ from replay.learning._session import (
     learner_options,
     prior_data,
     run_learning,
+    run_offline,
 )
 from replay.live import LiveExecutor
 
@@ -275,3 +277,26 @@ def test_spec_refuses_an_object_that_is_new_and_prior() -> None:
         RunSpec(new_objects=NEW, prior_objects=(NEW[0],), actions=ACTIONS)
     with pytest.raises(ReplayError, match=r"transfer='maybe' must be one of \('prediction'"):
         learner_options("maybe")
+
+
+def test_a_stopped_run_names_the_fix_as_the_command_line_option(features: pl.DataFrame) -> None:
+    """atikt words its fix for Python (transfer='optimization'); a command's user, --transfer."""
+    spec = RunSpec(
+        new_objects=NEW,
+        prior_objects=OLD[:1],
+        actions=ACTIONS[:1],
+        learner=learner_options("prediction", budget=1),
+        seed=0,
+    )
+    models = fit_priors(prior_data(FeatureLookup(features), OLD[:1], ACTIONS[:1]), seed=0)
+    with pytest.raises(ReplayError, match="one old object only") as caught:
+        run_offline(features, spec, priors=models)
+    assert "(use --transfer optimization)" in str(caught.value)
+    assert "transfer='" not in str(caught.value)
+
+
+def test_a_message_names_a_numpy_string_as_plain_text(features: pl.DataFrame) -> None:
+    one = features.filter(pl.col("trial") == 1)
+    with pytest.raises(ReplayError, match=r"^object 'wood', action 'P1': 1 usable") as caught:
+        Split.random(one, [np.str_("wood")], [np.str_("P1")], seed=0)
+    assert "np.str_" not in str(caught.value)

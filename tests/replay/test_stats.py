@@ -1,7 +1,12 @@
+from pathlib import Path
+
 import numpy as np
 import polars as pl
 import pytest
 
+from replay.studies._registry import STUDIES
+from replay.studies._report import steps_note, summary
+from replay.studies._running import StudyConfig
 from replay.studies._stats import gain_cells, paired_gains
 
 
@@ -46,3 +51,21 @@ def test_a_single_unit_has_no_interval() -> None:
 def test_no_gain_gives_an_interval_around_zero() -> None:
     row = paired_gains(_results([0.03, -0.03] * 5), [], "group", budget=4).row(0, named=True)
     assert row["low_final"] < 0 < row["high_final"]
+
+
+def test_recordings_that_ran_out_after_the_initial_round_print_no_nan() -> None:
+    """Too few trials: every run stops at step 0; the mean over 1..budget was never reached."""
+    results = _results([0.02, 0.05], budget=0)  # only step 0, as from 3 trials per object
+    row = paired_gains(results, [], "group", budget=10, seed=0).row(0, named=True)
+    assert gain_cells(row, "mean") == "not reached"
+    assert gain_cells(row, "initial").startswith("+3.5 pts [")
+    study = STUDIES["transfer"]
+    config = StudyConfig(out=Path("out"), seed=0, workers=1)
+    text = summary(study, results.with_columns(actions=pl.lit("all")), config)
+    assert "nan" not in text
+    assert (
+        f"> The recordings allowed 0 of the budget's {config.budget} steps: the pool of trials "
+        "ran out after the initial round; give more trials per object and action, or a "
+        "smaller `--budget`." in text
+    )
+    assert steps_note(_results([0.02], budget=3), 3) == ""  # the budget ran: no note
