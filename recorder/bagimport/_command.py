@@ -11,7 +11,6 @@ import signal
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, ProgressColumn, TextColumn
 from rich.table import Table
@@ -31,6 +30,7 @@ if TYPE_CHECKING:
     import argparse
     from collections.abc import Mapping
 
+    from rich.console import Console
     from rich.progress import Task, TaskID
 
     from recorder._catalog import ActionSpec, ObjectSpec
@@ -76,7 +76,6 @@ def _print_report(console: Console, report: ImportReport) -> None:
         "gaps (s)",
         "largest cell offset (ms)",
         "largest stamp jitter (ms)",
-        title=escape(f"{len(report.written)} recordings{resumed} from {names} -> {report.out}"),
     )
     for modality, dropped in report.dropped_rows.items():
         offset = report.max_cell_offset_ns.get(modality, 0) / _NS_PER_MS
@@ -88,6 +87,9 @@ def _print_report(console: Console, report: ImportReport) -> None:
     if report.repeated_stamps:  # whole messages, before any row: a line of their own
         repeated = str(report.repeated_stamps)
         table.add_row("skin messages (stamp repeated)", repeated, "-", "-", "-")
+    # the title on a line of its own: as a table's title rich wraps it to the table's width
+    title = f"{len(report.written)} recordings{resumed} from {names} -> {report.out}"
+    console.print(title, highlight=False, soft_wrap=True, markup=False)
     console.print(table)
     for topic, count in report.malformed.items():
         console.print(
@@ -160,7 +162,7 @@ def _print_timing(console: Console, report: ImportReport) -> None:
     *CATALOG_ARGUMENTS,
 )
 def _import_bag(args: argparse.Namespace) -> int:
-    console = Console()
+    console = cli.output_console()  # into a pipe or a file: the table uncut
     bags = list(args.bag)
     if args.topics:
         _print_topics(console, bags)

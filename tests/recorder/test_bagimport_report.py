@@ -143,3 +143,16 @@ def test_a_driver_that_never_stamps_its_messages_is_named_with_the_way_out(
 def _payload(message: object) -> dict[str, object]:
     """Return a probe message's fields other than its header."""
     return {"force": message.force, "temperatures": message.temperatures}  # type: ignore[attr-defined]
+
+
+def test_the_import_table_is_whole_in_a_pipe(
+    repeated: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag, map_path = repeated
+    out = tmp_path / ("a-directory-name-long-enough-to-overflow-eighty-columns-" * 2) / "o"
+    argv = ["import-bag", str(bag), "--topic-map", str(map_path), "--out", str(out)]
+    assert record(argv) == 0
+    printed = capsys.readouterr().out
+    assert f"recordings from probe.bag -> {out}" in printed, printed
+    assert "largest stamp jitter (ms)" in printed, printed
+    assert "…" not in printed, printed
