@@ -400,8 +400,14 @@ def _window_items(
     found: Mapping[str, Extractor],
     topic_map: TopicMap,
     report: ImportReport,
+    *,
+    live: bool = False,
 ) -> tuple[list[StreamItem], str, dict[str, int], list[SourceStats]]:
     """Return every stream item of one window ordered by receive time, or why it is skipped.
+
+    A bag's window that its data does not cover is skipped (the bag keeps the data: the lab
+    fixes the window and imports again); a live window is written whatever it holds, its data
+    exists nowhere else (``check`` then says what it lacks).
 
     Also returns, per skin topic, the stamps it delivered valid that cell alignment left out
     (summed over its modalities; see :func:`left_out_by_topic`), and the pauses of the skin
@@ -425,7 +431,7 @@ def _window_items(
         blocks, jitter, dropped = skin_blocks(modality, rows, period, topic_map.max_jitter)
         if not blocks:
             return [], f"no {modality} samples of {where} with every cell inside it", {}, []
-        if reason := _uncovered(plan, modality, where, blocks):
+        if not live and (reason := _uncovered(plan, modality, where, blocks)):
             return [], reason, {}, []
         report.note(modality, rows, jitter, dropped)
         count, length = _gaps(rows.stamps, period)
@@ -612,7 +618,7 @@ class _Session:
         last = plan.window.stop_ns - MARGIN_NS if self.live else self.his[i]
         forget = self.los[i + 1] if i + 1 < len(self.plans) else last
         items, reason, left_out, paused = _window_items(
-            plan, cells, self.found, self.topic_map, self.report
+            plan, cells, self.found, self.topic_map, self.report, live=self.live
         )
         for extractor in self.found.values():
             extractor.forget(forget)

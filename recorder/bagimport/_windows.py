@@ -157,12 +157,16 @@ def parse_annotation(text: str, receive_ns: int, topic: str) -> tuple[_Key, str,
             raise TypeError(msg)  # noqa: TRY301 (one translation below)
         phase = str(data["phase"])
         stamp = data.get("stamp_ns", receive_ns)
-        if phase not in _PHASES or isinstance(stamp, bool) or not isinstance(stamp, int):
-            msg = "phase or stamp_ns"
+        if phase not in _PHASES:
+            msg = f"phase {phase!r} is none of {', '.join(_PHASES)}"
             raise ValueError(msg)  # noqa: TRY301
+        if isinstance(stamp, bool) or not isinstance(stamp, int):
+            msg = f"stamp_ns {stamp!r} is not a whole number of ns"
+            raise TypeError(msg)  # noqa: TRY301
         key = (str(data["object"]), str(data["action"]), _trial(data.get("trial"), where))
     except (ValueError, KeyError, TypeError, RecursionError) as err:
-        msg = f"{where}: annotation {text[:80]!r} ({err!r}); annotations are JSON like {example}"
+        reason = f"no key {err}" if isinstance(err, KeyError) else str(err) or repr(err)
+        msg = f"{where}: annotation {text[:80]!r} ({reason}); annotations are JSON like {example}"
         raise BagImportError(msg) from err
     return key, phase, stamp
 
@@ -398,7 +402,14 @@ class PathPlanner:
         if trial > MAX_TRIAL:
             msg = f"{window.describe()}: trial {trial} exceeds {MAX_TRIAL}; choose another --out"
             raise BagImportError(msg)
-        if self._exists(path) or path in self._seen:
+        if path in self._seen and not self._exists(path):  # two windows, one trial
+            msg = (
+                f"{window.describe()}: trial {trial} of {window.object_id}/{window.action_id} "
+                "is given to another window of this import too; give each window its own "
+                "trial, or none to number them on"
+            )
+            raise BagImportError(msg)
+        if self._exists(path):
             msg = (
                 f"{path}: {window.describe()} would overwrite a recording; recordings are never "
                 "overwritten: remove its trial number to number it on, or choose another --out"

@@ -20,6 +20,7 @@ from recorder import load_actions, load_objects
 from recorder._cli import main
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._topicmap import EXAMPLE, TopicMap, load_topic_map
+from recorder.bagimport._windows import parse_annotation
 from recorder.errors import BagImportError
 from replay import read_recording
 from replay.learning._features import build_features
@@ -404,6 +405,15 @@ def test_unknown_object_and_bad_annotations_are_explained(ros1_bag: Path, tmp_pa
     windows = 'source = "csv"\ncsv = "windows.csv"\nrelative = true'
     with pytest.raises(BagImportError, match=r"windows.csv row 2: .*execute and end"):
         _import(ros1_bag, load_topic_map(write_map(tmp_path, windows)), tmp_path / "out")
+    # two rows of one trial: said as such (nothing exists to overwrite)
+    csv.write_text("start,stop,object,action,trial\n0.8,3.9,wood,P1,1\n4.0,7.1,wood,P1,1\n")
+    with pytest.raises(BagImportError, match=r"trial 1 of wood/P1 is given to another window"):
+        _import(ros1_bag, load_topic_map(write_map(tmp_path, windows)), tmp_path / "out")
+    # an annotation's stamp that is no integer: the value named
+    with pytest.raises(BagImportError, match=r"stamp_ns Decimal\('1.5'\) is not a whole number"):
+        parse_annotation('{"object": "a", "action": "b", "phase": "end", "stamp_ns": 1.5}', 0, "/a")
+    with pytest.raises(BagImportError, match=r"\(no key 'phase'\)"):
+        parse_annotation('{"object": "a", "action": "b"}', 0, "/a")
 
 
 def test_topic_maps_are_checked_strictly(tmp_path: Path) -> None:
