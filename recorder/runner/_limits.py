@@ -192,6 +192,14 @@ def check_motion(motion: Motion, limits: Limits, where: str) -> None:
     Raises:
         RigError: A speed, acceleration or force (the light contact's) above its limit.
     """
+    if motion.approach_min_m_s > motion.approach_max_m_s:
+        # the slowest approach would be the fastest: an approach without proximity (or near
+        # the object) would run faster than the one the margins are computed for
+        msg = (
+            f"{where}: approach_min_m_s = {motion.approach_min_m_s:g} exceeds approach_max_m_s "
+            f"= {motion.approach_max_m_s:g}; give approach_min_m_s <= approach_max_m_s"
+        )
+        raise RigError(msg)
     speeds = {
         "approach_max_m_s": motion.approach_max_m_s,
         "press_m_s": motion.press_m_s,
@@ -244,6 +252,54 @@ def check_action(action: ActionSpec, limits: Limits, where: str) -> None:
             limits.max_force_n,
             fix,
         )
+
+
+def execute_path(
+    action: ActionSpec, start: NDArray[np.float64], acceleration_m_s2: float
+) -> tuple[NDArray[np.float64], float]:
+    """Return where an action's execute phase takes the TCP from ``start``, and how far, m.
+
+    A press (or a static contact) moves ``depth_m`` along the tool's z axis and ends there; a
+    slide moves along the tool's x axis at ``speed_m_s`` for ``duration_s``, then decelerates
+    (at ``acceleration_m_s2``) beyond that.
+    """
+    if action.kind == "slide":
+        length = action.speed_m_s * action.duration_s
+        length += action.speed_m_s**2 / (2 * acceleration_m_s2)
+        direction = tool_axis(start, 0)
+    else:
+        length, direction = action.depth_m, tool_axis(start, 2)
+    end: NDArray[np.float64] = np.asarray(start[:3], dtype=np.float64) + direction * length
+    return end, length
+
+
+def path_problem(
+    action: ActionSpec,
+    start: NDArray[np.float64],
+    limits: Limits,
+    acceleration_m_s2: float,
+) -> str:
+    """Return why the action's execute phase from ``start`` would leave the workspace ('': fits).
+
+    Used twice: from the object's pose before anything moves (the approach finds the contact
+    at the pose or beyond it along the tool's z axis; a press that leaves the box from the
+    pose leaves it from every contact), and from the contact before the execute phase is
+    sent.
+    """
+    end, length = execute_path(action, start, acceleration_m_s2)
+    if limits.inside(end):
+        return ""
+    what = "press" if action.kind != "slide" else "slide"
+    return (
+        f"the {what} of action {action.id} ({length:.3f} m from {_rounded(start[:3])}, to "
+        f"{_rounded(end)}) would leave the [limits] workspace {list(limits.workspace_min_m)} .. "
+        f"{list(limits.workspace_max_m)}; shorten the action (depth_m, or speed_m_s "
+        "x duration_s) in the action catalog, or move the object or the workspace"
+    )
+
+
+def _rounded(position: Sequence[float] | NDArray[np.float64]) -> list[float]:
+    return [round(float(v), 4) for v in position]
 
 
 def check_pose(

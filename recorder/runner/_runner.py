@@ -44,6 +44,7 @@ from recorder.runner._limits import (
     check_action,
     check_motion,
     check_pose,
+    path_problem,
 )
 from recorder.runner._limits import tool_axis as _tool_axis
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
@@ -388,6 +389,7 @@ class ArmRig:
         motion = self.options.motion
         self._watch = watch
         self._begin()
+        self.skin.begin()
         self._until_free(f"move to {obj.id}")  # nothing sent yet: a refusal stops nothing
         try:
             self._check("")  # a signal that came before anything is sent
@@ -472,6 +474,11 @@ class ArmRig:
         try:
             while self._state.sample is before:  # the silence check bounds the wait
                 self._pump_quietly()
+            # nothing moves before the skin has sent since begin (a skin on the wrong port or
+            # address is found here, not half a second into a motion): the silence check
+            # bounds this wait too
+            while (self.skin.last_receive_ns() or 0) <= self._begun_ns:
+                self._pump_quietly()
             # in the controller's cycles, as the start of a motion (see _until_reached)
             cycles = MOVING_WAIT_S * self.options.time_scale * _NS / self.arm.period_ns
             until = self._state.taken + max(cycles, MOVING_WAIT_CYCLES)
@@ -533,11 +540,28 @@ class ArmRig:
             RigError: The action is outside the limits (nothing moved) or the rig is not
                 connected.
         """
-        check_action(action, self.limits, self.where)
-        if obj.id in self._poses:
-            check_pose(obj.id, self._poses[obj.id], self.limits, self.where)
+        self.check_plan(obj, action)
         self._connected()
         return self._perform(obj, action, trial)
+
+    def check_plan(self, obj: ObjectSpec, action: ActionSpec) -> None:
+        """Check ``action`` on ``obj`` against the limits before anything moves.
+
+        The action's speed and force, the object's pose, and the path of its execute phase
+        from that pose (a press deeper or a slide longer than the workspace leaves room for).
+
+        Raises:
+            RigError: One line naming the file, the value and the limit.
+        """
+        check_action(action, self.limits, self.where)
+        pose = self._poses.get(obj.id)
+        if pose is None:  # placed by hand: the path is checked at the contact
+            return
+        check_pose(obj.id, pose, self.limits, self.where)
+        accel = self.options.motion.acceleration_m_s2
+        if problem := path_problem(action, pose, self.limits, accel):
+            msg = f"{self.where}: {obj.id} (its [objects] pose): {problem}"
+            raise RigError(msg)
 
     def run(
         self,
@@ -617,7 +641,9 @@ class ArmRig:
         cycles = REST_S * self.options.time_scale * _NS / self.arm.period_ns
         until = self._state.taken + max(cycles, REST_CYCLES)
         deadline = self.clock.now_ns() + round((REST_S + self.options.silence_s) * _NS)
-        while (speed := self._joint_speed()) > MOVING_RAD_S:
+        # at rest is still (STILL_RAD_S), not "not moving by hand" (MOVING_RAD_S): a UR10's
+        # slowest approach turns its joints at a few mrad/s, below that
+        while (speed := self._joint_speed()) > STILL_RAD_S:
             if self._state.taken > until:
                 return (
                     f"the arm did not come to rest after the stop (a joint at {speed:.3f} "
@@ -852,6 +878,9 @@ class ArmRig:
         motion, scale = self.options.motion, self.options.time_scale
         hold_ns = round(action.duration_s * scale * _NS)
         here = _phase(at, "execute")
+        # from the contact as found: the path must fit before it is sent (nothing moves now)
+        if problem := path_problem(action, contact, self.limits, motion.acceleration_m_s2):
+            raise Stop(problem, self.clock.now_ns())
         yield self._event("execute")
         yield from self._until_fresh()
         if action.kind == "slide":

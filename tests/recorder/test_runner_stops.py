@@ -114,21 +114,27 @@ def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Pat
     _kept(path, "silent")
 
 
-@pytest.mark.parametrize("cause", ["silence", "lost"])
-def test_a_stop_the_arms_state_cannot_confirm_is_said(tmp_path: Path, cause: str) -> None:
+@pytest.mark.parametrize(
+    ("cause", "qd"),
+    # 0.005 rad/s: a UR10's slowest approach, below what counts as moving before an action
+    [("silence", 0.05), ("lost", 0.05), ("silence", 0.005)],
+)
+def test_a_stop_the_arms_state_cannot_confirm_is_said(
+    tmp_path: Path, cause: str, qd: float
+) -> None:
     # mid-slide the arm's state stops arriving (a cable out, a stalled controller): the stop
     # goes out, but nothing shows the arm at rest; the line must not claim a stopped arm
     path = tmp_path / "001.mcap"
     rig = fake_rig(cause)
     arm: FakeArm = rig.arm  # type: ignore[assignment]
-    arm.moving_qd = 0.05
+    arm.moving_qd = qd
     with rig, pytest.raises(ActionStoppedError) as info:
         record_action(rig, OBJECT, SLIDE, 1, path, seed=0)
     said = str(info.value)
     assert arm.stop_cycle is not None  # the stop went out
     assert (
         "the arm's state stopped arriving, so the stop cannot be confirmed (last seen moving, "
-        "a joint at 0.050 rad/s); check the arm at the teach pendant now" in said
+        f"a joint at {qd:.3f} rad/s); check the arm at the teach pendant now" in said
     ), said
     _kept(path, "the stop cannot be confirmed")
 
@@ -563,15 +569,18 @@ def test_the_room_an_action_asks_for_grows_with_its_recordings(
     assert sorted(f.name for f in action.iterdir()) == ["001.mcap"]
 
 
-def test_a_silent_skin_on_the_way_to_an_object_names_the_skin_not_the_arm() -> None:
+def test_a_silent_skin_refuses_the_move_to_an_object_before_it_is_sent() -> None:
+    # a skin on the wrong port or address: found before the arm moves, named as the skin
     rig = fake_rig()
     skin: FakeSkin = rig.skin  # type: ignore[assignment]
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
     skin.mute = True
     rig._poses["wood"] = START + np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
     with rig, pytest.raises(RigError) as info:
         rig.present(OBJECT)
     said = str(info.value)
-    assert said.startswith("fake.toml: moving to wood: skin silent for "), said
+    assert not [name for _, name in arm.commands if not name.startswith("stop")], arm.commands
+    assert said.startswith("fake.toml: the arm cannot move to wood: skin silent for "), said
     assert said.endswith(
         "; check that the skin sends (the dry run lists each source) and the rig "
         "configuration's [skin], then retry"
@@ -634,3 +643,42 @@ def test_a_second_ctrl_c_after_a_deferred_one_is_ignored_under_a_command() -> No
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_a_press_deeper_than_the_workspace_leaves_room_for_is_refused_before_anything_moves(
+    tmp_path: Path,
+) -> None:
+    # the contact lies at the pose or beyond it: a press that leaves the box from the pose
+    # leaves it from every contact (a 2 mm press, 1 mm of room below the pose)
+    rig = fake_rig()
+    floor = (-1.0, -1.0, float(START[2]) - 0.001)
+    rig.limits = dataclasses.replace(rig.limits, workspace_min_m=floor)
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    with rig, pytest.raises(RigError) as info:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    said = str(info.value)
+    assert said.startswith("fake.toml: wood (its [objects] pose): the press of action C1 "), said
+    assert "would leave the [limits] workspace" in said, said
+    assert said.endswith("in the action catalog, or move the object or the workspace"), said
+    assert not arm.commands
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_slide_longer_than_the_room_at_the_contact_is_stopped_before_it_is_sent(
+    tmp_path: Path,
+) -> None:
+    # an object placed by hand (no pose): the slide's path is checked from the contact found;
+    # 1 cm at 1 cm/s plus its deceleration does not fit in 5 mm
+    rig = fake_rig()
+    rig._poses.pop("wood")
+    x = float(START[0])  # the tool's x axis points along -x here
+    rig.limits = dataclasses.replace(rig.limits, workspace_min_m=(x - 0.005, -1.0, 0.0))
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    path = tmp_path / "001.mcap"
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, SLIDE, 1, path, seed=0)
+    assert "the slide of action S1 (0.010 m from" in str(info.value), str(info.value)
+    sent = [command for _, command in arm.commands]
+    assert "speed approach" in sent
+    assert not [c for c in sent if c.startswith("slide")], sent
+    _kept(path, "would leave the [limits] workspace")

@@ -536,10 +536,15 @@ def test_an_arm_that_never_moves_ends_the_approach(
 ) -> None:
     with virtual_lab() as lab:
         execute = lab.controller.execute
-        monkeypatch.setattr(  # the approach program is lost on its way
-            lab.controller, "execute", lambda program: bool(program.announced) or execute(program)
+        monkeypatch.setattr(  # every approach program is lost on its way: the arm stays put
+            lab.controller,
+            "execute",
+            lambda program: any(c.name == "speedl" for c in program.calls) or execute(program),
         )
-        rig = lab.rig({"wood": POSE}, approach_min_m_s=0.2)  # gives up after 0.4 s
+        # the slowest approach over the whole distance, twice: 2 x 0.02 / 0.02 s x 0.2 (scale)
+        rig = lab.rig(
+            {"wood": POSE}, approach_min_m_s=0.02, approach_max_m_s=0.02, approach_limit_m=0.02
+        )
         with pytest.raises(ActionStoppedError, match=r"no light contact within 0\.4 s") as info:
             _record(rig, "P1", tmp_path / "001.mcap")
     assert info.value.path is not None
@@ -859,6 +864,10 @@ def test_fault_options_are_parsed() -> None:
         ({"script_port": 30002.5}, "script_port = 30002.5: give a whole number"),
         ({"host": " 10.0.0.2"}, "host = ' 10.0.0.2': give an address"),
         ({"frequency": 125.5}, "frequency = 125.5: give a whole number"),
+        # one port, two interfaces: the stop's second way in would reach the first
+        ({"script_port": 31101, "dashboard_port": 31101}, "dashboard_port = 31101 is also "),
+        ({"rtde_port": 31104, "dashboard_port": 31104}, "dashboard_port = 31104 is also rtde"),
+        ({"rtde_port": 30001}, "script_port = 30001 is also rtde_port: a controller serves"),
     ],
 )
 def test_ports_out_of_range_are_refused_before_connecting(
@@ -877,6 +886,13 @@ def test_ports_out_of_range_are_refused_before_connecting(
         ({"max_force_n": float("nan")}, {}, "max_force_n = nan: give a positive finite number"),
         ({"max_tcp_speed_m_s": float("inf")}, {}, "give a positive finite number"),
         ({"max_force_n": 0.1}, {"contact_force_n": 0.2}, "contact_force_n = 0.2 exceeds"),
+        # an approach without proximity sensing runs at approach_min_m_s: at most the fastest
+        # (checked against the limit, and the one the stopping margins are computed for)
+        (
+            {},
+            {"approach_min_m_s": 0.05, "approach_max_m_s": 0.02},
+            "approach_min_m_s = 0.05 exceeds approach_max_m_s = 0.02; give approach_min_m_s <=",
+        ),
     ],
 )
 def test_limits_that_are_no_limits_are_refused(
