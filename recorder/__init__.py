@@ -29,6 +29,7 @@ from recorder._rigconfig import (
     FrozenTable,
     RigConfig,
     RigPlugin,
+    check_object_poses,
     find_rig,
     is_exclusive,
     load_rig_config,
@@ -37,7 +38,7 @@ from recorder._rigconfig import (
     rig_factory,
     rig_names,
 )
-from recorder._session import RigCheck, check_rig_ready
+from recorder._session import RigCheck, check_rig_ready, refuse_unrecordable
 from recorder.errors import (
     ActionStoppedError,
     BagImportError,
@@ -139,6 +140,7 @@ __all__ = [
     "TopicMap",
     "Viewer",
     "WrittenRecording",
+    "check_object_poses",
     "check_rig_ready",
     "declare_objects",
     "find_rig",
@@ -153,6 +155,7 @@ __all__ = [
     "record_action",
     "recording_path",
     "refuse_sections",
+    "refuse_unrecordable",
     "register_rig",
     "rig_factory",
     "rig_names",

@@ -14,6 +14,7 @@ reused with another seed by deleting it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
@@ -22,12 +23,12 @@ from typing import TYPE_CHECKING, Any
 
 from recorder.errors import RecorderError
 from recorder.runner._limits import MOTION_PREFIX
-from schemas import CLAIM_NAME
+from schemas import CLAIM_NAME, recorder_at_work
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-__all__ = ["CLAIM_NAME", "claim_dataset", "differing_settings"]
+__all__ = ["CLAIM_NAME", "check_writable", "claim_dataset", "differing_settings"]
 
 #: Settings (by prefix) that rig descriptions gained after datasets were recorded without
 #: them; see :func:`differing_settings`.
@@ -62,12 +63,39 @@ def _publish(root: Path, text: str) -> bool:
             with contextlib.suppress(OSError):
                 temporary.unlink()
     except OSError as err:
-        if root.exists() and not root.is_dir():
-            msg = f"--out {root}: is a file, not a directory; give a directory (new or a dataset)"
-            raise RecorderError(msg) from err
-        msg = f"{target}: cannot claim the dataset directory ({err.strerror}); check --out"
-        raise RecorderError(msg) from err
+        raise RecorderError(_unclaimable(root, err)) from err
     return True
+
+
+def _unclaimable(root: Path, err: OSError) -> str:
+    """Return the one line for a dataset directory that cannot be claimed (``err``: why)."""
+    if root.exists() and not root.is_dir():
+        return f"--out {root}: is a file, not a directory; give a directory (new or a dataset)"
+    return f"{root / CLAIM_NAME}: cannot claim the dataset directory ({err.strerror}); check --out"
+
+
+def check_writable(root: Path) -> None:
+    """Refuse, as :func:`claim_dataset` would, a directory the run could not write into.
+
+    A dry run writes nothing, so it creates and removes a temporary file in ``root``, or in its
+    first existing parent when ``root`` is to be made (a read-only file system, a directory of
+    another user): the real run would be refused there, after its dry run said ready.
+
+    Raises:
+        RecorderError: The same line :func:`claim_dataset` gives.
+    """
+    root = Path(root)
+    where = root
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        if not where.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(where))
+        handle, name = tempfile.mkstemp(prefix=f"{CLAIM_NAME}.", suffix=".tmp", dir=where)
+        os.close(handle)
+        Path(name).unlink()
+    except OSError as err:
+        raise RecorderError(_unclaimable(root, err)) from err
 
 
 def _read_claim(path: Path) -> dict[str, Any]:
@@ -127,8 +155,12 @@ def _unused(root: Path) -> str:
     """Return how to take over a claimed directory that holds no recording yet ('' if it does).
 
     A run refused before its first recording (a rig not ready, a skin on the wrong port) leaves
-    its claim: a run with a corrected configuration is told how to take the directory.
+    its claim: a run with a corrected configuration is told how to take the directory. Not
+    while a run records into it (it holds :func:`schemas.recording_into`): its first
+    recording may be seconds away, and a claim deleted under it would let this run in.
     """
+    if recorder_at_work(root):
+        return f": a recorder is writing into {root} now"
     recordings = (
         path for path in root.glob("*/*/*.mcap") if not path.name.endswith(".incomplete.mcap")
     )

@@ -30,14 +30,15 @@ A configuration file names the rig, its flat options, and any tables the rig's b
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import importlib.metadata
 import tomllib
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeAlias, TypeGuard
 
-from recorder.errors import RecorderError
+from recorder.errors import RecorderError, RigError
 from schemas import ContractError, RigValue, check_rig, load_toml, loads_toml
 
 if TYPE_CHECKING:
@@ -359,6 +360,36 @@ class ConfiguredRig:
     def __call__(self, seed: int) -> Rig:
         """Build a new rig, not yet connected."""
         return self.plugin.build(seed, self.config)
+
+
+def check_object_poses(config: RigConfig, catalog: Collection[str]) -> None:
+    """Refuse an ``[objects.<id>]`` table whose id is no object of the command's catalog.
+
+    A misspelled id (``[objects.foam_blok]``) is otherwise taken silently: the pose goes
+    unused and the real object is then "placed by hand", or refused by ``--yes``, with
+    nothing pointing at the typo.
+
+    Args:
+        config: The rig configuration (its ``objects`` section, and its file for messages).
+        catalog: The object ids of the catalog the command was given.
+
+    Raises:
+        RigError: One line naming the file, the table, the closest known id and the ids.
+    """
+    tables = config.sections.get("objects")
+    if not isinstance(tables, Mapping):
+        return  # absent, or not a table: the rig's own reading of it says what is wrong
+    where = config.source or "<rig options>"
+    for object_id in tables:
+        if object_id in catalog:
+            continue
+        close = difflib.get_close_matches(str(object_id), list(catalog), n=1)
+        guess = f"; did you mean {close[0]}?" if close else ""
+        msg = (
+            f"{where}: [objects.{object_id}] names no object of the object catalog{guess} "
+            f"(known: {', '.join(catalog)}); fix the id, or remove the table"
+        )
+        raise RigError(msg)
 
 
 def rig_factory(config: RigConfig | str) -> ConfiguredRig:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from recorder._claim import check_claim, claim_dataset
+from recorder._claim import check_claim, check_writable, claim_dataset
 from recorder._dataset import (
     check_configuration,
     declare_objects,
@@ -31,10 +31,11 @@ from recorder._dataset import (
 )
 from recorder._rig import Presenting, facts, source_stats
 from recorder.errors import RecorderError
+from recorder.live import SensingSkin
 from recorder.runner._limits import check_action
 from recorder.runner._record import check_room, record_action
 from recorder.runner._runner import ArmRig
-from schemas import check_rig, recording_into
+from schemas import VOCABULARY, check_rig, recording_into
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -77,6 +78,38 @@ def refuse_unpresentable(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
         msg = (
             f"--yes: the rig has no pose for {', '.join(missing)}; give them a pose in the rig "
             "configuration, or run without --yes to place them by hand"
+        )
+        raise RecorderError(msg)
+
+
+def refuse_unrecordable(rig: Rig, actions: Sequence[ActionSpec]) -> None:
+    """Refuse actions whose kind needs a skin modality the rig's skin does not deliver.
+
+    The rule is the reader's (:meth:`schemas.KindSpec.missing`): a recording made anyway
+    fails ``check``, after the arm did the work. A skin that does not say what it delivers
+    (a plug-in) is not checked here.
+
+    Raises:
+        RecorderError: One line naming the actions, the modalities they need, the ``[skin]``
+            of the configuration file and the fix.
+    """
+    if not isinstance(rig, ArmRig) or not isinstance(rig.skin, SensingSkin):
+        return
+    held = rig.skin.modalities
+    lacking = [
+        (action, missing)
+        for action in actions
+        if (missing := VOCABULARY.kind(action.kind).missing(held))
+    ]
+    if lacking:
+        needs = "; ".join(
+            f"a {action.kind!r} action ({action.id}) needs the skin modality {', '.join(missing)}"
+            for action, missing in lacking
+        )
+        msg = (
+            f"{rig.where}: [skin] delivers {', '.join(held) or 'no modality'} only, and {needs}: "
+            f"leave {','.join(action.id for action, _ in lacking)} out of --actions, or describe "
+            "what they need in [skin] if the skin has it"
         )
         raise RecorderError(msg)
 
@@ -142,12 +175,17 @@ def run_session(
         What was written and kept, and the index.
 
     Raises:
-        RecorderError: Another seed or rig configuration in ``root``, an object without a pose
-            when unattended (before anything moves), a stopped prompt, or a failed recording;
-            the recordings finished are kept and indexed.
+        RecorderError: Another seed or rig configuration in ``root``, an action the rig's skin
+            cannot record or an object without a pose when unattended (before anything
+            moves), a stopped prompt, or a failed recording; the recordings finished are kept
+            and indexed.
     """
     root = Path(root)
     check_configuration(root, seed, factory)
+    # before the claim: a run refused for its skin leaves the directory as it found it
+    refuse_unrecordable(
+        factory(seed), list({task.action.id: task.action for task in tasks}.values())
+    )
     claim_dataset(root, seed, check_rig(factory(seed).describe()))  # atomic: one seed a dir
     with recording_into(root):  # a check meanwhile sees a recorder at work
         for moved in set_aside_stale_parts(root):
@@ -308,6 +346,7 @@ def check_rig_ready(
     rig = factory(seed)
     if unattended:
         refuse_unpresentable(rig, objects)
+    refuse_unrecordable(rig, actions)
     # a rig that does not present (the simulator) needs nobody: every object is the rig's
     by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
     window_ns = 0
@@ -315,6 +354,8 @@ def check_rig_ready(
         if isinstance(rig, ArmRig):
             for action in actions:
                 check_action(action, rig.limits, rig.where)
+                for obj in objects:  # a press or a slide the workspace has no room for
+                    rig.check_plan(obj, action)
             check_room(room)
             rig.check_ready()
             rig.watch(seconds)
@@ -345,6 +386,7 @@ def check_session(
     root = Path(root)
     check_configuration(root, seed, factory)
     check_claim(root, seed, check_rig(factory(seed).describe()))
+    check_writable(root)  # the run's first write is its claim: refused there as it would be
     pending = [task for task in tasks if not task.path(root).exists()]
     objects = list({task.obj.id: task.obj for task in pending}.values())
     actions = list({task.action.id: task.action for task in pending}.values())

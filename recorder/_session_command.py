@@ -20,6 +20,7 @@ from recorder._cli import (
     rig_from_args,
 )
 from recorder._dataset import plan_dataset
+from recorder._rigconfig import ConfiguredRig, check_object_poses
 from recorder._session import SessionCheck, check_session, run_session
 from recorder.errors import RecorderError
 from recorder.runner._viewer import open_viewer
@@ -79,6 +80,9 @@ if TYPE_CHECKING:
 )
 def _session(args: argparse.Namespace) -> int:
     objects = load_objects(args.objects_catalog)
+    factory = rig_from_args(args)
+    if isinstance(factory, ConfiguredRig):  # a pose for an object of no catalog: a typo
+        check_object_poses(factory.config, objects)
     tasks = plan_dataset(
         objects,
         load_actions(args.actions_catalog),
@@ -91,9 +95,7 @@ def _session(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True, highlight=False)
     save = _view_file(args)
     if args.dry_run:
-        found = check_session(
-            tasks, args.out, rig_from_args(args), seed=args.seed, unattended=args.yes
-        )
+        found = check_session(tasks, args.out, factory, seed=args.seed, unattended=args.yes)
         return _say_check(console, found)
 
     def recorded(task: RecordingTask, written: WrittenRecording) -> None:
@@ -126,7 +128,7 @@ def _session(args: argparse.Namespace) -> int:
         report = run_session(
             tasks,
             args.out,
-            rig_from_args(args),
+            factory,
             seed=args.seed,
             unattended=args.yes,
             on_recorded=recorded,

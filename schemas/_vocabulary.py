@@ -19,7 +19,7 @@ from schemas._toml import loads_toml
 from schemas.errors import ContractError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Iterable, Mapping
 
 CONTRACT_FILE = "contract.toml"
 
@@ -110,6 +110,15 @@ class KindSpec:
     features: tuple[str, ...]
     parameters: tuple[str, ...]
     description: str
+
+    def missing(self, held: Iterable[str]) -> tuple[str, ...]:
+        """Return the modalities this kind needs that ``held`` lacks, in the kind's order.
+
+        The one rule for "can this skin record this action": the reader applies it to a
+        recording's channels, the recorder to a rig's skin before anything moves.
+        """
+        have = set(held)
+        return tuple(modality for modality in self.needs if modality not in have)
 
 
 @dataclass(frozen=True, slots=True)

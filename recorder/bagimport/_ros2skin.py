@@ -150,6 +150,11 @@ class Ros2Skin:
         """Return the number of cells."""
         return len(self.topic_map.cells)
 
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the modalities the topic map maps (a :class:`recorder.live.SensingSkin`)."""
+        return tuple(self.topic_map.skin)
+
     def begin(self) -> None:
         """Start a new recording: fresh accounting, forget what was received before."""
         for topic, reader in self._readers.items():

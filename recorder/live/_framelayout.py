@@ -226,6 +226,12 @@ class SkinLayout:
         """Return the accounting source name of a frame type."""
         return self.name if len(self.frames) == 1 else f"{self.name}-{frame.name}"
 
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the modalities some frame type carries, in the contract's order."""
+        carried = {item.modality for frame in self.frames for item in frame.modalities}
+        return tuple(m for m in VOCABULARY.modalities if m in carried)
+
     def frame_of(self, modality: str) -> FrameType | None:
         """Return the frame type carrying ``modality`` (None: the skin lacks it)."""
         for frame in self.frames:

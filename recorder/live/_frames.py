@@ -382,6 +382,11 @@ class FrameSkin:
         """Return the number of cells."""
         return self.layout.cells
 
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the modalities the layout's frames carry (a :class:`SensingSkin`)."""
+        return self.layout.modalities
+
     def _reset(self) -> None:
         self._streams = [_Stream(self.layout, frame) for frame in self.layout.frames]
         self._by_id = {stream.frame.id: stream for stream in self._streams}

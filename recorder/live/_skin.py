@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 from recorder.errors import RigError
 
@@ -84,6 +84,20 @@ class LiveSkin(Protocol):
 
     def stats(self) -> list[SourceStats]:
         """Return the accounting of each of its sources since :meth:`begin`."""
+        ...
+
+
+@runtime_checkable
+class SensingSkin(Protocol):
+    """A live skin that says, from its configuration, which modalities it delivers.
+
+    Known before it connects, so an action the skin cannot record is refused before anything
+    moves; a plug-in skin without it is not checked there (``check`` judges its files).
+    """
+
+    @property
+    def modalities(self) -> tuple[str, ...]:
+        """Return the contract's modalities this skin delivers."""
         ...
 
 

@@ -143,6 +143,27 @@ ROBOT_MODE_NAMES = {
 RECONNECT_S = 1.0
 #: How long each step of the dashboard's stop (connect, greeting, answer) may take, s.
 DASHBOARD_S = 0.5
+#: The longest dashboard answer said in a message, characters.
+ANSWER_SHOWN = 80
+
+
+def _answered(port: int, answer: str) -> str:
+    """Say what a dashboard port answered that was not what a dashboard server says.
+
+    A dashboard server answers a line of text; bytes that are not text (control characters,
+    or undecodable bytes replaced) come from another server on that port -- RTDE's or the
+    primary interface's binary packages, when ``dashboard_port`` names their port -- and are
+    never printed: they would fill the terminal with escapes.
+    """
+    if "\ufffd" in answer or not answer.replace("\t", " ").isprintable():
+        return (
+            f"port {port} answered with bytes that are not text: not a UR dashboard server "
+            "(is dashboard_port another interface's port?)"
+        )
+    shown = answer if len(answer) <= ANSWER_SHOWN else f"{answer[:ANSWER_SHOWN]}..."
+    return f"port {port} answered {shown!r}"
+
+
 #: The dashboard server's port on every UR controller.
 DASHBOARD_PORT = 29999
 #: Primary protocol (the script connection's stream): a message's head (size, type), the
@@ -452,7 +473,7 @@ class URArm:
             return f"port {port} not reachable ({err.strerror or err})"
         if greeting.startswith("Connected"):
             return f"port {port} answers"
-        return f"port {port} answered {greeting!r}"
+        return _answered(port, greeting)
 
     def _dashboard_says(self, command: bytes | None) -> tuple[str, str]:
         """Return the dashboard server's greeting and its answer to ``command`` (None: none).
@@ -689,7 +710,7 @@ class URArm:
             return f"port {link.dashboard_port}: {err.strerror or err}"
         if answer.lower().startswith("stopped"):
             return ""
-        return f"port {link.dashboard_port} answered {answer!r}"
+        return _answered(link.dashboard_port, answer)
 
     def stats(self) -> list[SourceStats]:
         """Return the RTDE stream's accounting since :meth:`begin`."""

@@ -121,6 +121,32 @@ class UROptions:
         if not 0 < self.time_scale <= 1:
             msg = f"{where}: rig option time_scale = {self.time_scale}: give a value in (0, 1]"
             raise RigError(msg)
+        self._check_ports(where)
+
+    def _check_ports(self, where: str) -> None:
+        """Refuse two interfaces of one controller on one port.
+
+        A controller serves RTDE, URScript and the dashboard each on a port of its own; a
+        dashboard_port that is the script port would send the stop's second way in to the
+        first one (and read its binary packages as the dashboard's greeting).
+
+        Raises:
+            RigError: Both options, their port and the usual ports.
+        """
+        ports = {"rtde_port": self.rtde_port, "script_port": self.script_port}
+        if self.dashboard_port:  # 0: no dashboard
+            ports["dashboard_port"] = self.dashboard_port
+        seen: dict[int, str] = {}
+        for key, port in ports.items():
+            if port in seen:
+                msg = (
+                    f"{where}: rig option {key} = {port} is also {seen[port]}: a controller "
+                    f"serves each interface on a port of its own (rtde_port {RTDE_PORT}, "
+                    f"script_port {SCRIPT_PORT}, dashboard_port {DASHBOARD_PORT}); give {key} "
+                    "its own port"
+                )
+                raise RigError(msg)
+            seen[port] = key
 
 
 def _whole_numbers(values: dict[str, Any], where: str) -> None:

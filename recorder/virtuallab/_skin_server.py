@@ -429,16 +429,29 @@ class SkinServer:
         try:
             while not self._stop.is_set():
                 now = self.world.controller_ns()
-                stop_after = self.faults.stop_after_s
-                if stop_after > 0 and now - self._origin >= stop_after * 1e9:
-                    with self._lock:
-                        self._stopped = True
+                if self._stopping(now):
                     self._stop.wait(MIN_SLEEP_S * 10)
                     continue
                 self.send_due(now)
                 self._stop.wait(self._sleep(now))
         except BaseException as err:  # noqa: BLE001 (reported by serve_skin's exit)
             self.error = err
+
+    def _stopping(self, now: int) -> bool:
+        """Return whether the sender has stopped by controller time ``now`` (``stop_after_s``).
+
+        The stop is a fault like the others: reported once, as it happens, so that it is
+        printed, logged as an event and counted in the summary.
+        """
+        stop_after = self.faults.stop_after_s
+        if stop_after <= 0 or now - self._origin < stop_after * 1e9:
+            return False
+        with self._lock:
+            first, self._stopped = not self._stopped, True
+            sent = sum(self._sent.values())
+        if first and self._on_fault is not None:
+            self._on_fault("stop", now, frame=self._faulted, after_s=stop_after, sent=sent)
+        return True
 
     def send_due(self, now: int) -> None:
         """Send every frame due by controller time ``now`` (the sending thread's step).

@@ -58,6 +58,7 @@ from replay.recording._reader import (
 )
 from replay.recording._salvage import salvage
 from schemas import (
+    INCOMPLETE_SUFFIX,
     PART_SUFFIX,
     SET_ASIDE_DIR,
     ContractError,
@@ -710,29 +711,43 @@ def _check(args: argparse.Namespace) -> int:
         warnings += [line + now for line in index]
         index = []
     index += _seed_problem(seeds) if path.is_dir() else []
-    warnings += _incomplete(path) if path.is_dir() else []
-    warnings += writing
+    incomplete = _incomplete(path) if path.is_dir() else []
+    warnings += incomplete + writing
     aside = sorted((path / SET_ASIDE_DIR).rglob(f"*{PART_SUFFIX}")) if path.is_dir() else []
-    if not files and not unfinished and not writing:
+    # only what stopped actions kept (a session stopped in its first action): listed, not
+    # "no recordings", and a failure all the same: nothing here is a recording of the dataset
+    only_incomplete = not files and not unfinished and not writing
+    if only_incomplete and not incomplete:
         msg = f"{path}: no recordings (*.mcap) found"
         raise ReplayError(msg)
+    empty = [_only_incomplete(path, len(incomplete))] if only_incomplete else []
     if args.json:
         _print_json(
             {
                 **({"path": str(path)} if len(paths) == 1 else {"paths": list(map(str, paths))}),
                 "recordings": len(files),
                 "valid": len(files) - len(bad),
-                "failures": bad + index + unfinished,
+                "failures": bad + index + unfinished + empty,
                 "warnings": warnings,
                 "unfinished": len(unfinished),
                 "being_written": len(writing),
                 "set_aside": [str(p) for p in aside],
-                "ok": not (bad or index or unfinished),
+                "ok": not (bad or index or unfinished or empty),
             }
         )
     else:
-        _print_check(path, files, (bad, index, unfinished, warnings), aside)
-    return 1 if bad or index or unfinished else 0
+        _print_check(path, files, (bad, index + empty, unfinished, warnings), aside)
+    return 1 if bad or index or unfinished or empty else 0
+
+
+def _only_incomplete(root: Path, count: int) -> str:
+    """Return the failure of a directory that holds only recordings stopped actions kept."""
+    return (
+        f"{root}: no recordings (*.mcap) found, only {count} incomplete "
+        f"(*{INCOMPLETE_SUFFIX}, each listed) kept from actions a stop ended early; see what "
+        "one holds with atikt-replay info FILE, and record those actions again (the same "
+        "session command resumes)"
+    )
 
 
 def _print_check(

@@ -98,7 +98,10 @@ def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
     differ = sorted(k for k in {*ours, *held} if ours.get(k) != held.get(k))
     if differ and not (differ == [BUDGET] and _larger(ours.get(BUDGET), held.get(BUDGET))):
         shown = ", ".join(f"{k}={held.get(k)!r} (now {ours.get(k)!r})" for k in differ)
-        msg = f"{target}: holds a live run of other settings ({shown}); give another --out"
+        fix = "give another --out"
+        if differ == [BUDGET]:  # a smaller budget only: the run's own budget continues it
+            fix = f"give --budget {held.get(BUDGET)} or more to continue it, or another --out"
+        msg = f"{target}: holds a live run of other settings ({shown}); {fix}"
         raise ReplayError(msg)
     if (target / HISTORY_NAME).exists() and not _larger(ours.get(BUDGET), _finished_budget(target)):
         msg = (

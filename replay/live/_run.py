@@ -14,11 +14,13 @@ from recorder import (
     FoxgloveView,
     RecorderError,
     RigCheck,
+    check_object_poses,
     check_rig_ready,
     find_rig,
     load_actions,
     load_objects,
     load_rig_config,
+    refuse_unrecordable,
     stale_parts,
 )
 from recorder import rig_factory as make_factory
@@ -201,13 +203,15 @@ def _spawn_loopback_viewer(stream: Any) -> subprocess.Popen[bytes]:  # noqa: ANN
     return viewer
 
 
-def _catalog(spec: RunSpec) -> tuple[list[ObjectSpec], dict[str, ActionSpec]]:
+def _catalog(spec: RunSpec, config: RigConfig) -> tuple[list[ObjectSpec], dict[str, ActionSpec]]:
     """The run's new objects (in order) and the action catalog.
 
     Raises:
         ReplayError: An object or an action the catalogs lack (the rig cannot perform it).
+        RecorderError: The rig configuration gives a pose to an object of no catalog.
     """
     objects, actions = load_objects(), load_actions()
+    check_object_poses(config, objects)  # a typo would leave the real object without a pose
     for option, asked, known in (
         ("--new", spec.new_objects, objects),
         ("--actions", spec.actions, actions),
@@ -253,7 +257,7 @@ def check_live(config: RigConfig, spec: RunSpec, session: Path, *, test_trials: 
         ReplayError: What the run would refuse, or a check of the rig failed (one line).
     """
     try:
-        objects, catalog = _catalog(spec)
+        objects, catalog = _catalog(spec, config)
         factory = make_factory(config)
         refuse_unpresented(factory(spec.seed), objects)
         actions = [catalog[a] for a in spec.actions]
@@ -298,8 +302,9 @@ def learn_live(
         ReplayError: An object the catalog lacks, or the recorder refused (one line).
     """
     try:
-        objects, actions = _catalog(spec)
+        objects, actions = _catalog(spec, config)
         rig = make_factory(config)(spec.seed)
+        refuse_unrecordable(rig, [actions[a] for a in spec.actions])  # before anything moves
         executor = LiveExecutor(
             rig,
             objects,

@@ -347,7 +347,7 @@ def _check_needs(path: Path, metadata: RecordingMetadata, held: Sequence[str]) -
         RecordingError: A needed modality is missing; names the kind, the modality and the fix.
     """
     kind = VOCABULARY.kind(metadata.action_kind)
-    if missing := [m for m in kind.needs if m not in held]:
+    if missing := kind.missing(held):
         msg = (
             f"{path}: a {kind.name!r} action ({metadata.action_id}) needs the skin modality "
             f"{', '.join(missing)}, the recording has {', '.join(held) or 'none'}; record it "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
@@ -15,10 +16,10 @@ from conftest import FakeRig
 
 from recorder import ActionSpec, StreamItem, generate_dataset, plan_dataset
 from recorder._claim import CLAIM_NAME, claim_dataset, differing_settings
-from recorder._session import run_session
+from recorder._session import check_session, run_session
 from recorder.errors import RecorderError
 from replay.cli._main import main as replay_main
-from schemas import recorder_at_work
+from schemas import recorder_at_work, recording_into
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -97,6 +98,56 @@ def test_a_claim_without_a_recording_says_how_to_take_the_directory(tmp_path: Pa
     with pytest.raises(RecorderError) as refused:
         claim_dataset(tmp_path, 3, {"rig": "ur", "silence_s": "1"})
     assert str(refused.value).endswith("give another --out")
+
+
+def test_a_claim_held_by_a_running_recorder_is_never_advised_deleted(tmp_path: Path) -> None:
+    # a session records into the directory (it holds its claim) and has written nothing yet:
+    # a second run of another configuration must not be told to delete the claim
+    claim_dataset(tmp_path, 3, {"rig": "ur", "silence_s": "0.5"})
+    with recording_into(tmp_path):
+        for seed, configuration in ((3, {"rig": "ur", "silence_s": "1"}), (4, {"rig": "ur"})):
+            with pytest.raises(RecorderError) as refused:
+                claim_dataset(tmp_path, seed, configuration)
+            said = str(refused.value)
+            assert "delete" not in said
+            assert said.endswith(f": a recorder is writing into {tmp_path} now")
+    with pytest.raises(RecorderError) as refused:  # the recorder gone: the way in again
+        claim_dataset(tmp_path, 4, {"rig": "ur"})
+    assert str(refused.value).endswith("the directory holds no recording yet")
+
+
+@pytest.mark.parametrize("existing", [True, False])
+def test_a_dry_run_into_a_directory_it_cannot_write_is_refused_as_the_run_is(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    monkeypatch: pytest.MonkeyPatch,
+    existing: bool,  # noqa: FBT001 (a parameter)
+) -> None:
+    # a read-only file system (root writes anywhere else, so the file system's answer is
+    # given here): the dry run says what the run would, where the run would be refused
+    root = tmp_path / "ro" / "lab"
+    if existing:
+        root.mkdir(parents=True)
+    tasks = plan_dataset(objects, actions, object_ids=["wood"], action_ids=["P1"], trials=1)
+
+    def read_only(*_args: object, **_kwargs: object) -> tuple[int, str]:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+
+    monkeypatch.setattr("recorder._claim.tempfile.mkstemp", read_only)
+    said = f"{root / CLAIM_NAME}: cannot claim the dataset directory (Read-only file system); "
+    said += "check --out"
+    with pytest.raises(RecorderError) as dry:
+        check_session(tasks, root, FakeRig, seed=0, unattended=True)
+    assert str(dry.value) == said
+    made = sorted(p.name for p in tmp_path.rglob("*"))
+    assert made == (["lab", "ro"] if existing else [])  # the dry run wrote nothing
+    with pytest.raises(RecorderError) as run:
+        run_session(tasks, root, FakeRig, seed=0, unattended=True)
+    assert str(run.value) == said
+    monkeypatch.undo()
+    check_session(tasks, root, FakeRig, seed=0, unattended=True)  # writable: ready
+    assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # its probe removed
 
 
 def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:

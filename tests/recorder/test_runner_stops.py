@@ -21,6 +21,7 @@ from fake_arm import START, FakeArm, FakeSkin, fake_rig
 from mcap.reader import make_reader
 
 from recorder import ActionStoppedError, RecorderError, RigError, load_actions, load_objects
+from recorder._session import check_rig_ready
 from recorder.runner import arm_lock
 from recorder.runner._record import record_action
 from recorder.runner._runner import SPEED_LEASE_S
@@ -662,6 +663,10 @@ def test_a_press_deeper_than_the_workspace_leaves_room_for_is_refused_before_any
     assert said.endswith("in the action catalog, or move the object or the workspace"), said
     assert not arm.commands
     assert not list(tmp_path.iterdir())
+    # the dry run refuses it alike, moving nothing
+    with pytest.raises(RigError, match=r"wood \(its \[objects\] pose\): the press of action C1"):
+        check_rig_ready(lambda _seed: rig, 0, [OBJECT], [ACTION], tmp_path, seconds=0.1)
+    assert not arm.commands
 
 
 def test_a_slide_longer_than_the_room_at_the_contact_is_stopped_before_it_is_sent(

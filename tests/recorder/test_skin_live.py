@@ -155,7 +155,13 @@ def test_a_sender_that_stops_goes_silent() -> None:
     with udp_skin(example(), RecorderClock(), "lab.toml") as skin:
         skin.begin()
         faults = SkinFaults(stop_after_s=0.1)
-        with serve_skin(RampWorld(), _url(skin), example(), faults) as server:
+        reported: list[tuple[str, dict[str, object]]] = []
+
+        def on_fault(fault: str, controller_ns: int, **details: object) -> None:
+            assert controller_ns > 0
+            reported.append((fault, details))
+
+        with serve_skin(RampWorld(), _url(skin), example(), faults, on_fault=on_fault) as server:
             poll_until(skin, lambda: server.injected.stopped)
             skin.poll()
             last = skin.last_receive_ns()
@@ -163,6 +169,9 @@ def test_a_sender_that_stops_goes_silent() -> None:
             skin.poll()
             assert skin.last_receive_ns() == last
     assert server.injected.sent["fast"] <= 101
+    # reported once, as the other faults are (serve-sim prints it and counts it)
+    sent = sum(server.injected.sent.values())
+    assert reported == [("stop", {"frame": "fast", "after_s": 0.1, "sent": sent})]
 
 
 def test_serial_over_a_pseudo_terminal_resyncs() -> None:

@@ -1,5 +1,6 @@
 """Live recordings as the reader, info and check see them: sources' accounting, stopped actions."""
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -118,6 +119,33 @@ def test_a_stopped_action_is_shown_warned_and_never_learned_from(
     captured = capsys.readouterr()
     assert "1 of 1 recordings valid" in captured.out
     assert "incomplete, kept for inspection" in captured.err
+
+
+def test_a_directory_holding_only_stopped_actions_lists_them(
+    tmp_path: Path,
+    objects: dict[str, ObjectSpec],
+    actions: dict[str, ActionSpec],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # a session stopped in its first action: what it kept is listed, never "no recordings"
+    with pytest.raises(ActionStoppedError) as stopped:
+        _record(_LiveRig(LOSSY, stop_at=0.5), tmp_path, objects["wood"], actions["S1"])
+    incomplete = stopped.value.path
+    assert incomplete is not None
+    assert main(["check", str(tmp_path), "--workers", "1"]) == 1  # no recording of a dataset
+    captured = capsys.readouterr()
+    err = captured.err.replace("\n", "")
+    assert f"{incomplete}: incomplete, kept for inspection (the action was stopped: " in err
+    assert (
+        f"{tmp_path}: no recordings (*.mcap) found, only 1 incomplete (*.incomplete.mcap, each "
+        "listed) kept from actions a stop ended early; see what one holds with atikt-replay info "
+        "FILE, and record those actions again" in err
+    )
+    assert captured.out.splitlines() == ["0 of 0 recordings valid"]  # no unfinished ones
+    assert main(["check", str(tmp_path), "--workers", "1", "--json"]) == 1
+    said = json.loads(capsys.readouterr().out)
+    assert said["ok"] is False
+    assert [line.split(":")[0] for line in said["warnings"]] == [str(incomplete)]
 
 
 def test_brackets_in_a_reason_or_a_path_are_printed_as_they_are(

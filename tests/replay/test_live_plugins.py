@@ -167,8 +167,12 @@ def test_a_larger_budget_continues_a_live_run_and_a_smaller_one_is_refused(
     assert json.loads((target / "live.json").read_text(encoding="utf-8")) == budget(3)
     # interrupted before its history was written again: the same command resumes it
     assert claim_live_run(target, budget(3)) is True
-    with pytest.raises(ReplayError, match=r"other settings \(learner\.budget=3 \(now 2\)\)"):
+    with pytest.raises(ReplayError) as smaller:
         check_live_run(target, budget(2))
+    assert str(smaller.value) == (
+        f"{target}: holds a live run of other settings (learner.budget=3 (now 2)); give "
+        "--budget 3 or more to continue it, or another --out"
+    )
 
 
 def test_a_killed_live_runs_unfinished_file_is_said_by_the_dry_run_then_set_aside(
@@ -229,3 +233,34 @@ def test_a_session_shows_its_signals_in_rerun_as_learn_does(
     assert {"/".join(e.split("/")[2:5]) for e in temporal_entities(fallback) if "/live/" in e} == {
         "wood/P1/002"
     }
+
+
+def test_live_learning_refuses_an_action_its_skin_cannot_record_before_anything_moves(
+    tmp_path: Path,
+) -> None:
+    from recorder import load_rig_config  # noqa: PLC0415
+    from replay.errors import ReplayError  # noqa: PLC0415
+    from replay.learning._session import RunSpec  # noqa: PLC0415
+    from replay.live._run import learn_live  # noqa: PLC0415
+
+    # a 1-cell force-only skin; nothing listens on its ports: a connection would fail otherwise
+    config = tmp_path / "rig1.toml"
+    config.write_text(
+        'rig = "ur"\n[options]\nhost = "127.0.0.1"\nrtde_port = 9\nscript_port = 7\n'
+        "dashboard_port = 0\n[objects.wood]\npose = [-0.7, -0.2, 0.15, 0.0, 3.14159, 0.0]\n"
+        "[objects.foam_block]\npose = [-0.55, -0.2, 0.15, 0.0, 3.14159, 0.0]\n"
+        '[skin]\ntransport = "udp"\nbind = "127.0.0.1:0"\ncells = 1\n'
+        "[skin.header]\nmagic = [0xAA]\n[skin.frames.f]\nrate_hz = 250\n"
+        'sequence = { at = 1, type = "u16" }\n[skin.frames.f.force]\nat = 3\ntype = "u16"\n'
+        "count = 1\nscale = 0.001\n"
+    )
+    spec = RunSpec(new_objects=("wood", "foam_block"), prior_objects=(), actions=("P1", "S1"))
+    session = tmp_path / "live" / "session"
+    with pytest.raises(ReplayError) as refused:
+        learn_live(load_rig_config(config), spec, None, session, test_trials=1, on_step=print)
+    assert str(refused.value) == (
+        f"--rig ur: {config}: [skin] delivers force only, and a 'slide' action (S1) needs the "
+        "skin modality acceleration: leave S1 out of --actions, or describe what they need in "
+        "[skin] if the skin has it"
+    )
+    assert not session.exists()  # refused before the run's directory, let alone a motion
