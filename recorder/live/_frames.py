@@ -568,6 +568,21 @@ class UdpSkin(FrameSkin):
     def _framer_malformed(self) -> int:
         return self.foreign
 
+    def silence_hint(self) -> str:
+        """Say what arrived at the skin's address: nothing, or datagrams of another sender."""
+        host, port = self.address
+        if self.foreign:
+            return (
+                f"{self.foreign} datagrams came from another address than [skin] sender = "
+                f"{self.layout.sender!r} and were dropped: is sender the skin's address?"
+            )
+        if self.last_receive_ns() is None:
+            return (
+                f"no datagram arrived at [skin] bind = '{host}:{port}': does the skin send to "
+                "this address and port?"
+            )
+        return ""
+
     def _close(self) -> None:
         if self._socket is not None:
             self._socket.close()

@@ -101,6 +101,15 @@ class SensingSkin(Protocol):
         ...
 
 
+@runtime_checkable
+class ExplainingSkin(Protocol):
+    """A live skin that can say why nothing of it arrives (a silent skin's line names it)."""
+
+    def silence_hint(self) -> str:
+        """Return what it knows of its silence, one clause ('': nothing to add)."""
+        ...
+
+
 #: The window of :meth:`LiveSkin.total_force`'s mean, ns.
 FORCE_WINDOW_NS = 20_000_000
 

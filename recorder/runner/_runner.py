@@ -27,6 +27,7 @@ import numpy as np
 
 from recorder.errors import RigError
 from recorder.live import (
+    ExplainingSkin,
     RecorderClock,
     SourceLostError,
     check_rt_priority,
@@ -1075,6 +1076,8 @@ class ArmRig:
                 reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
             elif read - last_skin > silence:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
+                if isinstance(self.skin, ExplainingSkin) and (hint := self.skin.silence_hint()):
+                    reason += f" ({hint})"
                 fix = (
                     "check that the skin sends (the dry run lists each source) and the rig "
                     "configuration's [skin], then retry"
