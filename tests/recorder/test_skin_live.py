@@ -260,8 +260,8 @@ def test_a_silent_udp_skin_says_what_arrived_at_its_address() -> None:
     # nothing at all: the address is named; datagrams of another sender: the sender is named
     with udp_skin(example(), RecorderClock(), "lab.toml") as skin:
         skin.begin()
-        port = skin.address[1]  # type: ignore[attr-defined]
-        hint = skin.silence_hint()  # type: ignore[attr-defined]
+        port = skin.address[1]
+        hint = skin.silence_hint()
         assert hint == (
             f"no datagram arrived at [skin] bind = '127.0.0.1:{port}': does the skin send to "
             "this address and port?"
@@ -270,8 +270,8 @@ def test_a_silent_udp_skin_says_what_arrived_at_its_address() -> None:
         skin.begin()
         with serve_skin(RampWorld(), _url(skin), example()):
             deadline = time.monotonic() + 5
-            while not skin.foreign and time.monotonic() < deadline:  # type: ignore[attr-defined]
+            while not skin.foreign and time.monotonic() < deadline:
                 skin.poll()
                 time.sleep(0.01)
-        hint = skin.silence_hint()  # type: ignore[attr-defined]
+        hint = skin.silence_hint()
         assert "came from another address than [skin] sender = '127.0.0.2'" in hint, hint
