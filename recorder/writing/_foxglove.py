@@ -15,6 +15,7 @@ server-and-queue base.
 from __future__ import annotations
 
 import contextlib
+import logging
 import queue
 import threading
 from typing import TYPE_CHECKING, Any, Self, cast
@@ -37,6 +38,43 @@ CAPACITY = 20_000
 #: Longest wait for the thread when the run ends, s.
 CLOSE_S = 2.0
 _END = object()
+
+
+#: The subprotocol foxglove-sdk's server speaks (it refuses a client that offers only the
+#: older name of the same protocol, ``foxglove.websocket.v1``).
+SUBPROTOCOL = "foxglove.sdk.v1"
+#: The logger of foxglove-sdk's WebSocket server (it says each refused handshake there).
+_SERVER_LOGGER = "foxglove.websocket.server"
+
+
+class _Handshakes(logging.Filter):
+    """Turn the SDK's line per refused handshake into one line that says why, said once.
+
+    A client that offers only ``foxglove.websocket.v1`` (Foxglove Studio before 2025, Lichtblick
+    before 2025-12) retries every second; the SDK logs ``Dropping client ...: handshake
+    failed`` each time, with no reason. Written here because the SDK offers no way to accept
+    that subprotocol name (it is the same protocol) or to say why it refused.
+    """
+
+    def __init__(self, url: str) -> None:
+        super().__init__()
+        self.url = url
+        self.refused = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if "handshake failed" not in record.getMessage():
+            return True
+        self.refused += 1
+        if self.refused == 1:
+            record.msg = (
+                f"--foxglove {self.url}: a client was refused at the handshake (said once): "
+                f"this server speaks the subprotocol {SUBPROTOCOL}; a client that offers only "
+                "foxglove.websocket.v1 (Foxglove Studio before 2025, Lichtblick before 2025-12) "
+                "cannot connect: update it"
+            )
+            record.args = ()
+            return True
+        return False
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -104,6 +142,8 @@ class _Served:
             msg = f"--foxglove {self.host}:{self.port}: cannot listen ({err}); choose another port"
             raise RecorderError(msg) from err
         self.port = int(self._server.port)
+        self._handshakes = _Handshakes(self.url)
+        logging.getLogger(_SERVER_LOGGER).addFilter(self._handshakes)
         self._advertise()
         self._thread.start()
         return self
@@ -123,6 +163,7 @@ class _Served:
         if self._server is not None:
             with contextlib.suppress(Exception):
                 self._server.stop()
+            logging.getLogger(_SERVER_LOGGER).removeFilter(self._handshakes)
         for channel in self._channels.values():
             with contextlib.suppress(Exception):
                 channel.close()

@@ -5,6 +5,7 @@ protocol, subprotocol foxglove.sdk.v1), and the shipped layout names the contrac
 from __future__ import annotations
 
 import json
+import logging
 import time
 from typing import TYPE_CHECKING
 
@@ -113,3 +114,23 @@ def test_a_server_advertises_its_own_channels_only() -> None:
         client.close()
     assert set(client.schemas) == {"/now"}
     assert first.subscribed == set()
+
+
+def test_a_client_of_the_older_subprotocol_name_is_told_why_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # foxglove-sdk refuses foxglove.websocket.v1 with "handshake failed", once per retry
+    from websockets.sync.client import connect  # noqa: PLC0415
+    from websockets.typing import Subprotocol  # noqa: PLC0415
+
+    with caplog.at_level(logging.INFO), FoxgloveView("127.0.0.1:0") as view:
+        for _ in range(3):
+            with pytest.raises(Exception, match="HTTP 400"):
+                connect(view.url, subprotocols=[Subprotocol("foxglove.websocket.v1")]).close()
+        with connect(view.url, subprotocols=[Subprotocol("foxglove.sdk.v1")]):
+            pass
+        time.sleep(0.2)  # the server's log lines come from its own thread
+    said = [r.getMessage() for r in caplog.records if "handshake" in r.getMessage()]
+    assert len(said) == 1, said
+    assert said[0].startswith(f"--foxglove {view.url}: a client was refused at the handshake")
+    assert "speaks the subprotocol foxglove.sdk.v1" in said[0]
