@@ -880,6 +880,8 @@ def publish_directory(target: Path, *, force: bool, option: str = "--out") -> It
     try:
         yield temporary
         _swap_in(temporary, target)
+    except BrokenPipeError:  # the reader of standard output went away: not the output's fault
+        raise
     except OSError as err:
         msg = f"{option} {target}: cannot write it ({err.strerror}); check free space"
         raise CliError(msg) from err

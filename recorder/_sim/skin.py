@@ -8,7 +8,7 @@ accelerometer (BMA250) and 1 proximity sensor (VCNL4010). The patch is flat; its
 robot's tool frame: x along the sliding direction, z along the outward normal (towards the
 object). Each cell's accelerometer axes are rotated about z by the cell's mounting angle.
 
-Sensor models follow the datasheets named in DESIGN.md: BMA250 10 bit at +-2 g (256 LSB/g);
+Sensor models follow the datasheets named in CALIBRATION.md: BMA250 10 bit at +-2 g (256 LSB/g);
 LM71 0.03125 C resolution with per-sensor offsets inside its +-1.5 C accuracy; force accuracy
 about 0.05 N; VCNL4010 16-bit counts, up to 200 mm.
 """

@@ -9,7 +9,7 @@ the cell's contact conductance grows with its force. The sensor sits under the c
 lags: two first-order stages (cover, then sensor and heater) between the surface and the
 reading.
 
-Calibration (DESIGN.md): 4.5 N static contact of a skin at 29.5 C on room-temperature
+Calibration (CALIBRATION.md): 4.5 N static contact of a skin at 29.5 C on room-temperature
 (22.5 C) wood drops the reading by 0.48 +- 0.10 C after 5 s, on aluminium by 2.40 +- 0.16 C,
 with about 1 s lag. ``SKIN_EFFUSIVITY`` sets the ratio of the two drops, ``SENSOR_LAG_S``
 their size; ``COVER_LAG_S`` is the 1 s lag. The two were fitted on whole simulated C1

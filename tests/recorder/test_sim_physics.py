@@ -121,8 +121,9 @@ def _drop_after(object_id: str, seconds: float, trials: int) -> tuple[float, flo
 
 
 def test_static_contact_reproduces_the_measured_thermal_drops() -> None:
-    """Calibration (DESIGN.md): 4.5 N on room-temperature wood drops a 29.5 C skin by
-    0.48 +- 0.10 C after 5 s, on aluminium by 2.40 +- 0.16 C, with about 1 s lag."""
+    """Calibration (recorder/_sim/CALIBRATION.md): 4.5 N on room-temperature wood drops a
+    29.5 C skin by 0.48 +- 0.10 C after 5 s, on aluminium by 2.40 +- 0.16 C, with about 1 s
+    lag."""
     wood, wood_force = _drop_after("wood", 5.0, trials=5)
     aluminium, aluminium_force = _drop_after("aluminium_plate", 5.0, trials=5)
     assert wood_force == pytest.approx(4.5, rel=0.1)

@@ -337,10 +337,14 @@ def test_study_all_skips_what_does_not_apply_and_resumes_what_is_finished(
     skipped = [line for line in err.splitlines() if line.startswith("skipped")]
     assert skipped == [
         (
+            "skipped study cross-rig: it learns from another rig's priors; give them with "
+            "--prior-recordings DIR (and --prior-actions)"
+        ),
+        (
             "skipped study cross-action: the dataset has actions P1; the study needs a target "
             "and a source action with the same feature blocks (--prior-actions T=S) (choose "
             "roles with --new/--priors, or record more)"
-        )
+        ),
     ]
     assert "cross-action" not in ran
     assert len(ran) == 6

@@ -332,3 +332,19 @@ def test_a_host_and_port_binds_loopback_unless_told(
     text: str, expected: tuple[str, int] | None
 ) -> None:
     assert cli.host_port(text) == expected
+
+
+def test_a_broken_pipe_inside_a_published_directory_is_not_taken_for_its_disk(
+    tmp_path: Path,
+) -> None:
+    # `learn ... | head -1`: printing a step fails while the run's directory is being made
+    target = tmp_path / "run"
+
+    def learn() -> None:
+        with cli.publish_directory(target, force=False) as temporary:
+            (temporary / "history.parquet").write_bytes(b"x")
+            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    with pytest.raises(BrokenPipeError):
+        learn()
+    assert not target.exists()  # nothing unfinished published
