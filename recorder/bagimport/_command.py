@@ -18,9 +18,11 @@ from rich.text import Text
 
 from recorder._catalog import load_actions, load_objects
 from recorder._cli import CATALOG_ARGUMENTS, arg, command, refuse_overlap
+from recorder._session import DUE_SAMPLES
 from recorder.bagimport._importer import import_bag
+from recorder.bagimport._journal import listen_lock
 from recorder.bagimport._listen import check_listen, listen, on_signal, recover
-from recorder.bagimport._source import bag_topics
+from recorder.bagimport._source import SkinTopic, bag_topics, extractors
 from recorder.bagimport._topicmap import EXAMPLE, load_topic_map
 from recorder.errors import BagImportError
 from recorder.writing._foxglove import DEFAULT_ADDRESS, TopicView
@@ -34,6 +36,7 @@ if TYPE_CHECKING:
     from rich.progress import Task, TaskID
 
     from recorder._catalog import ActionSpec, ObjectSpec
+    from recorder.bagimport._listen import TopicCheck
     from recorder.bagimport._report import ImportReport
     from recorder.bagimport._topicmap import TopicMap
 
@@ -261,10 +264,11 @@ def _listen(args: argparse.Namespace) -> int:
         return _listen_check(args, topic_map, objects, actions)
     if args.recover:
         say = lambda line: print(line, flush=True)  # noqa: E731, T201 (one line per file, journal)
-        if not recover(
-            topic_map, args.out, objects=objects, actions=actions, on_written=say, on_note=say
-        ):
-            print(f"{args.out}: no journal left by a stopped run")  # noqa: T201
+        with listen_lock(args.out):  # not beside a listen into the same directory
+            if not recover(
+                topic_map, args.out, objects=objects, actions=actions, on_written=say, on_note=say
+            ):
+                print(f"{args.out}: no journal left by a stopped run")  # noqa: T201
         return 0
     ending = [number for number in cli.handled_signals() if number != signal.SIGINT]
     previous = {number: signal.signal(number, on_signal) for number in ending}
@@ -311,12 +315,24 @@ def _listen_check(
         print(f"  {topic.line()}")  # noqa: T201
     silent = [t.topic for t in found if not t.received]
     lossy = [t.topic for t in found if t.lost]
-    if lossy:
-        print(f"listen: not ready: {', '.join(lossy)} lost messages")  # noqa: T201
+    # a skin topic that should have sent some messages in the check and sent none: the
+    # session's rule (a slow one, or the annotations between actions, is said, not refused)
+    skin = {t for t, e in extractors(topic_map).items() if isinstance(e, SkinTopic)}
+    nothing = [t.topic for t in found if not t.received and t.topic in skin and _due(t, seconds)]
+    wrong = [f"{', '.join(lossy)} lost messages"] if lossy else []
+    if nothing:
+        wrong.append(f"{', '.join(nothing)} sent nothing")
+    if wrong:
+        print(f"listen: not ready: {'; '.join(wrong)}")  # noqa: T201
         return 1
     quiet = f" ({', '.join(silent)} sent nothing: idle, or slower than the check)" if silent else ""
     print(f"listen: ready{quiet}")  # noqa: T201
     return 0
+
+
+def _due(topic: TopicCheck, seconds: float) -> bool:
+    """Whether a topic's rate says the check should have seen messages of it (none: yes)."""
+    return topic.declared_hz is None or topic.declared_hz * seconds >= DUE_SAMPLES
 
 
 def _listen_run(

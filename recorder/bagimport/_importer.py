@@ -328,30 +328,40 @@ def _robot_items(
     return items
 
 
-def _uncovered(plan: _Plan, modality: str, topic: str, blocks: Sequence[SkinBlock]) -> str:
+def _uncovered(
+    plan: _Plan,
+    modality: str,
+    topics: tuple[str, str],
+    blocks: Sequence[SkinBlock],
+    *,
+    live: bool = False,
+) -> str:
     """Return why a modality's blocks do not cover the window's execute phase (empty: they do).
 
     The reader's rule (``atikt-replay check``): a skin channel begins at or before the
-    execute phase and covers the action's duration (its last sample plus a period).
+    execute phase and covers the action's duration (its last sample plus a period). A bag's
+    window is fixed by the lab; live (``live``), the data is what it is: no fix is named.
+    ``topics``: the cells' topics that begin last and that end first.
     """
     if plan.incomplete:  # live: kept as what arrived, said incomplete
         return ""
     window, start = plan.window, plan.window.phase_start("execute")
+    where = window.where or "the annotation"
     first, last = blocks[0], blocks[-1]
     end = last.stamp_ns + last.period_ns * last.data.shape[0]
     needed = round(plan.action.duration_s * (1 - DURATION_TOLERANCE) * _NS_PER_S) - 1_000_000
     if first.stamp_ns > start:
         return (
-            f"the data does not cover it: {modality} of {topic} begins "
-            f"{(first.stamp_ns - start) / _NS_PER_S:.3f} s after its execute phase began; "
-            f"fix the window's start ({window.where or 'the annotation'})"
+            f"the data does not cover it: {modality} of {topics[0]} begins "
+            f"{(first.stamp_ns - start) / _NS_PER_S:.3f} s after its execute phase began"
+            + ("" if live else f"; fix the window's start ({where})")
         )
     if end - start < needed:
         return (
-            f"the data does not cover it: {modality} of {topic} ends "
+            f"the data does not cover it: {modality} of {topics[1]} ends "
             f"{(window.phase_stop('execute') - end) / _NS_PER_S:.3f} s before its execute "
-            f"phase ends ({plan.action.id} lasts {plan.action.duration_s:g} s); fix the "
-            f"window's stop ({window.where or 'the annotation'})"
+            f"phase ends ({plan.action.id} lasts {plan.action.duration_s:g} s)"
+            + ("" if live else f"; fix the window's stop ({where})")
         )
     return ""
 
@@ -402,12 +412,13 @@ def _window_items(
     report: ImportReport,
     *,
     live: bool = False,
-) -> tuple[list[StreamItem], str, dict[str, int], list[SourceStats]]:
+) -> tuple[list[StreamItem], str, dict[str, int], list[SourceStats], str]:
     """Return every stream item of one window ordered by receive time, or why it is skipped.
 
     A bag's window that its data does not cover is skipped (the bag keeps the data: the lab
     fixes the window and imports again); a live window is written whatever it holds, its data
-    exists nowhere else (``check`` then says what it lacks).
+    exists nowhere else: the last value returned says why it does not cover the action (it is
+    then kept as incomplete; empty: it does).
 
     Also returns, per skin topic, the stamps it delivered valid that cell alignment left out
     (summed over its modalities; see :func:`left_out_by_topic`), and the pauses of the skin
@@ -418,6 +429,7 @@ def _window_items(
     items: list[StreamItem] = [PhaseEvent(s, s, p) for p, s in window.events]
     left_out: dict[str, int] = {}
     paused: dict[str, SourceStats] = {}
+    short = ""
     for modality, spec in topic_map.skin.items():
         topics = [topic for topic, _ in cells[modality]]
         series = [s for _, s in cells[modality]]
@@ -426,13 +438,19 @@ def _window_items(
         period = block_period(exact, series[0].stamps)
         where = topics[0] if topics else spec.topic
         if period <= 0 or any(s.stamps.size == 0 for s in series):
-            return [], _too_few(modality, cells[modality], found, topic_map), {}, []
+            return [], _too_few(modality, cells[modality], found, topic_map), {}, [], ""
         rows = window_rows(series, window.start_ns, window.stop_ns, period)
         blocks, jitter, dropped = skin_blocks(modality, rows, period, topic_map.max_jitter)
         if not blocks:
-            return [], f"no {modality} samples of {where} with every cell inside it", {}, []
-        if not live and (reason := _uncovered(plan, modality, where, blocks)):
-            return [], reason, {}, []
+            return [], f"no {modality} samples of {where} with every cell inside it", {}, [], ""
+        edges = (
+            topics[int(np.argmax([s.stamps[0] for s in series]))],
+            topics[int(np.argmin([s.stamps[-1] for s in series]))],
+        )
+        if reason := _uncovered(plan, modality, edges, blocks, live=live):
+            if not live:
+                return [], reason, {}, [], ""
+            short = short or reason
         report.note(modality, rows, jitter, dropped)
         count, length = _gaps(rows.stamps, period)
         if count:
@@ -446,12 +464,19 @@ def _window_items(
             left_out[topic] = left_out.get(topic, 0) + count
         items.extend(blocks)
     robot = _robot_items(window, found, report)
-    for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
-        if mapped is not None and not any(isinstance(item, kind) for item in robot):
-            return [], f"no message of {mapped.topic} inside it", {}, []
+    if reason := _robot_missing(robot, topic_map):
+        return [], reason, {}, [], ""
     items.extend(robot)
     items.sort(key=lambda item: item.receive_ns)
-    return items, "", left_out, list(paused.values())
+    return items, "", left_out, list(paused.values()), short
+
+
+def _robot_missing(robot: Sequence[StreamItem], topic_map: TopicMap) -> str:
+    """Return which mapped robot topic has no message inside a window (empty: none)."""
+    for kind, mapped in ((JointSample, topic_map.joints), (PoseSample, topic_map.pose)):
+        if mapped is not None and not any(isinstance(item, kind) for item in robot):
+            return f"no message of {mapped.topic} inside it"
+    return ""
 
 
 def _rig(
@@ -546,8 +571,12 @@ class _Session:
         return start, self.los[i] - delay if i < count else 2**63, False
 
     def close_at(self) -> int:
-        """Return the receive time at which the next window is written."""
-        if self.done < len(self.plans):
+        """Return the receive time at which the next window is written.
+
+        Live, never: ``listen`` writes windows by the time on the stamps' clock (a lab's
+        stamps may be on another clock than the receive time, e.g. sim time).
+        """
+        if self.done < len(self.plans) and not self.live:
             return self.his[self.done] + self.topic_map.max_delay_ns
         return 2**63
 
@@ -617,7 +646,7 @@ class _Session:
         # live: the next window is not known yet, but it cannot start before this one ends
         last = plan.window.stop_ns - MARGIN_NS if self.live else self.his[i]
         forget = self.los[i + 1] if i + 1 < len(self.plans) else last
-        items, reason, left_out, paused = _window_items(
+        items, reason, left_out, paused, short = _window_items(
             plan, cells, self.found, self.topic_map, self.report, live=self.live
         )
         for extractor in self.found.values():
@@ -625,7 +654,11 @@ class _Session:
         if reason:
             self.report.skipped.append((plan.window.describe(), reason))
             return
+        if short:  # live: what arrived is kept, as incomplete (check would fail it)
+            plan = self.plans[i] = dataclasses.replace(plan, incomplete=short)
         self._write(plan, items, left_out, paused)
+        if short and plan.path not in self.skip:
+            self.report.cut_short[self.report.incomplete[-1]] = short
 
     def _write(
         self,

@@ -22,7 +22,10 @@ disk at every step; mcap's writer keeps only one index entry per chunk (for the 
 the journal is finished, which the rotation after each action bounds (actions that follow each
 other without a pause of ``max_delay_s`` + 1 s grow it until the next pause).
 
-A running ``listen`` holds an exclusive lock on its journal (``fcntl.flock``); a journal
+A running ``listen`` holds an exclusive lock on ``<out>/.listen/lock`` for its lifetime
+(:func:`listen_lock`): a second ``listen`` into the same directory would number the same trials
+and die on the first name the other took, so it is refused at its start in one line naming
+the first. It also holds an exclusive lock on its journal (``fcntl.flock``); a journal
 nobody holds was left by a run that died, and the next ``listen`` on the directory (or
 ``listen --recover``) recovers it and moves it to ``.listen/recovered/``; it is never deleted
 there.
@@ -66,6 +69,8 @@ JOURNAL_DIR = ".listen"
 RECOVERED_DIR = "recovered"
 #: Where retired journals go when a run keeps them (``keep_journals``).
 KEPT_DIR = "kept"
+#: The lock a running ``listen`` holds in :data:`JOURNAL_DIR` (:func:`listen_lock`).
+LOCK_NAME = "lock"
 #: A journal's file name ends so.
 JOURNAL_SUFFIX = ".journal.mcap"
 #: The journal's metadata record: the run's identity and what replaying it needs.
@@ -364,6 +369,71 @@ def held(path: Path) -> Iterator[bool]:
             yield False
             return
         yield True
+
+
+@contextlib.contextmanager
+def listen_lock(out: Path) -> Iterator[None]:
+    """Hold ``<out>/.listen/lock`` for the block: one ``listen`` at a time records into ``out``.
+
+    The kernel releases the lock when the process ends, however it ends (a SIGKILL leaves no
+    lock behind). A run that leaves nothing else in ``out`` (it failed at its start) removes
+    the lock and the directories it made: it wrote nothing.
+
+    Raises:
+        BagImportError: Another process holds it (named), or it cannot be made.
+    """
+    out = Path(out)
+    made = [d for d in (out / JOURNAL_DIR, *(out / JOURNAL_DIR).parents) if not d.exists()]
+    path = out / JOURNAL_DIR / LOCK_NAME
+    handle = _locked(path, out)
+    with handle:
+        try:
+            yield
+        finally:
+            handle.seek(0)
+            handle.truncate()
+            if made and not any(p != path for p in out.rglob("*") if not p.is_dir()):
+                with contextlib.suppress(OSError):
+                    path.unlink()  # still held: a run starting now makes and locks a new one
+                    for directory in made:
+                        directory.rmdir()
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _locked(path: Path, out: Path) -> IO[str]:
+    """Open and lock ``path`` (the lock file of a run that removed it is made again).
+
+    Raises:
+        BagImportError: Another process holds it (named), or it cannot be made.
+    """
+    for _ in range(3):
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            handle = path.open("a+", encoding="utf-8")
+        except OSError as err:
+            msg = f"{path}: cannot make listen's lock ({err.strerror}); check --out"
+            raise BagImportError(msg) from err
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            handle.close()
+            msg = (
+                f"{out}: {holder} records into it already; two would number the same trials: "
+                "give this one another --out, or stop the other first"
+            )
+            raise BagImportError(msg) from None
+        if path.exists() and path.stat().st_ino == os.fstat(handle.fileno()).st_ino:
+            handle.seek(0)
+            handle.truncate()
+            started = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+            handle.write(f"listen (pid {os.getpid()}, since {started})")
+            handle.flush()
+            return handle
+        handle.close()  # removed by the run that held it as this one opened it: again
+    msg = f"{path}: listen's lock keeps being removed; check what else writes into {out}"
+    raise BagImportError(msg)
 
 
 def left_journals(out: Path) -> list[Path]:

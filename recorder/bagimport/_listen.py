@@ -23,11 +23,12 @@ written.
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -57,6 +58,7 @@ from recorder.bagimport._journal import (
     JournalWriter,
     held,
     left_journals,
+    listen_lock,
     read_journal,
 )
 from recorder.bagimport._report import BagIdentity, ImportReport
@@ -147,12 +149,17 @@ class _Arrivals:
     sequences: list[int | None] = field(default_factory=list)
     #: The latest stamp received (None: nothing yet).
     latest: int | None = None
+    #: The lowest receive time minus stamp seen: the stamps' clock offset to the receive
+    #: clock plus the lowest transport latency (None: nothing yet).
+    offset: int | None = None
     overflow_seen: int = 0
+    #: Messages dropped for their size placed in time so far (:meth:`drop`).
     oversize_seen: int = 0
+    #: (time on the stamps' clock, count) of the messages dropped for their size: each is
+    #: counted in the file of the window it fell in (between actions: in none).
+    dropped: list[tuple[int, int]] = field(default_factory=list)
 
-    def stats(
-        self, name: str, lo: int, hi: int, overflowed: int, oversize: int = 0
-    ) -> SourceStats | None:
+    def stats(self, name: str, lo: int, hi: int, overflowed: int) -> SourceStats | None:
         """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none).
 
         A pause across an edge of the range (from the last arrival before it, to the first
@@ -183,9 +190,19 @@ class _Arrivals:
             if after is not None:
                 counter.pause(after - max(stamps))
         counter.overflow(overflowed - self.overflow_seen)
-        counter.malformed(oversize - self.oversize_seen)
-        self.overflow_seen, self.oversize_seen = overflowed, oversize
+        counter.malformed(sum(count for at, count in self.dropped if lo <= at < hi))
+        self.overflow_seen = overflowed
         return counter.stats()
+
+    def drop(self, oversize: int, at_ns: int) -> None:
+        """Place the messages dropped for their size since the last call at ``at_ns``.
+
+        ``oversize``: the reader's count since the start; ``at_ns``: the step's time on the
+        stamps' clock (a message is dropped within a step of its arrival).
+        """
+        if oversize > self.oversize_seen:
+            self.dropped.append((at_ns, oversize - self.oversize_seen))
+        self.oversize_seen = max(self.oversize_seen, oversize)
 
     def _by_counter(
         self, name: str, period: int, inside: list[int], lo: int, hi: int
@@ -206,12 +223,19 @@ class _Arrivals:
         counter.malformed(unread)
         return counter
 
+    def note(self, stamp: int, receive_ns: int) -> None:
+        """Note an arrival's stamp (on the session's clock) for the time windows may be written."""
+        self.latest = stamp if self.latest is None else max(self.latest, stamp)
+        offset = receive_ns - stamp
+        self.offset = offset if self.offset is None else min(self.offset, offset)
+
     def forget(self, before_ns: int) -> None:
         """Drop arrivals stamped before ``before_ns`` (they arrive in about stamp order)."""
         keep = next((i for i, s in enumerate(self.stamps) if s >= before_ns), len(self.stamps))
         del self.stamps[:keep]
         del self.receives[:keep]
         del self.sequences[:keep]
+        self.dropped = [(at, count) for at, count in self.dropped if at >= before_ns]
 
 
 @dataclass
@@ -249,6 +273,8 @@ class Listener:
     _arrivals: dict[str, _Arrivals] = field(default_factory=dict, init=False)
     _overflow: dict[str, SourceReader] = field(default_factory=dict, init=False)
     _grouper: AnnotationGrouper | None = field(default=None, init=False)
+    #: Annotations (stamp, receive ns, parsed) waiting to be grouped in stamp order.
+    _held: list[tuple[int, int, Any]] = field(default_factory=list, init=False)
     _planner: PathPlanner = field(init=False)
     _catalogs: Any = field(init=False)
     _store: Typestore = field(init=False)
@@ -468,7 +494,7 @@ class Listener:
         while recent and recent[0][1] < keep:
             recent.popleft()
         grouper, session = self._grouper, self.session
-        idle = grouper is None or grouper.open_start_ns is None
+        idle = (grouper is None or grouper.open_start_ns is None) and not self._held
         if not (self._journal_wrote and idle and session.done == len(session.plans)):
             return
         self._retire(reopen=True)
@@ -533,26 +559,58 @@ class Listener:
         out = []
         window = plan.window
         for topic, arrivals in self._arrivals.items():
-            overflowed, oversize, _ = self._counts[topic]
-            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed, oversize)
+            overflowed, _, _ = self._counts[topic]
+            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed)
             if stats is not None:
                 out.append(stats)
         return out
 
     def _annotate(self, raw: bytes, receive_ns: int) -> None:
-        """Take one annotation: a window whose ``end`` it is gets planned (or is skipped)."""
+        """Hold one annotation until it is grouped in stamp order (a malformed one is skipped)."""
         grouper = self._grouper
         if grouper is None:
             return
-        topic = grouper.topic
         try:
             text = str(self._store.deserialize_cdr(raw, ANNOTATION_TYPE).data)  # type: ignore[attr-defined]
-            window = grouper.add(*parse_annotation(text, receive_ns, topic))
-            if window is not None:
-                self._add(window, self._joined(window))
+            parsed = parse_annotation(text, receive_ns, grouper.topic)
         except RecorderError as err:
-            where = f"topic {topic} at {receive_ns} ns"
-            self.report.skipped.append((where, str(err).removeprefix(f"{where}: ")))
+            self._skip_annotation(receive_ns, err)
+            return
+        bisect.insort(self._held, (parsed[2], receive_ns, parsed), key=itemgetter(0, 1))
+
+    def _release(self, now_ns: int | None) -> None:
+        """Group the annotations held ``max_delay_s`` (None: all) in the order of their stamps.
+
+        A lab's system may send an action's annotations out of order (its ``end`` before its
+        ``execute``, each with its right ``stamp_ns``): within ``[time] max_delay_s`` of
+        arriving they are put in stamp order; a window whose ``end`` it is gets planned.
+        """
+        grouper, delay = self._grouper, self.topic_map.max_delay_ns
+        while grouper is not None and self._held:
+            _, receive_ns, parsed = self._held[0]
+            if now_ns is not None and receive_ns + delay > now_ns:
+                return
+            del self._held[0]
+            try:
+                window = grouper.add(*parsed)
+                if window is not None:
+                    self._add(window, self._joined(window))
+            except RecorderError as err:
+                self._skip_annotation(receive_ns, err)
+
+    def _skip_annotation(self, receive_ns: int, err: RecorderError) -> None:
+        """Note an annotation that cannot be taken (one line at the step's end).
+
+        Its action's messages stay in the journal, which is then kept (``.listen/kept/``,
+        :meth:`_retire`): the line says where (e.g. an ``end`` whose ``execute`` was sent
+        before this run joined: the data exists nowhere else).
+        """
+        where = f"topic {self._grouper_topic()} at {receive_ns} ns"
+        reason = str(err).removeprefix(f"{where}: ")
+        if self._journal is not None:
+            kept = self.out / JOURNAL_DIR / KEPT_DIR
+            reason += f"; its messages are kept in {kept}/ (import-bag reads them)"
+        self.report.skipped.append((where, reason))
 
     def _joined(self, window: Window) -> str:
         """Return why a window began before this listener received its topics (empty: not)."""
@@ -631,8 +689,12 @@ class Listener:
                 "(declared duration + margin)"
             )
 
-    def _notes(self) -> None:
-        """Print one line per window skipped or written with lost samples, late, too large."""
+    def _notes(self, *, final: bool = False) -> None:
+        """Print one line per window skipped or written with lost samples, late, too large.
+
+        Messages dropped for their size are said once per action written (``final``: the
+        rest, at the end of the run).
+        """
         report = self.report
         for path, lost in list(report.lost_samples.items())[self._noted.get("lost", 0) :]:
             self._note(
@@ -640,6 +702,12 @@ class Listener:
                 "lacks data its sources sent: record the action again"
             )
         self._noted["lost"] = len(report.lost_samples)
+        for path, reason in list(report.cut_short.items())[self._noted.get("short", 0) :]:
+            self._note(
+                f"{path}: kept as incomplete ({reason}); check fails a recording that does not "
+                "cover its action: record the action again"
+            )
+        self._noted["short"] = len(report.cut_short)
         for where, reason in report.skipped[self._noted.get("", 0) :]:
             self._note(f"skipped {where}: {reason}")
         self._noted[""] = len(report.skipped)
@@ -653,16 +721,21 @@ class Listener:
                     "max_delay_s in the topic map"
                 )
                 self._noted[f"late {topic}"] = count
+        # messages too large: one line per action written (and one at the end), not per step
+        written = self.session.done > self._noted.get("size done", 0)
         for topic, (_, oversize, size) in self._counts.items():
             new = oversize - self._noted.get(f"size {topic}", 0)
-            if new > 0:
+            if new > 0 and (written or final):
                 report.oversize[topic] = oversize
                 budget, where = self.topic_map.message_budget(topic)
                 self._note(
                     f"{topic}: dropped {new} messages larger than {where} max_message_kib = "
-                    f"{budget >> 10} (the latest {size} bytes); counted as malformed"
+                    f"{budget >> 10} (the latest {size} bytes; {oversize} in all); each is "
+                    "counted as malformed in the action it arrived in"
                 )
                 self._noted[f"size {topic}"] = oversize
+        if written:
+            self._noted["size done"] = self.session.done
 
     def _note(self, line: str) -> None:
         if self.on_note is not None:
@@ -718,6 +791,7 @@ class Listener:
         self._account(step)
         data: list[tuple[Route, int, bytes]] = []
         annotation = self._grouper.topic if self._grouper is not None else None
+        header = self.topic_map.stamps == "header"
         for topic, receive_ns, raw in step.items:
             if topic == annotation:
                 self._flush(data)
@@ -734,12 +808,16 @@ class Listener:
                 arrivals.receives.append(receive_ns)
                 if arrivals.read_counter is not None:
                     arrivals.sequences.append(arrivals.read_counter(raw))
-                arrivals.latest = stamp if arrivals.latest is None else max(arrivals.latest, stamp)
+                arrivals.note(stamp if header else receive_ns, receive_ns)
                 self._first_stamp.setdefault(topic, stamp)
                 if self._latest_stamp is None or stamp > self._latest_stamp:
                     self._latest_stamp = stamp
             data.append((route, receive_ns, raw))
         self._flush(data)
+        if step.now_ns is not None:
+            self._release(step.now_ns)
+            if step.seen is None:  # the drops of a prelude were placed by the run already
+                self._place_drops(step.now_ns)
         self._bound_open()
         if step.now_ns is not None:
             writable = self._writable(step.now_ns)
@@ -756,14 +834,30 @@ class Listener:
         that passed alone would write a window before its last samples were read. A topic
         whose stamps lag the others' by :data:`WAIT_NS` has stopped and is not waited for;
         when every topic stopped, the windows wait :data:`STOPPED_NS` at most.
+
+        The windows are on the stamps' clock, which may be another than the receive clock
+        (a lab's sim time, or a computer whose clock is off): ``now_ns`` is taken onto it by
+        each topic's offset (its lowest receive time minus stamp), the earliest of them.
         """
         stamps = [a.latest for a in self._arrivals.values() if a.latest is not None]
         if not stamps:
             return now_ns
+        now = self._on_stamps(now_ns)
         newest = max(stamps)
         going = min(s for s in stamps if s >= newest - WAIT_NS)
         delay = self.topic_map.max_delay_ns
-        return min(now_ns, max(going + delay, now_ns - STOPPED_NS))
+        return min(now, max(going + delay, now - STOPPED_NS))
+
+    def _place_drops(self, now_ns: int) -> None:
+        """Place the messages dropped for their size since the last step at its time."""
+        at = self._on_stamps(now_ns)
+        for topic, arrivals in self._arrivals.items():
+            arrivals.drop(self._counts.get(topic, (0, 0, 0))[1], at)
+
+    def _on_stamps(self, now_ns: int) -> int:
+        """Return a receive time on the stamps' clock: by each topic's offset, the earliest."""
+        offsets = [a.offset for a in self._arrivals.values() if a.offset is not None]
+        return min((now_ns - offset for offset in offsets), default=now_ns)
 
     def _flush(self, data: list[tuple[Route, int, bytes]]) -> None:
         """Feed the data messages collected so far."""
@@ -787,6 +881,8 @@ class Listener:
         bound = now_ns - self.topic_map.max_delay_ns - MARGIN_NS
         if self._grouper is not None and (start := self._grouper.open_start_ns) is not None:
             bound = min(bound, start - MARGIN_NS)
+        if self._held:  # annotations not grouped yet: their windows reach back to them
+            bound = min(bound, min(stamp for stamp, _, _ in self._held) - MARGIN_NS)
         bound = self.session.trim(bound)
         for arrivals in self._arrivals.values():
             arrivals.forget(bound)
@@ -795,10 +891,11 @@ class Listener:
         """Write the windows whose ``end`` arrived, then objects, index and report."""
         session = self.session
         why = f"stopped by {self.report.interrupted}" if self.report.interrupted else "run ended"
+        self._release(None)
         self._cut_open(f"{why} before its 'end' annotation")
         while session.done < len(session.plans):
             session.finish_one()
-        self._notes()
+        self._notes(final=True)
         tally(session.found, self.report)
         self.report.messages = {self.report.bags[0].path.name: self._taken}
         if self.report.written:
@@ -927,56 +1024,58 @@ def listen(
         What was written and skipped.
 
     Raises:
-        BagImportError: DDS is missing, or a topic or the map is wrong.
+        BagImportError: DDS is missing, a topic or the map is wrong, or another ``listen``
+            records into ``out``.
     """
-    recover(
-        topic_map,
-        Path(out),
-        objects=objects,
-        actions=actions,
-        on_written=on_written,
-        on_note=on_note,
-    )
-    listener = Listener(
-        topic_map,
-        Path(out),
-        objects,
-        actions,
-        domain_id,
-        discovery_s,
-        loopback=loopback,
-        on_written=on_written,
-        on_note=on_note,
-        keep_journals=keep_journals,
-        view=view,
-    )
-    deadline = None if duration_s is None else time.monotonic() + duration_s
-    try:
-        listener.start()  # discovery; Ctrl-C here ends the run before anything arrived
-    except KeyboardInterrupt as err:
-        listener.stop()
-        return _interrupted(
-            listener, err.signal_name if isinstance(err, cli.Terminated) else "SIGINT"
+    with listen_lock(Path(out)):  # one run at a time into ``out``: refused in one line
+        recover(
+            topic_map,
+            Path(out),
+            objects=objects,
+            actions=actions,
+            on_written=on_written,
+            on_note=on_note,
         )
-    # From here a signal only sets a flag: raised wherever Python happens to be, it could
-    # fall between a journal's creation and its bookkeeping and leave a stray file.
-    with deferred_interrupts() as flag:
+        listener = Listener(
+            topic_map,
+            Path(out),
+            objects,
+            actions,
+            domain_id,
+            discovery_s,
+            loopback=loopback,
+            on_written=on_written,
+            on_note=on_note,
+            keep_journals=keep_journals,
+            view=view,
+        )
+        deadline = None if duration_s is None else time.monotonic() + duration_s
         try:
-            listener._note(  # noqa: SLF001
-                f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
-                "(Ctrl-C, SIGTERM or SIGHUP stops, keeping the open action as incomplete)"
-            )
-            while flag.signum is None and not (stop is not None and stop.is_set()):
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-                listener.step()
-        except JournalError as err:
-            listener.drop_journal(err)
-        finally:
+            listener.start()  # discovery; Ctrl-C here ends the run before anything arrived
+        except KeyboardInterrupt as err:
             listener.stop()
-        if flag.signum is not None:
-            return _interrupted(listener, cli.signal_name(flag.signum))
-        return _finish(listener)
+            return _interrupted(
+                listener, err.signal_name if isinstance(err, cli.Terminated) else "SIGINT"
+            )
+        # From here a signal only sets a flag: raised wherever Python happens to be, it could
+        # fall between a journal's creation and its bookkeeping and leave a stray file.
+        with deferred_interrupts() as flag:
+            try:
+                listener._note(  # noqa: SLF001
+                    f"listening on DDS domain {domain_id} to {len(listener._readers)} topics "  # noqa: SLF001
+                    "(Ctrl-C, SIGTERM or SIGHUP stops, keeping the open action as incomplete)"
+                )
+                while flag.signum is None and not (stop is not None and stop.is_set()):
+                    if deadline is not None and time.monotonic() >= deadline:
+                        break
+                    listener.step()
+            except JournalError as err:
+                listener.drop_journal(err)
+            finally:
+                listener.stop()
+            if flag.signum is not None:
+                return _interrupted(listener, cli.signal_name(flag.signum))
+            return _finish(listener)
 
 
 @dataclass(frozen=True, slots=True)

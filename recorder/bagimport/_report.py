@@ -145,6 +145,8 @@ class ImportReport:
             and resets.
         lost_samples: Live: per recording whose sources lost samples (``check`` fails it),
             what they lost (e.g. ``/skin/force_1: 3 of 500 missing``).
+        cut_short: Live: per recording whose skin does not cover its action (a cell that
+            went silent), why: it is kept as incomplete.
         imported: Every window of these bags in ``out`` (:func:`window_key` -> its recording,
             relative to ``out``), this run's and earlier runs': a rerun skips them.
         resumed: The recordings of :attr:`written` that an earlier, stopped run wrote.
@@ -177,6 +179,7 @@ class ImportReport:
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     counted: dict[str, dict[str, int]] = field(default_factory=dict)
     lost_samples: dict[Path, str] = field(default_factory=dict)
+    cut_short: dict[Path, str] = field(default_factory=dict)
     imported: dict[str, str] = field(default_factory=dict)
     resumed: list[Path] = field(default_factory=list)
     complete: bool = True

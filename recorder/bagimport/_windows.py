@@ -171,6 +171,12 @@ def parse_annotation(text: str, receive_ns: int, topic: str) -> tuple[_Key, str,
     return key, phase, stamp
 
 
+def _named(key: _Key) -> str:
+    """Return an annotated action as ``object/action trial N`` (without a trial: no number)."""
+    trial = f" trial {key[2]}" if key[2] is not None else ""
+    return f"{key[0]}/{key[1]}{trial}"
+
+
 class AnnotationGrouper:
     """Groups annotations into windows as they come: each window from its first phase to ``end``.
 
@@ -202,9 +208,8 @@ class AnnotationGrouper:
         """
         if self._key is not None and key != self._key:
             msg = (
-                f"topic {self.topic}: at {stamp} ns a phase of {key[0]}/{key[1]} starts before "
-                f"the '{_PHASES[-1]}' of {self._key[0]}/{self._key[1]}; annotate an end for "
-                "every action"
+                f"topic {self.topic}: at {stamp} ns a phase of {_named(key)} starts before "
+                f"the '{_PHASES[-1]}' of {_named(self._key)}; annotate an end for every action"
             )
             self._current, self._key = [], None
             raise BagImportError(msg)
@@ -235,8 +240,7 @@ class AnnotationGrouper:
             BagImportError: A window is still open.
         """
         if self._key is not None:
-            what = f"{self._key[0]}/{self._key[1]}"
-            msg = f"topic {self.topic}: {what} has no '{_PHASES[-1]}' annotation"
+            msg = f"topic {self.topic}: {_named(self._key)} has no '{_PHASES[-1]}' annotation"
             raise BagImportError(msg)
 
 

@@ -461,7 +461,7 @@ def _open_exclusive(path: Path) -> IO[bytes]:
 def _exists_error(final: Path) -> OutputExistsError:
     msg = (
         f"{final}: a recording with this name exists and is never overwritten; "
-        "choose another --out directory or trial number, or delete the file first"
+        "choose another --out directory or trial number"
     )
     return OutputExistsError(msg)
 

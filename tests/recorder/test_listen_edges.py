@@ -26,6 +26,8 @@ from recorder.bagimport._journal import JournalStep
 from recorder.bagimport._listen import Listener
 from recorder.bagimport._source import typestore
 from recorder.bagimport._topicmap import load_topic_map
+from recorder.bagimport._windows import AnnotationGrouper
+from recorder.errors import BagImportError
 from recorder.live import Received
 from replay.cli._main import _check_one
 from replay.recording._reader import read_recording
@@ -102,10 +104,15 @@ def _template(store: Typestore, msgtype: str) -> bytearray:
     return bytearray(store.serialize_cdr(types[msgtype](**fields), msgtype))
 
 
-def _annotation(store: Typestore, phase: str, tick: int, trial: int = 1) -> bytes:
-    """Return the annotation of ``phase`` scheduled at ``tick`` (the lab's schedule)."""
-    text = {"object": "wood", "action": "tap", "phase": phase, "trial": trial}
-    text["stamp_ns"] = WALL + tick * MS
+def _annotation(
+    store: Typestore, phase: str, tick: int, trial: int = 1, clock_ns: int = 0
+) -> bytes:
+    """Return the annotation of ``phase`` scheduled at ``tick`` (the lab's schedule).
+
+    ``clock_ns``: the lab's clock minus the listener's (its stamps are on the lab's).
+    """
+    text: dict[str, Any] = {"object": "wood", "action": "tap", "phase": phase, "trial": trial}
+    text["stamp_ns"] = WALL + tick * MS + clock_ns
     message = store.types["std_msgs/msg/String"](data=json.dumps(text))
     return bytes(store.serialize_cdr(message, "std_msgs/msg/String"))
 
@@ -118,12 +125,16 @@ def _session(
     types: Mapping[str, str] | None = None,
     *,
     trial: int = 1,
+    clock_ns: int = 0,
+    swap: bool = False,
 ) -> list[tuple[str, int, bytes]]:
     """Return the session's messages (topic, receive ns, CDR) as a publisher sends them.
 
     Every tick's messages are sent in topic order and stamped when sent: 10 us apart, no
     earlier than the tick, later after a stall (which holds up everything after it). A
     counted message's ``seq`` counts every message the publisher sent, lost ones included.
+    ``clock_ns``: the publisher's clock minus the listener's (its stamps are on its own).
+    ``swap``: the execute annotation is sent 1 ms after the end (both rightly stamped).
     """
     types = types or {t: m for t, (m, _) in TOPICS.items()}
     templates = {t: _template(store, types[t]) for t in TOPICS}
@@ -132,7 +143,9 @@ def _session(
         now = max(now, WALL + tick * MS)
         for phase, at in (("execute", EXECUTE), ("end", END)):
             if tick == at:
-                out.append(("/annotations", now + MS, _annotation(store, phase, tick, trial)))
+                annotation = _annotation(store, phase, tick, trial, clock_ns)
+                sent = WALL + (END + 2) * MS if swap and phase == "execute" else now + MS
+                out.append(("/annotations", sent, annotation))
         for pattern, (_, period) in TOPICS.items():
             for cell in range(CELLS):
                 topic = pattern.format(cell=cell)
@@ -140,7 +153,8 @@ def _session(
                     continue
                 now += round(stalls.get((tick, topic), 0) * MS) + 10_000
                 template = templates[pattern]
-                _STAMP(template, 4, now // 1_000_000_000, now % 1_000_000_000)
+                stamp = now + clock_ns
+                _STAMP(template, 4, stamp // 1_000_000_000, stamp % 1_000_000_000)
                 if types[pattern].endswith("Seq"):
                     template[21] = (tick // period) % 256
                 out.append((topic, now + MS // 5, bytes(template)))
@@ -159,12 +173,16 @@ def _listen(
     counted: bool = False,
     notes: list[str] | None = None,
     started_ns: int = WALL,
+    clock_ns: int = 0,
+    swap: bool = False,
+    too_large: tuple[int, ...] = (),
 ) -> ImportReport:
     """Replay the session through ``listen``'s listener in 50 ms steps; return its report.
 
     With ``lag_ms``, the listener reads every message that much after it was received (a
     listener held up: its steps' time runs ahead of what its readers took). The session
     lasts ``length`` ms; ``before_finish`` gets the windows written before the run ended.
+    ``too_large``: the ticks at which the reader drops a message of /skin/temp_0 for its size.
     """
     topic_map = load_topic_map(_map(tmp_path, counted=counted))
     store = typestore(topic_map)
@@ -184,12 +202,14 @@ def _listen(
     types |= {p.format(cell=c): m for p, m in kinds.items() for c in range(CELLS)}
     listener.prepare(types)
     counts = dict.fromkeys(types, (0, 0, 0))
-    items = _session(store, stalls, sends, length, kinds)
+    items = _session(store, stalls, sends, length, kinds, clock_ns=clock_ns, swap=swap)
     step = WALL
     while step < WALL + (length + 2000) * MS:
         taken = [item for item in items if step <= item[1] + lag_ms * MS < step + 50 * MS]
         step += 50 * MS
-        listener.replay(JournalStep(taken, step, counts))
+        dropped = sum(WALL + tick * MS < step for tick in too_large)
+        counts["/skin/temp_0"] = (0, dropped, 9000 if dropped else 0)
+        listener.replay(JournalStep(taken, step, dict(counts)))
     if before_finish is not None:
         before_finish.append(listener.session.done)
     return listener.finish()
@@ -269,6 +289,10 @@ def test_the_journal_of_a_skipped_window_is_kept(tmp_path: Path) -> None:
     kept = sorted((tmp_path / "out" / ".listen" / "kept").glob("*.journal.mcap"))
     assert len(kept) == 1, notes
     assert any(line.startswith(f"{kept[0]}: kept, the messages of") for line in notes), notes
+    skipped = [line for line in notes if line.startswith("skipped ")]
+    assert skipped
+    for line in skipped:  # each says where the only copy of its action's messages is
+        assert line.endswith(f"its messages are kept in {kept[0].parent}/ (import-bag reads them)")
     with kept[0].open("rb") as stream:  # every message of the session is in it
         topics = [channel.topic for _, channel, _ in make_reader(stream).iter_messages()]
     assert topics.count("/skin/force_0") == LENGTH
@@ -297,12 +321,28 @@ def test_a_publisher_paused_across_the_end_passes_check_with_a_gap(tmp_path: Pat
     assert gaps > 0
 
 
-def test_a_cell_that_stops_before_the_end_fails_check(tmp_path: Path) -> None:
-    report = _listen(tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick < END - 100)
-    problem, _, _, _ = _checked(report)
+def _short(report: ImportReport, notes: list[str]) -> tuple[str, str | None]:
+    """Return the line of the one file kept as incomplete, and its check problem."""
+    assert report.written == [], report.written
+    (path,) = report.incomplete
+    assert path.name == "001.incomplete.mcap"
+    (line,) = [n for n in notes if n.startswith(f"{path}: kept as incomplete (")]
+    return line, _check_one(path)[0]
+
+
+def test_a_cell_that_stops_before_the_end_is_kept_as_incomplete_with_a_line(
+    tmp_path: Path,
+) -> None:
+    # the file is kept (live data exists nowhere else), and said at once not to cover the
+    # action, never written as a success that check then fails
+    notes: list[str] = []
+    report = _listen(
+        tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick < END - 100, notes=notes
+    )
+    line, problem = _short(report, notes)
+    assert "force of /skin/force_1 ends 0.100 s before its execute phase ends" in line
+    assert line.endswith("record the action again")
     assert problem is not None
-    assert "/skin/force covers 0.400 s of the 0.5 s execute phase" in problem
-    assert "stopped early" in problem
 
 
 def test_a_publisher_paused_across_the_start_is_counted_as_a_gap(tmp_path: Path) -> None:
@@ -317,14 +357,16 @@ def test_a_publisher_paused_across_the_start_is_counted_as_a_gap(tmp_path: Path)
     assert gaps > 0
 
 
-def test_a_cell_that_starts_late_fails_check(tmp_path: Path) -> None:
+def test_a_cell_that_starts_late_is_kept_as_incomplete_with_a_line(tmp_path: Path) -> None:
     # cell 1 begins 30 ms into the execute phase (not late enough to count as a listener
     # that joined part-way): no row has both cells before then
-    report = _listen(tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick >= 530)
-    problem, _, _, _ = _checked(report)
+    notes: list[str] = []
+    report = _listen(
+        tmp_path, {}, lambda topic, tick: topic != "/skin/force_1" or tick >= 530, notes=notes
+    )
+    line, problem = _short(report, notes)
+    assert "begins 0.030 s after its execute phase began" in line
     assert problem is not None
-    assert "/skin/force begins 0.030 s after the 0.5 s execute phase of tap began" in problem
-    assert "started late" in problem
 
 
 def test_a_listener_held_up_writes_each_window_once_its_samples_came(tmp_path: Path) -> None:
@@ -334,6 +376,57 @@ def test_a_listener_held_up_writes_each_window_once_its_samples_came(tmp_path: P
     report = _listen(tmp_path, {}, lag_ms=1500)
     assert report.late_samples == {}
     assert _checked(report) == (None, None, 0, 0)
+
+
+@pytest.mark.parametrize(
+    "clock_ns", [-5_000_000_000, 5_000_000_000, -WALL], ids=["behind", "ahead", "sim-time"]
+)
+def test_stamps_on_another_clock_lose_nothing_and_are_not_late(
+    tmp_path: Path, clock_ns: int
+) -> None:
+    # the lab stamps its messages and annotations on its own clock: 5 s behind or ahead of
+    # the listener's, or sim time from 0; the windows are written by the stamps' clock
+    notes: list[str] = []
+    report = _listen(tmp_path, {}, clock_ns=clock_ns, notes=notes)
+    assert report.late_samples == {}
+    assert not [n for n in notes if "arrived after" in n], notes
+    assert _checked(report) == (None, None, 0, 0)
+    (tmp_path / "same").mkdir()
+    same = _listen(tmp_path / "same", {})  # the clocks agree: the rows it writes
+    rows = read_recording(report.written[0]).skin("force").stamps_ns.size
+    assert rows == read_recording(same.written[0]).skin("force").stamps_ns.size
+
+
+def test_annotations_sent_out_of_order_are_grouped_by_their_stamps(tmp_path: Path) -> None:
+    # the lab's system sends the end 1 ms before the execute, both with their stamp_ns: they
+    # are put in stamp order within max_delay_s, and the action is written whole
+    notes: list[str] = []
+    report = _listen(tmp_path, {}, notes=notes, swap=True)
+    assert report.skipped == []
+    assert report.incomplete == []
+    assert not notes, notes
+    assert _checked(report) == (None, None, 0, 0)
+
+
+def test_a_phase_before_the_end_of_another_trial_names_both_trials() -> None:
+    grouper = AnnotationGrouper("/annotations")
+    grouper.add(("wood", "tap", 1), "execute", 10)
+    with pytest.raises(BagImportError, match=r"a phase of wood/tap trial 2 .* of wood/tap trial 1"):
+        grouper.add(("wood", "tap", 2), "execute", 20)
+
+
+def test_messages_too_large_are_counted_in_the_action_they_arrived_in(tmp_path: Path) -> None:
+    # one before the action, three in it, one after: the file counts its three, and the run
+    # says so once for the action, not once per step
+    notes: list[str] = []
+    report = _listen(tmp_path, {}, notes=notes, too_large=(100, 600, 700, 800, 1200))
+    (path,) = report.written
+    sources = {s.name: s for s in read_recording(path).sources}
+    assert sources["/skin/temp_0"].malformed == 3
+    assert sources["/skin/temp_1"].malformed == 0
+    (line,) = [n for n in notes if "larger than" in n]
+    assert line.startswith("/skin/temp_0: dropped 5 messages larger than"), line
+    assert report.oversize == {"/skin/temp_0": 5}
 
 
 def test_a_topic_that_stopped_does_not_hold_the_windows(tmp_path: Path) -> None:

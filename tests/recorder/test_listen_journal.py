@@ -39,6 +39,7 @@ from recorder.bagimport._journal import (
     KEPT_DIR,
     _event,
     _messages,
+    listen_lock,
     read_journal,
 )
 from recorder.bagimport._listen import listen, recover
@@ -409,7 +410,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
             assert len(second) == 1
             assert second != first
             assert second[0].endswith(f"-0002{JOURNAL_SUFFIX}")
-            assert [p.name for p in (out / JOURNAL_DIR).iterdir()] == second
+            assert [p.name for p in (out / JOURNAL_DIR).iterdir() if p.name != "lock"] == second
             assert Path(written).exists()
             _play_after(world, server, "S1", 2)  # its end arrives ...
             opened_ns = time.time_ns()
@@ -475,3 +476,34 @@ def test_sigkill_after_an_end_then_a_rerun_recovers(dds_domain: int, tmp_path: P
     # a second recovery finds nothing to do
     topic_map = load_topic_map(map_path)
     assert recover(topic_map, out, objects=load_objects(None), actions=load_actions(None)) == []
+
+
+def test_a_second_listen_into_the_same_out_is_refused_at_its_start(
+    dds_domain: int, tmp_path: Path
+) -> None:
+    # two runs into one --out would number the same trials, and one would die mid-run on a
+    # name the other took: the second is refused at once, in one line naming the first
+    map_path, out = _map(tmp_path), tmp_path / "out"
+    first = _listen(map_path, out, dds_domain)
+    try:
+        lock = out / JOURNAL_DIR / "lock"
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and not (
+            lock.is_file() and lock.read_text(encoding="utf-8")
+        ):
+            time.sleep(0.05)
+        second = _listen(map_path, out, dds_domain)
+        _, err = second.communicate(timeout=30)
+        recovering = _listen(map_path, out, dds_domain, "--recover")
+        _, err_recover = recovering.communicate(timeout=30)
+    finally:
+        first.terminate()
+        first.communicate(timeout=30)
+    for process, text in ((second, err), (recovering, err_recover)):
+        assert process.returncode == 1, text
+        (line,) = text.splitlines()
+        assert f"listen (pid {first.pid}, since " in line, line
+        assert "records into it already" in line, line
+        assert "delete" not in line
+    with listen_lock(out):  # released when the first ended
+        pass

@@ -487,3 +487,30 @@ def test_a_dry_runs_topic_line_says_rates_off_the_map_and_losses() -> None:
         TopicCheck("/annotations", "S", 0, None, None, 0, 0).line()
         == "/annotations (S): 0 received"
     )
+
+
+def test_a_dry_run_whose_skin_sends_nothing_is_not_ready(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the skin's publishers exist but send nothing (a driver up, its sensor bus down): the
+    # files would fail check, so the dry run says not ready, as `session --dry-run` does;
+    # the annotations, idle between actions, are said, not refused
+    from recorder._cli import main as record  # noqa: PLC0415
+    from recorder.bagimport import _command  # noqa: PLC0415
+    from recorder.bagimport._listen import TopicCheck  # noqa: PLC0415
+    from recorder.bagimport._source import SkinTopic, extractors  # noqa: PLC0415
+
+    map_path = _map(tmp_path)
+    skin = [t for t, e in extractors(load_topic_map(map_path)).items() if isinstance(e, SkinTopic)]
+    found = [TopicCheck(t, "T", 0, None, 250.0, 0, 0) for t in skin]
+    found.append(TopicCheck("/annotations", "std_msgs/msg/String", 0, None, None, 0, 0))
+    monkeypatch.setattr(_command, "check_listen", lambda *_a, **_k: tuple(found))
+    argv = ["listen", "--topic-map", str(map_path), "--out", str(tmp_path / "out")]
+    assert record([*argv, "--dry-run", "--duration", "1"]) == 1
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last == f"listen: not ready: {', '.join(skin)} sent nothing"
+    found[:-1] = [TopicCheck(t, "T", 250, 250.0, 250.0, 0, 0) for t in skin]
+    assert record([*argv, "--dry-run", "--duration", "1"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        "listen: ready (/annotations sent nothing: idle, or slower than the check)"
+    )
