@@ -698,14 +698,6 @@ def _study_command(args: argparse.Namespace) -> int:
         if not s.needs_prior_frame or args.prior_recordings is not None
     ]
     names = every if args.name == "all" else [args.name]
-    if args.name == "all":
-        for name in (n for n in STUDIES if n not in every):  # said, as any study left out
-            _CONSOLE.print(
-                f"[yellow]skipped[/] study {escape(name)}: it learns from another rig's priors; "
-                "give them with --prior-recordings DIR (and --prior-actions)",
-                highlight=False,
-                soft_wrap=True,
-            )
     parts = parse_parts(args.fusion_parts, "--fusion-parts")  # refused before any work
     learner = learner_from_args(args)
     if args.fusion_prior not in FUSION_PRIORS and "fusion" in names:
@@ -750,6 +742,13 @@ def _study_command(args: argparse.Namespace) -> int:
     )
     base = base.quick() if args.quick else base
     if args.name == "all":  # decided before any study runs
+        for name in (n for n in STUDIES if n not in every):  # said, as any study left out
+            _CONSOLE.print(
+                f"[yellow]skipped[/] study {escape(name)}: it learns from another rig's priors; "
+                "give them with --prior-recordings DIR (and --prior-actions)",
+                highlight=False,
+                soft_wrap=True,
+            )
         targets = _studies_to_run(args, targets, table.frame, base)
     for name, target in targets.items():
         with cli.publish_directory(target, force=args.force) as out:
