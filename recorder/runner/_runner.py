@@ -17,15 +17,18 @@ from __future__ import annotations
 
 import bisect
 import contextlib
+import dataclasses
 import math
 import sys
+import traceback
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn, Protocol, Self
 
 import numpy as np
 
-from recorder.errors import RigError
+from recorder.errors import RecorderError, RigError
 from recorder.live import (
     ExplainingSkin,
     RecorderClock,
@@ -263,6 +266,9 @@ class ArmRig:
         self.stops_sent: list[tuple[int, int, str]] = []
         #: How the last stop reached the arm when not the usual way (the driver's clause).
         self.stop_note = ""
+        #: The newest state sample's stamp; samples at or before it are left out, counted.
+        self._newest_ns = -1
+        self._repeated = self._went_back = 0
 
     # -- connection -----------------------------------------------------------------------
 
@@ -275,8 +281,17 @@ class ArmRig:
 
         self._rt_priority = self._granted_priority()
         with contextlib.ExitStack() as stack, readers_at(self._rt_priority):
-            stack.enter_context(self.arm)
-            stack.enter_context(self.skin)
+            for part, what in ((self.arm, "arm"), (self.skin, "skin")):
+                try:
+                    stack.enter_context(part)
+                except RigError:
+                    raise
+                except Exception as err:  # a driver's own (a vendor library's) exception
+                    msg = (
+                        f"{self.where}: the {what} could not connect ({_error(err)}); check "
+                        f"that it is on and reachable and the configuration's {what} settings"
+                    )
+                    raise RigError(msg) from err
             stack.callback(sys.setswitchinterval, sys.getswitchinterval())
             # the readers, the runner's loop and the writer share one interpreter, handed
             # over every 5 ms by default: 2.5 cycles at 500 Hz that a state sample which
@@ -353,8 +368,20 @@ class ArmRig:
         return facts
 
     def source_stats(self) -> list[SourceStats]:
-        """Return the accounting of the last action: the arm's and the skin's sources."""
-        return [*self.arm.stats(), *self.skin.stats()]
+        """Return the accounting of the last action: the arm's and the skin's sources.
+
+        The state samples the runner left out (a stamp repeated or gone back) are added to
+        the arm's first source.
+        """
+        arm = list(self.arm.stats())
+        if arm and (self._repeated or self._went_back):
+            first = arm[0]
+            arm[0] = dataclasses.replace(
+                first,
+                duplicated=first.duplicated + self._repeated,
+                out_of_order=first.out_of_order + self._went_back,
+            )
+        return [*arm, *self.skin.stats()]
 
     def can_present(self, obj: ObjectSpec) -> bool:
         """Return whether the arm can visit ``obj`` by itself (it has a pose)."""
@@ -402,9 +429,16 @@ class ArmRig:
             self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
             self._until_reached(target, limit_ns, obj.id)
             self._home = target.copy()
-        except (Stop, SourceLostError) as stop:
+        except (Stop, SourceLostError, Exception) as ended:  # noqa: BLE001 (a driver's own)
+            stop: Stop | SourceLostError = (
+                ended
+                if isinstance(ended, Stop | SourceLostError)
+                else Stop(f"an error ({_error(ended)})", self.clock.now_ns())
+            )
             undelivered = self._send_stop(None, str(stop))
             said = undelivered_line(undelivered) if undelivered else self.stop_note
+            if not undelivered:  # as after an action's stop: a moving arm unseen is said
+                said = "; ".join(c for c in (said, self._until_rest_quietly()) if c)
             if watch.flag.signum is not None:  # Ctrl-C, SIGTERM, SIGHUP: the run ends
                 arm = said or "the arm was stopped"
                 _interrupted(watch.flag, f"while moving to {obj.id}: {arm}")
@@ -604,8 +638,15 @@ class ArmRig:
             yield from self._execute(at, action, contact)
             yield from self._retract(at, contact)
             yield from self._skin_catch_up(self.clock.now_ns())
-        except (Stop, SourceLostError) as ended:
-            stop = ended if isinstance(ended, Stop) else Stop(str(ended), self.clock.now_ns())
+        except (Stop, SourceLostError, Exception) as ended:  # noqa: BLE001 (a driver's own)
+            # a driver's own exception (a command the vendor library refused) ends the action
+            # as a stop does: the stop first, what arrived kept, one line naming it
+            if isinstance(ended, Stop):
+                stop = ended
+            elif isinstance(ended, SourceLostError):
+                stop = Stop(str(ended), self.clock.now_ns())
+            else:
+                stop = Stop(f"an error in the action ({_error(ended)})", self.clock.now_ns())
             if undelivered := self._send_stop(at, stop.reason, stop.at_ns):
                 stop.arm_left = undelivered_line(undelivered)
             yield from stop.arrived
@@ -624,6 +665,15 @@ class ArmRig:
             self.arm.announce(_phase(at, "end"))
         yield self._event("end")
         return None
+
+    def _until_rest_quietly(self) -> str:
+        """Run :meth:`_until_rest` recording nothing (between actions); return its clause."""
+        waiting = self._until_rest()
+        while True:
+            try:
+                next(waiting)
+            except StopIteration as done:
+                return str(done.value)
 
     def _until_rest(self) -> Generator[StreamItem, None, str]:
         """Read the arm and the skin after the stop until the arm is at rest; hand them over.
@@ -655,13 +705,15 @@ class ArmRig:
             items: list[StreamItem] = []
             try:
                 samples = self.arm.poll(CYCLE_WAIT_S)
-            except SourceLostError:
+            except Exception:  # noqa: BLE001 (lost, or a driver's own error: the arm unseen)
                 return _unconfirmed(speed)
             try:
                 blocks = self.skin.poll()
             except SourceLostError:  # the skin's loss is not the arm's: go on judging it
                 blocks = []
-            for sample in samples:
+            for sample in self._in_order(samples):
+                if self._malformed(sample):  # nothing to judge the arm's rest on, nor to keep
+                    continue
                 self._state.sample, self._state.receive_ns = sample, sample.receive_ns
                 self._state.taken += 1
                 items.extend(_items(sample))
@@ -983,6 +1035,7 @@ class ArmRig:
 
     def _begin(self) -> None:
         """Forget what queued before (between actions), keeping the arm's latest state."""
+        self._repeated = self._went_back = 0
         self.arm.begin()
         self._begun_ns = self.clock.now_ns()
         self._skin_until = {}
@@ -1001,22 +1054,13 @@ class ArmRig:
         except SourceLostError as err:
             msg = f"arm connection lost ({err.__cause__ or err})"
             raise Stop(msg, self.clock.now_ns()) from None
+        except Exception as err:  # a driver's own (a vendor library's) exception  # noqa: BLE001
+            msg = f"the arm driver failed reading the arm's state ({_error(err)})"
+            raise Stop(msg, self.clock.now_ns()) from None
         # silence is judged at the time the sources were read: time the runner or its
         # consumer (the writer) spends after that is not the sources' silence
         polled_ns = self.clock.now_ns()
-        items: list[StreamItem] = []
-        violation, violation_ns, fix = "", 0, CHECK_ARM
-        for sample in samples:
-            self._state.sample, self._state.receive_ns = sample, sample.receive_ns
-            self._state.taken += 1
-            if not violation and (violation := self._violation(sample)):
-                violation_ns = sample.receive_ns
-                if not self.limits.inside(sample.tcp_pose[:3]):  # e.g. where it stood at start
-                    fix = (
-                        "bring the TCP inside [limits] workspace_min_m .. workspace_max_m at the "
-                        "teach pendant, or widen the workspace, then retry"
-                    )
-            items.extend(_items(sample))
+        items, violation, violation_ns, fix = self._take(samples)
         if violation:
             raise Stop(violation, violation_ns, items, fix=fix)
         try:
@@ -1032,6 +1076,47 @@ class ArmRig:
         items.sort(key=lambda item: item.receive_ns)
         yield from items
         self._check(violation, violation_ns, polled_ns)
+
+    def _take(self, samples: Sequence[ArmSample]) -> tuple[list[StreamItem], str, int, str]:
+        """Take state samples in: the latest state, what to hand over, the first violation.
+
+        Returns:
+            The items, the violation ('' if none), when its sample arrived, and its fix.
+        """
+        items: list[StreamItem] = []
+        violation, violation_ns, fix = "", 0, CHECK_ARM
+        for sample in self._in_order(samples):
+            if malformed := self._malformed(sample):  # never taken as the state, never kept
+                if not violation:
+                    violation, violation_ns = malformed, sample.receive_ns
+                continue
+            self._state.sample, self._state.receive_ns = sample, sample.receive_ns
+            self._state.taken += 1
+            if not violation and (violation := self._violation(sample)):
+                violation_ns = sample.receive_ns
+                if not self.limits.inside(sample.tcp_pose[:3]):  # e.g. where it stood at start
+                    fix = (
+                        "bring the TCP inside [limits] workspace_min_m .. workspace_max_m at the "
+                        "teach pendant, or widen the workspace, then retry"
+                    )
+            items.extend(_items(sample))
+        return items, violation, violation_ns, fix
+
+    def _in_order(self, samples: Sequence[ArmSample]) -> Iterator[ArmSample]:
+        """Yield the samples whose stamps move forward; count the others, never record them.
+
+        A driver that hands a sample twice, or one whose stamp goes back (a driver's bug, a
+        transport that duplicates), would make a file ``check`` refuses; such samples are
+        counted into the arm's accounting (duplicated, out of order) instead.
+        """
+        for sample in samples:
+            if sample.stamp_ns > self._newest_ns:
+                self._newest_ns = sample.stamp_ns
+                yield sample
+            elif sample.stamp_ns == self._newest_ns:
+                self._repeated += 1
+            else:
+                self._went_back += 1
 
     def _pump_quietly(self) -> None:
         """Pump without recording (between actions); the checks still run."""
@@ -1052,6 +1137,37 @@ class ArmRig:
             where = [round(float(v), 4) for v in sample.tcp_pose[:3]]
             return f"TCP at {where} left the [limits] workspace"
         return ""
+
+    def _malformed(self, sample: ArmSample) -> str:
+        """Return what makes a state sample unusable for the checks (empty: nothing).
+
+        A driver's sample of another shape than its joint names say, or with a value that is
+        not finite (a NaN force passes every comparison: no force limit at all), cannot be
+        judged; the action stops on it. One sum tells whether every value is finite.
+        """
+        joints = len(self.arm.joint_names)
+        parts = (
+            ("joint positions", sample.q, joints),
+            ("joint velocities", sample.qd, joints),
+            ("joint efforts", sample.effort, joints),
+            ("TCP pose values", sample.tcp_pose, 6),
+            ("TCP force and torque values", sample.tcp_force, 6),
+        )
+        for name, values, size in parts:
+            if np.shape(values) != (size,):
+                given = "x".join(map(str, np.shape(values))) or "a scalar"
+                whose = f"its {joints} joint_names" if size == joints and name[0] == "j" else "6"
+                return f"the arm driver gave {given} {name} for {whose}; fix the driver"
+        if math.isfinite(sum(float(np.sum(values)) for _, values, _ in parts)):
+            return ""
+        for name, values, _ in parts:
+            if not np.isfinite(values).all():
+                shown = [round(float(v), 4) for v in values]
+                return (
+                    f"the arm driver gave {name} that are not finite ({shown}): no limit can be "
+                    "checked on them; fix the driver"
+                )
+        return ""  # pragma: no cover (a finite sum of finite parts)
 
     def _check(self, violation: str, violation_ns: int = 0, polled_ns: int | None = None) -> None:
         """Raise a stop for a limit, a signal, a writer in trouble or a silent source.
@@ -1103,9 +1219,10 @@ class ArmRig:
     def _rest(self) -> Iterator[StreamItem]:
         """Yield what is still queued: state samples and the skin's open blocks."""
         items: list[StreamItem] = []
-        with contextlib.suppress(SourceLostError):
-            for sample in self.arm.poll(0.0):
-                items.extend(_items(sample))
+        with contextlib.suppress(Exception):  # after the stop: a failing driver gives nothing
+            for sample in self._in_order(self.arm.poll(0.0)):
+                if not self._malformed(sample):
+                    items.extend(_items(sample))
         with contextlib.suppress(SourceLostError):
             items.extend(self.skin.finish())
         items.sort(key=lambda item: item.receive_ns)
@@ -1130,6 +1247,19 @@ class ArmRig:
 
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
+
+
+def _error(err: BaseException) -> str:
+    """Return an exception as one clause: its type, its message and where it was raised.
+
+    The project's own errors are lines already: said as they are.
+    """
+    if isinstance(err, RecorderError):
+        return " ".join(str(err).split())
+    frames = traceback.extract_tb(err.__traceback__)
+    where = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
+    text = " ".join(str(err).split()) or "no message"
+    return f"{type(err).__name__}: {text}{where}"
 
 
 def _unconfirmed(speed: float) -> str:

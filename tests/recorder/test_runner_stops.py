@@ -27,12 +27,13 @@ from recorder.runner._record import record_action
 from recorder.runner._runner import SPEED_LEASE_S
 from recorder.writing._stream import PhaseEvent, SkinBlock
 from recorder.writing._writer import RecordingWriter
+from replay import read_recording
 from schemas import INCOMPLETE_RECORD, cli
 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from recorder.runner import ArmRig
+    from recorder.runner import ArmRig, ArmSample
 
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 SLIDE = load_actions()["S1"]
@@ -396,12 +397,17 @@ def test_an_error_whose_stop_cannot_reach_the_arm_prints_one_line(
     arm: FakeArm = rig.arm  # type: ignore[assignment]
     arm.stop_fails = LOST
     _after_contact(rig, lambda: setattr(rig.skin, "fail", True))
-    with rig, pytest.raises(RuntimeError, match="fake skin: a bug"):
+    # an exception of a driver or a skin ends the action as a stop does: one line, data kept
+    with rig, pytest.raises(ActionStoppedError) as info:
         record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == [
-        f"fake.toml: the stop did not reach the arm ({LOST}); stop it at the teach pendant now"
-    ]
+    said = str(info.value)
+    assert said.startswith(
+        "action stopped: an error in the action (RuntimeError: fake skin: a bug at fake_arm.py:"
+    ), said
+    assert f"the stop did not reach the arm ({LOST}); stop it at the teach pendant now" in said
+    assert "\n" not in said
+    assert capsys.readouterr().err == ""
+    _kept(tmp_path / "001.mcap", "an error in the action (RuntimeError")
 
 
 def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> None:
@@ -687,3 +693,104 @@ def test_a_slide_longer_than_the_room_at_the_contact_is_stopped_before_it_is_sen
     assert "speed approach" in sent
     assert not [c for c in sent if c.startswith("slide")], sent
     _kept(path, "would leave the [limits] workspace")
+
+
+class _Misbehaving:
+    """Make a fake arm misbehave as a third-party driver can, from a moment on."""
+
+    def __init__(self, arm: FakeArm, how: str) -> None:
+        self.arm, self.how, self.on = arm, how, False
+        self.poll = arm.poll
+        arm.poll = self._poll  # type: ignore[method-assign]
+
+    def _poll(self, wait_s: float) -> list[ArmSample]:
+        samples = self.poll(wait_s)
+        if not self.on:
+            return samples
+        if self.how == "raises":
+            raise ConnectionResetError(errno.ECONNRESET, "Connection reset by peer")
+        if self.how == "nan force":
+            nan = np.full(6, np.nan)
+            return [dataclasses.replace(s, tcp_force=nan) for s in samples]
+        if self.how == "short joints":
+            return [dataclasses.replace(s, q=s.q[:-1]) for s in samples]
+        return [*samples, *samples]  # every sample twice: stamps repeated
+
+
+@pytest.mark.parametrize(
+    ("how", "said"),
+    [
+        # a NaN force passes every comparison: the force limit would be off
+        ("nan force", "the arm driver gave TCP force and torque values that are not finite"),
+        ("short joints", "the arm driver gave 5 joint positions for its 6 joint_names"),
+        (
+            "raises",
+            (
+                "the arm driver failed reading the arm's state (ConnectionResetError: "
+                "[Errno 104] Connection reset by peer at "
+            ),
+        ),
+    ],
+)
+def test_a_misbehaving_arm_driver_stops_the_action_in_one_line(
+    tmp_path: Path, how: str, said: str
+) -> None:
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    fault = _Misbehaving(arm, how)
+    _after_contact(rig, lambda: setattr(fault, "on", True))
+    path = tmp_path / "001.mcap"
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    assert said in str(info.value), str(info.value)
+    assert "\n" not in str(info.value)
+    assert arm.stop_cycle is not None  # the stop went out
+    _kept(path, said[:40])
+
+
+def test_state_samples_handed_twice_are_left_out_and_counted(tmp_path: Path) -> None:
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    fault = _Misbehaving(arm, "twice")
+    _after_contact(rig, lambda: setattr(fault, "on", True))
+    path = tmp_path / "001.mcap"
+    with rig:
+        record_action(rig, OBJECT, load_actions()["P1"], 1, path, seed=0)
+    recording = read_recording(path)  # valid: every stamp once
+    assert recording.joints is not None
+    assert (np.diff(recording.joints.stamps_ns) > 0).all()
+    stats = {s.name: s for s in recording.sources}
+    assert sum(s.duplicated for s in stats.values()) > 100, stats
+
+
+def test_an_arm_driver_that_cannot_connect_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    rig = fake_rig()
+
+    def refused(_arm: FakeArm) -> None:
+        raise ConnectionRefusedError(errno.ECONNREFUSED, "Connection refused")
+
+    monkeypatch.setattr(FakeArm, "__enter__", refused)
+    with pytest.raises(RigError) as info, rig:
+        pass
+    assert str(info.value).startswith(
+        "fake.toml: the arm could not connect (ConnectionRefusedError: [Errno 111] Connection "
+        "refused at "
+    ), str(info.value)
+
+
+def test_an_arm_unseen_while_moving_to_an_object_is_said_unconfirmed() -> None:
+    # the state stops arriving on the way to an object: nothing shows the stop taken
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.moving_qd = 0.05
+    rig._poses["wood"] = START + np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.silent_from = 20
+    with rig, pytest.raises(RigError) as info:
+        rig.present(OBJECT)
+    said = str(info.value)
+    assert said.startswith("fake.toml: moving to wood: arm state silent for "), said
+    assert (
+        "the arm's state stopped arriving, so the stop cannot be confirmed (last seen moving, "
+        "a joint at 0.050 rad/s); check the arm at the teach pendant now" in said
+    ), said
+    assert arm.stop_cycle is not None
