@@ -208,6 +208,43 @@ def _print_incomplete(console: Console, path: Path) -> None:
     _print_sources(console, parse_sources(path, summary.metadata))
 
 
+def _failing(path: Path, err: RecordingError) -> tuple[Any, list[tuple[str, int]], str] | None:
+    """Return what a recording that fails its checks holds, if its container is readable.
+
+    A file ``check`` refuses (a channel that started late, a pause) is still what a lab needs
+    to look into: its metadata, its channels and its sources' accounting (which say what
+    was lost) are shown with the reason. None when even its summary cannot be read.
+    """
+    try:
+        summary, rows = _incomplete_channels(path)
+        parse_metadata(path, summary.metadata)
+        parse_sources(path, summary.metadata)
+    except (ReplayError, ContractError, OSError, ValueError):
+        return None
+    return summary, rows, one_line(str(err))
+
+
+def _say_failing(reason: str) -> None:
+    """Say on stderr, in one line, why a recording fails its checks (what it holds follows)."""
+    print(f"atikt-replay: error: {reason}", file=sys.stderr)  # noqa: T201
+
+
+def _print_failing(console: Console, path: Path, err: RecordingError) -> bool:
+    """Print what a recording that fails its checks holds; False when it cannot be read."""
+    found = _failing(path, err)
+    if found is None:
+        return False
+    summary, rows, reason = found
+    _say_failing(reason)
+    console.print(_about(path, parse_metadata(path, summary.metadata)))
+    channels = Table("channel", "messages", title="channels")
+    for topic, count in rows:
+        channels.add_row(escape(topic), str(count))
+    console.print(channels)
+    _print_sources(console, parse_sources(path, summary.metadata))
+    return True
+
+
 def _incomplete_json(path: Path) -> dict[str, Any]:
     """Return ``info --json`` of a recording a stop ended early."""
     summary, rows = _incomplete_channels(path)
@@ -390,7 +427,21 @@ def _info_json(path: Path) -> dict[str, Any]:
         return _dataset_json(path)
     if is_incomplete(path):
         return _incomplete_json(path)
-    return _recording_json(read_recording(path))
+    try:
+        return _recording_json(read_recording(path))
+    except RecordingError as err:
+        found = _failing(path, err)
+        if found is None:
+            raise
+        summary, rows, reason = found
+        return {
+            "kind": "failing",
+            "path": str(path),
+            "error": reason,
+            "metadata": _metadata_json(parse_metadata(path, summary.metadata)),
+            "channels": [{"name": topic, "messages": count} for topic, count in rows],
+            "sources": _sources_json(parse_sources(path, summary.metadata)),
+        }
 
 
 @command(
@@ -409,8 +460,7 @@ def _info(args: argparse.Namespace) -> int:
     paths = _existing_all(args.paths, "info")
     console = None if args.json else output_console()
     if len(paths) == 1:
-        _info_one(paths[0], console)
-        return 0
+        return 0 if _info_one(paths[0], console) else 1
     # several recordings (a shell's glob): each one readable is shown, each one not is one
     # line on stderr, and the status says whether all were read
     shown: list[dict[str, Any]] = []
@@ -418,9 +468,12 @@ def _info(args: argparse.Namespace) -> int:
     for path in paths:
         try:
             if console is None:
-                shown.append(_info_json(path))
+                shown.append(entry := _info_json(path))
+                if entry["kind"] == "failing":
+                    failed += 1
+                    _say_failing(entry["error"])
             else:
-                _info_one(path, console)
+                failed += not _info_one(path, console)
         except ReplayError as err:
             failed += 1
             line = one_line(str(err))
@@ -429,20 +482,36 @@ def _info(args: argparse.Namespace) -> int:
     if console is None:  # a list in the order given, an unreadable file's entry saying why
         _print_json(shown)
     if failed:
-        print(f"{failed} of {len(paths)} recordings could not be read", file=sys.stderr)  # noqa: T201
+        said = f"{failed} of {len(paths)} recordings could not be read or fail their checks"
+        print(said, file=sys.stderr)  # noqa: T201
     return 1 if failed else 0
 
 
-def _info_one(path: Path, console: Console | None) -> None:
-    """Print ``info`` of one path on ``console``; JSON without one (``--json``)."""
+def _info_one(path: Path, console: Console | None) -> bool:
+    """Print ``info`` of one path on ``console``; JSON without one (``--json``).
+
+    Returns:
+        False when the path is a recording that fails its checks (shown, with the reason).
+    """
     if console is None:
-        _print_json(_info_json(path))
-    elif path.is_dir():
+        shown = _info_json(path)
+        if shown.get("kind") == "failing":
+            _say_failing(shown["error"])
+        _print_json(shown)
+        return shown.get("kind") != "failing"
+    if path.is_dir():
         _print_dataset(console, path)
     elif is_incomplete(path):
         _print_incomplete(console, path)
     else:
-        _print_recording(console, read_recording(path))
+        try:
+            recording = read_recording(path)
+        except RecordingError as err:
+            if not _print_failing(console, path, err):
+                raise
+            return False
+        _print_recording(console, recording)
+    return True
 
 
 def _check_one(path: Path) -> tuple[str | None, str | None, dict[str, Any] | None]:

@@ -647,3 +647,20 @@ def test_message_fields_are_really_changed(fake_recording: Path, tmp_path: Path)
         ]
     assert int(np.isnan(np.concatenate([f.data for f in forces])).sum()) == 1
     assert bool(np.isnan(forces[3].data[17]))
+
+
+def test_info_of_a_file_that_fails_its_checks_shows_what_it_holds(
+    fake_recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the lab needs to see what such a file holds (its channels, its sources' accounting)
+    path = ROWS["pause inside the execute phase"].build(fake_recording, tmp_path / "003.mcap")
+    assert main(["info", str(path)]) == 1
+    out, err = capsys.readouterr()
+    assert err.count("\n") == 1, err
+    assert re.search(r"force pauses 0\.05\d s .* inside the execute phase", err), err
+    assert "/skin/force" in out, out  # the channels, with their message counts
+    assert main(["info", "--json", str(path)]) == 1
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["kind"] == "failing"
+    assert "force pauses" in shown["error"]
+    assert any(c["name"] == "/skin/force" and c["messages"] > 0 for c in shown["channels"])

@@ -227,7 +227,7 @@ def test_several_recordings_as_a_shell_glob_gives_them(
     assert files[1] in lines[0]
     assert "truncated" in lines[0]
     assert str(empty) in lines[1]
-    assert lines[2] == "2 of 3 recordings could not be read"
+    assert lines[2] == "2 of 3 recordings could not be read or fail their checks"
     assert main(["info", "--json", *files]) == 1
     infos = json.loads(capsys.readouterr().out)
     assert [info["kind"] for info in infos] == ["recording", "unreadable"]
