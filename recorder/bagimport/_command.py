@@ -96,8 +96,9 @@ def _print_report(console: Console, report: ImportReport) -> None:
     console.print(table)
     for topic, count in report.malformed.items():
         console.print(
-            f"{topic}: {count} messages malformed (velocities or efforts of another count than "
-            "the joint names), not written; fix the driver",
+            f"{topic}: {count} messages malformed (one of the arm's joints missing, or "
+            "velocities or efforts of another count than the joint names), not written; fix the "
+            "driver",
             highlight=False,
             soft_wrap=True,
             markup=False,

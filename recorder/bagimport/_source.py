@@ -432,6 +432,10 @@ class SkinTopic:
         return len(self.buffer.stamps)
 
 
+#: The columns of a joint-state message that lacks one of the arm's joints (not kept).
+_MISSING_JOINT: NDArray[np.intp] = np.zeros(0, dtype=np.intp)
+
+
 @dataclass(slots=True)
 class JointTopic:
     """The joint-state topic: positions, velocities and efforts picked by name, buffered.
@@ -476,13 +480,19 @@ class JointTopic:
             if not self.names:
                 self.names = self.wanted or names
             present = [n for n in self.names if n in names]
-            if present and len(present) != len(self.names):
+            if present and len(present) != len(self.names) and self.wanted:
                 msg = (
                     f"topic {self.topic}: joints {[n for n in self.names if n not in names]} are "
                     f"not in a message naming {list(names)}; fix [joint_states] names"
                 )
                 raise BagImportError(msg)
-            index = np.array([names.index(n) for n in self.names]) if present else None
+            index: NDArray[np.intp] | None = None
+            if present and len(present) != len(self.names):
+                # the arm's joints (learned from the first message) with one missing: a
+                # malformed message, counted and not kept (the map names none to fix)
+                index = _MISSING_JOINT
+            elif present:
+                index = np.array([names.index(n) for n in self.names])
             self._index[names] = index
         return self._index[names]
 
@@ -539,6 +549,9 @@ class JointTopic:
         index = self._last_index
         if index is None:  # another part of the robot on the same topic (a gripper)
             self.skipped += 1
+            return
+        if index is _MISSING_JOINT:
+            self.malformed += 1
             return
         count = len(names)
         values = [position, velocity, effort]

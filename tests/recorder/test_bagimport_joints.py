@@ -24,8 +24,9 @@ TOPIC = "/arm/joint_states"
 def _joint_messages(store: Any) -> list[tuple[int, str, str, Any]]:
     """Return a 7-joint arm at 100 Hz: velocities always, efforts only in the second window.
 
-    In the first window two messages carry 6 velocities for 7 names (a driver's bug); in the
-    second window every other message carries efforts (a driver that fills them at times).
+    In the first window two messages carry 6 velocities for 7 names (a driver's bug) and one
+    lacks a joint altogether; in the second window every other message carries efforts (a
+    driver that fills them at times).
     """
     windows = TWO.windows()
     out = []
@@ -34,10 +35,13 @@ def _joint_messages(store: Any) -> list[tuple[int, str, str, Any]]:
         if k in {100, 101}:
             velocity = velocity[:6]
         effort = np.full(7, 2.0) if stamp >= windows[1][3] and k % 2 else np.zeros(0)
+        names, position = list(JOINTS), np.arange(7, dtype=np.float64)
+        if k == 150:  # a joint missing from one message (the map names no joints)
+            names, position, velocity = names[:-1], position[:-1], velocity[:-1]
         message = store.types["sensor_msgs/msg/JointState"](
             header=header(store, stamp, ros1=True),
-            name=list(JOINTS),
-            position=np.arange(7, dtype=np.float64),
+            name=names,
+            position=position,
             velocity=velocity,
             effort=effort,
         )
@@ -59,15 +63,15 @@ def test_short_or_missing_velocity_and_effort_are_never_made_up(tmp_path: Path) 
         objects=load_objects(),
         actions=load_actions(),
     )
-    assert report.malformed == {TOPIC: 2}
+    assert report.malformed == {TOPIC: 3}
     first, second = (read_recording(path) for path in report.written)
-    # first window: real velocities (the two short messages left out), no effort at all
+    # first window: real velocities (the three malformed messages left out), no effort at all
     assert first.joints is not None
     assert json.loads(str(first.metadata.rig["joints_not_recorded"])) == ["effort"]
     assert np.all(first.joints.velocity == 0.5)
     _, _, _, start, stop = TWO.windows()[0]
     inside = [m[3] for m in _joint_messages(store) if start <= m[0] - 1_000_000 < stop]
-    assert first.joints.stamps_ns.size == len(inside) - 2
+    assert first.joints.stamps_ns.size == len(inside) - 3
     # second window: efforts in every other message: the others are dropped, not zeroed
     assert second.joints is not None
     assert json.loads(str(second.metadata.rig["joints_not_recorded"])) == []
