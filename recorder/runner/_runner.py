@@ -1036,6 +1036,7 @@ class ArmRig:
     def _begin(self) -> None:
         """Forget what queued before (between actions), keeping the arm's latest state."""
         self._repeated = self._went_back = 0
+        self._newest_ns = -1  # a file's stamps move forward; a driver's clock may restart between
         self.arm.begin()
         self._begun_ns = self.clock.now_ns()
         self._skin_until = {}
