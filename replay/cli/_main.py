@@ -191,21 +191,39 @@ def _incomplete_channels(path: Path) -> tuple[ContainerSummary, list[tuple[str, 
     return summary, channels
 
 
-def _print_incomplete(console: Console, path: Path) -> None:
-    """Print what a recording that a stop ended early holds (it is not decoded)."""
-    summary, rows = _incomplete_channels(path)
+def _print_undecoded(
+    console: Console, path: Path, summary: ContainerSummary, rows: list[tuple[str, int]], said: str
+) -> None:
+    """Print a recording from its summary alone (not decoded): ``said`` after its metadata."""
     console.print(_about(path, parse_metadata(path, summary.metadata)))
-    reason = stopped_reason(summary.metadata) or "unknown"
-    console.print(
-        f"[yellow]incomplete: the action was stopped ({escape(reason)})",
-        highlight=False,
-        soft_wrap=True,
-    )
+    if said:
+        console.print(said, highlight=False, soft_wrap=True)
     channels = Table("channel", "messages", title="channels")
     for topic, count in rows:
         channels.add_row(escape(topic), str(count))
     console.print(channels)
     _print_sources(console, parse_sources(path, summary.metadata))
+
+
+def _undecoded_json(
+    path: Path, summary: ContainerSummary, rows: list[tuple[str, int]], **said: str
+) -> dict[str, Any]:
+    """Return ``info --json`` of a recording from its summary alone; ``said``: kind and why."""
+    return {
+        **said,
+        "path": str(path),
+        "metadata": _metadata_json(parse_metadata(path, summary.metadata)),
+        "channels": [{"name": topic, "messages": count} for topic, count in rows],
+        "sources": _sources_json(parse_sources(path, summary.metadata)),
+    }
+
+
+def _print_incomplete(console: Console, path: Path) -> None:
+    """Print what a recording that a stop ended early holds (it is not decoded)."""
+    summary, rows = _incomplete_channels(path)
+    reason = stopped_reason(summary.metadata) or "unknown"
+    said = f"[yellow]incomplete: the action was stopped ({escape(reason)})"
+    _print_undecoded(console, path, summary, rows, said)
 
 
 def _failing(path: Path, err: RecordingError) -> tuple[Any, list[tuple[str, int]], str] | None:
@@ -236,26 +254,15 @@ def _print_failing(console: Console, path: Path, err: RecordingError) -> bool:
         return False
     summary, rows, reason = found
     _say_failing(reason)
-    console.print(_about(path, parse_metadata(path, summary.metadata)))
-    channels = Table("channel", "messages", title="channels")
-    for topic, count in rows:
-        channels.add_row(escape(topic), str(count))
-    console.print(channels)
-    _print_sources(console, parse_sources(path, summary.metadata))
+    _print_undecoded(console, path, summary, rows, "")
     return True
 
 
 def _incomplete_json(path: Path) -> dict[str, Any]:
     """Return ``info --json`` of a recording a stop ended early."""
     summary, rows = _incomplete_channels(path)
-    return {
-        "kind": "incomplete",
-        "path": str(path),
-        "stopped": stopped_reason(summary.metadata) or "unknown",
-        "metadata": _metadata_json(parse_metadata(path, summary.metadata)),
-        "channels": [{"name": topic, "messages": count} for topic, count in rows],
-        "sources": _sources_json(parse_sources(path, summary.metadata)),
-    }
+    stopped = stopped_reason(summary.metadata) or "unknown"
+    return _undecoded_json(path, summary, rows, kind="incomplete", stopped=stopped)
 
 
 def _channels(recording: ActionRecording) -> list[tuple[str, int, tuple[int, ...], float]]:
@@ -434,14 +441,7 @@ def _info_json(path: Path) -> dict[str, Any]:
         if found is None:
             raise
         summary, rows, reason = found
-        return {
-            "kind": "failing",
-            "path": str(path),
-            "error": reason,
-            "metadata": _metadata_json(parse_metadata(path, summary.metadata)),
-            "channels": [{"name": topic, "messages": count} for topic, count in rows],
-            "sources": _sources_json(parse_sources(path, summary.metadata)),
-        }
+        return _undecoded_json(path, summary, rows, kind="failing", error=reason)
 
 
 @command(

@@ -109,12 +109,7 @@ def test_a_humble_bag_without_definitions_lists_topics_and_names_the_missing_typ
     bag = _humble(write_bag(tmp_path / "v8", "sqlite3", messages, store), tmp_path / "humble")
     assert record(["import-bag", str(bag), "--topics"]) == 0
     assert "probe_msgs/msg/Probe" in capsys.readouterr().out
-    map_path = tmp_path / "map.toml"
-    map_path.write_text(PROBE_MAP, encoding="utf-8")
-    argv = ["import-bag", str(bag), "--topic-map", str(map_path), "--out", str(tmp_path / "o")]
-    assert record(argv) == 1
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1
+    err = _refused(bag, tmp_path, capsys)
     assert "topic /probe carries probe_msgs/msg/Probe, whose definition the bag does not" in err
     assert '[types] "probe_msgs/msg/Probe"' in err
 
@@ -130,12 +125,7 @@ def test_a_driver_that_never_stamps_its_messages_is_named_with_the_way_out(
         for receive, topic, msgtype, m in messages
     ]
     bag = write_bag(tmp_path / "probe.bag", "ros1", unstamped, store)
-    map_path = tmp_path / "map.toml"
-    map_path.write_text(PROBE_MAP, encoding="utf-8")
-    argv = ["import-bag", str(bag), "--topic-map", str(map_path), "--out", str(tmp_path / "o")]
-    assert record(argv) == 1
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1
+    err = _refused(bag, tmp_path, capsys)
     assert "stamps of /probe are all 0" in err, err
     assert 'set [time] stamps = "log" in map.toml' in err, err
 
@@ -156,3 +146,14 @@ def test_the_import_table_is_whole_in_a_pipe(
     assert f"recordings from probe.bag -> {out}" in printed, printed
     assert "largest stamp jitter (ms)" in printed, printed
     assert "…" not in printed, printed
+
+
+def _refused(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """Import ``bag`` with the probe's map; return the one line it was refused with."""
+    map_path = tmp_path / "map.toml"
+    map_path.write_text(PROBE_MAP, encoding="utf-8")
+    argv = ["import-bag", str(bag), "--topic-map", str(map_path), "--out", str(tmp_path / "o")]
+    assert record(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    return err
