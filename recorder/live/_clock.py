@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 
 @dataclass(slots=True)
@@ -15,6 +16,8 @@ class RecorderClock:
     near Unix time (readable log times) and never go back.
     """
 
+    #: Whether the clock runs in real time (False: a simulated clock a virtual lab moves).
+    real: ClassVar[bool] = True
     _offset_ns: int = field(init=False)
 
     def __post_init__(self) -> None:

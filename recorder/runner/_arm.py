@@ -78,7 +78,9 @@ class ArmDriver(Protocol):
 
     Every command replaces the one running (as a UR's programs do); none blocks until the
     motion ends: the runner watches the state stream. ``stop`` must be safe to call at any
-    time, also twice, also after the connection was lost (then it does what it can).
+    time, also twice, also after the connection was lost (then it does what it can), and
+    also from another thread while another call hangs: the runner's watchdog sends the stop
+    when a call holds its loop longer than a source may be silent (``silence_s``).
     """
 
     def __enter__(self) -> Self:

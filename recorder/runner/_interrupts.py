@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NoReturn
 
@@ -44,6 +45,9 @@ class InterruptFlag:
 
     signum: int | None = None
     continued: bool = False
+    #: Why a driver call holds the runner's loop (empty: it does not): a signal then ends
+    #: the run at once, as nothing else would ever see this flag.
+    held: str = ""
 
     @property
     def stopped_meanwhile(self) -> str:
@@ -80,6 +84,8 @@ def deferred_interrupts(*, arm: bool = False) -> Iterator[InterruptFlag]:
         del frame
         if flag.signum is None:
             flag.signum = signum
+        if flag.held:  # the loop that would see the flag is held by a driver call
+            raise cli.ending(flag.signum)
 
     def continued(signum: int, frame: FrameType | None) -> None:
         del signum, frame
@@ -94,13 +100,32 @@ def deferred_interrupts(*, arm: bool = False) -> Iterator[InterruptFlag]:
     except ValueError:  # not the main thread: signals are not ours to handle
         yield flag
         return
+    _DEFERRING.append(flag)
     try:
         yield flag
     finally:
+        _DEFERRING.remove(flag)
         for number, old in previous.items():
             taken = flag.signum is not None  # the command's first signal: further ones ignored
             ending = taken and number != CONTINUE
             signal.signal(number, cli.after_deferred_interrupt(old) if ending else old)
+
+
+#: The flags of the deferring blocks open now (the main thread's; usually one).
+_DEFERRING: list[InterruptFlag] = []
+
+
+def runner_held(why: str) -> None:
+    """Let a signal end the run at once: a driver call holds the runner's loop (the watchdog).
+
+    Called from the watchdog's thread after it sent the stop. A signal that came already is
+    sent to the main thread again: its handler now raises, which also ends a wait the signal
+    interrupts (a socket, a sleep, a lock; PEP 475), so the run ends and what arrived is kept.
+    """
+    for flag in _DEFERRING:
+        flag.held = why
+        if flag.signum is not None and (main := threading.main_thread().ident) is not None:
+            signal.pthread_kill(main, flag.signum)
 
 
 def raise_interrupt(signum: int) -> NoReturn:

@@ -129,7 +129,12 @@ def _write(  # noqa: PLR0917 (record_action's own arguments, passed on)
             sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
             with sink:
                 put = _fan_out(sink.put, [viewer.offer for viewer in viewers])
-                stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
+                try:
+                    stop = _run(rig, obj, action, trial, put=put, watch=_Watch(flag, sink))
+                except KeyboardInterrupt as err:  # a signal while a driver call held the loop
+                    if flag.held:  # the file says why it is incomplete: the signal, the arm
+                        err.args = (f"{flag.reason}: {flag.held}",)
+                    raise
             if sink.failure is not None:
                 failure = _failed(path, sink.failure)
                 raise failure from sink.failure
@@ -141,6 +146,10 @@ def _write(  # noqa: PLR0917 (record_action's own arguments, passed on)
         if err is not failure:
             raise
         raise _writing_stopped(err, stop, writer.kept) from err.__cause__
+    except KeyboardInterrupt as err:
+        if flag.held:
+            err.args = (f"{err}; what arrived is kept in {writer.kept}",)
+        raise
     return writer.result, stop
 
 

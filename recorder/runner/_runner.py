@@ -51,6 +51,7 @@ from recorder.runner._limits import (
     path_problem,
 )
 from recorder.runner._limits import tool_axis as _tool_axis
+from recorder.runner._watchdog import Watchdog, WatchedArm
 from recorder.writing._stream import JointSample, PhaseEvent, PoseSample, SkinBlock
 
 if TYPE_CHECKING:
@@ -232,6 +233,10 @@ class ArmRig:
             RigError: A setting or a pose outside the limits (one line naming the file).
         """
         self.arm, self.skin, self.limits, self.options = arm, skin, limits, options
+        #: Watches the runner's calls into the drivers (a call that hangs gets the stop).
+        self._dog = Watchdog(self._stop_from_watchdog, where, options.silence_s)
+        #: The arm as the runner calls it: every call watched.
+        self._driver: ArmDriver = WatchedArm(arm, self._dog)
         self.kind, self.where, self.skin_transport = kind, where, skin_transport
         check_motion(options.motion, limits, where)
         for object_id, pose in poses.items():
@@ -292,6 +297,9 @@ class ArmRig:
                         f"that it is on and reachable and the configuration's {what} settings"
                     )
                     raise RigError(msg) from err
+            if self.clock.real:  # a simulated clock's driver holds nothing in real time
+                self._dog.allowed_s = self.options.silence_s
+                stack.enter_context(self._dog)
             stack.callback(sys.setswitchinterval, sys.getswitchinterval())
             # the readers, the runner's loop and the writer share one interpreter, handed
             # over every 5 ms by default: 2.5 cycles at 500 Hz that a state sample which
@@ -426,7 +434,7 @@ class ArmRig:
             distance = float(np.linalg.norm(self._state.pose[:3] - target[:3]))
             seconds = (5 + 3 * distance / motion.retract_m_s) * self.options.time_scale + 5
             limit_ns = self.clock.now_ns() + round(seconds * _NS)
-            self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
+            self._driver.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
             self._until_reached(target, limit_ns, obj.id)
             self._home = target.copy()
         except (Stop, SourceLostError, Exception) as ended:  # noqa: BLE001 (a driver's own)
@@ -662,7 +670,7 @@ class ArmRig:
             raise
         yield from self._rest()
         with contextlib.suppress(SourceLostError):  # the action is over: a log line at most
-            self.arm.announce(_phase(at, "end"))
+            self._driver.announce(_phase(at, "end"))
         yield self._event("end")
         return None
 
@@ -704,11 +712,11 @@ class ArmRig:
                 return _unconfirmed(speed)
             items: list[StreamItem] = []
             try:
-                samples = self.arm.poll(CYCLE_WAIT_S)
+                samples = self._driver.poll(CYCLE_WAIT_S)
             except Exception:  # noqa: BLE001 (lost, or a driver's own error: the arm unseen)
                 return _unconfirmed(speed)
             try:
-                blocks = self.skin.poll()
+                blocks = self._skin_poll()
             except SourceLostError:  # the skin's loss is not the arm's: go on judging it
                 blocks = []
             for sample in self._in_order(samples):
@@ -736,7 +744,7 @@ class ArmRig:
         sent = self.clock.now_ns()
         self.stop_note = ""
         try:
-            self.stop_note = self.arm.stop(self.options.motion.acceleration_m_s2, context)
+            self.stop_note = self._driver.stop(self.options.motion.acceleration_m_s2, context)
         except Exception as err:  # noqa: BLE001 - whatever failed, the line must say so
             return str(err) or type(err).__name__
         self.stops_sent.append((sent if cause_ns is None else cause_ns, sent, why))
@@ -812,7 +820,7 @@ class ArmRig:
             if (changed or now - sent_ns > renew_ns) and self._fresh():
                 speed, sent_ns = wanted, now
                 self._speed(direction, speed, at)
-        self.arm.stop(motion.acceleration_m_s2, _phase(at, "contact"))
+        self._driver.stop(motion.acceleration_m_s2, _phase(at, "contact"))
         yield self._event("contact")
         yield from self._until_fresh()  # the contact's pose: a state taken now, not a stale one
         return self._state.pose.copy()
@@ -873,7 +881,7 @@ class ArmRig:
         Raises:
             Stop: The skin stayed :data:`SKIN_BEHIND_S` behind.
         """
-        self.arm.stop(self.options.motion.acceleration_m_s2, at)
+        self._driver.stop(self.options.motion.acceleration_m_s2, at)
         began = self.clock.now_ns()
         peak: float | None = None
         while blind.paused:
@@ -904,7 +912,7 @@ class ArmRig:
         motion = self.options.motion
         velocity = np.concatenate([direction * speed, np.zeros(3)])
         seconds = min(motion.approach_limit_m / max(speed, 1e-6), SPEED_LEASE_S)
-        self.arm.speed(velocity, motion.acceleration_m_s2, seconds, at)
+        self._driver.speed(velocity, motion.acceleration_m_s2, seconds, at)
 
     def _pump_force(self, *, since_ns: int) -> Generator[StreamItem, None, float | None]:
         """Pump once; return the largest total skin force since ``since_ns`` (None: none).
@@ -938,7 +946,7 @@ class ArmRig:
         yield from self._until_fresh()
         if action.kind == "slide":
             velocity = np.concatenate([_tool_axis(contact, 0) * action.speed_m_s, np.zeros(3)])
-            self.arm.force_slide(
+            self._driver.force_slide(
                 action.force_n, velocity, action.duration_s, motion.acceleration_m_s2, here
             )
             # the hold counts from the first state that shows the slide running: a program
@@ -954,7 +962,7 @@ class ArmRig:
             axis = _tool_axis(contact, 2)
             target = contact.copy()
             target[:3] += axis * action.depth_m
-            self.arm.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
+            self._driver.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
             # + 2 s: a virtual lab on a loaded machine runs behind its clock
             travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 2.0
             limit = self.clock.now_ns() + round(travel_s * _NS)
@@ -989,7 +997,8 @@ class ArmRig:
         motion = self.options.motion
         yield from self._until_fresh()
         target = self._retract_target(contact)
-        self.arm.move(target, motion.retract_m_s, motion.acceleration_m_s2, _phase(at, "retract"))
+        retract = _phase(at, "retract")
+        self._driver.move(target, motion.retract_m_s, motion.acceleration_m_s2, retract)
         yield self._event("retract")
         start = self.clock.now_ns()
         still_since: int | None = None
@@ -1036,8 +1045,9 @@ class ArmRig:
     def _begin(self) -> None:
         """Forget what queued before (between actions), keeping the arm's latest state."""
         self._repeated = self._went_back = 0
+        self._dog.rearm()
         self._newest_ns = -1  # a file's stamps move forward; a driver's clock may restart between
-        self.arm.begin()
+        self._driver.begin()
         self._begun_ns = self.clock.now_ns()
         self._skin_until = {}
         self._force_spans.clear()
@@ -1051,7 +1061,7 @@ class ArmRig:
         data, kept).
         """
         try:
-            samples = self.arm.poll(wait_s)
+            samples = self._driver.poll(wait_s)
         except SourceLostError as err:
             msg = f"arm connection lost ({err.__cause__ or err})"
             raise Stop(msg, self.clock.now_ns()) from None
@@ -1065,7 +1075,7 @@ class ArmRig:
         if violation:
             raise Stop(violation, violation_ns, items, fix=fix)
         try:
-            blocks = self.skin.poll()
+            blocks = self._skin_poll()
         except SourceLostError as err:
             violation, blocks = f"skin connection lost ({err})", []
         for block in blocks:  # each modality's samples cover up to their last one + a period
@@ -1077,6 +1087,17 @@ class ArmRig:
         items.sort(key=lambda item: item.receive_ns)
         yield from items
         self._check(violation, violation_ns, polled_ns)
+
+    def _skin_poll(self) -> list[SkinBlock]:
+        """Return what the skin delivered (watched: a skin's driver may hang too)."""
+        with self._dog.calling("the skin's poll()"):
+            return self.skin.poll()
+
+    def _stop_from_watchdog(self, why: str) -> None:
+        """Send the stop from the watchdog's thread (a call holds the loop); see Watchdog."""
+        sent = self.clock.now_ns()
+        self.arm.stop(self.options.motion.acceleration_m_s2, None)
+        self.stops_sent.append((sent, sent, why))
 
     def _take(self, samples: Sequence[ArmSample]) -> tuple[list[StreamItem], str, int, str]:
         """Take state samples in: the latest state, what to hand over, the first violation.
@@ -1182,6 +1203,9 @@ class ArmRig:
         now = self.clock.now_ns()
         if violation:
             raise Stop(violation, violation_ns or now)
+        if held := self._dog.fired:  # the watchdog sent the stop while a call held the loop
+            msg = f"{held} (the stop was sent then)"
+            raise Stop(msg, now)
         reason = violation or self._watch.problem()
         fix = CHECK_ARM
         if not reason:
@@ -1221,7 +1245,7 @@ class ArmRig:
         """Yield what is still queued: state samples and the skin's open blocks."""
         items: list[StreamItem] = []
         with contextlib.suppress(Exception):  # after the stop: a failing driver gives nothing
-            for sample in self._in_order(self.arm.poll(0.0)):
+            for sample in self._in_order(self._driver.poll(0.0)):
                 if not self._malformed(sample):
                     items.extend(_items(sample))
         with contextlib.suppress(SourceLostError):

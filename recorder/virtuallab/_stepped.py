@@ -70,6 +70,7 @@ class SteppedClock(RecorderClock):
     """The recorder's clock moved by the lab, one controller cycle at a time."""
 
     __slots__ = ("now",)
+    real = False
 
     def __init__(self, start_ns: int = START_NS) -> None:
         """Start at ``start_ns``."""

@@ -40,7 +40,7 @@ class FakeArm:
 
     clock: RecorderClock
     period_ns: int = 8_000_000
-    cause: str = ""  # force, workspace, protective, silence, lost, or "" (none)
+    cause: str = ""  # force, workspace, protective, silence, lost, hang, or "" (none)
     cause_after_contact: int = 5  # cycles after the contact's stop
     pose: NDArray[np.float64] = field(default_factory=START.copy)
     velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
@@ -65,6 +65,10 @@ class FakeArm:
     moving_qd: float = 0.01
     #: The cycle from which the arm's state stops arriving (a stalled stream; None: never).
     silent_from: int | None = None
+    #: Set to hang the driver (cause "hang"): its poll after the cause, or its stop when
+    #: ``hang_in`` is "stop", waits on this event until the test sets it.
+    released: threading.Event | None = None
+    hang_in: str = "poll"
     #: The cycle at which each ``move`` reached its target, by phase.
     reached: dict[str, int] = field(default_factory=dict)
     #: The stamp of the sample at which each ``move`` reached its target, by phase (ns).
@@ -127,6 +131,8 @@ class FakeArm:
             self.pose[2] = max(self.pose[2], SURFACE_Z - 0.003)  # the object stops the arm
 
     def poll(self, wait_s: float) -> list[ArmSample]:
+        if self.released is not None and self.hang_in == "poll" and self.cause_cycle is not None:
+            self.released.wait()  # a driver stuck on a dead socket or a lock
         deadline = self.clock.now_ns() + round(wait_s * 1e9)
         samples: list[ArmSample] = []
         while True:
@@ -211,6 +217,8 @@ class FakeArm:
 
     def stop(self, acceleration: float, at: Context | None) -> str:
         phase = "stop" if at is None else at.phase
+        if self.released is not None and self.hang_in == "stop" and phase != "contact":
+            self.released.wait()
         if self.stop_fails and phase != "contact":
             self.commands.append((self._cycle, f"stop {phase} failed"))
             raise SourceLostError(self.stop_fails)

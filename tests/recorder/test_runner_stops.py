@@ -794,3 +794,106 @@ def test_an_arm_unseen_while_moving_to_an_object_is_said_unconfirmed() -> None:
         "a joint at 0.050 rad/s); check the arm at the teach pendant now" in said
     ), said
     assert arm.stop_cycle is not None
+
+
+def _hung_rig(
+    cause: str = "hang", hang_in: str = "poll"
+) -> tuple[ArmRig, FakeArm, threading.Event]:
+    """A fake rig whose driver hangs after the cause (its poll, or its stop)."""
+    rig = fake_rig(cause)
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.released, arm.hang_in = threading.Event(), hang_in
+    return rig, arm, arm.released
+
+
+def _release_after_stop(arm: FakeArm, released: threading.Event) -> None:
+    """Let the hung driver go once the stop reached the arm (and 0.1 s more)."""
+
+    def watch() -> None:
+        for _ in range(3000):  # at most 15 s: were no stop sent, no hung test either
+            if arm.stop_ns is not None or released.wait(0.005):
+                break
+        released.wait(0.1)
+        released.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def test_a_driver_call_that_hangs_gets_the_stop_from_the_watchdog(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a lab's driver whose poll waits on a dead socket holds the runner's loop: no limit, no
+    # silence check, no deferred signal can act. The watchdog sends the stop once the call
+    # has held the loop longer than a source may be silent (at least 0.5 s), says so at once,
+    # and the action ends as a stop when the call returns, what arrived kept
+    path = tmp_path / "001.mcap"
+    rig, arm, released = _hung_rig()
+    _release_after_stop(arm, released)
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+    assert arm.stop_ns is not None
+    assert arm.cause_ns is not None
+    assert arm.stop_ns - arm.cause_ns >= 0.5e9, arm.commands
+    said = str(info.value)
+    assert "the arm driver's poll() held the runner for " in said, said
+    assert "(the stop was sent then)" in said
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("fake.toml: the arm driver's poll() has not returned for "), err
+    assert "the stop was sent (the arm unseen since); the action ends when it returns" in err[0]
+    assert next(why for *_, why in rig.stops_sent).startswith("the arm driver's poll() held")
+    _kept(path, "the arm driver's poll() held the runner")
+
+
+@pytest.mark.parametrize("after_s", [0.02, 0.8], ids=["before-the-watchdog", "after-it"])
+def test_ctrl_c_ends_a_run_held_by_a_hung_driver_at_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], after_s: float
+) -> None:
+    # the hung call never returns: a deferred Ctrl-C would wait for it forever. Once the
+    # watchdog has sent the stop, a signal (one that came before, or one after) ends the run
+    path = tmp_path / "001.mcap"
+    rig, arm, released = _hung_rig()
+
+    def interrupt() -> None:
+        while arm.cause_ns is None:
+            threading.Event().wait(0.002)
+        threading.Event().wait(after_s)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    let_go = threading.Timer(30, released.set)  # were the run held for good: no hung tests
+    let_go.start()
+    try:
+        with rig, pytest.raises(KeyboardInterrupt) as info:
+            record_action(rig, OBJECT, ACTION, 1, path, seed=0)
+        assert not released.is_set()  # it ended with the driver still hung
+    finally:
+        let_go.cancel()
+        released.set()
+    said = str(info.value)
+    assert said.startswith("interrupted by Ctrl-C (SIGINT): the arm driver's poll() held "), said
+    assert "the stop was sent (the arm unseen since); what arrived is kept in " in said, said
+    assert said.endswith("001.incomplete.mcap"), said
+    assert arm.stop_ns is not None
+    assert "has not returned for" in capsys.readouterr().err
+    _kept(path, "interrupted by Ctrl-C")
+
+
+def test_a_stop_that_hangs_is_said_and_not_sent_again(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig, arm, released = _hung_rig("force", hang_in="stop")
+
+    def release() -> None:  # the stop hangs 1 s after the cause
+        while arm.cause_ns is None:
+            threading.Event().wait(0.002)
+        released.wait(1.0)
+        released.set()
+
+    threading.Thread(target=release, daemon=True).start()
+    with rig, pytest.raises(ActionStoppedError, match=r"TCP force 100\.00 N above"):
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("fake.toml: the arm driver's stop() has not returned for "), err
+    assert "the stop may not have reached the arm; stop it at the teach pendant now" in err
+    assert [c for _, c in arm.commands if c.startswith("stop stop")] == ["stop stop"]
