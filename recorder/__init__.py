@@ -21,7 +21,7 @@ from recorder._dataset import (
     stale_parts,
     write_index,
 )
-from recorder._rig import Accounting, Connecting, Presenting, Rig
+from recorder._rig import Accounting, Connecting, Moving, Presenting, Rig
 from recorder._rigconfig import (
     ENTRY_POINT_GROUP,
     SIM_RIG,
@@ -116,6 +116,7 @@ __all__ = [
     "ImportReport",
     "JointSample",
     "Modality",
+    "Moving",
     "ObjectPhysics",
     "ObjectSpec",
     "OutputExistsError",

@@ -62,6 +62,24 @@ class Presenting(Protocol):
 
 
 @runtime_checkable
+class Moving(Protocol):
+    """A rig whose actions move an arm: recorded the way a robot asks for.
+
+    Before each action :meth:`check_ready` may refuse it (nothing moves, no file is made) and
+    the disk must have room for it; during it, Ctrl-Z ends the run as Ctrl-C does (a suspended
+    recorder leaves the arm unwatched), and the file is written by a thread of its own, so
+    the rig's stream never waits for the disk. The runner's arms
+    (:class:`recorder.runner.ArmRig`) are such rigs; a lab's own rig that moves an arm by
+    itself declares it by this method, and stops its arm when its ``perform`` generator is
+    closed early (a signal, a writer in trouble).
+    """
+
+    def check_ready(self) -> None:
+        """Refuse an action that cannot start now (``recorder.RigError``, one line)."""
+        ...
+
+
+@runtime_checkable
 class Accounting(Protocol):
     """A live rig that counts what its sources delivered in the last action."""
 

@@ -14,7 +14,7 @@ import shutil
 from collections.abc import Generator
 from typing import TYPE_CHECKING
 
-from recorder._rig import source_stats
+from recorder._rig import Moving, source_stats
 from recorder.errors import ActionStoppedError, RecorderError
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
 from recorder.runner._runner import ArmRig, Stop
@@ -88,13 +88,14 @@ def record_action(
             the robot, too little free disk for the action (nothing was sent, no file made).
         RigError: The arm could not start the action (nothing was sent, no file made).
     """
-    if isinstance(rig, ArmRig):  # an arm that could not start the action: no file for it
+    moving = isinstance(rig, Moving)
+    if isinstance(rig, Moving):  # an arm that could not start the action: no file for it
         check_room(path.parent)
         rig.check_ready()
     info = RecordingInfo.create(obj, action, trial, rig, seed)
     for viewer in viewers:
         viewer.begin(info)
-    with deferred_interrupts(arm=isinstance(rig, ArmRig)) as flag:
+    with deferred_interrupts(arm=moving) as flag:
         written, stop = _write(rig, obj, action, trial, path, info, viewers, flag, durable=durable)
     if written is None:  # pragma: no cover (the 'with' block always sets it)
         msg = f"{path}: the recording was not finished"
@@ -126,7 +127,7 @@ def _write(  # noqa: PLR0917 (record_action's own arguments, passed on)
     try:
         with writer:
             # an arm's loop must never wait for the disk: its writer has a thread of its own
-            sink = WriterThread(writer) if isinstance(rig, ArmRig) else InlineSink(writer)
+            sink = WriterThread(writer) if isinstance(rig, Moving) else InlineSink(writer)
             with sink:
                 put = _fan_out(sink.put, [viewer.offer for viewer in viewers])
                 try:

@@ -1,19 +1,26 @@
+from __future__ import annotations
+
 import os
 import pickle
+import signal
 import sys
 import threading
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 import rig_plugins
-from rig_plugins import install_entry_points, traces
+from rig_plugins import TracingRig, install_entry_points, traces
 
 from recorder import (
     FrozenTable,
+    Moving,
     RecorderError,
     RigConfig,
+    RigError,
     find_rig,
     is_exclusive,
+    load_actions,
+    load_objects,
     load_rig_config,
     register_rig,
     rig_factory,
@@ -21,6 +28,14 @@ from recorder import (
 )
 from recorder import _rigconfig as rigconfig
 from recorder._cli import main
+from recorder.runner._record import record_action
+from schemas import cli
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from pathlib import Path
+
+    from recorder import ActionSpec, ObjectSpec, StreamItem
 
 ACTIONS = ["--objects", "wood,foam_block", "--actions", "P1", "--trials", "2"]
 
@@ -190,3 +205,43 @@ def test_register_rig_refuses_a_name_found_first_and_a_non_builder() -> None:
         register_rig("fake", rig_plugins.bare_builder)
     with pytest.raises(RecorderError, match=r"give a recorder\.RigPlugin"):
         register_rig("lab", 3)  # type: ignore[arg-type]
+
+
+class _MovingRig(TracingRig):
+    """A lab's rig that moves an arm by itself (``recorder.Moving``): it can refuse."""
+
+    refuse = ""
+    stopped = False
+
+    def check_ready(self) -> None:
+        if self.refuse:
+            raise RigError(self.refuse)
+
+    def perform(self, obj: ObjectSpec, action: ActionSpec, trial: int) -> Iterator[StreamItem]:
+        try:
+            for count, item in enumerate(super().perform(obj, action, trial)):
+                if count == 50:
+                    os.kill(os.getpid(), signal.SIGTSTP)
+                yield item
+        finally:
+            self.stopped = True  # its own stop, whatever ended the action
+
+
+@pytest.mark.usefixtures("suspend_caught")
+def test_a_rig_that_moves_an_arm_by_itself_is_recorded_as_the_runners_arms_are(
+    tmp_path: Path,
+) -> None:
+    # the typed capability, not the runner's class: a refusal before anything moves, and
+    # Ctrl-Z ends the run (never a suspended recorder with the arm unwatched), data kept
+    obj, action = load_objects()["wood"], load_actions()["P1"]
+    rig = _MovingRig(0, tmp_path)
+    assert isinstance(rig, Moving)
+    rig.refuse = "lab.toml: the arm is not homed; home it, then retry"
+    with rig, pytest.raises(RigError, match="not homed"):
+        record_action(rig, obj, action, 1, tmp_path / "out" / "001.mcap", seed=0)
+    assert not list(tmp_path.glob("*perform*"))  # it never began
+    rig.refuse = ""
+    with rig, pytest.raises(cli.Suspended):
+        record_action(rig, obj, action, 1, tmp_path / "out" / "001.mcap", seed=0)
+    assert rig.stopped
+    assert (tmp_path / "out" / "001.incomplete.mcap").exists()
