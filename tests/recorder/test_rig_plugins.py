@@ -27,7 +27,7 @@ from recorder import (
     rig_names,
 )
 from recorder import _rigconfig as rigconfig
-from recorder._cli import main
+from recorder._cli import build_parser, main
 from recorder.runner._record import record_action
 from schemas import cli
 
@@ -164,6 +164,9 @@ def test_a_plugin_that_does_not_load_is_one_line(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
+    # the commands are imported first (serve-sim's virtual lab speaks the UR's protocol, so
+    # it imports recorder.ur): what is checked is the rig's loading, not the commands'
+    build_parser()
     monkeypatch.setitem(sys.modules, "recorder.ur", None)  # as on a branch without it
     out = tmp_path / "out"
     argv = ["action", "--object", "wood", "--action", "P1", "--out", str(out), "--rig", rig]
