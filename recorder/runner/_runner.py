@@ -444,7 +444,7 @@ class ArmRig:
                 else Stop(f"an error ({_error(ended)})", self.clock.now_ns())
             )
             undelivered = self._send_stop(None, str(stop))
-            said = undelivered_line(undelivered) if undelivered else self.stop_note
+            said = undelivered_line(undelivered, str(stop)) if undelivered else self.stop_note
             if not undelivered:  # as after an action's stop: a moving arm unseen is said
                 said = "; ".join(c for c in (said, self._until_rest_quietly()) if c)
             if watch.flag.signum is not None:  # Ctrl-C, SIGTERM, SIGHUP: the run ends
@@ -656,7 +656,7 @@ class ArmRig:
             else:
                 stop = Stop(f"an error in the action ({_error(ended)})", self.clock.now_ns())
             if undelivered := self._send_stop(at, stop.reason, stop.at_ns):
-                stop.arm_left = undelivered_line(undelivered)
+                stop.arm_left = undelivered_line(undelivered, stop.reason)
             yield from stop.arrived
             if not undelivered:
                 moving = yield from self._until_rest()
@@ -1295,8 +1295,14 @@ def _unconfirmed(speed: float) -> str:
     )
 
 
-def undelivered_line(reason: str) -> str:
-    """Return what to say when the stop could not be sent to the arm (``reason``: why)."""
+def undelivered_line(reason: str, said: str = "") -> str:
+    """Return what to say when the stop could not be sent to the arm (``reason``: why).
+
+    When the line says ``reason`` already (``said``: the stop's own cause, e.g. the contact's
+    stop that failed the same way), it is not said twice.
+    """
+    if reason and reason in said:
+        return "the stop did not reach the arm either; stop it at the teach pendant now"
     return f"the stop did not reach the arm ({reason}); stop it at the teach pendant now"
 
 

@@ -59,6 +59,8 @@ class FakeArm:
     latency_cycles: int = 0
     #: Why a stop cannot reach the arm (a lost connection no new one replaces; "": it can).
     stop_fails: str = ""
+    #: Whether the contact's stop fails too (else only the stops after a cause).
+    contact_stop_fails: bool = False
     #: Whether the arm goes on moving after a stop it took (a controller that ignored it).
     stop_ignored: bool = False
     #: The joints' speed while the arm moves, rad/s.
@@ -219,7 +221,7 @@ class FakeArm:
         phase = "stop" if at is None else at.phase
         if self.released is not None and self.hang_in == "stop" and phase != "contact":
             self.released.wait()
-        if self.stop_fails and phase != "contact":
+        if self.stop_fails and (phase != "contact" or self.contact_stop_fails):
             self.commands.append((self._cycle, f"stop {phase} failed"))
             raise SourceLostError(self.stop_fails)
         self.commands.append((self._cycle, f"stop {phase}"))

@@ -344,6 +344,19 @@ def test_a_stop_that_cannot_reach_the_arm_is_said_not_claimed(tmp_path: Path) ->
     _kept(path, "the stop did not reach the arm")
 
 
+def test_a_contact_stop_that_cannot_reach_the_arm_is_said_once(tmp_path: Path) -> None:
+    # the light contact's stop fails, then the action's stop fails the same way: the line
+    # says the cause once, not twice in a row
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    arm.stop_fails, arm.contact_stop_fails = LOST, True
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    said = str(info.value)
+    assert said.count(LOST) == 1, said
+    assert "the stop did not reach the arm either; stop it at the teach pendant now" in said
+
+
 def test_an_arm_still_moving_after_the_stop_is_said(tmp_path: Path) -> None:
     # the stop went out, but the arm goes on (a controller that did not take it): the line
     # must not claim a stopped arm; what arrived while it was watched is kept
