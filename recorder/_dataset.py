@@ -412,7 +412,7 @@ def _metadata_of(path: Path) -> RecordingMetadata:
         raise RecorderError(msg) from err
 
 
-def _first_metadata(root: Path) -> tuple[Path, RecordingMetadata] | None:
+def first_metadata(root: Path) -> tuple[Path, RecordingMetadata] | None:
     """Return the first recording under ``root`` whose metadata reads, and its metadata."""
     for path in dataset_recordings(root) if Path(root).is_dir() else []:
         with contextlib.suppress(RecorderError):
@@ -439,7 +439,7 @@ def check_configuration(root: Path, seed: int, factory: RigFactory) -> None:
         RecorderError: The seeds or rig descriptions differ; the message names both and the fix.
     """
     rig = _configuration(factory(seed).describe())  # a bad rig option fails before any worker
-    found = _first_metadata(root)
+    found = first_metadata(root)
     if found is None:
         return
     existing, meta = found
@@ -526,6 +526,7 @@ def _summary_row(path: Path, data: bytes) -> dict[str, Any]:
         "trial": meta.trial,
         "seed": meta.seed,
         "rig": str(meta.rig.get("kind", "")),
+        _IDENTITY: rig_identity(meta.rig),
         "source": meta.source,
         "software_version": meta.software_version,
         "schema_version": meta.schema_version,
@@ -534,6 +535,26 @@ def _summary_row(path: Path, data: bytes) -> dict[str, Any]:
         "duration_ns": stats.message_end_time - stats.message_start_time,
         "messages": stats.message_count,
     } | {_topic_column(c.topic): counts.get(c.topic, 0) for c in CHANNELS}
+
+
+#: A row's key (not an index column) for :func:`rig_identity`.
+_IDENTITY = "rig_identity"
+#: What identifies an imported rig within a dataset: its skin's cells and channel widths. The
+#: bags, the map's file name and its stamps differ between imports of one rig.
+IMPORTED_IDENTITY = ("cells", "widths")
+
+
+def rig_identity(rig: Mapping[str, object]) -> str:
+    """Return what one dataset's recordings share of their rig description, one line.
+
+    A recorded dataset's whole configuration is compared before it records
+    (:func:`check_configuration`); bags of several rigs imported into one directory are
+    compared here: two skins of other cells or widths make one dataset of nothing.
+    """
+    kind = str(rig.get("kind", ""))
+    if kind != "imported":
+        return kind
+    return ", ".join([kind, *(f"{key}={rig.get(key, '')}" for key in IMPORTED_IDENTITY)])
 
 
 def index_row(root: Path, path: Path) -> dict[str, Any]:
@@ -749,10 +770,36 @@ def build_index(root: Path, paths: Iterable[Path] | None = None) -> pl.DataFrame
         RecorderError: A file is not a readable recording.
     """
     root = Path(root)
-    import polars as pl  # noqa: PLC0415 (see _LAZY)
 
     rows = [index_row(root, path) for path in (recordings(root) if paths is None else paths)]
-    return pl.DataFrame(rows, schema=_index_schema())
+    return _frame(rows)
+
+
+def _frame(rows: Sequence[Mapping[str, Any]]) -> pl.DataFrame:
+    """Return the index frame of rows (without their rig identities)."""
+    import polars as pl  # noqa: PLC0415 (see _LAZY)
+
+    table = [{k: v for k, v in row.items() if k != _IDENTITY} for row in rows]
+    return pl.DataFrame(table, schema=_index_schema())
+
+
+def _check_one_rig(root: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    """Refuse an index of recordings of several rigs (see :func:`rig_identity`).
+
+    Raises:
+        RecorderError: Two identities, each named with a file.
+    """
+    firsts: dict[str, str] = {}
+    for row in rows:
+        firsts.setdefault(row[_IDENTITY], row["path"])
+    if len(firsts) > 1:
+        shown = "; ".join(f"{rig} (e.g. {path})" for rig, path in list(firsts.items())[:2])
+        msg = (
+            f"{root}: holds recordings of {len(firsts)} different rigs ({shown}); a dataset "
+            "holds one rig: move the recordings of one to another directory, then run "
+            f"'atikt-record index {root}'"
+        )
+        raise RecorderError(msg)
 
 
 def write_index(root: Path) -> Path:
@@ -771,7 +818,9 @@ def write_index(root: Path) -> Path:
     try:
         root.mkdir(parents=True, exist_ok=True)
         with _index_lock(root):  # the last writer lists every file linked before it
-            index = build_index(root)
+            rows = [index_row(root, path) for path in recordings(root)]
+            _check_one_rig(root, rows)
+            index = _frame(rows)
             _check_one_seed(root, index)
             atomic_write(target, index.write_parquet)
     except (OSError, pl.exceptions.PolarsError) as err:

@@ -32,7 +32,13 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from recorder._catalog import ObjectSpec
-from recorder._dataset import declare_objects, set_aside_stale_parts, write_index
+from recorder._dataset import (
+    declare_objects,
+    first_metadata,
+    rig_identity,
+    set_aside_stale_parts,
+    write_index,
+)
 from recorder.bagimport._pack import (
     Series,
     block_period,
@@ -1096,6 +1102,7 @@ def import_bag(
     if seen and not report.imported:  # a report of an older version: its windows unlisted
         report.already_imported = seen
         return report
+    _refuse_other_rig(out, topic_map)
     for moved in set_aside_stale_parts(out) if out.is_dir() else ():
         if on_set_aside is not None:
             on_set_aside(moved)
@@ -1130,6 +1137,30 @@ def import_bag(
     report.complete = True
     report.save(replace=True)
     return report
+
+
+def _refuse_other_rig(out: Path, topic_map: TopicMap) -> None:
+    """Refuse to import into a dataset of another rig (another kind, or a skin of other cells).
+
+    One dataset holds one rig; the other cells are seen before anything is read (the widths
+    only from the data: the index refuses those at the end).
+
+    Raises:
+        BagImportError: One line naming a recording of the other rig and the fix.
+    """
+    found = first_metadata(out)
+    if found is None:
+        return
+    path, meta = found
+    cells = json.dumps(list(topic_map.cells))
+    if meta.rig.get("kind") == "imported" and meta.rig.get("cells") == cells:
+        return
+    msg = (
+        f"{out}: holds recordings of another rig ({rig_identity(meta.rig)}, e.g. {path}); "
+        f"{topic_map.path} maps a skin of cells={cells}; a dataset holds one rig: give "
+        "another --out"
+    )
+    raise BagImportError(msg)
 
 
 def _object_spec(obj: LabObject) -> ObjectSpec:

@@ -348,3 +348,27 @@ def test_a_ros1_bag_cut_off_or_still_active_names_the_reindex(tmp_path: Path) ->
             f"{cut}: a ROS 1 bag cut off or without its index (its recorder was killed); "
             f"rebuild the index with rosbag reindex {cut} (ROS 1)"
         )
+
+
+def test_bags_of_two_rigs_never_make_one_dataset(
+    small: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a skin of other cells: refused before anything is read; recordings of two rigs put in
+    # one directory by hand: its index is refused, naming a file of each
+    one, other = tmp_path / "one", tmp_path / "other"
+    _import(small, _map(tmp_path), one)
+    (tmp_path / "wider").mkdir()
+    wider = _map(tmp_path / "wider", PROBE_MAP.replace("cells = [0]", "cells = [3]"))
+    before = sorted(one.rglob("*"))
+    with pytest.raises(BagImportError, match=r"holds recordings of another rig \(imported, cells"):
+        _import(small, wider, one)
+    assert sorted(one.rglob("*")) == before
+    _import(small, wider, other)
+    moved = next(other.rglob("*.mcap"))
+    (one / "extra").mkdir()
+    moved.rename(one / "extra" / moved.name)
+    err = _cli_error(["index", str(one)], capsys)
+    assert "holds recordings of 2 different rigs (imported, cells=" in err, err
+    assert "cells=[0]" in err
+    assert "cells=[3]" in err
+    assert "a dataset holds one rig: move the recordings of one to another directory" in err
