@@ -22,6 +22,7 @@ import io
 import itertools
 import os
 import struct
+import sys
 import threading
 import time
 import tomllib
@@ -612,6 +613,8 @@ def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
     try:
         text = path.read_text("utf-8") if path.exists() else ""
         declared = loads_toml(text)
+        objects = list(objects)
+        _say_kept(path, declared, objects)
         new = {o.id: o for o in objects if o.id not in declared}
         if not new:
             return path
@@ -623,6 +626,26 @@ def declare_objects(root: Path, objects: Iterable[ObjectSpec]) -> Path:
         msg = f"{path}: cannot update the object declarations ({err}); fix or delete the file"
         raise RecorderError(msg) from err
     return path
+
+
+def _say_kept(path: Path, declared: Mapping[str, Any], objects: Sequence[ObjectSpec]) -> None:
+    """Say, one line each, where a run names a declared object otherwise (it is kept).
+
+    A declaration is the dataset's: a later map or catalog that renames an object does not
+    rename it silently, nor silently fail to.
+    """
+    for obj in objects:
+        table = declared.get(obj.id)
+        if not isinstance(table, dict):
+            continue
+        for key, ours in (("name", obj.name), ("description", obj.description)):
+            theirs = table.get(key)
+            if isinstance(theirs, str) and theirs != ours:
+                print(  # noqa: T201 (a note for the person: nothing fails)
+                    f"{path}: [{obj.id}] {key} = {theirs!r} is kept (this run says {ours!r}); "
+                    f"edit {path.name} to change it",
+                    file=sys.stderr,
+                )
 
 
 def recordings(root: Path) -> list[Path]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import resource
 import subprocess
@@ -14,7 +15,7 @@ import polars as pl
 import pytest
 from labbags import PROBE_MAP, START, Session, probe_messages, write_bag
 
-from recorder import load_actions, load_objects
+from recorder import declare_objects, load_actions, load_objects
 from recorder._cli import main as record
 from recorder.bagimport._importer import import_bag
 from recorder.bagimport._topicmap import load_topic_map
@@ -372,3 +373,18 @@ def test_bags_of_two_rigs_never_make_one_dataset(
     assert "cells=[0]" in err
     assert "cells=[3]" in err
     assert "a dataset holds one rig: move the recordings of one to another directory" in err
+
+
+def test_an_object_a_later_run_renames_keeps_its_declaration_and_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a later topic map (or catalog) that renames a declared object: the dataset's
+    # declaration stands, and the run says so instead of dropping the new name silently
+    wood = load_objects()["wood"]
+    declare_objects(tmp_path, [wood])
+    assert capsys.readouterr().err == ""
+    declare_objects(tmp_path, [dataclasses.replace(wood, name="Oak")])
+    err = capsys.readouterr().err
+    assert f"objects.toml: [wood] name = {wood.name!r} is kept (this run says 'Oak'); " in err
+    assert err.count("\n") == 1
+    assert "Oak" not in (tmp_path / "objects.toml").read_text("utf-8")
