@@ -14,6 +14,7 @@ back is refused with the topic, the time and the fix, never re-sorted.
 from __future__ import annotations
 
 import bisect
+import collections
 from dataclasses import dataclass, field
 from operator import attrgetter
 from pathlib import Path
@@ -136,37 +137,39 @@ class _Buffer:
 def _stack(values: list[Any], count: int, topic: str, path: str) -> NDArray[np.float64]:
     """Return decoded field values of ``count`` messages as a (messages, size) float64 array.
 
+    A message whose field holds another number of values than most of the range's (a
+    truncated or corrupted message among good ones) becomes a row of NaN: the skin's rows are
+    then dropped and counted where it lies (``dropped_rows``), never the whole bag.
+
     Raises:
-        BagImportError: The messages carry different numbers of values.
+        BagImportError: The field's values are not numbers.
     """
     try:
         return np.asarray(values, dtype=np.float64).reshape(count, -1)
-    except ValueError as err:
-        msg = (
-            f"topic {topic}: field {path!r} has different lengths in different messages; "
-            "map a fixed-length field"
-        )
+    except ValueError:
+        pass
+    try:
+        rows = [np.asarray(v, dtype=np.float64).reshape(-1) for v in values]
+    except (TypeError, ValueError) as err:
+        msg = f"topic {topic}: field {path!r} holds values that are not numbers; map another"
         raise BagImportError(msg) from err
+    sizes = collections.Counter(row.size for row in rows)
+    size = max(sizes, key=lambda n: (sizes[n], n))  # the most common (ties: the longest)
+    out = np.full((count, size), np.nan)
+    for index, row in enumerate(rows):
+        if row.size == size:
+            out[index] = row
+    return out
 
 
 def _stack_bytes(
     values: list[bytes], dtype: np.dtype[Any], count: int, topic: str, path: str
 ) -> NDArray[np.float64]:
-    """Return fields kept as bytes (:meth:`SkinTopic.push_fields`) as :func:`_stack` does.
-
-    Raises:
-        BagImportError: The messages carry different numbers of values.
-    """
-    if len(set(map(len, values))) > 1:
-        return _stack([np.frombuffer(v, dtype) for v in values], count, topic, path)
-    try:
-        return np.frombuffer(b"".join(values), dtype).astype(np.float64).reshape(count, -1)
-    except ValueError as err:
-        msg = (
-            f"topic {topic}: field {path!r} has different lengths in different messages; "
-            "map a fixed-length field"
-        )
-        raise BagImportError(msg) from err
+    """Return fields kept as bytes (:meth:`SkinTopic.push_fields`) as :func:`_stack` does."""
+    if len(set(map(len, values))) > 1 or len(values[0]) % dtype.itemsize:
+        whole = [v if len(v) % dtype.itemsize == 0 else b"" for v in values]  # a cut-off field
+        return _stack([np.frombuffer(v, dtype) for v in whole], count, topic, path)
+    return np.frombuffer(b"".join(values), dtype).astype(np.float64).reshape(count, -1)
 
 
 @dataclass(slots=True)

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 import pytest
-from labbags import PROBE_MAP, START, Session, probe_messages, write_bag
+from labbags import NS, PROBE_MAP, START, TYPES, Session, probe_messages, write_bag
+from rosbags.typesys import get_types_from_msg
 
 from recorder import declare_objects, load_actions, load_objects
 from recorder._cli import main as record
@@ -25,6 +26,7 @@ from replay import read_recording
 if TYPE_CHECKING:
     from recorder.bagimport._report import ImportReport
 
+PROBE = "probe_msgs/msg/Probe"
 SMALL = Session(("wood", "foam"), ("hold5",), trials=1, execute_s=5.0, gap_s=0.4)
 ROOT = Path(__file__).parents[2]
 
@@ -388,3 +390,28 @@ def test_an_object_a_later_run_renames_keeps_its_declaration_and_says_so(
     assert f"objects.toml: [wood] name = {wood.name!r} is kept (this run says 'Oak'); " in err
     assert err.count("\n") == 1
     assert "Oak" not in (tmp_path / "objects.toml").read_text("utf-8")
+
+
+def test_a_message_whose_field_has_another_length_is_dropped_and_counted(tmp_path: Path) -> None:
+    # one probe message cut short inside the first window, one too long between two windows:
+    # each is left out where it lies, counted in its recording's rows; the bag imports whole
+    messages, store = probe_messages(ros1=True, session=SMALL)
+    name = "probe_msgs/msg/Probes"  # the probe's message with a variable-length array
+    store.register(get_types_from_msg(TYPES[PROBE].replace("[2]", "[]"), name))
+    windows = SMALL.windows()
+    odd = {
+        min((m for m in messages if m[1] == "/probe"), key=lambda m: abs(m[0] - at))[0]: values
+        for at, values in (
+            (windows[0][3] + NS, [29.0]),  # inside the first window
+            ((windows[0][4] + windows[1][3]) // 2, [29.0, 22.0, 21.0]),  # between two
+        )
+    }
+    for index, (receive, topic, _, msg) in enumerate(messages):
+        if topic == "/probe":
+            temperatures = np.asarray(odd.get(receive, msg.temperatures), dtype=np.float32)
+            copy = store.types[name](msg.header, msg.force, temperatures)
+            messages[index] = (receive, topic, name, copy)
+    bag = write_bag(tmp_path / "probe.bag", "ros1", messages, store)
+    report = _import(bag, _map(tmp_path), tmp_path / "out")
+    assert len(report.written) == len(windows)
+    assert report.dropped_rows.get("temperature") == 1, report.dropped_rows
