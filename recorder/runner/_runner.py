@@ -201,6 +201,9 @@ class _State:
     receive_ns: int = 0
     #: State samples taken so far (the controller's cycles seen).
     taken: int = 0
+    #: Of those, the ones that arrived since the last command was sent (see ArmRig._mark):
+    #: samples queued before it (a loaded recorder reads them late) say nothing of it.
+    since: int = 0
 
     @property
     def pose(self) -> NDArray[np.float64] | None:
@@ -274,6 +277,8 @@ class ArmRig:
         #: The newest state sample's stamp; samples at or before it are left out, counted.
         self._newest_ns = -1
         self._repeated = self._went_back = 0
+        #: When the last command that cycles are counted from was sent (recorder clock, ns).
+        self._mark_ns = 0
 
     # -- connection -----------------------------------------------------------------------
 
@@ -434,6 +439,7 @@ class ArmRig:
             distance = float(np.linalg.norm(self._state.pose[:3] - target[:3]))
             seconds = (5 + 3 * distance / motion.retract_m_s) * self.options.time_scale + 5
             limit_ns = self.clock.now_ns() + round(seconds * _NS)
+            self._mark()
             self._driver.move(target, motion.retract_m_s, motion.acceleration_m_s2, None)
             self._until_reached(target, limit_ns, obj.id)
             self._home = target.copy()
@@ -469,14 +475,14 @@ class ArmRig:
         """
         # counted in the controller's cycles, not in time: a controller (or a virtual lab) held
         # up by its machine sends nothing meanwhile, and its program starts none the later
+        # (and only the cycles since the move was sent: see _State.since)
         cycles = max(START_S * self.options.time_scale * _NS / self.arm.period_ns, START_CYCLES)
-        until = self._state.taken + cycles
         moved = False
         while not self._reached(target):
             self._pump_quietly()
             now = self.clock.now_ns()
             moved = moved or not self._state.still
-            if not moved and self._state.taken > until:  # a program the controller did not run
+            if not moved and self._state.since > cycles:  # a program the controller did not run
                 msg = (
                     f"the arm did not start moving toward {what} in {round(cycles)} controller "
                     "cycles: the controller did not run the program (an e-Series in local "
@@ -697,23 +703,24 @@ class ArmRig:
             stopped arriving while it was last seen moving (the stop cannot be confirmed);
             empty: it came to rest.
         """
-        cycles = REST_S * self.options.time_scale * _NS / self.arm.period_ns
-        until = self._state.taken + max(cycles, REST_CYCLES)
+        cycles = max(REST_S * self.options.time_scale * _NS / self.arm.period_ns, REST_CYCLES)
         deadline = self.clock.now_ns() + round((REST_S + self.options.silence_s) * _NS)
         # at rest is still (STILL_RAD_S), not "not moving by hand" (MOVING_RAD_S): a UR10's
         # slowest approach turns its joints at a few mrad/s, below that
         while (speed := self._joint_speed()) > STILL_RAD_S:
-            if self._state.taken > until:
+            if self._state.since > cycles:  # the cycles since the stop went out
                 return (
                     f"the arm did not come to rest after the stop (a joint at {speed:.3f} "
                     "rad/s); stop it at the teach pendant now"
                 )
-            if self.clock.now_ns() > deadline:  # the state stopped arriving: nothing seen
-                return _unconfirmed(speed)
             items: list[StreamItem] = []
             try:
                 samples = self._driver.poll(CYCLE_WAIT_S)
             except Exception:  # noqa: BLE001 (lost, or a driver's own error: the arm unseen)
+                return _unconfirmed(speed)
+            # the state stopped arriving: nothing seen (judged on an empty read: a recorder
+            # held up meanwhile finds the samples queued, not a silent arm)
+            if not samples and self.clock.now_ns() > deadline:
                 return _unconfirmed(speed)
             try:
                 blocks = self._skin_poll()
@@ -724,6 +731,7 @@ class ArmRig:
                     continue
                 self._state.sample, self._state.receive_ns = sample, sample.receive_ns
                 self._state.taken += 1
+                self._state.since += sample.receive_ns >= self._mark_ns
                 items.extend(_items(sample))
             items.extend(blocks)
             items.sort(key=lambda item: item.receive_ns)
@@ -741,6 +749,7 @@ class ArmRig:
         the controller then has the stop before the send "happened".
         """
         context = None if at is None else Context(at.object_id, at.action_id, at.trial, "stop")
+        self._mark()
         sent = self.clock.now_ns()
         self.stop_note = ""
         try:
@@ -1060,6 +1069,11 @@ class ArmRig:
         over; the samples that arrived with it are handed over after the stop went out (valid
         data, kept).
         """
+        # silence is judged when the sources were read: as the read begins (a sample it
+        # returns is newer; a read that waits finds none older), not when it returned (a
+        # recorder held up between the two is not a silent arm), nor later (time the runner or
+        # its consumer, the writer, spends after the read is not the sources' silence)
+        polled_ns = self.clock.now_ns()
         try:
             samples = self._driver.poll(wait_s)
         except SourceLostError as err:
@@ -1068,9 +1082,6 @@ class ArmRig:
         except Exception as err:  # a driver's own (a vendor library's) exception  # noqa: BLE001
             msg = f"the arm driver failed reading the arm's state ({_error(err)})"
             raise Stop(msg, self.clock.now_ns()) from None
-        # silence is judged at the time the sources were read: time the runner or its
-        # consumer (the writer) spends after that is not the sources' silence
-        polled_ns = self.clock.now_ns()
         items, violation, violation_ns, fix = self._take(samples)
         if violation:
             raise Stop(violation, violation_ns, items, fix=fix)
@@ -1087,6 +1098,11 @@ class ArmRig:
         items.sort(key=lambda item: item.receive_ns)
         yield from items
         self._check(violation, violation_ns, polled_ns)
+
+    def _mark(self) -> None:
+        """Count the controller's cycles from now: a command is being sent."""
+        self._mark_ns = self.clock.now_ns()
+        self._state.since = 0
 
     def _skin_poll(self) -> list[SkinBlock]:
         """Return what the skin delivered (watched: a skin's driver may hang too)."""
@@ -1114,6 +1130,7 @@ class ArmRig:
                 continue
             self._state.sample, self._state.receive_ns = sample, sample.receive_ns
             self._state.taken += 1
+            self._state.since += sample.receive_ns >= self._mark_ns
             if not violation and (violation := self._violation(sample)):
                 violation_ns = sample.receive_ns
                 if not self.limits.inside(sample.tcp_pose[:3]):  # e.g. where it stood at start

