@@ -220,12 +220,17 @@ def _poses(sections: Mapping[str, Any]) -> dict[str, list[float]]:
 
 
 def _print_fault(event: Event) -> None:
-    """Print one injected fault as one line."""
+    """Print one injected fault, or one stop program received, as one line."""
+    seconds = event.controller_ns / 1e9
+    if event.kind == "program":
+        said = " ".join(f"{k}={v}" for k, v in (event.details.get("announced") or {}).items())
+        name = event.details.get("name", "")
+        print(f"stop: {name} at controller {seconds:.3f} s {said}".rstrip(), flush=True)  # noqa: T201
+        return
     details = " ".join(
         f"{key}={value}" for key, value in event.details.items() if key not in {"source", "fault"}
     )
     where = f"{event.details.get('source')}.{event.details.get('fault')}"
-    seconds = event.controller_ns / 1e9
     print(f"fault: {where} at controller {seconds:.3f} s {details}".rstrip(), flush=True)  # noqa: T201
 
 

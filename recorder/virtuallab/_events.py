@@ -82,7 +82,8 @@ class EventLog:
 
         Args:
             sink: Receives every event as a JSON line, flushed.
-            echo: Called with every ``fault`` event (serve-sim prints one line each).
+            echo: Called with every ``fault`` event and every stop program the recorder sent
+                to end an action or a move early (serve-sim prints one line each).
         """
         self._lock = threading.Lock()
         self._events: deque[Event] = deque(maxlen=MAX_EVENTS)
@@ -97,7 +98,7 @@ class EventLog:
             if self.sink is not None:
                 self.sink.write(event.json() + "\n")
                 self.sink.flush()
-        if kind == "fault" and self.echo is not None:
+        if self.echo is not None and _echoed(event):
             self.echo(event)
         return event
 
@@ -114,3 +115,19 @@ class EventLog:
             name = str(event.details.get("fault", ""))
             source[name] = source.get(name, 0) + int(event.details.get("count", 1))
         return summary
+
+
+def _echoed(event: Event) -> bool:
+    """Say whether serve-sim prints the event: a fault, or a stop a lab should see.
+
+    The stops within an action (at the light contact, an approach pausing for a late skin,
+    a slide's end) are part of it (not printed); a stop program announced as ``stop`` (or
+    not announced: between actions) is a stop the recorder sent on a limit, Ctrl-C or an
+    error, and a lab rehearsing wants to see it arrive.
+    """
+    if event.kind == "fault":
+        return True
+    if event.kind != "program" or "stopl" not in event.details.get("calls", ()):
+        return False
+    announced = event.details.get("announced") or {}
+    return announced.get("phase", "stop") == "stop" and "speedl" not in event.details["calls"]

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import math
 import threading
 import time
 import weakref
@@ -77,6 +78,8 @@ RECENT = 32
 ANNOUNCED = 1024
 #: Lines of the controller's log kept (a ring: the oldest go first).
 LOG_LINES = 1000
+#: The least time between two lines saying the world fell behind its clock, s.
+OVERRUN_EVERY_S = 10.0
 #: Cycles the world may fall behind its clock before it computes the backlog as one cycle
 #: (moving the world by one cycle only: the world slows down, it never jumps).
 MAX_BACKLOG = 3
@@ -157,6 +160,8 @@ class VirtualWorld:
     seed: int = 0
     events_log: EventLog = field(default_factory=EventLog)
     overruns: int = field(default=0, init=False)
+    #: When the world last said it fell behind (``clock``, ns; -inf: never).
+    _overrun_said: float = field(default=-math.inf, init=False, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, init=False)
     _origin_ns: int = field(default=0, init=False)
     _period_ns: int = field(default=8_000_000, init=False)
@@ -285,12 +290,15 @@ class VirtualWorld:
         if due > MAX_BACKLOG:  # fallen behind (a loaded machine): catch up at once
             span = due
             self.overruns += due - 1
-            if self.overruns == due - 1:
+            now = self.clock()
+            if now >= self._overrun_said + OVERRUN_EVERY_S * 1e9:  # again at most every 10 s
+                self._overrun_said = now
                 _log.warning(
-                    "virtual controller behind its clock by %d cycles: computed as one, the "
-                    "world slows down (the machine is too loaded for the cycle rate); "
-                    "VirtualWorld.overruns counts them",
+                    "virtual controller behind its clock by %d cycles (%d cycles merged so "
+                    "far): computed as one, the world slows down (the machine is too loaded "
+                    "for the cycle rate); a recorder may see silence or late programs",
                     due,
+                    self.overruns,
                 )
         self._cycles.append(self._cycle(last, last + span * self._period_ns))
         self._recent = (*self._recent[-(RECENT - 1) :], self._cycles[-1])
