@@ -19,6 +19,7 @@ import bisect
 import contextlib
 import dataclasses
 import math
+import os
 import sys
 import traceback
 from collections import deque
@@ -1231,11 +1232,12 @@ class ArmRig:
             last_arm = max(self._state.receive_ns, self._begun_ns)
             last_skin = max(self.skin.last_receive_ns() or 0, self._begun_ns)
             if read - last_arm > silence:
-                reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
+                reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s{_busy_hint()}"
             elif read - last_skin > silence:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
                 if isinstance(self.skin, ExplainingSkin) and (hint := self.skin.silence_hint()):
                     reason += f" ({hint})"
+                reason += _busy_hint()
                 fix = (
                     "check that the skin sends (the dry run lists each source) and the rig "
                     "configuration's [skin], then retry"
@@ -1289,6 +1291,25 @@ class ArmRig:
 
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
+
+
+def _busy_hint() -> str:
+    """Return a clause saying this computer is overloaded (empty: it is not, or unknown).
+
+    A source is silent also when the computer running the recorder (or a virtual lab beside
+    it) is too busy to read it: the line then says so, not only the source and its settings.
+    """
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not on this system
+        return ""
+    cores = os.cpu_count() or 1
+    if load <= 1.5 * cores:
+        return ""
+    return (
+        f" (this computer is busy: load average {load:.1f} on {cores} cores, which delays "
+        "what arrives; stop other work, or raise silence_s)"
+    )
 
 
 def _error(err: BaseException) -> str:

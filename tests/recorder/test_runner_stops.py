@@ -116,6 +116,21 @@ def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Pat
     _kept(path, "silent")
 
 
+@pytest.mark.parametrize("load", [0.5, 40.0])
+def test_silence_on_a_busy_computer_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, load: float
+) -> None:
+    # a computer too busy to read its sources makes them look silent: the line says so
+    # rather than only blaming the source and its settings
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    rig = fake_rig("silence")
+    with rig, pytest.raises(ActionStoppedError) as info:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    busy = f"(this computer is busy: load average {load:.1f} on {os.cpu_count()} cores"
+    assert (busy in str(info.value)) == (load > 1.5 * (os.cpu_count() or 1)), str(info.value)
+    assert "arm state silent for " in str(info.value)
+
+
 @pytest.mark.parametrize(
     ("cause", "qd"),
     # 0.005 rad/s: a UR10's slowest approach, below what counts as moving before an action
