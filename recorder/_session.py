@@ -144,6 +144,17 @@ def _finish(root: Path, tasks: Sequence[RecordingTask]) -> Path:
     return write_index(root)
 
 
+def _finish_stopped(root: Path, tasks: Sequence[RecordingTask], recorded: int) -> None:
+    """Index a stopped session's recordings; one that recorded none leaves no index behind.
+
+    A session refused at connecting (another process holds the arm) recorded nothing: the
+    directory stays as it was.
+    """
+    if recorded:
+        with contextlib.suppress(RecorderError):  # the first error is the one to report
+            _finish(root, tasks)
+
+
 def run_session(
     tasks: Sequence[RecordingTask],
     root: Path,
@@ -198,6 +209,7 @@ def run_session(
         rig = factory(seed)
         if unattended:
             refuse_unpresentable(rig, [group[0].obj for group in by_object.values()])
+        recorded = 0
         try:
             with rig:
                 for group in by_object.values():
@@ -209,11 +221,11 @@ def run_session(
                         written = record_action(
                             rig, task.obj, task.action, task.trial, path, seed=seed, viewers=viewers
                         )
+                        recorded += 1
                         if on_recorded is not None:
                             on_recorded(task, written)
         except BaseException:
-            with contextlib.suppress(RecorderError):  # the first error is the one to report
-                _finish(root, tasks)
+            _finish_stopped(root, tasks, recorded)
             raise
         return SessionReport(root, len(pending), len(tasks) - len(pending), _finish(root, tasks))
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import difflib
+import hashlib
 import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import polars as pl
 from rich.console import Console
@@ -20,6 +22,7 @@ from atikt.kernels import COMBINATIONS, PART_KERNELS
 from replay.cli._main import WORKERS, arg, command, progress_bar
 from replay.cli._options import learner_args, learner_from_args, parse_parts
 from replay.errors import ReplayError
+from replay.learning._budget import LIVE_TEST_TRIALS, budget_line, held_out_trials
 from replay.learning._cachedir import feature_cache_path
 from replay.learning._datasets import check_names, dataset_roles
 from replay.learning._executors import FeatureLookup, PoolExecutor, Split
@@ -107,12 +110,35 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
     parts = [p.relative_to(root).parts for p in dataset_recordings(root)]
     objects = sorted({p[0] for p in parts if len(p) == 3})  # noqa: PLR2004 (the layout)
     actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004
+    # --priors names the other dataset's objects with --prior-recordings (checked there)
+    other = getattr(args, "prior_recordings", None) is not None
+    for option, names, known in (
+        ("--new", _ids(args.new), objects),
+        ("--priors", None if other else _ids(args.priors), objects),
+        ("--actions", _ids(getattr(args, "actions", None)), actions),
+    ):
+        _refuse_unknown(root, option, names or [], known)
     if objects:
-        # --priors names the other dataset's objects with --prior-recordings (checked there)
-        other = getattr(args, "prior_recordings", None) is not None
         _ = dataset_roles(root, objects, _ids(args.new), None if other else _ids(args.priors))
     if actions and (chosen := _ids(getattr(args, "actions", None))):
         _ = check_names("--actions", chosen, actions)
+
+
+def _refuse_unknown(root: Path, option: str, names: Sequence[str], known: Sequence[str]) -> None:
+    """Refuse names the dataset does not have, naming the dataset and the closest known name.
+
+    Raises:
+        ReplayError: One line: the unknown names, the dataset, what it has, the closest name.
+    """
+    if not known or not (unknown := [name for name in names if name not in known]):
+        return
+    close = difflib.get_close_matches(unknown[0], list(known), n=1)
+    guess = f"; did you mean {close[0]}?" if close else ""
+    msg = (
+        f"{option} {','.join(unknown)}: not in the dataset; it has {', '.join(known)} "
+        f"({root}){guess}"
+    )
+    raise ReplayError(msg)
 
 
 def _features(root: Path, workers: int) -> FeatureTable:
@@ -320,8 +346,8 @@ def _step_line(row: dict[str, Any]) -> str:
     arg(
         "--test-trials",
         type=cli.trials,
-        default=3,
-        help="live: held-out trials per object/action (default: 3)",
+        default=None,
+        help=f"live: held-out trials per object/action (default: {LIVE_TEST_TRIALS})",
     ),
     arg("--session", type=Path, default=None, help="replay the split of a recorded live session"),
     arg(
@@ -362,13 +388,15 @@ def _step_line(row: dict[str, Any]) -> str:
 )
 def _learn_command(args: argparse.Namespace) -> int:
     from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
-        claim_live_run,
         live_output,
     )
 
     workers = cli.worker_count(args.workers)
     learner = learner_from_args(args)  # before any work: refused in one line
     _check_live_options(args)
+    args.test_trials = held_out_trials(
+        args.test_trials, live=args.rig is not None, session=args.session
+    )
     if args.rig is not None:  # live: recordings go straight into the run; it resumes
         target = live_output(args.out, Path("runs") / f"learn-{args.seed}", force=args.force)
     else:
@@ -410,16 +438,83 @@ def _learn_command(args: argparse.Namespace) -> int:
         seed=args.seed,
         features=args.features,
     )
-    if args.dry_run:
-        return _dry_run(args, spec, target)
     if args.rig is not None:
-        claim_live_run(target, _live_settings(args, spec))
-        _learn_into(args, table, spec, prior_root, target, other=other)
+        ready = _learn_at_rig(args, _Priors(table, prior_root, other), spec, target)
+        if args.dry_run:
+            return 0 if ready else 1
     else:
         with cli.publish_directory(target, force=args.force) as out:
             _learn_into(args, table, spec, prior_root, out, other=other)
     print(f"history -> {target / HISTORY_NAME}, plot -> {target / 'learning_curve.png'}")  # noqa: T201
     return 0
+
+
+class _Counted(Protocol):
+    """A live view that counts what it could not show (the Foxglove view)."""
+
+    @property
+    def dropped(self) -> int:
+        """Items not shown."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class _Priors:
+    """Where a run's priors come from: the dataset's table, its directory, another rig's."""
+
+    table: FeatureTable
+    root: Path
+    other: _OtherRig | None
+
+    def identity(self, spec: RunSpec) -> dict[str, object]:
+        """Return what identifies the priors: a digest of the prior objects' recordings.
+
+        Their paths in the dataset and their sha256 (the feature table has both, so nothing
+        is read again): a moved copy of the dataset is the same priors, a recording changed,
+        added or removed is not.
+        """
+        table, root, objects = self.table, self.root, spec.prior_objects
+        if self.other is not None:
+            table, root, objects = self.other.table, self.other.root, self.other.objects
+        rows = table.frame.filter(pl.col("object_id").is_in(list(objects)))
+        digest = hashlib.sha256()
+        for path, sha256 in rows.select("path", "sha256").sort("path").iter_rows():
+            digest.update(f"{path}\t{sha256}\n".encode())
+        return {"dataset": str(root), "recordings": rows.height, "sha256": digest.hexdigest()}
+
+
+def _learn_at_rig(args: argparse.Namespace, priors: _Priors, spec: RunSpec, target: Path) -> bool:
+    """Check, claim and run a live run (or only check it: ``--dry-run``).
+
+    What a run would refuse before anything moves (the objects' poses, the actions against
+    the skin, the Foxglove address) is refused before it claims ``target``: a refused run
+    leaves no ``live.json`` that would refuse its corrected command.
+
+    Returns:
+        Whether the rig was ready (a dry run's answer; True after a run).
+    """
+    from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        check_plan,
+        claim_live_run,
+        configured_rig,
+        foxglove_view,
+        rig_identity,
+    )
+
+    config = configured_rig(args.rig_config, args.rig, args.rig_option)
+    settings = _live_settings(args, spec, rig_identity(config, spec.seed), priors.identity(spec))
+    if args.dry_run:
+        return _dry_run(args, spec, target, settings)
+    check_plan(config, spec)
+    with contextlib.ExitStack() as stack:
+        fox = None
+        if args.foxglove is not None:
+            fox = foxglove_view(args.foxglove)
+            stack.callback(fox.__exit__, None, None, None)
+            print(f"foxglove: live on {fox.url}", file=sys.stderr, flush=True)  # noqa: T201
+        claim_live_run(target, settings)
+        _learn_into(args, priors.table, spec, priors.root, target, other=priors.other, fox=fox)
+    return True
 
 
 @dataclass(frozen=True, slots=True)
@@ -464,18 +559,20 @@ def _check_live_options(args: argparse.Namespace) -> None:
         cli.refuse_irreplaceable(Path(args.view), "--view")
 
 
-def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
+def _dry_run(
+    args: argparse.Namespace, spec: RunSpec, target: Path, settings: dict[str, Any]
+) -> bool:
     """Say what a live run would do and whether its rig is ready; move and write nothing.
 
     Returns:
-        1 when a source lost samples during the check or sent nothing though its rate says
-        it should have (the run's recordings would fail ``check``), else 0.
+        False when a source lost samples during the check or sent nothing though its rate
+        says it should have (the run's recordings would fail ``check``), else True.
     """
-    from replay.live import check_live, check_live_run, configured_rig  # noqa: PLC0415
+    from replay.live import SESSION_DIR, check_live, check_live_run, configured_rig  # noqa: PLC0415
 
-    resumes = check_live_run(target, _live_settings(args, spec))
+    resumes = check_live_run(target, settings)
     config = configured_rig(args.rig_config, args.rig, args.rig_option)
-    found = check_live(config, spec, target / "session", test_trials=args.test_trials)
+    found = check_live(config, spec, target / SESSION_DIR, test_trials=args.test_trials)
     run = f"resumes the run in {target}" if resumes else f"a new run into {target}"
     print(  # noqa: T201
         f"dry run of live learning: {run}; {found.test} held-out recordings, then "
@@ -489,7 +586,7 @@ def _dry_run(args: argparse.Namespace, spec: RunSpec, target: Path) -> int:
         )
     for line in found.rig.lines():
         print(line)  # noqa: T201
-    return 0 if found.rig.ready else 1
+    return found.rig.ready
 
 
 def _other_rig(args: argparse.Namespace, workers: int) -> _OtherRig:
@@ -514,8 +611,12 @@ def _learn_into(
     out: Path,
     *,
     other: _OtherRig | None = None,
+    fox: _Counted | None = None,
 ) -> None:
-    """Run the learning and write its history, settings and plot into ``out``."""
+    """Run the learning and write its history, settings and plot into ``out``.
+
+    ``fox``: a live run's Foxglove view, started before the run claimed ``out``.
+    """
     from replay.outputs._plots import plot_learning_curves  # noqa: PLC0415 (matplotlib on use)
 
     models = None
@@ -530,9 +631,11 @@ def _learn_into(
         models = fit_priors(data, args.seed, spec.learner)
     on_step = lambda row: print(_step_line(row), flush=True)  # noqa: E731, T201
     if args.rig is not None:
-        frame = _learn_live(args, spec, models, out, on_step)
+        frame = _learn_live(args, spec, models, out, on_step, fox=fox)
     else:
         frame = _learn_offline(args, table, spec, models, on_step)
+    if line := budget_line(frame, spec.learner, pool=args.rig is None and args.session is None):
+        print(line)  # noqa: T201 (the run made fewer steps than its budget)
     try:
         atomic_write(out / HISTORY_NAME, frame.write_parquet)
     except pl.exceptions.PolarsError as err:  # ComputeError "underlying IO error" on a full disk
@@ -572,9 +675,13 @@ def _learn_offline(
     """Run offline over a dataset, or over a recorded live session with its own split."""
     if args.session is None:
         return run_offline(table.frame, spec, priors=models, on_step=on_step).frame()
+    from replay.live import refuse_unfinished_replay  # noqa: PLC0415 (the recorder on use)
+
+    split = Split.from_session(args.session)
+    observations = sum(len(trials) for trials in split.pool.values())
+    refuse_unfinished_replay(args.session, observations, spec.learner.budget)
     session = _features(args.session, cli.worker_count(args.workers))
     lookup = FeatureLookup(session.frame, spec.features)
-    split = Split.from_session(args.session)
     executor = PoolExecutor(lookup, spec.new_objects, split, like_rig=True)
     test = executor.test_set(spec.actions)
     return run_learning(spec, executor, test, models, on_step=on_step).frame()
@@ -586,20 +693,21 @@ def _learn_live(
     models: Any,  # noqa: ANN401
     out: Path,
     on_step: Callable[[dict[str, Any]], Any],
+    *,
+    fox: _Counted | None,
 ) -> pl.DataFrame:
     """Run live: record test trials first, then every requested observation."""
     from replay.live import (  # noqa: PLC0415 (rerun and the simulator on use, not with the command line)
+        SESSION_DIR,
         LiveView,
         configured_rig,
-        foxglove_view,
         free_file,
         learn_live,
     )
 
     config = configured_rig(args.rig_config, args.rig, args.rig_option)
-    session = out / "session"
     with contextlib.ExitStack() as stack:
-        viewers: list[Any] = []
+        viewers: list[Any] = [] if fox is None else [fox]
         view = None
         if args.view is not None:
             save = Path(args.view) if args.view else None
@@ -608,18 +716,12 @@ def _learn_live(
             )
             if view.note:
                 print(view.note, file=sys.stderr, flush=True)  # noqa: T201 (the run goes on)
-            viewers.append(stack.enter_context(view).sink)
-        fox = None
-        if args.foxglove is not None:
-            fox = foxglove_view(args.foxglove)
-            stack.callback(fox.__exit__, None, None, None)
-            print(f"foxglove: live on {fox.url}", file=sys.stderr, flush=True)  # noqa: T201
-            viewers.append(fox)
+            viewers.insert(0, stack.enter_context(view).sink)
         frame = learn_live(
             config,
             spec,
             models,
-            session,
+            out / SESSION_DIR,
             test_trials=args.test_trials,
             on_step=on_step,
             viewers=viewers,
@@ -637,8 +739,17 @@ def _learn_live(
     return frame
 
 
-def _live_settings(args: argparse.Namespace, spec: RunSpec) -> dict[str, Any]:
-    """Return what identifies a live run, so that a rerun resumes only the same run."""
+def _live_settings(
+    args: argparse.Namespace,
+    spec: RunSpec,
+    rig: dict[str, object],
+    priors: dict[str, object],
+) -> dict[str, Any]:
+    """Return what identifies a live run, so that a rerun resumes only the same run.
+
+    ``rig``: the rig's configuration as it describes itself (its content, not the file's
+    name); ``priors``: the priors' identity (:meth:`_Priors.identity`).
+    """
     return {
         "new_objects": list(spec.new_objects),
         "prior_objects": list(spec.prior_objects),
@@ -647,9 +758,8 @@ def _live_settings(args: argparse.Namespace, spec: RunSpec) -> dict[str, Any]:
         "features": spec.features,
         "learner": spec.learner.as_dict(),
         "test_trials": args.test_trials,
-        "rig": args.rig,
-        "rig_config": str(args.rig_config) if args.rig_config is not None else None,
-        "rig_options": list(args.rig_option),
+        "rig": rig,
+        "priors": priors,
     }
 
 

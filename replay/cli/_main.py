@@ -810,12 +810,21 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _only_incomplete(root: Path, count: int) -> str:
-    """Return the failure of a directory that holds only recordings stopped actions kept."""
+    """Return the failure of a directory that holds only recordings stopped actions kept.
+
+    A live learn run's session (``<out>/session`` beside ``<out>/live.json``) is resumed by
+    its learn command, any other directory by its ``atikt-record session`` command.
+    """
+    from replay.live import live_run_of  # noqa: PLC0415 (the recorder on use)
+
+    out = live_run_of(root)
+    again = "the same session command resumes"
+    if out is not None:
+        again = f"the same live learn command resumes, with --out {out}"
     return (
         f"{root}: no recordings (*.mcap) found, only {count} incomplete "
         f"(*{INCOMPLETE_SUFFIX}, each listed) kept from actions a stop ended early; see what "
-        "one holds with atikt-replay info FILE, and record those actions again (the same "
-        "session command resumes)"
+        f"one holds with atikt-replay info FILE, and record those actions again ({again})"
     )
 
 

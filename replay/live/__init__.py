@@ -11,29 +11,36 @@ from replay.live._default import default_dataset_dir, default_dataset_ready, ens
 from replay.live._executor import LiveExecutor
 from replay.live._outputs import (
     LIVE_NAME,
+    SESSION_DIR,
     check_live_run,
     claim_live_run,
     free_file,
     live_output,
+    live_run_of,
+    refuse_unfinished_replay,
 )
 from replay.live._run import (
     LiveCheck,
     LiveView,
     check_live,
+    check_plan,
     check_rig,
     configured_rig,
     foxglove_view,
     learn_live,
+    rig_identity,
     session_view,
 )
 
 __all__ = [
     "LIVE_NAME",
+    "SESSION_DIR",
     "LiveCheck",
     "LiveExecutor",
     "LiveView",
     "check_live",
     "check_live_run",
+    "check_plan",
     "check_rig",
     "claim_live_run",
     "configured_rig",
@@ -44,5 +51,8 @@ __all__ = [
     "free_file",
     "learn_live",
     "live_output",
+    "live_run_of",
+    "refuse_unfinished_replay",
+    "rig_identity",
     "session_view",
 ]

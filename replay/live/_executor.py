@@ -170,19 +170,26 @@ class LiveExecutor:
         atomic_write(self.session / SESSION_NAME, manifest.write_parquet)
 
 
-def refuse_unpresented(rig: Rig, objects: Sequence[ObjectSpec]) -> None:
+def refuse_unpresented(rig: Rig, objects: Sequence[ObjectSpec], where: str = "") -> None:
     """Refuse new objects the rig cannot present: live learning places none by hand.
 
+    Args:
+        rig: The rig, not yet connected.
+        objects: The new objects.
+        where: The rig configuration file, to name in the message (empty: none given).
+
     Raises:
-        ReplayError: The rig has no pose for a new object (one line naming them).
+        ReplayError: The rig has no pose for a new object (one line naming them, the
+            configuration file and the fix).
     """
     missing = (
         [o.id for o in objects if not rig.can_present(o)] if isinstance(rig, Presenting) else []
     )
     if missing:
+        config = where or "the rig configuration"
         msg = (
-            f"the rig has no pose for {', '.join(missing)}: live learning presents "
-            "every new object by itself; give each a pose ([objects.<id>] pose in the "
-            "rig configuration)"
+            f"{config}: the rig has no pose for {', '.join(missing)}: live learning presents "
+            f"every new object by itself; give each a pose ([objects.{missing[0]}] pose in "
+            f"{config})"
         )
         raise ReplayError(msg)

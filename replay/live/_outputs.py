@@ -2,11 +2,15 @@
 
 A live run's recordings are made at a robot: they go straight into ``<out>/session/`` as they
 are recorded (no temporary directory that an error would remove). ``<out>/live.json`` names
-the run (objects, actions, seed, learner, rig) when it starts; running the same command again
-resumes it (the recordings on disk are reused), and a run of other settings is refused. A
-larger ``--budget`` continues a run, finished or not: the learner's choices do not depend on
-the budget, so the steps made are the first steps of the longer run, and only the new ones
-move the arm.
+the run when it starts: objects, actions, seed, learner, the rig's configuration as the rig
+describes itself (its content, not the file's name: an edited file is another configuration, the
+same file named another way is not) and the priors (a digest of the prior objects' recordings:
+a moved copy of the dataset is the same priors, a changed one is not). Running the same command
+again resumes it (the recordings on disk are reused), and a run of other settings is refused,
+as ``atikt-record session`` refuses a dataset of another rig configuration: one run, one rig
+configuration. A larger ``--budget`` continues a run, finished or not: the learner's choices do
+not depend on the budget, so the steps made are the first steps of the longer run, and only the
+new ones move the arm.
 """
 
 from __future__ import annotations
@@ -22,8 +26,18 @@ from schemas import atomic_write_text, cli
 
 #: The file naming a live run's settings (written when it starts).
 LIVE_NAME = "live.json"
+#: The directory of a live run that holds its recordings (beside ``live.json``).
+SESSION_DIR = "session"
 #: The one setting a rerun may change: a larger budget continues the run.
 BUDGET = "learner.budget"
+#: The rig's configuration in the settings (``rig.<setting>`` leaves).
+RIG = "rig"
+#: The priors in the settings (``priors.<leaf>``); ``priors.dataset`` only names them.
+PRIORS = "priors"
+#: Leaves that name a setting for messages but are not compared (a moved dataset resumes).
+_NAMES = frozenset({f"{PRIORS}.dataset"})
+#: Keys of a ``live.json`` written before the rig was identified by its configuration.
+_OLD_KEYS = frozenset({"rig_config", "rig_options"})
 
 
 def live_output(out: Path | None, default: Path, *, force: bool) -> Path:
@@ -94,15 +108,18 @@ def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
     except (OSError, ValueError) as err:
         msg = f"{path}: unreadable ({err}); give another --out"
         raise ReplayError(msg) from err
-    ours, held = _leaves(settings), _leaves(theirs)
-    differ = sorted(k for k in {*ours, *held} if ours.get(k) != held.get(k))
-    if differ and not (differ == [BUDGET] and _larger(ours.get(BUDGET), held.get(BUDGET))):
-        shown = ", ".join(f"{k}={held.get(k)!r} (now {ours.get(k)!r})" for k in differ)
-        fix = "give another --out"
-        if differ == [BUDGET]:  # a smaller budget only: the run's own budget continues it
-            fix = f"give --budget {held.get(BUDGET)} or more to continue it, or another --out"
-        msg = f"{target}: holds a live run of other settings ({shown}); {fix}"
+    if _OLD_KEYS & theirs.keys() and not _OLD_KEYS & settings.keys():
+        msg = (
+            f"{path}: written by an earlier version, which named the rig configuration file "
+            f"({theirs.get('rig_config')!r}), not the rig's settings, so a resumed run could "
+            "mix two configurations; replay its recordings offline (learn --session "
+            f"{target / 'session'}), or give another --out"
+        )
         raise ReplayError(msg)
+    ours, held = _leaves(settings), _leaves(theirs)
+    differ = _conflicts(ours, held)
+    if differ:
+        raise ReplayError(_refusal(target, differ, ours, held))
     if (target / HISTORY_NAME).exists() and not _larger(ours.get(BUDGET), _finished_budget(target)):
         msg = (
             f"{target}: this live run is finished ({HISTORY_NAME}); give a larger --budget to "
@@ -110,6 +127,40 @@ def check_live_run(target: Path, settings: dict[str, Any]) -> bool:
         )
         raise ReplayError(msg)
     return True
+
+
+def _conflicts(ours: dict[str, Any], held: dict[str, Any]) -> list[str]:
+    """Return the leaves in which a rerun conflicts with the run held (a larger budget: none)."""
+    keys = {*ours, *held} - _NAMES
+    differ = sorted(k for k in keys if ours.get(k) != held.get(k))
+    if _larger(ours.get(BUDGET), held.get(BUDGET)):
+        differ.remove(BUDGET)  # a larger budget continues the run
+    return differ
+
+
+def _refusal(target: Path, differ: list[str], ours: dict[str, Any], held: dict[str, Any]) -> str:
+    """Return the one line refusing a rerun of other settings: each conflict, then the fix."""
+    shown = [f"{k}={held.get(k)!r} (now {ours.get(k)!r})" for k in differ if not _priors(k)]
+    if any(_priors(k) for k in differ):
+        name = f"{PRIORS}.dataset"
+        now = "changed since" if held.get(name) == ours.get(name) else f"now {ours.get(name)!r}"
+        shown.append(f"priors={held.get(name)!r} ({now}: the prior objects' recordings differ)")
+    what = "other settings"
+    if all(k.startswith(f"{RIG}.") for k in differ):
+        what = "another rig configuration"  # as atikt-record session says it
+    elif all(_priors(k) for k in differ):
+        what = "another priors dataset"
+    fix = "give another --out"
+    if differ == [BUDGET]:  # a smaller budget only: the run's own budget continues it
+        fix = f"give --budget {held.get(BUDGET)} or more to continue it, or another --out"
+    elif all(_priors(k) for k in differ):
+        fix = f"give the priors {held.get(f'{PRIORS}.dataset')} to continue it, or another --out"
+    return f"{target}: holds a live run of {what} ({', '.join(shown)}); {fix}"
+
+
+def _priors(key: str) -> bool:
+    """Say whether a settings leaf identifies the run's priors."""
+    return key.startswith(f"{PRIORS}.")
 
 
 def _larger(budget: object, than: object) -> bool:
@@ -134,6 +185,50 @@ def _leaves(settings: Any, prefix: str = "") -> dict[str, Any]:  # noqa: ANN401 
     for key, value in settings.items():
         flat |= _leaves(value, f"{prefix}{key}" if not prefix else f"{prefix}.{key}")
     return flat
+
+
+def live_run_of(session: Path) -> Path | None:
+    """Return the live run whose recordings ``session`` holds (``<out>/session``), else None."""
+    out = Path(session).parent
+    return out if Path(session).name == SESSION_DIR and (out / LIVE_NAME).is_file() else None
+
+
+def refuse_unfinished_replay(session: Path, observations: int, budget: int) -> None:
+    """Refuse an offline replay of more steps than an unfinished live run made.
+
+    Args:
+        session: The recorded session replayed (``learn --session``).
+        observations: The learner's observations it holds (its manifest's ``pool`` rows).
+        budget: The steps the replay asks for.
+
+    Raises:
+        ReplayError: ``session`` is an unfinished live run's and made fewer steps: one line
+            saying how many it made, how to continue it and how to replay only those.
+    """
+    out = live_run_of(session)
+    if out is None:
+        return
+    try:
+        held = _leaves(json.loads((out / LIVE_NAME).read_text("utf-8")))
+    except (OSError, ValueError):
+        return  # not this check's to say: the live command says it
+    finished = (out / HISTORY_NAME).exists()
+    if finished and not _larger(held.get(BUDGET), _finished_budget(out)):
+        return  # finished: the replay's own budget is checked against the pool
+    first = len(held.get("new_objects") or []) * len(held.get("actions") or [])
+    steps = observations - first  # the steps after step 0 (its first observations)
+    if budget <= steps:
+        return
+    made = f"it made steps 0 to {steps}" if steps > 0 else "it made step 0 only"
+    replay = f", or replay only the steps it made with --budget {steps}"
+    if steps < 0:
+        made, replay = "it stopped before step 0 was complete", ""
+    msg = (
+        f"{session}: the live run in {out} is unfinished ({made} of its budget of "
+        f"{held.get(BUDGET)}); continue it with its live command (learn --rig or --rig-config "
+        f"as before, --out {out}){replay}"
+    )
+    raise ReplayError(msg)
 
 
 def free_file(path: Path) -> Path:

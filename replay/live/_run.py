@@ -37,7 +37,8 @@ from replay.outputs._view import (
     unique_key,
 )
 from replay.recording._reader import read_recording
-from schemas import cli, is_incomplete
+from schemas import ContractError, cli, is_incomplete
+from schemas import check_rig as rig_description
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -225,6 +226,42 @@ def _catalog(spec: RunSpec, config: RigConfig) -> tuple[list[ObjectSpec], dict[s
     return [objects[o] for o in spec.new_objects], actions
 
 
+def rig_identity(config: RigConfig, seed: int) -> dict[str, object]:
+    """Return the rig's configuration as the rig describes itself before connecting.
+
+    What identifies a live run's rig, as ``atikt-record session`` identifies a dataset's
+    (its claim): the settings' content, whatever the configuration file is called.
+
+    Raises:
+        ReplayError: The rig cannot be made or describes itself wrongly (one line).
+    """
+    try:
+        return dict(rig_description(make_factory(config)(seed).describe()))
+    except (RecorderError, ContractError) as err:
+        msg = f"--rig {config.name}: {cli.one_line(str(err))}"
+        raise ReplayError(msg) from err
+
+
+def check_plan(config: RigConfig, spec: RunSpec) -> None:
+    """Refuse what a live run would refuse before anything moves, connecting nothing.
+
+    The new objects and actions (in the catalogs), each new object's pose and every action
+    against the rig's skin: checked before the run claims its directory, so that a refused
+    run leaves none behind.
+
+    Raises:
+        ReplayError: One line: what is refused and how to fix it.
+    """
+    try:
+        objects, catalog = _catalog(spec, config)
+        rig = make_factory(config)(spec.seed)
+        refuse_unpresented(rig, objects, config.source)
+        refuse_unrecordable(rig, [catalog[a] for a in spec.actions])
+    except RecorderError as err:  # the recorder's error, at the edge of the replay
+        msg = f"--rig {config.name}: {cli.one_line(str(err))}"
+        raise ReplayError(msg) from err
+
+
 @dataclass(frozen=True, slots=True)
 class LiveCheck:
     """What a live run would do and what the rig showed (``learn --dry-run``).
@@ -259,7 +296,7 @@ def check_live(config: RigConfig, spec: RunSpec, session: Path, *, test_trials: 
     try:
         objects, catalog = _catalog(spec, config)
         factory = make_factory(config)
-        refuse_unpresented(factory(spec.seed), objects)
+        refuse_unpresented(factory(spec.seed), objects, config.source)
         actions = [catalog[a] for a in spec.actions]
         found = check_rig_ready(factory, spec.seed, objects, actions, session)
     except RecorderError as err:  # the recorder's error, at the edge of the replay

@@ -43,6 +43,7 @@ from replay.studies._stats import (
     fusion_margins,
     gain_cells,
     headline,
+    mean_steps,
     paired_gains,
 )
 from schemas import VOCABULARY, atomic_write_text, cli
@@ -97,7 +98,7 @@ def transfer_block(name: str, frame: pl.DataFrame, seed: int) -> str:
         tuple(row[k] for k in [*by, "method"]): row
         for row in headline(frame, [*by, "method"], budget).iter_rows(named=True)
     }
-    header = [*by, "method", "initial", f"mean 1..{budget}", "final"]
+    header = [*by, "method", "initial", f"mean {mean_steps(frame, budget)}", "final"]
     rows: list[list[str]] = []
     for gain in paired_gains(frame, by, unit, budget, seed=seed).iter_rows(named=True):
         key = [gain[k] for k in by]
@@ -162,7 +163,8 @@ def borrow_block(frame: pl.DataFrame, seed: int) -> str:
             cells = [gain_cells(gain, h).replace(" pts", "") for h in HEADLINES]
             rows.append([f"{action} <- {sources[action]}", f"{treated} - {reference}", *cells])
     groups = frame.select("group").unique().height
-    header = ["action <- source", "method", "initial", f"mean 1..{budget}", "final"]
+    mean = f"mean {mean_steps(frame, budget)}"
+    header = ["action <- source", "method", "initial", mean, "final"]
     note = (
         "Differences in percentage points on the same splits; interval: "
         f"{RESAMPLES} paired bootstrap resamples of the {groups} prior groups (seed {seed})."

@@ -14,8 +14,16 @@ from typing import TYPE_CHECKING
 
 import polars as pl
 
+from replay.learning._budget import steps_short
 from replay.studies._running import ATIKT, BASELINE, StudyConfig
-from replay.studies._stats import HEADLINES, RESAMPLES, gain_cells, headline, paired_gains
+from replay.studies._stats import (
+    HEADLINES,
+    RESAMPLES,
+    gain_cells,
+    headline,
+    mean_steps,
+    paired_gains,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -64,28 +72,24 @@ def summary(study: Study, frame: pl.DataFrame, config: StudyConfig) -> str:
     sections = "\n\n".join(section(frame, config) for section in study.report.sections)
     text = notes(config, learners=study.report.learners)
     if study.report.learners:
-        text += steps_note(frame, config.budget)
+        text += steps_note(frame, config.budget, config.learner.patience)
     return f"# {study.title}\n{text}\n{sections}\n"
 
 
-def steps_note(frame: pl.DataFrame, budget: int) -> str:
+def steps_note(frame: pl.DataFrame, budget: int, patience: int | None = None) -> str:
     """Return the note that the recordings allowed fewer steps than the budget (empty if not).
 
     A run stops when every (new object, action)'s pool of trials is used up; with few trials
-    per object (half of them held out for testing) that can be after the initial round, and a
-    table of "mean 1..budget" and "final" would otherwise show a budget that never ran.
+    per object (half of them held out for testing) that can be after the initial round. The
+    tables' "mean" then names the steps it averaged (``mean 1..8``), and this note says why
+    the budget did not run. With a ``patience`` (the learner's), a run may also have stopped
+    on it, and the note says so.
     """
     if "step" not in frame.columns or frame.height == 0:
         return ""
     reached = int(frame["step"].max())  # type: ignore[arg-type]
-    if reached >= budget:
-        return ""
-    after = "after the initial round" if reached == 0 else f"after step {reached}"
-    return (
-        f"\n> The recordings allowed {reached} of the budget's {budget} steps: the pool of "
-        f"trials ran out {after}; give more trials per object and action, or a smaller "
-        "`--budget`.\n"
-    )
+    text = steps_short(reached, budget, patience=patience, markdown=True)
+    return f"\n> {text[:1].upper()}{text[1:]}.\n" if text else ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,7 +117,7 @@ class Gains:
             *self.by,
             f"{self.unit}s",
             "gain after 1 observation",
-            "gain mean 1..budget",
+            f"gain mean {mean_steps(frame, config.budget)}",
             "gain final",
         ]
         lines = _table_head(header)
@@ -166,8 +170,8 @@ class Comparisons:
         note = (
             "Paired differences in percentage points, mean over prior groups; [95 % interval]: "
             f"percentile bootstrap over groups ({RESAMPLES} resamples). initial: after one "
-            "observation per new object; mean: over observations 1..budget; final: after the "
-            "last."
+            "observation per new object; mean: over observations "
+            f"{mean_steps(frame, config.budget)}; final: after the last."
         )
         return "\n".join(lines) + "\n\n" + note
 

@@ -44,6 +44,28 @@ def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFram
     )
 
 
+def mean_steps(frame: pl.DataFrame, budget: int) -> str:
+    """Return the steps the ``mean`` headline averages, as its label says them: ``1..8``.
+
+    The mean is over steps 1..budget that the runs reached: where the recordings ran out
+    before the budget (every run stopped at step 8 of 40) that is ``1..8``, not ``1..40``;
+    where runs stopped at different steps (5 to 8), ``1..last (5-8)``. With no step beyond
+    the initial round, ``1..budget`` (its cells say ``not reached``).
+
+    Args:
+        frame: Results: one row per run and step, every run with its step 0.
+        budget: Observations after the initial round.
+    """
+    steps = frame.filter(pl.col("step") <= budget)["step"].value_counts()
+    counts = dict(zip(steps["step"].to_list(), steps["count"].to_list(), strict=True))
+    reached = max(counts, default=0)
+    if reached == 0:
+        return f"1..{budget}"
+    runs = counts.get(0, 0)
+    shortest = next((s - 1 for s in range(1, reached + 1) if counts.get(s, 0) < runs), reached)
+    return f"1..{reached}" if shortest == reached else f"1..last ({shortest}-{reached})"
+
+
 def unit_headlines(frame: pl.DataFrame, by: Sequence[str], unit: str, budget: int) -> pl.DataFrame:
     """Return the headline accuracies per (by, unit, method), runs of a unit averaged first."""
     keys = [*by, unit, "method"]

@@ -23,7 +23,7 @@ from replay.studies._running import (
     min_old,
     too_small,
 )
-from replay.studies._stats import RESAMPLES, _interval
+from replay.studies._stats import RESAMPLES, _interval, mean_steps
 from replay.studies._transfer import TransferTask, run_transfer_task
 
 #: Known objects learned as new ones in each task (fewer when the lab knows fewer objects).
@@ -80,13 +80,15 @@ def check_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
 
 
 def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFrame:
-    """ATIKT minus baseline per shown step and over 1..budget, paired per task.
+    """ATIKT minus baseline per shown step and over the steps 1..budget reached, per task.
 
     Runs of a task are averaged first; the interval is the percentile bootstrap over tasks.
 
     Returns:
-        Columns ``step`` (str: a number, or ``mean 1..budget``), ``tasks``, ``gain``, ``low``,
-        ``high`` (fractions), ``verdict``; a step no run reached is left out.
+        Columns ``step`` (str: a number, or the mean's label, ``mean 1..8`` where the
+        recordings allowed 8 steps of the budget: :func:`~replay.studies._stats.mean_steps`),
+        ``tasks``, ``gain``, ``low``, ``high`` (fractions), ``verdict``; a step no run reached
+        is left out.
     """
     per = frame.group_by(["group", "method", "step"]).agg(pl.col("accuracy").mean())
     wide = per.pivot(on="method", index=["group", "step"], values="accuracy").sort(
@@ -96,7 +98,8 @@ def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFra
     rows: list[dict[str, object]] = []
     shown = [s for s in SHOWN_STEPS if s <= budget]
     selections: list[tuple[str, pl.Expr]] = [(str(s), pl.col("step") == s) for s in shown]
-    selections.append((f"mean 1..{budget}", pl.col("step").is_between(1, budget)))
+    mean = f"mean {mean_steps(frame, budget)}"
+    selections.append((mean, pl.col("step").is_between(1, budget)))
     for name, where in selections:
         gains = wide.filter(where).group_by("group").agg(pl.col("gain").mean()).sort("group")
         values = gains["gain"].to_numpy().astype(np.float64)
