@@ -10,6 +10,9 @@ the tasks, and whether transfer helped (the interval above 0), hurt (below 0) or
 
 from __future__ import annotations
 
+import itertools
+import math
+
 import numpy as np
 import polars as pl
 
@@ -58,11 +61,8 @@ def check_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
         raise too_small(study, has, needs)
     n_new = max(2, min(PSEUDO_NEW, len(known) - fewest))
     n_prior = max(fewest, min(config.group_size, len(known) - n_new))
-    tasks = []
-    for number in range(config.groups):
-        rng = np.random.default_rng(derive_seed(config.seed, "transfer-check", number))
-        order = [known[i] for i in rng.permutation(len(known))]
-        new, priors = tuple(sorted(order[:n_new])), tuple(sorted(order[n_new : n_new + n_prior]))
+    tasks: list[TransferTask] = []
+    for number, (new, priors) in enumerate(_splits(known, n_new, n_prior, config)):
         tasks.append(
             TransferTask(
                 frame=frame.filter(pl.col("object_id").is_in([*new, *priors])),
@@ -77,6 +77,30 @@ def check_tasks(frame: pl.DataFrame, config: StudyConfig) -> list[TransferTask]:
             )
         )
     return tasks
+
+
+def _splits(
+    known: tuple[str, ...], n_new: int, n_prior: int, config: StudyConfig
+) -> list[tuple[tuple[str, ...], tuple[str, ...]]]:
+    """Return ``config.groups`` distinct random splits (pseudo-new, priors), as many as exist.
+
+    A split drawn twice would count twice in the interval, which resamples tasks as if they
+    were independent: with few known objects (4 give 6 splits) ten draws repeat some, and the
+    interval came out narrower than the data allow. Drawn in order from seeded generators;
+    a repeat is skipped.
+    """
+    total = math.comb(len(known), n_new) * math.comb(len(known) - n_new, n_prior)
+    wanted = min(config.groups, total)
+    seen: list[tuple[tuple[str, ...], tuple[str, ...]]] = []
+    for attempt in itertools.count():
+        if len(seen) == wanted or attempt >= 1000 * wanted:  # the cap: never reached in practice
+            break
+        rng = np.random.default_rng(derive_seed(config.seed, "transfer-check", attempt))
+        order = [known[i] for i in rng.permutation(len(known))]
+        split = tuple(sorted(order[:n_new])), tuple(sorted(order[n_new : n_new + n_prior]))
+        if split not in seen:
+            seen.append(split)
+    return seen
 
 
 def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFrame:
@@ -180,8 +204,9 @@ def _design(frame: pl.DataFrame, config: StudyConfig) -> str:
     tasks = frame.select("group").n_unique()
     known = ", ".join(known_objects(config))
     return (
-        f"{tasks} tasks over the known objects ({known}); budget {config.budget}; test "
-        "accuracy of all actions together."
+        f"{tasks} tasks over the known objects ({known}), each a distinct split of them into "
+        "pseudo-new objects and priors (fewer than asked when fewer exist); budget "
+        f"{config.budget}; test accuracy of all actions together."
     )
 
 

@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import polars as pl
 import pytest
@@ -77,3 +78,17 @@ def test_step_gains_pair_the_methods_per_task_and_give_a_verdict() -> None:
     assert set(gains["verdict"]) == {"helped"}
     assert verdict(-0.2, -0.1) == "hurt"
     assert verdict(-0.1, 0.1) == "no clear difference"
+
+
+def test_the_splits_are_distinct_and_no_more_than_exist() -> None:
+    # 4 known objects, 2 pseudo-new and 2 priors: 6 splits exist; ten asked for give six,
+    # never one twice (a repeated split would count twice in the interval over tasks)
+    from replay.studies._transfer_check import _splits  # noqa: PLC0415
+
+    known = ("a", "b", "c", "d")
+    config = SimpleNamespace(groups=10, seed=3)
+    splits = _splits(known, 2, 2, config)  # type: ignore[arg-type]
+    assert len(splits) == 6
+    assert len(set(splits)) == 6
+    config.groups = 4
+    assert _splits(known, 2, 2, config) == splits[:4]  # type: ignore[arg-type]
