@@ -16,6 +16,7 @@ from conftest import FakeRig
 
 from recorder import ActionSpec, StreamItem, generate_dataset, plan_dataset
 from recorder._claim import CLAIM_NAME, claim_dataset, differing_settings
+from recorder._cli import main as record
 from recorder._session import check_session, run_session
 from recorder.errors import RecorderError
 from replay.cli._main import main as replay_main
@@ -150,10 +151,14 @@ def test_a_dry_run_into_a_directory_it_cannot_write_is_refused_as_the_run_is(
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # its probe removed
 
 
+def _dataset_argv(out: Path, seed: int) -> list[str]:
+    argv = ["dataset", "--out", str(out)]
+    argv += ["--objects", "wood", "--actions", "P1", "--trials", "1", "--seed", str(seed)]
+    return [*argv, "--workers", "1"]
+
+
 def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:
-    command = [sys.executable, "-m", "recorder", "dataset", "--out", str(out)]
-    command += ["--objects", "wood", "--actions", "P1", "--trials", "1", "--seed", str(seed)]
-    command += ["--workers", "1"]
+    command = [sys.executable, "-m", "recorder", *_dataset_argv(out, seed)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -184,10 +189,8 @@ def test_check_reports_a_directory_of_two_seeds(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     one, two = tmp_path / "one", tmp_path / "two"
-    for out, seed in ((one, 1), (two, 2)):
-        run = _dataset(out, seed)
-        _, err = run.communicate(timeout=300)  # reads the pipes (wait() could fill them)
-        assert run.returncode == 0, err
+    for out, seed in ((one, 1), (two, 2)):  # one run after the other: in this process
+        assert record(_dataset_argv(out, seed)) == 0, capsys.readouterr().err
     moved = one / "wood" / "P1" / "002.mcap"
     shutil.copy(two / "wood" / "P1" / "001.mcap", moved)
     (one / "index.parquet").unlink()

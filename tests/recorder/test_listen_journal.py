@@ -395,7 +395,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
         The journal's name after the first action, the time of the kill (ns), and whether the
         listener had written the second action before the kill.
     """
-    with _served(map_path, domain, 100) as (world, server):
+    with _served(map_path, domain, 100, listen_process=True) as (world, server):
         process = _listen(map_path, out, domain)
         try:
             _line(process, "listening on DDS domain")
@@ -433,7 +433,7 @@ def _kill_after_an_end(map_path: Path, out: Path, domain: int) -> tuple[str, int
     return second[0], killed_ns, (out / "wood" / "S1" / "002.mcap").exists()
 
 
-@pytest.mark.slow(21)
+@pytest.mark.slow(12)
 def test_sigkill_after_an_end_then_a_rerun_recovers(dds_domain: int, tmp_path: Path) -> None:
     # a window is written once every topic sent samples stamped max_delay_s + 1 s past its
     # end: 5 s here, and the next action opens at once, so the listener is killed before

@@ -25,7 +25,7 @@ from recorder.bagimport._listen import listen
 from recorder.bagimport._source import ANNOTATION_TYPE, typestore
 from recorder.bagimport._topicmap import load_topic_map
 from recorder.live import SOURCES_RECORD, parse_source_stats
-from recorder.live.dds import DdsDomain
+from recorder.live.dds import LOOPBACK_CONFIG, DdsDomain
 from recorder.virtuallab import VirtualWorld
 from recorder.virtuallab._ros2_server import serve_ros2
 from recorder.virtuallab._urscript import Call, Program
@@ -138,15 +138,48 @@ def _play(world: VirtualWorld, action: str, trial: int, *, wait: Any = None) -> 
         pytest.fail("the server announced no end")
 
 
+#: The virtual lab's DDS configuration beside a ``listen`` process: serve_ros2's loopback
+#: configuration, and reliable writers that end without lingering. A ``listen`` process exits
+#: without deleting its participant, so the lab keeps its readers matched until their lease
+#: runs out, and each of its writers, deleted as the lab ends, would linger 1 s (Cyclone's
+#: default) for acknowledgements that never come: 8 s for the lab's topics, after the test.
+_NO_LINGER_CONFIG = LOOPBACK_CONFIG.replace(
+    "</Domain>", "<Internal><WriterLingerDuration>0s</WriterLingerDuration></Internal></Domain>"
+)
+
+
+def _no_linger(domain_id: int) -> object | None:
+    """Return the domain configured by :data:`_NO_LINGER_CONFIG` (None: it exists already).
+
+    The lab's participant joins it (``DdsDomain`` joins a domain of this process as it is); it
+    must be kept until the lab has ended.
+    """
+    from cyclonedds.core import DDSException  # noqa: PLC0415 (after the importorskip)
+    from cyclonedds.domain import Domain  # noqa: PLC0415
+
+    try:
+        return Domain(domain_id, _NO_LINGER_CONFIG)
+    except DDSException:  # the domain exists in this process: the lab joins it as it is
+        return None
+
+
 @contextlib.contextmanager
-def _served(map_path: Path, domain_id: int, rate_hz: int) -> Iterator[tuple[VirtualWorld, Any]]:
-    """Serve the virtual lab's topics (its world ticking until the block ends)."""
+def _served(
+    map_path: Path, domain_id: int, rate_hz: int, *, listen_process: bool = False
+) -> Iterator[tuple[VirtualWorld, Any]]:
+    """Serve the virtual lab's topics (its world ticking until the block ends).
+
+    ``listen_process``: a ``listen`` in a process of its own listens, and ends before the lab
+    does; the lab's writers do not linger for it (:data:`_NO_LINGER_CONFIG`).
+    """
+    domain = _no_linger(domain_id) if listen_process else None
     with (
         SimulatedRig(0) as rig,
         VirtualWorld(rig, load_objects(None), load_actions(None), time_scale=1.0) as world,
         serve_ros2(world, map_path, domain_id=domain_id, rate_hz=rate_hz) as server,
     ):
         yield world, server
+    del domain  # kept until the lab's participant was deleted
 
 
 @pytest.mark.slow(6)
@@ -274,7 +307,6 @@ def test_huge_messages_and_bad_annotations_are_counted_with_a_line(
     assert len(report.written) == 1, run.notes
 
 
-@pytest.mark.slow(11)
 def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: Path) -> None:
     import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
@@ -286,7 +318,7 @@ def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: 
     env = {**os.environ, "PYTHONPATH": str(root)}
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain)]
-    with _served(map_path, dds_domain, 250) as (world, server):
+    with _served(map_path, dds_domain, 250, listen_process=True) as (world, server):
         process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
             command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
@@ -334,7 +366,6 @@ def _sockets(pid: int) -> list[str]:
     return [line.split()[3] for line in out.splitlines() if f"pid={pid}," in line]
 
 
-@pytest.mark.slow(9)
 @pytest.mark.skipif(__import__("shutil").which("ss") is None, reason="needs ss (iproute2)")
 def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     dds_domain: int, tmp_path: Path
@@ -351,7 +382,7 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain + 1)]
     command += ["--loopback", "--duration", "30"]
-    with _served(map_path, dds_domain + 1, 50):
+    with _served(map_path, dds_domain + 1, 50, listen_process=True):
         process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
             command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
