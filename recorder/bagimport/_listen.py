@@ -548,9 +548,12 @@ class Listener:
         return tuple(found)
 
     def stop(self) -> None:
-        """Stop the reader threads."""
+        """Stop the reader threads, then leave the domain (its peers see it go at once)."""
         for source in self._readers:
             source.stop()
+        if self._domain is not None:
+            self._domain.close()
+            self._domain = None
 
     # ------------------------------------------------------------------------------ stream
 
