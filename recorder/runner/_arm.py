@@ -65,12 +65,20 @@ class Context:
         action_id: The action.
         trial: The trial.
         phase: The phase the command starts or serves (approach, contact, execute, ...).
+        lease_s: For a move that leaves the arm pressed into an object (a press): how long
+            it may hold the arm there, s; a driver that can (a UR: ``sleep`` and a second
+            ``movel`` in the same program) then moves it back to :attr:`back` by itself, so
+            a recorder killed mid-press (SIGKILL, a power cut) does not leave the arm pressed
+            until someone comes (0: no lease). The runner's next command replaces it first.
+        back: Where such a move returns the arm (x, y, z, rx, ry, rz; empty: nowhere).
     """
 
     object_id: str
     action_id: str
     trial: int
     phase: str
+    lease_s: float = 0.0
+    back: tuple[float, ...] = ()
 
 
 class ArmDriver(Protocol):

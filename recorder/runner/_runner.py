@@ -972,9 +972,13 @@ class ArmRig:
             axis = _tool_axis(contact, 2)
             target = contact.copy()
             target[:3] += axis * action.depth_m
-            self._driver.move(target, motion.press_m_s, motion.acceleration_m_s2, here)
             # + 2 s: a virtual lab on a loaded machine runs behind its clock
             travel_s = max(2.0, 10 * action.depth_m / motion.press_m_s) * scale + 2.0
+            # the press leaves the object by itself if nothing replaces it in time (a
+            # recorder killed mid-press): after its way there, its hold and PRESS_LEASE_S more
+            lease = travel_s + action.duration_s * scale + PRESS_LEASE_S
+            pressing = dataclasses.replace(here, lease_s=lease, back=tuple(map(float, contact)))
+            self._driver.move(target, motion.press_m_s, motion.acceleration_m_s2, pressing)
             limit = self.clock.now_ns() + round(travel_s * _NS)
             # at depth: past half the depth (a depth of REACHED_M is "reached" at the contact,
             # before the press program has begun), within REACHED_M of the target and still
@@ -1289,6 +1293,9 @@ class ArmRig:
         return pose is not None and float((pose[:3] - contact[:3]) @ axis) >= depth_m / 2
 
 
+#: How long a press may hold the arm beyond its way there and its hold before the driver brings
+#: it back by itself (a recorder that died mid-press), s: the retract replaces it long before.
+PRESS_LEASE_S = 5.0
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
 

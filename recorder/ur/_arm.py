@@ -645,7 +645,8 @@ class URArm:
     ) -> None:
         """Send ``movel``."""
         phase = "present" if at is None else at.phase
-        self._send(move_program(_said(at), phase, pose, speed, acceleration))
+        back, lease = ((), 0.0) if at is None else (at.back, at.lease_s)
+        self._send(move_program(_said(at), phase, pose, speed, acceleration, back, lease))
 
     def force_slide(
         self,

@@ -93,17 +93,26 @@ def stop_program(said: Announcement | None, phase: str, acceleration: float) -> 
     return program("atikt_stop", [*head, f"stopl({acceleration:g})"])
 
 
-def move_program(
+def move_program(  # noqa: PLR0917 (the movel's own parameters, and its way back)
     said: Announcement | None,
     phase: str,
     target: NDArray[np.float64],
     speed: float,
     acceleration: float,
+    back: Sequence[float] = (),
+    lease_s: float = 0.0,
 ) -> str:
-    """Return a ``movel`` to ``target`` (a pose: x, y, z, rx, ry, rz)."""
+    """Return a ``movel`` to ``target`` (a pose: x, y, z, rx, ry, rz).
+
+    With ``back`` and ``lease_s``: then ``sleep(lease_s)`` and a ``movel`` to ``back``, so the
+    arm leaves a press by itself when no program replaced this one in time (a recorder that
+    died mid-press); the recorder's next program replaces it before that.
+    """
     head = [said.line(phase)] if said is not None else []
-    line = f"movel({_pose(target)}, a={acceleration:g}, v={speed:g})"
-    return program("atikt_move", [*head, line])
+    lines = [*head, f"movel({_pose(target)}, a={acceleration:g}, v={speed:g})"]
+    if back and lease_s > 0:
+        lines += [f"sleep({lease_s:.3f})", f"movel({_pose(back)}, a={acceleration:g}, v={speed:g})"]
+    return program("atikt_move", lines)
 
 
 def slide_program(  # noqa: PLR0917 (the force mode's own parameters)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
-from fake_arm import START, FakeArm, FakeSkin, fake_rig
+from fake_arm import START, SURFACE_Z, FakeArm, FakeSkin, fake_rig
 from mcap.reader import make_reader
 
 from recorder import ActionStoppedError, RecorderError, RigError, load_actions, load_objects
@@ -925,3 +925,27 @@ def test_a_stop_that_hangs_is_said_and_not_sent_again(
     assert err.startswith("fake.toml: the arm driver's stop() has not returned for "), err
     assert "the stop may not have reached the arm; stop it at the teach pendant now" in err
     assert [c for _, c in arm.commands if c.startswith("stop stop")] == ["stop stop"]
+
+
+def test_a_press_is_sent_with_its_lease_and_its_way_back(tmp_path: Path) -> None:
+    # a driver that can (the UR) brings a press back by itself when the recorder died; the
+    # runner gives it how long the press may hold and where the contact was
+    rig = fake_rig()
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    seen: list[Any] = []
+    move = arm.move
+
+    def watched(pose: Any, speed: float, acceleration: float, at: Any) -> None:
+        seen.append(at)
+        move(pose, speed, acceleration, at)
+
+    arm.move = watched  # type: ignore[method-assign]
+    with rig:
+        record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    (press,) = [at for at in seen if at is not None and at.phase == "execute"]
+    hold = ACTION.duration_s * rig.options.time_scale
+    assert press.lease_s > hold + 5.0
+    assert len(press.back) == 6
+    assert press.back[2] > SURFACE_Z - 0.003  # the contact, above the press's depth
+    (retract,) = [at for at in seen if at is not None and at.phase == "retract"]
+    assert retract.lease_s == 0.0

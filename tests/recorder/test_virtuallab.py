@@ -101,6 +101,27 @@ def test_every_state_is_the_forward_kinematics_of_its_joints() -> None:
     assert speeds[-1] == 0.0
 
 
+def test_a_press_left_alone_leaves_the_object_by_itself() -> None:
+    # the UR driver's press: movel to depth, then, if no program replaced it (a recorder
+    # killed mid-press), sleep out its lease and movel back to the contact
+    from recorder.ur._script import move_program  # noqa: PLC0415
+
+    clock = Clock()
+    world = _world(clock)
+    contact = np.array([-0.7, -0.2, 0.15, 0.0, 3.14159, 0.0])
+    depth = contact.copy()
+    depth[2] -= 0.002
+    text = move_program(None, "execute", depth, 0.005, 0.5, back=tuple(contact), lease_s=1.0)
+    assert "sleep(1.000)" in text
+    world.place(contact)  # at the light contact
+    world.run(parse_program(text))
+    pressed = _cycles(world, clock, 125)  # 1 s: at depth
+    assert abs(pressed[-1].tcp_pose[2] - depth[2]) < 1e-4
+    later = _cycles(world, clock, 250)  # the lease out, and the way back
+    assert abs(later[-1].tcp_pose[2] - contact[2]) < 1e-4
+    assert float(np.linalg.norm(later[-1].tcp_speed)) == 0.0
+
+
 def test_stopl_decelerates_within_its_deceleration() -> None:
     clock = Clock()
     world = _world(clock)
