@@ -67,6 +67,13 @@ def test_full_action_passes_check_and_opens_everywhere(tmp_path: Path) -> None:
         ]
         assert all(s or r for s, r in zip(said[1:], renewals[1:], strict=True))
         assert any(renewals)
+        # the press returns to the contact by itself if no program replaces it in time
+        (press,) = [p for p in lab.script.programs if "phase=execute" in p]
+        assert [line.split("(")[0].strip() for line in press.splitlines()[2:-1]] == [
+            "movel",
+            "sleep",
+            "movel",
+        ], press
     recording = read_recording(path)
     assert recording.metadata.rig["kind"] == "ur"
     assert float(recording.metadata.rig["time_scale"]) == TIME_SCALE
