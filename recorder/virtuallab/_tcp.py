@@ -41,10 +41,14 @@ class TcpServer:
     def __enter__(self) -> Self:
         """Bind, listen and start accepting clients."""
         listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(self._bind)
-        listener.listen()
-        listener.settimeout(0.1)
+        try:
+            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            listener.bind(self._bind)
+            listener.listen()
+            listener.settimeout(0.1)
+        except BaseException:  # an address it cannot bind (a name that does not resolve)
+            listener.close()
+            raise
         self._listener = listener
         self.spawn(self._accept)
         return self
