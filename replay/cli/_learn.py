@@ -112,6 +112,9 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
     actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004
     # --priors names the other dataset's objects with --prior-recordings (checked there)
     other = getattr(args, "prior_recordings", None) is not None
+    # a live run records its new objects: they need not be in the priors' dataset (the
+    # object catalog and the rig's poses are checked before anything moves)
+    objects = sorted({*objects, *_live_new(args)})
     for option, names, known in (
         ("--new", _ids(args.new), objects),
         ("--priors", None if other else _ids(args.priors), objects),
@@ -122,6 +125,17 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
         _ = dataset_roles(root, objects, _ids(args.new), None if other else _ids(args.priors))
     if actions and (chosen := _ids(getattr(args, "actions", None))):
         _ = check_names("--actions", chosen, actions)
+
+
+def _live_new(args: argparse.Namespace) -> list[str]:
+    """Return ``--new`` of a live run or of its replay (``--session``), else [].
+
+    A live run records its new objects, and its replay reads them from its session: they
+    need not be in the priors' dataset.
+    """
+    if getattr(args, "rig", None) is None and getattr(args, "session", None) is None:
+        return []
+    return list(_ids(args.new) or [])
 
 
 def _refuse_unknown(root: Path, option: str, names: Sequence[str], known: Sequence[str]) -> None:
@@ -414,7 +428,7 @@ def _learn_command(args: argparse.Namespace) -> int:
     other = _other_rig(args, workers) if args.prior_recordings is not None else None
     roles = dataset_roles(
         prior_root,
-        table.frame["object_id"].to_list(),
+        [*table.frame["object_id"].to_list(), *_live_new(args)],
         _ids(args.new),
         None if other is not None else _ids(args.priors),
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import difflib
 import os
 import socket
 import subprocess
@@ -218,9 +219,11 @@ def _catalog(spec: RunSpec, config: RigConfig) -> tuple[list[ObjectSpec], dict[s
         ("--actions", spec.actions, actions),
     ):
         if unknown := [name for name in asked if name not in known]:
+            close = difflib.get_close_matches(unknown[0], list(known), n=1)
+            guess = f"; did you mean {close[0]}?" if close else ""
             msg = (
                 f"{option} {','.join(unknown)}: not in the catalog, so the rig cannot "
-                f"perform it; choose from {', '.join(known)}"
+                f"perform it; choose from {', '.join(known)}{guess}"
             )
             raise ReplayError(msg)
     return [objects[o] for o in spec.new_objects], actions

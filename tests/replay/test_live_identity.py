@@ -158,11 +158,19 @@ def test_a_live_run_refused_for_a_foxglove_address_in_use_leaves_no_claim(
 def test_an_unknown_object_names_the_dataset_and_the_closest_name(
     small_dataset: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    argv = ["learn", "--recordings", str(small_dataset), "--new", "foam_blok", "--rig", "sim"]
+    argv = ["learn", "--recordings", str(small_dataset), "--new", "foam_blok"]
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert err.startswith("atikt-replay: error: --new foam_blok: not in the dataset; it has ")
     assert err.endswith(f" ({small_dataset}); did you mean foam_block?\n")
+    # a live run records its new objects (they need not be in the dataset): the catalog
+    # names them, and the closest
+    argv += ["wood,foam_blok", "--rig", "sim-ur10"]
+    argv.remove("foam_blok")
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "--new foam_blok: not in the catalog, so the rig cannot perform it" in err, err
+    assert err.endswith("; did you mean foam_block?\n"), err
 
 
 def test_check_of_a_live_session_says_the_learn_command_resumes(tmp_path: Path) -> None:
