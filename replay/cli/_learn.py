@@ -512,11 +512,12 @@ def _learn_at_rig(args: argparse.Namespace, priors: _Priors, spec: RunSpec, targ
         claim_live_run,
         configured_rig,
         foxglove_view,
-        rig_identity,
+        rig_configuration,
     )
 
     config = configured_rig(args.rig_config, args.rig, args.rig_option)
-    settings = _live_settings(args, spec, rig_identity(config, spec.seed), priors.identity(spec))
+    rig = rig_configuration(config, spec.seed)
+    settings = _live_settings(args, spec, rig, priors.identity(spec))
     if args.dry_run:
         return _dry_run(args, spec, target, settings)
     check_plan(config, spec)

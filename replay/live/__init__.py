@@ -28,7 +28,7 @@ from replay.live._run import (
     configured_rig,
     foxglove_view,
     learn_live,
-    rig_identity,
+    rig_configuration,
     session_view,
 )
 
@@ -53,6 +53,6 @@ __all__ = [
     "live_output",
     "live_run_of",
     "refuse_unfinished_replay",
-    "rig_identity",
+    "rig_configuration",
     "session_view",
 ]

@@ -229,7 +229,7 @@ def _catalog(spec: RunSpec, config: RigConfig) -> tuple[list[ObjectSpec], dict[s
     return [objects[o] for o in spec.new_objects], actions
 
 
-def rig_identity(config: RigConfig, seed: int) -> dict[str, object]:
+def rig_configuration(config: RigConfig, seed: int) -> dict[str, object]:
     """Return the rig's configuration as the rig describes itself before connecting.
 
     What identifies a live run's rig, as ``atikt-record session`` identifies a dataset's
