@@ -512,6 +512,7 @@ def _learn_at_rig(args: argparse.Namespace, priors: _Priors, spec: RunSpec, targ
         claim_live_run,
         configured_rig,
         foxglove_view,
+        release_unused_claim,
         rig_configuration,
     )
 
@@ -527,8 +528,13 @@ def _learn_at_rig(args: argparse.Namespace, priors: _Priors, spec: RunSpec, targ
             fox = foxglove_view(args.foxglove)
             stack.callback(fox.__exit__, None, None, None)
             print(f"foxglove: live on {fox.url}", file=sys.stderr, flush=True)  # noqa: T201
-        claim_live_run(target, settings)
-        _learn_into(args, priors.table, spec, priors.root, target, other=priors.other, fox=fox)
+        resumes = claim_live_run(target, settings)
+        try:
+            _learn_into(args, priors.table, spec, priors.root, target, other=priors.other, fox=fox)
+        except BaseException:
+            if not resumes:  # nothing recorded (e.g. the rig did not connect): no claim kept
+                release_unused_claim(target, settings)
+            raise
     return True
 
 

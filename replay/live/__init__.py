@@ -18,6 +18,7 @@ from replay.live._outputs import (
     live_output,
     live_run_of,
     refuse_unfinished_replay,
+    release_unused_claim,
 )
 from replay.live._run import (
     LiveCheck,
@@ -53,6 +54,7 @@ __all__ = [
     "live_output",
     "live_run_of",
     "refuse_unfinished_replay",
+    "release_unused_claim",
     "rig_configuration",
     "session_view",
 ]

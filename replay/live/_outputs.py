@@ -15,6 +15,7 @@ new ones move the arm.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -89,6 +90,33 @@ def claim_live_run(target: Path, settings: dict[str, Any]) -> bool:
     if json.loads(path.read_text("utf-8")) != json.loads(text):  # a larger budget: now this one
         atomic_write_text(path, text)
     return resumes
+
+
+def release_unused_claim(target: Path, settings: dict[str, Any]) -> bool:
+    """Take back a new run's claim of ``target`` when the run recorded nothing; say whether.
+
+    A run that claimed a fresh directory and then could not start (the rig did not connect,
+    Ctrl-C before its first recording) leaves nothing to resume; its claim would only refuse
+    the corrected command (another controller address is another rig configuration). Only the
+    claim file and the empty directories in ``target`` are removed (``target`` stays: an empty
+    directory is a valid ``--out``), and only when the claim is this run's (the same settings)
+    and no other file lies in ``target``: nothing recorded is ever touched (``rmdir`` cannot
+    remove a directory that holds anything).
+    """
+    path = target / LIVE_NAME
+    try:
+        if json.loads(path.read_text("utf-8")) != json.loads(json.dumps(settings)):
+            return False
+    except (OSError, ValueError):
+        return False
+    others = [p for p in target.rglob("*") if p != path and not p.is_dir()]
+    if others:
+        return False
+    path.unlink()
+    for directory in sorted(target.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        with contextlib.suppress(OSError):  # empty (checked above); anything in it: it stays
+            directory.rmdir()
+    return True
 
 
 def check_live_run(target: Path, settings: dict[str, Any]) -> bool:

@@ -187,10 +187,12 @@ def test_a_failing_rig_in_a_live_run_is_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert "--rig unplugged: the fake rig does not answer; check its cable" in err
-    # a live run's directory is made at once and kept (it would hold its recordings): it
-    # names the run, so the same command resumes it
-    assert sorted(p.name for p in (tmp_path / "live").iterdir()) == ["live.json", "session"]
-    assert list((tmp_path / "live" / "session").iterdir()) == []  # nothing was recorded
+    # nothing was recorded: the run's claim is taken back, so that a corrected command (another
+    # rig configuration) starts afresh instead of being refused as another run's directory
+    assert list((tmp_path / "live").iterdir()) == []
+    monkeypatch.setitem(rigconfig._BUILDERS, "unplugged", lambda seed, _options: _Unplugged(seed))
+    assert main([*argv, "--actions", "P1", "--test-trials", "1"]) == 1
+    assert "is not a live run" not in capsys.readouterr().err
 
 
 def test_learn_takes_the_open_set_and_multi_source_modes(
