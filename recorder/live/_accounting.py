@@ -118,11 +118,14 @@ def counter_skipped(
         step %= modulo
     if step < 0 or (modulo and 2 * step > modulo):
         return None
-    if step and period_ns > 0:
-        passed = b[1] - a[1]
-        if abs(step * period_ns - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed):
-            return None
+    if step and period_ns > 0 and not _agrees(step * period_ns, b[1] - a[1]):
+        return None
     return step - 1
+
+
+def _agrees(moved_ns: int, passed_ns: int) -> bool:
+    """Whether a counter's advance matches the time that passed (see :func:`counter_skipped`)."""
+    return abs(moved_ns - passed_ns) <= COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed_ns)
 
 
 class Verdict(enum.Enum):
@@ -194,7 +197,8 @@ class SourceCounter:
         self._basis = "counter"
         self._first: int | None = None
         self._max = 0
-        self._seen: set[int] = set()
+        #: Recent numbers and their stamps (a repeat with another stamp is no duplicate).
+        self._seen: dict[int, int] = {}
         self._order: deque[int] = deque()
         self._received = self._unique = self._duplicated = self._late = self._overflowed = 0
         self._malformed = self._out_of_range = self._resets = 0
@@ -203,7 +207,7 @@ class SourceCounter:
         self._first_sensor = self._last_sensor = self._first_receive = self._last_receive = 0
         self._run_sensor = self._run_receive = 0
         self._run_latency: int | None = None
-        self._last_number = self._last_number_receive = 0
+        self._last_number = self._last_number_receive = self._last_number_sensor = 0
         self._suspect: _Suspect | None = None
         self._offset_first: int | None = None
         self._offset_last: int | None = None
@@ -264,10 +268,11 @@ class SourceCounter:
             return self._stray(sequence, sensor_ns, receive_ns)
         self._suspect = None
         number = self._number(sequence, sensor_ns)
-        if number in self._seen:
+        jumped = sequence is not None and self._counter_jumped(number, sensor_ns, receive_ns)
+        if number in self._seen and not (jumped and self._restamped(number, sensor_ns)):
             self._duplicated += 1
             return Verdict.DUPLICATE
-        if sequence is not None and self._counter_jumped(number, receive_ns):
+        if jumped:  # a repeated number with a new stamp is a counter that began again
             return self._new_run(sequence, sensor_ns, receive_ns)
         return self._place(number, sensor_ns, receive_ns)
 
@@ -297,10 +302,11 @@ class SourceCounter:
 
     def _accept(self, number: int, sensor_ns: int, receive_ns: int, verdict: Verdict) -> Verdict:
         """Remember an accepted sample and track the clocks."""
-        self._remember(number)
+        self._remember(number, sensor_ns)
         self._unique += 1
         if verdict is not Verdict.LATE:
             self._last_number, self._last_number_receive = number, receive_ns
+            self._last_number_sensor = sensor_ns
         latency = receive_ns - sensor_ns
         if self._run_latency is None or latency < self._run_latency:
             self._run_latency = latency
@@ -329,13 +335,26 @@ class SourceCounter:
         self._out_of_range += 1
         return Verdict.OUT_OF_RANGE
 
-    def _counter_jumped(self, number: int, receive_ns: int) -> bool:
-        """Whether the counter moved unlike the time that passed (a reset or a jump)."""
+    def _counter_jumped(self, number: int, sensor_ns: int, receive_ns: int) -> bool:
+        """Whether the counter moved unlike the time that passed (a reset or a jump).
+
+        The time that passed is the recorder's (from the receive times). A counter that moved
+        forward with the source's own clock (its stamps) is no jump though, however late it
+        arrived: the recorder, or the sender's loop, was held, and what was sent meanwhile
+        arrives at once (late delivery is not a break in the series). Backwards, only the
+        recorder's clock counts: a device that restarted restarts its counter and its clock
+        together.
+        """
         if self._period_ns <= 0 or self._basis != "counter":
             return False
-        passed = receive_ns - self._last_number_receive
         moved = (number - self._last_number) * self._period_ns
-        return abs(moved - passed) > COUNTER_TOLERANCE_NS + COUNTER_RELATIVE * abs(passed)
+        if _agrees(moved, receive_ns - self._last_number_receive):
+            return False
+        return not (moved >= 0 and _agrees(moved, sensor_ns - self._last_number_sensor))
+
+    def _restamped(self, number: int, sensor_ns: int) -> bool:
+        """Whether a number seen before comes with another stamp (more than half a period)."""
+        return 2 * abs(sensor_ns - self._seen[number]) > self._period_ns
 
     def _new_run(self, sequence: int | None, sensor_ns: int, receive_ns: int) -> Verdict:
         """Close the current run and start a new one at this sample."""
@@ -425,12 +444,12 @@ class SourceCounter:
         self._gap_count += 1
         self._gap_ns += step_ns - self._period_ns
 
-    def _remember(self, number: int) -> None:
+    def _remember(self, number: int, sensor_ns: int) -> None:
         """Keep the recent sequence numbers (a bounded window)."""
-        self._seen.add(number)
+        self._seen[number] = sensor_ns
         self._order.append(number)
         if len(self._order) > SEEN_WINDOW:
-            self._seen.discard(self._order.popleft())
+            self._seen.pop(self._order.popleft(), None)
 
     def _clock(self, sensor_ns: int, receive_ns: int, *, late: bool) -> None:
         """Track the clock offset (lowest latency of the first and of the latest second).
