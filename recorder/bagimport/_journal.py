@@ -8,7 +8,8 @@ a journal ``<out>/.listen/<UTC start>-<pid>-<n>.journal.mcap``: a ``ros2`` MCAP 
 per topic with its ``ros2msg`` schema, ``cdr`` messages), one small zstd chunk per step
 (:data:`~recorder.bagimport._listen` steps every 50 ms), handed to the operating system at
 the end of every step. A channel of its own (:data:`EVENTS_TOPIC`, JSON in a
-``std_msgs/msg/String``) records, per step, the step's time and the readers' counters, and
+``std_msgs/msg/String``) records, per step, the step's time, the readers' counters and each
+message they dropped (a full queue, too large) with its receive time and header stamp, and
 every recording written; a metadata record (:data:`HEAD_RECORD`) the run's identity, the
 topics' types, the topic map's hash and the trial numbers taken so far. With these a journal
 replays the run exactly: the same windows, the same files, the same names.
@@ -17,10 +18,12 @@ The journal is a staging copy of what ``listen`` writes: when no action is open 
 window that ended is written, the run starts a new journal and removes the old one (all of
 whose windows are written). A new journal begins with a *prelude*: the messages of the last
 ``max_delay_s`` + 2 s again (what a window that begins next may reach back to) and the
-accounting so far, so that it replays alone as the run went on. Memory: the chunks go to
-disk at every step; mcap's writer keeps only one index entry per chunk (for the summary) until
-the journal is finished, which the rotation after each action bounds (actions that follow each
-other without a pause of ``max_delay_s`` + 1 s grow it until the next pause).
+accounting so far (the counters, and the drops placed in time that a window may still count),
+so that it replays alone as the run went on: every drop is in exactly one step or prelude.
+Memory: the chunks go to disk at every step; mcap's writer keeps only one index entry per
+chunk (for the summary) until the journal is finished, which the rotation after each action
+bounds (actions that follow each other without a pause of ``max_delay_s`` + 1 s grow it until
+the next pause).
 
 A running ``listen`` holds an exclusive lock on ``<out>/.listen/lock`` for its lifetime
 (:func:`listen_lock`): a second ``listen`` into the same directory would number the same trials
@@ -59,9 +62,11 @@ from recorder.errors import BagImportError
 from schemas import software_version
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping, Sequence
+    from collections.abc import Iterable, Iterator, Mapping, Sequence
 
     from rosbags.typesys.store import Typestore
+
+    from recorder.live._reader import Drop
 
 #: The journals' directory under the output directory (hidden: not part of the dataset).
 JOURNAL_DIR = ".listen"
@@ -269,14 +274,21 @@ class JournalStep:
     Attributes:
         items: ``(topic, receive ns, CDR bytes)`` in processing order.
         now_ns: The step's time (None: the step was cut off before its end).
-        counts: Topic -> (queue overflows, oversize drops, latest oversize bytes).
-        seen: A journal's prelude: topic -> (overflows, oversize drops) in the files so far.
+        counts: Topic -> (queue overflows, oversize drops, latest oversize bytes) since the
+            run's start.
+        seen: A journal's prelude: topic -> (overflows, oversize drops) placed in time so far.
+        drops: Topic -> (messages its full queue dropped, messages dropped for their size) in
+            the step, each ``(receive ns, header stamp or None)`` as its reader read it.
+        held: A journal's prelude: topic -> (overflows, oversize drops) placed in time, on the
+            windows' clock (ns), that a window still to be written may count.
     """
 
     items: list[tuple[str, int, bytes]]
     now_ns: int | None
     counts: dict[str, tuple[int, int, int]]
     seen: dict[str, tuple[int, int]] | None = None
+    drops: Mapping[str, tuple[Sequence[Drop], Sequence[Drop]]] = field(default_factory=dict)
+    held: Mapping[str, tuple[Sequence[int], Sequence[int]]] = field(default_factory=dict)
 
 
 @dataclass
@@ -298,12 +310,20 @@ class JournalContents:
                 counts = {t: (c[0], c[1], c[2]) for t, c in event.get("counts", {}).items()}
                 if "prelude" in event:
                     seen = {t: (c[0], c[1]) for t, c in event["seen"].items()}
-                    yield JournalStep(items, None, counts, seen)
+                    held = {t: (h[0], h[1]) for t, h in event.get("held", {}).items()}
+                    yield JournalStep(items, None, counts, seen, held=held)
                 else:
-                    yield JournalStep(items, int(event["now"]), counts)
+                    found = event.get("drops", {})
+                    drops = {t: (_drops(d[0]), _drops(d[1])) for t, d in found.items()}
+                    yield JournalStep(items, int(event["now"]), counts, drops=drops)
                 items = []
         if items:
             yield JournalStep(items, None, {})
+
+
+def _drops(pairs: Iterable[Sequence[int | None]]) -> list[Drop]:
+    """Return a step's drops of one kind from the JSON pairs ``[receive ns, stamp or null]``."""
+    return [(int(r or 0), None if s is None else int(s)) for r, s in pairs]
 
 
 #: What reading a journal cut off (or damaged by a power loss) raises at its end.

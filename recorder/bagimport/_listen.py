@@ -11,8 +11,10 @@ annotation came, and written once ``[time] max_delay_s`` has passed beyond its e
 import's one-second margin and every topic still sending has sent a sample stamped beyond
 that) or from a CSV (known up front). Each file also records, per topic,
 the samples expected (from the header stamps and the topic's period), received, missing,
-duplicated and out of order, and those its reader's queue could not hold
-(``atikt.sources``). At ``--duration``, Ctrl-C or SIGTERM the windows whose ``end`` arrived
+duplicated and out of order, and those its reader dropped (``atikt.sources``): a full queue's
+as overflowed, too large ones as malformed, each in the file of the window it was stamped in
+(its header stamp, read from its first 12 bytes), none between actions; the run's lines say
+the totals. At ``--duration``, Ctrl-C or SIGTERM the windows whose ``end`` arrived
 are written and the one being annotated is kept as incomplete, with a line saying so.
 
 Every message is also journaled as it arrives (:mod:`._journal`), so a run killed before it
@@ -80,7 +82,7 @@ from recorder.bagimport._windows import (
     windows_from_csv,
 )
 from recorder.errors import BagImportError, RecorderError
-from recorder.live import RecorderClock, SourceCounter, SourceReader, gap_periods
+from recorder.live import RecorderClock, SourceCounter, SourceReader, SourceStats, gap_periods
 from recorder.runner import deferred_interrupts
 from schemas import cli
 from schemas.cdr import compile_cdr
@@ -94,14 +96,14 @@ if TYPE_CHECKING:
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live import Received, SourceStats
-    from recorder.live.dds import DdsDomain, Publication
+    from recorder.live import Received
+    from recorder.live._reader import Drop
+    from recorder.live.dds import DdsDomain, Publication, RawReader
     from recorder.writing._foxglove import TopicView
 
 _NS_PER_S = 1_000_000_000
 #: How often idle windows are closed and old messages forgotten, s.
 _TICK_S = 0.05
-_HEADER = ("header", (1, "std_msgs/msg/Header"))
 #: An open action is cut (kept as incomplete, with a line) once it lasts its declared
 #: ``duration_s`` plus this, ns: a lost ``end`` never holds data without bound.
 OPEN_MARGIN_NS = 30 * _NS_PER_S
@@ -129,6 +131,40 @@ def _dds() -> ModuleType:
 
 
 @dataclass(slots=True)
+class _Dropped:
+    """Messages of one topic its reader dropped (of one kind: a full queue, too large).
+
+    Each is placed in time, on the windows' clock, and counted in the file of the window whose
+    ``[start, stop)`` holds it: between actions (or in a window written already) in none.
+    """
+
+    #: The reader's count (since the run's start) placed so far.
+    seen: int = 0
+    #: Where each lies, ns.
+    at: list[int] = field(default_factory=list)
+
+    def place(self, count: int, places: Sequence[int], step_ns: int) -> None:
+        """Place the drops counted since the last call: those read at ``places``.
+
+        ``count``: the reader's count since the start. A drop counted that its reader kept
+        nothing of (a journal of an older version; more in one step than the reader keeps) is
+        placed at ``step_ns``, the step's time on the windows' clock: it was dropped within a
+        step of its arrival.
+        """
+        self.at.extend(places)
+        self.at.extend([step_ns] * (count - self.seen - len(places)))
+        self.seen = max(self.seen, count)
+
+    def within(self, lo: int, hi: int) -> int:
+        """Return how many lie in ``[lo, hi)``."""
+        return sum(lo <= at < hi for at in self.at)
+
+    def forget(self, before_ns: int) -> None:
+        """Forget those placed before ``before_ns`` (no window left can hold them)."""
+        self.at = [at for at in self.at if at >= before_ns]
+
+
+@dataclass(slots=True)
 class _Arrivals:
     """Header stamps and receive times of one topic as they arrived (duplicates too).
 
@@ -152,22 +188,22 @@ class _Arrivals:
     #: The lowest receive time minus stamp seen: the stamps' clock offset to the receive
     #: clock plus the lowest transport latency (None: nothing yet).
     offset: int | None = None
-    overflow_seen: int = 0
-    #: Messages dropped for their size placed in time so far (:meth:`drop`).
-    oversize_seen: int = 0
-    #: (time on the stamps' clock, count) of the messages dropped for their size: each is
-    #: counted in the file of the window it fell in (between actions: in none).
-    dropped: list[tuple[int, int]] = field(default_factory=list)
+    #: Messages its reader's full queue dropped: counted as overflowed where they lie.
+    overflowed: _Dropped = field(default_factory=_Dropped)
+    #: Messages dropped for their size: counted as malformed where they lie.
+    oversize: _Dropped = field(default_factory=_Dropped)
 
-    def stats(self, name: str, lo: int, hi: int, overflowed: int) -> SourceStats | None:
-        """Return the accounting of the arrivals stamped in ``[lo, hi)`` (None: none).
+    def stats(self, name: str, lo: int, hi: int) -> SourceStats | None:
+        """Return the accounting of the arrivals and drops in ``[lo, hi)`` (None: none).
 
         A pause across an edge of the range (from the last arrival before it, to the first
-        after it) is counted as the range's: the file's skin reaches across its edges.
+        after it) is counted as the range's: the file's skin reaches across its edges. The
+        messages dropped count where they lie (:class:`_Dropped`), not where they were read.
         """
         inside = [i for i, s in enumerate(self.stamps) if lo <= s < hi]
+        overflowed, oversize = self.overflowed.within(lo, hi), self.oversize.within(lo, hi)
         if not inside:
-            return None
+            return self._lost_only(name, overflowed, oversize)
         stamps = [self.stamps[i] for i in inside]
         before = max((s for s in self.stamps if s < lo), default=None)
         after = min((s for s in self.stamps if s >= hi), default=None)
@@ -189,20 +225,28 @@ class _Arrivals:
                 counter.pause(min(stamps) - before)
             if after is not None:
                 counter.pause(after - max(stamps))
-        counter.overflow(overflowed - self.overflow_seen)
-        counter.malformed(sum(count for at, count in self.dropped if lo <= at < hi))
-        self.overflow_seen = overflowed
+        counter.overflow(overflowed)
+        counter.malformed(oversize)
         return counter.stats()
 
-    def drop(self, oversize: int, at_ns: int) -> None:
-        """Place the messages dropped for their size since the last call at ``at_ns``.
+    def _lost_only(self, name: str, overflowed: int, oversize: int) -> SourceStats | None:
+        """Return the accounting of a range whose every message was dropped (None: none was).
 
-        ``oversize``: the reader's count since the start; ``at_ns``: the step's time on the
-        stamps' clock (a message is dropped within a step of its arrival).
+        The samples a full queue dropped are missing, as where some arrived (a counter
+        expected them; stamps expect what arrived: none).
         """
-        if oversize > self.oversize_seen:
-            self.dropped.append((at_ns, oversize - self.oversize_seen))
-        self.oversize_seen = max(self.oversize_seen, oversize)
+        if not overflowed and not oversize:
+            return None
+        counted = self.read_counter is not None
+        return SourceStats(
+            name,
+            basis="counter" if counted else "stamps",
+            expected=overflowed if counted else 0,
+            missing=overflowed,
+            overflowed=overflowed,
+            period_ns=self.period_ns,
+            malformed=oversize,
+        )
 
     def _by_counter(
         self, name: str, period: int, inside: list[int], lo: int, hi: int
@@ -235,7 +279,8 @@ class _Arrivals:
         del self.stamps[:keep]
         del self.receives[:keep]
         del self.sequences[:keep]
-        self.dropped = [(at, count) for at, count in self.dropped if at >= before_ns]
+        self.overflowed.forget(before_ns)
+        self.oversize.forget(before_ns)
 
 
 @dataclass
@@ -396,15 +441,23 @@ class Listener:
             if self.view is not None:
                 text, _ = self._store.generate_msgdef(msgtype, ros_version=2)
                 self.view.declare(topic, msgtype, text)
-            raw = domain.reader(topic, msgtype, reliable=reliable)
-            raw.clock = self.clock.now_ns
-            raw.max_bytes, _ = self.topic_map.message_budget(topic)
-            self._raw[topic] = raw
-            source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity)
-            self._readers.append(source)
-            self._overflow[topic] = source
+            self._subscribe(topic, domain.reader(topic, msgtype, reliable=reliable))
         for source in self._readers:
             source.start()
+
+    def _subscribe(self, topic: str, raw: RawReader) -> SourceReader:
+        """Set up a topic's raw reader and its reader thread (not started) and return it.
+
+        Both keep each message they drop with its header stamp (read from its first 12
+        bytes), so that it is counted where it was stamped.
+        """
+        raw.clock = self.clock.now_ns
+        raw.max_bytes, _ = self.topic_map.message_budget(topic)
+        self._raw[topic] = raw
+        source = SourceReader(f"dds{topic}", raw.receive, capacity=self.capacity, place=raw.place)
+        self._readers.append(source)
+        self._overflow[topic] = source
+        return source
 
     def prepare(self, types: Mapping[str, str]) -> None:
         """Check the topics' types and make their routes (live, or replaying a journal).
@@ -412,8 +465,9 @@ class Listener:
         Raises:
             BagImportError: A topic's fields are not what the map says.
         """
+        dds = _dds()
         if not hasattr(self, "_store"):  # a recovery: the store DDS would have made
-            self._store = _dds().register_atikt_types(typestore(self.topic_map))
+            self._store = dds.register_atikt_types(typestore(self.topic_map))
         self._types = dict(types)
         channels = [_Channel(t, msgtype) for t, msgtype in types.items()]
         reader = cast("Any", _Store(self._store))
@@ -429,7 +483,7 @@ class Listener:
         self._routes = cast("dict[str, Route]", made)
         for topic, msgtype in types.items():
             self._counts[topic] = (0, 0, 0)
-            if topic in found and _has_header(self._store, msgtype):
+            if topic in found and dds.leads_with_header(self._store, msgtype):
                 extractor = found[topic]
                 sequence = extractor.sequence if isinstance(extractor, SkinTopic) else None
                 self._arrivals[topic] = _Arrivals(
@@ -499,10 +553,13 @@ class Listener:
             return
         self._retire(reopen=True)
         if self._journal is not None:
-            seen = {t: (a.overflow_seen, a.oversize_seen) for t, a in self._arrivals.items()}
+            arrivals = self._arrivals.items()
+            seen = {t: (a.overflowed.seen, a.oversize.seen) for t, a in arrivals}
+            # the drops placed that a window still to come may hold (the next steps add theirs)
+            held = {t: (a.overflowed.at, a.oversize.at) for t, a in arrivals}
             annotation = self._grouper_topic()  # those of windows written already
             self._journal.messages([item for item in recent if item[0] != annotation])
-            self._journal.event(now_ns, prelude=now_ns, counts=self._counts, seen=seen)
+            self._journal.event(now_ns, prelude=now_ns, counts=self._counts, seen=seen, held=held)
 
     def _wrote(self, path: Path) -> None:
         """Journal a recording written (a recovery does not write it again); tell the caller."""
@@ -562,8 +619,7 @@ class Listener:
         out = []
         window = plan.window
         for topic, arrivals in self._arrivals.items():
-            overflowed, _, _ = self._counts[topic]
-            stats = arrivals.stats(topic, window.start_ns, window.stop_ns, overflowed)
+            stats = arrivals.stats(topic, window.start_ns, window.stop_ns)
             if stats is not None:
                 out.append(stats)
         return out
@@ -695,8 +751,9 @@ class Listener:
     def _notes(self, *, final: bool = False) -> None:
         """Print one line per window skipped or written with lost samples, late, too large.
 
-        Messages dropped for their size are said once per action written (``final``: the
-        rest, at the end of the run).
+        Messages dropped for their size or by a full queue are said once per action written
+        (``final``: the rest, at the end of the run), with the run's total: those dropped
+        between actions are in no file.
         """
         report = self.report
         for path, lost in list(report.lost_samples.items())[self._noted.get("lost", 0) :]:
@@ -724,21 +781,37 @@ class Listener:
                     "max_delay_s in the topic map"
                 )
                 self._noted[f"late {topic}"] = count
-        # messages too large: one line per action written (and one at the end), not per step
+        # messages dropped: one line per action written (and one at the end), not per step
         written = self.session.done > self._noted.get("size done", 0)
+        if written or final:
+            self._note_dropped()
+        if written:
+            self._noted["size done"] = self.session.done
+
+    def _note_dropped(self) -> None:
+        """Print one line per topic that dropped messages since the last (the run's total)."""
+        report = self.report
         for topic, (_, oversize, size) in self._counts.items():
             new = oversize - self._noted.get(f"size {topic}", 0)
-            if new > 0 and (written or final):
+            if new > 0:
                 report.oversize[topic] = oversize
                 budget, where = self.topic_map.message_budget(topic)
                 self._note(
                     f"{topic}: dropped {new} messages larger than {where} max_message_kib = "
                     f"{budget >> 10} (the latest {size} bytes; {oversize} in all); each is "
-                    "counted as malformed in the action it arrived in"
+                    "counted as malformed in the action it was stamped in (none between actions)"
                 )
                 self._noted[f"size {topic}"] = oversize
-        if written:
-            self._noted["size done"] = self.session.done
+        for topic, (overflowed, _, _) in self._counts.items():
+            new = overflowed - self._noted.get(f"queue {topic}", 0)
+            if new > 0:
+                self._note(
+                    f"{topic}: the reader's queue was full: dropped {new} messages "
+                    f"({overflowed} in all); each is counted as overflowed in the action it "
+                    "was stamped in (none between actions); the listener fell behind: give "
+                    "it a computer less loaded"
+                )
+                self._noted[f"queue {topic}"] = overflowed
 
     def _note(self, line: str) -> None:
         if self.on_note is not None:
@@ -756,25 +829,43 @@ class Listener:
         taken = [(*item.payload, item.receive_ns) for item in self._take(wait_s)]
         items = [(topic, receive_ns, raw) for topic, raw, receive_ns in taken]
         now = self.clock.now_ns()
-        self._counts = {
-            topic: (self._overflow[topic].overflowed, raw.oversize, raw.oversize_bytes)
-            for topic, raw in self._raw.items()
-        }
+        counts, drops = self._reader_drops()
+        step = JournalStep(items, now, counts, drops=drops)
         if self._journal is not None:
             try:
                 self._journal.messages(items)
-                self._journal.event(now, now=now, counts=self._counts)
+                dropped = {"drops": drops} if drops else {}
+                self._journal.event(now, now=now, counts=counts, **dropped)
             except JournalError:  # what arrived is in memory: it is still written
-                self.replay(JournalStep(items, now, self._counts))
+                self.replay(step)
                 raise
             self._recent.extend(items)
         if self.view is not None:
             for topic, receive_ns, raw in items:
                 self.view.offer_raw(topic, receive_ns, raw)
-        self.replay(JournalStep(items, now, self._counts))
+        self.replay(step)
         if self._journal is not None:
             self._rotate(now)
         return len(items)
+
+    def _reader_drops(
+        self,
+    ) -> tuple[dict[str, tuple[int, int, int]], dict[str, tuple[list[Drop], list[Drop]]]]:
+        """Return the readers' counters and take the drops they kept since the last step.
+
+        Returns:
+            Topic -> (queue overflows, oversize drops, latest oversize bytes) since the
+            start; topic -> (the drops of its full queue, of its size limit) since the last
+            step, each ``(receive ns, header stamp or None)`` (topics that dropped any).
+        """
+        counts, drops = {}, {}
+        for topic, raw in self._raw.items():
+            overflowed, queue = self._overflow[topic].dropped()
+            oversize, size, large = raw.dropped()
+            counts[topic] = (overflowed, oversize, size)
+            if queue or large:
+                drops[topic] = (queue, large)
+        return counts, drops
 
     def _account(self, step: JournalStep) -> None:
         """Take a step's counters (a journal's prelude: the accounting of the files so far)."""
@@ -783,11 +874,15 @@ class Listener:
         if step.seen is None:
             self._taken += len(step.items)
             return
-        for topic, (overflowed, oversize) in step.seen.items():  # processed by the run already
-            self._arrivals[topic].overflow_seen = overflowed
-            self._arrivals[topic].oversize_seen = oversize
-        for topic, (_, oversize, _) in self._counts.items():
+        for topic, (overflowed, oversize) in step.seen.items():  # placed by the run already
+            self._arrivals[topic].overflowed.seen = overflowed
+            self._arrivals[topic].oversize.seen = oversize
+        for topic, (queue, size) in step.held.items():  # the run's, that a window may hold
+            self._arrivals[topic].overflowed.at = list(queue)
+            self._arrivals[topic].oversize.at = list(size)
+        for topic, (overflowed, oversize, _) in self._counts.items():
             self._noted[f"size {topic}"] = oversize
+            self._noted[f"queue {topic}"] = overflowed
 
     def replay(self, step: JournalStep) -> None:
         """Feed one step's messages, then close windows and forget old data at its time."""
@@ -820,7 +915,7 @@ class Listener:
         if step.now_ns is not None:
             self._release(step.now_ns)
             if step.seen is None:  # the drops of a prelude were placed by the run already
-                self._place_drops(step.now_ns)
+                self._place_drops(step)
         self._bound_open()
         if step.now_ns is not None:
             writable = self._writable(step.now_ns)
@@ -851,11 +946,32 @@ class Listener:
         delay = self.topic_map.max_delay_ns
         return min(now, max(going + delay, now - STOPPED_NS))
 
-    def _place_drops(self, now_ns: int) -> None:
-        """Place the messages dropped for their size since the last step at its time."""
-        at = self._on_stamps(now_ns)
+    def _place_drops(self, step: JournalStep) -> None:
+        """Place the messages the readers dropped in a step where each belongs.
+
+        Only topics with accounting (a leading header: :class:`_Arrivals`) have drops to
+        place; see :meth:`_where` for each drop, and :meth:`_Dropped.place` for those counted
+        with nothing read of them.
+        """
+        step_ns = self._on_stamps(step.now_ns or 0)
         for topic, arrivals in self._arrivals.items():
-            arrivals.drop(self._counts.get(topic, (0, 0, 0))[1], at)
+            overflowed, oversize, _ = self._counts.get(topic, (0, 0, 0))
+            queue, size = step.drops.get(topic, ((), ()))
+            arrivals.overflowed.place(
+                overflowed, [self._where(arrivals, d) for d in queue], step_ns
+            )
+            arrivals.oversize.place(oversize, [self._where(arrivals, d) for d in size], step_ns)
+
+    def _where(self, arrivals: _Arrivals, drop: Drop) -> int:
+        """Return where one dropped message lies on the windows' clock, ns."""
+        receive_ns, stamp = drop
+        if stamp is not None and self.topic_map.stamps == "header":
+            return stamp  # its own header stamp: the window it was stamped in
+        # no stamp read (its bytes too short or not plain CDR), or windows on the receive
+        # clock: its receive time, taken onto the stamps' clock by the topic's offset
+        if arrivals.offset is not None:
+            return receive_ns - arrivals.offset
+        return self._on_stamps(receive_ns)
 
     def _on_stamps(self, now_ns: int) -> int:
         """Return a receive time on the stamps' clock: by each topic's offset, the earliest."""
@@ -938,12 +1054,6 @@ class _Store:
     """What :func:`check_fields` reads of a bag reader: its typestore."""
 
     typestore: Typestore
-
-
-def _has_header(store: Typestore, msgtype: str) -> bool:
-    """Whether a type's first field is a std_msgs/Header (its stamp at CDR offset 4)."""
-    fields = store.fielddefs[msgtype][1]
-    return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == _HEADER[1][1]
 
 
 def _counter_reader(store: Typestore, msgtype: str, path: str) -> Callable[[bytes], int | None]:

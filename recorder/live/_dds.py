@@ -21,6 +21,8 @@ topics through it (``listen``, the ``[skin] transport = "ros2"`` live skin) is
 from __future__ import annotations
 
 import importlib
+import struct
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -47,7 +49,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_types_from_msg
 
 from recorder.errors import RecorderError
-from recorder.live._reader import Received, SourceReader
+from recorder.live._reader import DROPS_KEPT, Drop, Received, SourceReader
 
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
 # bytes (its compiled decoders read them), so samples are taken and written as bytes with the
@@ -79,6 +81,11 @@ _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 #: How long a reader lets samples gather after the first one woke it, s.
 BATCH_S = 0.004
 _POLL_NS = 20_000_000
+_NS_PER_S = 1_000_000_000
+#: The stamp (int32 sec, uint32 nanosec) of a type whose first field is a std_msgs/Header:
+#: right after the 4-byte CDR encapsulation header, big- or little-endian.
+_STAMP_BE = struct.Struct(">iI").unpack_from
+_STAMP_LE = struct.Struct("<iI").unpack_from
 _BASE: dict[str, Any] = {
     "bool": bool,
     "byte": idl.uint8,
@@ -146,6 +153,29 @@ def ros_type(type_name: str) -> str:
     if len(parts) != 4 or parts[2] != "dds_" or not parts[3].endswith("_"):  # noqa: PLR2004
         return type_name
     return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
+
+
+def header_stamp(raw: bytes) -> int | None:
+    """Return the header stamp of a message whose type begins with a std_msgs/Header, ns.
+
+    Read from the message's first 12 bytes without decoding it (a message too large to keep
+    is placed by it): the CDR encapsulation header (4 bytes), then the stamp's int32 sec and
+    uint32 nanosec, in the byte order the encapsulation id names. None: the bytes are too
+    short, or not plain CDR (the stamp is not there).
+    """
+    # plain CDR (XCDR1) is encapsulation id 0x0000 (big-endian) or 0x0001 (little: ROS 2's)
+    if len(raw) < 12 or raw[0] != 0 or raw[1] > 1:  # noqa: PLR2004 (encapsulation + stamp)
+        return None
+    sec, nanosec = (_STAMP_LE if raw[1] else _STAMP_BE)(raw, 4)
+    return int(sec) * _NS_PER_S + int(nanosec)
+
+
+def leads_with_header(store: Typestore, msgtype: str) -> bool:
+    """Whether a type's first field is a std_msgs/Header (its stamp at CDR offset 4)."""
+    if msgtype not in store.fielddefs:
+        return False
+    fields = store.fielddefs[msgtype][1]
+    return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == "std_msgs/msg/Header"
 
 
 def register_atikt_types(store: Typestore) -> Typestore:
@@ -347,7 +377,13 @@ class RawWriter:
 
 
 class RawReader:
-    """Takes one topic's samples as CDR bytes; ``receive`` is a :class:`SourceReader` source."""
+    """Takes one topic's samples as CDR bytes; ``receive`` is a :class:`SourceReader` source.
+
+    A message larger than :attr:`max_bytes` is dropped and counted (:attr:`oversize`); its
+    receive time and its header stamp (:func:`header_stamp`, when its type begins with a
+    header) are kept for :meth:`dropped`, so that it is counted where it was stamped.
+    :meth:`place` reads the same stamp for a :class:`SourceReader`'s full queue.
+    """
 
     def __init__(self, domain: DdsDomain, topic: str, msgtype: str, *, reliable: bool) -> None:
         """Create the DDS reader (matching starts now)."""
@@ -368,9 +404,16 @@ class RawReader:
         self.oversize = 0
         #: Size of the latest message dropped for its size, bytes.
         self.oversize_bytes = 0
+        #: Whether the type begins with a std_msgs/Header (a dropped message's stamp is read).
+        self.stamped = leads_with_header(domain.store, msgtype)
+        self._dropped: deque[Drop] = deque(maxlen=DROPS_KEPT)
+        self._lock = threading.Lock()
 
-    def take(self) -> list[bytes]:
-        """Return the valid samples waiting now, as bytes (too large ones counted, dropped)."""
+    def take(self, receive_ns: int | None = None) -> list[bytes]:
+        """Return the valid samples waiting now, as bytes (too large ones counted, dropped).
+
+        ``receive_ns``: the take's time (None: now), kept with every message dropped.
+        """
         taken = ddspy_take(self.reader._ref, _ANY, 256)  # noqa: SLF001 (the binding's handle)
         if isinstance(taken, int):
             msg = f"topic {self.topic}: DDS read failed (code {taken})"
@@ -381,11 +424,36 @@ class RawReader:
             if not info.valid_data:
                 continue
             if limit and len(data) > limit:
-                self.oversize += 1
-                self.oversize_bytes = len(data)
+                self._oversized(data, self.clock() if receive_ns is None else receive_ns)
                 continue
             out.append(bytes(data))
         return out
+
+    def _oversized(self, data: bytes, receive_ns: int) -> None:
+        """Count a message dropped for its size and keep where it belongs (12 bytes read)."""
+        stamp = header_stamp(data) if self.stamped else None
+        with self._lock:
+            self.oversize += 1
+            self.oversize_bytes = len(data)
+            self._dropped.append((receive_ns, stamp))
+
+    def dropped(self) -> tuple[int, int, list[Drop]]:
+        """Return the oversize count, the latest's size, and take the drops kept since.
+
+        Each drop is ``(receive ns, header stamp or None)``; taken with the count, so every
+        drop taken is in it.
+        """
+        with self._lock:
+            taken = list(self._dropped)
+            self._dropped.clear()
+            return self.oversize, self.oversize_bytes, taken
+
+    def place(self, item: Received) -> int | None:
+        """Return the header stamp of a received sample (a :class:`SourceReader`'s ``place``).
+
+        None: its type has no leading header, or its bytes are too short to hold one.
+        """
+        return header_stamp(item.payload[1]) if self.stamped else None
 
     def receive(self) -> Received | None:
         """Return one sample ``(topic, bytes)`` with its receive time, waiting 20 ms at most.
@@ -399,7 +467,7 @@ class RawReader:
             if self._waitset.wait(_POLL_NS) > 0:
                 time.sleep(BATCH_S)
             now = self.clock()
-            self._pending.extend((now, raw) for raw in self.take())
+            self._pending.extend((now, raw) for raw in self.take(now))
             if not self._pending:
                 return None
         receive_ns, raw = self._pending.popleft()

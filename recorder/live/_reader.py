@@ -5,14 +5,18 @@ pipeline and warns when it overflows; this is the same shape for every live sour
 only receives and stamps: ``receive()`` blocks for at most its own timeout and returns one
 :class:`Received` (or None when nothing came). Parsing, counting and writing happen in the
 consumer. The thread never blocks on a full queue (a slow consumer must not stall the socket):
-it drops the sample and counts it. A reader created under ``readers_at(priority)`` (a rig with
-``rt_priority``) runs under ``SCHED_FIFO`` (``recorder.live._realtime``).
+it drops the sample and counts it; given a ``place`` (what a sample's own time is, read cheaply,
+e.g. a ROS 2 message's header stamp from its first 12 bytes), it also keeps each dropped
+sample's receive time and that for the consumer (:meth:`SourceReader.dropped`), so that the
+loss is counted where the sample belonged. A reader created under ``readers_at(priority)``
+(a rig with ``rt_priority``) runs under ``SCHED_FIFO`` (``recorder.live._realtime``).
 """
 
 from __future__ import annotations
 
 import queue
 import threading
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Self
 
@@ -24,6 +28,11 @@ if TYPE_CHECKING:
 
 #: Default queue capacity: 10 s of a 1 kHz source, far more than a consumer falls behind.
 DEFAULT_CAPACITY = 10_000
+#: Dropped samples whose place a reader keeps until the consumer takes them (beyond: the
+#: oldest are only counted; a consumer that takes them every step never gets near).
+DROPS_KEPT = 10_000
+#: A sample dropped: (its receive time ns, its own time as ``place`` read it, or None).
+Drop = tuple[int, int | None]
 
 
 class SourceLostError(RigError):
@@ -56,6 +65,7 @@ class SourceReader:
         receive: Callable[[], Received | None],
         *,
         capacity: int = DEFAULT_CAPACITY,
+        place: Callable[[Received], int | None] | None = None,
     ) -> None:
         """Prepare the reader; the thread starts with :meth:`start` or ``__enter__``.
 
@@ -63,6 +73,9 @@ class SourceReader:
             name: The source, for messages.
             receive: Blocks until a sample arrives or its timeout passes.
             capacity: Queue capacity in samples.
+            place: Reads a sample's own time (None: it cannot); given, every sample the full
+                queue drops is kept with it for :meth:`dropped`. It runs in the reader thread
+                on the drop path only: it must be cheap and never raise.
         """
         self.name = name
         self._receive = receive
@@ -72,6 +85,8 @@ class SourceReader:
         self._error: BaseException | None = None
         self._lock = threading.Lock()
         self._overflowed = 0
+        self._place = place
+        self._dropped: deque[Drop] = deque(maxlen=DROPS_KEPT)
         self._received = 0
         self._last_receive_ns: int | None = None
         self._priority = reader_priority()
@@ -120,14 +135,29 @@ class SourceReader:
         try:
             self._queue.put_nowait(item)
         except queue.Full:
+            at = None if self._place is None else self._place(item)
             with self._lock:
                 self._overflowed += 1
+                if self._place is not None:
+                    self._dropped.append((item.receive_ns, at))
 
     @property
     def overflowed(self) -> int:
         """Samples dropped because the queue was full, since the start."""
         with self._lock:
             return self._overflowed
+
+    def dropped(self) -> tuple[int, list[Drop]]:
+        """Return the overflow count since the start, and take the drops kept since the last call.
+
+        Each drop is ``(receive ns, its own time as place read it, or None)``; they are taken
+        together with the count, so every drop taken is in the count (with ``place`` and a
+        consumer that calls this often, every drop counted is taken once).
+        """
+        with self._lock:
+            taken = list(self._dropped)
+            self._dropped.clear()
+            return self._overflowed, taken
 
     @property
     def received(self) -> int:

@@ -15,6 +15,8 @@ from recorder.live._dds import (
     RawWriter,
     dds_topic,
     dds_type,
+    header_stamp,
+    leads_with_header,
     register_atikt_types,
     ros_type,
 )
@@ -29,6 +31,8 @@ __all__ = [
     "RawWriter",
     "dds_topic",
     "dds_type",
+    "header_stamp",
+    "leads_with_header",
     "register_atikt_types",
     "ros_type",
 ]
