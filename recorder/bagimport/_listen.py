@@ -805,6 +805,7 @@ class Listener:
         for topic, (overflowed, _, _) in self._counts.items():
             new = overflowed - self._noted.get(f"queue {topic}", 0)
             if new > 0:
+                report.overflowed[topic] = overflowed
                 self._note(
                     f"{topic}: the reader's queue was full: dropped {new} messages "
                     f"({overflowed} in all); each is counted as overflowed in the action it "

@@ -135,6 +135,7 @@ class ImportReport:
         incomplete: Live: actions kept as incomplete recordings (cut, joined part-way, or
             open at the stop).
         oversize: Live: messages per topic dropped for their size (``max_message_kib``).
+        overflowed: Live: messages per topic its reader's full queue dropped.
         interrupted: Live: the signal that stopped the run (``SIGINT``, ``SIGTERM``; empty:
             it ran to its end).
         timing: Per topic and modality stamped by rate (``timing = "rate"``): runs, gaps,
@@ -175,6 +176,7 @@ class ImportReport:
     late_samples: dict[str, int] = field(default_factory=dict)
     incomplete: list[Path] = field(default_factory=list)
     oversize: dict[str, int] = field(default_factory=dict)
+    overflowed: dict[str, int] = field(default_factory=dict)
     interrupted: str = ""
     timing: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     counted: dict[str, dict[str, int]] = field(default_factory=dict)
@@ -218,6 +220,7 @@ class ImportReport:
             **({"late_samples": self.late_samples} if self.late_samples else {}),
             **({"incomplete": [str(p) for p in self.incomplete]} if self.incomplete else {}),
             **({"oversize": self.oversize} if self.oversize else {}),
+            **({"overflowed": self.overflowed} if self.overflowed else {}),
             **({"timing": self.timing} if self.timing else {}),
             **({"counted": self.counted} if self.counted else {}),
             **(

@@ -284,6 +284,8 @@ def test_a_full_queue_is_charged_to_the_window_its_samples_were_stamped_in(
     lines = [n for n in lab.notes if "queue was full" in n]
     assert lines, lab.notes
     assert "(13 in all)" in lines[-1]  # the run's total: those between actions too
+    assert report.overflowed == {TEMP: 13}  # and in the report's JSON
+    assert report.to_json()["overflowed"] == {TEMP: 13}
 
 
 def test_a_window_whose_every_sample_the_queue_dropped_says_so_not_the_next(
