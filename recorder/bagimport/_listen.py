@@ -85,7 +85,7 @@ from recorder.errors import BagImportError, RecorderError
 from recorder.live import RecorderClock, SourceCounter, SourceReader, SourceStats, gap_periods
 from recorder.runner import deferred_interrupts
 from schemas import cli
-from schemas.cdr import compile_cdr
+from schemas.cdr import compile_cdr, header_stamp
 
 if TYPE_CHECKING:
     import threading
@@ -900,9 +900,8 @@ class Listener:
             if route is None:
                 continue
             arrivals = self._arrivals.get(topic)
-            if arrivals is not None and len(raw) >= 12:  # noqa: PLR2004 (CDR header + stamp)
-                sec, nanosec = _STAMP(raw, 4)
-                stamp = sec * _NS_PER_S + nanosec
+            stamp = None if arrivals is None else header_stamp(raw)  # either byte order
+            if arrivals is not None and stamp is not None:
                 arrivals.stamps.append(stamp)
                 arrivals.receives.append(receive_ns)
                 if arrivals.read_counter is not None:
@@ -1037,9 +1036,6 @@ class Listener:
             self._journal.abandon()
             self._dropped, self._journal = self._journal.path, None
         self._note(f"{err}")
-
-
-_STAMP = __import__("struct").Struct("<iI").unpack_from
 
 
 @dataclass(frozen=True, slots=True)

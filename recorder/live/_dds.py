@@ -21,7 +21,6 @@ topics through it (``listen``, the ``[skin] transport = "ros2"`` live skin) is
 from __future__ import annotations
 
 import importlib
-import struct
 import threading
 import time
 from collections import deque
@@ -50,6 +49,7 @@ from rosbags.typesys import get_types_from_msg
 
 from recorder.errors import RecorderError
 from recorder.live._reader import DROPS_KEPT, Drop, Received, SourceReader
+from schemas.cdr import header_stamp
 
 # DataReader.take() deserializes every sample into a Python object; the import wants the CDR
 # bytes (its compiled decoders read them), so samples are taken and written as bytes with the
@@ -81,11 +81,6 @@ _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 #: How long a reader lets samples gather after the first one woke it, s.
 BATCH_S = 0.004
 _POLL_NS = 20_000_000
-_NS_PER_S = 1_000_000_000
-#: The stamp (int32 sec, uint32 nanosec) of a type whose first field is a std_msgs/Header:
-#: right after the 4-byte CDR encapsulation header, big- or little-endian.
-_STAMP_BE = struct.Struct(">iI").unpack_from
-_STAMP_LE = struct.Struct("<iI").unpack_from
 _BASE: dict[str, Any] = {
     "bool": bool,
     "byte": idl.uint8,
@@ -153,21 +148,6 @@ def ros_type(type_name: str) -> str:
     if len(parts) != 4 or parts[2] != "dds_" or not parts[3].endswith("_"):  # noqa: PLR2004
         return type_name
     return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
-
-
-def header_stamp(raw: bytes) -> int | None:
-    """Return the header stamp of a message whose type begins with a std_msgs/Header, ns.
-
-    Read from the message's first 12 bytes without decoding it (a message too large to keep
-    is placed by it): the CDR encapsulation header (4 bytes), then the stamp's int32 sec and
-    uint32 nanosec, in the byte order the encapsulation id names. None: the bytes are too
-    short, or not plain CDR (the stamp is not there).
-    """
-    # plain CDR (XCDR1) is encapsulation id 0x0000 (big-endian) or 0x0001 (little: ROS 2's)
-    if len(raw) < 12 or raw[0] != 0 or raw[1] > 1:  # noqa: PLR2004 (encapsulation + stamp)
-        return None
-    sec, nanosec = (_STAMP_LE if raw[1] else _STAMP_BE)(raw, 4)
-    return int(sec) * _NS_PER_S + int(nanosec)
 
 
 def leads_with_header(store: Typestore, msgtype: str) -> bool:

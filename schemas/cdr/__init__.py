@@ -12,7 +12,7 @@ limits) and one error (:class:`~schemas.errors.CdrError`):
 
 from schemas.cdr._columns import DecodedGroup, Layout, decode_topic, gather, message_layout
 from schemas.cdr._compiled import Decoder, compile_cdr, compile_ros1
-from schemas.cdr._rules import MAX_DECODER_LINES, MAX_DEPTH
+from schemas.cdr._rules import MAX_DECODER_LINES, MAX_DEPTH, header_stamp
 from schemas.errors import CdrError
 
 __all__ = [
@@ -26,5 +26,6 @@ __all__ = [
     "compile_ros1",
     "decode_topic",
     "gather",
+    "header_stamp",
     "message_layout",
 ]

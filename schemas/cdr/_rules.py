@@ -17,6 +17,7 @@ rule is written here in both forms side by side, and a test checks that the two 
 
 from __future__ import annotations
 
+import struct
 from typing import Any, NamedTuple
 
 from rosbags.interfaces import Nodetype
@@ -127,3 +128,26 @@ def check_depth(depth: int, msgtype: str) -> None:
     if depth > MAX_DEPTH:
         msg = f"{msgtype}: messages nest more than {MAX_DEPTH} deep; the definitions are hostile"
         raise CdrError(msg)
+
+
+_STAMP_BE = struct.Struct(">iI").unpack_from
+_STAMP_LE = struct.Struct("<iI").unpack_from
+_NS_PER_S = 1_000_000_000
+#: Encapsulation ids (second byte) of plain CDR: XCDR1 big, little; XCDR2 big, little.
+_PLAIN = frozenset({0, 1, 6, 7})
+
+
+def header_stamp(raw: bytes) -> int | None:
+    """Return the header stamp of a message whose type begins with a std_msgs/Header, ns.
+
+    Read from the message's first 12 bytes without decoding it (a message too large to keep is
+    placed by it too): the CDR encapsulation header (:data:`HEADER` bytes), then the stamp's
+    int32 sec and uint32 nanosec, in the byte order the encapsulation id names. None: the
+    bytes are too short, or not plain CDR (the stamp is not there).
+    """
+    # plain CDR is encapsulation id 0x0000 (big-endian) or 0x0001 (little: ROS 2's), plain
+    # XCDR2 0x0006 or 0x0007 (a final struct: no header of its own, the stamp first as well)
+    if len(raw) < HEADER + 8 or raw[0] != 0 or raw[1] not in _PLAIN:
+        return None
+    sec, nanosec = (_STAMP_LE if raw[1] & 1 else _STAMP_BE)(raw, HEADER)
+    return int(sec) * _NS_PER_S + int(nanosec)

@@ -342,10 +342,11 @@ def test_a_killed_runs_journal_recovers_each_drop_where_it_was_stamped(
 
 
 def test_a_header_stamp_is_read_from_12_bytes_in_the_byte_order_the_cdr_header_names() -> None:
-    from recorder.live.dds import header_stamp  # noqa: PLC0415 (the fix's: the rest runs without)
+    from schemas.cdr import header_stamp  # noqa: PLC0415 (the fix's: the rest runs without)
 
     little = b"\x00\x01\x00\x00" + struct.pack("<iI", 5, 7) + b"\x00" * 3_000_000
     big = b"\x00\x00\x00\x00" + struct.pack(">iI", 5, 7)
     assert header_stamp(little) == header_stamp(big) == 5_000_000_007
     assert header_stamp(big[:11]) is None  # too short: placed by its receive time
     assert header_stamp(b"\x00\x03" + little[2:12]) is None  # parameter-list CDR: not there
+    assert header_stamp(b"\x00\x07" + little[2:12]) == 5_000_000_007  # plain XCDR2, little
