@@ -66,7 +66,7 @@ if TYPE_CHECKING:
 
     from rosbags.typesys.store import Typestore
 
-    from recorder.live._reader import Drop
+    from recorder.live import Drop
 
 #: The journals' directory under the output directory (hidden: not part of the dataset).
 JOURNAL_DIR = ".listen"

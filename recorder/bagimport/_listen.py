@@ -96,8 +96,7 @@ if TYPE_CHECKING:
 
     from recorder._catalog import ActionSpec, ObjectSpec
     from recorder.bagimport._topicmap import TopicMap
-    from recorder.live import Received
-    from recorder.live._reader import Drop
+    from recorder.live import Drop, Received
     from recorder.live.dds import DdsDomain, Publication, RawReader
     from recorder.writing._foxglove import TopicView
 

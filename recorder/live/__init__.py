@@ -24,7 +24,7 @@ from recorder.live._clock import RecorderClock
 from recorder.live._framelayout import FIELD_TYPES, FrameType, SkinLayout, parse_layout
 from recorder.live._frames import SerialSkin, UdpSkin
 from recorder.live._packer import BlockPacker
-from recorder.live._reader import Received, SourceLostError, SourceReader
+from recorder.live._reader import Drop, Received, SourceLostError, SourceReader
 from recorder.live._realtime import check_rt_priority, readers_at, real_time, rt_refusal
 from recorder.live._skin import (
     FORCE_WINDOW_NS,
@@ -45,6 +45,7 @@ __all__ = [
     "SKIN_TRANSPORTS",
     "SOURCES_RECORD",
     "BlockPacker",
+    "Drop",
     "ExplainingSkin",
     "FrameType",
     "LiveSkin",
