@@ -57,6 +57,8 @@ TERMINATED_STATUS = 143
 HUNG_UP_STATUS = 129
 #: Exit status after Ctrl-Z (SIGTSTP, 128 + 20) ended a run while it moved an arm.
 SUSPENDED_STATUS = 148
+#: Exit status after Ctrl-\ (SIGQUIT, 128 + 3) ended a run while it moved an arm.
+QUIT_STATUS = 131
 
 
 class Terminated(KeyboardInterrupt):
@@ -89,6 +91,18 @@ class Suspended(Terminated):
     status: ClassVar[int] = SUSPENDED_STATUS
 
 
+class Quit(Terminated):
+    r"""Ctrl-\ (SIGQUIT) while a run moves an arm: it ends as after Ctrl-C, exit status 131.
+
+    By default SIGQUIT ends a process at once (with a core dump): the arm would run its last
+    program unwatched and the action's samples would be lost. While the arm moves it stops
+    the arm first and saves what arrived; elsewhere it quits as usual.
+    """
+
+    signal_name: ClassVar[str] = "SIGQUIT"
+    status: ClassVar[int] = QUIT_STATUS
+
+
 #: The signals that end a run cleanly: Ctrl-C, a plain ``kill`` (SIGTERM) and a closed
 #: terminal (SIGHUP, where the platform has it).
 ENDING_SIGNALS: tuple[int, ...] = (
@@ -114,6 +128,8 @@ def ending(signum: int) -> KeyboardInterrupt:
         return HungUp()
     if signum == getattr(signal, "SIGTSTP", None):
         return Suspended()
+    if signum == getattr(signal, "SIGQUIT", None):
+        return Quit()
     return KeyboardInterrupt()
 
 
@@ -917,6 +933,7 @@ __all__ = [
     "HUNG_UP_STATUS",
     "INTERRUPTED_STATUS",
     "PROGRESS_INTERVAL_S",
+    "QUIT_STATUS",
     "SUSPENDED_STATUS",
     "TERMINATED_STATUS",
     "Argument",
@@ -924,6 +941,7 @@ __all__ = [
     "Command",
     "HungUp",
     "PlainProgress",
+    "Quit",
     "Registry",
     "Suspended",
     "Terminated",

@@ -1,12 +1,13 @@
-"""Ctrl-C, SIGTERM, SIGHUP (and Ctrl-Z) during an action: a flag the runner sees in a cycle.
+r"""Ctrl-C, SIGTERM, SIGHUP (and Ctrl-Z, Ctrl-\) during an action: a flag the runner sees.
 
 A signal must not end an action from wherever Python happens to be (inside the writer, between
 two halves of a message): while an action runs, SIGINT, SIGTERM and SIGHUP (the terminal or the
 SSH connection closed) only set a flag; the runner sends the stop, keeps what arrived
 (``.incomplete.mcap``) and then ends the run with :func:`raise_interrupt` (``KeyboardInterrupt``,
 or :class:`schemas.cli.Terminated` for SIGTERM and SIGHUP, which the commands turn into exit
-status 130, 143 and 129). While an arm moves, Ctrl-Z (SIGTSTP) is deferred too and ends the
-run (exit status 148): a suspended recorder would leave the arm unwatched. Outside an action
+status 130, 143 and 129). While an arm moves, Ctrl-Z (SIGTSTP) and Ctrl-\ (SIGQUIT) are
+deferred too and end the run (exit status 148, 131): a suspended recorder would leave the arm
+unwatched, a quit one the arm running. Outside an action
 the handlers of the command (``schemas.cli``) apply: the run ends at once (Ctrl-Z suspends).
 A signal ignored when the block starts (``nohup``) stays ignored.
 """
@@ -29,6 +30,11 @@ if TYPE_CHECKING:
 SIGNALS = cli.ENDING_SIGNALS
 #: Deferred too while an arm moves: Ctrl-Z would leave it unwatched (``schemas.cli.Suspended``).
 SUSPEND = getattr(signal, "SIGTSTP", None)
+#: Deferred too while an arm moves: Ctrl-\ would end the process at once, the arm running on
+#: (``schemas.cli.Quit``).
+QUIT = getattr(signal, "SIGQUIT", None)
+#: What an arm's block defers besides :data:`SIGNALS` (where the platform has them).
+ARM_SIGNALS = tuple(n for n in (SUSPEND, QUIT) if n is not None)
 #: Sent when a stopped process goes on (after SIGSTOP, which no process can catch).
 CONTINUE = getattr(signal, "SIGCONT", None)
 
@@ -63,16 +69,20 @@ class InterruptFlag:
     def reason(self) -> str:
         """Return the stop's reason, one line."""
         name = cli.signal_name(self.signum) if self.signum else ""
-        keys = {"SIGINT": "Ctrl-C (SIGINT)", "SIGTSTP": "Ctrl-Z (SIGTSTP)"}
+        keys = {
+            "SIGINT": "Ctrl-C (SIGINT)",
+            "SIGTSTP": "Ctrl-Z (SIGTSTP)",
+            "SIGQUIT": "Ctrl-\\ (SIGQUIT)",
+        }
         return f"interrupted by {keys.get(name, name)}"
 
 
 @contextlib.contextmanager
 def deferred_interrupts(*, arm: bool = False) -> Iterator[InterruptFlag]:
-    """Defer the ending signals to a flag inside the block (main thread; elsewhere: no-op).
+    r"""Defer the ending signals to a flag inside the block (main thread; elsewhere: no-op).
 
-    With ``arm`` (the block moves an arm), Ctrl-Z (SIGTSTP) too: it ends the run as Ctrl-C
-    does rather than suspend the process with the arm unwatched.
+    With ``arm`` (the block moves an arm), Ctrl-Z (SIGTSTP) and Ctrl-\ (SIGQUIT) too: they end
+    the run as Ctrl-C does rather than suspend or quit the process with the arm unwatched.
 
     The previous handlers come back when the block is left (after a signal came, a command's
     handler as it would be after its first one: further ones ignored); the caller raises the
@@ -92,7 +102,7 @@ def deferred_interrupts(*, arm: bool = False) -> Iterator[InterruptFlag]:
         flag.continued = True
 
     try:  # a signal ignored stays ignored (workers leave Ctrl-C to their parent; nohup)
-        deferred = (*SIGNALS, SUSPEND) if arm and SUSPEND is not None else SIGNALS
+        deferred = (*SIGNALS, *ARM_SIGNALS) if arm else SIGNALS
         wanted = [n for n in deferred if signal.getsignal(n) is not signal.SIG_IGN]
         previous = {number: signal.signal(number, handler) for number in wanted}
         if arm and CONTINUE is not None:
