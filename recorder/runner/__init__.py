@@ -6,7 +6,7 @@ action (:func:`recorder.record_action`) runs the runner's loop in the main threa
 in its own (:class:`WriterThread`), and signals as a flag (:func:`deferred_interrupts`).
 """
 
-from recorder.runner._arm import ArmDriver, ArmSample, Context
+from recorder.runner._arm import ArmDriver, ArmSample, Context, StopsOtherwise
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
 from recorder.runner._limits import (
     LIGHT_CONTACT_N,
@@ -34,6 +34,7 @@ __all__ = [
     "Motion",
     "RunnerOptions",
     "Stop",
+    "StopsOtherwise",
     "Watch",
     "WriterThread",
     "arm_lock",

@@ -9,7 +9,7 @@ a driver and an entry point with no phase logic of its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, Self
+from typing import TYPE_CHECKING, Protocol, Self, runtime_checkable
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -178,4 +178,22 @@ class ArmDriver(Protocol):
 
     def stats(self) -> list[SourceStats]:
         """Return the accounting of the state stream since :meth:`begin`."""
+        ...
+
+
+@runtime_checkable
+class StopsOtherwise(Protocol):
+    """An arm driver with a second way to stop the arm, sharing nothing with its commands.
+
+    The runner uses it when the arm did not come to rest after :meth:`ArmDriver.stop`: a
+    command link that takes the bytes but delivers none (a half-dead connection), a controller
+    that ignores the program. A UR's is its dashboard server (``stop`` on port 29999).
+    """
+
+    def stop_otherwise(self) -> str:
+        """Stop the arm the second way; return how, one clause for the action's line.
+
+        Raises:
+            recorder.live.SourceLostError: It could not (the message says why).
+        """
         ...

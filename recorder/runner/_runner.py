@@ -40,7 +40,7 @@ from recorder.live import (
     rt_refusal,
     window_samples,
 )
-from recorder.runner._arm import Context
+from recorder.runner._arm import Context, StopsOtherwise
 from recorder.runner._interrupts import InterruptFlag, deferred_interrupts, raise_interrupt
 from recorder.runner._limits import (
     REACHED_M,
@@ -708,10 +708,15 @@ class ArmRig:
         deadline = self.clock.now_ns() + round((REST_S + self.options.silence_s) * _NS)
         # at rest is still (STILL_RAD_S), not "not moving by hand" (MOVING_RAD_S): a UR10's
         # slowest approach turns its joints at a few mrad/s, below that
+        tried, otherwise = False, ""  # the driver's second way to stop (how it stopped it)
         while (speed := self._joint_speed()) > STILL_RAD_S:
-            if self._state.since > cycles:  # the cycles since the stop went out
+            if self._state.since > cycles and not tried:  # the cycles since the stop went out
+                tried, otherwise = True, self._stop_otherwise()
+                deadline = self.clock.now_ns() + round((REST_S + self.options.silence_s) * _NS)
+            if self._state.since > cycles:
+                after = f"the stop, nor after {otherwise}" if otherwise else "the stop"
                 return (
-                    f"the arm did not come to rest after the stop (a joint at {speed:.3f} "
+                    f"the arm did not come to rest after {after} (a joint at {speed:.3f} "
                     "rad/s); stop it at the teach pendant now"
                 )
             items: list[StreamItem] = []
@@ -737,7 +742,27 @@ class ArmRig:
             items.extend(blocks)
             items.sort(key=lambda item: item.receive_ns)
             yield from items
+        if otherwise:  # at rest, by the second way: the line says the stop did not do it
+            said = f"the arm did not come to rest after the stop: {otherwise}"
+            self.stop_note = "; ".join(c for c in (self.stop_note, said) if c)
         return ""
+
+    def _stop_otherwise(self) -> str:
+        """Stop the arm the driver's second way: the stop did not bring it to rest.
+
+        The cycles are counted afresh from now. Returns how it stopped the arm (one clause);
+        empty when the driver has no second way, or it failed (then :attr:`stop_note` says so).
+        """
+        arm = self.arm
+        if not isinstance(arm, StopsOtherwise):
+            return ""
+        self._mark()
+        try:
+            return arm.stop_otherwise()
+        except Exception as err:  # noqa: BLE001 (a driver's own: the line must say so)
+            failed = f"the driver's second way to stop failed ({_error(err)})"
+            self.stop_note = "; ".join(c for c in (self.stop_note, failed) if c)
+            return ""
 
     def _send_stop(self, at: Context | None, why: str, cause_ns: int | None = None) -> str:
         """Send the stop (first thing on every abnormal end); remember when it was sent.

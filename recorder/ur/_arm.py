@@ -696,6 +696,21 @@ class URArm:
             )
         return ""
 
+    def stop_otherwise(self) -> str:
+        """Stop the arm by the dashboard server: the URScript stop did not bring it to rest.
+
+        A script connection that takes the bytes but delivers none (half dead: no error, no
+        end) looks like a live one; the dashboard shares no socket with it.
+
+        Raises:
+            SourceLostError: The dashboard's stop failed (no ``dashboard_port``, refused).
+        """
+        link = self.connection
+        if refused := self._dashboard_stop():
+            msg = f"the dashboard's stop failed ({refused})"
+            raise SourceLostError(msg)
+        return f"the dashboard server {link.host}:{link.dashboard_port} took the stop"
+
     def _dashboard_stop(self) -> str:
         """Send the dashboard server ``stop``; return why it failed (empty: it stopped).
 

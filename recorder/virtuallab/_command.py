@@ -58,6 +58,7 @@ _RTDE_FAULTS = {
 #: where a fault starts, and 0 is a time or a count like any other.
 _OFF_AT_ZERO = frozenset(
     {"drop", "duplicate", "reorder", "truncate", "stall", "disconnect", "protective_stop", "gone"}
+    | {"deaf"}
     | {"stop_after"}
 )
 #: The servers faults can be injected into, and the option that serves each.
@@ -155,12 +156,18 @@ def script_faults(faults: dict[str, float]) -> ScriptFaults:
     Raises:
         RecorderError: An unknown URScript fault.
     """
-    unknown = set(faults) - {"protective_stop", "drop", "gone"}
+    unknown = set(faults) - {"protective_stop", "drop", "gone", "deaf"}
     if unknown:
-        msg = f"--fault script.{min(unknown)}: the URScript faults are protective_stop, drop, gone"
+        msg = (
+            f"--fault script.{min(unknown)}: the URScript faults are protective_stop, drop, "
+            "gone, deaf"
+        )
         raise RecorderError(msg)
     return ScriptFaults(
-        faults.get("protective_stop", 0.0), faults.get("drop", 0.0), faults.get("gone", 0.0)
+        faults.get("protective_stop", 0.0),
+        faults.get("drop", 0.0),
+        faults.get("gone", 0.0),
+        faults.get("deaf", 0.0),
     )
 
 
@@ -374,7 +381,7 @@ def _switch_within_a_cycle(frequency: int) -> None:
         metavar="SERVER.NAME=VALUE",
         help="inject a fault (tests): rtde.drop/duplicate/reorder=N, rtde.stall=S, "
         "rtde.disconnect=S, rtde.at_action=S, script.protective_stop=S, script.drop=S, "
-        "script.gone=S, skin.* and ros2.* for those servers (skin.at_action=S, "
+        "script.gone=S, script.deaf=S, skin.* and ros2.* for those servers (skin.at_action=S, "
         "ros2.at_action=S: counted from S s after the first action)",
     ),
     arg("--events", type=Path, default=None, help="write every event as a JSON line (new file)"),

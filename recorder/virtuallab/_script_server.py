@@ -21,7 +21,9 @@ Faults: a protective stop ``protective_stop_s`` (real seconds) after each announ
 begins; the URScript connections closed ``drop_s`` after each announced action begins (a
 switch or cable glitch, a controller dropping a client); the port gone ``gone_s`` after an
 action begins (connections closed, new ones refused: only the dashboard server can stop the
-arm then).
+arm then); the connections deaf ``deaf_s`` after an action begins (open, their programs
+received and never run, nothing said: a half-dead link that forwards nothing, whose stop only
+the dashboard server delivers).
 """
 
 from __future__ import annotations
@@ -111,11 +113,15 @@ class ScriptFaults:
             starts (0: never); the port takes new connections.
         gone_s: Close the port this long (real seconds) after an action starts (0: never):
             its connections are closed and new ones refused.
+        deaf_s: This long (real seconds) after an action starts (0: never), the connections
+            open then take programs and never run them, and say nothing (a half-dead link);
+            new connections work.
     """
 
     protective_stop_s: float = 0.0
     drop_s: float = 0.0
     gone_s: float = 0.0
+    deaf_s: float = 0.0
 
 
 class ScriptServer(TcpServer):
@@ -146,6 +152,9 @@ class ScriptServer(TcpServer):
         self.stops_injected = 0
         self.drops_injected = 0
         self._clients: set[socket.socket] = set()
+        #: Connections gone deaf (``deaf_s``): their programs are received and never run.
+        self._deaf: set[socket.socket] = set()
+        self.deafened = 0
         #: Messages waiting for each client (sent by the client's own thread, whole).
         self._outbox: dict[socket.socket, _Outbox] = {}
         controller.world.on_program(self._started)
@@ -155,6 +164,8 @@ class ScriptServer(TcpServer):
             controller.world.on_action(self._arm_drop)
         if self.faults.gone_s > 0:
             controller.world.on_action(self._arm_gone)
+        if self.faults.deaf_s > 0:
+            controller.world.on_action(self._arm_deaf)
 
     @property
     def programs(self) -> list[str]:
@@ -204,7 +215,9 @@ class ScriptServer(TcpServer):
                 programs, refusals = splitter.feed(chunk.decode(errors="replace"))
                 for refusal in refusals:
                     self._refuse(refusal)
-                for program in programs:
+                with self._lock:
+                    deaf = sock in self._deaf
+                for program in programs if not deaf else ():
                     self.run(program, received)
 
     def state_message(self) -> bytes:
@@ -253,6 +266,7 @@ class ScriptServer(TcpServer):
         finally:
             with self._lock:
                 self._clients.discard(sock)
+                self._deaf.discard(sock)
                 self._outbox.pop(sock, None)
 
     def run(self, text: str, received_ns: int | None = None) -> None:
@@ -290,6 +304,27 @@ class ScriptServer(TcpServer):
         timer = threading.Timer(self.faults.gone_s, self.close_port)
         timer.daemon = True
         timer.start()
+
+    def _arm_deaf(self, _action: tuple[str, str, int]) -> None:
+        """Schedule the connections' going deaf after an action began."""
+        timer = threading.Timer(self.faults.deaf_s, self.deafen_clients)
+        timer.daemon = True
+        timer.start()
+
+    def deafen_clients(self) -> None:
+        """Ignore every program of the connections open now (injected fault)."""
+        with self._lock:
+            fresh = self._clients - self._deaf
+            self._deaf |= fresh
+            self.deafened += len(fresh)
+        if not fresh:
+            return
+        world = self.controller.world
+        world.events_log.add("fault", world.controller_ns(), source="script", fault="deaf")
+        self.controller.note(
+            f"URScript connections deaf ({len(fresh)}: their programs are no longer run; "
+            "injected fault)"
+        )
 
     def close_port(self) -> None:
         """Refuse new connections from now on and close every client's (injected fault)."""
