@@ -46,11 +46,8 @@ def test_a_stop_lost_in_a_deaf_link_is_delivered_by_the_dashboard() -> None:
 
 def test_without_a_dashboard_the_second_way_fails_in_one_line() -> None:
     failed = r"the dashboard's stop failed \(no dashboard_port\)"
-    lab_rig = virtual_lab()
-    with (
-        lab_rig as lab,
-        lab.rig({"wood": POSE}, dashboard_port=0) as rig,
-        pytest.raises(SourceLostError, match=failed),
-    ):
-        assert isinstance(rig.arm, StopsOtherwise)
-        rig.arm.stop_otherwise()
+    with virtual_lab() as lab, lab.rig({"wood": POSE}, dashboard_port=0) as rig:
+        arm = rig.arm
+        assert isinstance(arm, StopsOtherwise)
+        with pytest.raises(SourceLostError, match=failed):
+            arm.stop_otherwise()
