@@ -98,6 +98,9 @@ SKIN_BEHIND_S = 2.0
 SPEED_LEASE_S = 0.5
 #: What a stop between actions asks of a person unless its cause says more.
 CHECK_ARM = "check the arm, then retry"
+#: How far the TCP must move during an approach to count as progress (far above the noise of
+#: its readings, far below what START_S of the slowest approach covers), m.
+_PROGRESS_M = 0.0002
 #: The approach stops this far (m) plus its stopping distance before the workspace's edge.
 _EDGE_M = 0.0005
 #: Controller cycles of reaction counted into that stopping distance (detection to stop).
@@ -477,7 +480,7 @@ class ArmRig:
         # counted in the controller's cycles, not in time: a controller (or a virtual lab) held
         # up by its machine sends nothing meanwhile, and its program starts none the later
         # (and only the cycles since the move was sent: see _State.since)
-        cycles = max(START_S * self.options.time_scale * _NS / self.arm.period_ns, START_CYCLES)
+        cycles = self._start_cycles()
         moved = False
         while not self._reached(target):
             self._pump_quietly()
@@ -493,6 +496,10 @@ class ArmRig:
             if now > limit_ns:
                 msg = f"the arm did not reach the pose of {what} within 1 mm"
                 raise Stop(msg, now)
+
+    def _start_cycles(self) -> float:
+        """Return within how many controller cycles a motion sent must show (see START_S)."""
+        return max(START_S * self.options.time_scale * _NS / self.arm.period_ns, START_CYCLES)
 
     def check_ready(self) -> None:
         """Read the arm's state afresh before an action; refuse an arm that could not start it.
@@ -816,8 +823,12 @@ class ArmRig:
         edge_m = self._approach_edge(start, direction)
         self._check_reach(0.0, edge_m)  # no room to approach at all: nothing moves
         speed = motion.approach_speed(self.skin.nearest())
+        self._mark()
         self._speed(direction, speed, at)
         sent_ns = began_ns = self.clock.now_ns()
+        # an arm that stands still while the approach is sent and renewed: the controller
+        # runs none of the programs (a half-dead link takes them and delivers none)
+        progress = _Progress(start, 0, self._start_cycles())
         # a speed command lasts SPEED_LEASE_S unless renewed: a recorder that stalls (a
         # loaded or hung process) lets the arm move on for that long at most, not the whole way
         renew_ns = round(SPEED_LEASE_S / 2 * scale * _NS)
@@ -837,10 +848,14 @@ class ArmRig:
                 if peak is not None and peak - zero > motion.contact_force_n:
                     break
                 give_up_ns += waited
+                self._mark()
                 self._speed(direction, speed, at)
                 sent_ns = self.clock.now_ns()
+                progress = _Progress(self._state.pose.copy(), 0, progress.cycles)
                 continue
             now = self.clock.now_ns()
+            if progress.stalled(self._state.pose, self._state.since):
+                raise Stop(progress.reason(), now)
             if now > give_up_ns:
                 reason = (
                     f"no light contact within {limit_s:.1f} s of approach: the arm did not "
@@ -1323,6 +1338,39 @@ class ArmRig:
 PRESS_LEASE_S = 5.0
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
+
+
+@dataclass(slots=True)
+class _Progress:
+    """Where the approach last made progress, to tell an arm that stands still while driven.
+
+    Judged on the TCP's position (an approach's slowest speed turns a UR10's joints at a few
+    mrad/s, near the noise of their readings) and counted in the controller's cycles since the
+    command was sent (``_State.since``): a loaded recorder reads queued samples late, and
+    they say nothing of the command.
+    """
+
+    pose: NDArray[np.float64]
+    since: int
+    cycles: float
+
+    def stalled(self, pose: NDArray[np.float64] | None, since: int) -> bool:
+        """Note the TCP's progress; return whether it stood still for :attr:`cycles`."""
+        if pose is None:
+            return False
+        if float(np.linalg.norm(pose[:3] - self.pose[:3])) >= _PROGRESS_M:
+            self.pose, self.since = pose.copy(), since
+            return False
+        return since - self.since > self.cycles
+
+    def reason(self) -> str:
+        """Return the stop's reason."""
+        return (
+            f"the arm stood still for {round(self.cycles)} controller cycles of the approach "
+            "though its speed was sent: the controller runs none of the programs (a URScript "
+            "link that takes them and delivers none, a controller in local control; the "
+            "controller's log says why)"
+        )
 
 
 def _busy_hint() -> str:

@@ -8,13 +8,21 @@ server shares no socket with it.
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 from ur_lab import POSE, virtual_lab
 
+from recorder import ActionStoppedError, load_actions, load_objects, record_action
 from recorder.live import SourceLostError
 from recorder.runner import Context, StopsOtherwise
+from recorder.virtuallab._script_server import ScriptFaults
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+OBJECTS, ACTIONS = load_objects(), load_actions()
 
 APPROACH = Context("wood", "P1", 1, "approach")
 
@@ -51,3 +59,19 @@ def test_without_a_dashboard_the_second_way_fails_in_one_line() -> None:
         assert isinstance(arm, StopsOtherwise)
         with pytest.raises(SourceLostError, match=failed):
             arm.stop_otherwise()
+
+
+def test_an_approach_whose_programs_are_never_run_stops_in_a_second(tmp_path: Path) -> None:
+    # the link goes deaf 0.3 s into the approach: the arm's speed lease runs out and it stands
+    # still while the runner renews the speed into the void; it waited up to the approach's
+    # whole time limit (95 s at a lab's real time), printing nothing
+    with virtual_lab(script_faults=ScriptFaults(deaf_s=0.3)) as lab:
+        lab.world.prepare("wood", "P1", 1)
+        with lab.rig({"wood": POSE}) as rig:
+            assert rig.present(OBJECTS["wood"])
+            with pytest.raises(ActionStoppedError, match="the arm stood still for") as info:
+                record_action(rig, OBJECTS["wood"], ACTIONS["P1"], 1, tmp_path / "001.mcap", seed=0)
+        assert lab.script.deafened == 1
+    said = str(info.value)
+    assert "controller cycles of the approach though its speed was sent" in said, said
+    assert "001.incomplete.mcap" in said
