@@ -539,7 +539,20 @@ class ArmRig:
             # in the controller's cycles, as the start of a motion (see _until_reached)
             cycles = MOVING_WAIT_S * self.options.time_scale * _NS / self.arm.period_ns
             until = self._state.taken + max(cycles, MOVING_WAIT_CYCLES)
+            waited = False
             while (speed := self._joint_speed()) > MOVING_RAD_S or self._busy():
+                if self._state.taken > until and self._busy() and not waited:
+                    # perhaps a press of a recorder that was killed, bringing the arm back by
+                    # itself when its lease ends: waited for, once, moving nothing
+                    waited = True
+                    until = self._state.taken + round(PROGRAM_WAIT_S * _NS / self.arm.period_ns)
+                    print(  # noqa: T201
+                        f"{self.where}: {self._busy()} on the controller: waiting up to "
+                        f"{PROGRAM_WAIT_S:g} s for it to end (a recorder stopped mid-press "
+                        "leaves its press to bring the arm back by itself)",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 if self._state.taken > until:
                     reason = (
                         f"the arm is moving (a joint at {speed:.3f} rad/s: guided by hand, or "
@@ -1336,6 +1349,10 @@ class ArmRig:
 #: How long a press may hold the arm beyond its way there and its hold before the driver brings
 #: it back by itself (a recorder that died mid-press), s: the retract replaces it long before.
 PRESS_LEASE_S = 5.0
+#: How long an action waits, moving nothing, for a program found playing to end before it
+#: refuses, controller seconds: a killed recorder's press returns the arm within its way
+#: there, its hold and PRESS_LEASE_S.
+PROGRAM_WAIT_S = 20.0
 #: How long the end of an action waits for skin samples stamped up to it, s.
 SKIN_DELAY_S = 2.0
 

@@ -27,6 +27,7 @@ from recorder import (
 )
 from recorder.live import SOURCES_RECORD, SourceLostError, parse_source_stats
 from recorder.runner import Motion, check_motion
+from recorder.runner import _runner as runner_module
 from recorder.runner import peak_total as _peak_total
 from recorder.ur import Limits, UROptions, URRig, build_ur_rig
 from recorder.virtuallab._command import parse_faults, rtde_faults, script_faults
@@ -232,7 +233,12 @@ def test_the_reach_to_the_workspaces_edge_along_a_direction() -> None:
     assert box.reach([0.0, 0.0, 0.2], np.zeros(3)) == math.inf
 
 
-def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -> None:
+def test_another_program_running_is_refused_and_never_replaced(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a program found playing is waited for (a killed recorder's press ends by itself), here
+    # 0.3 s of the controller's time, then refused
+    monkeypatch.setattr(runner_module, "PROGRAM_WAIT_S", 0.3)
     path = tmp_path / "wood" / "P1" / "001.mcap"
     with virtual_lab() as lab, lab.rig({"wood": POSE}) as rig:
         # a colleague's program, waiting at the controller: ours would replace it
@@ -252,6 +258,8 @@ def test_another_program_running_is_refused_and_never_replaced(tmp_path: Path) -
     assert ours == []  # nothing of ours was sent: theirs still runs
     assert still == 2
     assert not any(tmp_path.rglob("*.mcap*"))
+    waits = capsys.readouterr().err.count("on the controller: waiting up to 0.3 s for it to end")
+    assert waits == 2  # once for each refusal
 
 
 @pytest.mark.parametrize("name", ["theirs", "atikt_slide_0a0a0a"])
