@@ -666,12 +666,15 @@ class ArmRig:
         at = Context(obj.id, action.id, trial, "approach")
         self._begin()
         self.skin.begin()
+        touching = False  # between the light contact and the retract's end
         try:
             yield from self._pump(0.0)
             yield self._event("approach")
             contact = yield from self._approach(at)
+            touching = True
             yield from self._execute(at, action, contact)
             yield from self._retract(at, contact)
+            touching = False
             yield from self._skin_catch_up(self.clock.now_ns())
         except (Stop, SourceLostError, Exception) as ended:  # noqa: BLE001 (a driver's own)
             # a driver's own exception (a command the vendor library refused) ends the action
@@ -687,7 +690,10 @@ class ArmRig:
             yield from stop.arrived
             if not undelivered:
                 moving = yield from self._until_rest()
-                stop.arm_left = "; ".join(c for c in (self.stop_note, moving) if c)
+                # a stop holds the arm where it found it: on the object, pressed into it
+                # mid-press, until something moves it
+                held = "" if moving or not touching else _held_on(obj.id)
+                stop.arm_left = "; ".join(c for c in (self.stop_note, moving, held) if c)
             yield from self._rest()
             return stop
         except BaseException:  # GeneratorExit, an interrupt, a bug: the arm stops first
@@ -1420,6 +1426,15 @@ def _error(err: BaseException) -> str:
     where = f" at {Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else ""
     text = " ".join(str(err).split()) or "no message"
     return f"{type(err).__name__}: {text}{where}"
+
+
+def _held_on(object_id: str) -> str:
+    """Return what to say of an arm stopped while it touched the object."""
+    return (
+        f"the arm was stopped touching {object_id} (pressing on it, as the stop found it): the "
+        "next action's move lifts it off first; to free the object now, jog the arm up at the "
+        "teach pendant"
+    )
 
 
 def _unconfirmed(speed: float) -> str:

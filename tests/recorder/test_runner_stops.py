@@ -37,6 +37,12 @@ if TYPE_CHECKING:
 
 OBJECT, ACTION = load_objects()["wood"], load_actions()["C1"]
 SLIDE = load_actions()["S1"]
+#: What a stop after the light contact says of the arm.
+HELD = (
+    "the arm was stopped touching wood (pressing on it, as the stop found it): the next "
+    "action's move lifts it off first; to free the object now, jog the arm up at the teach "
+    "pendant"
+)
 #: The largest delay from a cause to the stop, in controller cycles.
 MOST_CYCLES = 2
 
@@ -297,7 +303,8 @@ def test_a_failed_write_stops_the_arm_and_keeps_what_was_written(
     _stopped_in_time(arm, failed["cycle"])
     _kept(path, "No space left on device")
     said = str(info.value)  # the line says the arm stopped and where the data is
-    assert said.endswith(f"; the arm was stopped; what arrived is kept in {_incomplete(path)}")
+    # stopped after the light contact: where the stop found it, on the object
+    assert said.endswith(f"; {HELD}; what arrived is kept in {_incomplete(path)}"), said
     assert "\n" not in said
 
 
@@ -322,7 +329,7 @@ def test_a_disk_too_full_to_finish_the_file_keeps_its_part_and_says_where(
     said = str(info.value)
     assert said.startswith(f"{path}: writing the recording failed (")
     assert "No space left on device" in said
-    assert f"; the arm was stopped; what arrived is kept in {part} (no room to finish it; " in said
+    assert f"; {HELD}; what arrived is kept in {part} (no room to finish it; " in said
     assert arm.stop_cycle is not None
     assert not list(tmp_path.glob("*.mcap"))
 
