@@ -541,9 +541,15 @@ class ArmRig:
             until = self._state.taken + max(cycles, MOVING_WAIT_CYCLES)
             waited = False
             while (speed := self._joint_speed()) > MOVING_RAD_S or self._busy():
-                if self._state.taken > until and self._busy() and not waited:
-                    # perhaps a press of a recorder that was killed, bringing the arm back by
-                    # itself when its lease ends: waited for, once, moving nothing
+                if (
+                    self._state.taken > until
+                    and self._busy()
+                    and not waited
+                    and speed <= MOVING_RAD_S
+                ):
+                    # perhaps a press of a recorder that was killed, holding the arm still and
+                    # bringing it back by itself when its lease ends: waited for, once, moving
+                    # nothing (an arm kept moving is refused: guided by hand, another program)
                     waited = True
                     until = self._state.taken + round(PROGRAM_WAIT_S * _NS / self.arm.period_ns)
                     print(  # noqa: T201
