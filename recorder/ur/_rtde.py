@@ -347,7 +347,12 @@ class RtdeClient:
             if kind == command:
                 return answer
             self._other(kind, answer)
-        msg = f"RTDE {self.where}: no answer to request {chr(command)!r} within the timeout"
+        seconds = self._connect_timeout_s
+        msg = (
+            f"RTDE {self.where}: no answer to request {chr(command)!r} within {seconds:g} s (the "
+            "connection was taken, nothing came back); check that the port is the controller's "
+            "RTDE port (30004), and the network between (a link that forwards one way only)"
+        )
         raise RtdeError(msg)
 
     def _connected(self) -> socket.socket:
