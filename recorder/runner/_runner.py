@@ -462,6 +462,8 @@ class ArmRig:
                 _interrupted(watch.flag, f"while moving to {obj.id}: {arm}")
             left = f"; {said}" if said else ""
             fix = stop.fix if isinstance(stop, Stop) else CHECK_ARM
+            if "check the arm at the teach pendant now" in said and fix == CHECK_ARM:
+                fix = "then retry"  # the arm is a person's to check already
             msg = f"{self.where}: moving to {obj.id}: {stop}{left}; {fix}"
             raise RigError(msg) from None
         except BaseException:

@@ -689,6 +689,8 @@ class URArm:
             if refused:
                 msg = f"{lost}; the dashboard's stop failed ({refused})"
                 raise SourceLostError(msg) from None
+            # the loss is said in the stop's line: the state read next is the arm's, not it
+            self._loss_said = True
             link = self.connection
             return (
                 f"the arm was stopped by the dashboard server {link.host}:"

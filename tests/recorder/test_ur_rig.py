@@ -470,6 +470,9 @@ def test_a_script_port_gone_mid_action_is_stopped_by_the_dashboard(tmp_path: Pat
     assert "(no new URScript connection: cannot connect)" in said, said
     assert "did not reach" not in said
     assert "did not come to rest" not in said
+    # RTDE kept coming: the lost URScript connection, said in the stop's clause, is not the
+    # arm's state stopping (it was said so when the loss had not been raised before the stop)
+    assert "cannot be confirmed" not in said, said
     after = _after_fault(events, "gone")
     assert not [e for e in after if e.kind == "program"]  # no program arrived: the port is gone
     assert any(e.kind == "actual_zero" for e in after)
