@@ -141,6 +141,9 @@ ROBOT_MODE_NAMES = {
 #: How long a new script connection may take when the old one was lost (s): the stop waits
 #: on it.
 RECONNECT_S = 1.0
+#: How long the controller's stream on the script connection may be silent before it is said
+#: (a controller sends its state there ten times a second), s.
+SCRIPT_SILENT_S = 2.0
 #: How long each step of the dashboard's stop (connect, greeting, answer) may take, s.
 DASHBOARD_S = 0.5
 #: The longest dashboard answer said in a message, characters.
@@ -226,6 +229,10 @@ class URArm:
         self.script_bytes = 0
         #: Script connections made again after one was lost.
         self.reconnects = 0
+        #: When the controller last sent on the script connection (monotonic ns; 0: never).
+        self._heard_ns = 0
+        #: Whether the silence of that stream since then was said.
+        self._silence_said = False
         #: Whether :meth:`poll` reported the script connection's loss (once per loss).
         self._loss_said = False
         #: The program of another that started since :meth:`begin` (empty: none), seen by
@@ -358,6 +365,7 @@ class URArm:
                 # acknowledgement, ~25 ms (measured in the virtual lab with Nagle on)
                 sock.setsockopt(socket.IPPROTO_TCP, _QUICKACK, 1)
             self.script_bytes += len(chunk)
+            self._heard_ns = time.monotonic_ns()
             if framed:
                 buffer += chunk
                 framed = self._read_messages(buffer)
@@ -540,6 +548,7 @@ class URArm:
             link = self.connection
             msg = f"URScript connection to {link.host}:{link.script_port} lost ({lost})"
             raise SourceLostError(msg)
+        self._check_heard()
         first = reader.get(wait_s) if wait_s > 0 else None
         packages = ([first] if first is not None else []) + reader.drain()
         samples = []
@@ -548,6 +557,32 @@ class URArm:
             if sample is not None:
                 samples.append(sample)
         return samples
+
+    def _check_heard(self) -> None:
+        """Say once when the controller's stream on the script connection falls silent.
+
+        A controller sends its state there ten times a second; a stream that stops while the
+        connection stays open (a link that forwards one way only) hides the key messages: a
+        program of another client would replace ours unseen (the limits still hold: they are
+        judged on RTDE).
+        """
+        heard = self._heard_ns
+        if not heard:
+            return
+        silent_s = (time.monotonic_ns() - heard) / 1e9
+        if silent_s <= SCRIPT_SILENT_S:
+            self._silence_said = False
+        elif not self._silence_said and self._script is not None and not self._script_lost:
+            self._silence_said = True
+            _log.warning(
+                "%s: the controller's messages on port %d stopped arriving %.1f s ago (it "
+                "sends its state there ten times a second): a program another client starts "
+                "is not seen until they come again; check the network between (a link that "
+                "forwards one way only)",
+                self.where,
+                self.connection.script_port,
+                silent_s,
+            )
 
     def _parse(self, package: Received, *, count: bool = True) -> dict[str, Any] | None:
         """Return a package's values; None (counted as malformed) when it cannot be used."""
