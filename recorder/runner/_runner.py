@@ -1302,13 +1302,16 @@ class ArmRig:
             silence = round(self.options.silence_s * _NS)
             last_arm = max(self._state.receive_ns, self._begun_ns)
             last_skin = max(self.skin.last_receive_ns() or 0, self._begun_ns)
+            # a busy computer delays every source; one source silent while the other kept
+            # arriving is that source's link or device, whatever the machine's load
             if read - last_arm > silence:
-                reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s{_busy_hint()}"
+                reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
+                reason += _busy_hint() if read - last_skin > silence // 2 else _ONLY_ARM
             elif read - last_skin > silence:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
                 if isinstance(self.skin, ExplainingSkin) and (hint := self.skin.silence_hint()):
                     reason += f" ({hint})"
-                reason += _busy_hint()
+                reason += _busy_hint() if read - last_arm > silence // 2 else ""
                 fix = (
                     "check that the skin sends (the dry run lists each source) and the rig "
                     "configuration's [skin], then retry"
@@ -1402,6 +1405,10 @@ class _Progress:
             "link that takes them and delivers none, a controller in local control; the "
             "controller's log says why)"
         )
+
+
+#: What an arm's silence says when the skin kept sending meanwhile (the computer read it).
+_ONLY_ARM = " (the skin kept sending meanwhile: the arm's link or controller, not this computer)"
 
 
 def _busy_hint() -> str:

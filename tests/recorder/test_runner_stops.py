@@ -123,18 +123,36 @@ def test_silence_sends_the_stop_once_the_source_is_silent_too_long(tmp_path: Pat
 
 
 @pytest.mark.parametrize("load", [0.5, 40.0])
+@pytest.mark.parametrize("skin_too", [True, False])
 def test_silence_on_a_busy_computer_says_so(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, load: float
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    load: float,
+    skin_too: bool,  # noqa: FBT001
 ) -> None:
-    # a computer too busy to read its sources makes them look silent: the line says so
-    # rather than only blaming the source and its settings
+    # a computer too busy to read its sources makes them all look silent: the line says so
+    # rather than only blaming the source and its settings; a skin that kept arriving shows
+    # the computer read it, and the arm's link is blamed whatever the load (a reset link)
     monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
     rig = fake_rig("silence")
+    arm: FakeArm = rig.arm  # type: ignore[assignment]
+    skin: FakeSkin = rig.skin  # type: ignore[assignment]
+    if skin_too:  # the skin falls silent with the arm: its last arrival stays where it was
+        heard, last = skin.last_receive_ns, [0]
+
+        def frozen() -> int | None:
+            if arm.cause_cycle is None:
+                last[0] = heard() or 0
+            return last[0]
+
+        monkeypatch.setattr(skin, "last_receive_ns", frozen)
     with rig, pytest.raises(ActionStoppedError) as info:
         record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
+    said = str(info.value)
     busy = f"(this computer is busy: load average {load:.1f} on {os.cpu_count()} cores"
-    assert (busy in str(info.value)) == (load > 1.5 * (os.cpu_count() or 1)), str(info.value)
-    assert "arm state silent for " in str(info.value)
+    assert (busy in said) == (skin_too and load > 1.5 * (os.cpu_count() or 1)), said
+    assert ("(the skin kept sending meanwhile: the arm's link" in said) == (not skin_too), said
+    assert "arm state silent for " in said
 
 
 @pytest.mark.parametrize(
