@@ -17,7 +17,7 @@ recorders are set aside with a line, and a directory of another seed or rig conf
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +31,7 @@ from recorder._dataset import (
 )
 from recorder._rig import Presenting, facts, source_stats
 from recorder.errors import RecorderError
-from recorder.live import SensingSkin
+from recorder.live import ReportingSkin, SensingSkin, SkinFinding
 from recorder.runner._limits import check_action
 from recorder.runner._record import check_room, record_action
 from recorder.runner._runner import ArmRig
@@ -246,6 +246,10 @@ class RigCheck:
         facts: What the rig learned on connecting (e.g. the controller's version).
         sources: The accounting of the arm's and the skin's sources over the check.
         window_ns: How long the streams were watched, on the recorder's clock (0: unknown).
+        findings: What the skin counted and left out over the check that needs a fix
+            (another sender, a frame type off its ``rate_hz``, malformed frames); a blocking
+            one makes the rig not ready.
+        origins: Where each source's samples came from, by source name (the skin's sender).
     """
 
     by_rig: tuple[str, ...]
@@ -253,6 +257,8 @@ class RigCheck:
     facts: Mapping[str, str]
     sources: tuple[SourceStats, ...]
     window_ns: int = 0
+    findings: tuple[SkinFinding, ...] = ()
+    origins: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def lossy(self) -> tuple[str, ...]:
@@ -271,8 +277,13 @@ class RigCheck:
 
     @property
     def ready(self) -> bool:
-        """Whether the run's recordings could pass ``check``: no loss, no silent source."""
-        return not self.lossy and not self.silent
+        """Whether the run's recordings could pass ``check`` and hold what the skin sent.
+
+        No loss, no silent source, and no blocking finding (frames of two senders at the
+        skin's port, a frame type off its ``rate_hz``): ``check`` cannot see those.
+        """
+        blocked = any(finding.blocking for finding in self.findings)
+        return not self.lossy and not self.silent and not blocked
 
     def _due(self, source: SourceStats) -> float:
         """Samples of ``source`` due in the check by its nominal period (0: unknown)."""
@@ -283,7 +294,9 @@ class RigCheck:
 
         A source that sent nothing is refused when its rate says that the check should have
         seen some of its samples; otherwise it is said, not refused: one slower than the check
-        (a thermal sensor at 0.5 Hz) sends nothing in it.
+        (a thermal sensor at 0.5 Hz) sends nothing in it. Each source says where its samples
+        came from when it is known (the skin's sender); the skin's findings follow, one line
+        each.
         """
         learned = ", ".join(f"{key} {value}" for key, value in self.facts.items())
         wrong = [f"{', '.join(self.lossy)} lost samples"] if self.lossy else []
@@ -292,6 +305,7 @@ class RigCheck:
             wrong.append(f"{', '.join(nothing)} sent nothing")
         if garbled := [name for name in self.silent if name in malformed]:
             wrong.append(f"{', '.join(garbled)} sent only malformed frames")
+        wrong += [finding.short for finding in self.findings if finding.blocking]
         state = f"not ready: {'; '.join(wrong)}" if wrong else "ready"
         objects = (
             f"objects presented by the rig: {', '.join(self.by_rig) or '-'}; placed by hand: "
@@ -312,7 +326,10 @@ class RigCheck:
                 said = "nothing in the check's second (a source that slow is not checked here)"
                 if (due := self._due(source)) >= DUE_SAMPLES:
                     said = f"nothing, {due:.0f} due at its rate: check it and its configuration"
-            lines.append(f"  {source.name}: {source.received} received, {said}")
+            origin = self.origins.get(source.name)
+            whence = f" from {origin}" if origin and source.received else ""
+            lines.append(f"  {source.name}: {source.received} received{whence}, {said}")
+        lines += [finding.line for finding in self.findings]
         return lines
 
 
@@ -362,6 +379,8 @@ def check_rig_ready(
     # a rig that does not present (the simulator) needs nobody: every object is the rig's
     by_rig = [o.id for o in objects if not isinstance(rig, Presenting) or rig.can_present(o)]
     window_ns = 0
+    findings: tuple[SkinFinding, ...] = ()
+    origins: dict[str, str] = {}
     with rig:
         if isinstance(rig, ArmRig):
             for action in actions:
@@ -372,10 +391,14 @@ def check_rig_ready(
             rig.check_ready()
             rig.watch(seconds)
             window_ns = round(seconds * rig.options.time_scale * 1e9)  # as watch() counts it
+            if isinstance(rig.skin, ReportingSkin):
+                findings = tuple(rig.skin.findings())
+                if origin := rig.skin.origin():
+                    origins = {source.name: origin for source in rig.skin.stats()}
         learned = dict(facts(rig))
         sources = tuple(source_stats(rig))
     by_hand = tuple(o.id for o in objects if o.id not in by_rig)
-    return RigCheck(tuple(by_rig), by_hand, learned, sources, window_ns)
+    return RigCheck(tuple(by_rig), by_hand, learned, sources, window_ns, findings, origins)
 
 
 def check_session(

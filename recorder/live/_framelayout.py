@@ -203,9 +203,11 @@ class SkinLayout:
         name: The source name prefix (``skin``; ``skin-<frame>`` with several frame types).
         receive_buffer: UDP socket receive buffer, bytes (SO_RCVBUF).
         where: The configuration file, for messages.
-        sender: UDP: the only address whose datagrams are taken (empty: any). Datagrams from
-            another address are dropped and counted as malformed (another rig's skin sending
-            to the same port, stray traffic); they never keep a silent skin from being seen.
+        sender: UDP: the only address whose datagrams are taken, ``host`` or ``host:port``
+            (empty: the first address that sends a valid frame, see
+            :class:`recorder.live.UdpSkin`). Datagrams from another address are dropped and
+            counted as malformed (another rig's skin sending to the same port, stray traffic);
+            they never keep a silent skin from being seen.
     """
 
     transport: str
@@ -339,20 +341,28 @@ def _address(table: _Table, key: str, default: str) -> tuple[str, int]:
 
 
 def _sender(table: _Table) -> str:
-    """Return the ``sender`` address (empty: datagrams from any address are taken)."""
+    """Return the ``sender`` address, ``host`` or ``host:port`` (empty: not given).
+
+    A port tells apart two senders on one computer (a skin and a replay on its loopback).
+    """
     text = table.get("sender", "")
     if text == "":
         return ""
-    fix = 'give the skin\'s IP address, e.g. "192.168.1.20"'
+    fix = 'give the skin\'s IP address, e.g. "192.168.1.20" or "192.168.1.20:5006"'
     if not isinstance(text, str):
         table.fail("sender", text, fix)
+    host, port = text, ""
+    if text.count(":") == 1:  # an IPv4 address with its port (an IPv6 address has more)
+        host, _, port = text.partition(":")
+        if not port.isdigit() or not 0 < int(port) < 65536:  # noqa: PLR2004 (the port range)
+            table.fail("sender", text, "give the skin's port as 1..65535, or leave it out")
     try:
-        address = ipaddress.ip_address(text)
+        address = ipaddress.ip_address(host)
     except ValueError:
         table.fail("sender", text, fix)
     if address.version != 4:  # noqa: PLR2004 (the skin's socket is IPv4)
         table.fail("sender", text, "give an IPv4 address: the skin's UDP socket is IPv4")
-    return str(address)
+    return f"{address}:{int(port)}" if port else str(address)
 
 
 def _field(table: _Table, *, counter: bool) -> Field:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 from recorder.errors import RigError
@@ -107,6 +108,42 @@ class ExplainingSkin(Protocol):
 
     def silence_hint(self) -> str:
         """Return what it knows of its silence, one clause ('': nothing to add)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class SkinFinding:
+    """Something a skin counted and left out that a person should fix, said in one line.
+
+    Attributes:
+        line: What was counted, where it came from, and the fix (naming the configuration
+            file, the key and its value).
+        blocking: Whether a dry run is not ready for it: the recordings could hold another
+            sender's frames instead of the skin's, or place the frames on a wrong time base
+            (``check`` sees neither). Otherwise it is said only (every valid frame is kept).
+        short: A clause for the dry run's ``rig: not ready: ...`` (blocking findings).
+    """
+
+    line: str
+    blocking: bool = False
+    short: str = ""
+
+
+@runtime_checkable
+class ReportingSkin(Protocol):
+    """A live skin that judges what it counted since :meth:`LiveSkin.begin`.
+
+    The UDP and serial skins (:class:`recorder.live.FrameSkin`) say their findings once
+    per action, when it ends (:meth:`LiveSkin.finish`); a dry run shows them with the
+    sources and is not ready for a blocking one.
+    """
+
+    def origin(self) -> str:
+        """Return where the skin's frames are taken from (``host:port``; '': not known)."""
+        ...
+
+    def findings(self) -> list[SkinFinding]:
+        """Return what was counted and left out since ``begin`` that needs a fix."""
         ...
 
 

@@ -234,7 +234,8 @@ def check_gaps(
             return (
                 f"{path}: {modality} pauses {steps[worst] / _NS_PER_S:.3f} s at "
                 f"{int(inside[worst])} ns inside the execute phase; the live sources counted "
-                f"it ({explained}), no sample was lost"
+                f"it ({explained}), no sample they sent was lost, but the action has no "
+                f"{modality} there: record it again if that part matters"
             )
         if steps[worst] > MAX_GAP_PERIODS * series.period_ns:
             msg = (
