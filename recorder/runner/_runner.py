@@ -98,6 +98,11 @@ SKIN_BEHIND_S = 2.0
 SPEED_LEASE_S = 0.5
 #: What a stop between actions asks of a person unless its cause says more.
 CHECK_ARM = "check the arm, then retry"
+#: How long an approach's arm may stand still while its speed is sent before the controller is
+#: taken to run none of the programs, controller seconds (and at least START_S of action time):
+#: a virtual lab on a loaded machine starts a program a few hundred ms late, and a dead link
+#: costs these seconds, not the approach's whole time limit.
+STALL_S = 2.0
 #: How far the TCP must move during an approach to count as progress (far above the noise of
 #: its readings, far below what START_S of the slowest approach covers), m.
 _PROGRESS_M = 0.0002
@@ -499,6 +504,11 @@ class ArmRig:
                 msg = f"the arm did not reach the pose of {what} within 1 mm"
                 raise Stop(msg, now)
 
+    def _progress(self, pose: NDArray[np.float64]) -> _Progress:
+        """Watch an approach's progress from ``pose`` (see :data:`STALL_S`)."""
+        stall = max(self._start_cycles(), STALL_S * _NS / self.arm.period_ns)
+        return _Progress(pose.copy(), 0, stall)
+
     def _start_cycles(self) -> float:
         """Return within how many controller cycles a motion sent must show (see START_S)."""
         return max(START_S * self.options.time_scale * _NS / self.arm.period_ns, START_CYCLES)
@@ -855,7 +865,7 @@ class ArmRig:
         sent_ns = began_ns = self.clock.now_ns()
         # an arm that stands still while the approach is sent and renewed: the controller
         # runs none of the programs (a half-dead link takes them and delivers none)
-        progress = _Progress(start, 0, self._start_cycles())
+        progress = self._progress(start)
         # a speed command lasts SPEED_LEASE_S unless renewed: a recorder that stalls (a
         # loaded or hung process) lets the arm move on for that long at most, not the whole way
         renew_ns = round(SPEED_LEASE_S / 2 * scale * _NS)
@@ -878,7 +888,7 @@ class ArmRig:
                 self._mark()
                 self._speed(direction, speed, at)
                 sent_ns = self.clock.now_ns()
-                progress = _Progress(self._state.pose.copy(), 0, progress.cycles)
+                progress = self._progress(self._state.pose)
                 continue
             now = self.clock.now_ns()
             if progress.stalled(self._state.pose, self._state.since):
@@ -1306,7 +1316,7 @@ class ArmRig:
             # arriving is that source's link or device, whatever the machine's load
             if read - last_arm > silence:
                 reason = f"arm state silent for {(read - last_arm) / _NS:.2f} s"
-                reason += _busy_hint() if read - last_skin > silence // 2 else _ONLY_ARM
+                reason += _busy_hint() if read - last_skin > silence // 2 else _only_arm()
             elif read - last_skin > silence:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
                 if isinstance(self.skin, ExplainingSkin) and (hint := self.skin.silence_hint()):
@@ -1407,8 +1417,29 @@ class _Progress:
         )
 
 
-#: What an arm's silence says when the skin kept sending meanwhile (the computer read it).
-_ONLY_ARM = " (the skin kept sending meanwhile: the arm's link or controller, not this computer)"
+def _only_arm() -> str:
+    """Return what an arm's silence says when the skin's frames kept arriving meanwhile.
+
+    This computer read the skin, so the arm's link or controller comes first; a controller on
+    this computer (a virtual lab) is slowed by its load too, which is then said as well.
+    """
+    load = _load()
+    busy = (
+        f"; this computer is busy too: load average {load[0]:.1f} on {load[1]} cores"
+        if load
+        else ""
+    )
+    return f" (the skin kept sending meanwhile: look at the arm's link and controller first{busy})"
+
+
+def _load() -> tuple[float, int] | None:
+    """Return this computer's load average and cores when it is overloaded (None: it is not)."""
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not on this system
+        return None
+    cores = os.cpu_count() or 1
+    return (load, cores) if load > 1.5 * cores else None
 
 
 def _busy_hint() -> str:
@@ -1417,15 +1448,10 @@ def _busy_hint() -> str:
     A source is silent also when the computer running the recorder (or a virtual lab beside
     it) is too busy to read it: the line then says so, not only the source and its settings.
     """
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):  # not on this system
-        return ""
-    cores = os.cpu_count() or 1
-    if load <= 1.5 * cores:
+    if (load := _load()) is None:
         return ""
     return (
-        f" (this computer is busy: load average {load:.1f} on {cores} cores, which delays "
+        f" (this computer is busy: load average {load[0]:.1f} on {load[1]} cores, which delays "
         "what arrives; stop other work, or raise silence_s)"
     )
 

@@ -150,8 +150,10 @@ def test_silence_on_a_busy_computer_says_so(
         record_action(rig, OBJECT, ACTION, 1, tmp_path / "001.mcap", seed=0)
     said = str(info.value)
     busy = f"(this computer is busy: load average {load:.1f} on {os.cpu_count()} cores"
-    assert (busy in said) == (skin_too and load > 1.5 * (os.cpu_count() or 1)), said
-    assert ("(the skin kept sending meanwhile: the arm's link" in said) == (not skin_too), said
+    loaded = load > 1.5 * (os.cpu_count() or 1)
+    assert (busy in said) == (skin_too and loaded), said
+    assert ("(the skin kept sending meanwhile: look at the arm's link" in said) == (not skin_too)
+    assert ("; this computer is busy too: load average 40.0" in said) == (loaded and not skin_too)
     assert "arm state silent for " in said
 
 
