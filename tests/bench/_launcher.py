@@ -17,6 +17,7 @@ ended it, as ``subprocess`` reports it). End of input ends the launcher.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import os
 import runpy
@@ -88,9 +89,17 @@ def _answer(message: dict[str, int]) -> None:
 
 
 def main() -> None:
-    """Import :data:`PRELOAD`, then fork one child per request line until the input ends."""
+    """Import :data:`PRELOAD`, then fork one child per request line until the input ends.
+
+    What was imported is frozen out of the garbage collector (``gc.freeze``, as Python's
+    documentation advises before forking): a child's collections, and the one at its exit,
+    would otherwise walk every object of the preloaded libraries, about 0.35 s of CPU per
+    script (a quick run takes 0.4-5 s); the child's own objects are collected as usual.
+    """
     for name in PRELOAD:
         __import__(name)
+    gc.collect()
+    gc.freeze()
     _answer({"ready": 1})
     for line in sys.stdin:
         request = json.loads(line)

@@ -76,16 +76,26 @@ def test_a_subcommand_is_one_registered_function(
     assert capsys.readouterr().out == "hello hello world\n"
 
 
-def test_python_dash_m_replay_is_the_same_program() -> None:
-    done = subprocess.run(
+@pytest.fixture(scope="module")
+def replay_help() -> subprocess.CompletedProcess[str]:
+    """``python -m replay --help``, run once for the tests that read it."""
+    return subprocess.run(
         [sys.executable, "-m", "replay", "--help"], capture_output=True, text=True, check=False
     )
+
+
+def test_python_dash_m_replay_is_the_same_program(
+    replay_help: subprocess.CompletedProcess[str],
+) -> None:
+    done = replay_help
     assert done.returncode == 0
     assert "info" in done.stdout
     assert "check" in done.stdout
 
 
-def test_a_command_of_its_own_starts_without_the_learner() -> None:
+def test_a_command_of_its_own_starts_without_the_learner(
+    replay_help: subprocess.CompletedProcess[str],
+) -> None:
     # `check` and `info` read recordings: the learner (atikt, scipy) is not imported for them,
     # every other command (and --help, which lists them all) still finds its module
     recording = Path(__file__).parents[2] / "recordings/data/soft_sponge/P1/001.mcap"
@@ -98,7 +108,5 @@ def test_a_command_of_its_own_starts_without_the_learner() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=False
     )
     assert done.stdout.splitlines()[-1] == "0 False False", done.stdout + done.stderr
-    listed = subprocess.run(
-        [sys.executable, "-m", "replay", "--help"], capture_output=True, text=True, check=False
-    )
+    listed = replay_help
     assert all(name in listed.stdout for name in ("learn", "study", "features", "view"))
