@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 from fake_arm import FakeArm
+from skinframes import poll_until
 
 from recorder.live import Received, RecorderClock
 from recorder.live._framelayout import parse_layout
@@ -24,7 +25,6 @@ from recorder.live._frames import UdpSkin
 from recorder.runner import ArmRig, Limits, RunnerOptions
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
     from pathlib import Path
 
     import pytest
@@ -106,15 +106,6 @@ class _Sender(threading.Thread):
         self.socket.close()
 
 
-def _until(skin: UdpSkin, done: Callable[[], bool], timeout_s: float = 2.0) -> list[SkinBlock]:
-    blocks: list[SkinBlock] = []
-    deadline = time.monotonic() + timeout_s
-    while not done() and time.monotonic() < deadline:
-        blocks += skin.poll()
-        time.sleep(0.005)
-    return blocks
-
-
 def _values(blocks: list[SkinBlock]) -> set[float]:
     return {float(v) for block in blocks for v in np.asarray(block.data).ravel()}
 
@@ -128,9 +119,9 @@ def test_a_second_sender_is_counted_by_its_address_and_never_written(
     with UdpSkin(parse_layout(_layout(), "lab.toml"), RecorderClock()) as skin:
         skin.begin()
         with _Sender(skin.address, 1000, 1.0) as ours:
-            blocks = _until(skin, lambda: skin.stats()[0].received > 50)
+            blocks = poll_until(skin, lambda: skin.stats()[0].received > 50, 2.0)
             with _Sender(skin.address, 1000, 2.0, first=20_000) as theirs:
-                blocks += _until(skin, lambda: theirs.sent > 300)
+                blocks += poll_until(skin, lambda: theirs.sent > 300, 2.0)
             time.sleep(0.05)
         time.sleep(0.05)
         blocks += skin.finish()
@@ -158,7 +149,7 @@ def test_a_sender_with_its_port_takes_only_that_port() -> None:
             skin.begin()
             ours.target = skin.address
             with _Sender(skin.address, 1000, 2.0):  # sends first as often as not
-                blocks = _until(skin, lambda: skin.stats()[0].received > 200)
+                blocks = poll_until(skin, lambda: skin.stats()[0].received > 200, 2.0)
             blocks += skin.finish()
     assert _values(blocks) == {1.0}
     assert skin.origin() == ours.address
@@ -295,3 +286,23 @@ def test_many_frames_out_of_range_in_an_action_are_said_with_their_cause(
             "out); fix rate_hz (or the skin's rate)"
         )
     ]
+
+
+def test_a_rate_off_without_frames_left_out_is_left_to_the_dry_run(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Frames stamped at the skin's rate_hz but read in bursts (a busy computer) measure a
+    rate off rate_hz over one action: nothing was left out, so the action's end says
+    nothing; the dry run (which judges the rate) still names it."""
+    skin = UdpSkin(parse_layout(_layout(rate_hz=1000), "lab.toml"), RecorderClock())
+    start = time.monotonic_ns()
+    payloads = _frames(np.arange(1000), 1000, 1.0)  # 1 kHz stamps, received twice as fast
+    items = [Received(start + i * 500_000, p) for i, p in enumerate(payloads)]
+    skin.begin()
+    for at in range(0, len(items), 100):
+        skin._consume(items[at : at + 100])
+    stats = skin.stats()[0]
+    assert [f.short for f in skin.findings()], "the dry run's judgement names the rate"
+    skin.finish()
+    assert stats.out_of_range == 0, stats
+    assert capsys.readouterr().err == ""
