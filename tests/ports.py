@@ -33,6 +33,12 @@ def _block() -> range:
     return range(FIRST + index * BLOCK, FIRST + (index + 1) * BLOCK)
 
 
+#: How long a probe listens for datagrams sent to a port nobody has bound, s: a sender left
+#: running (a lab process that outlived its test) would mix its frames into the next skin
+#: bound there; a skin's fastest frames come every millisecond.
+QUIET_S = 0.005
+
+
 def _free(port: int) -> bool:
     for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
         with socket.socket(socket.AF_INET, kind) as probe:
@@ -40,6 +46,13 @@ def _free(port: int) -> bool:
                 probe.bind(("127.0.0.1", port))
             except OSError:
                 return False
+            if kind == socket.SOCK_DGRAM:
+                probe.settimeout(QUIET_S)
+                try:
+                    probe.recv(1)
+                except TimeoutError:
+                    continue
+                return False  # something sends to this port
     return True
 
 
