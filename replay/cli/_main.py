@@ -601,7 +601,28 @@ def _accounting_verdict(recording: Any) -> tuple[str | None, str | None]:  # noq
     if not counted:
         return None, None
     pause = check_gaps(path, recording.phase_range("execute"), recording.signals, counted)
-    return None, pause or f"{path}: live sources counted ({counted})"
+    if pause:
+        return None, pause
+    return None, (
+        f"{path}: live sources counted ({counted}) and left it out, no valid sample lost: the "
+        f"recording is usable; {_counted_fix(recording.sources)}"
+    )
+
+
+def _counted_fix(sources: Sequence[Any]) -> str:
+    """Return what to look at for what the live sources counted without loss (one clause)."""
+    fixes = {
+        "malformed": "malformed: check the source's layout (for a skin, [skin] in the rig "
+        "configuration against its firmware) and its link",
+        "out_of_range": "stamped out of range: check the source's clock (rate_hz, unit_ns)",
+        "counter_resets": "counter resets: the source restarted during the action",
+        "duplicated": "duplicated or out of order: the transport repeats or reorders",
+        "out_of_order": "duplicated or out of order: the transport repeats or reorders",
+        "gaps": "gaps: the publisher paused",
+        "unaligned": "left out of the rows: a cell's samples came without the others'",
+    }
+    said = dict.fromkeys(fixes[kind] for kind in fixes if any(getattr(s, kind) for s in sources))
+    return "; ".join(said) or "nothing to fix"
 
 
 def _incomplete(root: Path) -> list[str]:

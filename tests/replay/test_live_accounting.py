@@ -83,6 +83,9 @@ def test_counted_without_loss_is_a_warning(
     assert "1 of 1 recordings valid" in captured.out
     assert "WARN" in captured.err
     assert "1 duplicated, 2 malformed, 1 gap (" in captured.err
+    said = " ".join(captured.err.split())  # the console wraps long lines
+    assert "no valid sample lost: the recording is usable; malformed: check the source's" in said
+    assert "duplicated or out of order: the transport repeats or reorders; gaps: the" in said
 
 
 def test_complete_sources_give_no_warning(
