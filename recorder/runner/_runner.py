@@ -1321,7 +1321,7 @@ class ArmRig:
                 reason = f"skin silent for {(read - last_skin) / _NS:.2f} s"
                 if isinstance(self.skin, ExplainingSkin) and (hint := self.skin.silence_hint()):
                     reason += f" ({hint})"
-                reason += _busy_hint() if read - last_arm > silence // 2 else ""
+                reason += _busy_hint() if read - last_arm > silence // 2 else _only_skin()
                 fix = (
                     "check that the skin sends (the dry run lists each source) and the rig "
                     "configuration's [skin], then retry"
@@ -1430,6 +1430,18 @@ def _only_arm() -> str:
         else ""
     )
     return f" (the skin kept sending meanwhile: look at the arm's link and controller first{busy})"
+
+
+def _only_skin() -> str:
+    """Return what a skin's silence adds while the arm's state kept arriving: the load.
+
+    The skin's link or device comes first (the fix says so); a skin sent from this computer
+    (a virtual lab, a replay) is slowed by its load too, which is then said (empty: not busy).
+    """
+    load = _load()
+    if load is None:
+        return ""
+    return f" (this computer is busy too: load average {load[0]:.1f} on {load[1]} cores)"
 
 
 def _load() -> tuple[float, int] | None:

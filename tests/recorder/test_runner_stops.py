@@ -631,8 +631,13 @@ def test_the_room_an_action_asks_for_grows_with_its_recordings(
     assert sorted(f.name for f in action.iterdir()) == ["001.mcap"]
 
 
-def test_a_silent_skin_refuses_the_move_to_an_object_before_it_is_sent() -> None:
-    # a skin on the wrong port or address: found before the arm moves, named as the skin
+@pytest.mark.parametrize("load", [0.5, 40.0])
+def test_a_silent_skin_refuses_the_move_to_an_object_before_it_is_sent(
+    monkeypatch: pytest.MonkeyPatch, load: float
+) -> None:
+    # a skin on the wrong port or address: found before the arm moves, named as the skin;
+    # on an overloaded computer (a virtual lab's skin beside a test suite) the load is said too
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
     rig = fake_rig()
     skin: FakeSkin = rig.skin  # type: ignore[assignment]
     arm: FakeArm = rig.arm  # type: ignore[assignment]
@@ -643,6 +648,8 @@ def test_a_silent_skin_refuses_the_move_to_an_object_before_it_is_sent() -> None
     said = str(info.value)
     assert not [name for _, name in arm.commands if not name.startswith("stop")], arm.commands
     assert said.startswith("fake.toml: the arm cannot move to wood: skin silent for "), said
+    busy = f"(this computer is busy too: load average 40.0 on {os.cpu_count()} cores)"
+    assert (busy in said) == (load > 1.5 * (os.cpu_count() or 1)), said
     assert said.endswith(
         "; check that the skin sends (the dry run lists each source) and the rig "
         "configuration's [skin], then retry"
