@@ -604,8 +604,8 @@ def _accounting_verdict(recording: Any) -> tuple[str | None, str | None]:  # noq
     if pause:
         return None, pause
     return None, (
-        f"{path}: live sources counted ({counted}) and left it out, no valid sample lost: the "
-        f"recording is usable; {_counted_fix(recording.sources)}"
+        f"{path}: live sources counted ({counted}), no valid sample lost: the recording is "
+        f"usable; {_counted_fix(recording.sources)}"
     )
 
 
