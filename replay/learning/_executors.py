@@ -136,7 +136,9 @@ def _trials(recorded: Mapping[Pair, list[int]], obj: str, action: str) -> list[i
     if len(trials) < 2:  # noqa: PLR2004
         msg = (
             f"object {str(obj)!r}, action {str(action)!r}: {len(trials)} usable recording(s); "
-            "a run needs >= 2 (one to learn, one to test); record more trials"
+            "a run needs >= 2 (one to learn, one to test); record more trials of it, or leave "
+            f"it out (--actions without {str(action)!r}, or --new and --priors without "
+            f"{str(obj)!r})"
         )
         raise ReplayError(msg)
     return trials

@@ -153,3 +153,19 @@ def test_defaults_named_by_users_are_shown(capsys: pytest.CaptureFixture[str]) -
             assert fragment in text, (command, fragment)
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.startswith("atikt-replay ")
+
+
+def test_an_object_without_an_action_says_both_ways_on() -> None:
+    """A lab's dataset without one (object, action): more trials, or the run without it."""
+    from replay.errors import ReplayError  # noqa: PLC0415
+    from replay.learning._executors import _trials  # noqa: PLC0415
+
+    recorded = {("foam_block", "P1"): [1, 2], ("foam_block", "S2"): [3]}
+    assert _trials(recorded, "foam_block", "P1") == [1, 2]
+    with pytest.raises(ReplayError) as refused:
+        _trials(recorded, "foam_block", "S2")
+    assert str(refused.value) == (
+        "object 'foam_block', action 'S2': 1 usable recording(s); a run needs >= 2 (one to "
+        "learn, one to test); record more trials of it, or leave it out (--actions without "
+        "'S2', or --new and --priors without 'foam_block')"
+    )
