@@ -76,10 +76,13 @@ def catalog_ids(text: str) -> list[str]:
     """Parse a comma-separated list of catalog ids.
 
     Raises:
-        argparse.ArgumentTypeError: An id is given twice (a session would record it once:
-            more trials are ``--trials``).
+        argparse.ArgumentTypeError: No id (an empty list would record nothing), or an id is
+            given twice (a session would record it once: more trials are ``--trials``).
     """
     names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        msg = f"{text!r}: no id; give comma-separated ids (e.g. wood,foam_block)"
+        raise argparse.ArgumentTypeError(msg)
     if twice := sorted({name for name in names if names.count(name) > 1}):
         msg = f"{text}: {', '.join(twice)} given twice; name each once (more trials: --trials)"
         raise argparse.ArgumentTypeError(msg)

@@ -32,6 +32,8 @@ CASES: list[tuple[str, str]] = [
     # recorded once, silently, before: a name given twice is a slip, more trials are --trials
     (_DATASET + " --objects wood,wood", "wood,wood: wood given twice; name each once (more"),
     (_DATASET + " --actions P1,S1,P1", "argument --actions: P1,S1,P1: P1 given twice"),
+    # an empty list recorded nothing and said so as a success
+    (_DATASET + " --objects ,", "argument --objects: ',': no id; give comma-separated ids"),
     (_DATASET + " --seed 1", "holds recordings of seed 0"),
     (_DATASET + " --seed 1", "give another --out, or --seed 0 to resume it"),
     (_DATASET + " --rig nosuch", "--rig nosuch: unknown rig"),
