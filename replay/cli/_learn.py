@@ -105,8 +105,16 @@ def _check_names_early(root: Path, args: argparse.Namespace) -> None:
     quarantined).
 
     Raises:
-        ReplayError: A name is not in the dataset.
+        ReplayError: A name is not in the dataset, or an option names no id.
     """
+    for option, text in (
+        ("--new", args.new),
+        ("--priors", args.priors),
+        ("--actions", getattr(args, "actions", None)),
+    ):
+        if text is not None and not _ids(text):  # not the default: a slip
+            msg = f"{option} {text!r}: no id; give comma-separated ids, or leave {option} out"
+            raise ReplayError(msg)
     parts = [p.relative_to(root).parts for p in dataset_recordings(root)]
     objects = sorted({p[0] for p in parts if len(p) == 3})  # noqa: PLR2004 (the layout)
     actions = sorted({p[1] for p in parts if len(p) == 3})  # noqa: PLR2004

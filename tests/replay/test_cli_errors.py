@@ -63,6 +63,8 @@ CASES: list[tuple[str, str]] = [
     ("study transfer --recordings {data} --out {taken}", "add --force to replace it"),
     ("study transfer --recordings {data} --actions S9", "--actions S9: not in the dataset"),
     ("study transfer --recordings {data} --new woood", "--new woood: not in the dataset"),
+    ("study transfer --recordings {data} --actions ,", "--actions ',': no id; give comma-"),
+    ("learn --recordings {data} --new ,,", "--new ',,': no id; give comma-separated ids, or"),
     ("study fusion --recordings {data} --workers 0", "give 1 or more worker processes"),
     (
         "study fusion --recordings {tmp}/missing --fusion-prior {tmp}/none.json",
