@@ -47,7 +47,7 @@ from atikt.gpc import (
     predictive_probability,
     spawn_seeds,
 )
-from atikt.kernels import ModalityKernel, modality_kernel
+from atikt.kernels import ModalityKernel, SliceRBF, modality_kernel
 from atikt.options import METRIC_CHECKS, LearnerOptions, MetricCheck
 from atikt.priors import PriorModel, PriorsInput, fit_prior_model, fit_prior_models
 from atikt.strategies import NO_CHOICE, ObjectFit, strategy_names
@@ -122,6 +122,10 @@ class SeparationPairs:
     these sizes the calls, not their arithmetic, are the cost); each kernel value depends on
     its two rows only, so the values are those of separate calls.
 
+    The squared distances of those pairs are kept per column slice once a kernel of RBF
+    parts has needed them, so that the next kernel on the same slices (the metric check
+    scores two) only exponentiates them: the values are those of a kernel call on ``rows``.
+
     Attributes:
         rows: The kept observations of every old object, then ``X``.
         first: ``X``'s first row (the kernel's variance there scales its correlations).
@@ -133,6 +137,9 @@ class SeparationPairs:
     first: FloatArray
     repeats: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]
     between: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]
+    _distances: dict[tuple[int | None, ...], tuple[FloatArray, FloatArray]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     @classmethod
     def of(
@@ -166,12 +173,39 @@ class SeparationPairs:
     def score(self, kernel: ModalityKernel) -> float:
         """:func:`separation` of ``kernel``."""
         scale = float(kernel.diag(self.first)[0])
-        K = kernel(self.rows)
-        pooled = np.sort(K[self.repeats] / scale)
-        between = K[self.between] / scale
+        values = self._pair_values(kernel)
+        if values is None:
+            K = kernel(self.rows)
+            values = K[self.repeats], K[self.between]
+        pooled = np.sort(values[0] / scale)
+        between = values[1] / scale
         below = np.searchsorted(pooled, between, side="left")
         above = np.searchsorted(pooled, between, side="right")
         return float(np.mean(1.0 - (below + above) / (2.0 * pooled.size)))
+
+    def _pair_values(self, kernel: ModalityKernel) -> tuple[FloatArray, FloatArray] | None:
+        """The kernel at the repeat pairs and at the between pairs, from the kept distances.
+
+        None for another kernel than a weighted sum of RBFs on column slices.
+        """
+        # the type itself: callers may pass other kernels (the scikit-learn reference does)
+        if kernel.__class__ is not ModalityKernel:
+            return None
+        if not all(type(part) is SliceRBF for part in kernel.parts):
+            return None
+        repeats, between = [], []
+        for part in kernel.parts:
+            columns = part.columns
+            key = (columns.start, columns.stop, columns.step)
+            if key not in self._distances:
+                D = part.sq_dist(self.rows)
+                self._distances[key] = D[self.repeats], D[self.between]
+            repeats.append(self._distances[key][0])
+            between.append(self._distances[key][1])
+        at_repeats, at_between = kernel.from_sq_dists(repeats), kernel.from_sq_dists(between)
+        if at_repeats is None or at_between is None:  # cannot happen: every part is an RBF
+            return None
+        return at_repeats, at_between
 
 
 @functools.cache
@@ -319,7 +353,11 @@ def _group_means(probabilities: FloatArray | None, labels: IntArray) -> dict[int
     """The old models' mean score of each new object's observations, by object."""
     if probabilities is None:
         return {}
-    return {o: probabilities[labels == o].mean(axis=0) for o in np.unique(labels).tolist()}
+    means = {}
+    for o in np.unique(labels).tolist():  # each mean as ndarray.mean computes it (sum / count)
+        rows = probabilities[labels == o]
+        means[o] = rows.sum(axis=0) / rows.shape[0]
+    return means
 
 
 def _rivals(means: Mapping[int, FloatArray], obj: int) -> tuple[FloatArray, ...]:
@@ -687,18 +725,32 @@ class ActiveLearner:
             pairs = SeparationPairs.of(X, labels, aux)  # gathered once for both kernels
             passed = pairs is None or pairs.score(metric) >= pairs.score(initial)
         if not passed and check in {"evidence", "either"}:
-            passed = self._evidence(metric, X, labels) >= self._evidence(initial, X, labels)
+            # both kernels have the same column slices: their squared distances are shared
+            rbf = all(type(part) is SliceRBF for part in initial.parts)
+            distances = [part.sq_dist(X) for part in initial.parts] if rbf else []
+            passed = self._evidence(metric, X, labels, distances) >= self._evidence(
+                initial, X, labels, distances
+            )
         return (metric, options.metric_sd) if passed else (initial, options.hyper_sd)
 
-    def _evidence(self, kernel: ModalityKernel, X: FloatArray, labels: IntArray) -> float:
+    def _evidence(
+        self,
+        kernel: ModalityKernel,
+        X: FloatArray,
+        labels: IntArray,
+        distances: Sequence[FloatArray] = (),
+    ) -> float:
         """Sum over the new objects of their one-vs-all log evidence at ``kernel``.
 
         The covariance is the same for every object (only the labels differ): computed once,
         as :class:`BinaryGPC` with ``optimize=False`` would compute it for each, and the
         objects' Laplace approximations found together (:func:`~atikt.gpc.laplace_evidences`).
+        ``distances``: each part's squared distances of ``X`` (:meth:`SliceRBF.sq_dist`),
+        shared by the kernels of one check; empty: computed here.
         """
         gpc = BinaryGPC(kernel, optimize=False)
-        K = add_to_diagonal(kernel(X), gpc.jitter)
+        shared = kernel.from_sq_dists(distances) if distances else None
+        K = add_to_diagonal(kernel(X) if shared is None else shared, gpc.jitter)
         Y = (labels == np.arange(self.n_new_objects)[:, None]).astype(np.float64)
         evidences = laplace_evidences(K, Y, max_iter=gpc.newton_max_iter, tol=gpc.newton_tol)
         return float(sum(evidences.tolist()))  # summed in order, as one by one

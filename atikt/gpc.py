@@ -335,7 +335,9 @@ def laplace_evidences(
         pi = expit(f)
         W = pi * (1.0 - pi)
         sqrt_w = np.sqrt(W)
-        B = sqrt_w[:, :, None] * K * sqrt_w[:, None, :] + eye  # each I + W^1/2 K W^1/2
+        B = sqrt_w[:, :, None] * K  # each I + W^1/2 K W^1/2, in place
+        B *= sqrt_w[:, None, :]
+        B += eye
         b = W * f + Y[rows] - pi
         rhs = (b @ K) * sqrt_w  # K b per row (K symmetric)
         a_new = b - np.linalg.solve(B, rhs[:, :, None])[:, :, 0] * sqrt_w
@@ -460,7 +462,7 @@ def _check_xy(X: npt.ArrayLike, y: npt.ArrayLike) -> tuple[FloatArray, FloatArra
     if Xa.ndim != 2 or Xa.shape[0] != ya.shape[0] or Xa.shape[0] == 0:  # noqa: PLR2004
         msg = f"X has shape {Xa.shape} and y {ya.shape}; need X (n, d), y (n,) with n >= 1"
         raise AtiktError(msg)
-    if not (np.all(np.isfinite(Xa)) and np.all((ya == 0) | (ya == 1))):
+    if not (np.isfinite(Xa).all() and ((ya == 0) | (ya == 1)).all()):
         msg = "X must be finite and y binary (0 = negative, 1 = positive); check the features"
         raise AtiktError(msg)
     return Xa, ya
@@ -598,7 +600,8 @@ class BinaryGPC:
             kernel, last = kernel.with_theta(theta), objective.mode_at(theta)
             if last is not None:
                 mode, self._training_variance = last
-            f0 = objective.start(theta)
+            else:  # the search ended before its last evaluation: start from a prediction
+                f0 = objective.start(theta)
             self.n_evaluations_ = objective.n_calls
         self.kernel_ = kernel
         if mode is None:  # the search ended elsewhere than its last evaluation, or no search
@@ -802,7 +805,7 @@ def with_prior(
         return objective
     centre = kernel.theta if mean is None else np.asarray(mean, dtype=np.float64)
     sds = np.broadcast_to(np.asarray(sd, dtype=np.float64), kernel.theta.shape)
-    if not np.all(sds > 0) or centre.shape != kernel.theta.shape:
+    if not (sds > 0).all() or centre.shape != kernel.theta.shape:
         msg = (
             f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {kernel.theta.shape}"
         )

@@ -154,7 +154,7 @@ class Kernel(abc.ABC):
             AtiktError: Wrong length or non-finite values.
         """
         array = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if array.shape[0] != self.n_params or not np.all(np.isfinite(array)):
+        if array.shape[0] != self.n_params or not np.isfinite(array).all():
             msg = f"theta {array}: need {self.n_params} finite values for {self.names}"
             raise AtiktError(msg)
         return array
@@ -219,7 +219,11 @@ class SliceRBF(Kernel):
 
     def __call__(self, X: FloatArray, Y: FloatArray | None = None) -> FloatArray:
         """Return ``exp(-d^2 / (2 l^2))``."""
-        return np.exp(self.sq_dist(X, Y) / (-2.0 * self.length_scale**2))
+        return self.from_sq_dist(self.sq_dist(X, Y))
+
+    def from_sq_dist(self, D: FloatArray) -> FloatArray:
+        """The kernel's values at squared distances ``D`` of the slice (any shape)."""
+        return np.exp(D / (-2.0 * self.length_scale**2))
 
     def gradient(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Return ``K`` and ``dK/dlog l = K * d^2 / l^2``."""
@@ -593,6 +597,24 @@ class ModalityKernel(Kernel):
         K: FloatArray = weights[0] * self.parts[0](X, Y)
         for w, part in zip(weights[1:], self.parts[1:], strict=True):
             K += w * part(X, Y)
+        if self.bias is not None:
+            K += self.bias
+        return K
+
+    def from_sq_dists(self, distances: Sequence[FloatArray]) -> FloatArray | None:
+        """The kernel's values at each part's squared distances (one array per part).
+
+        The same arithmetic as :meth:`__call__` on the entries given (e.g. only some pairs of
+        rows, or distances shared by several kernels on the same rows); None when a part is
+        not a :class:`SliceRBF`, whose values are a function of the distance alone.
+        """
+        parts = self.parts
+        if not all(type(part) is SliceRBF for part in parts):
+            return None
+        weights = self._weights * self.signal_variance
+        K: FloatArray = weights[0] * parts[0].from_sq_dist(distances[0])
+        for w, part, D in zip(weights[1:], parts[1:], distances[1:], strict=True):
+            K += w * part.from_sq_dist(D)
         if self.bias is not None:
             K += self.bias
         return K

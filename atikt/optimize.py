@@ -78,7 +78,7 @@ def _check_bounds(x0: FloatArray, bounds: FloatArray) -> tuple[FloatArray, Float
         AtiktError: The box does not fit ``x0`` or is empty.
     """
     box = np.asarray(bounds, dtype=np.float64)
-    if box.shape != (x0.shape[0], 2) or not np.all(box[:, 0] <= box[:, 1]):
+    if box.shape != (x0.shape[0], 2) or not (box[:, 0] <= box[:, 1]).all():
         msg = f"bounds of shape {box.shape}: need ({x0.shape[0]}, 2) with low <= high"
         raise AtiktError(msg)
     return box[:, 0], box[:, 1]

@@ -278,7 +278,7 @@ class Prediction(TransferStrategy):
         if prior.model is None:
             return NO_CHOICE
         k = len(prior.old_objects)
-        means = fit.related.mean(axis=0)
+        means = fit.related.sum(axis=0) / fit.related.shape[0]  # the mean, without its wrapper
         scores = means[:k]
         if means.shape[0] == 2 * k and self.min_tail is not None:  # the open-set gate
             scores = np.where(means[k:] >= self.min_tail, scores, 0.0)

@@ -131,8 +131,9 @@ def _added_start(known: FloatArray, y: FloatArray) -> FloatArray:
     start = np.zeros(added.shape[0])
     for label in (0.0, 1.0):
         same = earlier == label
-        if same.any():
-            start[added == label] = known[same].mean()
+        count = int(same.sum())
+        if count:  # the mean (ndarray.mean is this sum over the count, behind a wrapper)
+            start[added == label] = known[same].sum() / count
     return start
 
 
@@ -268,7 +269,7 @@ class TransferGPC:
         Xn = np.asarray(X, dtype=np.float64)
         yn = np.asarray(y, dtype=np.float64).reshape(-1)
         sources, rhos = self._sources(X_aux, Xn.shape[1])
-        self.transferred_ = bool(sources) and (self.learn_rho or bool(np.any(rhos > 0.0)))
+        self.transferred_ = bool(sources) and (self.learn_rho or bool((rhos > 0.0).any()))
         if not self.transferred_:
             self.estimator_ = self._estimator(self.kernel, 0, yn).fit(Xn, yn)
             self.rho_, self.rhos_, self.n_auxiliary_ = 0.0, np.zeros(0), 0
@@ -306,7 +307,7 @@ class TransferGPC:
             AtiktError: ``rho`` outside [0, 1], a count mismatch, or a wrong width.
         """
         rhos = np.asarray(self.rho, dtype=np.float64).reshape(-1)
-        if not np.all((rhos >= 0.0) & (rhos <= 1.0)):
+        if not ((rhos >= 0.0) & (rhos <= 1.0)).all():
             msg = f"rho={self.rho}; the transfer coefficient must lie in [0, 1]"
             raise AtiktError(msg)
         if X_aux is None:

@@ -34,7 +34,7 @@ from atikt import (
     strategy_names,
     transfer_strategy,
 )
-from atikt.active import SEPARATION_REPEATS, separation
+from atikt.active import SEPARATION_REPEATS, SeparationPairs, separation
 from atikt.gpc import with_prior
 from atikt.transfer import with_domain
 
@@ -655,3 +655,29 @@ def test_a_registered_strategy_is_used_by_name(monkeypatch: pytest.MonkeyPatch) 
 
     with pytest.raises(AtiktError, match="name 'never-test' is empty or taken"):
         register_strategy(Other)
+
+
+def test_separation_and_evidence_from_shared_distances_equal_plain_kernel_calls() -> None:
+    learner = ActiveLearner(
+        ACTIONS, len(NEW_OBJECTS), observe=PoolObserver(pool(NEW_OBJECTS, ACTIONS, 3, seed=4))
+    )
+    rng = np.random.default_rng(5)
+    slices = {"a": slice(0, 2), "b": slice(2, 5)}
+    X, labels = rng.normal(size=(7, 5)), np.array([0, 1, 2, 0, 1, 2, 3])
+    aux = {old: rng.normal(size=(9, 5)) for old in range(3)}
+    initial = modality_kernel(slices)
+    metric = initial.with_theta([0.4, -0.3, 1.2, 0.5])
+    pairs = SeparationPairs.of(X, labels, aux)
+    assert pairs is not None
+    for kernel in (metric, initial, metric):  # the second call of a slice reads kept distances
+        K = kernel(pairs.rows)
+        scale = float(kernel.diag(pairs.first)[0])
+        pooled, between = np.sort(K[pairs.repeats] / scale), K[pairs.between] / scale
+        below = np.searchsorted(pooled, between, side="left")
+        above = np.searchsorted(pooled, between, side="right")
+        plain = float(np.mean(1.0 - (below + above) / (2.0 * pooled.size)))
+        assert pairs.score(kernel) == plain
+    distances = [part.sq_dist(X) for part in initial.parts]
+    for kernel in (metric, initial):
+        shared = learner._evidence(kernel, X, labels, distances)
+        assert shared == learner._evidence(kernel, X, labels)

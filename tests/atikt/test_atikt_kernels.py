@@ -268,3 +268,22 @@ def test_theta_is_the_callers_copy_and_follows_with_theta() -> None:
     moved = kernel.with_theta(np.linspace(-1.0, 1.0, kernel.n_params))
     assert not np.array_equal(moved.theta, kernel.theta)
     np.testing.assert_allclose(moved.theta, np.linspace(-1.0, 1.0, kernel.n_params), atol=1e-12)
+
+
+def test_values_from_squared_distances_are_the_kernel_calls_bit_for_bit() -> None:
+    X, Y = features(7, 5), features(4, 6)
+    for kernel in (modality_kernel(SLICES), modality_kernel(SLICES, bias=0.3)):
+        moved = kernel.with_theta(np.random.default_rng(2).uniform(-1.0, 1.0, kernel.n_params))
+        distances = [part.sq_dist(X, Y) for part in moved.parts]
+        values = moved.from_sq_dists(distances)
+        assert values is not None
+        assert np.array_equal(values, moved(X, Y))
+        # any subset of the entries: the same values as those entries of the full call
+        rows, columns = np.array([0, 3, 6]), np.array([1, 1, 3])
+        picked = [D[rows, columns] for D in distances]
+        values = moved.from_sq_dists(picked)
+        assert values is not None
+        assert np.array_equal(values, moved(X, Y)[rows, columns])
+    # a Matern part is not a function of the squared distance alone in this form: no values
+    matern = modality_kernel(SLICES, parts={"texture": "matern52"})
+    assert matern.from_sq_dists([np.zeros((7, 7))] * 3) is None
