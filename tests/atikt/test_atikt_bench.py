@@ -36,6 +36,7 @@ def test_bench_atikt_quick_runs_and_meets_its_quality_targets() -> None:
         "speed ratio",
         "objective reached",
         "|UNC atikt - UNC scikit-learn| per update",
+        "updates with |UNC difference| <=",
         "objective evaluation along",
         "step searches:",
         "transfer='none'",

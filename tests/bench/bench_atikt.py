@@ -34,12 +34,14 @@ workers get the same setting from joblib. scikit-learn's ConvergenceWarnings are
 
 The quality of the update's optima is checked against targets (:data:`QUALITY_MEDIAN`,
 :data:`QUALITY_P10`, :data:`QUALITY_UNC`): the benchmark prints them and exits with status 1
-when one is missed. scikit-learn searches the same objective as atikt (log marginal likelihood
+when one is missed; the share of updates within :data:`QUALITY_UNC` is printed against
+:data:`QUALITY_UNC_SHARE` (with ``--strict`` it fails the run too). scikit-learn searches
+the same objective as atikt (log marginal likelihood
 plus the hyperprior of metric transfer, when atikt's update used one), from the same start
 with the same source and rho, to its own convergence.
 
-Run: ``taskset -c 1 python tests/bench/bench_atikt.py [--steps 40] [--accuracy] [--quick]``
-(``--quick``: 4 steps, one round; tests/atikt/test_atikt_bench.py runs it).
+Run: ``taskset -c 1 python tests/bench/bench_atikt.py [--steps 40] [--accuracy] [--quick]
+[--strict]`` (``--quick``: 4 steps, one round; tests/atikt/test_atikt_bench.py runs it).
 """
 
 from __future__ import annotations
@@ -253,7 +255,7 @@ def sklearn_old_models(priors: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def latency(steps: int, rounds: int = 3) -> list[str]:
+def latency(steps: int, rounds: int = 3, *, strict: bool = False) -> list[str]:
     """Step latency and the side-by-side update comparison; returns the quality targets missed."""
     actions = list(ACTIONS)
     train = pool(NEW_OBJECTS, actions, n_trials=steps + 1, seed=1)
@@ -306,7 +308,7 @@ def latency(steps: int, rounds: int = 3) -> list[str]:
     print(f"  scikit-learn median {theirs:.1f} ms")
     median_ratio = float(np.median(ratios))
     print(f"  speed ratio {theirs / ours:.1f}x (median per-update ratio {median_ratio:.1f}x)")
-    return print_quality(timed)
+    return print_quality(timed, strict=strict)
 
 
 QUALITY_MEDIAN = 1e-3
@@ -315,10 +317,19 @@ QUALITY_P10 = -1e-2
 """Smallest 10th percentile of objective atikt - objective reference (nats) it accepts."""
 QUALITY_UNC = 1e-2
 """Largest median over updates of max |UNC atikt - UNC reference| (nats) it accepts."""
+QUALITY_UNC_SHARE = 0.9
+"""Issue 32's target: this share of the updates within :data:`QUALITY_UNC` (its 90th
+percentile at most that). Printed as met or missed; it fails the run only with ``--strict``
+(the learner misses it: see docs/performance.md), so that the quick run in CI keeps checking
+the targets that hold."""
 
 
-def print_quality(learner: TimedLearner) -> list[str]:
+def print_quality(learner: TimedLearner, *, strict: bool = False) -> list[str]:
     """Print the optima reached by atikt and by the converged reference on the same inputs.
+
+    Args:
+        learner: The learner whose updates :meth:`TimedLearner.compare` compared.
+        strict: Also count :data:`QUALITY_UNC_SHARE` among the targets that fail the run.
 
     Returns:
         The quality targets missed (empty: all met).
@@ -350,7 +361,16 @@ def print_quality(learner: TimedLearner) -> list[str]:
         f"the reference's (objective > {QUALITY_UNC} nats apart: atikt's higher in {higher}, "
         f"lower in {lower})"
     )
+    within = float(np.mean(unc <= QUALITY_UNC))
+    share_met = within >= QUALITY_UNC_SHARE
+    print(
+        f"  updates with |UNC difference| <= {QUALITY_UNC}: {within:.0%} (90th percentile "
+        f"{np.percentile(unc, 90):.4f} nats); target >= {QUALITY_UNC_SHARE:.0%}: "
+        f"{'met' if share_met else 'MISSED'}"
+    )
     missed = []
+    if strict and not share_met:
+        missed.append(f"fewer than {QUALITY_UNC_SHARE:.0%} of updates within {QUALITY_UNC}")
     if np.median(np.abs(gap)) > QUALITY_MEDIAN:
         missed.append(f"median |objective difference| > {QUALITY_MEDIAN}")
     if np.percentile(gap, 10) < QUALITY_P10:
@@ -578,12 +598,18 @@ def main(argv: list[str] | None = None) -> int:
         help="a few steps, one round, one accuracy seed (checks that everything runs; the "
         "quality targets still apply, the timings mean nothing)",
     )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help=f"also fail when fewer than {QUALITY_UNC_SHARE:.0%} of the updates' UNC values are "
+        f"within {QUALITY_UNC} nats of the reference's (issue 32's target, not met yet)",
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.steps, args.rounds, args.seeds = min(args.steps, 4), 1, 1
     warnings.simplefilter("ignore")
     print(f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
-    missed = latency(args.steps, args.rounds)
+    missed = latency(args.steps, args.rounds, strict=args.strict)
     evaluation(1 if args.quick else 20, SIZES[:1] if args.quick else SIZES)
     search_iterations(args.steps)
     other_modes(args.steps)
