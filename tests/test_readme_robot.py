@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import forked
 import pytest
 from ports import free_port
 
@@ -122,7 +123,7 @@ def _block(*words: str) -> str:
 
 @contextlib.contextmanager
 def _serving(argv: list[str], cwd: Path) -> Iterator[subprocess.Popen[str]]:
-    lab = subprocess.Popen(  # noqa: S603 (this project's command)
+    lab = forked.Popen(
         argv, cwd=cwd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
@@ -137,7 +138,7 @@ def _serving(argv: list[str], cwd: Path) -> Iterator[subprocess.Popen[str]]:
 
 def _interrupt_mid_action(argv: list[str], cwd: Path, out: Path) -> tuple[int, str]:
     """Run a session; Ctrl-C it once its second recording is being written."""
-    run = subprocess.Popen(  # noqa: S603 (this project's command)
+    run = forked.Popen(
         argv, cwd=cwd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     deadline = time.monotonic() + 120
@@ -173,7 +174,7 @@ def test_the_robot_section_runs_as_printed(tmp_path: Path) -> None:
                 assert "interrupted by Ctrl-C (SIGINT): the arm was stopped" in err, err
                 assert "incomplete.mcap" in err
                 continue
-            done = subprocess.run(  # noqa: S603 (this project's command)
+            done = forked.run(
                 argv,
                 cwd=tmp_path,
                 env=_env(),
@@ -237,7 +238,7 @@ def test_the_in_process_rehearsal_runs_as_printed(tmp_path: Path) -> None:
 
 
 def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(  # noqa: S603 (this project's command)
+    return forked.run(
         argv, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=600, check=False
     )
 
@@ -255,7 +256,7 @@ def test_the_listen_rehearsal_runs_as_printed(tmp_path: Path, dds_domain: int) -
         assert checked.stdout.splitlines()[-1].startswith("listen: ready"), checked.stdout
         assert "/skin/cell_0 (atikt_msgs/msg/SkinCell): " in checked.stdout
         assert not (tmp_path / "data").exists()  # the dry run wrote nothing
-        recorder = subprocess.Popen(  # noqa: S603 (this project's command)
+        recorder = forked.Popen(
             lab.argv(listen),
             cwd=tmp_path,
             env=_env(),

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import forked
 import pytest
 from conftest import FakeRig
 
@@ -160,9 +161,7 @@ def _dataset_argv(out: Path, seed: int) -> list[str]:
 def _dataset(out: Path, seed: int) -> subprocess.Popen[str]:
     command = [sys.executable, "-m", "recorder", *_dataset_argv(out, seed)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
-        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    return forked.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def test_an_out_that_is_a_file_is_named_so(tmp_path: Path) -> None:

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import forked
 import pytest
 
 pytest.importorskip("cyclonedds")
@@ -327,9 +328,7 @@ def _listen(map_path: Path, out: Path, domain: int, *extra: str) -> subprocess.P
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(out), "--domain-id", str(domain), *extra]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
-        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    return forked.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def _line(process: subprocess.Popen[str], wanted: str, timeout_s: float = 15.0) -> str:

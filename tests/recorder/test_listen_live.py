@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
+import forked
 import numpy as np
 import pytest
 
@@ -319,7 +320,7 @@ def test_sigterm_keeps_the_open_action_and_exits_143(dds_domain: int, tmp_path: 
     command = [sys.executable, "-m", "recorder", "listen", "--topic-map", str(map_path)]
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain)]
     with _served(map_path, dds_domain, 250, listen_process=True) as (world, server):
-        process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+        process = forked.Popen(
             command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
         assert process.stdout is not None
@@ -383,7 +384,7 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     command += ["--out", str(tmp_path / "out"), "--domain-id", str(dds_domain + 1)]
     command += ["--loopback", "--duration", "30"]
     with _served(map_path, dds_domain + 1, 50, listen_process=True):
-        process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+        process = forked.Popen(
             command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
         try:

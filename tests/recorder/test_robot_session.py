@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import forked
 import pytest
 from ports import free_port
 
@@ -59,7 +60,7 @@ def _serve_sim(*options: str, scale: str = TIME_SCALE) -> Iterator[subprocess.Po
     """Run the virtual lab in its own process until the block ends (then Ctrl-C it)."""
     command = [sys.executable, "-m", "recorder", "serve-sim", "--time-scale", scale]
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    process = subprocess.Popen(  # noqa: S603 (this project's command)
+    process = forked.Popen(
         [*command, *options], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     failed = True
@@ -228,7 +229,7 @@ def test_a_killed_live_recorder_loses_less_than_half_a_second(tmp_path: Path) ->
     command += ["--object", "wood", "--action", "C1", "--trial", "1", "--out", str(out)]
     with _serve_sim(*served, scale="0.3") as lab_process:
         del lab_process
-        recorder = subprocess.Popen(  # noqa: S603 (this project's command)
+        recorder = forked.Popen(
             command, env=os.environ | {"PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE
         )
         deadline = time.monotonic() + 30
@@ -325,7 +326,7 @@ def _interrupted_session(
         status = record(argv)
         return status, capsys.readouterr().err
     command = [sys.executable, "-m", "recorder", *argv]
-    run = subprocess.Popen(  # noqa: S603 (this project's command)
+    run = forked.Popen(
         command, env=os.environ | {"PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True
     )
     number = getattr(signal, cause)

@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import forked
 import numpy as np
 import pytest
 from ports import free_port
@@ -338,7 +339,7 @@ def test_over_ten_actions_served_every_action_starts_where_the_first_did(
     # stepped on a simulated clock. Here ten go over the wires, with serve-sim at real time.
     lab, command = _served_lab(tmp_path)
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    served = subprocess.Popen(  # noqa: S603 (this project's command)
+    served = forked.Popen(
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     obj, out = OBJECTS["wood"], tmp_path / "out"
@@ -402,7 +403,7 @@ receiver.disconnect()
     with virtual_lab(time_scale=1.0) as lab:
         lab.script.run("movel(p[-0.7, -0.25, 0.12, 0.0, 3.14159, 0.0], a=0.5, v=0.05)\n")
         with RtdeServer(VirtualController(lab.world), "127.0.0.1", 30004, frequency=125):
-            done = subprocess.run(  # noqa: S603 (this interpreter, a fixed script)
+            done = forked.run(
                 [sys.executable, "-c", script],
                 capture_output=True,
                 text=True,
@@ -425,9 +426,7 @@ def test_a_skin_that_cannot_be_served_ends_the_lab_with_one_line(tmp_path: Path)
     lab, command = _served_lab(tmp_path)
     lab.write_text(lab.read_text("utf-8").replace("cells = 7 ", "cells = 6000 "), "utf-8")
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    done = subprocess.run(  # noqa: S603 (this project's command)
-        command, env=env, capture_output=True, text=True, timeout=60, check=False
-    )
+    done = forked.run(command, env=env, capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 1, done.stdout + done.stderr
     assert done.stdout.startswith("virtual lab listening")
     # one error line (a loaded machine may add the lab's own note that it runs behind)
@@ -443,7 +442,7 @@ def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     command += ["--script-port", str(ports[1]), "--events", str(events)]
     command += ["--fault-summary", str(summary), "--fault", "script.protective_stop=0.05"]
     env = os.environ | {"PYTHONPATH": str(ROOT)}
-    process = subprocess.Popen(  # noqa: S603 (this project's command)
+    process = forked.Popen(
         command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     assert process.stdout is not None
@@ -467,7 +466,7 @@ def test_serve_sim_prints_and_writes_what_it_injected(tmp_path: Path) -> None:
     assert {"action", "fault", "stop", "summary"} <= set(kinds)
     program = records[1]
     assert program["received_monotonic_ns"] <= program["monotonic_ns"]
-    refused = subprocess.run(
+    refused = forked.run(
         [sys.executable, "-m", "recorder", "serve-sim", "--fault", "ros2.drop=3"],
         env=env,
         capture_output=True,
@@ -547,7 +546,7 @@ def test_ur_rtdes_dashboard_client_drives_the_lab(
         virtual_lab(frequency=frequency) as lab,
         DashboardServer(lab.controller, "127.0.0.1", 0) as dashboard,
     ):
-        done = subprocess.run(  # noqa: S603 (this interpreter, a fixed script)
+        done = forked.run(
             [sys.executable, "-c", _UR_RTDE_DASHBOARD, str(dashboard.address[1])],
             capture_output=True,
             text=True,

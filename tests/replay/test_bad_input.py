@@ -16,7 +16,6 @@ import math
 import re
 import shutil
 import struct
-import subprocess
 import sys
 import tracemalloc
 from collections.abc import Callable, Mapping
@@ -24,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import forked
 import numpy as np
 import polars as pl
 import pytest
@@ -623,7 +623,7 @@ def test_installed_command_prints_one_line_without_traceback(
     row: str, fake_recording: Path, tmp_path: Path
 ) -> None:
     path = ROWS[row].build(fake_recording, tmp_path / "003.mcap")
-    done = subprocess.run(  # noqa: S603 (our own interpreter and module)
+    done = forked.run(
         [sys.executable, "-m", "replay", "check", str(path)],
         capture_output=True,
         text=True,

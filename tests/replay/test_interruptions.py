@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import forked
 import polars as pl
 import pytest
 
@@ -60,7 +61,7 @@ def _workers_running(after_s: float = 0.5) -> Callable[[int], bool]:
 
 def _python(args: list[str], *, timeout_s: float) -> subprocess.CompletedProcess[str]:
     """Run this interpreter with ``args`` in the checkout; return what it printed."""
-    return subprocess.run(  # noqa: S603 (this interpreter, fixed arguments)
+    return forked.run(
         [sys.executable, *args],
         capture_output=True,
         text=True,
@@ -76,7 +77,7 @@ def _interrupt(argv: list[str], ready: Callable[[int], bool]) -> subprocess.Comp
 
     The whole group gets SIGINT, as from a terminal: the workers too.
     """
-    process = subprocess.Popen(  # noqa: S603 (this interpreter, fixed arguments)
+    process = forked.Popen(
         [sys.executable, "-m", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
