@@ -160,7 +160,9 @@ class SeparationPairs:
             rows.append(upper[0] + start)
             columns.append(upper[1] + start)
             start += len(obs)
-        between = np.nonzero(np.triu(labels[:, None] != labels[None, :], 1))
+        pairs = _upper_pairs(len(labels))  # the pairs of X in row-major order, as np.nonzero
+        differ = labels[pairs[0]] != labels[pairs[1]]
+        between = pairs[0][differ], pairs[1][differ]
         if not any(r.size for r in rows) or between[0].size == 0:
             return None
         return cls(
@@ -664,7 +666,7 @@ class ActiveLearner:
             )
             kernel = centre  # kernels are immutable: with_theta returns a new one
             theta = state.thetas[obj]
-            if theta is not None and theta.shape == kernel.theta.shape:
+            if theta is not None and theta.shape == (kernel.n_params,):
                 kernel = kernel.with_theta(theta)
             y = (labels == obj).astype(np.float64)
             keep = changed is not None and obj != changed and self.strategy.keeps()
@@ -715,10 +717,10 @@ class ActiveLearner:
         options = self.options
         if options.metric_sd is None or prior is None or prior.model is None:
             return initial, options.hyper_sd
-        thetas = [e.kernel_.theta for e in prior.model.estimators_]
-        if any(t.shape != initial.theta.shape for t in thetas):  # e.g. bias in one only
+        centre = prior.median_theta()
+        if centre is None or centre.shape != initial.theta.shape:  # e.g. bias in one only
             return initial, options.hyper_sd
-        metric = initial.with_theta(np.median(thetas, axis=0))
+        metric = initial.with_theta(centre)
         check = options.metric_check
         passed = check == "none"
         if not passed and check in {"separation", "either"}:

@@ -103,9 +103,12 @@ class LaplaceMode:
     K: FloatArray
 
 
-def _log_likelihood(sign: FloatArray, f: FloatArray) -> float:
-    """Return ``log p(y | f) = -sum log(1 + exp(-s f))`` with ``s = 2y - 1`` in {-1, 1}."""
-    return -float(np.logaddexp(0.0, -sign * f).sum())
+def _log_likelihood(minus_sign: FloatArray, f: FloatArray) -> float:
+    """Return ``log p(y | f) = -sum log(1 + exp(-s f))`` with ``s = 2y - 1`` in {-1, 1}.
+
+    ``minus_sign`` is ``-s``, negated once per mode search instead of once per call.
+    """
+    return -float(np.logaddexp(0.0, minus_sign * f).sum())
 
 
 def add_to_diagonal(A: FloatArray, value: float) -> FloatArray:
@@ -180,13 +183,13 @@ def _newton_step(
 
 
 def _damped(
-    K: FloatArray, sign: FloatArray, a: FloatArray, a_new: FloatArray, psi: float
+    K: FloatArray, minus_sign: FloatArray, a: FloatArray, a_new: FloatArray, psi: float
 ) -> tuple[FloatArray, FloatArray, float]:
     """Halve a Newton step that lowered ``Psi`` until it does not (rarely needed)."""
     for _ in range(_MAX_HALVINGS):
         a_new = 0.5 * (a + a_new)
         f_new = K @ a_new
-        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
+        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(minus_sign, f_new)
         if psi_new >= psi:
             break
     return a_new, f_new, psi_new
@@ -240,21 +243,21 @@ def laplace_mode(
             is not finite.
     """
     _check_newton(K, max_iter)
-    sign = 2.0 * y - 1.0
+    minus_sign = -(2.0 * y - 1.0)  # -s of the likelihood, s = 2y - 1
     a: FloatArray | None = None
     if f0 is None:  # f = K a with a = 0: Psi(0) = log p(y | 0)
         f, a = np.zeros(y.shape[0]), np.zeros(y.shape[0])
-        psi = _log_likelihood(sign, f)
+        psi = _log_likelihood(minus_sign, f)
     else:  # no a with K a = f0: the first Newton step is always taken
         f, psi = f0, -np.inf
     n_iter, last_step = 0, math.inf
     for n_iter in range(1, max_iter + 1):
         a_new, pi, sqrt_w, L = _newton_step(K, y, f)
         f_new = K @ a_new  # line 8
-        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(sign, f_new)
+        psi_new = -0.5 * float(a_new @ f_new) + _log_likelihood(minus_sign, f_new)
         damped = False
         if a is not None and psi_new < psi - tol:
-            a_new, f_new, psi_new = _damped(K, sign, a, a_new, psi)
+            a_new, f_new, psi_new = _damped(K, minus_sign, a, a_new, psi)
             damped = True
         if not math.isfinite(psi_new):
             msg = "the Laplace objective is not finite; check the features and hyperparameters"
@@ -624,7 +627,9 @@ class BinaryGPC:
         curvature = self.inverse_hessian
         if curvature is not None and np.shape(curvature) != (n, n):
             curvature = None
-        starts = [(np.clip(self.kernel.theta, bounds[:, 0], bounds[:, 1]), curvature)]
+        # into the box (np.clip's values, without its Python-level wrapper)
+        start = np.minimum(np.maximum(self.kernel.theta, bounds[:, 0]), bounds[:, 1])
+        starts = [(start, curvature)]
         if self.n_restarts > 0:
             rng = _rng(self.random_state)
             starts += [
@@ -803,14 +808,17 @@ def with_prior(
     """
     if sd is None:
         return objective
-    centre = kernel.theta if mean is None else np.asarray(mean, dtype=np.float64)
-    sds = np.broadcast_to(np.asarray(sd, dtype=np.float64), kernel.theta.shape)
-    if not (sds > 0).all() or centre.shape != kernel.theta.shape:
-        msg = (
-            f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {kernel.theta.shape}"
-        )
+    start = kernel.theta
+    shape = start.shape
+    centre = start if mean is None else np.asarray(mean, dtype=np.float64)
+    scalar_sd = np.ndim(sd) == 0  # then no broadcast: numpy's broadcast_to is Python-level
+    sds = np.asarray(sd, dtype=np.float64)
+    if not scalar_sd:
+        sds = np.broadcast_to(sds, shape)
+    if not (sds > 0).all() or centre.shape != shape:
+        msg = f"prior_sd={sd}, prior_mean shape {centre.shape}: need sd > 0 and {shape}"
         raise AtiktError(msg)
-    if np.ndim(sd) == 0:  # one sd for all: the arithmetic of the learners' goldens
+    if scalar_sd:  # one sd for all: the arithmetic of the learners' goldens
         scalar = 1.0 / float(sd) ** 2  # type: ignore[arg-type]
 
         def penalised_scalar(theta: FloatArray) -> tuple[float, FloatArray]:

@@ -775,7 +775,8 @@ class DependentKernel(Kernel):
         self.rho = float(rho)
         self.rho_bounds = rho_bounds
         self.flag_column = flag_column
-        self._bounds = np.vstack([base.bounds, _log_bounds(rho_bounds)])
+        self._bounds = np.concatenate([base.bounds, _log_bounds(rho_bounds)])  # both (k, 2)
+        self._theta: FloatArray | None = None  # theta, computed once (see the property)
 
     @property
     def learn_rho(self) -> bool:
@@ -784,9 +785,12 @@ class DependentKernel(Kernel):
 
     @property
     def theta(self) -> FloatArray:
-        """``[base theta..., log rho]`` (the last only when ``rho`` is learned)."""
-        tail = [np.log(self.rho)] if self.learn_rho else []
-        return np.concatenate([self.base.theta, tail])
+        """``[base theta..., log rho]`` (the last only when ``rho`` is learned; a copy)."""
+        theta = getattr(self, "_theta", None)  # absent from a kernel pickled before the cache
+        if theta is None:  # immutable (with_theta makes a new kernel): put together once
+            tail = [np.log(self.rho)] if self.learn_rho else []
+            theta = self._theta = np.concatenate([self.base.theta, tail])
+        return theta.copy()
 
     @property
     def bounds(self) -> FloatArray:
@@ -802,6 +806,7 @@ class DependentKernel(Kernel):
         """Return a copy with the free hyperparameters set from ``values``."""
         n_base = self.base.n_params
         new = self._copy()  # the bounds stay: only the values change
+        new._theta = None  # noqa: SLF001 - a copy of this class
         new.base = self.base._with_values(values[:n_base])  # noqa: SLF001
         if self.learn_rho:
             new.rho = min(math.exp(values[n_base]), 1.0)

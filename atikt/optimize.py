@@ -91,9 +91,13 @@ def _bfgs_update(H: FloatArray, s: FloatArray, y: FloatArray, sy: float) -> Floa
     """
     rho = 1.0 / sy
     Hy = H @ y
-    sHy = s[:, None] * Hy[None, :]
-    H = H - rho * (sHy + sHy.T)
-    H += (rho * rho * float(y @ Hy) + rho) * (s[:, None] * s[None, :])
+    sHy = np.multiply.outer(s, Hy)
+    symmetric = sHy + sHy.T
+    symmetric *= rho
+    H = H - symmetric
+    ss = np.multiply.outer(s, s)
+    ss *= rho * rho * float(y @ Hy) + rho
+    H += ss
     return H
 
 
@@ -102,8 +106,13 @@ def _capped(d: FloatArray, max_step: float) -> FloatArray:
 
     A stale or uninformed curvature can propose huge steps.
     """
-    longest = float(np.abs(d).max(initial=0.0))
+    longest = _largest([abs(v) for v in d.tolist()])  # at a few variables, faster than numpy
     return d * (max_step / longest) if longest > max_step else d
+
+
+def _largest(values: list[float]) -> float:
+    """The largest of ``values`` (0 when empty), NaN when one is NaN: numpy's ``max``."""
+    return math.nan if any(math.isnan(v) for v in values) else max(values, default=0.0)
 
 
 def _learn_curvature(
@@ -123,18 +132,25 @@ def _learn_curvature(
 
 
 def _direction(
-    H: FloatArray, x: FloatArray, g: FloatArray, lo: FloatArray, hi: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The quasi-Newton direction and the projected gradient.
+    H: FloatArray, x: FloatArray, g: FloatArray, box: tuple[list[float], list[float]]
+) -> tuple[FloatArray, FloatArray, float]:
+    """The quasi-Newton direction, the projected gradient and its largest magnitude.
 
-    Variables held at a bound by the gradient stay there; the others move along ``-H g``
-    restricted to them.
+    Variables held at a bound (``box``: the lower and upper ends as lists) by the gradient
+    stay there; the others move along ``-H g`` restricted to them. The tests run on Python
+    floats: at a few variables each numpy call costs more than all of them.
     """
-    held = ((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0))
-    if not held.any():
-        return -(H @ g), g
-    g_free = np.where(held, 0.0, g)  # H g_free restricted to the free rows is H_ff g_f
-    return np.where(held, 0.0, -(H @ g_free)), g_free
+    gs = g.tolist()
+    held = [
+        (xi <= low and gi > 0.0) or (xi >= high and gi < 0.0)
+        for xi, gi, low, high in zip(x.tolist(), gs, box[0], box[1], strict=True)
+    ]
+    largest = _largest([abs(gi) for gi, h in zip(gs, held, strict=True) if not h])
+    if not any(held):
+        return -(H @ g), g, largest
+    mask = np.array(held)
+    g_free = np.where(mask, 0.0, g)  # H g_free restricted to the free rows is H_ff g_f
+    return np.where(mask, 0.0, -(H @ g_free)), g_free, largest
 
 
 def minimize_box(
@@ -188,9 +204,10 @@ def minimize_box(
         msg = "the objective is not finite at the starting point"
         raise NumericalError(msg)
     n_eval, n_iter, converged = 1, 0, False
+    box = (lo.tolist(), hi.tolist())
     while n_iter < max_iter:
-        d, g_free = _direction(H, x, g, lo, hi)
-        if float(np.abs(g_free).max(initial=0.0)) < gtol:
+        d, g_free, largest = _direction(H, x, g, box)
+        if largest < gtol:
             converged = True
             break
         slope = float(g @ d)
@@ -248,7 +265,7 @@ def _line_search(
     """
     t, k, last = 1.0, 0, None
     for _ in range(_MAX_BACKTRACKS):
-        trial = np.minimum(np.maximum(x + t * d, lo), hi)
+        trial = np.minimum(np.maximum(x + d if t == 1.0 else x + t * d, lo), hi)
         decrease = float(g @ (trial - x))
         if decrease >= 0.0 or (k > 0 and -decrease < floor):
             # the projection left no descent (all movement clipped away), or what is left

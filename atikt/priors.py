@@ -8,7 +8,7 @@ from it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -49,11 +49,40 @@ class PriorModel:
     model: OneVsAllGPC | None
     densities: ObjectDensities | None = None
     held_out: tuple[FloatArray, ...] = ()
+    # derived once (the model is fixed and read at every update of every learner given it)
+    _old_objects: tuple[int, ...] = field(init=False, repr=False, compare=False)
+    _median_theta: tuple[FloatArray | None] | None = field(
+        init=False, repr=False, compare=False, default=None
+    )
+
+    def __post_init__(self) -> None:
+        """Derive the old objects' labels once."""
+        object.__setattr__(self, "_old_objects", tuple(int(v) for v in np.unique(self.labels)))
 
     @property
     def old_objects(self) -> tuple[int, ...]:
         """The old objects' labels, sorted."""
-        return tuple(int(v) for v in np.unique(self.labels))
+        return self._old_objects
+
+    def median_theta(self) -> FloatArray | None:
+        """The median over the old objects' classifiers of their log hyperparameters.
+
+        Metric transfer's centre (:class:`~atikt.ActiveLearner`); computed once. None without
+        a one-vs-all model or when the classifiers' kernels differ in their hyperparameters.
+
+        Returns:
+            A copy, shape (n_params,).
+        """
+        if self._median_theta is None:
+            median = None
+            if self.model is not None:
+                thetas = [e.kernel_.theta for e in self.model.estimators_]
+                if len({t.shape for t in thetas}) == 1:
+                    median = np.median(thetas, axis=0)
+            object.__setattr__(self, "_median_theta", (median,))
+        assert self._median_theta is not None  # noqa: S101 - set just above
+        median = self._median_theta[0]
+        return None if median is None else median.copy()
 
     def by_object(self) -> dict[int, list[RawFeatures]]:
         """Prior observations grouped by old object."""

@@ -130,10 +130,13 @@ def _added_start(known: FloatArray, y: FloatArray) -> FloatArray:
     earlier, added = y[: known.shape[0]], y[known.shape[0] :]
     start = np.zeros(added.shape[0])
     for label in (0.0, 1.0):
+        mine = added == label
+        if not mine.any():  # usually one observation is added: one label to fill
+            continue
         same = earlier == label
         count = int(same.sum())
         if count:  # the mean (ndarray.mean is this sum over the count, behind a wrapper)
-            start[added == label] = known[same].sum() / count
+            start[mine] = known[same].sum() / count
     return start
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from atikt_synthetic import NEW_OBJECTS, OLD_OBJECTS, PoolObserver, pool
@@ -133,6 +135,24 @@ def test_prior_models_can_be_fitted_once_for_many_learners(
     assert len(learner.history_) == 2
     again, _ = run(train, budget=2, priors=fitted)
     assert rows(again) == rows(learner)
+
+
+def test_prior_model_derives_its_objects_and_metric_centre_once(
+    priors: dict[str, dict[int, list[RawFeatures]]],
+) -> None:
+    prior = fit_prior_models(priors, n_restarts=0, max_iter=15, random_state=0)["P2"]
+    assert prior.model is not None
+    thetas = [e.kernel_.theta for e in prior.model.estimators_]
+    centre = prior.median_theta()
+    assert centre is not None
+    assert np.array_equal(centre, np.median(thetas, axis=0))
+    centre += 1.0  # the caller's copy: the next call is unchanged
+    assert np.array_equal(prior.median_theta(), np.median(thetas, axis=0))  # type: ignore[arg-type]
+    assert prior.old_objects == tuple(int(v) for v in np.unique(prior.labels))
+    # a copy with other labels derives its own (dataclasses.replace runs __post_init__ again)
+    fewer = dataclasses.replace(prior, labels=np.where(prior.labels == 2, 1, prior.labels))
+    assert fewer.old_objects == (0, 1)
+    assert dataclasses.replace(prior, model=None).median_theta() is None
 
 
 def test_exploitation_picks_the_largest_uncertainty(
