@@ -71,7 +71,7 @@ def curve_statistics(frame: pl.DataFrame, x: str, y: str, by: Sequence[str]) -> 
     mean over the runs (Student's t, ``n - 1`` degrees of freedom; no width for one run).
     """
     table = (
-        frame.group_by([*by, x])
+        frame.group_by([*by, x], maintain_order=True)
         .agg(
             pl.col(y).mean().alias("mean"),
             pl.col(y).std(ddof=0).alias("std"),

@@ -187,7 +187,7 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     runs = frame.filter(pl.col("method") == borrowed)
     shares = (
         runs.filter(pl.col("step") > 0)
-        .group_by("actions")
+        .group_by("actions", maintain_order=True)
         .agg((pl.col("rho").fill_null(0.0) > 0).mean().alias("share"))
         .sort("actions")
     )
@@ -201,7 +201,7 @@ def _admitted(frame: pl.DataFrame, borrowed: str) -> str:
     if "metric_share" not in frame.columns:
         return text + " (These results do not say how often metric transfer was used.)"
     metric = (
-        runs.group_by("actions")
+        runs.group_by("actions", maintain_order=True)
         .agg(
             pl.col("metric_share").filter(pl.col("step") == 0).mean().alias("initial"),
             pl.col("metric_share").filter(pl.col("step") > 0).mean().alias("later"),

@@ -210,7 +210,7 @@ def fusion_means(frame: pl.DataFrame) -> pl.DataFrame:
     digit (the summary and README print the same numbers).
     """
     return (
-        frame.group_by("action", "modalities")
+        frame.group_by("action", "modalities", maintain_order=True)
         .agg(pl.col("accuracy").mean().round(9))
         .sort("action", "modalities")
     )
@@ -296,7 +296,7 @@ def _sizes_table(frame: pl.DataFrame, config: StudyConfig) -> str:  # noqa: ARG0
     sets (as the means table's): an unordered ``group_by`` made it random from run to run.
     """
     sizes = (
-        frame.group_by("action", "modalities", "samples")
+        frame.group_by("action", "modalities", "samples", maintain_order=True)
         .agg(pl.col("accuracy").mean())
         .sort("action", "samples", "modalities")
         .pivot(on="modalities", index=["action", "samples"], values="accuracy")

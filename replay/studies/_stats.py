@@ -32,9 +32,11 @@ def headline(frame: pl.DataFrame, by: Sequence[str], budget: int) -> pl.DataFram
 
     Accuracies are averaged over runs first per step, then over steps.
     """
-    per_step = frame.group_by([*by, "step"]).agg(pl.col("accuracy").mean())
+    # in a fixed order (a float mean summed in another order can round a table's last digit
+    # the other way)
+    per_step = frame.group_by([*by, "step"], maintain_order=True).agg(pl.col("accuracy").mean())
     return (
-        per_step.group_by(by)
+        per_step.group_by(by, maintain_order=True)
         .agg(
             pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
             pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
@@ -69,8 +71,8 @@ def mean_steps(frame: pl.DataFrame, budget: int) -> str:
 def unit_headlines(frame: pl.DataFrame, by: Sequence[str], unit: str, budget: int) -> pl.DataFrame:
     """Return the headline accuracies per (by, unit, method), runs of a unit averaged first."""
     keys = [*by, unit, "method"]
-    per_step = frame.group_by([*keys, "step"]).agg(pl.col("accuracy").mean())
-    return per_step.group_by(keys).agg(
+    per_step = frame.group_by([*keys, "step"], maintain_order=True).agg(pl.col("accuracy").mean())
+    return per_step.group_by(keys, maintain_order=True).agg(
         pl.col("accuracy").filter(pl.col("step") == 0).first().alias("initial"),
         pl.col("accuracy").filter(pl.col("step").is_between(1, budget)).mean().alias("mean"),
         pl.col("accuracy").sort_by("step").last().alias("final"),
@@ -162,13 +164,14 @@ def fusion_margins(frame: pl.DataFrame, *, seed: int = 0) -> pl.DataFrame:
         Columns ``action``, ``samples``, ``best`` (the modality), ``margin``, ``low``,
         ``high`` (fractions).
     """
-    per_group = frame.group_by("action", "samples", "group", "modalities").agg(
+    per_group = frame.group_by("action", "samples", "group", "modalities", maintain_order=True).agg(
         pl.col("accuracy").mean()
     )
     rng = np.random.default_rng(seed)
     rows = []
     for (action, samples), part in sorted(
-        per_group.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
+        per_group.group_by("action", "samples", maintain_order=True),
+        key=lambda item: (str(item[0][0]), item[0][1]),
     ):
         wide = part.pivot(on="modalities", index="group", values="accuracy").sort("group")
         # sorted: the pivot's columns come in the unordered group_by's order, and a tie goes
@@ -206,7 +209,7 @@ def fusion_differences(frame: pl.DataFrame, other: pl.DataFrame, *, seed: int = 
     def multi_modal(results: pl.DataFrame, name: str) -> pl.DataFrame:
         return (
             results.filter(pl.col("modalities") == "multi-modal")
-            .group_by("action", "samples", "group")
+            .group_by("action", "samples", "group", maintain_order=True)
             .agg(pl.col("accuracy").mean().alias(name))
         )
 
@@ -216,7 +219,8 @@ def fusion_differences(frame: pl.DataFrame, other: pl.DataFrame, *, seed: int = 
     rng = np.random.default_rng(seed)
     rows = []
     for (action, samples), part in sorted(
-        paired.group_by("action", "samples"), key=lambda item: (str(item[0][0]), item[0][1])
+        paired.group_by("action", "samples", maintain_order=True),
+        key=lambda item: (str(item[0][0]), item[0][1]),
     ):
         diff = (part.sort("group")["a"] - part.sort("group")["b"]).to_numpy()
         low, high = _interval(diff, rng)

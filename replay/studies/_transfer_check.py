@@ -114,7 +114,9 @@ def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFra
         ``tasks``, ``gain``, ``low``, ``high`` (fractions), ``verdict``; a step no run reached
         is left out.
     """
-    per = frame.group_by(["group", "method", "step"]).agg(pl.col("accuracy").mean())
+    per = frame.group_by(["group", "method", "step"], maintain_order=True).agg(
+        pl.col("accuracy").mean()
+    )
     wide = per.pivot(on="method", index=["group", "step"], values="accuracy").sort(
         ["group", "step"]
     )
@@ -125,7 +127,12 @@ def step_gains(frame: pl.DataFrame, budget: int, *, seed: int = 0) -> pl.DataFra
     mean = f"mean {mean_steps(frame, budget)}"
     selections.append((mean, pl.col("step").is_between(1, budget)))
     for name, where in selections:
-        gains = wide.filter(where).group_by("group").agg(pl.col("gain").mean()).sort("group")
+        gains = (
+            wide.filter(where)
+            .group_by("group", maintain_order=True)
+            .agg(pl.col("gain").mean())
+            .sort("group")
+        )
         values = gains["gain"].to_numpy().astype(np.float64)
         if values.size == 0:  # no run reached this step (the recordings ran out first)
             continue

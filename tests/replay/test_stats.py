@@ -69,3 +69,29 @@ def test_recordings_that_ran_out_after_the_initial_round_print_no_nan() -> None:
         "smaller `--budget`." in text
     )
     assert steps_note(_results([0.02], budget=3), 3) == ""  # the budget ran: no note
+
+
+def test_the_headlines_of_one_table_are_the_same_floats_every_time() -> None:
+    """A mean summed in another order can round a summary's last digit the other way (a
+    study's summary read +15.4 or +15.5 from one run to the next on the same results): the
+    headlines of one table are the same floats every time they are computed."""
+    from replay.studies._stats import headline, unit_headlines  # noqa: PLC0415
+
+    rng = np.random.default_rng(1)
+    rows = [
+        {"group": g, "method": m, "run": r, "step": s, "accuracy": int(rng.integers(0, 50)) / 49}
+        for g in range(5)
+        for m in ("ATIKT", "baseline")
+        for r in range(3)
+        for s in range(41)
+    ]
+    frame = pl.DataFrame(rows)
+    seen = {
+        (
+            *headline(frame, ["method"], 40)["mean"].to_list(),
+            *unit_headlines(frame, [], "group", 40).sort("group", "method")["mean"].to_list(),
+            *paired_gains(frame, [], "group", 40)["gain_mean"].to_list(),
+        )
+        for _ in range(20)
+    }
+    assert len(seen) == 1
