@@ -21,6 +21,26 @@ EXAMPLE = Path(__file__).parents[2] / "recorder" / "data" / "skin_udp.example.to
 COUNTS = {"force": 3, "acceleration": 3, "temperature": 1, "proximity": 1}
 
 
+#: A two-cell UDP skin of one frame type (1 kHz force; a u16 counter, a u32 stamp in us):
+#: the hostile-source and sender tests' layout.
+TWO_CELLS = 2
+TWO_CELL_LAYOUT: dict[str, Any] = {
+    "transport": "udp",
+    "bind": "127.0.0.1:0",
+    "cells": TWO_CELLS,
+    "header": {"magic": [0xAA, 0x55]},
+    "frames": {
+        "fast": {
+            "rate_hz": 1000,
+            "sequence": {"at": 2, "type": "u16"},
+            "stamp": {"at": 4, "type": "u32", "unit_ns": 1000},
+            "cell_stride": 12,
+            "force": {"at": 8, "type": "f32", "count": 3},
+        }
+    },
+}
+
+
 def example(**changes: Any) -> dict[str, Any]:
     """Return the example [skin] table on an ephemeral port, with top-level keys changed."""
     with EXAMPLE.open("rb") as stream:

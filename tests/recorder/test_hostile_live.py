@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
+from skinframes import TWO_CELL_LAYOUT, TWO_CELLS
 
 from recorder.errors import RigError
 from recorder.live import Received, RecorderClock
@@ -32,22 +33,7 @@ if TYPE_CHECKING:
 
 MS = 1_000_000
 T0 = 1_700_000_000 * 1_000_000_000
-CELLS = 2
-LAYOUT: dict[str, Any] = {
-    "transport": "udp",
-    "bind": "127.0.0.1:0",
-    "cells": CELLS,
-    "header": {"magic": [0xAA, 0x55]},
-    "frames": {
-        "fast": {
-            "rate_hz": 1000,
-            "sequence": {"at": 2, "type": "u16"},
-            "stamp": {"at": 4, "type": "u32", "unit_ns": 1000},
-            "cell_stride": 12,
-            "force": {"at": 8, "type": "f32", "count": 3},
-        }
-    },
-}
+CELLS, LAYOUT = TWO_CELLS, TWO_CELL_LAYOUT
 
 
 def _skin() -> UdpSkin:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 from fake_arm import FakeArm
-from skinframes import poll_until
+from skinframes import TWO_CELL_LAYOUT, TWO_CELLS, poll_until
 
 from recorder.live import Received, RecorderClock
 from recorder.live._framelayout import parse_layout
@@ -33,23 +33,9 @@ if TYPE_CHECKING:
     from recorder.writing._stream import SkinBlock
     from schemas import SourceStats
 
-CELLS = 2
+CELLS = TWO_CELLS
 SIZE = 32  # 8 header bytes, 2 cells x 12 bytes of force
-LAYOUT: dict[str, Any] = {
-    "transport": "udp",
-    "bind": "127.0.0.1:0",
-    "cells": CELLS,
-    "header": {"magic": [0xAA, 0x55]},
-    "frames": {
-        "fast": {
-            "rate_hz": 1000,
-            "sequence": {"at": 2, "type": "u16"},
-            "stamp": {"at": 4, "type": "u32", "unit_ns": 1000},
-            "cell_stride": 12,
-            "force": {"at": 8, "type": "f32", "count": 3},
-        }
-    },
-}
+LAYOUT = TWO_CELL_LAYOUT
 
 
 def _layout(rate_hz: float = 1000, **changes: Any) -> dict[str, Any]:
