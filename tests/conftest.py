@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Self
 
 import forked
 import numpy as np
+import ports  # noqa: F401 (claims this worker's own ports before a test starts a process)
 import pytest
 from threadpoolctl import threadpool_limits
 
@@ -416,44 +417,96 @@ def hangup_not_ignored() -> Iterator[None]:
         signal.signal(signal.SIGHUP, previous)
 
 
-#: pytest-xdist workers per core under ``-n auto`` (addopts).
+#: pytest-xdist workers per core under ``-n auto`` (addopts), and one more.
 WORKERS_PER_CORE = 2
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:  # noqa: ARG001 (the hook's)
-    """Run two workers per core: half the suite's time is spent waiting on real time.
+    """Run two workers per core and one more: much of the suite's time is spent waiting.
 
     The live tests run the virtual lab and the recorder at the controller's pace (sessions,
     listen, the manual's walk-throughs); with one worker per core the 2-core machine was busy
     at 103 % of one core in a 300 s run, and with two per core the same run took 195-200 s at
-    183 % (three runs, every test passing). The live tests' configurations allow for a loaded
-    machine; ``-n 2`` gives one worker per core again.
+    183 %. With the slow tests dealt to two of them (:func:`deal_slow_tests`), two workers
+    waiting on real time left the cores idle a fifth of the run (1.6 cores busy); a fifth
+    worker fills it (docs/performance.md has the runs). The live tests' configurations allow
+    for a loaded machine; ``-n 2`` gives one worker per core again.
     """
-    return WORKERS_PER_CORE * (os.cpu_count() or 1)
+    return WORKERS_PER_CORE * (os.cpu_count() or 1) + 1
 
 
 #: Seconds a test marked ``slow`` without a figure is taken to last.
 SLOW_S = 5.0
+#: Workers the slow tests are dealt to (the others start on the rest of the suite).
+SLOW_CHAINS = 2
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the longest tests first, longest to shortest, then the rest in collection order.
+def _slow_seconds(item: pytest.Item) -> float:
+    mark = item.get_closest_marker("slow")
+    if mark is None:
+        return 0.0
+    return float(mark.args[0]) if mark.args else SLOW_S
 
-    pytest-xdist's worksteal scheduler hands each worker a contiguous half of the list and
-    lets an idle worker take the second half of another's queue: in collection order one of
-    the two ended 45 s after the other, running the manual's robot walk-throughs (about 100 s
-    in three tests) alone at the end. Longest first, the last tests to run are short ones.
-    The figures are a test's seconds alone on the 2-core machine (``--durations``); they only
-    order the run. The sort is stable and the same in every worker, as xdist requires.
+
+def first_shares(total: int, workers: int) -> list[int]:
+    """How many tests pytest-xdist's worksteal scheduler first hands each worker, in order.
+
+    Its first schedule cuts the collection into contiguous shares, ``remaining // workers
+    left`` each (``xdist/scheduler/worksteal.py``, ``check_schedule``); an idle worker later
+    steals the second half of the longest queue.
     """
+    shares = []
+    for left in range(workers, 0, -1):
+        shares.append(total // left)
+        total -= shares[-1]
+    return shares
 
-    def seconds(item: pytest.Item) -> float:
-        mark = item.get_closest_marker("slow")
-        if mark is None:
-            return 0.0
-        return float(mark.args[0]) if mark.args else SLOW_S
 
-    items.sort(key=lambda item: -seconds(item))
+def deal_slow_tests(items: list[pytest.Item], workers: int) -> list[pytest.Item]:
+    """Order the tests so that the slow ones run first, dealt to :data:`SLOW_CHAINS` workers.
+
+    Worksteal hands each worker a contiguous share and steals only from a queue's end, so the
+    tests at the front of a share stay with its worker. Sorted longest first, every slow test
+    had fallen into the first share: one worker ran them one after another (190 s of the
+    suite's 198 s, measured with a timeline of each worker) while the others had finished.
+    Dealt longest first to the chain with the fewest seconds so far, at the front of the first
+    :data:`SLOW_CHAINS` shares, two chains of about half that run beside the rest of the suite.
+    Not to every worker: four real-time walk-throughs at once starve each other's controller
+    loops on two cores (a robot section stopped on arm silence at load 7). The figures are a
+    test's seconds alone on the 2-core machine (``--durations``); they only order the run. The
+    order is the same in every worker, as xdist requires.
+    """
+    slow = sorted(
+        (item for item in items if _slow_seconds(item)), key=lambda item: -_slow_seconds(item)
+    )
+    rest = [item for item in items if not _slow_seconds(item)]
+    chains = min(SLOW_CHAINS, workers)
+    if chains < 2:
+        return slow + rest
+    dealt: list[list[pytest.Item]] = [[] for _ in range(chains)]
+    load = [0.0] * chains
+    for item in slow:
+        chain = load.index(min(load))
+        dealt[chain].append(item)
+        load[chain] += _slow_seconds(item)
+    shares = first_shares(len(items), workers)
+    if any(len(chain) > share for chain, share in zip(dealt, shares, strict=False)):
+        return slow + rest
+    ordered: list[pytest.Item] = []
+    others = iter(rest)
+    for index, share in enumerate(shares):
+        front = dealt[index] if index < chains else []
+        ordered.extend(front)
+        ordered.extend(itertools.islice(others, share - len(front)))
+    ordered.extend(others)
+    return ordered
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Run the slow tests first, in two chains beside the rest (:func:`deal_slow_tests`)."""
+    workerinput = getattr(config, "workerinput", None)
+    workers = int(workerinput["workercount"]) if workerinput else 1
+    items[:] = deal_slow_tests(items, workers)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:  # noqa: ARG001 (the hook's)

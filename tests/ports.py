@@ -5,8 +5,10 @@ bind, any socket that binds port 0 or sends a first datagram (a skin sender, a D
 participant, a client's connection) in another test may be given it, and the server then fails
 with "Address already in use" (a benchmark's skin port was taken so in a run of the suite).
 Ports handed out here lie below Linux's ephemeral range (32768-60999), so the kernel never
-gives them away by itself, in a block of its own per pytest-xdist worker, so two workers never
-hand out the same one; each is checked free (TCP and UDP) when handed out.
+gives them away by itself, in a block of their own per pytest-xdist worker, so two workers never
+hand out the same one, and another block for the processes a worker's tests start (a benchmark
+run by its quick test hands out ports of its own, and its lab may outlive it for a moment);
+each is checked free (TCP and UDP) when handed out.
 
 Written by hand: no library hands out ports that the kernel's ephemeral allocation cannot take.
 """
@@ -20,16 +22,25 @@ import socket
 
 #: First port of the blocks; they end below a UR's own ports (29999-30004), which the
 #: virtual lab serves by default.
-FIRST = 21_000
-#: Ports per worker block.
-BLOCK = 2_000
-#: Blocks (workers beyond these share them, as the main process shares block 0).
-BLOCKS = 4
+FIRST = 13_000
+#: Ports per block.
+BLOCK = 1_000
+#: Blocks of workers' own ports, and as many again for processes their tests start (workers
+#: beyond these share them, as the main process shares block 0).
+BLOCKS = 8
+#: The environment's record of the process that hands out its worker's own ports.
+OWNER = "ATIKT_TEST_PORTS_OWNER"
 
 
 def _block() -> range:
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
-    index = int(worker) % BLOCKS if worker.isdigit() else 0
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    me = f"{worker}:{os.getpid()}"
+    owner = os.environ.get(OWNER, "")
+    if owner.partition(":")[0] != worker:  # the first process of this worker to ask: its own
+        os.environ[OWNER] = owner = me
+    index = int(worker.removeprefix("gw")) % BLOCKS if worker.removeprefix("gw").isdigit() else 0
+    if owner != me:  # a process started by one of the worker's tests
+        index += BLOCKS
     return range(FIRST + index * BLOCK, FIRST + (index + 1) * BLOCK)
 
 

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import socket
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import ports
 
@@ -31,3 +35,19 @@ def test_a_port_a_leftover_sender_sends_to_is_not_free() -> None:
         thread.join()
     time.sleep(0.01)
     assert ports._free(port)  # quiet again
+
+
+def test_a_process_a_test_starts_hands_out_ports_of_another_block() -> None:
+    """A benchmark started by a test hands out ports of its own: never one its worker may hand
+    out next while the benchmark's lab is still sending."""
+    started = subprocess.run(
+        [sys.executable, "-c", "import ports; print(ports._block().start)"],
+        env=os.environ | {"PYTHONPATH": str(Path(ports.__file__).parent)},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    own = ports._block()
+    theirs = int(started.stdout)
+    assert theirs not in own
+    assert theirs - own.start == ports.BLOCKS * ports.BLOCK
