@@ -65,6 +65,9 @@ class SourceStats:
             period (or repeated the previous row's stamp). Counted where the rows are made;
             the samples of the cell that had none are the other source's ``missing`` or
             ``gaps``, not these.
+        origin: Where the samples came from, as learned while recording: a UDP skin's
+            sender, ``host:port`` of the datagrams taken (without ``[skin] sender``, the first
+            address that sent a valid frame); '' where the configuration says it all.
     """
 
     name: str
@@ -89,6 +92,7 @@ class SourceStats:
     gaps: int = 0
     gap_ns: int = 0
     unaligned: int = 0
+    origin: str = ""
 
     @property
     def complete(self) -> bool:
@@ -149,8 +153,12 @@ def _plural(count: int, noun: str) -> str:
     return noun if count == 1 else f"{noun}s"
 
 
+#: Fields that are text: written only when given (a record without them is as before).
+_TEXT_FIELDS = ("origin",)
 _INT_FIELDS = tuple(
-    f.name for f in dataclasses.fields(SourceStats) if f.name not in {"name", "basis"}
+    f.name
+    for f in dataclasses.fields(SourceStats)
+    if f.name not in {"name", "basis", *_TEXT_FIELDS}
 )
 _BASES = ("counter", "clock", "stamps")
 #: Fields added after the first files were written: an older record lacks them (0).
@@ -171,6 +179,9 @@ def encode_source_stats(stats: Sequence[SourceStats]) -> dict[str, str]:
         record[f"{item.name}.basis"] = item.basis
         for name in _INT_FIELDS:
             record[f"{item.name}.{name}"] = str(getattr(item, name))
+        for name in _TEXT_FIELDS:
+            if value := getattr(item, name):
+                record[f"{item.name}.{name}"] = value
     return record
 
 
@@ -183,7 +194,7 @@ def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
     fields: dict[str, dict[str, str]] = {}
     for key, value in record.items():
         name, sep, field = key.rpartition(".")
-        if not sep or not name or field not in {*_INT_FIELDS, "basis"}:
+        if not sep or not name or field not in {*_INT_FIELDS, *_TEXT_FIELDS, "basis"}:
             msg = f"unknown key {key!r} in {SOURCES_RECORD!r}"
             raise ValueError(msg)
         fields.setdefault(name, {})[field] = value
@@ -194,5 +205,6 @@ def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
             msg = f"source {name!r} in {SOURCES_RECORD!r} lacks fields or has an unknown basis"
             raise ValueError(msg)
         numbers = {key: int(values.get(key, "0")) for key in _INT_FIELDS}
-        out.append(SourceStats(name, values["basis"], **numbers))
+        texts = {key: values[key] for key in _TEXT_FIELDS if key in values}
+        out.append(SourceStats(name, values["basis"], **numbers, **texts))
     return tuple(out)

@@ -730,6 +730,7 @@ class FrameSkin:
                     overflowed=overflowed,
                     malformed=malformed,
                     out_of_range=stats.out_of_range + stream.out_of_range,
+                    origin=self.origin(),
                 )
             )
         return out

@@ -148,16 +148,17 @@ def _print_sources(console: Console, sources: Sequence[SourceStats]) -> None:
     """Print what each live source delivered (nothing for a recording without live sources)."""
     if not sources:
         return
+    origins = any(item.origin for item in sources)  # where a source's samples came from
     table = Table(
-        "source", "basis", "expected", "received", "missing", "duplicated", "out of order",
-        "overflow", "malformed", "out of range", "resets", "gaps", "unaligned", "clock offset",
-        "drift",
-        "max latency", title="live sources",
+        "source", "basis", *(["from"] if origins else []), "expected", "received", "missing",
+        "duplicated", "out of order", "overflow", "malformed", "out of range", "resets", "gaps",
+        "unaligned", "clock offset", "drift", "max latency", title="live sources",
     )  # fmt: skip
     for item in sources:
         table.add_row(
             escape(item.name),
             item.basis,
+            *([escape(item.origin or "-")] if origins else []),
             *(str(n) for n in (item.expected, item.received, item.missing, item.duplicated)),
             str(item.out_of_order),
             str(item.overflowed),

@@ -101,6 +101,14 @@ def test_sources_record_round_trips() -> None:
         parse_source_stats({**record, "skin.colour": "red"})
 
 
+def test_a_sources_origin_is_recorded_only_where_known() -> None:
+    stats = (SourceStats("rtde", "clock", expected=5), SourceStats("skin", origin="10.0.0.7:5005"))
+    record = encode_source_stats(stats)
+    assert record["skin.origin"] == "10.0.0.7:5005"
+    assert "rtde.origin" not in record  # a record without origins is as before
+    assert parse_source_stats(record) == stats
+
+
 def test_packer_cuts_at_gaps_and_when_full() -> None:
     packer = BlockPacker("force", MS, block=4)
     blocks = []

@@ -184,6 +184,11 @@ def test_a_session_with_a_udp_skin(tmp_path: Path, capsys: pytest.CaptureFixture
         printed = _session(lab, out, capsys)
     assert len(re.findall(r"\btrial 1\b", printed)) == 4, printed
     _check_every_sample(out, capsys, {"rtde", "skin-fast", "skin-proximity", "skin-temperature"})
+    for file in dataset_recordings(out):  # the skin's sender is recorded with its samples
+        origins = {item.name: item.origin for item in read_recording(file).sources}
+        assert re.fullmatch(r"127\.0\.0\.1:\d+", origins["skin-fast"]), origins
+        assert origins["skin-proximity"] == origins["skin-temperature"] == origins["skin-fast"]
+        assert origins["rtde"] == ""  # the configuration names the controller
 
 
 @pytest.mark.slow(15)
