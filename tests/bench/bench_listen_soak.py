@@ -285,12 +285,12 @@ def main() -> None:
     """Run the soak (or, with ``--publish``, its publisher)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=600.0)
-    parser.add_argument("--quick", action="store_true", help="a few actions (12 s)")
+    parser.add_argument("--quick", action="store_true", help="a few actions (6 s)")
     parser.add_argument("--domain", type=int, default=1 + os.getpid() % 200)
     parser.add_argument("--keep", type=Path, help="write the recordings here and keep them")
     parser.add_argument("--publish", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    seconds = 12.0 if args.quick else args.seconds
+    seconds = 6.0 if args.quick else args.seconds
     if args.publish is not None:
         publish(args.publish, args.domain, seconds)
         return

@@ -404,7 +404,7 @@ def test_loopback_confines_listen_whatever_cyclonedds_uri_says(
     assert len(bound) - len(specific) <= 2, bound
 
 
-@pytest.mark.slow(18)
+@pytest.mark.slow(10)
 def test_the_soak_benchmark_runs_quick() -> None:
     import os  # noqa: PLC0415
     import subprocess  # noqa: PLC0415
