@@ -502,6 +502,7 @@ def deal_slow_tests(items: list[pytest.Item], workers: int) -> list[pytest.Item]
     return ordered
 
 
+@pytest.hookimpl(trylast=True)  # after -k and -m have deselected: the shares of what runs
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Run the slow tests first, in two chains beside the rest (:func:`deal_slow_tests`)."""
     workerinput = getattr(config, "workerinput", None)
