@@ -205,6 +205,7 @@ def parse_source_stats(record: Mapping[str, str]) -> tuple[SourceStats, ...]:
             msg = f"source {name!r} in {SOURCES_RECORD!r} lacks fields or has an unknown basis"
             raise ValueError(msg)
         numbers = {key: int(values.get(key, "0")) for key in _INT_FIELDS}
-        texts = {key: values[key] for key in _TEXT_FIELDS if key in values}
-        out.append(SourceStats(name, values["basis"], **numbers, **texts))
+        # the numbers are the int fields only (mypy cannot tell them from origin, a str)
+        stats = SourceStats(name, values["basis"], **numbers)  # type: ignore[arg-type]
+        out.append(dataclasses.replace(stats, origin=values.get("origin", "")))
     return tuple(out)
