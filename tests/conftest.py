@@ -12,6 +12,7 @@ import fcntl
 import gc
 import itertools
 import os
+import shutil
 import signal
 import tempfile
 import threading
@@ -258,6 +259,17 @@ def _record_small_dataset(directory: Path) -> None:
         load_objects(), load_actions(), object_ids=[*OLD, *NEW], action_ids=ACTIONS, trials=TRIALS
     )
     generate_dataset(tasks, directory / "dataset", rig_factory("sim"), seed=0, workers=1)
+
+
+def copy_dataset(shared: Path, copy: Path) -> Path:
+    """Copy a shared dataset to ``copy`` for a test that changes it; return ``copy``.
+
+    Another worker may be writing the dataset's feature cache meanwhile (a temporary file,
+    renamed when complete): a copy leaves such temporary files out rather than fail on one
+    that was renamed between the listing and its copy.
+    """
+    shutil.copytree(shared, copy, ignore=shutil.ignore_patterns("*.tmp"))
+    return copy
 
 
 @pytest.fixture(scope="session")

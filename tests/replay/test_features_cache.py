@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
-from conftest import ACTIONS, NEW, OLD, TRIALS
+from conftest import ACTIONS, NEW, OLD, TRIALS, copy_dataset
 
 from replay.errors import ReplayError
 from replay.learning._features import (
@@ -19,7 +19,7 @@ from replay.learning._features import (
 @pytest.fixture
 def dataset(small_dataset: Path, tmp_path: Path) -> Path:
     copy = tmp_path / "dataset"
-    shutil.copytree(small_dataset, copy)
+    copy_dataset(small_dataset, copy)
     (copy / FEATURES_NAME).unlink(missing_ok=True)
     return copy
 

@@ -6,6 +6,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from conftest import copy_dataset
 
 from recorder._cli import main as record_main
 from replay.cli._main import main
@@ -23,7 +24,7 @@ def _tree(root: Path) -> dict[str, bytes]:
 @pytest.fixture
 def parent(small_dataset: Path, tmp_path: Path) -> Path:
     """A directory holding a copy of the small dataset (``ds``) and an unrelated file."""
-    shutil.copytree(small_dataset, tmp_path / "parent" / "ds")
+    copy_dataset(small_dataset, tmp_path / "parent" / "ds")
     (tmp_path / "parent" / "notes.txt").write_text("keep me\n", "utf-8")
     return tmp_path / "parent"
 
@@ -103,7 +104,7 @@ def checkout(small_dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatc
         pytest.skip("git is not installed")
     repo = tmp_path / "repo"
     dataset = repo / "recordings" / "data"
-    shutil.copytree(small_dataset, dataset)
+    copy_dataset(small_dataset, dataset)
     (dataset / FEATURES_NAME).unlink(missing_ok=True)
     _git("init", "-q", cwd=repo)
     _git("add", "recordings", cwd=repo)

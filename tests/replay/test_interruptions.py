@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import forked
 import polars as pl
 import pytest
+from conftest import copy_dataset
 
 from recorder._cli import main as record
 from replay.cli._main import main as replay
@@ -219,7 +220,7 @@ def test_a_hostile_feature_cache_is_rebuilt_with_a_line(
     small_dataset: Path, tmp_path: Path
 ) -> None:
     data = tmp_path / "data"
-    shutil.copytree(small_dataset, data)
+    copy_dataset(small_dataset, data)
     cache = data / "features.parquet"
     # 64 MB of values in a file of a few kB: more than its rows can hold.
     pl.DataFrame({"path": ["x" * (64 << 20)]}).write_parquet(cache, compression="zstd")

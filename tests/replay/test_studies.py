@@ -1,11 +1,10 @@
 import json
-import shutil
 from dataclasses import replace
 from pathlib import Path
 
 import polars as pl
 import pytest
-from conftest import ACTIONS, NEW, OLD
+from conftest import ACTIONS, NEW, OLD, copy_dataset
 
 from replay.errors import ReplayError
 from replay.learning._features import build_features
@@ -107,7 +106,7 @@ def test_study_over_bad_files_equals_the_study_without_them(
 ) -> None:
     damaged, pruned = tmp_path / "damaged", tmp_path / "pruned"
     for copy in (damaged, pruned):
-        shutil.copytree(small_dataset, copy)
+        copy_dataset(small_dataset, copy)
         (copy / "features.parquet").unlink(missing_ok=True)
     bad = [f"{NEW[0]}/{ACTIONS[0]}/002.mcap", f"{OLD[1]}/{ACTIONS[1]}/004.mcap"]
     (damaged / bad[0]).write_bytes(b"not an mcap file")

@@ -1,11 +1,10 @@
 """A link planted at a temporary name a writer used to choose predictably is never followed."""
 
 import os
-import shutil
 from pathlib import Path
 
 import pytest
-from conftest import fake_objects
+from conftest import copy_dataset, fake_objects
 
 from recorder._dataset import declare_objects, write_index
 from replay.learning._features import build_features
@@ -17,7 +16,7 @@ from schemas import dataset_recordings
 def dataset(small_dataset: Path, tmp_path: Path) -> Path:
     """A copy of the small dataset without its feature cache."""
     copy = tmp_path / "ds"
-    shutil.copytree(small_dataset, copy)
+    copy_dataset(small_dataset, copy)
     (copy / "features.parquet").unlink(missing_ok=True)
     return copy
 
