@@ -136,13 +136,7 @@ def _session(args: argparse.Namespace) -> int:
             viewers=viewers,
             on_start=started,
         )
-    for name, view in watched:
-        if view.dropped:
-            console.print(
-                f"{name}: the viewer fell behind; {view.dropped} items were not shown (the "
-                "recordings hold everything)",
-                markup=False,
-            )
+    _say_missed(console, watched)
     console.print(
         f"session {report.root}: {report.written} "
         f"{'recording' if report.written == 1 else 'recordings'} written, {report.kept} kept "
@@ -150,6 +144,19 @@ def _session(args: argparse.Namespace) -> int:
         markup=False,
     )
     return 0
+
+
+def _say_missed(console: Console, watched: list[tuple[str, LiveViewer | FoxgloveView]]) -> None:
+    """Say what each view could not show (the recordings hold everything)."""
+    for name, view in watched:
+        if view.dropped:
+            console.print(
+                f"{name}: the viewer fell behind; {view.dropped} items were not shown (the "
+                "recordings hold everything)",
+                markup=False,
+            )
+        if isinstance(view, FoxgloveView) and (line := view.behind_line()):
+            console.print(line, markup=False)
 
 
 def _open_views(

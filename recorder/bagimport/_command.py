@@ -282,6 +282,8 @@ def _listen(args: argparse.Namespace) -> int:
             report = _listen_run(args, topic_map, objects, actions, view)
             if view is not None and view.dropped:
                 print(f"foxglove: the client fell behind; {view.dropped} messages not shown")  # noqa: T201
+            if view is not None and (line := view.behind_line()):
+                print(line)  # noqa: T201
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)

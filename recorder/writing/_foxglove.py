@@ -45,6 +45,28 @@ _END = object()
 SUBPROTOCOL = "foxglove.sdk.v1"
 #: The logger of foxglove-sdk's WebSocket server (it says each refused handshake there).
 _SERVER_LOGGER = "foxglove.websocket.server"
+#: The logger where foxglove-sdk says that a client's outbox was full (at INFO, once a client).
+_LOSSY_LOGGER = "foxglove.websocket.connected_client.send_lossy"
+
+
+class _Outboxes(logging.Filter):
+    """Note the clients whose outbox foxglove-sdk found full (it dropped messages for them).
+
+    The SDK drops the oldest messages of a client that falls behind, silently but for one log
+    line per client, and counts nothing. Written here because the SDK exposes neither a count
+    nor a callback: the line is all there is to say that a client missed messages.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.clients: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if text.startswith("outbox for client ") and text.endswith(" full"):
+            self.clients.add(text.removeprefix("outbox for client ").removesuffix(" full"))
+            return False  # said at the end of the run, with what it means
+        return True
 
 
 class _Handshakes(logging.Filter):
@@ -108,6 +130,7 @@ class _Served:
         self._context: Any = None
         self._channels: dict[str, Any] = {}
         self.dropped = 0
+        self._outboxes = _Outboxes()
         self.failure = ""
         #: Topics a client has subscribed to (the server's listener adds them).
         self.subscribed: set[str] = set()
@@ -130,6 +153,10 @@ class _Served:
                 view.subscribed.add(str(channel.topic))
 
         self._context = foxglove.Context()
+        lossy = logging.getLogger(_LOSSY_LOGGER)
+        if not lossy.isEnabledFor(logging.INFO):  # its one line a client, noted (not printed)
+            lossy.setLevel(logging.INFO)
+        lossy.addFilter(self._outboxes)
         try:
             self._server = foxglove.start_server(
                 name="atikt",
@@ -139,6 +166,7 @@ class _Served:
                 context=self._context,
             )
         except Exception as err:  # the SDK's own error types
+            lossy.removeFilter(self._outboxes)
             msg = f"--foxglove {self.host}:{self.port}: cannot listen ({err}); choose another port"
             raise RecorderError(msg) from err
         self.port = int(self._server.port)
@@ -164,9 +192,24 @@ class _Served:
             with contextlib.suppress(Exception):
                 self._server.stop()
             logging.getLogger(_SERVER_LOGGER).removeFilter(self._handshakes)
+        logging.getLogger(_LOSSY_LOGGER).removeFilter(self._outboxes)
         for channel in self._channels.values():
             with contextlib.suppress(Exception):
                 channel.close()
+
+    @property
+    def behind(self) -> tuple[str, ...]:
+        """Return the clients foxglove-sdk dropped messages for (their outbox was full)."""
+        return tuple(sorted(self._outboxes.clients))
+
+    def behind_line(self) -> str:
+        """Return the line that says which clients missed messages ('': none did)."""
+        if not self.behind:
+            return ""
+        return (
+            f"--foxglove: {', '.join(self.behind)} fell behind; the server dropped messages "
+            "for it (foxglove-sdk does not count them; the recordings hold everything)"
+        )
 
     @property
     def url(self) -> str:

@@ -479,6 +479,10 @@ class _Counted(Protocol):
         """Items not shown."""
         ...
 
+    def behind_line(self) -> str:
+        """The line that says which clients missed messages ('': none did)."""
+        ...
+
 
 @dataclass(frozen=True, slots=True)
 class _Priors:
@@ -765,6 +769,8 @@ def _learn_live(
                 "(the recordings hold everything)",
                 file=sys.stderr,
             )
+    if fox is not None and (line := fox.behind_line()):
+        print(line, file=sys.stderr)  # noqa: T201
     return frame
 
 

@@ -134,3 +134,31 @@ def test_a_client_of_the_older_subprotocol_name_is_told_why_once(
     assert len(said) == 1, said
     assert said[0].startswith(f"--foxglove {view.url}: a client was refused at the handshake")
     assert "speaks the subprotocol foxglove.sdk.v1" in said[0]
+
+
+def test_a_client_that_stops_reading_is_said_to_have_missed_messages() -> None:
+    # foxglove-sdk drops the oldest messages of a client whose outbox is full and counts
+    # nothing: the view notes which clients that happened to and says so at the end
+    from recorder.writing._foxglove import TopicView  # noqa: PLC0415
+
+    with TopicView("127.0.0.1:0") as view:
+        view.declare("/skin/raw", "std_msgs/msg/String", "string data")
+        client = _Client(view.url)
+        _until(lambda: view.subscribed >= {"/skin/raw"})
+        assert view.behind_line() == ""  # none yet
+        client._stop.set()  # stops reading, its connection left open
+        client.thread.join(2)
+        payload = bytes(4096)
+        for chunk in range(30):  # the socket's buffers fill first, then the client's outbox
+            for number in range(1000):
+                view.offer_raw("/skin/raw", chunk * 1000 + number, payload)
+            _until(view._queue.empty, 5.0)  # served before more are offered
+            if view.behind:
+                break
+        _until(lambda: bool(view.behind), 5.0)
+        line = view.behind_line()
+        client.socket.close_timeout = 0.1  # its closing frame waits behind the full outbox
+        client.socket.close()
+    assert len(view.behind) == 1, view.behind
+    assert view.behind[0].startswith("127.0.0.1:")
+    assert line.startswith(f"--foxglove: {view.behind[0]} fell behind; the server dropped")
