@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
+import timeline
 from conftest import deal_slow_tests, first_shares
 
 
@@ -43,3 +48,27 @@ def test_slow_tests_are_dealt_longest_first_to_two_shares() -> None:
 def test_one_worker_runs_the_slow_tests_first() -> None:
     items: list[Any] = [_Item("a"), _Item("b", 3), _Item("c", 9)]
     assert [item.name for item in deal_slow_tests(items, workers=1)] == ["c", "b", "a"]
+
+
+def test_the_timeline_plugin_says_when_and_where_each_test_ran(tmp_path: Path) -> None:
+    (tmp_path / "pytest.ini").write_text("[pytest]\n", "utf-8")
+    (tmp_path / "test_two.py").write_text(
+        "import time\n\ndef test_a():\n    time.sleep(0.2)\n\ndef test_b():\n    pass\n", "utf-8"
+    )
+    out = tmp_path / "timeline"
+    env = os.environ | {"PYTHONPATH": str(Path(__file__).parent), timeline.DIRECTORY: str(out)}
+    env.pop(timeline.ORIGIN, None)
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "timeline", "-p", "no:cacheprovider"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    said = timeline.summary(out)
+    assert said.startswith("main: 2 tests, busy 0.")
+    assert "longest tests of main, the last to finish:" in said
+    first = said.splitlines()[2]
+    assert first.endswith("test_two.py::test_a"), said
