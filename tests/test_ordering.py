@@ -57,7 +57,8 @@ def test_the_timeline_plugin_says_when_and_where_each_test_ran(tmp_path: Path) -
     )
     out = tmp_path / "timeline"
     env = os.environ | {"PYTHONPATH": str(Path(__file__).parent), timeline.DIRECTORY: str(out)}
-    env.pop(timeline.ORIGIN, None)
+    for name in (timeline.ORIGIN, "PYTEST_XDIST_WORKER", "PYTEST_ADDOPTS"):  # a run of its own
+        env.pop(name, None)
     done = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "timeline", "-p", "no:cacheprovider"],
         cwd=tmp_path,
